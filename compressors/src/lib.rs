@@ -1,0 +1,64 @@
+//! # biscale-compressors
+//!
+//! The built-in transfer compressors, a closed set dispatched by one `match` on the config
+//! `kind` ([`BuiltinCompressor`]). Each compressor lives in its own module with its
+//! documentation, its build, its CPU gather on the compressed arrays, and its tests:
+//!
+//! * [`sparse`]: the raw CSR matrix, the uncompressed baseline.
+//!
+//! ```
+//! use biscale_compressors::sparse::Sparse;
+//! use biscale_core::compress::{Compressor, CompressContext};
+//! # let t = biscale_compressors::testing::random_transfer(3, 4, 2, 0.3, 7);
+//! # let light = biscale_compressors::testing::random_light(2, 8);
+//! let form = Sparse.compress(&t, &CompressContext::default()).unwrap();
+//! let lstar = Sparse.gather(&form, &light).unwrap();
+//! assert_eq!(lstar.values.len(), t.rows());
+//! ```
+
+pub mod sparse;
+pub mod testing;
+
+use biscale_core::compress::{CompressContext, CompressError, CompressedForm, Compressor};
+use biscale_core::gather::LocalRadiance;
+use biscale_core::sampling::LightVector;
+use biscale_core::transfer::TransferMatrix;
+
+/// Every compressor compiled into biscale.
+pub enum BuiltinCompressor {
+    Sparse(sparse::Sparse),
+}
+
+impl BuiltinCompressor {
+    /// The config `kind` strings of the built-ins.
+    pub const KINDS: &'static [&'static str] = &["sparse"];
+
+    fn inner(&self) -> &dyn Compressor {
+        match self {
+            BuiltinCompressor::Sparse(c) => c,
+        }
+    }
+}
+
+impl Compressor for BuiltinCompressor {
+    fn kind(&self) -> &str {
+        self.inner().kind()
+    }
+    fn params(&self) -> serde_json::Value {
+        self.inner().params()
+    }
+    fn compress(&self, t: &TransferMatrix, ctx: &CompressContext) -> Result<CompressedForm, CompressError> {
+        self.inner().compress(t, ctx)
+    }
+    fn gather(&self, form: &CompressedForm, light: &LightVector) -> Result<LocalRadiance, CompressError> {
+        self.inner().gather(form, light)
+    }
+}
+
+/// Check that a light vector fits a form's columns.
+pub(crate) fn check_light(form: &CompressedForm, light: &LightVector) -> Result<(), CompressError> {
+    if light.len() != form.cols {
+        return Err(CompressError::LightSize { got: light.len(), expected: form.cols });
+    }
+    Ok(())
+}

@@ -1,0 +1,67 @@
+//! Test inputs shared by the compressors' tests (and the integration tests): random transfer
+//! matrices with the real value set, random and stiff light vectors, and the lossless check.
+
+use biscale_core::compress::{CompressedForm, Compressor};
+use biscale_core::gather::{reference_product, LocalRadiance};
+use biscale_core::sampling::{Cubemap, LightVector};
+use biscale_core::transfer::TransferMatrix;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// A random `T` with `vertices * local_dirs` rows and `6 R^2` columns whose non-zeros (a
+/// fraction `density`) take the box-filtered visibility values {1/4, 1/2, 3/4, 1}.
+pub fn random_transfer(vertices: usize, local_dirs: usize, resolution: u32, density: f64, seed: u64) -> TransferMatrix {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let cubemap = Cubemap::new(resolution);
+    let (rows, cols) = (vertices * local_dirs, cubemap.texel_count());
+    let mut indptr = vec![0usize];
+    let (mut indices, mut data) = (vec![], vec![]);
+    for _ in 0..rows {
+        for c in 0..cols {
+            if rng.gen::<f64>() < density {
+                indices.push(c);
+                data.push(rng.gen_range(1..=4) as f32 / 4.0);
+            }
+        }
+        indptr.push(indices.len());
+    }
+    TransferMatrix { vertices, local_dirs, cubemap, csr: sprs::CsMat::new((rows, cols), indptr, indices, data) }
+}
+
+/// A random positive light vector, with one texel a "sun" 10^6 times brighter when `seed`
+/// is odd (the stiff case).
+pub fn random_light(resolution: u32, seed: u64) -> LightVector {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut light = LightVector::constant(resolution, [1.0; 3]);
+    for p in &mut light.power {
+        for c in p.iter_mut() {
+            *c *= rng.gen_range(0.0..2.0f32);
+        }
+    }
+    if seed % 2 == 1 {
+        let k = rng.gen_range(0..light.len());
+        light.power[k] = light.power[k].map(|v| v * 1e6 + 1e-3);
+    }
+    light
+}
+
+/// Bound on the relative L2 error of an f32 gather against the f64 product for rows of at
+/// most `terms` non-negative terms: each f32 sum of n non-negative terms has relative error
+/// at most about n * 2^-24 (plus one rounding per product); we allow `(n + 2) * 2^-24`.
+pub fn f32_sum_bound(terms: usize) -> f64 {
+    (terms as f64 + 2.0) * f32::EPSILON as f64 / 2.0
+}
+
+/// Assert that `compressor`'s gather on `form` reproduces `T L` to f32 rounding.
+pub fn assert_lossless(compressor: &dyn Compressor, form: &CompressedForm, t: &TransferMatrix, light: &LightVector) {
+    let got: LocalRadiance = compressor.gather(form, light).expect("gather");
+    let reference = reference_product(t, light);
+    let max_row = (0..t.rows()).map(|r| t.csr.outer_view(r).unwrap().nnz()).max().unwrap_or(0);
+    let bound = f32_sum_bound(max_row);
+    for (r, (g, e)) in got.values.iter().zip(&reference).enumerate() {
+        for c in 0..3 {
+            let err = (g[c] as f64 - e[c]).abs();
+            assert!(err <= bound * e[c].abs() + 1e-30, "row {r} channel {c}: {} vs {} (bound {bound})", g[c], e[c]);
+        }
+    }
+}

@@ -1,0 +1,10 @@
+//! Geometry: triangle meshes (loading and repair), per-vertex frames, and the BVH behind
+//! every ray query.
+
+pub mod bvh;
+pub mod frames;
+pub mod mesh;
+
+pub use bvh::{Hit, SceneBvh};
+pub use frames::{vertex_frames, VertexFrame};
+pub use mesh::{Mesh, MeshLoad};

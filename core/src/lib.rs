@@ -1,0 +1,37 @@
+//! # biscale-core
+//!
+//! The plain data that flows between biscale's stages, the conventions every stage agrees
+//! on (DESIGN.md section 3), and the CPU stages that produce the transfer matrix:
+//!
+//! * [`sampling`]: the cubemap layout and its exact texel solid angles, the Shirley-Chiu
+//!   hemisphere grids that index local light and view directions, lat-long environment maps
+//!   and the light vector `L` (power per cubemap texel).
+//! * [`geometry`]: triangle meshes (loading, repair), per-vertex frames, and the BVH used for
+//!   every ray query.
+//! * [`transfer`]: the per-vertex visibility transfer matrix `T` ((n M) x N, CSR).
+//! * [`compress`]: the [`compress::Compressor`] interface and the compressed form as plain
+//!   arrays (DESIGN.md section 4).
+//! * [`gather`]: local incident radiance `L* = T L` and its f64 reference product.
+//!
+//! Shortest use, from a mesh and an env map to `L*`:
+//!
+//! ```no_run
+//! use biscale_core::{geometry::Mesh, sampling::{EnvMap, LightVector, HemisphereGrid}, transfer};
+//! let mesh = Mesh::load_obj("assets/meshes/bunny.obj".as_ref()).unwrap().mesh;
+//! let (env, _warnings) = EnvMap::load("assets/envmaps/blender_forest.exr".as_ref()).unwrap();
+//! let light = LightVector::from_env(&env, 32, 0.0);
+//! let t = transfer::build(&mesh, &transfer::TransferSettings::default(), None).unwrap().matrix;
+//! let lstar = biscale_core::gather::reference_product(&t, &light);
+//! ```
+
+pub mod compress;
+pub mod error;
+pub mod gather;
+pub mod geometry;
+pub mod sampling;
+pub mod transfer;
+
+pub use error::{CoreError, Result};
+
+/// RGB triple in linear radiometric units (f32 storage).
+pub type Rgb = [f32; 3];

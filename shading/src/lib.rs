@@ -1,0 +1,1 @@
+//! Meso-scale shading.

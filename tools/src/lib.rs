@@ -1,0 +1,1 @@
+//! The biscale pipeline.
