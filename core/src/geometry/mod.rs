@@ -4,6 +4,7 @@
 pub mod bvh;
 pub mod frames;
 pub mod mesh;
+pub mod shapes;
 
 pub use bvh::{Hit, SceneBvh};
 pub use frames::{vertex_frames, VertexFrame};

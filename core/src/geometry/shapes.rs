@@ -1,0 +1,112 @@
+//! Small analytic meshes for tests and examples: a grid plane, a UV sphere, a closed box.
+
+use crate::geometry::Mesh;
+use glam::{Vec2, Vec3};
+
+/// A `cells x cells` grid of size `size` in the XZ plane at y = 0, facing +Y, centred on the
+/// origin, with UVs (u along +X).
+pub fn grid_plane(cells: u32, size: f32) -> Mesh {
+    let n = cells + 1;
+    let mut positions = vec![];
+    let mut uvs = vec![];
+    for iz in 0..n {
+        for ix in 0..n {
+            let (u, v) = (ix as f32 / cells as f32, iz as f32 / cells as f32);
+            positions.push(Vec3::new((u - 0.5) * size, 0.0, (v - 0.5) * size));
+            uvs.push(Vec2::new(u, v));
+        }
+    }
+    let mut triangles = vec![];
+    for iz in 0..cells {
+        for ix in 0..cells {
+            let i = iz * n + ix;
+            // Counter-clockwise seen from +Y.
+            triangles.push([i, i + n, i + n + 1]);
+            triangles.push([i, i + n + 1, i + 1]);
+        }
+    }
+    Mesh { positions, uvs: Some(uvs), triangles }
+}
+
+/// A UV sphere of `radius` centred at `centre` with `rings` latitude bands and `segments`
+/// longitude segments, outward-facing, without UVs (poles are single vertices).
+pub fn uv_sphere(centre: Vec3, radius: f32, rings: u32, segments: u32) -> Mesh {
+    let mut positions = vec![centre + Vec3::Y * radius];
+    for r in 1..rings {
+        let theta = std::f32::consts::PI * r as f32 / rings as f32;
+        for s in 0..segments {
+            let phi = 2.0 * std::f32::consts::PI * s as f32 / segments as f32;
+            positions.push(centre + radius * Vec3::new(theta.sin() * phi.cos(), theta.cos(), theta.sin() * phi.sin()));
+        }
+    }
+    positions.push(centre - Vec3::Y * radius);
+    let bottom = positions.len() as u32 - 1;
+    let ring = |r: u32, s: u32| 1 + (r - 1) * segments + (s % segments);
+    let mut triangles = vec![];
+    for s in 0..segments {
+        triangles.push([0, ring(1, s + 1), ring(1, s)]);
+        triangles.push([bottom, ring(rings - 1, s), ring(rings - 1, s + 1)]);
+    }
+    for r in 1..rings - 1 {
+        for s in 0..segments {
+            let (a, b, c, d) = (ring(r, s), ring(r, s + 1), ring(r + 1, s), ring(r + 1, s + 1));
+            triangles.push([a, b, d]);
+            triangles.push([a, d, c]);
+        }
+    }
+    Mesh { positions, uvs: None, triangles }
+}
+
+/// An axis-aligned closed box, outward-facing (8 vertices, 12 triangles).
+pub fn closed_box(min: Vec3, max: Vec3) -> Mesh {
+    let p = |x: bool, y: bool, z: bool| {
+        Vec3::new(if x { max.x } else { min.x }, if y { max.y } else { min.y }, if z { max.z } else { min.z })
+    };
+    let positions = vec![
+        p(false, false, false), p(true, false, false), p(true, true, false), p(false, true, false),
+        p(false, false, true), p(true, false, true), p(true, true, true), p(false, true, true),
+    ];
+    let triangles = vec![
+        [0, 3, 2], [0, 2, 1], // -Z
+        [4, 5, 6], [4, 6, 7], // +Z
+        [0, 4, 7], [0, 7, 3], // -X
+        [1, 2, 6], [1, 6, 5], // +X
+        [3, 7, 6], [3, 6, 2], // +Y
+        [0, 1, 5], [0, 5, 4], // -Y
+    ];
+    Mesh { positions, uvs: None, triangles }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Sum over triangles of the signed volume: positive for outward-facing closed meshes.
+    fn signed_volume(m: &Mesh) -> f32 {
+        m.triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| m.positions[i as usize]);
+                a.dot(b.cross(c)) / 6.0
+            })
+            .sum()
+    }
+
+    #[test]
+    fn closed_shapes_face_outward() {
+        let b = closed_box(Vec3::splat(-1.0), Vec3::splat(1.0));
+        assert!((signed_volume(&b) - 8.0).abs() < 1e-5);
+        let s = uv_sphere(Vec3::ZERO, 1.0, 32, 64);
+        let v = signed_volume(&s);
+        assert!(v > 0.97 * 4.0 / 3.0 * std::f32::consts::PI && v < 4.0 / 3.0 * std::f32::consts::PI);
+    }
+
+    #[test]
+    fn plane_faces_up() {
+        let m = grid_plane(4, 2.0);
+        for t in &m.triangles {
+            let [a, b, c] = t.map(|i| m.positions[i as usize]);
+            assert!((b - a).cross(c - a).y > 0.0);
+        }
+    }
+}
