@@ -2,6 +2,14 @@
 //!
 //! Triangles are stored in BVH order so traversal touches them without an indirection;
 //! [`Hit::triangle`] is translated back to the mesh's triangle index.
+//!
+//! Triangle test: Moller-Trumbore ("Fast, Minimum Storage Ray/Triangle Intersection", 1997)
+//! with the edges and normal precomputed ([`RtTri`]) and a barycentric tolerance of
+//! [`EDGE_TOLERANCE`]: obvhs's own test rejects `u == -0.0`, so a ray through a shared edge
+//! or vertex can slip between both triangles (measured: 63 leaking texels from the corners of
+//! a closed box seen from inside, whose face diagonals lie exactly on texel-centre rays).
+//! Growing every triangle by 1e-5 of its size closes those cracks at the cost of occluding
+//! a band that thin beyond open boundaries.
 
 use glam::{Vec2, Vec3, Vec3A};
 use obvhs::{
@@ -25,9 +33,11 @@ pub struct Hit {
 pub struct SceneBvh {
     bvh: CwBvh,
     /// Triangles in BVH primitive order.
-    tris: Vec<Triangle>,
+    tris: Vec<RtTri>,
     /// Mesh triangle index of each BVH primitive.
     tri_ids: Vec<u32>,
+    /// Sphere tree over the primitives for cone queries (see [`ConeTree`]).
+    cones: ConeTree,
 }
 
 impl SceneBvh {
@@ -43,12 +53,13 @@ impl SceneBvh {
             })
             .collect();
         if soup.is_empty() {
-            return Self { bvh: CwBvh::default(), tris: vec![], tri_ids: vec![] };
+            return Self { bvh: CwBvh::default(), tris: vec![], tri_ids: vec![], cones: ConeTree::default() };
         }
         let bvh = build_cwbvh_from_tris(&soup, BvhBuildParams::medium_build(), &mut Duration::default());
         let tri_ids: Vec<u32> = bvh.primitive_indices.clone();
-        let tris = tri_ids.iter().map(|&i| soup[i as usize]).collect();
-        Self { bvh, tris, tri_ids }
+        let tris: Vec<RtTri> = tri_ids.iter().map(|&i| RtTri::new(&soup[i as usize])).collect();
+        let cones = ConeTree::build(&tris);
+        Self { bvh, tris, tri_ids, cones }
     }
 
     /// Number of triangles.
@@ -71,6 +82,63 @@ impl SceneBvh {
         !self.bvh.ray_traverse_miss(ray, |r, id| self.tris[id].intersect(r))
     }
 
+    /// Primitives (BVH order) that a ray from `origin` could hit if its direction `d` is within
+    /// `cone` and above the plane through `origin` with normal `normal` (`d . normal > 0`),
+    /// appended to `out`. Conservative: every primitive such a ray hits (with the
+    /// [`EDGE_TOLERANCE`] of the triangle test) is listed; others may be.
+    pub(crate) fn cone_candidates(&self, origin: Vec3A, normal: Vec3A, cone: &Cone, out: &mut Vec<u32>) {
+        self.cones.query(origin, normal, cone, out);
+    }
+
+    /// [`Self::occluded_cached`] testing only `candidates` (from [`Self::cone_candidates`]
+    /// for a cone containing `dir`): the same answer, by brute force over a short list.
+    #[inline]
+    pub(crate) fn occluded_among(&self, origin: Vec3A, dir: &RayDir, candidates: &[u32], cache: &mut u32) -> bool {
+        let ray = Ray { origin, direction: dir.dir, inv_direction: dir.inv, tmin: RAY_TMIN, tmax: f32::INFINITY };
+        if let Some(tri) = self.tris.get(*cache as usize) {
+            if tri.intersect(&ray) < f32::INFINITY {
+                return true;
+            }
+        }
+        for &id in candidates {
+            if self.tris[id as usize].intersect(&ray) < f32::INFINITY {
+                *cache = id;
+                return true;
+            }
+        }
+        false
+    }
+
+    /// [`Self::occluded`] for the unbounded ray `origin + t dir`, `t >= RAY_TMIN`, with the direction
+    /// and its reciprocal precomputed ([`RayDir`]), and a one-entry occluder cache: `cache`
+    /// holds the BVH primitive that occluded the previous (coherent) ray, or `u32::MAX`; it is
+    /// tested first and updated on every traversal hit. The answer is that of
+    /// [`Self::occluded`] (a cached triangle is only accepted where its own test reports a hit).
+    #[inline]
+    pub(crate) fn occluded_cached(&self, origin: Vec3A, dir: &RayDir, cache: &mut u32) -> bool {
+        if self.tris.is_empty() {
+            return false;
+        }
+        let ray = Ray { origin, direction: dir.dir, inv_direction: dir.inv, tmin: RAY_TMIN, tmax: f32::INFINITY };
+        if let Some(tri) = self.tris.get(*cache as usize) {
+            if tri.intersect(&ray) < f32::INFINITY {
+                return true;
+            }
+        }
+        let mut hit = u32::MAX;
+        let miss = self.bvh.ray_traverse_miss(ray, |r, id| {
+            let t = self.tris[id].intersect(r);
+            if t < f32::INFINITY {
+                hit = id as u32;
+            }
+            t
+        });
+        if !miss {
+            *cache = hit;
+        }
+        !miss
+    }
+
     /// The closest hit along `origin + t dir` with `t in (tmin, tmax)`.
     pub fn closest_hit(&self, origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Option<Hit> {
         if self.tris.is_empty() {
@@ -84,7 +152,190 @@ impl SceneBvh {
         let id = hit.primitive_id as usize;
         let tri = &self.tris[id];
         let p = Vec3::from(ray.origin + ray.direction * hit.t);
-        Some(Hit { triangle: self.tri_ids[id], t: hit.t, barycentric: barycentric(tri, p) })
+        let corners = Triangle { v0: tri.v0, v1: tri.v0 + tri.e1, v2: tri.v0 + tri.e2 };
+        Some(Hit { triangle: self.tri_ids[id], t: hit.t, barycentric: barycentric(&corners, p) })
+    }
+}
+
+/// Barycentric slack of the triangle test (see the module docs): hits are accepted for
+/// `u, v >= -EDGE_TOLERANCE` and `u + v <= 1 + EDGE_TOLERANCE`.
+pub const EDGE_TOLERANCE: f32 = 1e-5;
+
+/// A triangle prepared for ray tests: `v0`, edges `e1 = v1 - v0`, `e2 = v2 - v0`, and the
+/// unnormalised normal `ng = e1 x e2` (64 bytes, one cache line).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct RtTri {
+    pub v0: Vec3A,
+    pub e1: Vec3A,
+    pub e2: Vec3A,
+    pub ng: Vec3A,
+}
+
+impl RtTri {
+    fn new(t: &Triangle) -> Self {
+        let (e1, e2) = (t.v1 - t.v0, t.v2 - t.v0);
+        Self { v0: t.v0, e1, e2, ng: e1.cross(e2) }
+    }
+
+    /// Distance `t` in `[ray.tmin, ray.tmax]` of the hit, or infinity. Solving
+    /// `o + t d = v0 + u e1 + v e2` by Cramer's rule with `c = v0 - o`, `r = d x c`:
+    /// `u = -(e2 . r) / (d . ng)`, `v = (e1 . r) / (d . ng)`, `t = (c . ng) / (d . ng)`.
+    /// A ray parallel to the plane gives infinities or NaN, which fail the comparisons.
+    #[inline(always)]
+    pub fn intersect(&self, ray: &Ray) -> f32 {
+        let c = self.v0 - ray.origin;
+        let r = ray.direction.cross(c);
+        let inv_det = 1.0 / ray.direction.dot(self.ng);
+        let u = -self.e2.dot(r) * inv_det;
+        let v = self.e1.dot(r) * inv_det;
+        if u >= -EDGE_TOLERANCE && v >= -EDGE_TOLERANCE && u + v <= 1.0 + EDGE_TOLERANCE {
+            let t = c.dot(self.ng) * inv_det;
+            if t >= ray.tmin && t <= ray.tmax {
+                return t;
+            }
+        }
+        f32::INFINITY
+    }
+}
+
+/// Start of the occlusion rays of the transfer stage, `t >= RAY_TMIN`: obvhs's node test skips
+/// boxes the ray leaves before `t = 1e-4` (its `EPSILON`), so hits closer than that are
+/// found or not depending on the tree; starting every such ray there makes the BVH and the
+/// brute-force paths agree exactly.
+pub(crate) const RAY_TMIN: f32 = 1e-4;
+
+/// A cone of directions: unit `axis`, half-angle given by its cosine and sine.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Cone {
+    pub axis: Vec3A,
+    pub cos: f32,
+    pub sin: f32,
+}
+
+/// A sphere tree over the primitives in BVH order (contiguous ranges of the CWBVH leaf
+/// order are spatially compact), stored in depth-first order with skip links so a query
+/// is one loop. Each sphere bounds its triangles grown by the test's edge tolerance.
+#[derive(Clone, Debug, Default)]
+struct ConeTree {
+    /// Node spheres `(centre, radius)`.
+    spheres: Vec<(Vec3A, f32)>,
+    /// `(first primitive, end primitive, next node after this subtree)`; a leaf when the
+    /// next node is `index + 1`.
+    ranges: Vec<(u32, u32, u32)>,
+    /// Per-primitive spheres, for the leaf-level test.
+    tri_spheres: Vec<(Vec3A, f32)>,
+    /// Absolute slack added to every radius and plane test (1e-6 of the scene's size, over
+    /// f32 rounding of the tests).
+    slack: f32,
+}
+
+const CONE_LEAF: usize = 8;
+
+impl ConeTree {
+    fn build(tris: &[RtTri]) -> Self {
+        // The region the triangle test accepts is the triangle scaled by 1 + 3 tol about its
+        // centroid; bound it scaled by 1 + 4 tol for f32 slack.
+        let grow = 1.0 + 4.0 * EDGE_TOLERANCE;
+        let corners: Vec<[Vec3A; 3]> = tris
+            .iter()
+            .map(|t| {
+                let v = [t.v0, t.v0 + t.e1, t.v0 + t.e2];
+                let c = (v[0] + v[1] + v[2]) / 3.0;
+                v.map(|p| c + (p - c) * grow)
+            })
+            .collect();
+        let tri_spheres = corners
+            .iter()
+            .map(|v| {
+                let c = (v[0] + v[1] + v[2]) / 3.0;
+                (c, v.iter().map(|p| (*p - c).length()).fold(0.0, f32::max))
+            })
+            .collect();
+        let (mut lo, mut hi) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
+        for v in corners.iter().flatten() {
+            lo = lo.min(*v);
+            hi = hi.max(*v);
+        }
+        let mut tree = Self { slack: 1e-6 * (hi - lo).length(), tri_spheres, ..Default::default() };
+        if !tris.is_empty() {
+            tree.build_range(&corners, 0, tris.len());
+        }
+        tree
+    }
+
+    fn build_range(&mut self, corners: &[[Vec3A; 3]], a: usize, b: usize) {
+        let (mut lo, mut hi) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
+        for v in corners[a..b].iter().flatten() {
+            lo = lo.min(*v);
+            hi = hi.max(*v);
+        }
+        let me = self.spheres.len();
+        self.spheres.push((0.5 * (lo + hi), 0.5 * (hi - lo).length()));
+        self.ranges.push((a as u32, b as u32, 0));
+        if b - a > CONE_LEAF {
+            let mid = (a + b) / 2;
+            self.build_range(corners, a, mid);
+            self.build_range(corners, mid, b);
+        }
+        self.ranges[me].2 = self.spheres.len() as u32;
+    }
+
+    /// Can a ray from `o` with direction in `cone` and `d . n > 0` reach the sphere?
+    /// Conservative: false only when it certainly cannot.
+    #[inline(always)]
+    fn reachable(&self, (c, r): (Vec3A, f32), o: Vec3A, n: Vec3A, cone: &Cone) -> bool {
+        let w = c - o;
+        let d2 = w.length_squared();
+        let dist = d2.sqrt();
+        let r = r + self.slack + 1e-6 * dist;
+        // Every point x of the sphere has (x - o) . n <= w . n + r; a ray point has
+        // (x - o) . n = t d . n > 0.
+        if w.dot(n) + r <= 0.0 {
+            return false;
+        }
+        if dist <= r {
+            return true;
+        }
+        // The sphere subtends a cone of half-angle b around w (sin b = r / dist); it meets
+        // the query cone iff angle(w, axis) <= a + b (a + b < pi for the small tiles used).
+        let sin_b = r / dist;
+        let cos_b = (1.0 - sin_b * sin_b).max(0.0).sqrt();
+        let cos_ab = cone.cos * cos_b - cone.sin * sin_b;
+        w.dot(cone.axis) >= cos_ab * dist
+    }
+
+    fn query(&self, o: Vec3A, n: Vec3A, cone: &Cone, out: &mut Vec<u32>) {
+        let mut i = 0usize;
+        while i < self.ranges.len() {
+            let (a, b, next) = self.ranges[i];
+            if !self.reachable(self.spheres[i], o, n, cone) {
+                i = next as usize;
+                continue;
+            }
+            if next as usize == i + 1 {
+                for p in a..b {
+                    if self.reachable(self.tri_spheres[p as usize], o, n, cone) {
+                        out.push(p);
+                    }
+                }
+            }
+            i += 1;
+        }
+    }
+}
+
+/// A ray direction with its component-wise reciprocal precomputed as obvhs's `Ray::new`
+/// does, for directions reused by many rays.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct RayDir {
+    pub dir: Vec3A,
+    pub inv: Vec3A,
+}
+
+impl RayDir {
+    pub fn new(dir: Vec3) -> Self {
+        let r = Ray::new(Vec3A::ZERO, Vec3A::from(dir), 0.0, f32::INFINITY);
+        Self { dir: r.direction, inv: r.inv_direction }
     }
 }
 

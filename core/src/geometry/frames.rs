@@ -1,7 +1,9 @@
 //! Per-vertex orthonormal frames (DESIGN.md section 3): the area-weighted smooth normal,
 //! a tangent from the UV parameterization where the mesh has one (anisotropic BTFs need it),
-//! otherwise a stable orthonormal basis from the normal alone (Duff et al. 2017, "Building an
-//! Orthonormal Basis, Revisited").
+//! otherwise the projection of a fixed oblique axis ([`TANGENT_REFERENCE`]), so tangents vary
+//! smoothly between neighbouring vertices; a basis from the normal alone (Duff et al. 2017,
+//! "Building an Orthonormal Basis, Revisited") is the fallback where that axis is parallel to
+//! the normal.
 
 use crate::geometry::Mesh;
 use glam::{DVec3, Vec3};
@@ -52,6 +54,15 @@ impl VertexFrame {
     }
 }
 
+/// Tangent direction for meshes without UVs: the tangent is this fixed axis projected onto
+/// the tangent plane. Neighbouring vertices then get nearly the same tangent, which matters
+/// because `L*` is binned in each vertex's own frame and interpolated across triangles: a
+/// per-vertex basis such as Duff et al.'s flips by 180 degrees across the whole `n.z = 0`
+/// equator, mixing unrelated bins there. A fixed axis is singular only where the normal is
+/// parallel to it (any continuous tangent field on a sphere has such points); an oblique
+/// axis keeps those points away from axis-aligned floors and walls.
+pub const TANGENT_REFERENCE: Vec3 = Vec3::new(0.267_261_24, 0.534_522_5, 0.801_783_7);
+
 /// Frames of every vertex, and the number of vertices whose normal had to fall back to +Y
 /// because their incident triangles' normals cancel (or they have none).
 pub fn vertex_frames(mesh: &Mesh) -> (Vec<VertexFrame>, usize) {
@@ -95,7 +106,7 @@ pub fn vertex_frames(mesh: &Mesh) -> (Vec<VertexFrame>, usize) {
             if mesh.uvs.is_some() {
                 VertexFrame::from_normal_tangent(normal, tan.as_vec3())
             } else {
-                VertexFrame::from_normal(normal)
+                VertexFrame::from_normal_tangent(normal, TANGENT_REFERENCE)
             }
         })
         .collect();
@@ -134,6 +145,19 @@ mod tests {
             assert_orthonormal(&VertexFrame::from_normal_tangent(n, Vec3::new(0.2, 0.9, -0.1)));
             assert_orthonormal(&VertexFrame::from_normal_tangent(n, n));
         }
+    }
+
+    #[test]
+    fn tangents_without_uvs_vary_smoothly_across_the_equator() {
+        // Two nearby normals on either side of n.z = 0 must get nearly the same tangent.
+        let mesh = |n: Vec3| Mesh {
+            positions: vec![Vec3::ZERO, n.any_orthonormal_vector(), n.cross(n.any_orthonormal_vector())],
+            uvs: None,
+            triangles: vec![[0, 1, 2]],
+        };
+        let a = vertex_frames(&mesh(Vec3::new(0.6, 0.8, 0.001).normalize())).0[0];
+        let b = vertex_frames(&mesh(Vec3::new(0.6, 0.8, -0.001).normalize())).0[0];
+        assert!(a.tangent.dot(b.tangent) > 0.999, "{a:?} {b:?}");
     }
 
     #[test]

@@ -1,9 +1,33 @@
-//! Triangle meshes: OBJ loading, validation and repair.
-//! (Implementation in progress: see the transfer helper's task.)
+//! Triangle meshes: OBJ loading, validation and repair (DESIGN.md section 6: NaN/Inf never
+//! propagates silently; zero-area and sliver triangles and duplicate vertices are
+//! first-class inputs).
+//!
+//! Every mesh enters the pipeline through [`Mesh::from_parts`] ([`Mesh::load_obj`] parses
+//! with tobj and calls it), which
+//!
+//! * rejects what cannot be repaired with a [`CoreError::Input`] that says what and where:
+//!   a non-finite position or uv (naming the vertex), a triangle index out of range (naming
+//!   the triangle), and a mesh with no faces (left);
+//! * repairs the rest, one human-readable line per kind of repair in [`MeshLoad::repairs`]:
+//!   exactly duplicated vertices (same position and same uv bits) are welded, degenerate
+//!   triangles (a repeated vertex, or area `<= 1e-12 * diagonal^2`: zero-area and slivers)
+//!   are dropped, then unreferenced vertices are dropped and the rest renumbered in their
+//!   original order.
+//!
+//! Why repair at all: degenerate triangles have no normal and no area, so they only add
+//! noise to the area-weighted vertex normals and dead weight to the BVH; duplicated vertices
+//! split the smooth normal of a surface into several frames (visible seams in `T`).
 
-use crate::error::Result;
-use glam::{Vec2, Vec3};
-use std::path::Path;
+use crate::error::{CoreError, Result};
+use glam::{DVec3, Vec2, Vec3};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+/// Triangles whose area is at most this fraction of the squared bounding-box diagonal are
+/// dropped as degenerate (zero-area and slivers). 1e-12 is about the f32 rounding of a cross
+/// product of two edges of diagonal length (`eps_f32^2 ~ 1.4e-14` times a few), i.e. the
+/// area is indistinguishable from zero at f32 precision.
+pub const DEGENERATE_AREA_FRACTION: f64 = 1e-12;
 
 /// An indexed triangle mesh, +Y up, counter-clockwise triangles facing outward.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -21,8 +45,551 @@ pub struct MeshLoad {
     pub repairs: Vec<String>,
 }
 
+/// What [`validate_and_repair`] found unrepairable, before it is turned into a message
+/// (so that [`Mesh::load_obj`] can translate vertex numbers back to the OBJ file).
+enum Issue {
+    NonFinitePosition { vertex: usize, value: Vec3 },
+    NonFiniteUv { vertex: usize, value: Vec2 },
+    UvCount { uvs: usize, positions: usize },
+    IndexOutOfRange { triangle: usize, index: u32, vertices: usize },
+    NoFaces(String),
+}
+
+impl Issue {
+    fn message(&self) -> String {
+        match self {
+            Issue::NonFinitePosition { vertex, value } => {
+                format!("vertex {vertex} has a non-finite position {value}")
+            }
+            Issue::NonFiniteUv { vertex, value } => {
+                format!("vertex {vertex} has a non-finite texture coordinate {value}")
+            }
+            Issue::UvCount { uvs, positions } => {
+                format!("{uvs} texture coordinates for {positions} vertices (need one per vertex)")
+            }
+            Issue::IndexOutOfRange { triangle, index, vertices } => {
+                format!("triangle {triangle} refers to vertex {index}, out of range (the mesh has {vertices} vertices)")
+            }
+            Issue::NoFaces(detail) => format!("no faces{detail}"),
+        }
+    }
+}
+
 impl Mesh {
-    pub fn load_obj(_path: &Path) -> Result<MeshLoad> {
-        unimplemented!("mesh loading")
+    /// Load a Wavefront OBJ file: all models merged into one mesh, faces triangulated
+    /// (fans), one index per vertex (a vertex is a position/uv pair). UVs are kept when every
+    /// vertex has them (otherwise dropped, with a line in `repairs`); normals and materials
+    /// are ignored. Then validated and repaired as in [`Mesh::from_parts`].
+    pub fn load_obj(path: &Path) -> Result<MeshLoad> {
+        let input_err = |message: String| CoreError::Input { path: path.to_path_buf(), message };
+        let bytes = std::fs::read(path).map_err(|e| {
+            input_err(match e.kind() {
+                std::io::ErrorKind::NotFound => "file not found".to_string(),
+                _ => format!("cannot read: {e}"),
+            })
+        })?;
+        let options = tobj::LoadOptions {
+            triangulate: true,
+            single_index: true,
+            ignore_points: true,
+            ignore_lines: true,
+            ..Default::default()
+        };
+        // Materials are not used: refuse to open any .mtl (tobj then only records that the
+        // material library failed, which we ignore).
+        let (models, _materials) =
+            tobj::load_obj_buf(&mut bytes.as_slice(), &options, |_| Err(tobj::LoadError::OpenFileFailed)).map_err(
+                |e| {
+                    let text = String::from_utf8_lossy(&bytes);
+                    let place = match locate_obj_error(&text, &e) {
+                        Some((line, content)) => format!(" at line {line}: `{content}`"),
+                        None => String::new(),
+                    };
+                    input_err(format!("OBJ parse error: {e}{place}"))
+                },
+            )?;
+
+        let mut positions = Vec::new();
+        let mut uvs = Vec::new();
+        let mut triangles = Vec::new();
+        let mut vertices_with_uv = 0usize;
+        let mut all_uvs = true;
+        for model in &models {
+            let m = &model.mesh;
+            let base = positions.len() as u64;
+            let count = m.positions.len() / 3;
+            positions.extend(m.positions.chunks_exact(3).map(|p| Vec3::new(p[0], p[1], p[2])));
+            if m.texcoords.len() == 2 * count {
+                uvs.extend(m.texcoords.chunks_exact(2).map(|t| Vec2::new(t[0], t[1])));
+                vertices_with_uv += count;
+            } else {
+                // tobj only pushes texcoords for vertices that have one: partial coverage.
+                all_uvs = false;
+                vertices_with_uv += m.texcoords.len() / 2;
+            }
+            for t in m.indices.chunks_exact(3) {
+                let idx = [t[0], t[1], t[2]].map(|i| base + i as u64);
+                if idx.iter().any(|&i| i > u32::MAX as u64) {
+                    return Err(input_err("more than 2^32 vertices".into()));
+                }
+                triangles.push(idx.map(|i| i as u32));
+            }
+        }
+        let mut repairs = Vec::new();
+        let uvs = if all_uvs && !positions.is_empty() {
+            Some(uvs)
+        } else {
+            if vertices_with_uv > 0 {
+                repairs.push(format!(
+                    "dropped texture coordinates: only {vertices_with_uv} of {} vertices have one",
+                    positions.len()
+                ));
+            }
+            None
+        };
+        match validate_and_repair(positions, uvs, triangles) {
+            Ok(mut load) => {
+                repairs.append(&mut load.repairs);
+                load.repairs = repairs;
+                Ok(load)
+            }
+            Err(Issue::NonFinitePosition { vertex, value }) => {
+                // tobj renumbers vertices (single index): name the OBJ's own `v` line.
+                let text = String::from_utf8_lossy(&bytes);
+                let place = match first_nonfinite_obj_vertex(&text) {
+                    Some((number, line)) => format!("OBJ vertex {number} (line {line})"),
+                    None => format!("vertex {vertex}"),
+                };
+                Err(input_err(format!("{place} has a non-finite position {value}")))
+            }
+            Err(issue) => Err(input_err(issue.message())),
+        }
+    }
+
+    /// Build a mesh from arrays, validating and repairing as described in the module docs.
+    /// `source` names the data in error messages (a file name, or e.g. "grid_plane").
+    pub fn from_parts(
+        positions: Vec<Vec3>,
+        uvs: Option<Vec<Vec2>>,
+        triangles: Vec<[u32; 3]>,
+        source: &str,
+    ) -> Result<MeshLoad> {
+        validate_and_repair(positions, uvs, triangles)
+            .map_err(|issue| CoreError::Input { path: PathBuf::from(source), message: issue.message() })
+    }
+
+    /// Axis-aligned bounds `(min, max)` of the vertices; `(0, 0)` for an empty mesh.
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        if self.positions.is_empty() {
+            return (Vec3::ZERO, Vec3::ZERO);
+        }
+        self.positions
+            .iter()
+            .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), p| (lo.min(*p), hi.max(*p)))
+    }
+
+    /// Length of the bounding box diagonal (the mesh's scale; 0 for an empty mesh).
+    pub fn diagonal(&self) -> f32 {
+        let (lo, hi) = self.bounds();
+        (hi - lo).length()
+    }
+
+    pub fn vertex_count(&self) -> usize {
+        self.positions.len()
+    }
+
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len()
+    }
+}
+
+/// Validation and the repairs of the module docs.
+fn validate_and_repair(
+    positions: Vec<Vec3>,
+    uvs: Option<Vec<Vec2>>,
+    triangles: Vec<[u32; 3]>,
+) -> std::result::Result<MeshLoad, Issue> {
+    let n = positions.len();
+    // 1. Validation: what cannot be repaired.
+    if let Some(uv) = &uvs {
+        if uv.len() != n {
+            return Err(Issue::UvCount { uvs: uv.len(), positions: n });
+        }
+    }
+    if let Some(vertex) = positions.iter().position(|p| !p.is_finite()) {
+        return Err(Issue::NonFinitePosition { vertex, value: positions[vertex] });
+    }
+    if let Some(uv) = &uvs {
+        if let Some(vertex) = uv.iter().position(|t| !t.is_finite()) {
+            return Err(Issue::NonFiniteUv { vertex, value: uv[vertex] });
+        }
+    }
+    for (triangle, t) in triangles.iter().enumerate() {
+        if let Some(&index) = t.iter().find(|&&i| i as usize >= n) {
+            return Err(Issue::IndexOutOfRange { triangle, index, vertices: n });
+        }
+    }
+    if triangles.is_empty() {
+        return Err(Issue::NoFaces(String::new()));
+    }
+    let mut repairs = Vec::new();
+
+    // 2. Weld exactly duplicated vertices (bit-equal position and uv; -0.0 counts as 0.0).
+    let key = |i: usize| {
+        let bits = |x: f32| (x + 0.0).to_bits();
+        let p = positions[i];
+        let t = uvs.as_ref().map_or(Vec2::ZERO, |u| u[i]);
+        [bits(p.x), bits(p.y), bits(p.z), bits(t.x), bits(t.y)]
+    };
+    let mut first_of: HashMap<[u32; 5], u32> = HashMap::with_capacity(n);
+    let remap: Vec<u32> = (0..n).map(|i| *first_of.entry(key(i)).or_insert(i as u32)).collect();
+    let welded = remap.iter().enumerate().filter(|(i, &r)| *i as u32 != r).count();
+    if welded > 0 {
+        repairs.push(format!("welded {welded} exactly duplicated vertices (same position and uv)"));
+    }
+
+    // 3. Drop degenerate triangles. The scale is the bounding box of the referenced vertices.
+    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for t in &triangles {
+        for &i in t {
+            let p = positions[i as usize].as_dvec3();
+            lo = lo.min(p);
+            hi = hi.max(p);
+        }
+    }
+    let min_area = DEGENERATE_AREA_FRACTION * (hi - lo).length_squared();
+    let (mut repeated, mut flat) = (0usize, 0usize);
+    let kept: Vec<[u32; 3]> = triangles
+        .iter()
+        .filter_map(|t| {
+            let t = t.map(|i| remap[i as usize]);
+            if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
+                repeated += 1;
+                return None;
+            }
+            let [a, b, c] = t.map(|i| positions[i as usize].as_dvec3());
+            if 0.5 * (b - a).cross(c - a).length() <= min_area {
+                flat += 1;
+                return None;
+            }
+            Some(t)
+        })
+        .collect();
+    if repeated + flat > 0 {
+        repairs.push(format!(
+            "dropped {} degenerate triangles ({repeated} with a repeated vertex, {flat} with area <= {DEGENERATE_AREA_FRACTION:e} x bbox diagonal^2)",
+            repeated + flat
+        ));
+    }
+    if kept.is_empty() {
+        return Err(Issue::NoFaces(format!(
+            " left: all {} triangles are degenerate ({repeated} with a repeated vertex, {flat} zero-area or sliver)",
+            triangles.len()
+        )));
+    }
+
+    // 4. Drop unreferenced vertices, renumber the rest in their original order.
+    let mut new_index = vec![u32::MAX; n];
+    for t in &kept {
+        for &i in t {
+            new_index[i as usize] = 0;
+        }
+    }
+    let mut next = 0u32;
+    let mut out_positions = Vec::with_capacity(n);
+    let mut out_uvs = uvs.as_ref().map(|_| Vec::with_capacity(n));
+    for i in 0..n {
+        if new_index[i] == 0 {
+            new_index[i] = next;
+            next += 1;
+            out_positions.push(positions[i]);
+            if let (Some(out), Some(src)) = (&mut out_uvs, &uvs) {
+                out.push(src[i]);
+            }
+        }
+    }
+    // Welded-away vertices are never referenced any more: count only the others.
+    let unreferenced = n - welded - out_positions.len();
+    if unreferenced > 0 {
+        repairs.push(format!("dropped {unreferenced} unreferenced vertices"));
+    }
+    let triangles = kept.into_iter().map(|t| t.map(|i| new_index[i as usize])).collect();
+    Ok(MeshLoad { mesh: Mesh { positions: out_positions, uvs: out_uvs, triangles }, repairs })
+}
+
+/// The 1-based number and line of the first OBJ `v` record with a non-finite coordinate.
+fn first_nonfinite_obj_vertex(text: &str) -> Option<(usize, usize)> {
+    let mut number = 0;
+    for (line_no, line) in text.lines().enumerate() {
+        let mut words = line.split_whitespace();
+        if words.next() == Some("v") {
+            number += 1;
+            if words.take(3).any(|w| w.parse::<f32>().map_or(false, |x| !x.is_finite())) {
+                return Some((number, line_no + 1));
+            }
+        }
+    }
+    None
+}
+
+/// Best-effort location (1-based line, its text) of a tobj error, which itself carries none:
+/// the first record of the kind the error names that fails the same check.
+fn locate_obj_error(text: &str, err: &tobj::LoadError) -> Option<(usize, String)> {
+    use tobj::LoadError as E;
+    let floats = |words: std::str::SplitWhitespace, n: usize| {
+        let ok: Vec<bool> = words.take(n).map(|w| w.parse::<f32>().is_ok()).collect();
+        ok.len() == n && ok.iter().all(|&b| b)
+    };
+    let (mut v, mut vt) = (0i64, 0i64);
+    for (line_no, line) in text.lines().enumerate() {
+        let mut words = line.split_whitespace();
+        let bad = match words.next() {
+            Some("v") => {
+                v += 1;
+                matches!(err, E::PositionParseError) && !floats(words, 3)
+            }
+            Some("vt") => {
+                vt += 1;
+                matches!(err, E::TexcoordParseError) && !floats(words, 1)
+            }
+            Some("vn") => matches!(err, E::NormalParseError) && !floats(words, 3),
+            Some("f") => match err {
+                E::FaceParseError | E::FaceVertexOutOfBounds | E::FaceTexCoordOutOfBounds => {
+                    // Bad if unparsable, 0, or beyond the records read so far (OBJ
+                    // indices are 1-based; negative ones count back from the last).
+                    let check = |s: Option<&str>, count: i64| match s {
+                        None | Some("") => false,
+                        Some(s) => match s.parse::<i64>() {
+                            Err(_) => true,
+                            Ok(i) => i == 0 || i > count || -i > count,
+                        },
+                    };
+                    let words: Vec<&str> = words.collect();
+                    words.is_empty()
+                        || words.iter().any(|w| {
+                            let mut parts = w.split('/');
+                            check(parts.next(), v)
+                                || (matches!(err, E::FaceTexCoordOutOfBounds) && check(parts.next(), vt))
+                        })
+                }
+                _ => false,
+            },
+            _ => false,
+        };
+        if bad {
+            let mut content: String = line.trim().chars().take(80).collect();
+            if content.len() < line.trim().len() {
+                content.push_str("...");
+            }
+            return Some((line_no + 1, content));
+        }
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A fresh temp dir per test (tests run in parallel).
+    fn temp_dir(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("biscale-mesh-{}-{name}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    fn write_obj(name: &str, text: &str) -> PathBuf {
+        let path = temp_dir(name).join(format!("{name}.obj"));
+        std::fs::write(&path, text).unwrap();
+        path
+    }
+
+    fn load_err(name: &str, text: &str) -> String {
+        let path = write_obj(name, text);
+        match Mesh::load_obj(&path) {
+            Ok(m) => panic!("{name}: expected an error, got {} triangles", m.mesh.triangle_count()),
+            Err(e) => {
+                let msg = e.to_string();
+                assert!(msg.contains(&path.display().to_string()), "{name}: error must name the file: {msg}");
+                assert!(matches!(e, CoreError::Input { .. }));
+                msg
+            }
+        }
+    }
+
+    #[test]
+    fn missing_file_is_an_input_error() {
+        let path = temp_dir("missing").join("does_not_exist.obj");
+        let e = Mesh::load_obj(&path).unwrap_err();
+        assert!(matches!(&e, CoreError::Input { path: p, .. } if *p == path), "{e}");
+        assert!(e.to_string().contains("not found"), "{e}");
+    }
+
+    #[test]
+    fn parse_errors_say_what_and_where() {
+        let msg = load_err("garbage", "v 0 0 0\nv 1 0 0\nv 0 1 zero\nf 1 2 3\n");
+        assert!(msg.contains("position parse error") && msg.contains("line 3"), "{msg}");
+        let msg = load_err("badface", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n");
+        assert!(msg.contains("face parse error") && msg.contains("line 4"), "{msg}");
+        // Binary junk is not UTF-8: tobj fails to read lines.
+        let path = write_obj("binary", "");
+        std::fs::write(&path, [0xffu8, 0xfe, 0x00, 0x9f, 0x80, 0x0a]).unwrap();
+        assert!(Mesh::load_obj(&path).is_err());
+    }
+
+    #[test]
+    fn out_of_range_index_names_the_line() {
+        let msg = load_err("range", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 7\n");
+        assert!(msg.contains("out of bounds") && msg.contains("line 5"), "{msg}");
+        let e = Mesh::from_parts(vec![Vec3::ZERO, Vec3::X, Vec3::Y], None, vec![[0, 1, 2], [0, 1, 3]], "parts")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("triangle 1") && e.contains("vertex 3") && e.starts_with("parts:"), "{e}");
+    }
+
+    #[test]
+    fn no_faces_is_an_error() {
+        let msg = load_err("nofaces", "# only vertices\nv 0 0 0\nv 1 0 0\nv 0 1 0\n");
+        assert!(msg.contains("no faces"), "{msg}");
+        let msg = load_err("empty", "");
+        assert!(msg.contains("no faces"), "{msg}");
+        // Only degenerate faces: nothing left after repair.
+        let msg = load_err("alldegenerate", "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\nf 1 1 2\n");
+        assert!(msg.contains("no faces left") && msg.contains("1 with a repeated vertex, 1 zero-area"), "{msg}");
+    }
+
+    #[test]
+    fn non_finite_vertex_is_named() {
+        let msg = load_err("nan", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 nan 1\nf 1 2 3\nf 2 3 4\n");
+        assert!(msg.contains("OBJ vertex 4 (line 4)") && msg.contains("non-finite"), "{msg}");
+        let msg = load_err("inf", "v 0 0 0\nv inf 0 0\nv 0 1 0\nf 1 2 3\n");
+        assert!(msg.contains("OBJ vertex 2 (line 2)"), "{msg}");
+        let e = Mesh::from_parts(vec![Vec3::ZERO, Vec3::X, Vec3::new(0.0, f32::NAN, 0.0)], None, vec![[0, 1, 2]], "p")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("vertex 2 has a non-finite position"), "{e}");
+        let e = Mesh::from_parts(
+            vec![Vec3::ZERO, Vec3::X, Vec3::Y],
+            Some(vec![Vec2::ZERO, Vec2::new(f32::INFINITY, 0.0), Vec2::ONE]),
+            vec![[0, 1, 2]],
+            "p",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("vertex 1 has a non-finite texture coordinate"), "{e}");
+    }
+
+    #[test]
+    fn repairs_degenerate_duplicate_and_unreferenced() {
+        // A unit quad (4 vertices, 2 triangles) plus:
+        // v5 = exact duplicate of v3, used by the second triangle instead of v3 (welded);
+        // v6 = unreferenced; v7 = on the segment v1-v2 (zero-area triangle 1 2 7);
+        // v8 a hair off v1-v2 (sliver, area 5e-14 < 1e-12 * 2 = 2e-12);
+        // face 1 1 2 (repeated index); face 3 4 5 becomes 3 4 3 after welding (repeated).
+        let text = "v 0 0 0\nv 1 0 0\nv 1 0 1\nv 0 0 1\nv 1 0 1\nv 9 9 9\nv 0.5 0 0\nv 0.5 1e-13 0\n\
+                    f 1 4 3\nf 1 5 2\nf 1 2 7\nf 1 2 8\nf 1 1 2\nf 3 4 5\n";
+        let path = write_obj("repair", text);
+        let load = Mesh::load_obj(&path).unwrap();
+        let m = &load.mesh;
+        assert_eq!(m.triangle_count(), 2, "{:?}", load.repairs);
+        assert_eq!(m.vertex_count(), 4, "{:?}", load.repairs);
+        assert_eq!(
+            load.repairs,
+            vec![
+                "welded 1 exactly duplicated vertices (same position and uv)".to_string(),
+                "dropped 4 degenerate triangles (2 with a repeated vertex, 2 with area <= 1e-12 x bbox diagonal^2)"
+                    .to_string(),
+                // tobj already leaves out vertex 6 (never referenced by a face); v7 and v8 were
+                // referenced only by dropped triangles.
+                "dropped 2 unreferenced vertices".to_string(),
+            ]
+        );
+        // The quad is intact: positions in original order, both triangles facing +Y.
+        assert_eq!(m.positions, vec![Vec3::ZERO, Vec3::Z, Vec3::new(1.0, 0.0, 1.0), Vec3::X]);
+        for t in &m.triangles {
+            let [a, b, c] = t.map(|i| m.positions[i as usize]);
+            assert!((b - a).cross(c - a).y > 0.0);
+        }
+    }
+
+    #[test]
+    fn from_parts_counts_every_repair() {
+        // Same position but different uvs is a seam, not a duplicate.
+        let p =
+            vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::X, Vec3::Y, Vec3::new(5.0, 5.0, 5.0), Vec3::new(-0.0, 0.0, 0.0)];
+        let uv = vec![Vec2::ZERO, Vec2::X, Vec2::Y, Vec2::X, Vec2::ONE, Vec2::ZERO, Vec2::ZERO];
+        let tris = vec![[0, 1, 2], [6, 3, 4], [0, 3, 1]];
+        let load = Mesh::from_parts(p, Some(uv), tris, "parts").unwrap();
+        // v3 = v1 (same uv) and v6 = v0 (-0.0 == 0.0) are welded; v4 is a seam copy of v2.
+        // Triangle [0,3,1] becomes [0,1,1]: dropped. v5 is unreferenced.
+        assert_eq!(load.mesh.triangles, vec![[0, 1, 2], [0, 1, 3]]);
+        assert_eq!(load.mesh.vertex_count(), 4);
+        assert_eq!(load.mesh.uvs.as_ref().unwrap()[3], Vec2::ONE);
+        assert_eq!(load.repairs.len(), 3, "{:?}", load.repairs);
+        assert!(load.repairs[0].starts_with("welded 2 "), "{:?}", load.repairs);
+        assert!(load.repairs[1].starts_with("dropped 1 degenerate triangles (1 with a repeated vertex, 0 "));
+        assert_eq!(load.repairs[2], "dropped 1 unreferenced vertices");
+        // A clean mesh passes through unchanged.
+        let clean = crate::geometry::shapes::grid_plane(3, 2.0);
+        let load =
+            Mesh::from_parts(clean.positions.clone(), clean.uvs.clone(), clean.triangles.clone(), "grid").unwrap();
+        assert!(load.repairs.is_empty());
+        assert_eq!(load.mesh, clean);
+    }
+
+    #[test]
+    fn partial_uvs_are_dropped_with_a_note() {
+        let text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\nf 2 4 3\n";
+        let load = Mesh::load_obj(&write_obj("partialuv", text)).unwrap();
+        assert!(load.mesh.uvs.is_none());
+        // tobj made 6 vertices (1/1, 2/2, 3/3, 2, 4, 3); without uvs, "2" and "3" are exact
+        // duplicates of "2/2" and "3/3" and get welded.
+        assert_eq!(
+            load.repairs,
+            vec![
+                "dropped texture coordinates: only 3 of 6 vertices have one".to_string(),
+                "welded 2 exactly duplicated vertices (same position and uv)".to_string()
+            ]
+        );
+        assert_eq!(load.mesh.vertex_count(), 4);
+        let text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n";
+        let load = Mesh::load_obj(&write_obj("fulluv", text)).unwrap();
+        assert_eq!(load.mesh.uvs, Some(vec![Vec2::ZERO, Vec2::X, Vec2::Y]));
+    }
+
+    #[test]
+    fn quads_and_multiple_objects_are_merged() {
+        let text = "o a\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\no b\nv 0 0 2\nv 1 0 2\nv 0 1 2\nf 5 6 7\n";
+        let load = Mesh::load_obj(&write_obj("merge", text)).unwrap();
+        assert_eq!(load.mesh.triangle_count(), 3);
+        assert_eq!(load.mesh.vertex_count(), 7);
+        assert!(load.repairs.is_empty());
+        assert!(load.mesh.triangles.iter().flatten().all(|&i| i < 7));
+    }
+
+    fn asset(name: &str) -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/meshes").join(name)
+    }
+
+    #[test]
+    fn loads_the_bunny_unchanged() {
+        let load = Mesh::load_obj(&asset("bunny.obj")).unwrap();
+        // Counts and bounds from assets/SOURCES.md.
+        assert_eq!((load.mesh.vertex_count(), load.mesh.triangle_count()), (1839, 3674));
+        assert!(load.repairs.is_empty(), "{:?}", load.repairs);
+        assert!(load.mesh.uvs.is_none());
+        let (lo, hi) = load.mesh.bounds();
+        assert!((lo - Vec3::new(-4.958, -0.003, -3.730)).abs().max_element() < 1e-3, "{lo}");
+        assert!((hi - Vec3::new(4.949, 9.655, 3.811)).abs().max_element() < 1e-3, "{hi}");
+        assert!((load.mesh.diagonal() - (hi - lo).length()).abs() < 1e-6);
+    }
+
+    #[test]
+    fn loads_the_teapot() {
+        let load = Mesh::load_obj(&asset("teapot.obj")).unwrap();
+        assert_eq!((load.mesh.vertex_count(), load.mesh.triangle_count()), (1177, 2256), "{:?}", load.repairs);
+        let (lo, hi) = load.mesh.bounds();
+        assert!((lo - Vec3::new(-3.0, 0.0, -2.0)).abs().max_element() < 1e-3, "{lo}");
+        assert!((hi - Vec3::new(3.430, 3.15, 2.0)).abs().max_element() < 1e-3, "{hi}");
     }
 }

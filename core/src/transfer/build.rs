@@ -1,0 +1,213 @@
+//! Building the stacked transfer matrix `T` ((n M) x N, CSR) of a whole mesh: one
+//! [`VisibilitySampler::point_counts`] query per vertex, in parallel over vertices (rayon),
+//! assembled into rows `v * M + j` with sorted column indices.
+//!
+//! * **Ray origin.** Each vertex traces from `p + eps n` with `eps = 1e-4 * diagonal`
+//!   ([`ORIGIN_OFFSET`]): relative to the mesh's scale so any unit works; far above the f32
+//!   rounding of positions (~1e-7 relative), so the vertex's own triangles are not hit by
+//!   rays above its tangent plane through rounding noise; far below any feature (bunny:
+//!   1.4e-3 against edges of ~0.2), so real close occluders (creases, concavities) still
+//!   occlude. Rays start at `t = 0` from the offset point.
+//! * **Scale.** The BVH is built on the mesh translated to its bounding-box centre and
+//!   scaled to a diagonal of [`BVH_DIAGONAL`], a similarity transform that leaves every
+//!   visibility answer unchanged but (a) keeps f32 precision for meshes far from the origin
+//!   and (b) keeps obvhs's absolute node epsilon (`1e-4` world units: boxes the ray leaves
+//!   before `t = 1e-4` are skipped) negligible against the origin offset whatever the
+//!   mesh's units (a 1 mm mesh would otherwise lose its nearby occluders).
+//! * **Determinism.** Each vertex's entries depend only on that vertex (the per-thread
+//!   scratch is reset per query and the ray order within a vertex is fixed), and rayon's
+//!   indexed `collect` keeps vertex order, so `T` does not depend on the thread count.
+//! * **Memory.** A point's texel centres above its tangent plane are at most `N / 2`
+//!   (the cubemap's texel centres are antipodally symmetric and `d . n > 0` excludes `-d`),
+//!   so a vertex has at most `N / 2` non-zeros. Requests whose worst case exceeds
+//!   [`MAX_TRANSFER_BYTES`] are refused before anything is allocated.
+
+use super::{TransferMatrix, TransferSettings, VisibilitySampler, VisibilityScratch};
+use crate::error::{CoreError, Result};
+use crate::geometry::{vertex_frames, Mesh, SceneBvh};
+use rayon::prelude::*;
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// Ray origins are offset along the vertex normal by this fraction of the mesh's bounding
+/// box diagonal (see the module docs).
+pub const ORIGIN_OFFSET: f32 = 1e-4;
+
+/// The diagonal of the normalised copy of the mesh the BVH is built on (module docs).
+pub const BVH_DIAGONAL: f32 = 1024.0;
+
+/// Largest worst-case memory a transfer build may need (8 GiB): see [`worst_case_bytes`].
+pub const MAX_TRANSFER_BYTES: u64 = 8 << 30;
+
+/// Bytes per stored non-zero at the peak of a build: the final CSR's f32 value and usize
+/// column index (sprs), plus the staged u16 column and u16 count of the per-vertex results.
+pub const BYTES_PER_NONZERO: u64 = (std::mem::size_of::<f32>() + std::mem::size_of::<usize>() + 4) as u64;
+
+/// A built transfer matrix and how it went.
+#[derive(Clone, Debug)]
+pub struct TransferBuild {
+    pub matrix: TransferMatrix,
+    pub stats: TransferStats,
+}
+
+/// Statistics of a transfer build.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TransferStats {
+    /// Visibility queries answered (fine-texel rays above the tangent planes).
+    pub rays_traced: u64,
+    /// Wall-clock seconds of the whole build (frames, BVH, tracing, assembly).
+    pub seconds: f64,
+    /// `rays_traced / seconds`.
+    pub rays_per_second: f64,
+    /// `(value, number of non-zeros with that value)` for every possible value
+    /// `i / s^2`, `i = 1..=s^2`, ascending.
+    pub value_histogram: Vec<(f32, u64)>,
+    /// Vertices whose normal fell back to +Y (see [`vertex_frames`]).
+    pub frame_fallbacks: usize,
+}
+
+/// Worst-case peak bytes of a build of `vertices` vertices: `vertices * N/2` non-zeros at
+/// [`BYTES_PER_NONZERO`] plus the row pointers.
+pub fn worst_case_bytes(vertices: usize, settings: &TransferSettings) -> u64 {
+    let n = 6 * (settings.cubemap_resolution as u64).pow(2);
+    let m = (settings.local_grid as u64).pow(2);
+    let nnz = vertices as u64 * (n / 2);
+    nnz.saturating_mul(BYTES_PER_NONZERO)
+        .saturating_add((vertices as u64 * m + 1).saturating_mul(std::mem::size_of::<usize>() as u64))
+}
+
+/// One vertex's entries, sorted by (row j, column k): `row_len[j]` entries per local bin.
+struct VertexRows {
+    row_len: Vec<u32>,
+    cols: Vec<u16>,
+    counts: Vec<u16>,
+}
+
+/// Build `T` for every vertex of `mesh`. `progress`, if given, is called (from any thread,
+/// with increasing values) with the number of vertices finished so far.
+pub fn build(
+    mesh: &Mesh,
+    settings: &TransferSettings,
+    progress: Option<&(dyn Fn(usize) + Sync)>,
+) -> Result<TransferBuild> {
+    let start = Instant::now();
+    settings.validate()?;
+    let s = settings.supersampling() as u64;
+    if s * s > u16::MAX as u64 {
+        return Err(CoreError::Invalid(format!(
+            "supersampling {s} (visibility_resolution / cubemap_resolution) gives more than 65535 children per texel"
+        )));
+    }
+    let vertices = mesh.vertex_count();
+    let bytes = worst_case_bytes(vertices, settings);
+    if bytes > MAX_TRANSFER_BYTES {
+        return Err(CoreError::TooLarge(format!(
+            "transfer matrix for {vertices} vertices at cubemap {r} and local grid {m}x{m}: up to {nnz} non-zeros, \
+             {gib:.1} GiB worst case, over the {lim} GiB limit (MAX_TRANSFER_BYTES)",
+            r = settings.cubemap_resolution,
+            m = settings.local_grid,
+            nnz = vertices as u64 * 3 * (settings.cubemap_resolution as u64).pow(2),
+            gib = bytes as f64 / (1u64 << 30) as f64,
+            lim = MAX_TRANSFER_BYTES >> 30,
+        )));
+    }
+    if let Some((t, &bad)) = mesh.triangles.iter().enumerate().find(|(_, t)| t.iter().any(|&i| i as usize >= vertices))
+    {
+        return Err(CoreError::Invalid(format!(
+            "triangle {t} refers to vertex {bad:?}, the mesh has {vertices} vertices"
+        )));
+    }
+    if let Some(v) = mesh.positions.iter().position(|p| !p.is_finite()) {
+        return Err(CoreError::Invalid(format!("vertex {v} has a non-finite position")));
+    }
+
+    let sampler = VisibilitySampler::new(settings)?;
+    let (frames, frame_fallbacks) = vertex_frames(mesh);
+    let (lo, hi) = mesh.bounds();
+    let centre = 0.5 * (lo + hi);
+    let diagonal = mesh.diagonal();
+    let scale = if diagonal > 0.0 { BVH_DIAGONAL / diagonal } else { 1.0 };
+    let positions: Vec<_> = mesh.positions.iter().map(|p| (*p - centre) * scale).collect();
+    let bvh = SceneBvh::build(&positions, &mesh.triangles);
+    let offset = ORIGIN_OFFSET * diagonal * scale;
+
+    let m = sampler.grid.len();
+    let done = Mutex::new(0usize);
+    let per_vertex: Vec<(VertexRows, u64)> = (0..vertices)
+        .into_par_iter()
+        .map_init(
+            || (VisibilityScratch::default(), Vec::<(u32, u16, u16)>::new()),
+            |(scratch, entries), v| {
+                let frame = &frames[v];
+                let origin = positions[v] + frame.normal * offset;
+                entries.clear();
+                let rays =
+                    sampler.point_counts(&bvh, origin, frame, scratch, |j, k, c| entries.push((j, k as u16, c as u16)));
+                // Counting sort by row j; entries arrive in increasing k, so each row's
+                // columns stay sorted.
+                let mut row_len = vec![0u32; m];
+                for e in entries.iter() {
+                    row_len[e.0 as usize] += 1;
+                }
+                let mut at: Vec<u32> = row_len
+                    .iter()
+                    .scan(0u32, |acc, &l| {
+                        let s = *acc;
+                        *acc += l;
+                        Some(s)
+                    })
+                    .collect();
+                let mut cols = vec![0u16; entries.len()];
+                let mut counts = vec![0u16; entries.len()];
+                for &(j, k, c) in entries.iter() {
+                    let p = &mut at[j as usize];
+                    cols[*p as usize] = k;
+                    counts[*p as usize] = c;
+                    *p += 1;
+                }
+                if let Some(report) = progress {
+                    let mut d = done.lock().unwrap_or_else(|e| e.into_inner());
+                    *d += 1;
+                    report(*d);
+                }
+                (VertexRows { row_len, cols, counts }, rays)
+            },
+        )
+        .collect();
+
+    // Assemble the CSR in vertex order.
+    let nnz: usize = per_vertex.iter().map(|(r, _)| r.cols.len()).sum();
+    let s2 = (s * s) as usize;
+    let value_of: Vec<f32> = (0..=s2).map(|c| c as f32 / s2 as f32).collect();
+    let mut histogram = vec![0u64; s2 + 1];
+    let mut indptr = Vec::with_capacity(vertices * m + 1);
+    let mut indices = Vec::with_capacity(nnz);
+    let mut data = Vec::with_capacity(nnz);
+    let mut rays_traced = 0u64;
+    indptr.push(0usize);
+    for (rows, rays) in per_vertex {
+        rays_traced += rays;
+        for len in rows.row_len {
+            indptr.push(indptr.last().unwrap() + len as usize);
+        }
+        indices.extend(rows.cols.iter().map(|&k| k as usize));
+        for c in rows.counts {
+            histogram[c as usize] += 1;
+            data.push(value_of[c as usize]);
+        }
+    }
+    let n = sampler.cubemap.texel_count();
+    let csr = sprs::CsMat::try_new((vertices * m, n), indptr, indices, data)
+        .map_err(|e| CoreError::Invalid(format!("internal error assembling T: {}", e.3)))?;
+    let seconds = start.elapsed().as_secs_f64();
+    Ok(TransferBuild {
+        matrix: TransferMatrix { vertices, local_dirs: m, cubemap: sampler.cubemap, csr },
+        stats: TransferStats {
+            rays_traced,
+            seconds,
+            rays_per_second: rays_traced as f64 / seconds.max(1e-12),
+            value_histogram: (1..=s2).map(|c| (value_of[c], histogram[c])).collect(),
+            frame_fallbacks,
+        },
+    })
+}
