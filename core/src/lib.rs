@@ -26,6 +26,7 @@
 
 pub mod compress;
 pub mod error;
+pub mod form_file;
 pub mod gather;
 pub mod geometry;
 pub mod sampling;
