@@ -1,0 +1,146 @@
+//! Table I of Sun et al. for our biclustering on a real transfer matrix, plus build times.
+//!
+//! Builds `T` from a mesh with the reference transfer settings (6x32x32 light, 2x2 box-filtered
+//! visibility, m x m local directions), biclusters it at each requested block size, checks the
+//! result is exact (integer codes) and prints the stats as a table and JSON.
+//!
+//! ```text
+//! cargo run --release -p biscale-compressors --example bicluster_bench -- \
+//!     [--mesh assets/meshes/bunny.obj] [--local-grid 8] [--blocks 0,64,256] [--runs 3] \
+//!     [--seed 0] [--threads N] [--json out.json] [--save form.bsform]
+//! ```
+
+use biscale_compressors::bicluster::{decompress_codes, table_stats, Bicluster, BiclusterStats};
+use biscale_core::compress::{CompressContext, Compressor};
+use biscale_core::geometry::Mesh;
+use biscale_core::transfer::{self, TransferSettings};
+use std::path::PathBuf;
+use std::time::Instant;
+
+struct Args {
+    mesh: PathBuf,
+    local_grid: u32,
+    blocks: Vec<usize>,
+    runs: usize,
+    seed: u64,
+    threads: usize,
+    json: Option<PathBuf>,
+    save: Option<PathBuf>,
+}
+
+fn parse() -> Result<Args, String> {
+    let mut a = Args {
+        mesh: "assets/meshes/bunny.obj".into(),
+        local_grid: 8,
+        blocks: vec![0, 32, 64, 128, 256],
+        runs: 3,
+        seed: 0,
+        threads: 0,
+        json: None,
+        save: None,
+    };
+    let mut it = std::env::args().skip(1);
+    while let Some(k) = it.next() {
+        let mut v = || it.next().ok_or(format!("{k} needs a value"));
+        let num = |s: String| s.parse::<usize>().map_err(|e| format!("{k}: {e}"));
+        match k.as_str() {
+            "--mesh" => a.mesh = v()?.into(),
+            "--local-grid" => a.local_grid = num(v()?)? as u32,
+            "--blocks" => {
+                a.blocks = v()?
+                    .split(',')
+                    .map(|s| s.trim().parse::<usize>().map_err(|e| format!("--blocks: {e}")))
+                    .collect::<Result<_, _>>()?
+            }
+            "--runs" => a.runs = num(v()?)?.max(1),
+            "--seed" => a.seed = num(v()?)? as u64,
+            "--threads" => a.threads = num(v()?)?,
+            "--json" => a.json = Some(v()?.into()),
+            "--save" => a.save = Some(v()?.into()),
+            _ => return Err(format!("unknown argument {k}")),
+        }
+    }
+    Ok(a)
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args = parse()?;
+    if args.threads > 0 {
+        rayon::ThreadPoolBuilder::new().num_threads(args.threads).build_global()?;
+    }
+    let mesh = Mesh::load_obj(&args.mesh)?.mesh;
+    let settings = TransferSettings { local_grid: args.local_grid, ..TransferSettings::default() };
+    let t0 = Instant::now();
+    let t = transfer::build(&mesh, &settings, None)?.matrix;
+    println!(
+        "T: {} vertices x {} local dirs = {} rows, {} cols, {} non-zeros ({:.1} per row), built in {:.1} s, {} threads",
+        t.vertices,
+        t.local_dirs,
+        t.rows(),
+        t.cols(),
+        t.nnz(),
+        t.nnz() as f64 / t.rows() as f64,
+        t0.elapsed().as_secs_f64(),
+        rayon::current_num_threads()
+    );
+    let mut all: Vec<(usize, Vec<f64>, BiclusterStats)> = vec![];
+    for &bv in &args.blocks {
+        let c = Bicluster { block_vertices: bv, ..Bicluster::default() };
+        let mut times = vec![];
+        let mut form = None;
+        for run in 0..args.runs {
+            let f = c.compress(&t, &CompressContext { seed: args.seed, progress: None })?;
+            times.push(f.build_seconds);
+            if run == 0 {
+                // Exactness on the real matrix: the biclusters sum to T in integer codes.
+                let back = decompress_codes(&f)?;
+                let want = biscale_compressors::bicluster::codes::quantize(&t, 0)?;
+                assert!(back == want, "block_vertices {bv}: decompressed codes differ from T");
+            }
+            form = Some(f);
+        }
+        let form = form.unwrap();
+        times.sort_by(|a, b| a.partial_cmp(b).unwrap());
+        let s = table_stats(&form, &t)?;
+        println!(
+            "block_vertices {:>5}: median {:7.2} s (runs {:?}) | biclusters {:>8} | MFLOPs {:.2} -> {:.2} ({:.1}%) | \
+             bytes {} = {:.3} B/nnz, {:.2}% of dense, {:.1}% of CSR | r p50/p90/max {}/{}/{} | l p50/p90/max {}/{}/{} | row list mean {:.1} max {}",
+            bv,
+            times[times.len() / 2],
+            times.iter().map(|x| (x * 100.0).round() / 100.0).collect::<Vec<_>>(),
+            s.biclusters,
+            s.mflops_raw,
+            s.mflops_biclustered,
+            100.0 * s.flops_ratio,
+            s.compressed_bytes,
+            s.bytes_per_nnz,
+            100.0 * s.ratio_to_dense,
+            100.0 * s.ratio_to_csr,
+            s.r.p50,
+            s.r.p90,
+            s.r.max,
+            s.l.p50,
+            s.l.p90,
+            s.l.max,
+            s.row_list_mean,
+            s.row_list_max
+        );
+        println!("    bytes by array: {:?}", s.bytes_by_array);
+        if let Some(p) = &args.save {
+            let p = p.with_extension(format!("b{bv}.bsform"));
+            biscale_core::form_file::save_form(&form, &p)?;
+            let back = biscale_core::form_file::load_form(&p)?;
+            assert!(back == form, "form file round trip");
+            println!("    saved {}", p.display());
+        }
+        all.push((bv, times, s));
+    }
+    if let Some(p) = &args.json {
+        let v: Vec<_> = all
+            .iter()
+            .map(|(bv, times, s)| serde_json::json!({"block_vertices": bv, "build_seconds": times, "stats": s}))
+            .collect();
+        std::fs::write(p, serde_json::to_string_pretty(&v)?)?;
+    }
+    Ok(())
+}
