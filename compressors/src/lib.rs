@@ -5,6 +5,9 @@
 //! documentation, its build, its CPU gather on the compressed arrays, and its tests:
 //!
 //! * [`sparse`]: the raw CSR matrix, the uncompressed baseline.
+//! * [`bicluster`]: lossless greedy constant-column biclustering (Sun et al.), block-parallel.
+//! * [`cpca`]: clustered principal components (Sloan et al. 2003), lossy.
+//! * [`haar`]: non-linear Haar wavelet approximation per row (Ng et al. 2003), lossy.
 //!
 //! ```
 //! use biscale_compressors::sparse::Sparse;
@@ -16,6 +19,9 @@
 //! assert_eq!(lstar.values.len(), t.rows());
 //! ```
 
+pub mod bicluster;
+pub mod cpca;
+pub mod haar;
 pub mod sparse;
 pub mod testing;
 
@@ -27,15 +33,21 @@ use biscale_core::transfer::TransferMatrix;
 /// Every compressor compiled into biscale.
 pub enum BuiltinCompressor {
     Sparse(sparse::Sparse),
+    Bicluster(bicluster::Bicluster),
+    Haar(haar::Haar),
+    Cpca(cpca::Cpca),
 }
 
 impl BuiltinCompressor {
     /// The config `kind` strings of the built-ins.
-    pub const KINDS: &'static [&'static str] = &["sparse"];
+    pub const KINDS: &'static [&'static str] = &["sparse", "bicluster", "cpca", "haar"];
 
     fn inner(&self) -> &dyn Compressor {
         match self {
             BuiltinCompressor::Sparse(c) => c,
+            BuiltinCompressor::Bicluster(c) => c,
+            BuiltinCompressor::Haar(c) => c,
+            BuiltinCompressor::Cpca(c) => c,
         }
     }
 }
