@@ -1,0 +1,225 @@
+//! The headless wgpu device every GPU stage shares, plus the small helpers they all need:
+//! error scopes that turn wgpu validation errors into [`GpuError`]s, limit checks made before
+//! a buffer is created, and buffer read-back.
+//!
+//! On a machine without a GPU the only adapter is Mesa's software Vulkan driver (lavapipe,
+//! installed by `scripts/setup-vulkan.sh`); it supports compute, rendering and timestamp
+//! queries, so everything here runs unchanged on it.
+
+use crate::error::{GpuError, Result};
+use std::sync::{Arc, Mutex};
+use wgpu::util::DeviceExt;
+
+/// What the runtime records about the adapter it runs on.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct AdapterSummary {
+    /// Adapter name, e.g. `llvmpipe (LLVM 15.0.6, 256 bits)` for lavapipe.
+    pub name: String,
+    /// Backend, e.g. `Vulkan`.
+    pub backend: String,
+    /// `Cpu` for software drivers, `DiscreteGpu`, `IntegratedGpu`, ...
+    pub device_type: String,
+    /// Driver name and version string as the driver reports them.
+    pub driver: String,
+}
+
+impl std::fmt::Display for AdapterSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} ({}, {}, {})", self.name, self.backend, self.device_type, self.driver)
+    }
+}
+
+/// A headless wgpu device and queue. Cheap to clone (wgpu handles are reference counted).
+#[derive(Clone)]
+pub struct GpuContext {
+    pub(crate) device: wgpu::Device,
+    pub(crate) queue: wgpu::Queue,
+    adapter: AdapterSummary,
+    limits: wgpu::Limits,
+    timestamps: bool,
+    /// Errors no scope caught (wgpu's default handler would panic on them).
+    uncaptured: Arc<Mutex<Vec<String>>>,
+}
+
+impl GpuContext {
+    /// Open the default adapter headlessly. Requests the adapter's own limits (not WebGPU's
+    /// defaults: the transfer matrix needs large storage buffers) and timestamp queries when
+    /// the adapter has them. Fails with [`GpuError::NoAdapter`] when there is no adapter.
+    pub fn new() -> Result<Self> {
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            force_fallback_adapter: false,
+            compatible_surface: None,
+            apply_limit_buckets: false,
+        }))
+        .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+        let info = adapter.get_info();
+        let summary = AdapterSummary {
+            name: info.name.clone(),
+            backend: format!("{:?}", info.backend),
+            device_type: format!("{:?}", info.device_type),
+            driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
+        };
+        let timestamps = adapter.features().contains(wgpu::Features::TIMESTAMP_QUERY);
+        let required_features = if timestamps { wgpu::Features::TIMESTAMP_QUERY } else { wgpu::Features::empty() };
+        let limits = adapter.limits();
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("biscale"),
+            required_features,
+            required_limits: limits.clone(),
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        }))
+        .map_err(|e| GpuError::RequestDevice { adapter: summary.name.clone(), message: e.to_string() })?;
+        let uncaptured: Arc<Mutex<Vec<String>>> = Arc::default();
+        let sink = uncaptured.clone();
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            if let Ok(mut v) = sink.lock() {
+                v.push(e.to_string());
+            }
+        }));
+        Ok(Self { device, queue, adapter: summary, limits, timestamps, uncaptured })
+    }
+
+    /// The adapter this context runs on.
+    pub fn adapter(&self) -> &AdapterSummary {
+        &self.adapter
+    }
+
+    /// The device limits (the adapter's own).
+    pub fn limits(&self) -> &wgpu::Limits {
+        &self.limits
+    }
+
+    /// True when per-pass GPU timestamps are available (otherwise timings are wall-clock).
+    pub fn has_timestamps(&self) -> bool {
+        self.timestamps
+    }
+
+    /// The wgpu device (for callers that add their own passes).
+    pub fn device(&self) -> &wgpu::Device {
+        &self.device
+    }
+
+    /// The wgpu queue.
+    pub fn queue(&self) -> &wgpu::Queue {
+        &self.queue
+    }
+
+    /// Run `f` inside validation and out-of-memory error scopes and turn anything wgpu
+    /// reports into [`GpuError::Validation`] naming `during`.
+    pub(crate) fn scoped<T>(&self, during: &str, f: impl FnOnce() -> T) -> Result<T> {
+        let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let out = f();
+        let v = pollster::block_on(validation.pop());
+        let o = pollster::block_on(oom.pop());
+        if let Some(e) = v.or(o) {
+            return Err(GpuError::Validation { during: during.to_string(), message: e.to_string() });
+        }
+        let stray: Vec<String> = self.uncaptured.lock().map(|mut v| std::mem::take(&mut *v)).unwrap_or_default();
+        if !stray.is_empty() {
+            return Err(GpuError::Validation { during: during.to_string(), message: stray.join("; ") });
+        }
+        Ok(out)
+    }
+
+    /// Check a storage binding of `bytes` against the binding and buffer size limits.
+    pub(crate) fn check_storage_size(&self, what: &str, bytes: u64) -> Result<()> {
+        if bytes > self.limits.max_storage_buffer_binding_size {
+            return Err(GpuError::Limit {
+                what: what.to_string(),
+                limit: "max_storage_buffer_binding_size",
+                needed: bytes,
+                max: self.limits.max_storage_buffer_binding_size,
+            });
+        }
+        self.check_buffer_size(what, bytes)
+    }
+
+    /// Check a buffer of `bytes` against `max_buffer_size`.
+    pub(crate) fn check_buffer_size(&self, what: &str, bytes: u64) -> Result<()> {
+        if bytes > self.limits.max_buffer_size {
+            return Err(GpuError::Limit {
+                what: what.to_string(),
+                limit: "max_buffer_size",
+                needed: bytes,
+                max: self.limits.max_buffer_size,
+            });
+        }
+        Ok(())
+    }
+
+    /// A storage buffer holding `contents` (at least 4 bytes: wgpu cannot bind empty buffers),
+    /// after checking its size against the limits.
+    pub(crate) fn storage_buffer(
+        &self,
+        label: &str,
+        contents: &[u8],
+        extra: wgpu::BufferUsages,
+    ) -> Result<wgpu::Buffer> {
+        self.check_storage_size(label, contents.len() as u64)?;
+        let padded;
+        let contents = if contents.len() < 4 || !contents.len().is_multiple_of(4) {
+            let mut v = contents.to_vec();
+            v.resize(contents.len().next_multiple_of(4).max(4), 0);
+            padded = v;
+            &padded[..]
+        } else {
+            contents
+        };
+        self.scoped(&format!("creating buffer '{label}'"), || {
+            self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage: wgpu::BufferUsages::STORAGE | extra,
+            })
+        })
+    }
+
+    /// Copy `size` bytes of `src` from `offset` to the host (submits and waits).
+    pub(crate) fn read_buffer(&self, what: &str, src: &wgpu::Buffer, offset: u64, size: u64) -> Result<Vec<u8>> {
+        let staging = self.scoped(&format!("reading back {what}"), || {
+            let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("readback"),
+                size,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let mut enc = self.device.create_command_encoder(&Default::default());
+            enc.copy_buffer_to_buffer(src, offset, &staging, 0, size);
+            self.queue.submit([enc.finish()]);
+            staging
+        })?;
+        self.map_read(what, &staging)
+    }
+
+    /// Map a MAP_READ buffer, wait, and copy its contents out.
+    pub(crate) fn map_read(&self, what: &str, staging: &wgpu::Buffer) -> Result<Vec<u8>> {
+        let (tx, rx) = std::sync::mpsc::channel();
+        staging.map_async(wgpu::MapMode::Read, .., move |r| {
+            let _ = tx.send(r);
+        });
+        self.wait(what)?;
+        let err = |message: String| GpuError::Readback { what: what.to_string(), message };
+        rx.recv().map_err(|e| err(e.to_string()))?.map_err(|e| err(e.to_string()))?;
+        let bytes = staging.get_mapped_range(..).map_err(|e| err(e.to_string()))?.to_vec();
+        staging.unmap();
+        Ok(bytes)
+    }
+
+    /// Block until all submitted work is done.
+    pub(crate) fn wait(&self, what: &str) -> Result<()> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| GpuError::Validation { during: format!("waiting for {what}"), message: e.to_string() })
+    }
+}
+
+/// Reinterpret little-endian bytes read back from the GPU as f32s.
+pub(crate) fn bytes_to_f32(bytes: &[u8]) -> Vec<f32> {
+    bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+}

@@ -1,0 +1,74 @@
+// Gather on the clustered-PCA form (compressor `cpca`, compressors/src/cpca/mod.rs; Sloan et
+// al. 2003). Two passes:
+//   cpca_project, one 64-invocation workgroup per basis vector v (K (C + 1) of them):
+//       P[v] = basis[v] . L   (strided partial sums, then a tree reduction in workgroup memory)
+//   cpca_rows, one invocation per row r with cluster k = cluster[r]:
+//       L*_r = P[k (C+1)] + sum_{c=1..C} coeffs[r C + c - 1] P[k (C+1) + c],  0 when k = K
+// meta_values = [clusters K, components C].
+
+@group(0) @binding(4) var<storage, read> basis: array<f32>;          // K (C + 1) N
+@group(0) @binding(5) var<storage, read> cluster: array<u32>;        // u16, packed 2 per word
+@group(0) @binding(6) var<storage, read> coeffs: array<f32>;         // rows C
+@group(0) @binding(7) var<storage, read_write> proj: array<f32>;     // K (C + 1) x RGB
+
+var<workgroup> partial: array<vec3<f32>, 64>;
+
+@compute @workgroup_size(64)
+fn cpca_project(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    // The whole workgroup works on one vector, so the barriers stay in uniform control flow.
+    let v = wid.y * nwg.x + wid.x;
+    let vectors = params.threads / 64u;
+    let n = params.cols;
+    var acc = vec3<f32>(0.0);
+    if v < vectors {
+        for (var k = lid; k < n; k += 64u) {
+            acc += basis[v * n + k] * light_at(k);
+        }
+    }
+    partial[lid] = acc;
+    workgroupBarrier();
+    for (var s = 32u; s > 0u; s >>= 1u) {
+        if lid < s {
+            partial[lid] += partial[lid + s];
+        }
+        workgroupBarrier();
+    }
+    if lid == 0u && v < vectors {
+        proj[3u * v] = partial[0].x;
+        proj[3u * v + 1u] = partial[0].y;
+        proj[3u * v + 2u] = partial[0].z;
+    }
+}
+
+fn proj_at(v: u32) -> vec3<f32> {
+    return vec3<f32>(proj[3u * v], proj[3u * v + 1u], proj[3u * v + 2u]);
+}
+
+@compute @workgroup_size(64)
+fn cpca_rows(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let r = linear_thread(wid, nwg, lid, 64u);
+    if r >= params.threads {
+        return;
+    }
+    let k = u16_at(cluster[r >> 1u], r);
+    let clusters = meta_values[0];
+    let c = meta_values[1];
+    if k >= clusters {
+        store_lstar(r, vec3<f32>(0.0));
+        return;
+    }
+    let base = k * (c + 1u);
+    var acc = proj_at(base);
+    for (var j = 0u; j < c; j++) {
+        acc += coeffs[r * c + j] * proj_at(base + 1u + j);
+    }
+    store_lstar(r, acc);
+}

@@ -1,0 +1,446 @@
+//! The generic gather host: runs any compressed form's WGSL gather program, leaving
+//! `L* = T L` (rows x RGB, f32) in a GPU buffer that the shader reads directly.
+//!
+//! The host knows nothing of any compressor. It uploads every array of the
+//! [`CompressedForm`] as a storage buffer (narrow integers packed into 32-bit words, see
+//! [`program::pack_words`]), parses the program's WGSL to find which global binds which array
+//! (by name), creates the scratch buffers the program declares, and dispatches its passes in
+//! one submission. Everything that could exceed the adapter's limits is checked before the
+//! buffer or dispatch is created, and wgpu's validation errors come back as [`GpuError`]s.
+//!
+//! ```no_run
+//! # use biscale_gpu::{GpuContext, GpuGather};
+//! # let form: biscale_core::compress::CompressedForm = unimplemented!();
+//! # let light: biscale_core::sampling::LightVector = unimplemented!();
+//! let ctx = GpuContext::new()?;
+//! let mut gather = GpuGather::new(&ctx, &form)?;
+//! gather.gather(&light)?;
+//! let lstar = gather.read_lstar()?;
+//! # Ok::<(), biscale_gpu::GpuError>(())
+//! ```
+
+pub mod kinds;
+pub mod program;
+
+use crate::context::{bytes_to_f32, GpuContext};
+use crate::error::{GpuError, Result};
+use crate::timing::{measure, Timing};
+use biscale_core::compress::CompressedForm;
+use biscale_core::gather::LocalRadiance;
+use biscale_core::sampling::LightVector;
+use program::{compatible, pack_words, reflect, Elem, GatherProgram, GlobalKind};
+use std::collections::BTreeMap;
+use std::num::NonZeroU64;
+
+/// Uniform block of every gather pass. Mirrored by `GatherParams` in `gather/prelude.wgsl`
+/// (size and offsets checked by the layout test).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct GatherParams {
+    pub rows: u32,
+    pub cols: u32,
+    pub local_dirs: u32,
+    pub vertices: u32,
+    /// Invocations of this pass; the rounded-up grid's extra invocations return early.
+    pub threads: u32,
+    pub pass_index: u32,
+    pub _pad: [u32; 2],
+}
+const _: () = assert!(std::mem::size_of::<GatherParams>() == 32);
+
+/// Names the prelude reserves (they are not form arrays).
+const RESERVED: &[&str] = &["params", "light", "lstar", "meta_values"];
+
+struct Pass {
+    name: String,
+    pipeline: wgpu::ComputePipeline,
+    bind_group: wgpu::BindGroup,
+    workgroups: [u32; 2],
+}
+
+/// A compressed form resident on the GPU with its gather program ready to run.
+pub struct GpuGather {
+    ctx: GpuContext,
+    kind: String,
+    rows: usize,
+    cols: usize,
+    local_dirs: usize,
+    light: wgpu::Buffer,
+    lstar: wgpu::Buffer,
+    passes: Vec<Pass>,
+    uploaded_bytes: u64,
+}
+
+impl GpuGather {
+    /// Upload `form` and build its built-in gather program.
+    pub fn new(ctx: &GpuContext, form: &CompressedForm) -> Result<Self> {
+        let program = kinds::builtin_program(form).ok_or_else(|| GpuError::UnknownKind(form.kind.clone()))?;
+        Self::with_program(ctx, form, &program)
+    }
+
+    /// Upload `form` and build `program` for it (plugins supply their own program).
+    pub fn with_program(ctx: &GpuContext, form: &CompressedForm, program: &GatherProgram) -> Result<Self> {
+        if program.kind != form.kind {
+            return Err(GpuError::Form(format!("program for '{}' given a '{}' form", program.kind, form.kind)));
+        }
+        if form.local_dirs == 0 || !form.rows.is_multiple_of(form.local_dirs) {
+            return Err(GpuError::Form(format!(
+                "{} rows are not a whole number of {}-direction vertices",
+                form.rows, form.local_dirs
+            )));
+        }
+        for (what, n) in [("rows", form.rows), ("cols", form.cols)] {
+            if n > u32::MAX as usize / 3 {
+                return Err(GpuError::Form(format!("{what} = {n} does not fit 32-bit GPU indices")));
+            }
+        }
+        if let Some(validate) = program.validate {
+            validate(form).map_err(GpuError::Form)?;
+        }
+        let reflected = reflect(program)?;
+        let wgsl_err = |message: String| GpuError::Wgsl { program: program.kind.clone(), message };
+        let limits = ctx.limits();
+        let storage_count = reflected.globals.iter().filter(|g| matches!(g.kind, GlobalKind::Storage { .. })).count();
+        if storage_count as u64 > limits.max_storage_buffers_per_shader_stage as u64 {
+            return Err(GpuError::Limit {
+                what: format!("gather program '{}' ({storage_count} storage buffers)", program.kind),
+                limit: "max_storage_buffers_per_shader_stage",
+                needed: storage_count as u64,
+                max: limits.max_storage_buffers_per_shader_stage as u64,
+            });
+        }
+
+        // Buffers for every global but `params` (per pass).
+        let mut buffers: BTreeMap<String, wgpu::Buffer> = BTreeMap::new();
+        let mut uploaded_bytes = 0u64;
+        let scratch: BTreeMap<&str, &program::ScratchBuffer> =
+            program.scratch.iter().map(|s| (s.name.as_str(), s)).collect();
+        for s in &program.scratch {
+            if RESERVED.contains(&s.name.as_str()) || form.array(&s.name).is_ok() {
+                return Err(wgsl_err(format!("scratch buffer '{}' shadows a form array or a reserved name", s.name)));
+            }
+        }
+        let (mut light, mut lstar) = (None, None);
+        for g in &reflected.globals {
+            let name = g.name.as_str();
+            let (read_only, elem) = match g.kind {
+                GlobalKind::Uniform { size } => {
+                    if name != "params" {
+                        return Err(wgsl_err(format!("uniform '{name}': only 'params' may be a uniform")));
+                    }
+                    if size != std::mem::size_of::<GatherParams>() as u64 {
+                        return Err(wgsl_err(format!("'params' is {size} bytes, GatherParams is 32")));
+                    }
+                    continue;
+                }
+                GlobalKind::Storage { read_only, elem } => (read_only, elem),
+            };
+            let buffer = match name {
+                "light" | "lstar" => {
+                    let (n, rw) = if name == "light" { (form.cols, false) } else { (form.rows, true) };
+                    if elem != Elem::F32 || read_only == rw {
+                        return Err(wgsl_err(format!("'{name}' must be array<f32> with the prelude's access mode")));
+                    }
+                    let bytes = (n * 3 * 4) as u64;
+                    let what = if rw { "L* (rows x RGB f32)" } else { "light vector (N x RGB f32)" };
+                    ctx.check_storage_size(what, bytes)?;
+                    let usage = wgpu::BufferUsages::STORAGE
+                        | wgpu::BufferUsages::COPY_DST
+                        | if rw { wgpu::BufferUsages::COPY_SRC } else { wgpu::BufferUsages::empty() };
+                    let b = ctx.scoped(&format!("creating the {name} buffer"), || {
+                        ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                            label: Some(name),
+                            size: bytes.max(4).next_multiple_of(4),
+                            usage,
+                            mapped_at_creation: false,
+                        })
+                    })?;
+                    if rw {
+                        lstar = Some(b.clone());
+                    } else {
+                        light = Some(b.clone());
+                    }
+                    b
+                }
+                "meta_values" => {
+                    let mut words = Vec::with_capacity(program.meta_keys.len());
+                    for k in &program.meta_keys {
+                        let v = form.meta(k)?;
+                        words.push(
+                            u32::try_from(v)
+                                .map_err(|_| GpuError::Form(format!("meta '{k}' = {v} does not fit u32")))?,
+                        );
+                    }
+                    ctx.storage_buffer("meta_values", bytemuck::cast_slice(&words), wgpu::BufferUsages::empty())?
+                }
+                _ if scratch.contains_key(name) => {
+                    if read_only {
+                        return Err(wgsl_err(format!("scratch buffer '{name}' must be read_write")));
+                    }
+                    let words = scratch[name].words.eval(form)?;
+                    let bytes =
+                        words.checked_mul(4).ok_or_else(|| GpuError::Form(format!("scratch '{name}' overflows")))?;
+                    let what = format!("scratch buffer '{name}' ({words} words)");
+                    ctx.check_storage_size(&what, bytes)?;
+                    ctx.scoped(&format!("creating {what}"), || {
+                        ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                            label: Some(name),
+                            size: bytes.max(4),
+                            usage: wgpu::BufferUsages::STORAGE,
+                            mapped_at_creation: false,
+                        })
+                    })?
+                }
+                _ => {
+                    let data = &form.array(name).map_err(|_| {
+                        wgsl_err(format!(
+                            "global '{name}' is neither an array of the {} form ({}), a declared scratch buffer, nor one of {RESERVED:?}",
+                            form.kind,
+                            form.arrays.iter().map(|a| a.name.as_str()).collect::<Vec<_>>().join(", ")
+                        ))
+                    })?;
+                    if !compatible(data, elem) {
+                        return Err(wgsl_err(format!(
+                            "form array '{name}' is {} but the WGSL declares array<{elem:?}> (f32 arrays need array<f32>, integer arrays array<u32> or array<i32>)",
+                            data.element_type()
+                        )));
+                    }
+                    if !read_only {
+                        return Err(wgsl_err(format!("form array '{name}' must be bound read-only")));
+                    }
+                    let words = pack_words(data);
+                    let what = format!(
+                        "form array '{name}' ({} x {}, {} bytes packed)",
+                        data.len(),
+                        data.element_type(),
+                        words.len() * 4
+                    );
+                    uploaded_bytes += (words.len() * 4) as u64;
+                    ctx.storage_buffer(&what, bytemuck::cast_slice(&words), wgpu::BufferUsages::empty())?
+                }
+            };
+            buffers.insert(name.to_string(), buffer);
+        }
+        let (Some(light), Some(lstar)) = (light, lstar) else {
+            return Err(wgsl_err("program does not bind 'light' and 'lstar' (the prelude declares them)".into()));
+        };
+
+        // One layout for all passes: every global, visible to compute.
+        let layout_entries: Vec<wgpu::BindGroupLayoutEntry> = reflected
+            .globals
+            .iter()
+            .map(|g| wgpu::BindGroupLayoutEntry {
+                binding: g.binding,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::Buffer {
+                    ty: match g.kind {
+                        GlobalKind::Uniform { .. } => wgpu::BufferBindingType::Uniform,
+                        GlobalKind::Storage { read_only, .. } => wgpu::BufferBindingType::Storage { read_only },
+                    },
+                    has_dynamic_offset: false,
+                    min_binding_size: match g.kind {
+                        GlobalKind::Uniform { size } => NonZeroU64::new(size),
+                        GlobalKind::Storage { .. } => None,
+                    },
+                },
+                count: None,
+            })
+            .collect();
+        let vertices = form.rows / form.local_dirs;
+        let label = format!("gather '{}'", program.kind);
+        let max_groups = limits.max_compute_workgroups_per_dimension as u64;
+        let mut passes = Vec::with_capacity(program.passes.len());
+        let (module, pipeline_layout) = ctx.scoped(&format!("compiling {label}"), || {
+            let module = ctx.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(&label),
+                source: wgpu::ShaderSource::Wgsl(reflected.source.as_str().into()),
+            });
+            let bgl = ctx.device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some(&label),
+                entries: &layout_entries,
+            });
+            let pl = ctx.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(&label),
+                bind_group_layouts: &[Some(&bgl)],
+                immediate_size: 0,
+            });
+            (module, (pl, bgl))
+        })?;
+        let (pipeline_layout, bgl) = pipeline_layout;
+        for (index, pass) in program.passes.iter().enumerate() {
+            let Some(&(_, wg)) = reflected.workgroup_sizes.iter().find(|(n, _)| *n == pass.entry_point) else {
+                return Err(wgsl_err(format!("no @compute entry point '{}'", pass.entry_point)));
+            };
+            let group_size = wg.iter().map(|&x| x as u64).product::<u64>().max(1);
+            let threads = pass.threads.eval(form)?;
+            let threads32 = u32::try_from(threads).map_err(|_| {
+                GpuError::Form(format!("pass '{}' needs {threads} invocations (> u32)", pass.entry_point))
+            })?;
+            let groups = threads.div_ceil(group_size);
+            let x = groups.min(max_groups);
+            let y = if x == 0 { 0 } else { groups.div_ceil(x) };
+            if y > max_groups {
+                return Err(GpuError::Limit {
+                    what: format!("pass '{}' ({groups} workgroups of {group_size})", pass.entry_point),
+                    limit: "max_compute_workgroups_per_dimension (squared)",
+                    needed: groups,
+                    max: max_groups * max_groups,
+                });
+            }
+            let params = GatherParams {
+                rows: form.rows as u32,
+                cols: form.cols as u32,
+                local_dirs: form.local_dirs as u32,
+                vertices: vertices as u32,
+                threads: threads32,
+                pass_index: index as u32,
+                _pad: [0; 2],
+            };
+            let pass_label = format!("{label} pass {index} '{}'", pass.entry_point);
+            let (pipeline, bind_group) = ctx.scoped(&format!("building {pass_label}"), || {
+                use wgpu::util::DeviceExt;
+                let params_buf = ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("gather params"),
+                    contents: bytemuck::bytes_of(&params),
+                    usage: wgpu::BufferUsages::UNIFORM,
+                });
+                let pipeline = ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(&pass_label),
+                    layout: Some(&pipeline_layout),
+                    module: &module,
+                    entry_point: Some(&pass.entry_point),
+                    compilation_options: Default::default(),
+                    cache: None,
+                });
+                let entries: Vec<wgpu::BindGroupEntry> = reflected
+                    .globals
+                    .iter()
+                    .map(|g| wgpu::BindGroupEntry {
+                        binding: g.binding,
+                        resource: if g.name == "params" {
+                            params_buf.as_entire_binding()
+                        } else {
+                            buffers[&g.name].as_entire_binding()
+                        },
+                    })
+                    .collect();
+                let bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some(&pass_label),
+                    layout: &bgl,
+                    entries: &entries,
+                });
+                (pipeline, bind_group)
+            })?;
+            passes.push(Pass {
+                name: pass.entry_point.clone(),
+                pipeline,
+                bind_group,
+                workgroups: [x as u32, y as u32],
+            });
+        }
+        Ok(Self {
+            ctx: ctx.clone(),
+            kind: form.kind.clone(),
+            rows: form.rows,
+            cols: form.cols,
+            local_dirs: form.local_dirs,
+            light,
+            lstar,
+            passes,
+            uploaded_bytes,
+        })
+    }
+
+    /// Upload `light` and run the gather; `L*` is then in [`Self::lstar_buffer`] (queue order
+    /// makes it visible to anything submitted later; [`Self::read_lstar`] waits for it).
+    pub fn gather(&mut self, light: &LightVector) -> Result<()> {
+        self.upload_light(light)?;
+        self.ctx.scoped(&format!("running the '{}' gather", self.kind), || {
+            let mut enc = self.ctx.device.create_command_encoder(&Default::default());
+            self.record(&mut enc, None);
+            self.ctx.queue.submit([enc.finish()]);
+        })
+    }
+
+    /// Read `L*` back: `values[v * M + j]`.
+    pub fn read_lstar(&self) -> Result<LocalRadiance> {
+        let bytes = self.ctx.read_buffer("L*", &self.lstar, 0, (self.rows * 12).max(4) as u64)?;
+        let mut f = bytes_to_f32(&bytes);
+        f.truncate(self.rows * 3);
+        let values = f.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        Ok(LocalRadiance { vertices: self.rows / self.local_dirs, local_dirs: self.local_dirs, values })
+    }
+
+    /// Median gather time over `repetitions` runs with `light` (GPU timestamps per pass where
+    /// the adapter has them, else wall clock). The light is uploaded once, outside the timing.
+    pub fn time_gather(&mut self, light: &LightVector, repetitions: usize) -> Result<Timing> {
+        self.upload_light(light)?;
+        let names: Vec<String> = self.passes.iter().map(|p| p.name.clone()).collect();
+        measure(&self.ctx, &names, repetitions, |enc, timer| self.record(enc, timer))
+    }
+
+    /// Overwrite every element of `L*` with `value` (tests poison it with NaN to prove every
+    /// element is written).
+    pub fn fill_lstar(&self, value: f32) -> Result<()> {
+        let data = vec![value; self.rows * 3];
+        self.ctx.scoped("filling L*", || {
+            if !data.is_empty() {
+                self.ctx.queue.write_buffer(&self.lstar, 0, bytemuck::cast_slice(&data));
+            }
+        })
+    }
+
+    /// The GPU buffer holding `L*`: `rows * 3` f32, row `v * M + j`, RGB interleaved.
+    pub fn lstar_buffer(&self) -> &wgpu::Buffer {
+        &self.lstar
+    }
+
+    pub fn kind(&self) -> &str {
+        &self.kind
+    }
+    pub fn rows(&self) -> usize {
+        self.rows
+    }
+    pub fn local_dirs(&self) -> usize {
+        self.local_dirs
+    }
+    pub fn vertices(&self) -> usize {
+        self.rows / self.local_dirs
+    }
+    /// Bytes of form arrays uploaded (after packing to 32-bit words).
+    pub fn uploaded_bytes(&self) -> u64 {
+        self.uploaded_bytes
+    }
+
+    fn upload_light(&self, light: &LightVector) -> Result<()> {
+        if light.len() != self.cols {
+            return Err(GpuError::Input(format!(
+                "light vector has {} texels, the form has {} columns",
+                light.len(),
+                self.cols
+            )));
+        }
+        if let Some(k) = light.power.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
+            return Err(GpuError::Input(format!("light texel {k} is not finite: {:?}", light.power[k])));
+        }
+        self.ctx.scoped("uploading the light vector", || {
+            if !light.power.is_empty() {
+                self.ctx.queue.write_buffer(&self.light, 0, bytemuck::cast_slice(&light.power));
+            }
+        })
+    }
+
+    fn record(&self, enc: &mut wgpu::CommandEncoder, timer: Option<&crate::timing::PassTimer>) {
+        for (i, p) in self.passes.iter().enumerate() {
+            let mut cp = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(&p.name),
+                timestamp_writes: timer.map(|t| t.compute_writes(i as u32)),
+            });
+            if p.workgroups[0] > 0 {
+                cp.set_pipeline(&p.pipeline);
+                cp.set_bind_group(0, &p.bind_group, &[]);
+                cp.dispatch_workgroups(p.workgroups[0], p.workgroups[1], 1);
+            }
+        }
+    }
+}

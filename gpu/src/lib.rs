@@ -1,0 +1,43 @@
+//! # biscale-gpu
+//!
+//! biscale's wgpu runtime (DESIGN.md sections 2 and 4): the per-frame stages that run on the
+//! GPU, kept in their own crate so that `biscale-core` knows nothing of wgpu and the rest of
+//! the workspace builds without it.
+//!
+//! * [`GpuContext`]: a headless device (on machines without a GPU, Mesa's lavapipe software
+//!   Vulkan driver; install it with `scripts/setup-vulkan.sh`).
+//! * [`GpuGather`]: the generic gather host. Any [`biscale_core::compress::CompressedForm`]
+//!   with a [`GatherProgram`] (built-in: [`gather::kinds::BUILTIN_KINDS`]) is uploaded as plain
+//!   arrays and its WGSL kernels leave `L* = T L` in a GPU buffer.
+//! * [`GpuShader`]: visibility-buffer shading: triangles rasterized to (id, barycentrics),
+//!   then one compute invocation per pixel interpolates `L*` and the vertex frame and takes
+//!   the dot product with the BTF (bilinear in the view direction).
+//! * [`Timing`]: per-pass GPU timestamps (or wall-clock) medians over repetitions.
+//!
+//! Shortest use:
+//!
+//! ```no_run
+//! # let form: biscale_core::compress::CompressedForm = unimplemented!();
+//! # let light: biscale_core::sampling::LightVector = unimplemented!();
+//! let ctx = biscale_gpu::GpuContext::new()?;
+//! let mut gather = biscale_gpu::GpuGather::new(&ctx, &form)?;
+//! gather.gather(&light)?;
+//! let lstar = gather.read_lstar()?; // or shade straight from gather.lstar_buffer()
+//! # Ok::<(), biscale_gpu::GpuError>(())
+//! ```
+
+pub mod context;
+pub mod error;
+pub mod gather;
+pub mod shade;
+pub mod timing;
+
+pub use context::{AdapterSummary, GpuContext};
+pub use error::{GpuError, Result};
+pub use gather::program::{Count, Factor, GatherProgram, KernelPass, ScratchBuffer, ValidateFn};
+pub use gather::{GatherParams, GpuGather};
+pub use shade::{GpuCamera, GpuShader, GpuVertex, ShadeInputs, ShadeParams, ShadedImage};
+pub use timing::{PassTiming, Timing, TimingMethod};
+
+#[cfg(test)]
+mod tests;

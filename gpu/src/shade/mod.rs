@@ -1,0 +1,627 @@
+//! Bi-scale shading on the GPU with a visibility buffer (the per-pixel meso-scale integral of
+//! Sun et al., eq. 2: `B(x, e) = sum_j b(u, e, d_j) L*(x, d_j)`).
+//!
+//! Two passes per frame (see `shade.wgsl`): a render pass with a depth test writes the id of
+//! the nearest triangle at each pixel centre; a compute pass per pixel intersects the pixel
+//! ray with that triangle for exact barycentrics, interpolates the three vertices' `L*` (read
+//! straight from the gather's buffer) and frames, expresses the view direction in the local
+//! frame (tangent = interpolated tangent made orthogonal to the interpolated normal,
+//! bitangent = n x t, as `VertexFrame::from_normal_tangent`), looks the BTF up bilinearly
+//! between the four nearest view samples of its Shirley-Chiu view grid, and takes the dot
+//! product over the M light directions. Output: linear HDR RGB (rgba32float) and a coverage
+//! mask, row 0 at the top, pixel centres at +0.5.
+//!
+//! Inputs are plain slices ([`ShadeInputs`]) so this crate does not depend on the shading
+//! crate's types.
+
+use crate::context::{bytes_to_f32, GpuContext};
+use crate::error::{GpuError, Result};
+use crate::gather::GpuGather;
+use crate::timing::{measure, PassTimer, Timing};
+use biscale_core::gather::LocalRadiance;
+use glam::{DMat4, DVec3, DVec4, Vec3};
+use wgpu::util::DeviceExt;
+
+/// The WGSL of both shading passes.
+pub const SHADE_WGSL: &str = include_str!("shade.wgsl");
+
+/// Uniform block of both shading passes. Mirrored by `ShadeParams` in `shade/shade.wgsl`
+/// (size and member offsets checked by the layout test; every `[f32; 3]` is followed by a
+/// 4-byte scalar, matching WGSL's 16-byte `vec3` alignment).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct ShadeParams {
+    /// World to clip (column-major, reversed Z: depth 1 at the near plane, 0 at the far one).
+    pub view_proj: [[f32; 4]; 4],
+    /// Camera right, scaled by `tan(fov_y / 2) * aspect`.
+    pub cam_right: [f32; 3],
+    pub width: u32,
+    /// Camera up, scaled by `tan(fov_y / 2)`.
+    pub cam_up: [f32; 3],
+    pub height: u32,
+    /// Unit viewing direction.
+    pub cam_forward: [f32; 3],
+    pub local_dirs: u32,
+    pub camera_pos: [f32; 3],
+    pub light_m: u32,
+    pub btf_width: u32,
+    pub btf_height: u32,
+    /// View grid m; 0 for a view-independent BTF.
+    pub view_m: u32,
+    pub vertex_count: u32,
+    pub triangle_count: u32,
+    pub _pad: [u32; 3],
+}
+const _: () = assert!(std::mem::size_of::<ShadeParams>() == 160);
+
+/// A pinhole camera, field for field `shading::camera::Camera` (pixel centres at +0.5, row 0
+/// at the top, `fov_y_degrees` the full vertical field of view, square pixels).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GpuCamera {
+    pub position: Vec3,
+    pub target: Vec3,
+    pub up: Vec3,
+    pub fov_y_degrees: f32,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl GpuCamera {
+    /// `(right, up, forward)`, exactly as `shading::camera::Camera::basis` (including its
+    /// fallback when `up` is parallel to the viewing direction).
+    pub fn basis(&self) -> (Vec3, Vec3, Vec3) {
+        let f = (self.target - self.position).normalize_or(Vec3::NEG_Z);
+        let mut r = f.cross(self.up);
+        if r.length_squared() < 1e-12 * self.up.length_squared().max(1e-30) || !r.is_finite() {
+            let a = f.abs();
+            let axis = if a.x <= a.y && a.x <= a.z {
+                Vec3::X
+            } else if a.y <= a.z {
+                Vec3::Y
+            } else {
+                Vec3::Z
+            };
+            r = f.cross(axis);
+        }
+        let r = r.normalize();
+        (r, r.cross(f), f)
+    }
+
+    fn validate(&self) -> Result<()> {
+        let ok = self.width > 0
+            && self.height > 0
+            && self.fov_y_degrees > 0.0
+            && self.fov_y_degrees < 180.0
+            && self.position.is_finite()
+            && self.target.is_finite()
+            && self.up.is_finite()
+            && self.target != self.position;
+        if ok {
+            Ok(())
+        } else {
+            Err(GpuError::Input(format!("unusable camera {self:?}")))
+        }
+    }
+
+    /// Fill the camera fields of `p`; `near` and `far` (view distances) bound the scene.
+    fn write(&self, p: &mut ShadeParams, near: f64, far: f64) {
+        let (r, u, f) = self.basis();
+        let t = (self.fov_y_degrees.to_radians() * 0.5).tan();
+        let aspect = self.width as f32 / self.height as f32;
+        p.cam_right = (r * (t * aspect)).to_array();
+        p.cam_up = (u * t).to_array();
+        p.cam_forward = f.to_array();
+        p.camera_pos = self.position.to_array();
+        // View matrix from the same basis (rows r, u, -f), then a reversed-Z perspective
+        // (depth = near / distance-ish, 1 at near, 0 at far), all in f64.
+        let (r, u, f, e) = (r.as_dvec3(), u.as_dvec3(), f.as_dvec3(), self.position.as_dvec3());
+        let view = DMat4::from_cols(
+            DVec4::new(r.x, u.x, -f.x, 0.0),
+            DVec4::new(r.y, u.y, -f.y, 0.0),
+            DVec4::new(r.z, u.z, -f.z, 0.0),
+            DVec4::new(-r.dot(e), -u.dot(e), f.dot(e), 1.0),
+        );
+        let (t, aspect) = (t as f64, aspect as f64);
+        let (a, b) = (near / (far - near), near * far / (far - near));
+        let proj = DMat4::from_cols(
+            DVec4::new(1.0 / (t * aspect), 0.0, 0.0, 0.0),
+            DVec4::new(0.0, 1.0 / t, 0.0, 0.0),
+            DVec4::new(0.0, 0.0, a, -1.0),
+            DVec4::new(0.0, 0.0, b, 0.0),
+        );
+        p.view_proj = (proj * view).as_mat4().to_cols_array_2d();
+    }
+}
+
+/// Near and far view distances that enclose the bounding sphere of `positions` seen from
+/// `eye` (near never below 1e-5 of far; geometry closer than that is clipped).
+fn depth_range(positions: &[[f32; 3]], eye: Vec3) -> (f64, f64) {
+    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for p in positions {
+        let p = Vec3::from(*p).as_dvec3();
+        lo = lo.min(p);
+        hi = hi.max(p);
+    }
+    if positions.is_empty() {
+        return (0.01, 1.0);
+    }
+    let (c, radius) = (0.5 * (lo + hi), 0.5 * (hi - lo).length());
+    let d = (c - eye.as_dvec3()).length();
+    let far = (d + radius) * 1.01 + 1e-6;
+    let near = ((d - radius) * 0.99).max(far * 1e-5);
+    (near, far)
+}
+
+/// One mesh vertex as the shader reads it (mirrors WGSL `Vertex`, 48 bytes: each vec3 is
+/// followed by a scalar so that WGSL's 16-byte vec3 alignment adds no hidden padding).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct GpuVertex {
+    pub position: [f32; 3],
+    pub u: f32,
+    pub normal: [f32; 3],
+    pub v: f32,
+    pub tangent: [f32; 3],
+    pub _pad: f32,
+}
+const _: () = assert!(std::mem::size_of::<GpuVertex>() == 48);
+
+/// Everything the shader needs, as plain slices.
+#[derive(Clone, Copy, Debug)]
+pub struct ShadeInputs<'a> {
+    /// World-space vertex positions.
+    pub positions: &'a [[f32; 3]],
+    /// Unit vertex normals (the transfer frames' normals).
+    pub normals: &'a [[f32; 3]],
+    /// Vertex tangents (the frames' tangents; made orthogonal to the interpolated normal per
+    /// pixel; the bitangent is always n x t, the core frame convention).
+    pub tangents: &'a [[f32; 3]],
+    /// Texture coordinates of the BTF patch; `None` = all (0, 0).
+    pub uvs: Option<&'a [[f32; 2]]>,
+    pub triangles: &'a [[u32; 3]],
+    /// BTF values `[texel][view][light]` RGB (`shading::btf::Btf::data`), texel
+    /// `= ty * width + tx` with `(tx, ty)` the wrapped nearest texel of the UV.
+    pub btf_data: &'a [[f32; 3]],
+    /// BTF patch size in texels, `[width, height]`.
+    pub btf_spatial: [u32; 2],
+    /// Light grid m of the BTF; `m * m` must equal L*'s local directions M.
+    pub light_m: u32,
+    /// View grid m of the BTF, `None` for a view-independent BTF.
+    pub view_m: Option<u32>,
+    /// The camera; its `width x height` is the image size.
+    pub camera: GpuCamera,
+}
+
+/// A shaded HDR image: `pixels[row * width + col]`, row 0 at the top.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShadedImage {
+    pub width: u32,
+    pub height: u32,
+    /// Linear RGB radiance (0 where nothing is covered).
+    pub pixels: Vec<[f32; 3]>,
+    /// True where a triangle covers the pixel centre.
+    pub coverage: Vec<bool>,
+}
+
+/// The GPU shader for one mesh, BTF and image size.
+pub struct GpuShader {
+    ctx: GpuContext,
+    params: ShadeParams,
+    params_buf: wgpu::Buffer,
+    vertex_buf: wgpu::Buffer,
+    index_buf: wgpu::Buffer,
+    btf_buf: wgpu::Buffer,
+    vis_view: wgpu::TextureView,
+    depth_view: wgpu::TextureView,
+    image: wgpu::Texture,
+    image_view: wgpu::TextureView,
+    vis_pipeline: wgpu::RenderPipeline,
+    vis_bind_group: wgpu::BindGroup,
+    shade_pipeline: wgpu::ComputePipeline,
+    readback: wgpu::Buffer,
+    padded_row: u32,
+    vertex_count: usize,
+    triangle_count: u32,
+    /// Kept for the depth range when the camera moves.
+    positions: Vec<[f32; 3]>,
+}
+
+impl GpuShader {
+    /// Upload the mesh and BTF and build both passes.
+    pub fn new(ctx: &GpuContext, inputs: &ShadeInputs) -> Result<Self> {
+        let nv = inputs.positions.len();
+        if inputs.normals.len() != nv || inputs.tangents.len() != nv || inputs.uvs.is_some_and(|u| u.len() != nv) {
+            return Err(GpuError::Input(format!(
+                "{nv} positions but {} normals, {} tangents, {:?} uvs",
+                inputs.normals.len(),
+                inputs.tangents.len(),
+                inputs.uvs.map(|u| u.len())
+            )));
+        }
+        if let Some((t, tri)) = inputs.triangles.iter().enumerate().find(|(_, t)| t.iter().any(|&i| i as usize >= nv)) {
+            return Err(GpuError::Input(format!("triangle {t} = {tri:?} indexes past {nv} vertices")));
+        }
+        let finite3 = |v: &[[f32; 3]]| v.iter().position(|p| !p.iter().all(|x| x.is_finite()));
+        for (what, arr) in [("position", inputs.positions), ("normal", inputs.normals), ("tangent", inputs.tangents)] {
+            if let Some(i) = finite3(arr) {
+                return Err(GpuError::Input(format!("vertex {i}'s {what} is not finite: {:?}", arr[i])));
+            }
+        }
+        let [bw, bh] = inputs.btf_spatial;
+        let m_light = inputs.light_m as u64;
+        let views = inputs.view_m.map_or(1, |m| (m as u64) * (m as u64));
+        let local_dirs = m_light * m_light;
+        if bw == 0 || bh == 0 || m_light == 0 || inputs.view_m == Some(0) {
+            return Err(GpuError::Input("BTF spatial size, light grid and view grid must be positive".into()));
+        }
+        let expect = bw as u64 * bh as u64 * views * local_dirs;
+        if inputs.btf_data.len() as u64 != expect {
+            return Err(GpuError::Input(format!(
+                "BTF has {} values, expected {bw}x{bh} texels x {views} views x {local_dirs} lights = {expect}",
+                inputs.btf_data.len()
+            )));
+        }
+        if let Some(i) = finite3(inputs.btf_data) {
+            return Err(GpuError::Input(format!("BTF value {i} is not finite: {:?}", inputs.btf_data[i])));
+        }
+        if let Some(i) = inputs.uvs.and_then(|u| u.iter().position(|p| !p.iter().all(|x| x.is_finite()))) {
+            return Err(GpuError::Input(format!("vertex {i}'s uv is not finite")));
+        }
+        inputs.camera.validate()?;
+        let (w, h) = (inputs.camera.width, inputs.camera.height);
+        let max_dim = ctx.limits().max_texture_dimension_2d;
+        if w == 0 || h == 0 || w > max_dim || h > max_dim {
+            return Err(GpuError::Limit {
+                what: format!("a {w}x{h} image"),
+                limit: "max_texture_dimension_2d",
+                needed: w.max(h) as u64,
+                max: max_dim as u64,
+            });
+        }
+        let tri_count = inputs.triangles.len();
+        if tri_count as u64 * 3 >= u32::MAX as u64 {
+            return Err(GpuError::Input(format!("{tri_count} triangles do not fit 32-bit ids")));
+        }
+
+        let mut params = ShadeParams {
+            view_proj: [[0.0; 4]; 4],
+            cam_right: [0.0; 3],
+            width: w,
+            cam_up: [0.0; 3],
+            height: h,
+            cam_forward: [0.0; 3],
+            local_dirs: local_dirs as u32,
+            camera_pos: [0.0; 3],
+            light_m: inputs.light_m,
+            btf_width: bw,
+            btf_height: bh,
+            view_m: inputs.view_m.unwrap_or(0),
+            vertex_count: nv as u32,
+            triangle_count: tri_count as u32,
+            _pad: [0; 3],
+        };
+        let (near, far) = depth_range(inputs.positions, inputs.camera.position);
+        inputs.camera.write(&mut params, near, far);
+        let verts: Vec<GpuVertex> = (0..nv)
+            .map(|i| {
+                let uv = inputs.uvs.map_or([0.0; 2], |u| u[i]);
+                GpuVertex {
+                    position: inputs.positions[i],
+                    u: uv[0],
+                    normal: inputs.normals[i],
+                    v: uv[1],
+                    tangent: inputs.tangents[i],
+                    _pad: 0.0,
+                }
+            })
+            .collect();
+        let vertex_buf = ctx.storage_buffer(
+            "mesh vertices (48 bytes each)",
+            bytemuck::cast_slice(&verts),
+            wgpu::BufferUsages::empty(),
+        )?;
+        let index_buf = ctx.storage_buffer(
+            "triangle indices",
+            bytemuck::cast_slice(inputs.triangles),
+            wgpu::BufferUsages::empty(),
+        )?;
+        let btf_buf = ctx.storage_buffer(
+            &format!("BTF ({bw}x{bh} texels x {views} views x {local_dirs} lights x RGB f32)"),
+            bytemuck::cast_slice(inputs.btf_data),
+            wgpu::BufferUsages::empty(),
+        )?;
+        let padded_row = (w * 16).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+        ctx.check_buffer_size("image read-back", padded_row as u64 * h as u64)?;
+
+        let built = ctx.scoped("building the shading passes", || {
+            let params_buf = ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("shade params"),
+                contents: bytemuck::bytes_of(&params),
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            });
+            let module = ctx.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some("shade.wgsl"),
+                source: wgpu::ShaderSource::Wgsl(SHADE_WGSL.into()),
+            });
+            let size = wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 };
+            let tex = |label, format, usage| {
+                ctx.device.create_texture(&wgpu::TextureDescriptor {
+                    label: Some(label),
+                    size,
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: wgpu::TextureDimension::D2,
+                    format,
+                    usage,
+                    view_formats: &[],
+                })
+            };
+            let vis = tex(
+                "visibility",
+                wgpu::TextureFormat::R32Uint,
+                wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+            );
+            let depth = tex("depth", wgpu::TextureFormat::Depth32Float, wgpu::TextureUsages::RENDER_ATTACHMENT);
+            let image = tex(
+                "hdr image",
+                wgpu::TextureFormat::Rgba32Float,
+                wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_SRC,
+            );
+            let vis_pipeline = ctx.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some("visibility"),
+                layout: None,
+                vertex: wgpu::VertexState {
+                    module: &module,
+                    entry_point: Some("vis_vs"),
+                    compilation_options: Default::default(),
+                    buffers: &[],
+                },
+                primitive: wgpu::PrimitiveState {
+                    topology: wgpu::PrimitiveTopology::TriangleList,
+                    cull_mode: None,
+                    ..Default::default()
+                },
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: wgpu::TextureFormat::Depth32Float,
+                    depth_write_enabled: Some(true),
+                    // Reversed Z: nearer is larger.
+                    depth_compare: Some(wgpu::CompareFunction::Greater),
+                    stencil: Default::default(),
+                    bias: Default::default(),
+                }),
+                multisample: Default::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &module,
+                    entry_point: Some("vis_fs"),
+                    compilation_options: Default::default(),
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format: wgpu::TextureFormat::R32Uint,
+                        blend: None,
+                        write_mask: wgpu::ColorWrites::ALL,
+                    })],
+                }),
+                multiview_mask: None,
+                cache: None,
+            });
+            let vis_bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("visibility"),
+                layout: &vis_pipeline.get_bind_group_layout(0),
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: params_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 1, resource: vertex_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 2, resource: index_buf.as_entire_binding() },
+                ],
+            });
+            let shade_pipeline = ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some("shade"),
+                layout: None,
+                module: &module,
+                entry_point: Some("shade_pixels"),
+                compilation_options: Default::default(),
+                cache: None,
+            });
+            let readback = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("image read-back"),
+                size: padded_row as u64 * h as u64,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let view = |t: &wgpu::Texture| t.create_view(&Default::default());
+            (
+                params_buf,
+                view(&vis),
+                view(&depth),
+                view(&image),
+                image,
+                vis_pipeline,
+                vis_bind_group,
+                shade_pipeline,
+                readback,
+            )
+        })?;
+        let (
+            params_buf,
+            vis_view,
+            depth_view,
+            image_view,
+            image,
+            vis_pipeline,
+            vis_bind_group,
+            shade_pipeline,
+            readback,
+        ) = built;
+        Ok(Self {
+            ctx: ctx.clone(),
+            params,
+            params_buf,
+            vertex_buf,
+            index_buf,
+            btf_buf,
+            vis_view,
+            depth_view,
+            image,
+            image_view,
+            vis_pipeline,
+            vis_bind_group,
+            shade_pipeline,
+            readback,
+            padded_row,
+            vertex_count: nv,
+            triangle_count: tri_count as u32,
+            positions: inputs.positions.to_vec(),
+        })
+    }
+
+    /// Move the camera (the image size must stay the same).
+    pub fn set_camera(&mut self, camera: &GpuCamera) -> Result<()> {
+        camera.validate()?;
+        if (camera.width, camera.height) != (self.params.width, self.params.height) {
+            return Err(GpuError::Input(format!(
+                "camera is {}x{}, the shader was built for {}x{}",
+                camera.width, camera.height, self.params.width, self.params.height
+            )));
+        }
+        let (near, far) = depth_range(&self.positions, camera.position);
+        camera.write(&mut self.params, near, far);
+        self.ctx.scoped("updating the camera", || {
+            self.ctx.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
+        })
+    }
+
+    /// Shade with the `L*` a [`GpuGather`] left on the GPU (no read-back in between).
+    pub fn shade(&mut self, gather: &GpuGather) -> Result<ShadedImage> {
+        self.check_lstar(gather.vertices(), gather.local_dirs())?;
+        self.run(gather.lstar_buffer())?;
+        self.read_image()
+    }
+
+    /// Shade with `L*` from the host (e.g. a CPU gather).
+    pub fn shade_lstar(&mut self, lstar: &LocalRadiance) -> Result<ShadedImage> {
+        self.check_lstar(lstar.vertices, lstar.local_dirs)?;
+        if lstar.values.len() != lstar.vertices * lstar.local_dirs {
+            return Err(GpuError::Input("L* values do not match vertices x local_dirs".into()));
+        }
+        let buf = self.ctx.storage_buffer(
+            "L* (from host)",
+            bytemuck::cast_slice(&lstar.values),
+            wgpu::BufferUsages::empty(),
+        )?;
+        self.run(&buf)?;
+        self.read_image()
+    }
+
+    /// Median time of the two shading passes (`visibility`, `shade`) over `repetitions` frames.
+    pub fn time_shade(&mut self, gather: &GpuGather, repetitions: usize) -> Result<Timing> {
+        self.check_lstar(gather.vertices(), gather.local_dirs())?;
+        let bind_group = self.shade_bind_group(gather.lstar_buffer())?;
+        let names = ["visibility".to_string(), "shade".to_string()];
+        measure(&self.ctx, &names, repetitions, |enc, timer| self.record(enc, &bind_group, timer))
+    }
+
+    fn check_lstar(&self, vertices: usize, local_dirs: usize) -> Result<()> {
+        if vertices != self.vertex_count || local_dirs != self.params.local_dirs as usize {
+            return Err(GpuError::Input(format!(
+                "L* has {vertices} vertices x {local_dirs} directions; the mesh has {} vertices and the BTF {} light directions",
+                self.vertex_count, self.params.local_dirs
+            )));
+        }
+        Ok(())
+    }
+
+    fn shade_bind_group(&self, lstar: &wgpu::Buffer) -> Result<wgpu::BindGroup> {
+        self.ctx.scoped("binding L* for shading", || {
+            self.ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("shade"),
+                layout: &self.shade_pipeline.get_bind_group_layout(0),
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: self.params_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 1, resource: self.vertex_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 2, resource: self.index_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 3, resource: lstar.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 4, resource: self.btf_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 5, resource: wgpu::BindingResource::TextureView(&self.vis_view) },
+                    wgpu::BindGroupEntry { binding: 6, resource: wgpu::BindingResource::TextureView(&self.image_view) },
+                ],
+            })
+        })
+    }
+
+    fn record(&self, enc: &mut wgpu::CommandEncoder, bind_group: &wgpu::BindGroup, timer: Option<&PassTimer>) {
+        {
+            let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("visibility"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &self.vis_view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &self.depth_view,
+                    depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(0.0), store: wgpu::StoreOp::Discard }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: timer.map(|t| t.render_writes(0)),
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            if self.triangle_count > 0 {
+                rp.set_pipeline(&self.vis_pipeline);
+                rp.set_bind_group(0, &self.vis_bind_group, &[]);
+                rp.draw(0..3 * self.triangle_count, 0..1);
+            }
+        }
+        let mut cp = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("shade"),
+            timestamp_writes: timer.map(|t| t.compute_writes(1)),
+        });
+        cp.set_pipeline(&self.shade_pipeline);
+        cp.set_bind_group(0, bind_group, &[]);
+        cp.dispatch_workgroups(self.params.width.div_ceil(8), self.params.height.div_ceil(8), 1);
+    }
+
+    fn run(&mut self, lstar: &wgpu::Buffer) -> Result<()> {
+        let bind_group = self.shade_bind_group(lstar)?;
+        self.ctx.scoped("shading", || {
+            let mut enc = self.ctx.device.create_command_encoder(&Default::default());
+            self.record(&mut enc, &bind_group, None);
+            enc.copy_texture_to_buffer(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &self.image,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d::ZERO,
+                    aspect: wgpu::TextureAspect::All,
+                },
+                wgpu::TexelCopyBufferInfo {
+                    buffer: &self.readback,
+                    layout: wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(self.padded_row),
+                        rows_per_image: Some(self.params.height),
+                    },
+                },
+                wgpu::Extent3d { width: self.params.width, height: self.params.height, depth_or_array_layers: 1 },
+            );
+            self.ctx.queue.submit([enc.finish()]);
+        })
+    }
+
+    fn read_image(&self) -> Result<ShadedImage> {
+        let bytes = self.ctx.map_read("the shaded image", &self.readback)?;
+        let (w, h) = (self.params.width as usize, self.params.height as usize);
+        let mut pixels = Vec::with_capacity(w * h);
+        let mut coverage = Vec::with_capacity(w * h);
+        for row in 0..h {
+            let start = row * self.padded_row as usize;
+            let f = bytes_to_f32(&bytes[start..start + w * 16]);
+            for px in f.chunks_exact(4) {
+                pixels.push([px[0], px[1], px[2]]);
+                coverage.push(px[3] > 0.5);
+            }
+        }
+        Ok(ShadedImage { width: w as u32, height: h as u32, pixels, coverage })
+    }
+}

@@ -1,0 +1,268 @@
+// Visibility-buffer bi-scale shading (biscale-gpu, shade/shade.wgsl).
+//
+// Pass 1 (`vis_vs` / `vis_fs`, a render pass with a depth test): every pixel stores the id
+// (+1, 0 = background) of the nearest triangle covering its centre.
+// Pass 2 (`shade_pixels`, compute, one invocation per pixel): intersects the pixel's ray with
+// that triangle for exact perspective-correct barycentrics, interpolates the vertices' L*
+// (M bins x RGB) and frames, finds the view direction in the local frame, and evaluates the
+// meso-scale integral of Sun et al. (eq. 2):  B(x, e) = sum_j b(u, e, d_j) L*(x, d_j),
+// with b bilinear between the 4 nearest view-grid samples.
+
+// Mirror of the Rust `ShadeParams` (#[repr(C)], 160 bytes; checked by the layout test).
+// Each vec3 is followed by a scalar so WGSL's 16-byte vec3 alignment adds no hidden padding.
+struct ShadeParams {
+    // World to clip, reversed Z (depth 1 at the near plane), for rasterization only.
+    view_proj: mat4x4<f32>,
+    // Pixel rays exactly as shading::camera::Camera::ray builds them:
+    // dir = normalize(forward + right * (2 px / w - 1) + up * (1 - 2 py / h)), with `right`
+    // and `up` already scaled by tan(fov_y / 2) * aspect and tan(fov_y / 2).
+    cam_right: vec3<f32>,
+    width: u32,
+    cam_up: vec3<f32>,
+    height: u32,
+    cam_forward: vec3<f32>,
+    local_dirs: u32,
+    camera_pos: vec3<f32>,
+    light_m: u32,
+    btf_width: u32,
+    btf_height: u32,
+    // View grid m, 0 for a view-independent BTF.
+    view_m: u32,
+    vertex_count: u32,
+    triangle_count: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
+}
+
+// Mirror of the Rust `GpuVertex` (48 bytes).
+struct Vertex {
+    position: vec3<f32>,
+    u: f32,
+    normal: vec3<f32>,
+    v: f32,
+    tangent: vec3<f32>,
+    pad: f32,
+}
+
+@group(0) @binding(0) var<uniform> params: ShadeParams;
+@group(0) @binding(1) var<storage, read> vertices: array<Vertex>;
+@group(0) @binding(2) var<storage, read> indices: array<u32>;
+// L*: (vertex * M + j) * 3 + channel (the gather's output buffer).
+@group(0) @binding(3) var<storage, read> lstar: array<f32>;
+// BTF: ((texel * views + view) * M + j) * 3 + channel.
+@group(0) @binding(4) var<storage, read> btf: array<f32>;
+@group(0) @binding(5) var visibility: texture_2d<u32>;
+@group(0) @binding(6) var image: texture_storage_2d<rgba32float, write>;
+
+// ---- pass 1: visibility ----
+
+struct VisOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) @interpolate(flat) tri: u32,
+}
+
+@vertex
+fn vis_vs(@builtin(vertex_index) vi: u32) -> VisOut {
+    var out: VisOut;
+    out.clip = params.view_proj * vec4<f32>(vertices[indices[vi]].position, 1.0);
+    out.tri = vi / 3u + 1u;
+    return out;
+}
+
+@fragment
+fn vis_fs(in: VisOut) -> @location(0) u32 {
+    return in.tri;
+}
+
+// ---- Shirley-Chiu concentric parameterization (exact port of core/src/sampling/hemisphere.rs) ----
+
+const PI: f32 = 3.14159265358979323846;
+const FRAC_PI_2: f32 = 1.57079632679489661923;
+const FRAC_PI_4: f32 = 0.785398163397448309616;
+
+// disk_to_square
+fn disk_to_square(p: vec2<f32>) -> vec2<f32> {
+    let r = length(p);
+    if r == 0.0 {
+        return vec2<f32>(0.5, 0.5);
+    }
+    var phi = atan2(p.y, p.x);
+    if phi < -FRAC_PI_4 {
+        phi += 2.0 * PI;
+    }
+    var a: f32;
+    var b: f32;
+    if phi < FRAC_PI_4 {
+        a = r;
+        b = phi / FRAC_PI_4 * r;
+    } else if phi < 3.0 * FRAC_PI_4 {
+        a = -(phi - FRAC_PI_2) / FRAC_PI_4 * r;
+        b = r;
+    } else if phi < 5.0 * FRAC_PI_4 {
+        a = -r;
+        b = -(phi - PI) / FRAC_PI_4 * r;
+    } else {
+        a = (phi - 3.0 * FRAC_PI_2) / FRAC_PI_4 * r;
+        b = -r;
+    }
+    return clamp(vec2<f32>((a + 1.0) * 0.5, (b + 1.0) * 0.5), vec2<f32>(0.0), vec2<f32>(1.0));
+}
+
+// hemisphere_to_square
+fn hemisphere_to_square(d: vec3<f32>) -> vec2<f32> {
+    let z = clamp(d.z, 0.0, 1.0);
+    let r = sqrt(1.0 - z);
+    let xy = d.xy;
+    let len = length(xy);
+    if len == 0.0 {
+        return vec2<f32>(0.5, 0.5);
+    }
+    return disk_to_square(xy * (r / len));
+}
+
+// HemisphereGrid::continuous_coords: (x, y) in [0, m-1]^2, integers at bin centres.
+fn continuous_coords(m: u32, dir: vec3<f32>) -> vec2<f32> {
+    var d = dir;
+    if d.z < 1e-6 {
+        d.z = 1e-6;
+    }
+    let uv = hemisphere_to_square(normalize(d));
+    let mf = f32(m);
+    return clamp(uv * mf - 0.5, vec2<f32>(0.0), vec2<f32>(mf - 1.0));
+}
+
+// VertexFrame::from_normal (Duff et al. 2017): tangent and bitangent around unit n.
+// sign = copysign(1, n.z), so -0.0 counts as negative exactly as on the CPU.
+fn duff_basis(n: vec3<f32>) -> array<vec3<f32>, 2> {
+    let s = select(1.0, -1.0, (bitcast<u32>(n.z) & 0x80000000u) != 0u);
+    let a = -1.0 / (s + n.z);
+    let b = n.x * n.y * a;
+    return array<vec3<f32>, 2>(
+        vec3<f32>(1.0 + s * n.x * n.x * a, s * b, -s * n.x),
+        vec3<f32>(b, s + n.y * n.y * a, -n.y),
+    );
+}
+
+// Btf::texel_of: nearest texel, wrapping; row = floor(v * height).
+fn wrap_texel(x: f32, n: u32) -> u32 {
+    let i = floor(x * f32(n));
+    let r = i - f32(n) * floor(i / f32(n));
+    return min(u32(max(r, 0.0)), n - 1u);
+}
+
+fn lstar_at(vertex: u32, j: u32) -> vec3<f32> {
+    let k = (vertex * params.local_dirs + j) * 3u;
+    return vec3<f32>(lstar[k], lstar[k + 1u], lstar[k + 2u]);
+}
+
+fn btf_at(texel: u32, view: u32, views: u32, j: u32) -> vec3<f32> {
+    let k = ((texel * views + view) * params.local_dirs + j) * 3u;
+    return vec3<f32>(btf[k], btf[k + 1u], btf[k + 2u]);
+}
+
+// ---- pass 2: shading ----
+
+@compute @workgroup_size(8, 8)
+fn shade_pixels(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if gid.x >= params.width || gid.y >= params.height {
+        return;
+    }
+    let px = vec2<i32>(gid.xy);
+    let id = textureLoad(visibility, px, 0).x;
+    if id == 0u {
+        textureStore(image, px, vec4<f32>(0.0));
+        return;
+    }
+    let tri = id - 1u;
+    let i0 = indices[3u * tri];
+    let i1 = indices[3u * tri + 1u];
+    let i2 = indices[3u * tri + 2u];
+    let v0 = vertices[i0];
+    let v1 = vertices[i1];
+    let v2 = vertices[i2];
+
+    // The pixel centre's primary ray (shading::camera::Camera::ray).
+    let sx = 2.0 * (f32(gid.x) + 0.5) / f32(params.width) - 1.0;
+    let sy = 1.0 - 2.0 * (f32(gid.y) + 0.5) / f32(params.height);
+    let o = params.camera_pos;
+    let dir = normalize(params.cam_forward + params.cam_right * sx + params.cam_up * sy);
+
+    // Moller-Trumbore barycentrics (no culling; the rasterizer already chose the triangle),
+    // clamped to the triangle and renormalized as shading::cpu::primary_hit does.
+    let e1 = v1.position - v0.position;
+    let e2 = v2.position - v0.position;
+    let pvec = cross(dir, e2);
+    let det = dot(e1, pvec);
+    var b = vec3<f32>(1.0, 0.0, 0.0);
+    if abs(det) > 0.0 {
+        let inv = 1.0 / det;
+        let tvec = o - v0.position;
+        let qvec = cross(tvec, e1);
+        let b1 = dot(tvec, pvec) * inv;
+        let b2 = dot(dir, qvec) * inv;
+        let w = max(vec3<f32>(1.0 - b1 - b2, b1, b2), vec3<f32>(0.0));
+        let sum = w.x + w.y + w.z;
+        if sum > 0.0 {
+            b = w / sum;
+        }
+    }
+
+    // Interpolated frame as VertexFrame::from_normal_tangent: normalized normal (the face
+    // normal where vertex normals cancel), tangent made orthogonal to it, bitangent n x t.
+    var n_raw = b.x * v0.normal + b.y * v1.normal + b.z * v2.normal;
+    if !(dot(n_raw, n_raw) > 1e-12) {
+        n_raw = cross(e1, e2);
+    }
+    var n = vec3<f32>(0.0, 1.0, 0.0);
+    if dot(n_raw, n_raw) > 0.0 {
+        n = normalize(n_raw);
+    }
+    let t_raw = b.x * v0.tangent + b.y * v1.tangent + b.z * v2.tangent;
+    let t_orth = t_raw - n * dot(n, t_raw);
+    var t: vec3<f32>;
+    var bt: vec3<f32>;
+    if length(t_orth) > 1e-6 * length(t_raw) {
+        t = normalize(t_orth);
+        bt = cross(n, t);
+    } else {
+        let basis = duff_basis(n);
+        t = basis[0];
+        bt = basis[1];
+    }
+    let e_local = vec3<f32>(dot(-dir, t), dot(-dir, bt), dot(-dir, n));
+
+    let uv = b.x * vec2<f32>(v0.u, v0.v) + b.y * vec2<f32>(v1.u, v1.v) + b.z * vec2<f32>(v2.u, v2.v);
+    let texel = wrap_texel(uv.y, params.btf_height) * params.btf_width + wrap_texel(uv.x, params.btf_width);
+
+    // View samples: Btf::view_weights, bilinear between the 4 nearest view-grid bin centres.
+    var views = 1u;
+    var view_idx = array<u32, 4>(0u, 0u, 0u, 0u);
+    var view_w = array<f32, 4>(1.0, 0.0, 0.0, 0.0);
+    var samples = 1u;
+    if params.view_m > 0u {
+        let m = params.view_m;
+        views = m * m;
+        if m > 1u {
+            let c = continuous_coords(m, e_local);
+            let x0 = min(u32(floor(c.x)), m - 2u);
+            let y0 = min(u32(floor(c.y)), m - 2u);
+            let fx = clamp(c.x - f32(x0), 0.0, 1.0);
+            let fy = clamp(c.y - f32(y0), 0.0, 1.0);
+            view_idx = array<u32, 4>(y0 * m + x0, y0 * m + x0 + 1u, (y0 + 1u) * m + x0, (y0 + 1u) * m + x0 + 1u);
+            view_w = array<f32, 4>((1.0 - fx) * (1.0 - fy), fx * (1.0 - fy), (1.0 - fx) * fy, fx * fy);
+            samples = 4u;
+        }
+    }
+
+    var acc = vec3<f32>(0.0);
+    for (var j = 0u; j < params.local_dirs; j++) {
+        let l = b.x * lstar_at(i0, j) + b.y * lstar_at(i1, j) + b.z * lstar_at(i2, j);
+        var bj = vec3<f32>(0.0);
+        for (var s = 0u; s < samples; s++) {
+            bj += view_w[s] * btf_at(texel, view_idx[s], views, j);
+        }
+        acc += bj * l;
+    }
+    textureStore(image, px, vec4<f32>(acc, 1.0));
+}

@@ -1,0 +1,107 @@
+//! Every struct shared between Rust and WGSL has the same size and member offsets on both
+//! sides: naga's WGSL front end lays the WGSL struct out (the same layout wgpu uses) and we
+//! compare with `offset_of!` on the `#[repr(C)]` Rust struct. A vec3 followed by a scalar, or
+//! a missing pad, shows up here instead of as garbage on the GPU.
+
+use crate::gather::program::PRELUDE;
+use crate::shade::SHADE_WGSL;
+use crate::{GatherParams, GpuVertex, ShadeParams};
+use std::mem::{offset_of, size_of};
+
+/// (WGSL struct name, Rust size, [(WGSL member, Rust offset)]) checked against `source`.
+fn check(source: &str, name: &str, size: usize, members: &[(&str, usize)]) {
+    let module = naga::front::wgsl::parse_str(source).unwrap_or_else(|e| panic!("{}", e.emit_to_string(source)));
+    let ty = module
+        .types
+        .iter()
+        .find(|(_, t)| t.name.as_deref() == Some(name))
+        .unwrap_or_else(|| panic!("WGSL has no struct {name}"))
+        .1;
+    let naga::TypeInner::Struct { members: wgsl, span } = &ty.inner else { panic!("{name} is not a struct") };
+    assert_eq!(*span as usize, size, "{name}: WGSL size {span} vs Rust size {size}");
+    assert_eq!(wgsl.len(), members.len(), "{name}: WGSL has {} members, the table {}", wgsl.len(), members.len());
+    for (w, (rust_name, rust_offset)) in wgsl.iter().zip(members) {
+        assert_eq!(w.name.as_deref(), Some(*rust_name), "{name}: member order differs");
+        assert_eq!(
+            w.offset as usize, *rust_offset,
+            "{name}.{rust_name}: WGSL offset {} vs Rust {rust_offset}",
+            w.offset
+        );
+    }
+}
+
+#[test]
+fn gather_params_layout_matches_wgsl() {
+    type P = GatherParams;
+    check(
+        PRELUDE,
+        "GatherParams",
+        size_of::<P>(),
+        &[
+            ("rows", offset_of!(P, rows)),
+            ("cols", offset_of!(P, cols)),
+            ("local_dirs", offset_of!(P, local_dirs)),
+            ("vertices", offset_of!(P, vertices)),
+            ("threads", offset_of!(P, threads)),
+            ("pass_index", offset_of!(P, pass_index)),
+            ("pad0", offset_of!(P, _pad)),
+            ("pad1", offset_of!(P, _pad) + 4),
+        ],
+    );
+}
+
+#[test]
+fn shade_params_layout_matches_wgsl() {
+    type P = ShadeParams;
+    check(
+        SHADE_WGSL,
+        "ShadeParams",
+        size_of::<P>(),
+        &[
+            ("view_proj", offset_of!(P, view_proj)),
+            ("cam_right", offset_of!(P, cam_right)),
+            ("width", offset_of!(P, width)),
+            ("cam_up", offset_of!(P, cam_up)),
+            ("height", offset_of!(P, height)),
+            ("cam_forward", offset_of!(P, cam_forward)),
+            ("local_dirs", offset_of!(P, local_dirs)),
+            ("camera_pos", offset_of!(P, camera_pos)),
+            ("light_m", offset_of!(P, light_m)),
+            ("btf_width", offset_of!(P, btf_width)),
+            ("btf_height", offset_of!(P, btf_height)),
+            ("view_m", offset_of!(P, view_m)),
+            ("vertex_count", offset_of!(P, vertex_count)),
+            ("triangle_count", offset_of!(P, triangle_count)),
+            ("pad0", offset_of!(P, _pad)),
+            ("pad1", offset_of!(P, _pad) + 4),
+            ("pad2", offset_of!(P, _pad) + 8),
+        ],
+    );
+}
+
+#[test]
+fn vertex_layout_matches_wgsl() {
+    type V = GpuVertex;
+    check(
+        SHADE_WGSL,
+        "Vertex",
+        size_of::<V>(),
+        &[
+            ("position", offset_of!(V, position)),
+            ("u", offset_of!(V, u)),
+            ("normal", offset_of!(V, normal)),
+            ("v", offset_of!(V, v)),
+            ("tangent", offset_of!(V, tangent)),
+            ("pad", offset_of!(V, _pad)),
+        ],
+    );
+}
+
+#[test]
+fn layout_check_catches_a_vec3_followed_by_a_misplaced_scalar() {
+    // The check itself must fail on the classic mistake: Rust packs [f32; 3] + u32 into 16
+    // bytes, WGSL puts a vec3<f32> at a 16-byte boundary.
+    let wgsl = "struct Bad { a: f32, b: vec3<f32>, c: u32 }";
+    let r = std::panic::catch_unwind(|| check(wgsl, "Bad", 20, &[("a", 0), ("b", 4), ("c", 16)]));
+    assert!(r.is_err());
+}
