@@ -1,1 +1,99 @@
-fn main() {}
+//! The `biscale` command-line tool. See `biscale --help`.
+
+use anyhow::Context;
+use biscale::config::Experiment;
+use biscale::pipeline::RunOptions;
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+
+/// biscale: all-frequency bi-scale precomputed radiance transfer, as a research pipeline.
+///
+/// An experiment is one TOML file (see configs/). `biscale run` traces the per-vertex
+/// visibility transfer matrix T, compresses it with every compressor the config names,
+/// gathers the local incident radiance L* = T L, shades an image per compressor and writes
+/// plan.txt, metrics.json, report.md and images/ into the output folder.
+#[derive(Parser)]
+#[command(name = "biscale", version, about, long_about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run an experiment and write its output folder (default out/<name>/).
+    Run {
+        /// The experiment's TOML file.
+        config: PathBuf,
+        /// Output folder (default: out/<experiment name>/).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Do not read or write the transfer-matrix cache.
+        #[arg(long)]
+        no_cache: bool,
+        /// Cache folder (default: .cache beside the output folder).
+        #[arg(long)]
+        cache_dir: Option<PathBuf>,
+    },
+    /// Print what `run` would do and what it leaves out, without running anything.
+    Plan {
+        config: PathBuf,
+    },
+    /// Write T.mtx (sparse, Matrix Market) and L.mtx (dense N x 3) for other tools, e.g.
+    /// `scipy.io.mmread`.
+    ExportMatrix {
+        config: PathBuf,
+        /// Folder to write T.mtx and L.mtx into.
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long)]
+        no_cache: bool,
+    },
+    /// Compare two EXR images: prints RMSE, PSNR and relative L2 of A against B.
+    Diff {
+        a: PathBuf,
+        /// The reference image.
+        b: PathBuf,
+        /// Also write a false-colour error image (PNG).
+        #[arg(long)]
+        error_image: Option<PathBuf>,
+    },
+}
+
+fn load(config: &PathBuf) -> anyhow::Result<Experiment> {
+    Ok(Experiment::load(config)?)
+}
+
+fn main() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Run { config, out, no_cache, cache_dir } => {
+            let exp = load(&config)?;
+            let opts = RunOptions { out_dir: out, cache_dir, no_cache };
+            biscale::pipeline::run(&exp, &opts).with_context(|| format!("running {}", config.display()))?;
+        }
+        Command::Plan { config } => {
+            let exp = load(&config)?;
+            print!("{}", biscale::plan::Plan::new(&exp));
+        }
+        Command::ExportMatrix { config, out, no_cache } => {
+            let exp = load(&config)?;
+            let opts = RunOptions { out_dir: Some(out.clone()), cache_dir: None, no_cache };
+            let (t, l) = biscale::commands::export_matrix(&exp, &out, &opts)?;
+            println!(
+                "wrote {} ({} x {}, {} non-zeros) and {} ({} x 3)",
+                out.join("T.mtx").display(),
+                t.rows(),
+                t.cols(),
+                t.nnz(),
+                out.join("L.mtx").display(),
+                l.len()
+            );
+        }
+        Command::Diff { a, b, error_image } => {
+            let m = biscale::commands::diff(&a, &b, error_image.as_deref())?;
+            println!("rmse {:.6e}\npsnr {:.3} dB\nrel_l2 {:.6e}\npixels {}", m.rmse, m.psnr, m.rel_l2, m.pixels);
+        }
+    }
+    Ok(())
+}

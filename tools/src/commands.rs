@@ -1,0 +1,68 @@
+//! The smaller commands: `export-matrix` (Matrix Market files for SciPy and friends) and
+//! `diff` (image error between two EXR files).
+
+use crate::config::Experiment;
+use crate::pipeline::{self, PipelineError, Result, RunOptions};
+use crate::util::write_atomic_with;
+use biscale_core::sampling::LightVector;
+use biscale_core::transfer::TransferMatrix;
+use biscale_shading::image::{compare, error_image as error_image_of, write_rgb8_png, HdrImage, ImageMetrics};
+use std::io::Write;
+use std::path::Path;
+
+/// Write `T.mtx` (coordinate, real, general; 1-based) and `L.mtx` (array N x 3, column-major)
+/// into `dir`, both readable by `scipy.io.mmread`.
+pub fn export_matrix(exp: &Experiment, dir: &Path, opts: &RunOptions) -> Result<(TransferMatrix, LightVector)> {
+    std::fs::create_dir_all(dir).map_err(|source| PipelineError::Io { path: dir.into(), source })?;
+    let scene = pipeline::load_scene(exp)?;
+    let lighting = pipeline::load_lighting(exp)?;
+    let (t, _) = pipeline::transfer_matrix(exp, &scene, opts, dir)?;
+    write_mtx(&t, &lighting.light, dir)?;
+    Ok((t, lighting.light))
+}
+
+pub fn write_mtx(t: &TransferMatrix, light: &LightVector, dir: &Path) -> Result<()> {
+    let tp = dir.join("T.mtx");
+    write_atomic_with(&tp, |f| {
+        writeln!(f, "%%MatrixMarket matrix coordinate real general")?;
+        writeln!(f, "% biscale transfer matrix: row = vertex * M + j (M = {}), column = cubemap texel", t.local_dirs)?;
+        writeln!(f, "{} {} {}", t.rows(), t.cols(), t.nnz())?;
+        for (r, row) in t.csr.outer_iterator().enumerate() {
+            for (c, v) in row.iter() {
+                writeln!(f, "{} {} {}", r + 1, c + 1, v)?;
+            }
+        }
+        Ok(())
+    })
+    .map_err(|source| PipelineError::Io { path: tp.clone(), source })?;
+    let lp = dir.join("L.mtx");
+    write_atomic_with(&lp, |f| {
+        writeln!(f, "%%MatrixMarket matrix array real general")?;
+        writeln!(f, "% biscale light vector: power per cubemap texel (radiance x solid angle), RGB columns")?;
+        writeln!(f, "{} 3", light.len())?;
+        for c in 0..3 {
+            for p in &light.power {
+                writeln!(f, "{:e}", p[c])?;
+            }
+        }
+        Ok(())
+    })
+    .map_err(|source| PipelineError::Io { path: lp.clone(), source })?;
+    Ok(())
+}
+
+/// Compare two EXR images (`b` is the reference); optionally write a false-colour error image.
+pub fn diff(a: &Path, b: &Path, error_image: Option<&Path>) -> Result<ImageMetrics> {
+    let (ia, wa) = HdrImage::read_exr(a)?;
+    let (ib, wb) = HdrImage::read_exr(b)?;
+    for w in wa.iter().chain(&wb) {
+        eprintln!("warning: {w}");
+    }
+    let m = compare(&ia, &ib, None)?;
+    if let Some(p) = error_image {
+        let (img, scale) = error_image_of(&ia, &ib, None)?;
+        write_rgb8_png(&img, p)?;
+        eprintln!("wrote {} (full scale = luminance error {scale:.4e})", p.display());
+    }
+    Ok(m)
+}

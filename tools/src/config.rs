@@ -1,0 +1,555 @@
+//! Experiment configuration: one TOML file per experiment (DESIGN.md section 7).
+//!
+//! Every table denies unknown keys; type errors, unknown keys, out-of-range values and
+//! missing files are reported as `file:line:column: message` with the offending line shown.
+//! Paths in a config are relative to the config file's folder.
+//!
+//! ```toml
+//! name = "bunny"
+//! [scene]
+//! mesh = "../assets/meshes/bunny.obj"
+//! [scene.material]
+//! kind = "lambertian"
+//! albedo = [0.8, 0.8, 0.8]
+//! [lighting]
+//! env_map = "../assets/envmaps/blender_forest.exr"
+//! [[compressors]]
+//! kind = "sparse"
+//! ```
+
+use serde::de::{self, Deserializer, SeqAccess, Visitor};
+use serde::Deserialize;
+use std::fmt;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+use toml::Spanned;
+
+/// A config error with its location, rendered like a compiler diagnostic.
+#[derive(Debug, thiserror::Error)]
+#[error("{file}:{line}:{column}: {message}\n{snippet}")]
+pub struct ConfigError {
+    pub file: String,
+    pub line: usize,
+    pub column: usize,
+    pub message: String,
+    pub snippet: String,
+}
+
+impl ConfigError {
+    /// An error at byte range `span` of `source`.
+    pub fn at(file: &Path, source: &str, span: Range<usize>, message: impl Into<String>) -> Self {
+        let start = span.start.min(source.len());
+        let line_start = source[..start].rfind('\n').map_or(0, |i| i + 1);
+        let line = source[..start].matches('\n').count() + 1;
+        let column = source[line_start..start].chars().count() + 1;
+        let line_end = source[start..].find('\n').map_or(source.len(), |i| start + i);
+        let text = &source[line_start..line_end];
+        let width = source[start..span.end.min(line_end).max(start)].chars().count().max(1);
+        let snippet = format!("{line:>4} | {text}\n     | {}{}", " ".repeat(column - 1), "^".repeat(width));
+        Self { file: file.display().to_string(), line, column, message: message.into(), snippet }
+    }
+
+    fn whole_file(file: &Path, message: impl Into<String>) -> Self {
+        Self { file: file.display().to_string(), line: 1, column: 1, message: message.into(), snippet: String::new() }
+    }
+}
+
+/// A parameter that is either one value or a list of values to sweep over.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Sweep<T>(pub Vec<T>);
+
+impl<'de, T: Deserialize<'de>> Deserialize<'de> for Sweep<T> {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V<T>(std::marker::PhantomData<T>);
+        impl<'de, T: Deserialize<'de>> Visitor<'de> for V<T> {
+            type Value = Sweep<T>;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("a value or a non-empty array of values to sweep")
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
+                let mut v = vec![];
+                while let Some(x) = seq.next_element()? {
+                    v.push(x);
+                }
+                if v.is_empty() {
+                    return Err(de::Error::custom("a sweep needs at least one value"));
+                }
+                Ok(Sweep(v))
+            }
+            fn visit_i64<E: de::Error>(self, x: i64) -> Result<Self::Value, E> {
+                T::deserialize(de::value::I64Deserializer::new(x)).map(|t| Sweep(vec![t]))
+            }
+            fn visit_u64<E: de::Error>(self, x: u64) -> Result<Self::Value, E> {
+                T::deserialize(de::value::U64Deserializer::new(x)).map(|t| Sweep(vec![t]))
+            }
+            fn visit_f64<E: de::Error>(self, x: f64) -> Result<Self::Value, E> {
+                T::deserialize(de::value::F64Deserializer::new(x)).map(|t| Sweep(vec![t]))
+            }
+        }
+        d.deserialize_any(V(std::marker::PhantomData))
+    }
+}
+
+/// The whole experiment file.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExperimentFile {
+    /// Experiment name: the default output folder is `out/<name>/`.
+    pub name: Spanned<String>,
+    /// Seed for every random choice in the run.
+    #[serde(default)]
+    pub seed: u64,
+    pub scene: SceneConfig,
+    pub lighting: LightingConfig,
+    #[serde(default)]
+    pub transfer: TransferConfig,
+    #[serde(default)]
+    pub compressors: Vec<Spanned<CompressorConfig>>,
+    #[serde(default)]
+    pub runtime: RuntimeConfig,
+    #[serde(default)]
+    pub report: ReportConfig,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneConfig {
+    /// OBJ mesh, relative to the config file.
+    pub mesh: Spanned<PathBuf>,
+    #[serde(default)]
+    pub material: MaterialConfig,
+}
+
+/// The material (one per scene for now).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum MaterialConfig {
+    /// View-independent diffuse BTF: `albedo / pi * cos`.
+    Lambertian { albedo: [f32; 3] },
+    /// Normalized modified Phong, view-dependent (`view_grid` x `view_grid` view samples).
+    Phong {
+        kd: [f32; 3],
+        ks: [f32; 3],
+        exponent: f32,
+        #[serde(default = "default_view_grid")]
+        view_grid: u32,
+    },
+}
+
+fn default_view_grid() -> u32 {
+    12
+}
+
+impl Default for MaterialConfig {
+    fn default() -> Self {
+        MaterialConfig::Lambertian { albedo: [0.8, 0.8, 0.8] }
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LightingConfig {
+    /// Lat-long EXR or HDR environment map (relative to the config file).
+    pub env_map: Option<Spanned<PathBuf>>,
+    /// A constant sky of this radiance instead of a map.
+    pub constant: Option<[f32; 3]>,
+    /// Rotation of the environment about +Y, degrees.
+    #[serde(default)]
+    pub rotation_degrees: f64,
+    /// Multiply the brightest cubemap texel by this factor (the stiff "sun" case).
+    pub sun_boost: Option<Spanned<f32>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TransferConfig {
+    /// Light cubemap resolution R (N = 6 R^2). Reference 32.
+    #[serde(default = "default_cubemap")]
+    pub cubemap_resolution: Spanned<u32>,
+    /// Visibility cubemap resolution (a multiple of R). Reference 64 (2x2 box filter).
+    #[serde(default = "default_visibility")]
+    pub visibility_resolution: Spanned<u32>,
+    /// Local light directions per axis m (M = m^2). Reference 8.
+    #[serde(default = "default_local_grid")]
+    pub local_grid: Spanned<u32>,
+}
+
+fn default_cubemap() -> Spanned<u32> {
+    Spanned::new(0..0, 32)
+}
+fn default_visibility() -> Spanned<u32> {
+    Spanned::new(0..0, 64)
+}
+fn default_local_grid() -> Spanned<u32> {
+    Spanned::new(0..0, 8)
+}
+
+impl Default for TransferConfig {
+    fn default() -> Self {
+        Self {
+            cubemap_resolution: default_cubemap(),
+            visibility_resolution: default_visibility(),
+            local_grid: default_local_grid(),
+        }
+    }
+}
+
+/// One compressor entry; list-valued parameters are swept (every combination runs).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum CompressorConfig {
+    /// The raw CSR matrix (the uncompressed baseline).
+    Sparse {},
+    /// Greedy constant-column biclustering (lossless).
+    Bicluster {
+        /// Vertices per independently biclustered block (0 = the whole matrix at once).
+        block_vertices: Option<Sweep<usize>>,
+    },
+    /// Clustered PCA: `clusters` clusters of `components` principal components.
+    Cpca {
+        clusters: Option<Sweep<usize>>,
+        components: Option<Sweep<usize>>,
+        iterations: Option<usize>,
+    },
+    /// Non-linear Haar wavelets: the `terms` largest area-weighted coefficients per row.
+    Haar { terms: Option<Sweep<usize>> },
+}
+
+impl CompressorConfig {
+    pub fn kind(&self) -> &'static str {
+        match self {
+            CompressorConfig::Sparse {} => "sparse",
+            CompressorConfig::Bicluster { .. } => "bicluster",
+            CompressorConfig::Cpca { .. } => "cpca",
+            CompressorConfig::Haar { .. } => "haar",
+        }
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RuntimeConfig {
+    /// `cpu` (the reference) or `gpu` (wgpu).
+    #[serde(default)]
+    pub backend: Backend,
+    #[serde(default = "default_width")]
+    pub width: Spanned<u32>,
+    #[serde(default = "default_height")]
+    pub height: Spanned<u32>,
+    #[serde(default)]
+    pub camera: CameraConfig,
+    /// Repetitions for timing the gather and shade (medians are reported).
+    #[serde(default = "default_repeats")]
+    pub repeats: usize,
+}
+
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum Backend {
+    #[default]
+    Cpu,
+    Gpu,
+}
+
+fn default_width() -> Spanned<u32> {
+    Spanned::new(0..0, 640)
+}
+fn default_height() -> Spanned<u32> {
+    Spanned::new(0..0, 480)
+}
+fn default_repeats() -> usize {
+    5
+}
+
+impl Default for RuntimeConfig {
+    fn default() -> Self {
+        Self {
+            backend: Backend::Cpu,
+            width: default_width(),
+            height: default_height(),
+            camera: CameraConfig::default(),
+            repeats: default_repeats(),
+        }
+    }
+}
+
+/// Camera: orbit angles around the mesh's bounding sphere, or an explicit position/target.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CameraConfig {
+    #[serde(default = "default_azimuth")]
+    pub azimuth_degrees: f32,
+    #[serde(default = "default_elevation")]
+    pub elevation_degrees: f32,
+    #[serde(default = "default_fov")]
+    pub fov_y_degrees: f32,
+    pub position: Option<[f32; 3]>,
+    pub target: Option<[f32; 3]>,
+}
+
+fn default_azimuth() -> f32 {
+    30.0
+}
+fn default_elevation() -> f32 {
+    20.0
+}
+fn default_fov() -> f32 {
+    35.0
+}
+
+impl Default for CameraConfig {
+    fn default() -> Self {
+        Self {
+            azimuth_degrees: default_azimuth(),
+            elevation_degrees: default_elevation(),
+            fov_y_degrees: default_fov(),
+            position: None,
+            target: None,
+        }
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReportConfig {
+    /// Trace the per-pixel reference image (slow) and report errors against it.
+    #[serde(default)]
+    pub reference: bool,
+    /// Resolution divisor for the reference image and the images compared with it.
+    #[serde(default = "default_one")]
+    pub reference_downscale: Spanned<u32>,
+    /// Exposure of the PNG images in stops (value x 2^exposure).
+    #[serde(default)]
+    pub exposure: f32,
+    /// Draw the environment behind the mesh in the images.
+    #[serde(default = "default_true")]
+    pub background: bool,
+}
+
+fn default_one() -> Spanned<u32> {
+    Spanned::new(0..0, 1)
+}
+fn default_true() -> bool {
+    true
+}
+
+impl Default for ReportConfig {
+    fn default() -> Self {
+        Self { reference: false, reference_downscale: default_one(), exposure: 0.0, background: true }
+    }
+}
+
+/// A parsed and checked experiment, with paths resolved against the config's folder.
+#[derive(Debug)]
+pub struct Experiment {
+    pub config_path: PathBuf,
+    pub source: String,
+    pub file: ExperimentFile,
+    pub mesh_path: PathBuf,
+    pub env_path: Option<PathBuf>,
+}
+
+impl Experiment {
+    /// Read, parse and validate a config file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let source = std::fs::read_to_string(path)
+            .map_err(|e| ConfigError::whole_file(path, format!("cannot read config: {e}")))?;
+        Self::parse(path, source)
+    }
+
+    /// Parse and validate config text (`path` is used for messages and relative paths).
+    pub fn parse(path: &Path, source: String) -> Result<Self, ConfigError> {
+        let file: ExperimentFile = toml::from_str(&source).map_err(|e| {
+            let span = e.span().unwrap_or(0..0);
+            ConfigError::at(path, &source, span, e.message().to_string())
+        })?;
+        let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        let err = |span: Range<usize>, msg: String| ConfigError::at(path, &source, span, msg);
+
+        let resolve = |p: &Spanned<PathBuf>, what: &str| -> Result<PathBuf, ConfigError> {
+            let full = dir.join(p.get_ref());
+            if !full.is_file() {
+                return Err(err(p.span(), format!("{what} file not found: {}", full.display())));
+            }
+            Ok(full)
+        };
+        if file.name.get_ref().trim().is_empty()
+            || file.name.get_ref().contains(['/', '\\'])
+            || file.name.get_ref().starts_with('.')
+        {
+            return Err(err(file.name.span(), "name must be a plain folder name (no slashes, not empty)".into()));
+        }
+        let mesh_path = resolve(&file.scene.mesh, "mesh")?;
+        let env_path = match (&file.lighting.env_map, &file.lighting.constant) {
+            (Some(p), None) => Some(resolve(p, "env map")?),
+            (None, Some(c)) => {
+                if c.iter().any(|v| !v.is_finite() || *v < 0.0) {
+                    return Err(ConfigError::whole_file(path, "lighting.constant must be finite and >= 0"));
+                }
+                None
+            }
+            (Some(p), Some(_)) => {
+                return Err(err(p.span(), "give either lighting.env_map or lighting.constant, not both".into()))
+            }
+            (None, None) => {
+                return Err(ConfigError::whole_file(path, "[lighting] needs env_map = \"...\" or constant = [r, g, b]"))
+            }
+        };
+        if let Some(b) = &file.lighting.sun_boost {
+            if !(b.get_ref().is_finite() && *b.get_ref() > 0.0) {
+                return Err(err(b.span(), "sun_boost must be a positive finite factor".into()));
+            }
+        }
+
+        let t = &file.transfer;
+        let range = |v: &Spanned<u32>, lo: u32, hi: u32, what: &str| -> Result<(), ConfigError> {
+            if *v.get_ref() < lo || *v.get_ref() > hi {
+                return Err(err(v.span(), format!("{what} must be in {lo}..={hi}, got {}", v.get_ref())));
+            }
+            Ok(())
+        };
+        range(&t.cubemap_resolution, 1, 104, "transfer.cubemap_resolution (N = 6 R^2 must fit 16-bit indices)")?;
+        range(&t.visibility_resolution, 1, 1024, "transfer.visibility_resolution")?;
+        range(&t.local_grid, 1, 64, "transfer.local_grid")?;
+        if t.visibility_resolution.get_ref() % t.cubemap_resolution.get_ref() != 0 {
+            return Err(err(
+                t.visibility_resolution.span(),
+                format!(
+                    "transfer.visibility_resolution ({}) must be a multiple of cubemap_resolution ({})",
+                    t.visibility_resolution.get_ref(),
+                    t.cubemap_resolution.get_ref()
+                ),
+            ));
+        }
+        range(&file.runtime.width, 1, 16384, "runtime.width")?;
+        range(&file.runtime.height, 1, 16384, "runtime.height")?;
+        range(&file.report.reference_downscale, 1, 64, "report.reference_downscale")?;
+        if file.runtime.repeats == 0 {
+            return Err(ConfigError::whole_file(path, "runtime.repeats must be at least 1"));
+        }
+        for c in &file.compressors {
+            check_compressor(c.get_ref()).map_err(|m| err(c.span(), m))?;
+        }
+        if let MaterialConfig::Phong { exponent, view_grid, kd, ks } = &file.scene.material {
+            if !(exponent.is_finite() && *exponent >= 0.0) || *view_grid == 0 || *view_grid > 64 {
+                return Err(ConfigError::whole_file(path, "scene.material: phong needs exponent >= 0 and view_grid in 1..=64"));
+            }
+            if kd.iter().chain(ks).any(|v| !v.is_finite() || *v < 0.0) {
+                return Err(ConfigError::whole_file(path, "scene.material: kd and ks must be finite and >= 0"));
+            }
+        }
+        Ok(Self { config_path: path.to_path_buf(), source, file, mesh_path, env_path })
+    }
+
+    pub fn name(&self) -> &str {
+        self.file.name.get_ref()
+    }
+
+    /// Transfer settings from the config.
+    pub fn transfer_settings(&self) -> biscale_core::transfer::TransferSettings {
+        let t = &self.file.transfer;
+        biscale_core::transfer::TransferSettings {
+            cubemap_resolution: *t.cubemap_resolution.get_ref(),
+            visibility_resolution: *t.visibility_resolution.get_ref(),
+            local_grid: *t.local_grid.get_ref(),
+        }
+    }
+}
+
+fn check_compressor(c: &CompressorConfig) -> Result<(), String> {
+    let positive = |s: &Option<Sweep<usize>>, what: &str| -> Result<(), String> {
+        if let Some(Sweep(v)) = s {
+            if v.iter().any(|&x| x == 0) {
+                return Err(format!("{} {what} must be at least 1", c.kind()));
+            }
+        }
+        Ok(())
+    };
+    match c {
+        CompressorConfig::Sparse {} | CompressorConfig::Bicluster { .. } => Ok(()),
+        CompressorConfig::Cpca { clusters, components, iterations } => {
+            positive(clusters, "clusters")?;
+            positive(components, "components")?;
+            if iterations == &Some(0) {
+                return Err("cpca iterations must be at least 1".into());
+            }
+            Ok(())
+        }
+        CompressorConfig::Haar { terms } => positive(terms, "terms"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(s: &str) -> Result<Experiment, ConfigError> {
+        // Paths resolve against the workspace root's configs folder.
+        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/test.toml");
+        Experiment::parse(&p, s.to_string())
+    }
+
+    const OK: &str = "name = \"t\"\n[scene]\nmesh = \"../assets/meshes/bunny.obj\"\n[lighting]\nconstant = [1, 1, 1]\n";
+
+    #[test]
+    fn minimal_config_parses_with_defaults() {
+        let e = parse(OK).unwrap();
+        assert_eq!(e.transfer_settings(), biscale_core::transfer::TransferSettings::default());
+        assert_eq!(*e.file.runtime.width.get_ref(), 640);
+    }
+
+    #[test]
+    fn unknown_key_names_line_and_column() {
+        let e = parse(&format!("{OK}[transfer]\nlocal_grd = 8\n")).unwrap_err();
+        assert_eq!((e.line, e.column), (7, 1), "{e}");
+        assert!(e.message.contains("unknown field `local_grd`"), "{e}");
+        assert!(e.to_string().contains("test.toml:7:1"), "{e}");
+    }
+
+    #[test]
+    fn wrong_type_and_range_are_located() {
+        let e = parse(&format!("{OK}[transfer]\nlocal_grid = \"8\"\n")).unwrap_err();
+        assert_eq!(e.line, 7, "{e}");
+        let e = parse(&format!("{OK}[transfer]\nlocal_grid = 0\n")).unwrap_err();
+        assert_eq!((e.line, e.column), (7, 14), "{e}");
+        assert!(e.message.contains("1..=64"), "{e}");
+        let e = parse(&format!("{OK}[transfer]\ncubemap_resolution = 32\nvisibility_resolution = 48\n")).unwrap_err();
+        assert_eq!(e.line, 8, "{e}");
+        assert!(e.message.contains("multiple"), "{e}");
+    }
+
+    #[test]
+    fn missing_mesh_is_located() {
+        let e = parse(&OK.replace("bunny.obj", "nope.obj")).unwrap_err();
+        assert_eq!((e.line, e.column), (3, 8), "{e}");
+        assert!(e.message.contains("mesh file not found"), "{e}");
+    }
+
+    #[test]
+    fn malformed_toml_is_located() {
+        let e = parse("name = \"t\"\n[scene\nmesh = 3\n").unwrap_err();
+        assert_eq!(e.line, 2, "{e}");
+    }
+
+    #[test]
+    fn compressor_sweeps_and_bad_kinds() {
+        let e = parse(&format!("{OK}[[compressors]]\nkind = \"cpca\"\nclusters = [8, 16]\ncomponents = 4\n")).unwrap();
+        assert_eq!(
+            e.file.compressors[0].get_ref(),
+            &CompressorConfig::Cpca { clusters: Some(Sweep(vec![8, 16])), components: Some(Sweep(vec![4])), iterations: None }
+        );
+        let e = parse(&format!("{OK}[[compressors]]\nkind = \"zip\"\n")).unwrap_err();
+        assert_eq!(e.line, 7, "{e}");
+        assert!(e.message.contains("unknown variant `zip`"), "{e}");
+        let e = parse(&format!("{OK}[[compressors]]\nkind = \"haar\"\nterms = 0\n")).unwrap_err();
+        assert!(e.message.contains("terms must be at least 1"), "{e}");
+        let e = parse(&format!("{OK}[[compressors]]\nkind = \"haar\"\nterms = []\n")).unwrap_err();
+        assert!(e.message.contains("at least one value"), "{e}");
+    }
+
+    #[test]
+    fn lighting_needs_exactly_one_source() {
+        let e = parse(&OK.replace("constant = [1, 1, 1]", "")).unwrap_err();
+        assert!(e.message.contains("env_map"), "{e}");
+    }
+}

@@ -1,0 +1,88 @@
+//! The wgpu backend of the pipeline (`runtime.backend = "gpu"`, cargo feature `gpu`): the
+//! same compressed forms gathered and shaded by `biscale-gpu`, timed with GPU timestamps,
+//! and checked against the CPU results of the same run.
+
+use crate::metrics::{GpuRecord, ImageErrors};
+use crate::pipeline::{PipelineError, Result, Scene};
+use biscale_core::compress::CompressedForm;
+use biscale_core::gather::relative_l2_error;
+use biscale_core::sampling::LightVector;
+use biscale_gpu::{GpuCamera, GpuContext, GpuGather, GpuShader, ShadeInputs};
+use biscale_shading::camera::Camera;
+use biscale_shading::cpu::Render;
+use biscale_shading::image::{compare, HdrImage};
+
+fn gpu_err(e: biscale_gpu::GpuError) -> PipelineError {
+    PipelineError::Other(format!("gpu backend: {e}"))
+}
+
+/// A device plus the shader for the run's scene and camera.
+pub struct GpuBackend {
+    ctx: GpuContext,
+    shader: GpuShader,
+    pub adapter: String,
+}
+
+impl GpuBackend {
+    pub fn new(scene: &Scene, camera: &Camera) -> Result<Self> {
+        let ctx = GpuContext::new().map_err(gpu_err)?;
+        let a = ctx.adapter();
+        let adapter = format!("{} ({:?}, {})", a.name, a.backend, a.driver);
+        let positions: Vec<[f32; 3]> = scene.mesh.positions.iter().map(|p| p.to_array()).collect();
+        let normals: Vec<[f32; 3]> = scene.frames.iter().map(|f| f.normal.to_array()).collect();
+        let tangents: Vec<[f32; 3]> = scene.frames.iter().map(|f| f.tangent.to_array()).collect();
+        let uvs: Option<Vec<[f32; 2]>> = scene.mesh.uvs.as_ref().map(|u| u.iter().map(|v| v.to_array()).collect());
+        let inputs = ShadeInputs {
+            positions: &positions,
+            normals: &normals,
+            tangents: &tangents,
+            uvs: uvs.as_deref(),
+            triangles: &scene.mesh.triangles,
+            btf_data: &scene.btf.data,
+            btf_spatial: scene.btf.spatial,
+            light_m: scene.btf.light_grid.m,
+            view_m: scene.btf.view_grid.map(|g| g.m),
+            camera: GpuCamera {
+                position: camera.position,
+                target: camera.target,
+                up: camera.up,
+                fov_y_degrees: camera.fov_y_degrees,
+                width: camera.width,
+                height: camera.height,
+            },
+        };
+        let shader = GpuShader::new(&ctx, &inputs).map_err(gpu_err)?;
+        Ok(Self { ctx, shader, adapter })
+    }
+
+    /// Gather and shade `form` on the GPU; errors are measured against the f64 product
+    /// (`exact`) and the CPU render of the same form (`cpu`, over the CPU's coverage).
+    pub fn run(
+        &mut self,
+        form: &CompressedForm,
+        light: &LightVector,
+        exact: &[[f64; 3]],
+        cpu: &Render,
+        repeats: usize,
+    ) -> Result<GpuRecord> {
+        let mut gather = GpuGather::new(&self.ctx, form).map_err(gpu_err)?;
+        let gather_timing = gather.time_gather(light, repeats).map_err(gpu_err)?;
+        gather.gather(light).map_err(gpu_err)?;
+        let lstar = gather.read_lstar().map_err(gpu_err)?;
+        let shade_timing = self.shader.time_shade(&gather, repeats).map_err(gpu_err)?;
+        let img = self.shader.shade(&gather).map_err(gpu_err)?;
+        let gpu_image = HdrImage { width: img.width, height: img.height, pixels: img.pixels };
+        // The GPU draws no background: compare where the CPU render covers the mesh.
+        let m = compare(&gpu_image, &cpu.image, Some(&cpu.mask))?;
+        let coverage_mismatch = img.coverage.iter().zip(&cpu.mask).filter(|(a, b)| a != b).count();
+        Ok(GpuRecord {
+            adapter: self.adapter.clone(),
+            timing: format!("{:?}", gather_timing.method),
+            gather_ms: gather_timing.median_ms,
+            shade_ms: shade_timing.median_ms,
+            rel_error_lstar: relative_l2_error(&lstar.values, exact),
+            image_vs_cpu: ImageErrors { rmse: m.rmse, psnr: m.psnr, rel_l2: m.rel_l2 },
+            coverage_mismatch,
+        })
+    }
+}

@@ -1,0 +1,145 @@
+//! The self-contained HTML report: the Markdown report's tables plus every plot and image
+//! embedded as base64 data URIs, so the one file can be mailed or archived and opened
+//! without the program or the output folder.
+
+use crate::metrics::Metrics;
+use std::fmt::Write;
+use std::path::Path;
+
+/// Standard base64 (RFC 4648) with padding.
+pub fn base64(bytes: &[u8]) -> String {
+    const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut s = String::with_capacity(bytes.len().div_ceil(3) * 4);
+    for chunk in bytes.chunks(3) {
+        let b = [chunk[0], *chunk.get(1).unwrap_or(&0), *chunk.get(2).unwrap_or(&0)];
+        let n = (b[0] as u32) << 16 | (b[1] as u32) << 8 | b[2] as u32;
+        for i in 0..4 {
+            if i <= chunk.len() {
+                s.push(A[(n >> (18 - 6 * i) & 63) as usize] as char);
+            } else {
+                s.push('=');
+            }
+        }
+    }
+    s
+}
+
+fn escape(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+}
+
+/// `<img>` with the PNG at `out_dir/rel` embedded, or a note when it is missing.
+fn img(out_dir: &Path, rel: &str, alt: &str) -> String {
+    match std::fs::read(out_dir.join(rel)) {
+        Ok(bytes) => format!("<img alt=\"{}\" src=\"data:image/png;base64,{}\">", escape(alt), base64(&bytes)),
+        Err(_) => format!("<p><em>{} missing</em></p>", escape(rel)),
+    }
+}
+
+/// The report page. `markdown_tables` is reused from the Markdown report as preformatted text
+/// where a table would add nothing.
+pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, String)]) -> String {
+    let mut s = String::new();
+    let _ = write!(
+        s,
+        "<!doctype html><html><head><meta charset=\"utf-8\"><title>biscale: {name}</title><style>\
+         body{{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}}\
+         table{{border-collapse:collapse;font-size:13px}}td,th{{border:1px solid #ccc;padding:3px 6px;text-align:right}}\
+         th{{background:#f3f3f3}}td:first-child{{text-align:left}}img{{max-width:100%}}\
+         .grid{{display:grid;grid-template-columns:repeat(auto-fill,minmax(320px,1fr));gap:12px}}\
+         figure{{margin:0}}figcaption{{font-size:13px;color:#555}}pre{{background:#f7f7f7;padding:8px;font-size:12px}}\
+         </style></head><body><h1>biscale run: {name}</h1>",
+        name = escape(&m.experiment)
+    );
+    let _ = write!(s, "<p>Config <code>{}</code>, backend {}.</p>", escape(&m.config), escape(&m.backend));
+    let _ = write!(s, "<pre>{}</pre>", escape(plan_text));
+    let t = &m.transfer;
+    let _ = write!(
+        s,
+        "<h2>Scene and transfer</h2><p>{} vertices, {} triangles, material {}. Light {} (total power {:.4}, {:.4}, {:.4}).</p>\
+         <p>T is {} x {} with {} non-zeros ({:.2}% dense), built in {:.2} s{} at {:.1} M rays/s.</p>",
+        m.scene.vertices,
+        m.scene.triangles,
+        escape(&m.scene.material),
+        escape(&m.lighting.source),
+        m.lighting.total_power[0],
+        m.lighting.total_power[1],
+        m.lighting.total_power[2],
+        t.rows,
+        t.cols,
+        t.nnz,
+        100.0 * t.nnz as f64 / (t.rows as f64 * t.cols as f64).max(1.0),
+        t.build_seconds,
+        if t.cached { " (cached)" } else { "" },
+        t.rays_per_second / 1e6
+    );
+    let _ = write!(
+        s,
+        "<h2>Compressors</h2><table><tr><th>setting</th><th>lossless</th><th>MB</th><th>bytes/nnz</th><th>Mflop/gather</th>\
+         <th>build s</th><th>gather ms</th><th>shade ms</th><th>rel. err L*</th><th>RMSE vs uncompressed</th><th>PSNR vs uncompressed</th><th>PSNR vs reference</th></tr>"
+    );
+    for c in &m.compressors {
+        let _ = write!(
+            s,
+            "<tr><td>{}</td><td>{}</td><td>{:.3}</td><td>{:.3}</td><td>{:.3}</td><td>{:.2}</td><td>{:.2}</td><td>{:.1}</td><td>{:.2e}</td><td>{:.3e}</td><td>{:.2}</td><td>{}</td></tr>",
+            escape(&c.name),
+            if c.lossless { "yes" } else { "no" },
+            c.bytes as f64 / 1e6,
+            c.bytes_per_nnz,
+            c.flops_per_gather as f64 / 1e6,
+            c.build_seconds,
+            c.gather_ms,
+            c.shade_ms,
+            c.rel_error_lstar,
+            c.image.vs_uncompressed.rmse,
+            c.image.vs_uncompressed.psnr,
+            c.image.vs_reference.map_or("-".into(), |e| format!("{:.2}", e.psnr))
+        );
+    }
+    let _ = write!(s, "</table>");
+    if let Some(r) = &m.reference {
+        let _ = write!(
+            s,
+            "<p>Reference traced at {}x{} in {:.1} s; per-vertex sampling error of the uncompressed render: RMSE {:.4}, PSNR {:.2} dB.</p>",
+            r.width, r.height, r.seconds, r.uncompressed_vs_reference.rmse, r.uncompressed_vs_reference.psnr
+        );
+    }
+    if !plots.is_empty() {
+        let _ = write!(s, "<h2>Plots</h2><div class=\"grid\">");
+        for (rel, caption) in plots {
+            let _ = write!(s, "<figure>{}<figcaption>{}</figcaption></figure>", img(out_dir, rel, caption), escape(caption));
+        }
+        let _ = write!(s, "</div>");
+    }
+    let _ = write!(s, "<h2>Images</h2><div class=\"grid\">");
+    let _ = write!(s, "<figure>{}<figcaption>uncompressed T</figcaption></figure>", img(out_dir, "images/uncompressed.png", "uncompressed"));
+    if m.reference.is_some() {
+        let _ = write!(s, "<figure>{}<figcaption>ray-traced reference</figcaption></figure>", img(out_dir, "images/reference.png", "reference"));
+    }
+    for c in &m.compressors {
+        let _ = write!(s, "<figure>{}<figcaption>{}</figcaption></figure>", img(out_dir, &c.image.png, &c.name), escape(&c.name));
+        if let Some(e) = &c.image.error_png {
+            let _ = write!(
+                s,
+                "<figure>{}<figcaption>{}: |error| against the uncompressed render (full scale {:.3e})</figcaption></figure>",
+                img(out_dir, e, &c.name),
+                escape(&c.name),
+                c.image.error_scale.unwrap_or(0.0)
+            );
+        }
+    }
+    let _ = write!(s, "</div></body></html>");
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn base64_matches_rfc4648_vectors() {
+        for (i, o) in [("", ""), ("f", "Zg=="), ("fo", "Zm8="), ("foo", "Zm9v"), ("foob", "Zm9vYg=="), ("fooba", "Zm9vYmE="), ("foobar", "Zm9vYmFy")] {
+            assert_eq!(base64(i.as_bytes()), o);
+        }
+    }
+}

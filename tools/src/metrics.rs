@@ -1,0 +1,140 @@
+//! The `metrics.json` schema (one file per run). Field names are stable: later issues add
+//! fields, never rename them. See the README's "Output folder" section.
+
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+#[derive(Debug, Serialize)]
+pub struct Metrics {
+    pub experiment: String,
+    pub config: String,
+    pub backend: String,
+    pub scene: SceneMetrics,
+    pub lighting: LightingMetrics,
+    pub transfer: TransferMetrics,
+    /// Gather and shade of the uncompressed `T` (the image every compressor is compared with).
+    pub uncompressed: UncompressedMetrics,
+    /// Present when the reference image was traced.
+    pub reference: Option<ReferenceMetrics>,
+    pub compressors: Vec<CompressorRecord>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct SceneMetrics {
+    pub mesh: String,
+    pub vertices: usize,
+    pub triangles: usize,
+    pub repairs: Vec<String>,
+    pub material: String,
+}
+
+#[derive(Debug, Serialize)]
+pub struct LightingMetrics {
+    pub source: String,
+    pub cubemap_resolution: u32,
+    pub rotation_degrees: f64,
+    /// Sum of `L` per channel (power over the sphere).
+    pub total_power: [f64; 3],
+    pub warnings: Vec<String>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct ValueCount {
+    pub value: f32,
+    pub count: u64,
+}
+
+#[derive(Debug, Serialize)]
+pub struct TransferMetrics {
+    pub rows: usize,
+    pub cols: usize,
+    pub nnz: usize,
+    pub local_dirs: usize,
+    pub visibility_resolution: u32,
+    pub value_histogram: Vec<ValueCount>,
+    /// Seconds to build T (0 when it came from the cache; see `cached`).
+    pub build_seconds: f64,
+    pub rays_traced: u64,
+    pub rays_per_second: f64,
+    pub cached: bool,
+}
+
+#[derive(Debug, Serialize)]
+pub struct UncompressedMetrics {
+    pub gather_ms: f64,
+    pub shade_ms: f64,
+}
+
+#[derive(Debug, Serialize)]
+pub struct ReferenceMetrics {
+    pub width: u32,
+    pub height: u32,
+    pub seconds: f64,
+    /// Error of the per-vertex (uncompressed) render against the reference: the
+    /// "per-vertex sampling" part of the error.
+    pub uncompressed_vs_reference: ImageErrors,
+}
+
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct ImageErrors {
+    pub rmse: f64,
+    pub psnr: f64,
+    pub rel_l2: f64,
+}
+
+#[derive(Debug, Serialize)]
+pub struct ImageRecord {
+    /// Against the render from the uncompressed `T` (the "compression" part of the error).
+    pub vs_uncompressed: ImageErrors,
+    /// Against the ray-traced reference, when it was traced.
+    pub vs_reference: Option<ImageErrors>,
+    pub png: String,
+    pub exr: String,
+    /// False-colour |error| against the uncompressed render, and its full-scale value.
+    pub error_png: Option<String>,
+    pub error_scale: Option<f32>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct CompressorRecord {
+    /// Setting label (`sparse`, `bicluster`, `cpca-k32-c8`, `haar-t12`, ...).
+    pub name: String,
+    pub kind: String,
+    pub params: serde_json::Value,
+    pub lossless: bool,
+    /// Stored bytes over every array the gather reads.
+    pub bytes: u64,
+    pub bytes_by_array: BTreeMap<String, u64>,
+    pub bytes_per_nnz: f64,
+    /// Monochrome gather flops (an RGB gather does three times the multiply-adds).
+    pub flops_per_gather: u64,
+    pub build_seconds: f64,
+    /// Median wall-clock of the RGB gather over `runtime.repeats` runs.
+    pub gather_ms: f64,
+    pub shade_ms: f64,
+    /// Relative L2 error of `L*` against the f64 product `T L`.
+    pub rel_error_lstar: f64,
+    pub image: ImageRecord,
+    /// Compressor-specific statistics (e.g. biclustering's Table I numbers).
+    pub stats: Option<serde_json::Value>,
+    /// The same form on the wgpu backend (when `runtime.backend = "gpu"`).
+    pub gpu: Option<GpuRecord>,
+}
+
+/// Gather and shade of one compressed form on the GPU, checked against the CPU.
+#[derive(Debug, Serialize)]
+pub struct GpuRecord {
+    pub adapter: String,
+    /// `GpuTimestamps` or `WallClock`.
+    pub timing: String,
+    /// Median GPU time of the gather (RGB).
+    pub gather_ms: f64,
+    /// Median GPU time of the shade (visibility buffer + compute pass).
+    pub shade_ms: f64,
+    /// Relative L2 error of the GPU's `L*` against the f64 product.
+    pub rel_error_lstar: f64,
+    /// The GPU image against the CPU image of the same form, over the CPU's coverage.
+    pub image_vs_cpu: ImageErrors,
+    /// Pixels whose coverage differs between the GPU rasterizer and the CPU ray cast.
+    pub coverage_mismatch: usize,
+}

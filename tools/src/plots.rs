@@ -1,0 +1,127 @@
+//! Report plots (PNG): error against gather time and error against storage, one curve per
+//! compressor kind through its sweep points. Text is drawn with the bundled DejaVu Sans
+//! (assets/fonts), so plots look the same on machines without system fonts.
+
+use crate::metrics::CompressorRecord;
+use plotters::prelude::*;
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::sync::Once;
+
+static FONT: Once = Once::new();
+
+fn register_font() {
+    FONT.call_once(|| {
+        let bytes: &'static [u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
+        plotters::style::register_font("sans-serif", FontStyle::Normal, bytes)
+            .unwrap_or_else(|_| panic!("the bundled DejaVuSans.ttf is a valid font"));
+    });
+}
+
+/// One named curve of (x, y) points.
+pub struct Series {
+    pub name: String,
+    pub points: Vec<(f64, f64)>,
+}
+
+/// Group records by compressor kind into series of `(x(record), y(record))`, sorted by x.
+pub fn series_by_kind(records: &[CompressorRecord], x: impl Fn(&CompressorRecord) -> f64, y: impl Fn(&CompressorRecord) -> f64) -> Vec<Series> {
+    let mut by_kind: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
+    for r in records {
+        by_kind.entry(r.kind.clone()).or_default().push((x(r), y(r)));
+    }
+    by_kind
+        .into_iter()
+        .map(|(name, mut points)| {
+            points.sort_by(|a, b| a.0.total_cmp(&b.0));
+            Series { name, points }
+        })
+        .collect()
+}
+
+/// Smallest error drawn on a log axis (lossless compressors sit at f32 rounding, ~1e-7).
+pub const ERROR_FLOOR: f64 = 1e-9;
+
+/// A log-log plot of `series` written to `path` (PNG, 800 x 560).
+pub fn log_log_plot(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series]) -> Result<(), String> {
+    register_font();
+    let pts: Vec<(f64, f64)> = series
+        .iter()
+        .flat_map(|s| s.points.iter().copied())
+        .filter(|(x, y)| x.is_finite() && y.is_finite() && *x > 0.0)
+        .map(|(x, y)| (x, y.max(ERROR_FLOOR)))
+        .collect();
+    if pts.is_empty() {
+        return Err("nothing to plot".into());
+    }
+    let span = |v: Vec<f64>| {
+        let (lo, hi) = v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+        (lo / 2.0, hi * 2.0)
+    };
+    let (x0, x1) = span(pts.iter().map(|p| p.0).collect());
+    let (y0, y1) = span(pts.iter().map(|p| p.1).collect());
+    let tmp = path.with_extension("tmp.png");
+    {
+        let root = BitMapBackend::new(&tmp, (800, 560)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| e.to_string())?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 22))
+            .margin(12)
+            .x_label_area_size(48)
+            .y_label_area_size(72)
+            .build_cartesian_2d((x0..x1).log_scale(), (y0..y1).log_scale())
+            .map_err(|e| e.to_string())?;
+        chart
+            .configure_mesh()
+            .x_desc(x_label)
+            .y_desc(y_label)
+            .label_style(("sans-serif", 14))
+            .x_label_formatter(&|v| format!("{v:.3}"))
+            .y_label_formatter(&|v| format!("{v:.0e}"))
+            .draw()
+            .map_err(|e| e.to_string())?;
+        for (i, s) in series.iter().enumerate() {
+            let colour = Palette99::pick(i).to_rgba();
+            let points: Vec<(f64, f64)> =
+                s.points.iter().filter(|(x, y)| x.is_finite() && y.is_finite() && *x > 0.0).map(|&(x, y)| (x, y.max(ERROR_FLOOR))).collect();
+            chart
+                .draw_series(LineSeries::new(points.clone(), colour.stroke_width(2)))
+                .map_err(|e| e.to_string())?
+                .label(s.name.clone())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
+            chart
+                .draw_series(points.iter().map(|&p| Circle::new(p, 4, colour.filled())))
+                .map_err(|e| e.to_string())?;
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 14))
+            .draw()
+            .map_err(|e| e.to_string())?;
+        root.present().map_err(|e| e.to_string())?;
+    }
+    std::fs::rename(&tmp, path).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn writes_a_png_with_the_expected_size() {
+        let dir = std::env::temp_dir().join(format!("biscale-plot-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("p.png");
+        let series = vec![
+            Series { name: "haar".into(), points: vec![(1.0, 0.1), (2.0, 0.05), (4.0, 0.01)] },
+            Series { name: "bicluster".into(), points: vec![(3.0, 0.0)] },
+        ];
+        log_log_plot(&p, "error against storage", "MB", "rel. error", &series).unwrap();
+        let img = image::open(&p).unwrap();
+        assert_eq!((img.width(), img.height()), (800, 560));
+        assert!(log_log_plot(&p, "t", "x", "y", &[]).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

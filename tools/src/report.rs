@@ -1,0 +1,110 @@
+//! The run's Markdown report: what ran, the transfer matrix, and one row per compressor
+//! setting, with links to the images. Readable without the program.
+
+use crate::metrics::Metrics;
+use crate::plan::Plan;
+use std::fmt::Write;
+
+pub fn markdown(m: &Metrics, plan: &Plan) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# biscale run: {}\n", m.experiment);
+    let _ = writeln!(s, "Config `{}`, backend {}.\n", m.config, m.backend);
+    let _ = writeln!(s, "```\n{plan}```\n");
+    let _ = writeln!(s, "## Scene\n");
+    let _ = writeln!(
+        s,
+        "- mesh `{}`: {} vertices, {} triangles; material {}",
+        m.scene.mesh, m.scene.vertices, m.scene.triangles, m.scene.material
+    );
+    for r in &m.scene.repairs {
+        let _ = writeln!(s, "- repair: {r}");
+    }
+    let _ = writeln!(
+        s,
+        "- light: {} at 6x{r}x{r}, rotated {}°, total power (RGB) {:.4} {:.4} {:.4}",
+        m.lighting.source,
+        m.lighting.rotation_degrees,
+        m.lighting.total_power[0],
+        m.lighting.total_power[1],
+        m.lighting.total_power[2],
+        r = m.lighting.cubemap_resolution
+    );
+    let t = &m.transfer;
+    let _ = writeln!(s, "\n## Transfer matrix\n");
+    let _ = writeln!(
+        s,
+        "{} x {} ({} local directions per vertex), {} non-zeros ({:.2}% dense); built in {:.2} s{} ({} rays, {:.1} M rays/s).\n",
+        t.rows,
+        t.cols,
+        t.local_dirs,
+        t.nnz,
+        100.0 * t.nnz as f64 / (t.rows as f64 * t.cols as f64).max(1.0),
+        t.build_seconds,
+        if t.cached { " (loaded from the cache)" } else { "" },
+        t.rays_traced,
+        t.rays_per_second / 1e6
+    );
+    let _ = writeln!(s, "| value | count |\n|---|---|");
+    for v in &t.value_histogram {
+        let _ = writeln!(s, "| {} | {} |", v.value, v.count);
+    }
+    let _ = writeln!(s, "\n## Compressors\n");
+    let _ = writeln!(
+        s,
+        "Uncompressed `T L`: gather {:.2} ms (f64 reference), shade {:.1} ms.\n",
+        m.uncompressed.gather_ms, m.uncompressed.shade_ms
+    );
+    let _ = writeln!(
+        s,
+        "| setting | lossless | MB | bytes/nnz | Mflop/gather | build s | gather ms | shade ms | rel. err L* | PSNR vs uncompressed | PSNR vs reference |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
+    for c in &m.compressors {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {:.3} | {:.3} | {:.3} | {:.2} | {:.2} | {:.1} | {:.2e} | {:.2} | {} |",
+            c.name,
+            if c.lossless { "yes" } else { "no" },
+            c.bytes as f64 / 1e6,
+            c.bytes_per_nnz,
+            c.flops_per_gather as f64 / 1e6,
+            c.build_seconds,
+            c.gather_ms,
+            c.shade_ms,
+            c.rel_error_lstar,
+            c.image.vs_uncompressed.psnr,
+            c.image.vs_reference.map_or("-".into(), |e| format!("{:.2}", e.psnr))
+        );
+    }
+    if m.compressors.iter().any(|c| c.gpu.is_some()) {
+        let adapter = m.compressors.iter().find_map(|c| c.gpu.as_ref()).map(|g| g.adapter.clone()).unwrap_or_default();
+        let _ = writeln!(s, "\n### wgpu backend ({adapter})\n");
+        let _ = writeln!(s, "| setting | gather ms | shade ms | timing | rel. err L* | image rel. L2 vs CPU | coverage mismatches |");
+        let _ = writeln!(s, "|---|---|---|---|---|---|---|");
+        for c in &m.compressors {
+            if let Some(g) = &c.gpu {
+                let _ = writeln!(
+                    s,
+                    "| {} | {:.2} | {:.2} | {} | {:.2e} | {:.2e} | {} |",
+                    c.name, g.gather_ms, g.shade_ms, g.timing, g.rel_error_lstar, g.image_vs_cpu.rel_l2, g.coverage_mismatch
+                );
+            }
+        }
+    }
+    if let Some(r) = &m.reference {
+        let _ = writeln!(
+            s,
+            "\nReference traced at {}x{} in {:.1} s. Per-vertex sampling error (uncompressed vs reference): RMSE {:.4}, PSNR {:.2} dB, rel. L2 {:.4}.",
+            r.width, r.height, r.seconds, r.uncompressed_vs_reference.rmse, r.uncompressed_vs_reference.psnr, r.uncompressed_vs_reference.rel_l2
+        );
+    }
+    let _ = writeln!(s, "\n## Images\n");
+    let _ = writeln!(s, "![uncompressed](images/uncompressed.png)\n");
+    if m.reference.is_some() {
+        let _ = writeln!(s, "![reference](images/reference.png)\n");
+    }
+    for c in &m.compressors {
+        let _ = writeln!(s, "**{}** ([EXR]({})):\n\n![{}]({})\n", c.name, c.image.exr, c.name, c.image.png);
+    }
+    s
+}

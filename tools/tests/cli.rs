@@ -1,0 +1,96 @@
+//! The `biscale` binary as a user meets it: help text, plan, export, diff, and errors that
+//! name the file instead of panicking.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn biscale(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_biscale"))
+        .args(args)
+        .current_dir(root())
+        .output()
+        .expect("run biscale");
+    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+}
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
+}
+
+#[test]
+fn help_explains_every_command() {
+    let (ok, out, _) = biscale(&["--help"]);
+    assert!(ok);
+    for cmd in ["run", "plan", "export-matrix", "diff"] {
+        assert!(out.contains(cmd), "{out}");
+    }
+    let (ok, out, _) = biscale(&["run", "--help"]);
+    assert!(ok && out.contains("--out") && out.contains("--no-cache"), "{out}");
+}
+
+#[test]
+fn plan_lists_what_runs_and_what_is_left_out() {
+    let (ok, out, err) = biscale(&["plan", "configs/smoke.toml"]);
+    assert!(ok, "{err}");
+    assert!(out.contains("run   transfer"), "{out}");
+    assert!(out.contains("skip  reference") || out.contains("run   reference"), "{out}");
+    assert!(out.contains("the light does not change"), "{out}");
+    assert!(out.contains("run   compress   haar-t4") && out.contains("run   compress   haar-t8"), "sweep expanded: {out}");
+}
+
+#[test]
+fn bad_config_is_a_located_error_not_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("x.toml");
+    std::fs::write(&cfg, "name = \"x\"\nbogus = 1\n").unwrap();
+    let (ok, _, err) = biscale(&["plan", cfg.to_str().unwrap()]);
+    assert!(!ok);
+    assert!(err.contains("x.toml:2:1") && err.contains("unknown field `bogus`"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+#[test]
+fn export_matrix_writes_matrix_market_files_that_parse_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("mtx");
+    let (ok, stdout, err) = biscale(&["export-matrix", "configs/smoke.toml", "--out", out.to_str().unwrap(), "--no-cache"]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("T.mtx"), "{stdout}");
+    let t = std::fs::read_to_string(out.join("T.mtx")).unwrap();
+    let mut lines = t.lines().filter(|l| !l.starts_with('%'));
+    assert!(t.starts_with("%%MatrixMarket matrix coordinate real general"));
+    let dims: Vec<usize> = lines.next().unwrap().split_whitespace().map(|x| x.parse().unwrap()).collect();
+    assert_eq!(&dims[..2], &[1839 * 16, 384]);
+    let mut count = 0;
+    for l in lines {
+        let f: Vec<&str> = l.split_whitespace().collect();
+        let (r, c, v): (usize, usize, f32) = (f[0].parse().unwrap(), f[1].parse().unwrap(), f[2].parse().unwrap());
+        assert!(r >= 1 && r <= dims[0] && c >= 1 && c <= dims[1] && v > 0.0 && v <= 1.0);
+        count += 1;
+    }
+    assert_eq!(count, dims[2]);
+    let l = std::fs::read_to_string(out.join("L.mtx")).unwrap();
+    assert!(l.starts_with("%%MatrixMarket matrix array real general"));
+    let values: Vec<&str> = l.lines().filter(|l| !l.starts_with('%')).collect();
+    assert_eq!(values[0], "384 3");
+    assert_eq!(values.len(), 1 + 3 * 384);
+}
+
+#[test]
+fn diff_reports_known_errors_and_names_bad_files() {
+    use biscale_shading::image::HdrImage;
+    let dir = tempfile::tempdir().unwrap();
+    let a = dir.path().join("a.exr");
+    let b = dir.path().join("b.exr");
+    HdrImage { width: 4, height: 2, pixels: vec![[1.0, 1.0, 1.0]; 8] }.write_exr(&a).unwrap();
+    HdrImage { width: 4, height: 2, pixels: vec![[1.5, 1.0, 1.0]; 8] }.write_exr(&b).unwrap();
+    let e = dir.path().join("e.png");
+    let (ok, out, err) = biscale(&["diff", a.to_str().unwrap(), b.to_str().unwrap(), "--error-image", e.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    // Every pixel differs by 0.5 in one of three channels: RMSE = sqrt(0.25 / 3).
+    let rmse: f64 = out.lines().find(|l| l.starts_with("rmse")).unwrap().split_whitespace().nth(1).unwrap().parse().unwrap();
+    assert!((rmse - (0.25f64 / 3.0).sqrt()).abs() < 1e-6, "{out}");
+    assert!(e.is_file());
+    let (ok, _, err) = biscale(&["diff", a.to_str().unwrap(), "/nonexistent/x.exr"]);
+    assert!(!ok && err.contains("/nonexistent/x.exr") && !err.contains("panicked"), "{err}");
+}
