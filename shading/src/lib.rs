@@ -7,6 +7,8 @@
 //! * [`cpu`]: the CPU per-pixel shader from per-vertex `L*`: the reference the GPU shader is
 //!   checked against.
 //! * [`reference`](mod@reference): the ray-traced reference image (`L*` from exact per-pixel visibility).
+//! * [`synth`]: BTFs synthesized by ray tracing tileable height-field patches, their files and
+//!   contact sheets.
 //! * [`image`]: HDR images, atomic OpenEXR/PNG writes, error metrics, false colour errors.
 //!
 //! Shortest use, from per-vertex `L*` to an image file:
@@ -32,5 +34,6 @@ pub mod cpu;
 pub mod error;
 pub mod image;
 pub mod reference;
+pub mod synth;
 
 pub use error::{Result, ShadingError};

@@ -1,0 +1,283 @@
+//! The meso-scale BRDFs a synthesized BTF can be built from, evaluated in a local frame
+//! (+Z = the meso-surface normal, +X = the tangent: the patch's +X projected onto the facet).
+//!
+//! * Lambertian: `f = albedo / pi`.
+//! * Phong: the normalized modified Phong BRDF of [`crate::btf::phong_brdf`].
+//! * Ashikhmin-Shirley: the anisotropic Phong BRDF of Ashikhmin and Shirley 2000 ("An
+//!   anisotropic Phong BRDF model", J. Graphics Tools 5(2)), equations 4 (specular, with
+//!   Schlick's Fresnel term) and 5 (the coupled diffuse term). `nu` is the exponent for
+//!   half-vectors tilted towards the tangent (+X), `nv` towards the bitangent (+Y).
+//!
+//! Evaluation returns the diffuse and specular parts separately, because an
+//! [`AlbedoMap`](super::AlbedoMap) scales the diffuse part only.
+
+use crate::btf::phong_brdf;
+use crate::error::{Result, ShadingError};
+use biscale_core::Rgb;
+use glam::DVec3;
+use std::f64::consts::PI;
+
+/// A meso-scale BRDF (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Brdf {
+    /// `f = albedo / pi`.
+    Lambertian { albedo: Rgb },
+    /// `f = kd / pi + ks (n + 2) / (2 pi) cos^n(alpha)` ([`crate::btf::phong_brdf`]).
+    Phong { kd: Rgb, ks: Rgb, exponent: f32 },
+    /// Ashikhmin-Shirley: diffuse reflectance `rd`, specular reflectance at normal incidence
+    /// `rs`, Phong-like exponents `nu` (along the tangent) and `nv` (along the bitangent).
+    AshikhminShirley { rd: Rgb, rs: Rgb, nu: f32, nv: f32 },
+}
+
+fn check_rgb(what: &str, v: Rgb, max: f32) -> Result<()> {
+    if v.iter().all(|x| x.is_finite() && (0.0..=max).contains(x)) {
+        Ok(())
+    } else {
+        Err(ShadingError::Invalid(format!(
+            "{what} must be finite and in [0, {max}], got {v:?}"
+        )))
+    }
+}
+
+impl Brdf {
+    /// Short name for reports: `lambertian`, `phong`, `ashikhmin-shirley`.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Brdf::Lambertian { .. } => "lambertian",
+            Brdf::Phong { .. } => "phong",
+            Brdf::AshikhminShirley { .. } => "ashikhmin-shirley",
+        }
+    }
+
+    /// Check the parameters: reflectances finite and non-negative (`rs <= 1`: it is a Fresnel
+    /// reflectance), exponents finite, `>= 0` for Phong and `> 0` for Ashikhmin-Shirley.
+    pub fn validate(&self) -> Result<()> {
+        match *self {
+            Brdf::Lambertian { albedo } => check_rgb("lambertian albedo", albedo, f32::MAX),
+            Brdf::Phong { kd, ks, exponent } => {
+                check_rgb("phong kd", kd, f32::MAX)?;
+                check_rgb("phong ks", ks, f32::MAX)?;
+                if !(exponent.is_finite() && exponent >= 0.0) {
+                    return Err(ShadingError::Invalid(format!(
+                        "phong exponent must be finite and >= 0, got {exponent}"
+                    )));
+                }
+                Ok(())
+            }
+            Brdf::AshikhminShirley { rd, rs, nu, nv } => {
+                check_rgb("ashikhmin-shirley rd", rd, f32::MAX)?;
+                check_rgb("ashikhmin-shirley rs", rs, 1.0)?;
+                for (name, e) in [("nu", nu), ("nv", nv)] {
+                    if !(e.is_finite() && e > 0.0) {
+                        return Err(ShadingError::Invalid(format!(
+                            "ashikhmin-shirley {name} must be finite and > 0, got {e}"
+                        )));
+                    }
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// `(diffuse, specular)` parts of `f(light, view)`, both local unit directions with
+    /// `z > 0` (callers make sure of it). Their sum is the BRDF.
+    pub fn eval_parts(&self, light: DVec3, view: DVec3) -> ([f64; 3], [f64; 3]) {
+        match *self {
+            Brdf::Lambertian { albedo } => (albedo.map(|a| a as f64 / PI), [0.0; 3]),
+            Brdf::Phong { kd, ks, exponent } => {
+                // phong_brdf computes kd/pi + ks * lobe per channel; kd = 0 leaves the lobe.
+                let spec = phong_brdf(
+                    [0.0; 3],
+                    ks,
+                    exponent as f64,
+                    light.as_vec3(),
+                    view.as_vec3(),
+                );
+                (kd.map(|a| a as f64 / PI), spec)
+            }
+            Brdf::AshikhminShirley { rd, rs, nu, nv } => {
+                ashikhmin_shirley(rd, rs, nu as f64, nv as f64, light, view)
+            }
+        }
+    }
+
+    /// `f(light, view)` with the diffuse part scaled by `diffuse_scale` (an albedo map texel).
+    #[inline]
+    pub fn eval_scaled(&self, light: DVec3, view: DVec3, diffuse_scale: Rgb) -> [f64; 3] {
+        let (d, s) = self.eval_parts(light, view);
+        std::array::from_fn(|c| d[c] * diffuse_scale[c] as f64 + s[c])
+    }
+}
+
+/// Ashikhmin-Shirley 2000, equations 4 and 5, with `k1` = light and `k2` = view.
+fn ashikhmin_shirley(
+    rd: Rgb,
+    rs: Rgb,
+    nu: f64,
+    nv: f64,
+    k1: DVec3,
+    k2: DVec3,
+) -> ([f64; 3], [f64; 3]) {
+    let (n1, n2) = (k1.z.max(0.0), k2.z.max(0.0));
+    let sum = k1 + k2;
+    let h = if sum.length_squared() > 0.0 {
+        sum.normalize()
+    } else {
+        DVec3::Z
+    };
+    let kh = k1.dot(h).max(1e-12);
+    let nh = h.z.max(0.0);
+    let sin2 = h.x * h.x + h.y * h.y;
+    // (nu (h.u)^2 + nv (h.v)^2) / (1 - (h.n)^2); at h = n the power is of 1 whatever the exponent.
+    let e = if sin2 > 0.0 {
+        (nu * h.x * h.x + nv * h.y * h.y) / sin2
+    } else {
+        0.0
+    };
+    let lobe =
+        ((nu + 1.0) * (nv + 1.0)).sqrt() / (8.0 * PI) * nh.powf(e) / (kh * n1.max(n2).max(1e-12));
+    let schlick = (1.0 - kh).powi(5);
+    let g = |c: f64| 1.0 - (1.0 - c / 2.0).powi(5);
+    let coupling = 28.0 / (23.0 * PI) * g(n1) * g(n2);
+    let spec = rs.map(|r| lobe * (r as f64 + (1.0 - r as f64) * schlick));
+    let diff = std::array::from_fn(|c| rd[c] as f64 * (1.0 - rs[c] as f64) * coupling);
+    (diff, spec)
+}
+
+/// A local frame at a meso-surface point: normal `n`, tangent `t` (the patch's +X made
+/// orthogonal to `n`), bitangent `b = n x t`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Frame {
+    pub t: DVec3,
+    pub b: DVec3,
+    pub n: DVec3,
+}
+
+impl Frame {
+    /// Frame of a height-field facet (`n.z > 0`, so `n` is never parallel to +X).
+    pub fn from_normal(n: DVec3) -> Self {
+        if n == DVec3::Z {
+            // Exactly the patch frame, so a flat patch reproduces the analytic tables bit for bit.
+            return Self {
+                t: DVec3::X,
+                b: DVec3::Y,
+                n,
+            };
+        }
+        let t = (DVec3::X - n.x * n).normalize();
+        Self {
+            t,
+            b: n.cross(t),
+            n,
+        }
+    }
+
+    #[inline]
+    pub fn to_local(self, d: DVec3) -> DVec3 {
+        DVec3::new(d.dot(self.t), d.dot(self.b), d.dot(self.n))
+    }
+
+    #[inline]
+    pub fn to_world(self, d: DVec3) -> DVec3 {
+        self.t * d.x + self.b * d.y + self.n * d.z
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    #[test]
+    fn ashikhmin_shirley_is_reciprocal_and_anisotropic() {
+        // Equations 4 and 5 are symmetric in k1, k2 (max(n.k1, n.k2), h.k with k either one),
+        // so f(l, v) = f(v, l) to rounding.
+        let brdf = Brdf::AshikhminShirley {
+            rd: [0.3; 3],
+            rs: [0.05; 3],
+            nu: 100.0,
+            nv: 5.0,
+        };
+        brdf.validate().unwrap();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+        let dir = |rng: &mut rand_chacha::ChaCha8Rng| {
+            let z: f64 = rng.gen_range(0.05..1.0);
+            let phi: f64 = rng.gen_range(0.0..std::f64::consts::TAU);
+            let s = (1.0 - z * z).sqrt();
+            DVec3::new(s * phi.cos(), s * phi.sin(), z)
+        };
+        for _ in 0..1000 {
+            let (l, v) = (dir(&mut rng), dir(&mut rng));
+            let (a, b) = (
+                brdf.eval_scaled(l, v, [1.0; 3]),
+                brdf.eval_scaled(v, l, [1.0; 3]),
+            );
+            assert!(
+                (a[0] - b[0]).abs() <= 1e-12 * a[0].max(1.0),
+                "{a:?} vs {b:?}"
+            );
+        }
+        // Light 30 degrees and view 50 degrees off the normal, both on the +X side: the
+        // half-vector tilts towards +X (exponent nu = 100). The same pair rotated to the +Y
+        // side tilts it towards +Y (exponent nv = 5): the lobe is much wider there.
+        let rot = |a: f64, b: f64| {
+            DVec3::new(
+                a.to_radians().sin() * b.to_radians().cos(),
+                a.to_radians().sin() * b.to_radians().sin(),
+                a.to_radians().cos(),
+            )
+        };
+        let along_x = brdf.eval_parts(rot(30.0, 0.0), rot(50.0, 0.0)).1[0];
+        let along_y = brdf.eval_parts(rot(30.0, 90.0), rot(50.0, 90.0)).1[0];
+        assert!(
+            along_y > 2.0 * along_x,
+            "along x {along_x}, along y {along_y}"
+        );
+    }
+
+    #[test]
+    fn frames_are_orthonormal_and_keep_the_patch_frame_when_flat() {
+        let f = Frame::from_normal(DVec3::Z);
+        assert_eq!((f.t, f.b), (DVec3::X, DVec3::Y));
+        let f = Frame::from_normal(DVec3::new(0.3, -0.4, 0.8).normalize());
+        for (a, b) in [(f.t, f.b), (f.b, f.n), (f.n, f.t)] {
+            assert!(a.dot(b).abs() < 1e-12);
+        }
+        assert!((f.t.cross(f.b) - f.n).length() < 1e-12, "right-handed");
+        assert!(f.t.x > 0.9, "tangent follows the patch's +X");
+        let d = DVec3::new(0.1, 0.2, 0.9).normalize();
+        assert!((f.to_world(f.to_local(d)) - d).length() < 1e-12);
+    }
+
+    #[test]
+    fn bad_parameters_are_errors() {
+        assert!(Brdf::Lambertian {
+            albedo: [-0.1, 0.0, 0.0]
+        }
+        .validate()
+        .is_err());
+        assert!(Brdf::Phong {
+            kd: [0.1; 3],
+            ks: [0.1; 3],
+            exponent: f32::NAN
+        }
+        .validate()
+        .is_err());
+        assert!(Brdf::AshikhminShirley {
+            rd: [0.1; 3],
+            rs: [1.5; 3],
+            nu: 10.0,
+            nv: 10.0
+        }
+        .validate()
+        .is_err());
+        assert!(Brdf::AshikhminShirley {
+            rd: [0.1; 3],
+            rs: [0.1; 3],
+            nu: 0.0,
+            nv: 10.0
+        }
+        .validate()
+        .is_err());
+    }
+}
