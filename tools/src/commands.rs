@@ -66,3 +66,42 @@ pub fn diff(a: &Path, b: &Path, error_image: Option<&Path>) -> Result<ImageMetri
     }
     Ok(m)
 }
+
+/// Scenes `biscale generate` can write.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum GeneratedScene {
+    /// A 6x6 grid plane (40x40 cells) with a unit sphere resting on it (1e-3 above, so no vertex is shared): the flat scene of the
+    /// comparison (large coherent regions, one contact shadow).
+    PlaneSphere,
+    /// The grid plane alone (every vertex fully open: the largest biclusters).
+    Plane,
+}
+
+/// Write a generated scene as OBJ (atomically).
+pub fn generate_scene(kind: GeneratedScene, out: &Path) -> Result<biscale_core::geometry::Mesh> {
+    use biscale_core::geometry::shapes;
+    let mesh = match kind {
+        GeneratedScene::PlaneSphere => shapes::merged(&[
+            shapes::grid_plane(40, 6.0),
+            shapes::uv_sphere(glam::Vec3::new(0.0, 1.001, 0.0), 1.0, 24, 48),
+        ]),
+        GeneratedScene::Plane => shapes::grid_plane(40, 6.0),
+    };
+    write_obj(&mesh, out)?;
+    Ok(mesh)
+}
+
+/// Write `levels` of midpoint subdivision of the OBJ `input` to `out` (the scaling study's
+/// denser meshes: same shape, about 4x the vertices per level).
+pub fn subdivide(input: &Path, levels: u32, out: &Path) -> Result<biscale_core::geometry::Mesh> {
+    let mut mesh = biscale_core::geometry::Mesh::load_obj(input)?.mesh;
+    for _ in 0..levels {
+        mesh = biscale_core::geometry::shapes::subdivide_midpoint(&mesh);
+    }
+    write_obj(&mesh, out)?;
+    Ok(mesh)
+}
+
+fn write_obj(mesh: &biscale_core::geometry::Mesh, out: &Path) -> Result<()> {
+    crate::util::write_atomic(out, mesh.to_obj().as_bytes()).map_err(|source| PipelineError::Io { path: out.into(), source })
+}

@@ -324,6 +324,13 @@ pub struct ReportConfig {
     /// Draw the environment behind the mesh in the images.
     #[serde(default = "default_true")]
     pub background: bool,
+    /// Error target of the equal-quality comparison (relative L2 error of L*).
+    #[serde(default = "default_target_error")]
+    pub target_error: f64,
+}
+
+fn default_target_error() -> f64 {
+    0.05
 }
 
 fn default_one() -> Spanned<u32> {
@@ -335,7 +342,7 @@ fn default_true() -> bool {
 
 impl Default for ReportConfig {
     fn default() -> Self {
-        Self { reference: false, reference_downscale: default_one(), exposure: 0.0, background: true }
+        Self { reference: false, reference_downscale: default_one(), exposure: 0.0, background: true, target_error: default_target_error() }
     }
 }
 
@@ -424,6 +431,9 @@ impl Experiment {
         range(&file.runtime.width, 1, 16384, "runtime.width")?;
         range(&file.runtime.height, 1, 16384, "runtime.height")?;
         range(&file.report.reference_downscale, 1, 64, "report.reference_downscale")?;
+        if !(file.report.target_error > 0.0 && file.report.target_error.is_finite()) {
+            return Err(ConfigError::whole_file(path, "report.target_error must be a positive number"));
+        }
         if file.runtime.repeats == 0 {
             return Err(ConfigError::whole_file(path, "runtime.repeats must be at least 1"));
         }

@@ -104,6 +104,21 @@ pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, Stri
             r.width, r.height, r.seconds, r.uncompressed_vs_reference.rmse, r.uncompressed_vs_reference.psnr
         );
     }
+    let comparisons = crate::report::comparisons_markdown(m);
+    if !comparisons.is_empty() {
+        // The comparison tables as preformatted Markdown, with the equal-storage images below.
+        let _ = write!(s, "<h2>Comparisons</h2><pre>{}</pre>", escape(&comparisons));
+        if let Some((budget, _)) = crate::report::storage_budget(m) {
+            let _ = write!(s, "<div class=\"grid\">");
+            for r in crate::compare::equal_storage(&m.compressors, budget) {
+                let _ = write!(s, "<figure>{}<figcaption>{} ({:.2} MB)</figcaption></figure>", img(out_dir, &r.image.png, &r.name), escape(&r.name), r.bytes as f64 / 1e6);
+                if let Some(e) = &r.image.error_png {
+                    let _ = write!(s, "<figure>{}<figcaption>{}: error</figcaption></figure>", img(out_dir, e, &r.name), escape(&r.name));
+                }
+            }
+            let _ = write!(s, "</div>");
+        }
+    }
     if !plots.is_empty() {
         let _ = write!(s, "<h2>Plots</h2><div class=\"grid\">");
         for (rel, caption) in plots {

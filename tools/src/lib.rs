@@ -12,6 +12,7 @@
 
 pub mod cache;
 pub mod commands;
+pub mod compare;
 pub mod config;
 #[cfg(feature = "gpu")]
 pub mod gpu_backend;

@@ -49,6 +49,11 @@ enum Command {
         #[arg(long)]
         no_cache: bool,
     },
+    /// Write a generated mesh (OBJ): a test scene, or a subdivided mesh for scaling studies.
+    Generate {
+        #[command(subcommand)]
+        what: Generate,
+    },
     /// Compare two EXR images: prints RMSE, PSNR and relative L2 of A against B.
     Diff {
         a: PathBuf,
@@ -57,6 +62,25 @@ enum Command {
         /// Also write a false-colour error image (PNG).
         #[arg(long)]
         error_image: Option<PathBuf>,
+    },
+}
+
+#[derive(Subcommand)]
+enum Generate {
+    /// A built-in scene.
+    Scene {
+        #[arg(value_enum)]
+        kind: biscale::commands::GeneratedScene,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Midpoint-subdivide a mesh `levels` times (about 4x the vertices per level).
+    Subdivide {
+        mesh: PathBuf,
+        #[arg(long, default_value_t = 1)]
+        levels: u32,
+        #[arg(long)]
+        out: PathBuf,
     },
 }
 
@@ -89,6 +113,13 @@ fn main() -> anyhow::Result<()> {
                 out.join("L.mtx").display(),
                 l.len()
             );
+        }
+        Command::Generate { what } => {
+            let (mesh, out) = match what {
+                Generate::Scene { kind, out } => (biscale::commands::generate_scene(kind, &out)?, out),
+                Generate::Subdivide { mesh, levels, out } => (biscale::commands::subdivide(&mesh, levels, &out)?, out),
+            };
+            println!("wrote {} ({} vertices, {} triangles)", out.display(), mesh.positions.len(), mesh.triangles.len());
         }
         Command::Diff { a, b, error_image } => {
             let m = biscale::commands::diff(&a, &b, error_image.as_deref())?;

@@ -17,6 +17,8 @@ pub struct Metrics {
     /// Present when the reference image was traced.
     pub reference: Option<ReferenceMetrics>,
     pub compressors: Vec<CompressorRecord>,
+    /// Error target of the equal-quality comparison (`report.target_error`).
+    pub target_error: f64,
 }
 
 #[derive(Debug, Serialize)]

@@ -399,6 +399,7 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
             uncompressed_vs_reference: errors(m),
         }),
         compressors: records,
+        target_error: exp.file.report.target_error,
     };
     let json = serde_json::to_string_pretty(&metrics).expect("metrics serialize");
     let metrics_path = out_dir.join("metrics.json");

@@ -98,6 +98,7 @@ pub fn markdown(m: &Metrics, plan: &Plan) -> String {
             r.width, r.height, r.seconds, r.uncompressed_vs_reference.rmse, r.uncompressed_vs_reference.psnr, r.uncompressed_vs_reference.rel_l2
         );
     }
+    s.push_str(&comparisons_markdown(m));
     let _ = writeln!(s, "\n## Images\n");
     let _ = writeln!(s, "![uncompressed](images/uncompressed.png)\n");
     if m.reference.is_some() {
@@ -105,6 +106,62 @@ pub fn markdown(m: &Metrics, plan: &Plan) -> String {
     }
     for c in &m.compressors {
         let _ = writeln!(s, "**{}** ([EXR]({})):\n\n![{}]({})\n", c.name, c.image.exr, c.name, c.image.png);
+    }
+    s
+}
+
+/// The storage budget of the equal-storage comparison: the lossless biclustering's storage
+/// when it ran (the paper compares at the size biclustering needs), else the median.
+pub fn storage_budget(m: &Metrics) -> Option<(u64, String)> {
+    if let Some(b) = m.compressors.iter().find(|c| c.kind == "bicluster") {
+        return Some((b.bytes, format!("the storage of {}", b.name)));
+    }
+    let mut bytes: Vec<u64> = m.compressors.iter().map(|c| c.bytes).collect();
+    bytes.sort();
+    bytes.get(bytes.len() / 2).map(|&b| (b, "the median storage".to_string()))
+}
+
+/// Equal-storage and equal-quality sections (only when at least two kinds ran).
+pub fn comparisons_markdown(m: &Metrics) -> String {
+    use crate::compare::{by_kind, equal_storage, storage_for_error, StorageForError};
+    let mut s = String::new();
+    let kinds = by_kind(&m.compressors);
+    if kinds.len() < 2 {
+        return s;
+    }
+    if let Some((budget, why)) = storage_budget(m) {
+        let _ = writeln!(s, "\n## Equal storage\n\nEach compressor's setting closest to {why} ({:.2} MB):\n", budget as f64 / 1e6);
+        let _ = writeln!(s, "| setting | MB | rel. err L* | PSNR vs uncompressed | image | error |\n|---|---|---|---|---|---|");
+        for r in equal_storage(&m.compressors, budget) {
+            let _ = writeln!(
+                s,
+                "| {} | {:.2} | {:.2e} | {:.2} | ![{}]({}) | {} |",
+                r.name,
+                r.bytes as f64 / 1e6,
+                r.rel_error_lstar,
+                r.image.vs_uncompressed.psnr,
+                r.name,
+                r.image.png,
+                r.image.error_png.as_ref().map_or("-".into(), |e| format!("![error]({e})"))
+            );
+        }
+    }
+    let _ = writeln!(
+        s,
+        "\n## Equal quality\n\nStorage each compressor needs for a relative L* error of {:.2e} (log-log interpolation along its sweep):\n",
+        m.target_error
+    );
+    let _ = writeln!(s, "| compressor | storage needed |\n|---|---|");
+    for (kind, recs) in &kinds {
+        let text = match storage_for_error(recs, m.target_error) {
+            Some(StorageForError::AtMost { bytes, setting }) => format!("at most {:.2} MB ({setting} already meets it)", bytes as f64 / 1e6),
+            Some(StorageForError::Between { bytes, below, above }) => format!("about {:.2} MB (between {below} and {above})", bytes / 1e6),
+            Some(StorageForError::NotReached { best_error, setting }) => {
+                format!("not reached by the sweep (best {best_error:.2e} at {setting}): sweep further")
+            }
+            None => "-".into(),
+        };
+        let _ = writeln!(s, "| {kind} | {text} |");
     }
     s
 }

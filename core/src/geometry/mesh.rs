@@ -189,6 +189,29 @@ impl Mesh {
     }
 
     /// Length of the bounding box diagonal (the mesh's scale; 0 for an empty mesh).
+    /// The mesh as OBJ text (`v`, optional `vt`, and 1-based `f` lines).
+    pub fn to_obj(&self) -> String {
+        use std::fmt::Write;
+        let mut s = String::new();
+        for p in &self.positions {
+            let _ = writeln!(s, "v {} {} {}", p.x, p.y, p.z);
+        }
+        if let Some(uvs) = &self.uvs {
+            for t in uvs {
+                let _ = writeln!(s, "vt {} {}", t.x, t.y);
+            }
+        }
+        for t in &self.triangles {
+            let [a, b, c] = t.map(|i| i + 1);
+            if self.uvs.is_some() {
+                let _ = writeln!(s, "f {a}/{a} {b}/{b} {c}/{c}");
+            } else {
+                let _ = writeln!(s, "f {a} {b} {c}");
+            }
+        }
+        s
+    }
+
     pub fn diagonal(&self) -> f32 {
         let (lo, hi) = self.bounds();
         (hi - lo).length()
@@ -591,5 +614,23 @@ mod tests {
         let (lo, hi) = load.mesh.bounds();
         assert!((lo - Vec3::new(-3.0, 0.0, -2.0)).abs().max_element() < 1e-3, "{lo}");
         assert!((hi - Vec3::new(3.430, 3.15, 2.0)).abs().max_element() < 1e-3, "{hi}");
+    }
+
+    #[test]
+    fn obj_text_round_trips() {
+        let plane = crate::geometry::shapes::grid_plane(3, 2.0);
+        let sphere = crate::geometry::shapes::uv_sphere(Vec3::ONE, 0.5, 6, 8);
+        for (name, mesh) in [("plane", plane), ("sphere", sphere)] {
+            let path = write_obj(&format!("rt-{name}"), &mesh.to_obj());
+            let back = Mesh::load_obj(&path).unwrap();
+            assert!(back.repairs.is_empty(), "{:?}", back.repairs);
+            // The loader renumbers vertices in order of first use: compare the triangles'
+            // corners (positions exactly: Rust prints the shortest round-tripping float).
+            let corners = |m: &Mesh| -> Vec<[(Vec3, Option<glam::Vec2>); 3]> {
+                m.triangles.iter().map(|t| t.map(|i| (m.positions[i as usize], m.uvs.as_ref().map(|u| u[i as usize])))).collect()
+            };
+            assert_eq!(corners(&back.mesh), corners(&mesh), "{name}");
+            assert_eq!(back.mesh.vertex_count(), mesh.vertex_count(), "{name}");
+        }
     }
 }

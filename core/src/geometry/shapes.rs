@@ -77,6 +77,50 @@ pub fn closed_box(min: Vec3, max: Vec3) -> Mesh {
     Mesh { positions, uvs: None, triangles }
 }
 
+/// Concatenate meshes into one (UVs are kept only if every part has them).
+pub fn merged(parts: &[Mesh]) -> Mesh {
+    let mut out = Mesh { positions: vec![], uvs: Some(vec![]), triangles: vec![] };
+    for m in parts {
+        let base = out.positions.len() as u32;
+        out.positions.extend(&m.positions);
+        out.triangles.extend(m.triangles.iter().map(|t| t.map(|i| i + base)));
+        match (&mut out.uvs, &m.uvs) {
+            (Some(all), Some(uvs)) => all.extend(uvs),
+            _ => out.uvs = None,
+        }
+    }
+    out
+}
+
+/// One level of midpoint subdivision: every triangle becomes four, edge midpoints are
+/// shared between neighbours (so a closed mesh stays closed). Positions (and UVs) of the
+/// new vertices are edge midpoints: the shape is unchanged, only the vertex density grows
+/// (V + E vertices, 4F triangles), which is what the scaling study needs.
+pub fn subdivide_midpoint(mesh: &Mesh) -> Mesh {
+    use std::collections::HashMap;
+    let mut positions = mesh.positions.clone();
+    let mut uvs = mesh.uvs.clone();
+    let mut midpoint: HashMap<(u32, u32), u32> = HashMap::new();
+    let mut mid = |a: u32, b: u32, positions: &mut Vec<Vec3>, uvs: &mut Option<Vec<Vec2>>| -> u32 {
+        let key = (a.min(b), a.max(b));
+        *midpoint.entry(key).or_insert_with(|| {
+            positions.push(0.5 * (positions[a as usize] + positions[b as usize]));
+            if let Some(uv) = uvs {
+                uv.push(0.5 * (uv[a as usize] + uv[b as usize]));
+            }
+            positions.len() as u32 - 1
+        })
+    };
+    let mut triangles = Vec::with_capacity(mesh.triangles.len() * 4);
+    for &[a, b, c] in &mesh.triangles {
+        let ab = mid(a, b, &mut positions, &mut uvs);
+        let bc = mid(b, c, &mut positions, &mut uvs);
+        let ca = mid(c, a, &mut positions, &mut uvs);
+        triangles.extend([[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
+    }
+    Mesh { positions, uvs, triangles }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -99,6 +143,19 @@ mod tests {
         let s = uv_sphere(Vec3::ZERO, 1.0, 32, 64);
         let v = signed_volume(&s);
         assert!(v > 0.97 * 4.0 / 3.0 * std::f32::consts::PI && v < 4.0 / 3.0 * std::f32::consts::PI);
+    }
+
+    #[test]
+    fn subdivision_quadruples_faces_and_keeps_the_shape() {
+        let b = closed_box(Vec3::splat(-1.0), Vec3::splat(1.0));
+        let s = subdivide_midpoint(&b);
+        // V + E vertices (8 + 18), 4F triangles; still closed with the same volume.
+        assert_eq!((s.positions.len(), s.triangles.len()), (26, 48));
+        assert!((signed_volume(&s) - 8.0).abs() < 1e-5);
+        let m = merged(&[grid_plane(2, 1.0), b]);
+        assert_eq!((m.positions.len(), m.triangles.len()), (17, 20));
+        assert!(m.uvs.is_none());
+        assert!(m.triangles.iter().flatten().all(|&i| (i as usize) < m.positions.len()));
     }
 
     #[test]

@@ -121,13 +121,27 @@ impl EnvMap {
         })
     }
 
-    /// Nearest-pixel radiance seen in direction `d` (world, +Y up), after rotating the map
-    /// by `rotation` radians about +Y.
+    /// Radiance seen in direction `d` (world, +Y up), after rotating the map by `rotation`
+    /// radians about +Y: bilinear between pixel centres, wrapping in u and clamped at the
+    /// poles (for drawing backgrounds; `L` itself is built by exact integration).
     pub fn radiance(&self, d: Vec3, rotation: f64) -> Rgb {
+        if self.width == 0 || self.height == 0 {
+            return [0.0; 3];
+        }
         let (u, v) = direction_to_latlong(rotate_y(d.as_dvec3(), -rotation));
-        let x = ((u * self.width as f64) as usize).min(self.width - 1);
-        let y = ((v * self.height as f64) as usize).min(self.height - 1);
-        self.pixels[y * self.width + x]
+        let x = u * self.width as f64 - 0.5;
+        let y = (v * self.height as f64 - 0.5).clamp(0.0, (self.height - 1) as f64);
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = ((x - x0) as f32, (y - y0) as f32);
+        let w = self.width as i64;
+        let col = |i: i64| (i.rem_euclid(w)) as usize;
+        let (c0, c1) = (col(x0 as i64), col(x0 as i64 + 1));
+        let (r0, r1) = (y0 as usize, (y0 as usize + 1).min(self.height - 1));
+        let p = |r: usize, c: usize| self.pixels[r * self.width + c];
+        let (a, b, c, e) = (p(r0, c0), p(r0, c1), p(r1, c0), p(r1, c1));
+        std::array::from_fn(|i| {
+            (a[i] * (1.0 - fx) + b[i] * fx) * (1.0 - fy) + (c[i] * (1.0 - fx) + e[i] * fx) * fy
+        })
     }
 
     /// Integral of radiance over the sphere, per channel (exact for the piecewise-constant map).
@@ -334,6 +348,24 @@ mod tests {
         let k = (0..l.len()).max_by(|&a, &b| l.power[a][0].total_cmp(&l.power[b][0])).unwrap();
         // Rotating -Z by +90 degrees about +Y gives -X.
         assert_eq!(l.cubemap.texel_coords(k).0, 1);
+    }
+
+    #[test]
+    fn background_lookup_is_bilinear_and_exact_at_pixel_centres() {
+        let (w, h) = (8, 4);
+        let mut env = EnvMap::constant(w, h, [0.0; 3]);
+        for (i, p) in env.pixels.iter_mut().enumerate() {
+            *p = [i as f32, 1.0, 0.0];
+        }
+        let centre = |x: usize, y: usize| latlong_direction((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64).as_vec3();
+        assert!((env.radiance(centre(3, 1), 0.0)[0] - 11.0).abs() < 1e-3);
+        // Half way between pixels (3,1) and (4,1).
+        let mid = latlong_direction(4.0 / w as f64, 1.5 / h as f64).as_vec3();
+        assert!((env.radiance(mid, 0.0)[0] - 11.5).abs() < 1e-3);
+        // Wrap-around between the last and first column.
+        let seam = latlong_direction(0.0, 1.5 / h as f64).as_vec3();
+        assert!((env.radiance(seam, 0.0)[0] - 11.5).abs() < 1e-3, "{:?}", env.radiance(seam, 0.0));
+        assert_eq!(env.radiance(Vec3::Y, 0.0)[1], 1.0);
     }
 
     #[test]
