@@ -22,6 +22,8 @@
 pub mod bicluster;
 pub mod cpca;
 pub mod haar;
+#[cfg(feature = "plugin")]
+pub mod plugin;
 pub mod sparse;
 pub mod testing;
 

@@ -29,6 +29,7 @@ pub mod error;
 pub mod form_file;
 pub mod gather;
 pub mod geometry;
+pub mod kernels;
 pub mod sampling;
 pub mod transfer;
 

@@ -20,6 +20,7 @@
 //! ```
 
 pub mod kinds;
+pub mod plugin;
 pub mod program;
 
 use crate::context::{bytes_to_f32, GpuContext};
@@ -412,7 +413,7 @@ impl GpuGather {
         self.uploaded_bytes
     }
 
-    fn upload_light(&self, light: &LightVector) -> Result<()> {
+    pub(crate) fn upload_light(&self, light: &LightVector) -> Result<()> {
         if light.len() != self.cols {
             return Err(GpuError::Input(format!(
                 "light vector has {} texels, the form has {} columns",
@@ -430,7 +431,13 @@ impl GpuGather {
         })
     }
 
-    fn record(&self, enc: &mut wgpu::CommandEncoder, timer: Option<&crate::timing::PassTimer>) {
+    /// Number of kernel passes of the program (one timestamp pair each).
+    pub(crate) fn pass_count(&self) -> usize {
+        self.passes.len()
+    }
+
+    /// Record every pass into `enc` (pass `i` writes timestamps `2i`, `2i + 1` of `timer`).
+    pub(crate) fn record(&self, enc: &mut wgpu::CommandEncoder, timer: Option<&crate::timing::PassTimer>) {
         for (i, p) in self.passes.iter().enumerate() {
             let mut cp = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some(&p.name),

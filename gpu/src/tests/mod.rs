@@ -7,6 +7,7 @@
 
 mod gather;
 mod layout;
+mod plugin;
 mod shading;
 
 use crate::GpuContext;
