@@ -24,3 +24,4 @@ pub mod plots;
 pub mod registry;
 pub mod report;
 pub mod util;
+pub mod viz;
