@@ -14,8 +14,8 @@
 //! where the structure the biclusters exploit shows best.
 
 use biscale::viz::{self, HeatmapOptions, PatchLayout, PatchView};
-use biscale_compressors::bicluster::{Bicluster, BiclusterView};
-use biscale_core::compress::{CompressContext, CompressedForm, Compressor};
+use biscale_compressors::bicluster::Bicluster;
+use biscale_core::compress::{CompressContext, Compressor};
 use biscale_core::geometry::Mesh;
 use biscale_core::transfer::{self, TransferSettings};
 use biscale_shading::camera::Camera;
@@ -48,7 +48,7 @@ fn main() -> anyhow::Result<()> {
     println!("{} biclusters, {:.1} s", form.meta("biclusters")?, form.build_seconds);
     let first = match first {
         Some(f) => f,
-        None => best_window(&form, count)?,
+        None => viz::most_shared_window(&form, count)?,
     };
     println!("patch: vertices {first}..{}", first + count - 1);
     let panels = PatchView { first_vertex: first, vertices: count, layout: PatchLayout::CubemapPanels, cell: 4 };
@@ -102,35 +102,3 @@ fn main() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The first vertex of the window of `count` consecutive vertices with the most shared
-/// bicluster columns: `sum_b l_b (vertices of the window b has rows in - 1)`.
-fn best_window(form: &CompressedForm, count: usize) -> anyhow::Result<usize> {
-    let bv = BiclusterView::new(form)?;
-    let m = form.local_dirs;
-    let vertices = bv.rows / m;
-    anyhow::ensure!(count >= 1 && count <= vertices, "{count} vertices asked, T has {vertices}");
-    let per_vertex: Vec<Vec<usize>> = (0..vertices)
-        .map(|v| {
-            let mut ids: Vec<usize> = (v * m..(v + 1) * m).flat_map(|i| bv.row_biclusters(i)).collect();
-            ids.sort_unstable();
-            ids.dedup();
-            ids
-        })
-        .collect();
-    let l = |b: usize| (bv.bc_col_ptr[b + 1] - bv.bc_col_ptr[b]) as u64;
-    let mut best = (0u64, 0usize);
-    let mut seen = std::collections::HashMap::new();
-    for s in 0..=vertices - count {
-        seen.clear();
-        for ids in &per_vertex[s..s + count] {
-            for &b in ids {
-                *seen.entry(b).or_insert(0u64) += 1;
-            }
-        }
-        let score: u64 = seen.iter().map(|(&b, &n)| l(b) * (n - 1)).sum();
-        if score > best.0 {
-            best = (score, s);
-        }
-    }
-    Ok(best.1)
-}

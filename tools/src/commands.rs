@@ -105,3 +105,42 @@ pub fn subdivide(input: &Path, levels: u32, out: &Path) -> Result<biscale_core::
 fn write_obj(mesh: &biscale_core::geometry::Mesh, out: &Path) -> Result<()> {
     crate::util::write_atomic(out, mesh.to_obj().as_bytes()).map_err(|source| PipelineError::Io { path: out.into(), source })
 }
+
+/// `biscale viz`: the matrix-structure pictures of a config's scene (transfer matrix from the
+/// cache when present, biclustered with default settings) written into `out`.
+pub fn viz(exp: &Experiment, out: &Path, first: Option<usize>, count: usize, opts: &RunOptions) -> Result<Vec<std::path::PathBuf>> {
+    use crate::viz::{self, HeatmapOptions, PatchLayout, PatchView};
+    use biscale_compressors::bicluster::Bicluster;
+    use biscale_core::compress::{CompressContext, Compressor};
+    std::fs::create_dir_all(out).map_err(|source| PipelineError::Io { path: out.into(), source })?;
+    let verr = |e: viz::VizError| PipelineError::Other(format!("viz: {e}"));
+    let scene = pipeline::load_scene(exp)?;
+    let (t, _) = pipeline::transfer_matrix(exp, &scene, opts, out)?;
+    let form = Bicluster::default()
+        .compress(&t, &CompressContext { seed: exp.file.seed, progress: None })
+        .map_err(|source| PipelineError::Compress { name: "bicluster".into(), source })?;
+    let count = count.clamp(1, t.vertices.max(1));
+    let first = match first {
+        Some(f) => f,
+        None => viz::most_shared_window(&form, count).map_err(verr)?,
+    };
+    let panels = PatchView { first_vertex: first, vertices: count, layout: PatchLayout::CubemapPanels, cell: 4 };
+    let mut written = vec![
+        viz::write_sparsity(&t, &panels, &out.join("sparsity_panels.png")).map_err(verr)?,
+        viz::write_bicluster_patch(&t, &form, &panels, &out.join("biclusters_panels.png")).map_err(verr)?,
+        viz::write_bicluster_size_histograms(&form, &out.join("bicluster_sizes.png")).map_err(verr)?,
+        viz::write_value_histograms(&t, Some(&form), &out.join("values.png")).map_err(verr)?,
+    ];
+    let camera = pipeline::camera(exp, &scene.mesh, 1);
+    let heat = HeatmapOptions::default();
+    let cost = viz::gather_cost_per_vertex(&form).map_err(verr)?;
+    let nnz = viz::nnz_per_vertex(&t);
+    written.push(
+        viz::write_vertex_heatmap(&scene.mesh, &camera, &cost, "gather flops per vertex (biclusters)", &heat, &out.join("heat_gather_cost.png"))
+            .map_err(verr)?,
+    );
+    written.push(
+        viz::write_vertex_heatmap(&scene.mesh, &camera, &nnz, "non-zeros of T per vertex", &heat, &out.join("heat_nnz.png")).map_err(verr)?,
+    );
+    Ok(written)
+}

@@ -213,6 +213,14 @@ pub enum CompressorConfig {
     },
     /// Non-linear Haar wavelets: the `terms` largest area-weighted coefficients per row.
     Haar { terms: Option<Sweep<usize>> },
+    /// A compressor loaded from a shared library through biscale's plugin C ABI.
+    Plugin {
+        /// The `cdylib` (relative to the config file).
+        path: PathBuf,
+        /// Free-form parameters handed to the plugin as JSON.
+        #[serde(default)]
+        params: toml::Table,
+    },
 }
 
 impl CompressorConfig {
@@ -222,6 +230,7 @@ impl CompressorConfig {
             CompressorConfig::Bicluster { .. } => "bicluster",
             CompressorConfig::Cpca { .. } => "cpca",
             CompressorConfig::Haar { .. } => "haar",
+            CompressorConfig::Plugin { .. } => "plugin",
         }
     }
 }
@@ -437,8 +446,17 @@ impl Experiment {
         if file.runtime.repeats == 0 {
             return Err(ConfigError::whole_file(path, "runtime.repeats must be at least 1"));
         }
-        for c in &file.compressors {
-            check_compressor(c.get_ref()).map_err(|m| err(c.span(), m))?;
+        let mut file = file;
+        for c in &mut file.compressors {
+            let span = c.span();
+            check_compressor(c.get_ref()).map_err(|m| err(span.clone(), m))?;
+            if let CompressorConfig::Plugin { path: p, .. } = c.get_mut() {
+                let full = dir.join(&*p);
+                if !full.is_file() {
+                    return Err(err(span, format!("plugin library not found: {}", full.display())));
+                }
+                *p = full;
+            }
         }
         if let MaterialConfig::Phong { exponent, view_grid, kd, ks } = &file.scene.material {
             if !(exponent.is_finite() && *exponent >= 0.0) || *view_grid == 0 || *view_grid > 64 {
@@ -486,6 +504,7 @@ fn check_compressor(c: &CompressorConfig) -> Result<(), String> {
             Ok(())
         }
         CompressorConfig::Haar { terms } => positive(terms, "terms"),
+        CompressorConfig::Plugin { .. } => Ok(()),
     }
 }
 
@@ -555,6 +574,21 @@ mod tests {
         assert!(e.message.contains("terms must be at least 1"), "{e}");
         let e = parse(&format!("{OK}[[compressors]]\nkind = \"haar\"\nterms = []\n")).unwrap_err();
         assert!(e.message.contains("at least one value"), "{e}");
+    }
+
+    #[test]
+    fn plugin_entries_resolve_their_library() {
+        let e = parse(&format!("{OK}[[compressors]]\nkind = \"plugin\"\npath = \"nope.so\"\nparams = {{ scale = 0.25 }}\n")).unwrap_err();
+        assert_eq!(e.line, 6, "{e}");
+        assert!(e.message.contains("plugin library not found"), "{e}");
+        let e = parse(&format!("{OK}[[compressors]]\nkind = \"plugin\"\npath = \"bunny.toml\"\nparams = {{ scale = 0.25 }}\n")).unwrap();
+        match e.file.compressors[0].get_ref() {
+            CompressorConfig::Plugin { path, params } => {
+                assert!(path.is_absolute() || path.starts_with(env!("CARGO_MANIFEST_DIR")), "{}", path.display());
+                assert_eq!(params["scale"].as_float(), Some(0.25));
+            }
+            other => panic!("{other:?}"),
+        }
     }
 
     #[test]

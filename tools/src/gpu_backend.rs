@@ -64,8 +64,13 @@ impl GpuBackend {
         exact: &[[f64; 3]],
         cpu: &Render,
         repeats: usize,
+        plugin_kernels: Option<&biscale_core::kernels::KernelDesc>,
     ) -> Result<GpuRecord> {
-        let mut gather = GpuGather::new(&self.ctx, form).map_err(gpu_err)?;
+        let mut gather = match plugin_kernels {
+            Some(k) => GpuGather::with_kernels(&self.ctx, form, k),
+            None => GpuGather::new(&self.ctx, form),
+        }
+        .map_err(gpu_err)?;
         let gather_timing = gather.time_gather(light, repeats).map_err(gpu_err)?;
         gather.gather(light).map_err(gpu_err)?;
         let lstar = gather.read_lstar().map_err(gpu_err)?;

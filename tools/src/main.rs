@@ -49,6 +49,20 @@ enum Command {
         #[arg(long)]
         no_cache: bool,
     },
+    /// Pictures of the transfer matrix's structure: sparsity and biclusters of a patch of
+    /// vertices, bicluster size and value histograms, per-vertex heat maps on the mesh.
+    Viz {
+        config: PathBuf,
+        /// Folder for the PNG files.
+        #[arg(long, default_value = "out/viz")]
+        out: PathBuf,
+        /// First vertex of the patch (default: the window whose biclusters share most).
+        #[arg(long)]
+        first: Option<usize>,
+        /// Vertices in the patch.
+        #[arg(long, default_value_t = 8)]
+        count: usize,
+    },
     /// Write a generated mesh (OBJ): a test scene, or a subdivided mesh for scaling studies.
     Generate {
         #[command(subcommand)]
@@ -113,6 +127,13 @@ fn main() -> anyhow::Result<()> {
                 out.join("L.mtx").display(),
                 l.len()
             );
+        }
+        Command::Viz { config, out, first, count } => {
+            let exp = load(&config)?;
+            let opts = RunOptions { out_dir: Some(out.clone()), cache_dir: None, no_cache: false };
+            for p in biscale::commands::viz(&exp, &out, first, count, &opts)? {
+                println!("wrote {}", p.display());
+            }
         }
         Command::Generate { what } => {
             let (mesh, out) = match what {

@@ -332,17 +332,21 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
         };
         #[cfg(feature = "gpu")]
         let gpu_record = match gpu.as_mut() {
-            Some(g) => Some(g.run(&form, &lighting.light, &exact, &render, repeats)?),
+            Some(g) => {
+                let kernels = registry::plugin_kernels(setting)?;
+                Some(g.run(&form, &lighting.light, &exact, &render, repeats, kernels.as_ref())?)
+            }
             None => None,
         };
         #[cfg(not(feature = "gpu"))]
-        let gpu_record = None;
+        let gpu_record: Option<crate::metrics::GpuRecord> = None;
         if let Some(g) = &gpu_record {
             eprintln!(
                 "{name} on the gpu: gather {:.2} ms, shade {:.2} ms, rel. error of L* {:.2e}, image vs cpu rel. L2 {:.2e}",
                 g.gather_ms, g.shade_ms, g.rel_error_lstar, g.image_vs_cpu.rel_l2
             );
         }
+        let name = &name.replace(':', "-");
         let (png, exr) = save_images(&render.image, &images_dir, name, exposure)?;
         let error_rel = format!("images/{name}_error.png");
         let error_scale =

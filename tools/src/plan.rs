@@ -72,6 +72,13 @@ pub fn expand(c: &CompressorConfig) -> Vec<CompressorSetting> {
             }
             out
         }
+        CompressorConfig::Plugin { path, .. } => vec![CompressorSetting {
+            label: format!(
+                "plugin-{}",
+                path.file_stem().map(|s| s.to_string_lossy().trim_start_matches("lib").to_string()).unwrap_or_default()
+            ),
+            config: c.clone(),
+        }],
         CompressorConfig::Haar { terms } => values(terms, 12)
             .into_iter()
             .map(|t| CompressorSetting {

@@ -2,11 +2,12 @@
 //! built-in compressor (a closed set, one `match`).
 
 use crate::config::CompressorConfig;
-use crate::pipeline::Result;
+use crate::pipeline::{PipelineError, Result};
 use crate::plan::CompressorSetting;
 use biscale_compressors::bicluster::{table_stats, Bicluster};
 use biscale_compressors::cpca::Cpca;
 use biscale_compressors::haar::Haar;
+use biscale_compressors::plugin::PluginCompressor;
 use biscale_compressors::sparse::Sparse;
 use biscale_compressors::BuiltinCompressor;
 use biscale_core::compress::{CompressedForm, Compressor};
@@ -37,8 +38,28 @@ pub fn build(setting: &CompressorSetting) -> Result<Box<dyn Compressor>> {
         CompressorConfig::Haar { terms } => {
             BuiltinCompressor::Haar(Haar::with_terms(one(terms).unwrap_or(Haar::default().terms)))
         }
+        CompressorConfig::Plugin { path, params } => {
+            let params = serde_json::to_value(params)
+                .map_err(|e| PipelineError::Other(format!("{}: plugin params: {e}", setting.label)))?;
+            let plugin = PluginCompressor::load(path, params)
+                .map_err(|e| PipelineError::Other(format!("compressor '{}': {e}", setting.label)))?;
+            return Ok(Box::new(plugin));
+        }
     };
     Ok(Box::new(c))
+}
+
+/// The GPU kernels of a plugin compressor (built-ins are found by their form's kind).
+pub fn plugin_kernels(setting: &CompressorSetting) -> Result<Option<biscale_core::kernels::KernelDesc>> {
+    match &setting.config {
+        CompressorConfig::Plugin { path, params } => {
+            let params = serde_json::to_value(params).map_err(|e| PipelineError::Other(e.to_string()))?;
+            let plugin = PluginCompressor::load(path, params)
+                .map_err(|e| PipelineError::Other(format!("compressor '{}': {e}", setting.label)))?;
+            Ok(Some(plugin.gpu_kernels().clone()))
+        }
+        _ => Ok(None),
+    }
 }
 
 /// Compressor-specific statistics for the report, computed from the form's arrays

@@ -1197,6 +1197,41 @@ pub fn write_vertex_heatmap(
     })
 }
 
+/// The first vertex of the window of `count` consecutive vertices whose biclusters share the
+/// most columns (the patch where biclustering's structure shows best).
+pub fn most_shared_window(form: &CompressedForm, count: usize) -> Result<usize> {
+    let bv = biscale_compressors::bicluster::BiclusterView::new(form)?;
+    let m = form.local_dirs;
+    let vertices = bv.rows / m;
+    if count == 0 || count > vertices {
+        return Err(VizError::Invalid(format!("{count} vertices asked, T has {vertices}")));
+    }
+    let per_vertex: Vec<Vec<usize>> = (0..vertices)
+        .map(|v| {
+            let mut ids: Vec<usize> = (v * m..(v + 1) * m).flat_map(|i| bv.row_biclusters(i)).collect();
+            ids.sort_unstable();
+            ids.dedup();
+            ids
+        })
+        .collect();
+    let l = |b: usize| (bv.bc_col_ptr[b + 1] - bv.bc_col_ptr[b]) as u64;
+    let mut best = (0u64, 0usize);
+    let mut seen = std::collections::HashMap::new();
+    for s in 0..=vertices - count {
+        seen.clear();
+        for ids in &per_vertex[s..s + count] {
+            for &b in ids {
+                *seen.entry(b).or_insert(0u64) += 1;
+            }
+        }
+        let score: u64 = seen.iter().map(|(&b, &n)| l(b) * (n - 1)).sum();
+        if score > best.0 {
+            best = (score, s);
+        }
+    }
+    Ok(best.1)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

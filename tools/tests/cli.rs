@@ -21,7 +21,7 @@ fn root() -> PathBuf {
 fn help_explains_every_command() {
     let (ok, out, _) = biscale(&["--help"]);
     assert!(ok);
-    for cmd in ["run", "plan", "export-matrix", "diff"] {
+    for cmd in ["run", "plan", "export-matrix", "diff", "viz", "generate"] {
         assert!(out.contains(cmd), "{out}");
     }
     let (ok, out, _) = biscale(&["run", "--help"]);
@@ -93,4 +93,15 @@ fn diff_reports_known_errors_and_names_bad_files() {
     assert!(e.is_file());
     let (ok, _, err) = biscale(&["diff", a.to_str().unwrap(), "/nonexistent/x.exr"]);
     assert!(!ok && err.contains("/nonexistent/x.exr") && !err.contains("panicked"), "{err}");
+}
+
+#[test]
+fn viz_writes_the_structure_pictures() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("viz");
+    let (ok, stdout, err) = biscale(&["viz", "configs/smoke.toml", "--out", out.to_str().unwrap(), "--count", "4"]);
+    assert!(ok, "{err}");
+    for f in ["sparsity_panels.png", "biclusters_panels.png", "bicluster_sizes.png", "values.png", "heat_gather_cost.png", "heat_nnz.png"] {
+        assert!(out.join(f).is_file(), "{f}: {stdout}");
+    }
 }

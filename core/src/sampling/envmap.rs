@@ -139,9 +139,9 @@ impl EnvMap {
         let (r0, r1) = (y0 as usize, (y0 as usize + 1).min(self.height - 1));
         let p = |r: usize, c: usize| self.pixels[r * self.width + c];
         let (a, b, c, e) = (p(r0, c0), p(r0, c1), p(r1, c0), p(r1, c1));
-        std::array::from_fn(|i| {
-            (a[i] * (1.0 - fx) + b[i] * fx) * (1.0 - fy) + (c[i] * (1.0 - fx) + e[i] * fx) * fy
-        })
+        // `x + (y - x) t` is exact when x == y, so a constant map stays exactly constant.
+        let lerp = |x: f32, y: f32, t: f32| x + (y - x) * t;
+        std::array::from_fn(|i| lerp(lerp(a[i], b[i], fx), lerp(c[i], e[i], fx), fy))
     }
 
     /// Integral of radiance over the sphere, per channel (exact for the piecewise-constant map).
@@ -366,6 +366,9 @@ mod tests {
         let seam = latlong_direction(0.0, 1.5 / h as f64).as_vec3();
         assert!((env.radiance(seam, 0.0)[0] - 11.5).abs() < 1e-3, "{:?}", env.radiance(seam, 0.0));
         assert_eq!(env.radiance(Vec3::Y, 0.0)[1], 1.0);
+        // A constant map is reproduced exactly anywhere (backgrounds are compared exactly).
+        let c = EnvMap::constant(w, h, [0.1, 0.2, 0.3]);
+        assert_eq!(c.radiance(Vec3::new(0.3, -0.2, 0.7).normalize(), 0.7), [0.1, 0.2, 0.3]);
     }
 
     #[test]
