@@ -47,10 +47,20 @@ impl GpuContext {
     /// the adapter has them. Fails with [`GpuError::NoAdapter`] when there is no adapter.
     pub fn new() -> Result<Self> {
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
+        Self::open(&instance, None).map(|(ctx, _)| ctx)
+    }
+
+    /// Open the default adapter of `instance` that can present to `surface` (the viewer's
+    /// window; `None` for headless use), as [`Self::new`] does; also returns the adapter
+    /// (the window needs its surface capabilities).
+    pub(crate) fn open(
+        instance: &wgpu::Instance,
+        surface: Option<&wgpu::Surface<'_>>,
+    ) -> Result<(Self, wgpu::Adapter)> {
         let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
             power_preference: wgpu::PowerPreference::HighPerformance,
             force_fallback_adapter: false,
-            compatible_surface: None,
+            compatible_surface: surface,
             apply_limit_buckets: false,
         }))
         .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
@@ -80,7 +90,7 @@ impl GpuContext {
                 v.push(e.to_string());
             }
         }));
-        Ok(Self { device, queue, adapter: summary, limits, timestamps, uncaptured })
+        Ok((Self { device, queue, adapter: summary, limits, timestamps, uncaptured }, adapter))
     }
 
     /// The adapter this context runs on.

@@ -31,6 +31,9 @@ pub enum GpuError {
     /// Inputs that cannot be shaded or gathered (mismatched sizes, NaN, ...).
     #[error("invalid input: {0}")]
     Input(String),
+    /// The viewer's window or its surface could not be created or used (no display, ...).
+    #[error("viewer window: {0}")]
+    Window(String),
 }
 
 impl From<biscale_core::compress::CompressError> for GpuError {

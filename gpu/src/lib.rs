@@ -13,6 +13,9 @@
 //!   then one compute invocation per pixel interpolates `L*` and the vertex frame and takes
 //!   the dot product with the BTF (bilinear in the view direction).
 //! * [`Timing`]: per-pass GPU timestamps (or wall-clock) medians over repetitions.
+//! * [`ToneMap`]: the HDR image tone-mapped on the GPU into a display target.
+//! * `viewer` (cargo feature `viewer`): `viewer::run_viewer`, an interactive
+//!   window (orbit camera, environment rotation, compressor switching, timings on screen).
 //!
 //! Shortest use:
 //!
@@ -29,14 +32,20 @@
 pub mod context;
 pub mod error;
 pub mod gather;
+pub mod present;
 pub mod shade;
 pub mod timing;
+#[cfg(feature = "viewer")]
+pub mod viewer;
 
 pub use context::{AdapterSummary, GpuContext};
 pub use error::{GpuError, Result};
 pub use gather::program::{Count, Factor, GatherProgram, KernelPass, ScratchBuffer, ValidateFn};
 pub use gather::{GatherParams, GpuGather};
+pub use present::{Rgba8Image, ToneMap, ToneMapSettings};
 pub use shade::{GpuCamera, GpuShader, GpuVertex, ShadeInputs, ShadeParams, ShadedImage};
+#[cfg(feature = "viewer")]
+pub use viewer::{run_viewer, Screenshot, ViewerForm, ViewerSetup};
 pub use timing::{PassTiming, Timing, TimingMethod};
 
 #[cfg(test)]

@@ -432,6 +432,7 @@ impl GpuGather {
     }
 
     /// Number of kernel passes of the program (one timestamp pair each).
+    #[cfg_attr(not(feature = "viewer"), allow(dead_code))]
     pub(crate) fn pass_count(&self) -> usize {
         self.passes.len()
     }

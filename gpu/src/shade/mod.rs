@@ -365,7 +365,10 @@ impl GpuShader {
             let image = tex(
                 "hdr image",
                 wgpu::TextureFormat::Rgba32Float,
-                wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_SRC,
+                // TEXTURE_BINDING: the tone-mapping pass (`present`) reads it.
+                wgpu::TextureUsages::STORAGE_BINDING
+                    | wgpu::TextureUsages::COPY_SRC
+                    | wgpu::TextureUsages::TEXTURE_BINDING,
             );
             let vis_pipeline = ctx.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some("visibility"),
@@ -518,7 +521,7 @@ impl GpuShader {
         measure(&self.ctx, &names, repetitions, |enc, timer| self.record(enc, &bind_group, timer))
     }
 
-    fn check_lstar(&self, vertices: usize, local_dirs: usize) -> Result<()> {
+    pub(crate) fn check_lstar(&self, vertices: usize, local_dirs: usize) -> Result<()> {
         if vertices != self.vertex_count || local_dirs != self.params.local_dirs as usize {
             return Err(GpuError::Input(format!(
                 "L* has {vertices} vertices x {local_dirs} directions; the mesh has {} vertices and the BTF {} light directions",
@@ -528,7 +531,7 @@ impl GpuShader {
         Ok(())
     }
 
-    fn shade_bind_group(&self, lstar: &wgpu::Buffer) -> Result<wgpu::BindGroup> {
+    pub(crate) fn shade_bind_group(&self, lstar: &wgpu::Buffer) -> Result<wgpu::BindGroup> {
         self.ctx.scoped("binding L* for shading", || {
             self.ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("shade"),
@@ -546,7 +549,28 @@ impl GpuShader {
         })
     }
 
-    fn record(&self, enc: &mut wgpu::CommandEncoder, bind_group: &wgpu::BindGroup, timer: Option<&PassTimer>) {
+    /// The HDR image (rgba32float, alpha = coverage) the shading pass writes.
+    pub(crate) fn image_view(&self) -> &wgpu::TextureView {
+        &self.image_view
+    }
+
+    /// The uniform buffer holding [`ShadeParams`] (camera rays for the background).
+    pub(crate) fn params_buffer(&self) -> &wgpu::Buffer {
+        &self.params_buf
+    }
+
+    /// Image size `(width, height)`.
+    pub fn size(&self) -> (u32, u32) {
+        (self.params.width, self.params.height)
+    }
+
+    /// Record both passes (timestamps 0..4 of `timer`: visibility, then shade).
+    pub(crate) fn record(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        bind_group: &wgpu::BindGroup,
+        timer: Option<&PassTimer>,
+    ) {
         {
             let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("visibility"),

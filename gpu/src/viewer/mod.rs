@@ -1,0 +1,777 @@
+//! The interactive viewer (cargo feature `viewer`; issue 5): a window showing the bi-scale
+//! rendering of one scene, in which the user orbits the camera, rotates the environment (a
+//! *light change*: `L` is recomputed from the map with the new rotation on a worker thread,
+//! then the current compressed form's gather runs again on the GPU), and switches between
+//! compressed forms, with the frame time and the GPU split between gather and shade drawn
+//! over the image.
+//!
+//! Per frame: [`GpuGather`] (only after a light change, a switch to a form whose `L*` is
+//! stale, or every frame in continuous mode), [`GpuShader`]'s visibility and shade passes into
+//! its HDR image, [`ToneMap`] into the window's surface texture, the text overlay on top; all
+//! in one submission, with GPU timestamps around every pass where the adapter has them.
+//!
+//! Controls: left drag orbits, wheel zooms, right drag or Left/Right turn the environment
+//! (15 degrees a key press), Tab / Shift+Tab / 1-9 pick the compressed form, +/- change the
+//! exposure, Space toggles continuous redraw (which re-runs the gather every frame, to time
+//! the full light-change path), B toggles the background, R resets the camera, Esc or Q quit.
+//!
+//! Runtime libraries (X11 client libraries or libwayland, Vulkan loader + driver):
+//! `scripts/setup-viewer.sh`. winit allows one event loop per process, so [`run_viewer`] can
+//! be called once per process.
+
+pub mod orbit;
+pub(crate) mod overlay;
+
+use crate::context::GpuContext;
+use crate::error::{GpuError, Result};
+use crate::gather::GpuGather;
+use crate::present::{read_texture_rgba8, Rgba8Image, ToneMap, ToneMapSettings};
+use crate::shade::{GpuCamera, GpuShader, ShadeInputs};
+use crate::timing::{median, PassTimer};
+use biscale_core::compress::CompressedForm;
+use biscale_core::sampling::{EnvMap, LightVector};
+use orbit::Orbit;
+use overlay::Overlay;
+use std::path::PathBuf;
+use std::sync::{mpsc, Arc};
+use std::time::Instant;
+use winit::application::ApplicationHandler;
+use winit::dpi::PhysicalSize;
+use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
+use winit::event_loop::{ActiveEventLoop, EventLoop, EventLoopProxy};
+use winit::keyboard::{Key, NamedKey};
+use winit::window::{Window, WindowId};
+
+/// One compressed form the viewer can show, with the label shown on screen.
+#[derive(Clone, Debug)]
+pub struct ViewerForm {
+    /// e.g. the compressor's label in the config (`cpca_c32_k8`).
+    pub label: String,
+    pub form: CompressedForm,
+}
+
+/// Write a PNG of the window's content after `frames` frames, then close (for scripted
+/// checks and headless screenshots).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Screenshot {
+    pub path: PathBuf,
+    /// Frames to render before the capture (at least 1; the capture is of the last one).
+    pub frames: u32,
+}
+
+/// Everything the viewer shows, as plain data (the fields of [`ShadeInputs`], owned, plus the
+/// forms and the lighting).
+#[derive(Clone, Debug)]
+pub struct ViewerSetup {
+    /// Window title (e.g. the experiment's name).
+    pub title: String,
+    /// World-space vertex positions.
+    pub positions: Vec<[f32; 3]>,
+    /// Unit vertex normals (the transfer frames' normals).
+    pub normals: Vec<[f32; 3]>,
+    /// Vertex tangents (the transfer frames' tangents).
+    pub tangents: Vec<[f32; 3]>,
+    /// BTF texture coordinates; `None` = all (0, 0).
+    pub uvs: Option<Vec<[f32; 2]>>,
+    pub triangles: Vec<[u32; 3]>,
+    /// BTF `[texel][view][light]` RGB (`shading::btf::Btf::data`).
+    pub btf_data: Vec<[f32; 3]>,
+    /// BTF patch size in texels.
+    pub btf_spatial: [u32; 2],
+    /// Light grid m of the BTF (`m * m` = the forms' local directions).
+    pub light_m: u32,
+    /// View grid m of the BTF, `None` when view-independent.
+    pub view_m: Option<u32>,
+    /// The compressed forms (at least one); Tab cycles through them in this order.
+    pub forms: Vec<ViewerForm>,
+    /// Index into `forms` shown first.
+    pub initial_form: usize,
+    /// The environment map `L` is computed from (`LightVector::from_env`).
+    pub env: EnvMap,
+    /// Cubemap resolution r of `L` (the forms have `6 r^2` columns).
+    pub cubemap_resolution: u32,
+    /// Initial rotation of the environment about +Y, radians (the config's rotation).
+    pub env_rotation: f64,
+    /// The config's `lighting.sun_boost`: the brightest texel of every recomputed `L` (by
+    /// luminance) is multiplied by it, as the pipeline's `load_lighting` does.
+    pub sun_boost: Option<f32>,
+    /// Initial camera; its `width x height` is the initial window size (pixels).
+    pub camera: GpuCamera,
+    /// Exposure in stops (the config's `report.exposure`).
+    pub exposure: f32,
+    /// Draw the environment behind the mesh.
+    pub background: bool,
+    /// Capture the window after some frames and exit.
+    pub screenshot: Option<Screenshot>,
+    /// Start in continuous mode (redraw and re-gather every frame; Space toggles it).
+    pub continuous: bool,
+}
+
+/// What the worker thread sends back: a light vector for a rotation.
+struct LightReady {
+    rotation: f64,
+    light: LightVector,
+    ms: f64,
+}
+
+/// `L` for `rotation`, exactly as the pipeline's `load_lighting`.
+fn compute_light(env: &EnvMap, resolution: u32, rotation: f64, sun_boost: Option<f32>) -> LightVector {
+    let mut light = LightVector::from_env(env, resolution, rotation);
+    if let Some(boost) = sun_boost {
+        let lum = |p: &[f32; 3]| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2];
+        if let Some(k) = (0..light.len()).max_by(|&a, &b| lum(&light.power[a]).total_cmp(&lum(&light.power[b]))) {
+            light.power[k] = light.power[k].map(|v| v * boost);
+        }
+    }
+    light
+}
+
+impl ViewerSetup {
+    /// Check sizes before anything is opened (the GPU stages check the rest).
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(GpuError::Input(m));
+        if self.forms.is_empty() {
+            return bad("the viewer needs at least one compressed form".into());
+        }
+        if self.initial_form >= self.forms.len() {
+            return bad(format!("initial form {} of {} forms", self.initial_form, self.forms.len()));
+        }
+        let r = self.cubemap_resolution as usize;
+        if r == 0 {
+            return bad("cubemap resolution 0".into());
+        }
+        let local = (self.light_m as usize).pow(2);
+        for f in &self.forms {
+            let rows = self.positions.len() * local;
+            if f.form.cols != 6 * r * r || f.form.rows != rows || f.form.local_dirs != local {
+                return bad(format!(
+                    "form '{}' is {} x {} with {} local directions; the scene needs {rows} x {} with {local}",
+                    f.label,
+                    f.form.rows,
+                    f.form.cols,
+                    f.form.local_dirs,
+                    6 * r * r
+                ));
+            }
+        }
+        if self.env.width == 0 || self.env.height == 0 || self.env.pixels.len() != self.env.width * self.env.height {
+            return bad("empty or inconsistent environment map".into());
+        }
+        if !self.env_rotation.is_finite() || !self.exposure.is_finite() {
+            return bad("environment rotation and exposure must be finite".into());
+        }
+        if self.sun_boost.is_some_and(|b| !b.is_finite() || b < 0.0) {
+            return bad("sun_boost must be finite and non-negative".into());
+        }
+        if self.screenshot.as_ref().is_some_and(|s| s.frames == 0) {
+            return bad("a screenshot needs at least one frame".into());
+        }
+        Ok(())
+    }
+
+    fn shade_inputs(&self, camera: GpuCamera) -> ShadeInputs<'_> {
+        ShadeInputs {
+            positions: &self.positions,
+            normals: &self.normals,
+            tangents: &self.tangents,
+            uvs: self.uvs.as_deref(),
+            triangles: &self.triangles,
+            btf_data: &self.btf_data,
+            btf_spatial: self.btf_spatial,
+            light_m: self.light_m,
+            view_m: self.view_m,
+            camera,
+        }
+    }
+}
+
+/// Open the window and run until it is closed (or the screenshot is written). Errors: bad
+/// setup, no display ([`GpuError::Window`]), no adapter, and anything the GPU stages report.
+pub fn run_viewer(setup: ViewerSetup) -> Result<()> {
+    setup.validate()?;
+    let mut builder = EventLoop::<LightReady>::with_user_event();
+    // Allow a call from any thread (tests, a CLI that does work on the main thread first).
+    #[cfg(all(unix, not(target_os = "macos")))]
+    {
+        use winit::platform::wayland::EventLoopBuilderExtWayland;
+        use winit::platform::x11::EventLoopBuilderExtX11;
+        EventLoopBuilderExtX11::with_any_thread(&mut builder, true);
+        EventLoopBuilderExtWayland::with_any_thread(&mut builder, true);
+    }
+    let event_loop = builder
+        .build()
+        .map_err(|e| GpuError::Window(format!("{e} (is DISPLAY or WAYLAND_DISPLAY set? try xvfb-run)")))?;
+    let start = Instant::now();
+    let light = compute_light(&setup.env, setup.cubemap_resolution, setup.env_rotation, setup.sun_boost);
+    let light_ms = start.elapsed().as_secs_f64() * 1e3;
+    let mut app = App {
+        proxy: event_loop.create_proxy(),
+        state: State::new(&setup, light, light_ms),
+        setup,
+        gpu: None,
+        error: None,
+        worker: None,
+        shift: false,
+    };
+    event_loop.run_app(&mut app).map_err(|e| GpuError::Window(e.to_string()))?;
+    let s = &app.state;
+    if s.frames > 0 {
+        let ms = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.2} ms"));
+        eprintln!(
+            "biscale view: {} frames; frame median {:.1} ms; last gather {} GPU / {} wall; last shade {} GPU",
+            s.frames,
+            median(&s.frame_ms),
+            ms(s.last_gather_ms),
+            ms(s.last_gather_wall_ms),
+            ms(s.last_passes.map(|p| p[0] + p[1])),
+        );
+    }
+    match app.error {
+        Some(e) => Err(e),
+        None => Ok(()),
+    }
+}
+
+/// Interaction state (no GPU objects).
+struct State {
+    orbit: Orbit,
+    home: Orbit,
+    min_distance: f64,
+    form: usize,
+    exposure: f32,
+    background: bool,
+    /// Rotation last asked of the worker, and the one the current `L` was computed with.
+    requested_rotation: f64,
+    light_rotation: f64,
+    light: LightVector,
+    light_ms: f64,
+    /// Per form: its `L*` on the GPU is from an older light.
+    stale: Vec<bool>,
+    continuous: bool,
+    left: bool,
+    right: bool,
+    cursor: Option<(f64, f64)>,
+    frames: u32,
+    /// Wall-clock frame times (ms), newest last, and the last GPU figures.
+    frame_ms: Vec<f64>,
+    /// GPU-timestamp and wall-clock (submit to idle) times of the last gather.
+    last_gather_ms: Option<f64>,
+    last_gather_wall_ms: Option<f64>,
+    gather_this_frame: bool,
+    last_passes: Option<[f64; 4]>,
+    last_frame_start: Option<Instant>,
+    fps_intervals: Vec<f64>,
+}
+
+impl State {
+    fn new(setup: &ViewerSetup, light: LightVector, light_ms: f64) -> Self {
+        let orbit = Orbit::from_camera(&setup.camera);
+        Self {
+            orbit,
+            home: orbit,
+            min_distance: orbit.distance * 0.02,
+            form: setup.initial_form,
+            exposure: setup.exposure,
+            background: setup.background,
+            requested_rotation: setup.env_rotation,
+            light_rotation: setup.env_rotation,
+            light,
+            light_ms,
+            stale: vec![true; setup.forms.len()],
+            continuous: setup.continuous,
+            left: false,
+            right: false,
+            cursor: None,
+            frames: 0,
+            frame_ms: vec![],
+            last_gather_ms: None,
+            last_gather_wall_ms: None,
+            gather_this_frame: false,
+            last_passes: None,
+            last_frame_start: None,
+            fps_intervals: vec![],
+        }
+    }
+}
+
+/// GPU objects of the open window.
+struct Gpu {
+    window: Arc<Window>,
+    surface: wgpu::Surface<'static>,
+    config: wgpu::SurfaceConfiguration,
+    ctx: GpuContext,
+    shader: GpuShader,
+    gathers: Vec<GpuGather>,
+    /// Per form, the shade bind group of its `L*` for the current shader.
+    bind_groups: Vec<Option<wgpu::BindGroup>>,
+    tonemap: ToneMap,
+    overlay: Overlay,
+    /// Timestamps of visibility, shade, tone map, overlay.
+    frame_timer: Option<PassTimer>,
+    gather_timers: Vec<Option<PassTimer>>,
+    /// The surface texture can be copied (screenshots read the real frame).
+    surface_copy: bool,
+}
+
+struct App {
+    setup: ViewerSetup,
+    proxy: EventLoopProxy<LightReady>,
+    state: State,
+    gpu: Option<Gpu>,
+    error: Option<GpuError>,
+    worker: Option<mpsc::Sender<f64>>,
+    shift: bool,
+}
+
+impl App {
+    fn fail(&mut self, event_loop: &ActiveEventLoop, e: GpuError) {
+        if self.error.is_none() {
+            self.error = Some(e);
+        }
+        event_loop.exit();
+    }
+
+    fn init(&mut self, event_loop: &ActiveEventLoop) -> Result<()> {
+        let cam = self.setup.camera;
+        let attrs = Window::default_attributes()
+            .with_title(format!("biscale view: {}", self.setup.title))
+            .with_inner_size(PhysicalSize::new(cam.width.max(1), cam.height.max(1)));
+        let window = Arc::new(event_loop.create_window(attrs).map_err(|e| GpuError::Window(e.to_string()))?);
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
+        let surface = instance
+            .create_surface(window.clone())
+            .map_err(|e| GpuError::Window(format!("creating the surface: {e}")))?;
+        let (ctx, adapter) = GpuContext::open(&instance, Some(&surface))?;
+        let caps = surface.get_capabilities(&adapter);
+        // An 8-bit format (the tone map's output is display-referred sRGB), preferring the
+        // surface's own order; else whatever it offers first.
+        let eight_bit = |f: &wgpu::TextureFormat| {
+            matches!(
+                f,
+                wgpu::TextureFormat::Rgba8Unorm
+                    | wgpu::TextureFormat::Rgba8UnormSrgb
+                    | wgpu::TextureFormat::Bgra8Unorm
+                    | wgpu::TextureFormat::Bgra8UnormSrgb
+            )
+        };
+        let format =
+            *caps.formats.iter().find(|f| eight_bit(f)).or(caps.formats.first()).ok_or_else(|| {
+                GpuError::Window(format!("adapter {} cannot present to this window", ctx.adapter().name))
+            })?;
+        let surface_copy = caps.usages.contains(wgpu::TextureUsages::COPY_SRC) && eight_bit(&format);
+        let size = window.inner_size();
+        let config = wgpu::SurfaceConfiguration {
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+                | if surface_copy { wgpu::TextureUsages::COPY_SRC } else { wgpu::TextureUsages::empty() },
+            format,
+            width: size.width.max(1),
+            height: size.height.max(1),
+            present_mode: wgpu::PresentMode::AutoVsync,
+            desired_maximum_frame_latency: 2,
+            alpha_mode: caps.alpha_modes.first().copied().unwrap_or(wgpu::CompositeAlphaMode::Auto),
+            view_formats: vec![],
+            color_space: wgpu::SurfaceColorSpace::Auto,
+        };
+        ctx.scoped("configuring the surface", || surface.configure(&ctx.device, &config))?;
+        let shader =
+            GpuShader::new(&ctx, &self.setup.shade_inputs(self.state.orbit.camera(config.width, config.height)))?;
+        let gathers = self
+            .setup
+            .forms
+            .iter()
+            .map(|f| GpuGather::new(&ctx, &f.form).map_err(|e| GpuError::Form(format!("'{}': {e}", f.label))))
+            .collect::<Result<Vec<_>>>()?;
+        let gather_timers =
+            gathers.iter().map(|g| PassTimer::new(&ctx, g.pass_count() as u32)).collect::<Result<Vec<_>>>()?;
+        let mut tonemap = ToneMap::new(&ctx, format)?;
+        tonemap.set_environment(Some(&self.setup.env))?;
+        let scale = window.scale_factor() as f32;
+        let overlay = Overlay::new(&ctx, format, (15.0 * scale).round())?;
+        let frame_timer = PassTimer::new(&ctx, 4)?;
+
+        // The light worker: coalesces requests to the newest rotation.
+        let (tx, rx) = mpsc::channel::<f64>();
+        let proxy = self.proxy.clone();
+        let env = Arc::new(self.setup.env.clone());
+        let (res, boost) = (self.setup.cubemap_resolution, self.setup.sun_boost);
+        std::thread::Builder::new()
+            .name("biscale-view-light".into())
+            .spawn(move || {
+                while let Ok(mut rotation) = rx.recv() {
+                    while let Ok(r) = rx.try_recv() {
+                        rotation = r;
+                    }
+                    let start = Instant::now();
+                    let light = compute_light(&env, res, rotation, boost);
+                    let ms = start.elapsed().as_secs_f64() * 1e3;
+                    if proxy.send_event(LightReady { rotation, light, ms }).is_err() {
+                        break;
+                    }
+                }
+            })
+            .map_err(|e| GpuError::Window(format!("starting the light worker: {e}")))?;
+        self.worker = Some(tx);
+        let n = gathers.len();
+        self.gpu = Some(Gpu {
+            window,
+            surface,
+            config,
+            ctx,
+            shader,
+            gathers,
+            bind_groups: vec![None; n],
+            tonemap,
+            overlay,
+            frame_timer,
+            gather_timers,
+            surface_copy,
+        });
+        Ok(())
+    }
+
+    fn request_rotation(&mut self, rotation: f64) {
+        self.state.requested_rotation = rotation.rem_euclid(std::f64::consts::TAU);
+        if let Some(tx) = &self.worker {
+            let _ = tx.send(self.state.requested_rotation);
+        }
+        self.redraw();
+    }
+
+    fn redraw(&self) {
+        if let Some(g) = &self.gpu {
+            g.window.request_redraw();
+        }
+    }
+}
+
+/// The overlay's text for the current state.
+fn overlay_lines(setup: &ViewerSetup, s: &State, gpu: &Gpu) -> Vec<String> {
+    let f = &setup.forms[s.form];
+    let n = setup.forms.len();
+    let a = gpu.ctx.adapter();
+    let recent = |v: &[f64]| median(&v[v.len().saturating_sub(15)..]);
+    let frame = recent(&s.frame_ms);
+    let interval = recent(&s.fps_intervals);
+    let mut lines = vec![
+        format!("{} | {} ({}) | {}x{}", setup.title, a.name, a.backend, gpu.config.width, gpu.config.height),
+        format!("[Tab] form {}/{n}: {} ({}, {:.2} MB)", s.form + 1, f.label, f.form.kind, f.form.bytes() as f64 / 1e6),
+    ];
+    let frame_text = if frame.is_finite() { format!("{frame:.1} ms") } else { "-".into() };
+    let fps_text =
+        if interval.is_finite() && s.continuous { format!(", {:.1} fps", 1e3 / interval) } else { String::new() };
+    lines.push(format!(
+        "frame {frame_text} (CPU+GPU, median of last {}{fps_text}){}",
+        s.frame_ms.len().min(15),
+        if s.continuous { "  [continuous: gather every frame]" } else { "" }
+    ));
+    let when = if s.gather_this_frame { "" } else { " (at the last light change)" };
+    lines.push(match (s.last_gather_ms, s.last_gather_wall_ms) {
+        (Some(g), Some(w)) => format!("gather {g:.2} ms GPU, {w:.2} ms wall{when}"),
+        (None, Some(w)) => format!("gather {w:.2} ms wall{when}"),
+        _ => "gather -".into(),
+    });
+    match s.last_passes {
+        Some([vis, shade, tone, text]) => lines.push(format!(
+            "shade {:.2} ms GPU (visibility {vis:.2} + shade {shade:.2}), tone map {tone:.2} + text {text:.2} ms",
+            vis + shade
+        )),
+        None if gpu.frame_timer.is_none() => lines.push("shade: no timestamp queries, no per-pass split".into()),
+        None => lines.push("shade -".into()),
+    }
+    let pending = if (s.requested_rotation - s.light_rotation).abs() > 1e-12 { "  (recomputing...)" } else { "" };
+    lines.push(format!(
+        "light: env rotation {:.0} deg, L ({} texels) from the map in {:.0} ms{pending}, exposure {:+.1}",
+        s.light_rotation.to_degrees(),
+        s.light.len(),
+        s.light_ms,
+        s.exposure
+    ));
+    lines.push("drag: orbit  wheel: zoom  right-drag, Left/Right: rotate env  Tab, 1-9: form".into());
+    lines.push("+/-: exposure  Space: continuous  B: background  R: reset camera  Esc, Q: quit".into());
+    lines
+}
+
+impl App {
+    /// Render one frame; returns the captured image when this frame is the screenshot.
+    fn render(&mut self) -> Result<Option<Rgba8Image>> {
+        let capture = self.setup.screenshot.as_ref().is_some_and(|sh| self.state.frames + 1 >= sh.frames);
+        let setup = &self.setup;
+        let s = &mut self.state;
+        let Some(gpu) = self.gpu.as_mut() else { return Ok(None) };
+        let (w, h) = (gpu.config.width, gpu.config.height);
+        // Resized: a shader for the new size (the camera's aspect follows the window).
+        if gpu.shader.size() != (w, h) {
+            gpu.shader = GpuShader::new(&gpu.ctx, &setup.shade_inputs(s.orbit.camera(w, h)))?;
+            gpu.bind_groups.iter_mut().for_each(|b| *b = None);
+        }
+        let frame = match gpu.surface.get_current_texture() {
+            wgpu::CurrentSurfaceTexture::Success(t) | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
+            wgpu::CurrentSurfaceTexture::Timeout | wgpu::CurrentSurfaceTexture::Occluded => return Ok(None),
+            wgpu::CurrentSurfaceTexture::Outdated | wgpu::CurrentSurfaceTexture::Lost => {
+                gpu.ctx.scoped("reconfiguring the surface", || gpu.surface.configure(&gpu.ctx.device, &gpu.config))?;
+                gpu.window.request_redraw();
+                return Ok(None);
+            }
+            other => return Err(GpuError::Window(format!("acquiring the next frame: {other:?}"))),
+        };
+        // Frame time: from after the acquire (which may wait for vsync) until the GPU is idle.
+        let start = Instant::now();
+        if let Some(prev) = s.last_frame_start.replace(start) {
+            s.fps_intervals.push(prev.elapsed().as_secs_f64() * 1e3);
+        }
+        let i = s.form;
+        gpu.shader.set_camera(&s.orbit.camera(w, h))?;
+        let gather = s.stale[i] || s.continuous;
+        // The gather goes alone and is waited for, so that its wall-clock time is known too
+        // (lavapipe's timestamps around short compute passes are unreliable).
+        if gather {
+            let t0 = Instant::now();
+            let gather_timer = gpu.gather_timers[i].as_ref();
+            gpu.gathers[i].upload_light(&s.light)?;
+            gpu.ctx.scoped("running the gather", || {
+                let mut genc = gpu.ctx.device.create_command_encoder(&Default::default());
+                gpu.gathers[i].record(&mut genc, gather_timer);
+                if let Some(t) = gather_timer {
+                    t.resolve(&mut genc);
+                }
+                gpu.ctx.queue.submit([genc.finish()]);
+            })?;
+            gpu.ctx.wait("the gather")?;
+            s.last_gather_wall_ms = Some(t0.elapsed().as_secs_f64() * 1e3);
+            s.last_gather_ms = match gather_timer {
+                Some(t) => Some(t.read_ms(&gpu.ctx)?.iter().sum()),
+                None => None,
+            };
+            s.stale[i] = false;
+        }
+        s.gather_this_frame = gather;
+        if gpu.bind_groups[i].is_none() {
+            gpu.bind_groups[i] = Some(gpu.shader.shade_bind_group(gpu.gathers[i].lstar_buffer())?);
+        }
+        let lines = overlay_lines(setup, s, gpu);
+        gpu.overlay.set_text(&lines);
+        let view = frame.texture.create_view(&Default::default());
+        let settings =
+            ToneMapSettings { exposure: s.exposure, env_rotation: s.light_rotation as f32, background: s.background };
+        let mut enc = gpu.ctx.device.create_command_encoder(&Default::default());
+        let frame_timer = gpu.frame_timer.as_ref();
+        let bind_group = gpu.bind_groups[i].as_ref().expect("built above");
+        gpu.ctx.scoped("recording a frame", || gpu.shader.record(&mut enc, bind_group, frame_timer))?;
+        gpu.tonemap.encode_timed(&mut enc, &gpu.shader, &view, (w, h), &settings, frame_timer.map(|t| (t, 2)))?;
+        gpu.overlay.encode(&mut enc, &view, (w, h), frame_timer.map(|t| (t, 3)));
+        if let Some(t) = frame_timer {
+            t.resolve(&mut enc);
+        }
+        let shot = if capture && gpu.surface_copy {
+            // The frame itself, copied from the surface texture before it is presented.
+            Some(read_texture_rgba8(&gpu.ctx, enc, &frame.texture)?)
+        } else {
+            gpu.ctx.scoped("submitting a frame", || gpu.ctx.queue.submit([enc.finish()]))?;
+            None
+        };
+        gpu.window.pre_present_notify();
+        gpu.ctx.queue.present(frame);
+        gpu.ctx.wait("a frame")?;
+        s.frame_ms.push(start.elapsed().as_secs_f64() * 1e3);
+        if let Some(t) = frame_timer {
+            let ms = t.read_ms(&gpu.ctx)?;
+            s.last_passes = Some([ms[0], ms[1], ms[2], ms[3]]);
+        }
+        for v in [&mut s.frame_ms, &mut s.fps_intervals] {
+            if v.len() > 240 {
+                v.drain(..120);
+            }
+        }
+        s.frames += 1;
+        if capture && shot.is_none() {
+            // The surface cannot be copied: draw the same frame again into an 8-bit texture.
+            let format = wgpu::TextureFormat::Rgba8UnormSrgb;
+            let mut tonemap = ToneMap::new(&gpu.ctx, format)?;
+            tonemap.set_environment(Some(&setup.env))?;
+            let mut overlay = Overlay::new(&gpu.ctx, format, gpu.overlay.px())?;
+            overlay.set_text(&lines);
+            let texture = gpu.ctx.scoped("creating the screenshot target", || {
+                gpu.ctx.device.create_texture(&wgpu::TextureDescriptor {
+                    label: Some("screenshot"),
+                    size: wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: wgpu::TextureDimension::D2,
+                    format,
+                    usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+                    view_formats: &[],
+                })
+            })?;
+            let view = texture.create_view(&Default::default());
+            let mut enc = gpu.ctx.device.create_command_encoder(&Default::default());
+            tonemap.encode(&mut enc, &gpu.shader, &view, (w, h), &settings)?;
+            overlay.encode(&mut enc, &view, (w, h), None);
+            return Ok(Some(read_texture_rgba8(&gpu.ctx, enc, &texture)?));
+        }
+        Ok(shot)
+    }
+
+    fn select_form(&mut self, i: usize) {
+        if i < self.setup.forms.len() && i != self.state.form {
+            self.state.form = i;
+            self.redraw();
+        }
+    }
+
+    fn key(&mut self, event_loop: &ActiveEventLoop, key: &Key, shift: bool) {
+        let step = 15f64.to_radians();
+        let n = self.setup.forms.len();
+        match key {
+            Key::Named(NamedKey::Escape) => event_loop.exit(),
+            Key::Named(NamedKey::Tab) => {
+                let next = if shift { (self.state.form + n - 1) % n } else { (self.state.form + 1) % n };
+                self.select_form(next);
+            }
+            Key::Named(NamedKey::ArrowLeft) => self.request_rotation(self.state.requested_rotation - step),
+            Key::Named(NamedKey::ArrowRight) => self.request_rotation(self.state.requested_rotation + step),
+            Key::Named(NamedKey::Space) => {
+                self.state.continuous = !self.state.continuous;
+                self.redraw();
+            }
+            Key::Character(c) => match c.as_str() {
+                "q" | "Q" => event_loop.exit(),
+                "+" | "=" => {
+                    self.state.exposure += 0.5;
+                    self.redraw();
+                }
+                "-" | "_" => {
+                    self.state.exposure -= 0.5;
+                    self.redraw();
+                }
+                "b" | "B" => {
+                    self.state.background = !self.state.background;
+                    self.redraw();
+                }
+                "r" | "R" => {
+                    self.state.orbit = self.state.home;
+                    self.redraw();
+                }
+                d => {
+                    if let Some(k) = d.parse::<usize>().ok().filter(|&k| k >= 1) {
+                        self.select_form(k - 1);
+                    }
+                }
+            },
+            _ => {}
+        }
+    }
+}
+
+fn gpu_size(gpu: &Option<Gpu>) -> (u32, u32) {
+    gpu.as_ref().map_or((1, 1), |g| (g.config.width.max(1), g.config.height.max(1)))
+}
+
+impl ApplicationHandler<LightReady> for App {
+    fn resumed(&mut self, event_loop: &ActiveEventLoop) {
+        if self.gpu.is_some() || self.error.is_some() {
+            return;
+        }
+        if let Err(e) = self.init(event_loop) {
+            self.fail(event_loop, e);
+            return;
+        }
+        self.redraw();
+    }
+
+    fn user_event(&mut self, _event_loop: &ActiveEventLoop, ev: LightReady) {
+        let s = &mut self.state;
+        s.light = ev.light;
+        s.light_rotation = ev.rotation;
+        s.light_ms = ev.ms;
+        s.stale.iter_mut().for_each(|x| *x = true);
+        self.redraw();
+    }
+
+    fn window_event(&mut self, event_loop: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
+        match event {
+            WindowEvent::CloseRequested => event_loop.exit(),
+            WindowEvent::Resized(size) => {
+                if let Some(gpu) = self.gpu.as_mut() {
+                    if size.width > 0 && size.height > 0 {
+                        gpu.config.width = size.width;
+                        gpu.config.height = size.height;
+                        let r = gpu
+                            .ctx
+                            .scoped("resizing the surface", || gpu.surface.configure(&gpu.ctx.device, &gpu.config));
+                        if let Err(e) = r {
+                            self.fail(event_loop, e);
+                            return;
+                        }
+                    }
+                }
+                self.redraw();
+            }
+            WindowEvent::ModifiersChanged(m) => self.shift = m.state().shift_key(),
+            WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => {
+                let shift = self.shift;
+                self.key(event_loop, &event.logical_key, shift);
+            }
+            WindowEvent::MouseInput { state, button, .. } => {
+                let down = state == ElementState::Pressed;
+                match button {
+                    MouseButton::Left => self.state.left = down,
+                    MouseButton::Right => self.state.right = down,
+                    _ => {}
+                }
+            }
+            WindowEvent::CursorLeft { .. } => self.state.cursor = None,
+            WindowEvent::CursorMoved { position, .. } => {
+                let (x, y) = (position.x, position.y);
+                if let Some((px, py)) = self.state.cursor.replace((x, y)) {
+                    let (dx, dy) = (x - px, y - py);
+                    let (w, h) = gpu_size(&self.gpu);
+                    if self.state.left {
+                        self.state.orbit.drag(dx, dy, h);
+                        self.redraw();
+                    }
+                    if self.state.right && dx != 0.0 {
+                        // A drag across the full width turns the environment once around.
+                        self.request_rotation(self.state.requested_rotation + dx / w as f64 * std::f64::consts::TAU);
+                    }
+                }
+            }
+            WindowEvent::MouseWheel { delta, .. } => {
+                let steps = match delta {
+                    MouseScrollDelta::LineDelta(_, y) => y as f64,
+                    MouseScrollDelta::PixelDelta(p) => p.y / 40.0,
+                };
+                let min = self.state.min_distance;
+                self.state.orbit.zoom(steps, min);
+                self.redraw();
+            }
+            WindowEvent::RedrawRequested => match self.render() {
+                Ok(shot) => {
+                    if let Some(img) = shot {
+                        let path =
+                            self.setup.screenshot.as_ref().map(|s| s.path.clone()).expect("capture implies a path");
+                        match write_png(&path, &img) {
+                            Ok(()) => eprintln!("biscale view: wrote {}", path.display()),
+                            Err(e) => return self.fail(event_loop, e),
+                        }
+                        event_loop.exit();
+                    } else if self.state.continuous || self.setup.screenshot.is_some() {
+                        self.redraw();
+                    }
+                }
+                Err(e) => self.fail(event_loop, e),
+            },
+            _ => {}
+        }
+    }
+}
+
+/// Write `img` as an 8-bit RGB PNG.
+fn write_png(path: &std::path::Path, img: &Rgba8Image) -> Result<()> {
+    let rgb: Vec<u8> = img.pixels.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect();
+    let out = image::RgbImage::from_raw(img.width, img.height, rgb)
+        .ok_or_else(|| GpuError::Input("screenshot buffer has the wrong size".into()))?;
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| GpuError::Window(format!("creating {}: {e}", dir.display())))?;
+    }
+    out.save(path).map_err(|e| GpuError::Window(format!("writing {}: {e}", path.display())))
+}
