@@ -144,3 +144,56 @@ pub fn viz(exp: &Experiment, out: &Path, first: Option<usize>, count: usize, opt
     );
     Ok(written)
 }
+
+/// `biscale view`: open the interactive viewer on a config's scene with every compressor it
+/// names (feature `viewer`). `screenshot` renders a few frames into a PNG and exits.
+#[cfg(feature = "viewer")]
+pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &RunOptions) -> Result<()> {
+    use biscale_core::compress::CompressContext;
+    use biscale_gpu::{GpuCamera, Screenshot, ViewerForm, ViewerSetup};
+    let plan = crate::plan::Plan::new(exp);
+    let scene = pipeline::load_scene(exp)?;
+    let lighting = pipeline::load_lighting(exp)?;
+    let out = opts.out_dir.clone().unwrap_or_else(|| Path::new("out").join(exp.name()));
+    let (t, _) = pipeline::transfer_matrix(exp, &scene, opts, &out)?;
+    let mut forms = vec![];
+    for setting in &plan.compressors {
+        let c = crate::registry::build(setting)?;
+        let form = c
+            .compress(&t, &CompressContext { seed: exp.file.seed, progress: None })
+            .map_err(|source| PipelineError::Compress { name: setting.label.clone(), source })?;
+        forms.push(ViewerForm { label: setting.label.clone(), form });
+    }
+    let cam = pipeline::camera(exp, &scene.mesh, 1);
+    let setup = ViewerSetup {
+        title: format!("biscale: {}", exp.name()),
+        positions: scene.mesh.positions.iter().map(|p| p.to_array()).collect(),
+        normals: scene.frames.iter().map(|f| f.normal.to_array()).collect(),
+        tangents: scene.frames.iter().map(|f| f.tangent.to_array()).collect(),
+        uvs: scene.mesh.uvs.as_ref().map(|u| u.iter().map(|v| v.to_array()).collect()),
+        triangles: scene.mesh.triangles.clone(),
+        btf_data: scene.btf.data.clone(),
+        btf_spatial: scene.btf.spatial,
+        light_m: scene.btf.light_grid.m,
+        view_m: scene.btf.view_grid.map(|g| g.m),
+        forms,
+        initial_form: 0,
+        env: lighting.env,
+        cubemap_resolution: *exp.file.transfer.cubemap_resolution.get_ref(),
+        env_rotation: exp.file.lighting.rotation_degrees.to_radians(),
+        sun_boost: exp.file.lighting.sun_boost.as_ref().map(|b| *b.get_ref()),
+        camera: GpuCamera {
+            position: cam.position,
+            target: cam.target,
+            up: cam.up,
+            fov_y_degrees: cam.fov_y_degrees,
+            width: cam.width,
+            height: cam.height,
+        },
+        exposure: exp.file.report.exposure,
+        background: exp.file.report.background,
+        screenshot: screenshot.map(|path| Screenshot { path, frames: 5 }),
+        continuous: false,
+    };
+    biscale_gpu::run_viewer(setup).map_err(|e| PipelineError::Other(format!("viewer: {e}")))
+}

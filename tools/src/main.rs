@@ -63,6 +63,16 @@ enum Command {
         #[arg(long, default_value_t = 8)]
         count: usize,
     },
+    /// Open the interactive viewer (needs the `viewer` feature: `cargo run --release
+    /// --features viewer -- view CONFIG`): drag to orbit, wheel to zoom, right-drag or
+    /// arrows to rotate the sky, Tab to switch compressors.
+    #[cfg(feature = "viewer")]
+    View {
+        config: PathBuf,
+        /// Render a few frames into this PNG and exit (works under Xvfb).
+        #[arg(long)]
+        screenshot: Option<PathBuf>,
+    },
     /// Write a generated mesh (OBJ): a test scene, or a subdivided mesh for scaling studies.
     Generate {
         #[command(subcommand)]
@@ -134,6 +144,11 @@ fn main() -> anyhow::Result<()> {
             for p in biscale::commands::viz(&exp, &out, first, count, &opts)? {
                 println!("wrote {}", p.display());
             }
+        }
+        #[cfg(feature = "viewer")]
+        Command::View { config, screenshot } => {
+            let exp = load(&config)?;
+            biscale::commands::view(&exp, screenshot, &RunOptions::default())?;
         }
         Command::Generate { what } => {
             let (mesh, out) = match what {
