@@ -118,3 +118,23 @@ fn convex_sphere_under_constant_sky_is_albedo_everywhere() {
         assert!((v - 0.8).abs() < 0.8 * 0.03, "{v}");
     }
 }
+
+#[test]
+fn plugin_compressor_runs_through_the_same_report() {
+    // The example plugin, built as the cdylib a researcher would ship, named in a config.
+    let lib = biscale_compressors::plugin::testing::build_plugin("biscale-plugin-quantized", &[], None).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let smoke = std::fs::read_to_string(workspace_root().join("configs/smoke.toml")).unwrap();
+    let cfg = smoke.replace("../assets", &workspace_root().join("assets").display().to_string()).replace(
+        "[[compressors]]\nkind = \"sparse\"\n",
+        &format!("[[compressors]]\nkind = \"sparse\"\n\n[[compressors]]\nkind = \"plugin\"\npath = \"{}\"\nparams = {{ scale = 0.25 }}\n", lib.display()),
+    );
+    let cfg = write_config(dir.path(), "plugin", &cfg);
+    let m = run_in(&cfg, &dir.path().join("out"));
+    let p = m.compressors.iter().find(|c| c.kind == "plugin:quantized").expect("plugin record");
+    let sparse = m.compressors.iter().find(|c| c.kind == "sparse").unwrap();
+    // Codes of 1/4 represent the box-filtered values exactly: lossless up to f32 sums.
+    assert!(p.lossless && p.rel_error_lstar < 1.2e-5, "{}", p.rel_error_lstar);
+    assert!(p.bytes < sparse.bytes / 2, "{} vs {}", p.bytes, sparse.bytes);
+    assert!(p.image.vs_uncompressed.rel_l2 < 1e-5);
+}
