@@ -3,9 +3,9 @@
 
 use crate::config::Experiment;
 use crate::pipeline::{self, PipelineError, Result, RunOptions};
-use crate::util::write_atomic_with;
 use biscale_core::sampling::LightVector;
 use biscale_core::transfer::TransferMatrix;
+use biscale_shading::image::write_atomic;
 use biscale_shading::image::{compare, error_image as error_image_of, write_rgb8_png, HdrImage, ImageMetrics};
 use std::io::Write;
 use std::path::Path;
@@ -13,7 +13,10 @@ use std::path::Path;
 /// Write `T.mtx` (coordinate, real, general; 1-based) and `L.mtx` (array N x 3, column-major)
 /// into `dir`, both readable by `scipy.io.mmread`.
 pub fn export_matrix(exp: &Experiment, dir: &Path, opts: &RunOptions) -> Result<(TransferMatrix, LightVector)> {
-    std::fs::create_dir_all(dir).map_err(|source| PipelineError::Io { path: dir.into(), source })?;
+    std::fs::create_dir_all(dir).map_err(|source| PipelineError::Io {
+        path: dir.into(),
+        source,
+    })?;
     let scene = pipeline::load_scene(exp)?;
     let lighting = pipeline::load_lighting(exp)?;
     let (t, _) = pipeline::transfer_matrix(exp, &scene, opts, dir)?;
@@ -23,31 +26,42 @@ pub fn export_matrix(exp: &Experiment, dir: &Path, opts: &RunOptions) -> Result<
 
 pub fn write_mtx(t: &TransferMatrix, light: &LightVector, dir: &Path) -> Result<()> {
     let tp = dir.join("T.mtx");
-    write_atomic_with(&tp, |f| {
-        writeln!(f, "%%MatrixMarket matrix coordinate real general")?;
-        writeln!(f, "% biscale transfer matrix: row = vertex * M + j (M = {}), column = cubemap texel", t.local_dirs)?;
-        writeln!(f, "{} {} {}", t.rows(), t.cols(), t.nnz())?;
-        for (r, row) in t.csr.outer_iterator().enumerate() {
-            for (c, v) in row.iter() {
-                writeln!(f, "{} {} {}", r + 1, c + 1, v)?;
+    write_atomic(&tp, |f| {
+        (|| -> std::io::Result<()> {
+            writeln!(f, "%%MatrixMarket matrix coordinate real general")?;
+            writeln!(
+                f,
+                "% biscale transfer matrix: row = vertex * M + j (M = {}), column = cubemap texel",
+                t.local_dirs
+            )?;
+            writeln!(f, "{} {} {}", t.rows(), t.cols(), t.nnz())?;
+            for (r, row) in t.csr.outer_iterator().enumerate() {
+                for (c, v) in row.iter() {
+                    writeln!(f, "{} {} {}", r + 1, c + 1, v)?;
+                }
             }
-        }
-        Ok(())
-    })
-    .map_err(|source| PipelineError::Io { path: tp.clone(), source })?;
+            Ok(())
+        })()
+        .map_err(|e| e.to_string())
+    })?;
     let lp = dir.join("L.mtx");
-    write_atomic_with(&lp, |f| {
-        writeln!(f, "%%MatrixMarket matrix array real general")?;
-        writeln!(f, "% biscale light vector: power per cubemap texel (radiance x solid angle), RGB columns")?;
-        writeln!(f, "{} 3", light.len())?;
-        for c in 0..3 {
-            for p in &light.power {
-                writeln!(f, "{:e}", p[c])?;
+    write_atomic(&lp, |f| {
+        (|| -> std::io::Result<()> {
+            writeln!(f, "%%MatrixMarket matrix array real general")?;
+            writeln!(
+                f,
+                "% biscale light vector: power per cubemap texel (radiance x solid angle), RGB columns"
+            )?;
+            writeln!(f, "{} 3", light.len())?;
+            for c in 0..3 {
+                for p in &light.power {
+                    writeln!(f, "{:e}", p[c])?;
+                }
             }
-        }
-        Ok(())
-    })
-    .map_err(|source| PipelineError::Io { path: lp.clone(), source })?;
+            Ok(())
+        })()
+        .map_err(|e| e.to_string())
+    })?;
     Ok(())
 }
 
@@ -103,28 +117,51 @@ pub fn subdivide(input: &Path, levels: u32, out: &Path) -> Result<biscale_core::
 }
 
 fn write_obj(mesh: &biscale_core::geometry::Mesh, out: &Path) -> Result<()> {
-    crate::util::write_atomic(out, mesh.to_obj().as_bytes()).map_err(|source| PipelineError::Io { path: out.into(), source })
+    Ok(crate::util::write_atomic(out, mesh.to_obj().as_bytes())?)
 }
 
 /// `biscale viz`: the matrix-structure pictures of a config's scene (transfer matrix from the
 /// cache when present, biclustered with default settings) written into `out`.
-pub fn viz(exp: &Experiment, out: &Path, first: Option<usize>, count: usize, opts: &RunOptions) -> Result<Vec<std::path::PathBuf>> {
+pub fn viz(
+    exp: &Experiment,
+    out: &Path,
+    first: Option<usize>,
+    count: usize,
+    opts: &RunOptions,
+) -> Result<Vec<std::path::PathBuf>> {
     use crate::viz::{self, HeatmapOptions, PatchLayout, PatchView};
     use biscale_compressors::bicluster::Bicluster;
     use biscale_core::compress::{CompressContext, Compressor};
-    std::fs::create_dir_all(out).map_err(|source| PipelineError::Io { path: out.into(), source })?;
+    std::fs::create_dir_all(out).map_err(|source| PipelineError::Io {
+        path: out.into(),
+        source,
+    })?;
     let verr = |e: viz::VizError| PipelineError::Other(format!("viz: {e}"));
     let scene = pipeline::load_scene(exp)?;
     let (t, _) = pipeline::transfer_matrix(exp, &scene, opts, out)?;
     let form = Bicluster::default()
-        .compress(&t, &CompressContext { seed: exp.file.seed, progress: None })
-        .map_err(|source| PipelineError::Compress { name: "bicluster".into(), source })?;
+        .compress(
+            &t,
+            &CompressContext {
+                seed: exp.file.seed,
+                progress: None,
+            },
+        )
+        .map_err(|source| PipelineError::Compress {
+            name: "bicluster".into(),
+            source,
+        })?;
     let count = count.clamp(1, t.vertices.max(1));
     let first = match first {
         Some(f) => f,
         None => viz::most_shared_window(&form, count).map_err(verr)?,
     };
-    let panels = PatchView { first_vertex: first, vertices: count, layout: PatchLayout::CubemapPanels, cell: 4 };
+    let panels = PatchView {
+        first_vertex: first,
+        vertices: count,
+        layout: PatchLayout::CubemapPanels,
+        cell: 4,
+    };
     let mut written = vec![
         viz::write_sparsity(&t, &panels, &out.join("sparsity_panels.png")).map_err(verr)?,
         viz::write_bicluster_patch(&t, &form, &panels, &out.join("biclusters_panels.png")).map_err(verr)?,
@@ -136,11 +173,26 @@ pub fn viz(exp: &Experiment, out: &Path, first: Option<usize>, count: usize, opt
     let cost = viz::gather_cost_per_vertex(&form).map_err(verr)?;
     let nnz = viz::nnz_per_vertex(&t);
     written.push(
-        viz::write_vertex_heatmap(&scene.mesh, &camera, &cost, "gather flops per vertex (biclusters)", &heat, &out.join("heat_gather_cost.png"))
-            .map_err(verr)?,
+        viz::write_vertex_heatmap(
+            &scene.mesh,
+            &camera,
+            &cost,
+            "gather flops per vertex (biclusters)",
+            &heat,
+            &out.join("heat_gather_cost.png"),
+        )
+        .map_err(verr)?,
     );
     written.push(
-        viz::write_vertex_heatmap(&scene.mesh, &camera, &nnz, "non-zeros of T per vertex", &heat, &out.join("heat_nnz.png")).map_err(verr)?,
+        viz::write_vertex_heatmap(
+            &scene.mesh,
+            &camera,
+            &nnz,
+            "non-zeros of T per vertex",
+            &heat,
+            &out.join("heat_nnz.png"),
+        )
+        .map_err(verr)?,
     );
     Ok(written)
 }
@@ -154,15 +206,30 @@ pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &Run
     let plan = crate::plan::Plan::new(exp);
     let scene = pipeline::load_scene(exp)?;
     let lighting = pipeline::load_lighting(exp)?;
-    let out = opts.out_dir.clone().unwrap_or_else(|| Path::new("out").join(exp.name()));
+    let out = opts
+        .out_dir
+        .clone()
+        .unwrap_or_else(|| Path::new("out").join(exp.name()));
     let (t, _) = pipeline::transfer_matrix(exp, &scene, opts, &out)?;
     let mut forms = vec![];
     for setting in &plan.compressors {
         let c = crate::registry::build(setting)?;
         let form = c
-            .compress(&t, &CompressContext { seed: exp.file.seed, progress: None })
-            .map_err(|source| PipelineError::Compress { name: setting.label.clone(), source })?;
-        forms.push(ViewerForm { label: setting.label.clone(), form });
+            .compress(
+                &t,
+                &CompressContext {
+                    seed: exp.file.seed,
+                    progress: None,
+                },
+            )
+            .map_err(|source| PipelineError::Compress {
+                name: setting.label.clone(),
+                source,
+            })?;
+        forms.push(ViewerForm {
+            label: setting.label.clone(),
+            form,
+        });
     }
     let cam = pipeline::camera(exp, &scene.mesh, 1);
     let setup = ViewerSetup {
@@ -170,7 +237,11 @@ pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &Run
         positions: scene.mesh.positions.iter().map(|p| p.to_array()).collect(),
         normals: scene.frames.iter().map(|f| f.normal.to_array()).collect(),
         tangents: scene.frames.iter().map(|f| f.tangent.to_array()).collect(),
-        uvs: scene.mesh.uvs.as_ref().map(|u| u.iter().map(|v| v.to_array()).collect()),
+        uvs: scene
+            .mesh
+            .uvs
+            .as_ref()
+            .map(|u| u.iter().map(|v| v.to_array()).collect()),
         triangles: scene.mesh.triangles.clone(),
         btf_data: scene.btf.data.clone(),
         btf_spatial: scene.btf.spatial,

@@ -226,7 +226,7 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     let out_dir = opts.out_dir.clone().unwrap_or_else(|| Path::new("out").join(exp.name()));
     let images_dir = out_dir.join("images");
     std::fs::create_dir_all(&images_dir).map_err(io_err(&images_dir))?;
-    write_atomic(&out_dir.join("plan.txt"), plan.to_string().as_bytes()).map_err(io_err(&out_dir))?;
+    write_atomic(&out_dir.join("plan.txt"), plan.to_string().as_bytes())?;
 
     // Compressors are constructed first so a bad setting fails before any heavy work.
     let compressors: Vec<(CompressorSetting, Box<dyn Compressor>)> = plan
@@ -407,13 +407,12 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     };
     let json = serde_json::to_string_pretty(&metrics).expect("metrics serialize");
     let metrics_path = out_dir.join("metrics.json");
-    write_atomic(&metrics_path, json.as_bytes()).map_err(io_err(&metrics_path))?;
+    write_atomic(&metrics_path, json.as_bytes())?;
     let plots = write_plots(&metrics, &out_dir);
     let html_path = out_dir.join("report.html");
-    write_atomic(&html_path, crate::html::html(&metrics, &plan.to_string(), &out_dir, &plots).as_bytes())
-        .map_err(io_err(&html_path))?;
+    write_atomic(&html_path, crate::html::html(&metrics, &plan.to_string(), &out_dir, &plots).as_bytes())?;
     let report_path = out_dir.join("report.md");
-    write_atomic(&report_path, crate::report::markdown(&metrics, &plan).as_bytes()).map_err(io_err(&report_path))?;
+    write_atomic(&report_path, crate::report::markdown(&metrics, &plan).as_bytes())?;
     eprintln!("wrote {}", out_dir.display());
     Ok((out_dir, metrics))
 }

@@ -4,30 +4,10 @@ use indicatif::{ProgressBar, ProgressStyle};
 use std::io::Write;
 use std::path::Path;
 
-/// Write `bytes` to `path` atomically: a temporary file in the same folder, then a rename,
-/// so an interrupted or failed write never leaves a half-written output behind.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    write_atomic_with(path, |f| f.write_all(bytes))
-}
-
-/// Like [`write_atomic`], with a closure that streams into the temporary file.
-pub fn write_atomic_with(
-    path: &Path,
-    write: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> std::io::Result<()>,
-) -> std::io::Result<()> {
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
-    let result = (|| {
-        let mut f = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
-        write(&mut f)?;
-        f.into_inner().map_err(|e| e.into_error())?.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
+/// Write `bytes` to `path` atomically through the shading crate's temporary-file-and-rename
+/// writer, so a failed write never leaves a half-written output behind.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), biscale_shading::ShadingError> {
+    biscale_shading::image::write_atomic(path, |f| f.write_all(bytes).map_err(|e| e.to_string()))
 }
 
 /// A progress bar on stderr for `len` steps of `what` (hidden when stderr is not a terminal).
@@ -68,21 +48,6 @@ impl Fnv64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn atomic_write_leaves_nothing_on_failure() {
-        let dir = std::env::temp_dir().join(format!("biscale-atomic-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let p = dir.join("x.txt");
-        let err = write_atomic_with(&p, |_| Err(std::io::Error::other("boom")));
-        assert!(err.is_err());
-        assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 0, "no temp or partial file left");
-        write_atomic(&p, b"ok").unwrap();
-        assert_eq!(std::fs::read(&p).unwrap(), b"ok");
-        // A missing folder is an error, and nothing is created.
-        assert!(write_atomic(&dir.join("missing/y.txt"), b"x").is_err());
-        std::fs::remove_dir_all(&dir).unwrap();
-    }
 
     #[test]
     fn fnv_is_stable() {
