@@ -8,8 +8,8 @@
 //! so that the plugin host (`biscale-compressors`) can produce it and the GPU runtime can turn
 //! it into a `GatherProgram` without either crate depending on the other.
 //!
-//! [`Count`] and [`Factor`] mirror `biscale_gpu::{Count, Factor}` variant for variant (one name
-//! per concept); the GPU runtime converts them one to one.
+//! [`Count`] and [`Factor`] are also the GPU runtime's own (`biscale_gpu::{Count, Factor}`
+//! re-export them), so a plugin's sizes reach the runtime unconverted.
 //!
 //! The checks are run by the *host*, never by the plugin: a plugin declares what must hold
 //! (`row_ptr` is a pointer array over `col_idx`, `col_idx` is below the column count, ...) and
@@ -39,7 +39,7 @@ macro_rules! with_ints {
     };
 }
 
-/// One factor of a [`Count`] (same variants as `biscale_gpu::Factor`).
+/// One factor of a [`Count`].
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Factor {
     Const(u64),

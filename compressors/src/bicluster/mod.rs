@@ -103,9 +103,29 @@ enum RowBc<'a> {
     Global(&'a [u32]),
 }
 
+impl RowBc<'_> {
+    fn len(&self) -> usize {
+        match self {
+            RowBc::Local(v) => v.len(),
+            RowBc::Global(v) => v.len(),
+        }
+    }
+}
+
 impl<'a> BiclusterView<'a> {
-    /// Borrow and check every array of `form` (lengths, offsets, index ranges).
+    /// Borrow and check every array of `form` (lengths, offsets, index ranges): O(form size).
     pub fn new(form: &'a CompressedForm) -> Result<Self, CompressError> {
+        let v = Self::header(form)?;
+        v.check_indices()?;
+        Ok(v)
+    }
+
+    /// Borrow the arrays of `form`, checking only what costs O(header + blocks): the kind, the
+    /// meta values, array types and lengths, the first and last entry of `bc_col_ptr` and
+    /// `row_ptr`, and all of `block_bc_base`. The offsets in between and the indices are not
+    /// checked, so the accessors may panic on such a view; the gather, which only gets this
+    /// view, checks each offset and index where it reads it instead.
+    fn header(form: &'a CompressedForm) -> Result<Self, CompressError> {
         let bad = |m: String| CompressError::Malformed(format!("bicluster: {m}"));
         if form.kind != "bicluster" {
             return Err(bad(format!("form kind is '{}'", form.kind)));
@@ -120,39 +140,19 @@ impl<'a> BiclusterView<'a> {
         let (bc_col_ptr, bc_cols, bc_vals) = (form.u32s("bc_col_ptr")?, form.u16s("bc_cols")?, form.i8s("bc_vals")?);
         let (row_ptr, block_bc_base) = (form.u32s("row_ptr")?, form.u32s("block_bc_base")?);
         let row_bc = if local { RowBc::Local(form.u16s("row_bc")?) } else { RowBc::Global(form.u32s("row_bc")?) };
-        let row_bc_len = match row_bc {
-            RowBc::Local(v) => v.len(),
-            RowBc::Global(v) => v.len(),
-        };
-        let ptr_ok = |p: &[u32], n: usize, total: usize| {
-            p.len() == n + 1 && p[0] == 0 && p[n] as usize == total && p.windows(2).all(|w| w[0] <= w[1])
-        };
-        if !ptr_ok(bc_col_ptr, nb, bc_cols.len()) || bc_vals.len() != bc_cols.len() {
+        let ends_ok = |p: &[u32], n: usize, total: usize| p.len() == n + 1 && p[0] == 0 && p[n] as usize == total;
+        if !ends_ok(bc_col_ptr, nb, bc_cols.len()) || bc_vals.len() != bc_cols.len() {
             return Err(bad("bc_col_ptr / bc_cols / bc_vals do not agree".into()));
         }
-        if !ptr_ok(row_ptr, form.rows, row_bc_len) {
+        if !ends_ok(row_ptr, form.rows, row_bc.len()) {
             return Err(bad("row_ptr does not match the rows and row_bc".into()));
         }
-        if bc_cols.iter().any(|&k| k as usize >= form.cols) {
-            return Err(bad("a column index is out of range".into()));
-        }
         let blocks = if form.rows == 0 { 0 } else { form.rows.div_ceil(block_rows.max(1)) };
-        if block_rows == 0 && form.rows > 0 || !ptr_ok(block_bc_base, blocks, nb) {
+        if block_rows == 0 && form.rows > 0
+            || !ends_ok(block_bc_base, blocks, nb)
+            || !block_bc_base.windows(2).all(|w| w[0] <= w[1])
+        {
             return Err(bad("block_bc_base does not match the blocks".into()));
-        }
-        // Every row's ids must name a bicluster of its own block.
-        for i in 0..form.rows {
-            let b = i / block_rows;
-            let (lo, hi) = (block_bc_base[b] as usize, block_bc_base[b + 1] as usize);
-            let ok = match row_bc {
-                RowBc::Local(v) => {
-                    v[row_ptr[i] as usize..row_ptr[i + 1] as usize].iter().all(|&x| lo + (x as usize) < hi)
-                }
-                RowBc::Global(v) => v[row_ptr[i] as usize..row_ptr[i + 1] as usize].iter().all(|&x| (x as usize) < nb),
-            };
-            if !ok {
-                return Err(bad(format!("row {i} names a bicluster out of range")));
-            }
         }
         Ok(Self {
             rows: form.rows,
@@ -166,6 +166,36 @@ impl<'a> BiclusterView<'a> {
             row_bc,
             block_bc_base,
         })
+    }
+
+    /// The O(form size) rest of [`Self::new`]: offsets non-decreasing, columns below `cols`,
+    /// and every row's ids naming a bicluster of its own block (any bicluster for global ids).
+    fn check_indices(&self) -> Result<(), CompressError> {
+        let bad = |m: String| CompressError::Malformed(format!("bicluster: {m}"));
+        let monotone = |p: &[u32]| p.windows(2).all(|w| w[0] <= w[1]);
+        if !monotone(self.bc_col_ptr) {
+            return Err(bad("bc_col_ptr / bc_cols / bc_vals do not agree".into()));
+        }
+        if !monotone(self.row_ptr) {
+            return Err(bad("row_ptr does not match the rows and row_bc".into()));
+        }
+        if self.bc_cols.iter().any(|&k| k as usize >= self.cols) {
+            return Err(bad("a column index is out of range".into()));
+        }
+        let nb = self.biclusters();
+        for i in 0..self.rows {
+            let b = i / self.block_rows;
+            let (lo, hi) = (self.block_bc_base[b] as usize, self.block_bc_base[b + 1] as usize);
+            let r = self.row_ptr[i] as usize..self.row_ptr[i + 1] as usize;
+            let ok = match self.row_bc {
+                RowBc::Local(v) => v[r].iter().all(|&x| lo + (x as usize) < hi),
+                RowBc::Global(v) => v[r].iter().all(|&x| (x as usize) < nb),
+            };
+            if !ok {
+                return Err(bad(format!("row {i} names a bicluster out of range")));
+            }
+        }
+        Ok(())
     }
 
     pub fn biclusters(&self) -> usize {
@@ -239,39 +269,74 @@ impl Compressor for Bicluster {
         Ok(CompressedForm { build_seconds: start.elapsed().as_secs_f64(), ..form })
     }
 
+    /// Algorithm 2 on the stored arrays. Only the form's header is checked up front
+    /// ([`BiclusterView::header`], O(blocks)); each offset, column and bicluster id is checked
+    /// where the kernel reads it (`get` instead of indexing: the same bounds check safe
+    /// indexing pays anyway, failing into an error instead of a panic). A corrupt form is
+    /// therefore rejected exactly when [`BiclusterView::new`] would reject it, without a
+    /// separate O(form size) validation pass on every call.
     fn gather(&self, form: &CompressedForm, light: &LightVector) -> Result<LocalRadiance, CompressError> {
         check_light(form, light)?;
-        let v = BiclusterView::new(form)?;
+        let v = BiclusterView::header(form)?;
         let inv_q = 1.0 / v.value_scale as f32;
         let lp: Vec<[f32; 3]> = light.power.iter().map(|p| p.map(|x| x * inv_q)).collect();
         // Pass 1: one scalar per bicluster.
-        let a: Vec<[f32; 3]> = (0..v.biclusters())
-            .into_par_iter()
-            .map(|b| {
-                let (ks, ts) = v.bicluster(b);
+        let mut a = vec![[0.0f32; 3]; v.biclusters()];
+        a.par_iter_mut()
+            .enumerate()
+            .try_for_each(|(b, out)| -> Result<(), String> {
+                // `bc_col_ptr` has B + 1 entries (header): `b + 1` is in range.
+                let r = v.bc_col_ptr[b] as usize..v.bc_col_ptr[b + 1] as usize;
+                let (Some(ks), Some(ts)) = (v.bc_cols.get(r.clone()), v.bc_vals.get(r)) else {
+                    return Err(format!("bicluster {b}: offsets out of order or past bc_cols"));
+                };
                 let mut acc = [0.0f32; 3];
                 for (&k, &t) in ks.iter().zip(ts) {
-                    let (l, t) = (lp[k as usize], t as f32);
+                    let Some(l) = lp.get(k as usize) else {
+                        return Err(format!("bicluster {b}: column {k} out of range"));
+                    };
+                    let t = t as f32;
                     for c in 0..3 {
                         acc[c] += t * l[c];
                     }
                 }
-                acc
+                *out = acc;
+                Ok(())
             })
-            .collect();
+            .map_err(|m| CompressError::Malformed(format!("bicluster: {m}")))?;
         // Pass 2: each row sums the scalars of its biclusters.
-        let values: Vec<[f32; 3]> = (0..v.rows)
-            .into_par_iter()
-            .map(|i| {
+        let mut values = vec![[0.0f32; 3]; v.rows];
+        values
+            .par_iter_mut()
+            .enumerate()
+            .try_for_each(|(i, out)| -> Result<(), String> {
+                // The header checked `block_rows > 0` (rows > 0 here) and all of
+                // `block_bc_base` (blocks + 1 non-decreasing entries ending at B), so the block's
+                // range of `a` is in bounds; `row_ptr` has rows + 1 entries.
+                let block = i / v.block_rows;
+                let own = &a[v.block_bc_base[block] as usize..v.block_bc_base[block + 1] as usize];
+                let r = v.row_ptr[i] as usize..v.row_ptr[i + 1] as usize;
+                let err = || format!("row {i} names a bicluster out of range or has bad offsets");
                 let mut acc = [0.0f32; 3];
-                for b in v.row_biclusters(i) {
+                let mut add = |x: Option<&[f32; 3]>| {
+                    let x = x.ok_or_else(err)?;
                     for c in 0..3 {
-                        acc[c] += a[b][c];
+                        acc[c] += x[c];
+                    }
+                    Ok::<(), String>(())
+                };
+                match v.row_bc {
+                    RowBc::Local(ids) => {
+                        ids.get(r).ok_or_else(err)?.iter().try_for_each(|&x| add(own.get(x as usize)))?
+                    }
+                    RowBc::Global(ids) => {
+                        ids.get(r).ok_or_else(err)?.iter().try_for_each(|&x| add(a.get(x as usize)))?
                     }
                 }
-                acc
+                *out = acc;
+                Ok(())
             })
-            .collect();
+            .map_err(|m| CompressError::Malformed(format!("bicluster: {m}")))?;
         Ok(LocalRadiance { vertices: form.rows / form.local_dirs.max(1), local_dirs: form.local_dirs, values })
     }
 }

@@ -316,3 +316,125 @@ fn real_mesh_transfer_is_lossless() {
         assert!(s.ratio_to_csr < 0.4, "bytes vs CSR {}", s.ratio_to_csr);
     }
 }
+
+/// The same form with global `u32` bicluster ids (`row_bc_local` = 0), the layout used when a
+/// block has more than 65,536 biclusters.
+fn with_global_ids(form: &CompressedForm) -> CompressedForm {
+    let v = BiclusterView::new(form).unwrap();
+    let ids: Vec<u32> = (0..v.rows).flat_map(|i| v.row_biclusters(i).map(|b| b as u32).collect::<Vec<_>>()).collect();
+    let mut g = form.clone();
+    for a in &mut g.arrays {
+        if a.name == "row_bc" {
+            a.data = ArrayData::U32(ids.clone());
+        }
+    }
+    g.meta.insert("row_bc_local".into(), 0);
+    g
+}
+
+/// The unfused gather: full validation, then the accessors, in the same f32 operation order as
+/// the kernel (so results must agree bit for bit).
+#[allow(clippy::needless_range_loop)]
+fn gather_via_view(form: &CompressedForm, light: &LightVector) -> Vec<[f32; 3]> {
+    let v = BiclusterView::new(form).unwrap();
+    let inv_q = 1.0 / v.value_scale as f32;
+    let a: Vec<[f32; 3]> = (0..v.biclusters())
+        .map(|b| {
+            let (ks, ts) = v.bicluster(b);
+            let mut acc = [0.0f32; 3];
+            for (&k, &t) in ks.iter().zip(ts) {
+                for c in 0..3 {
+                    acc[c] += t as f32 * (light.power[k as usize][c] * inv_q);
+                }
+            }
+            acc
+        })
+        .collect();
+    (0..v.rows)
+        .map(|i| {
+            let mut acc = [0.0f32; 3];
+            for b in v.row_biclusters(i) {
+                for c in 0..3 {
+                    acc[c] += a[b][c];
+                }
+            }
+            acc
+        })
+        .collect()
+}
+
+/// The gather checks offsets and indices where it reads them instead of validating the whole
+/// form first. On thousands of randomly corrupted forms (one element of one array set to a
+/// nearby, a random or an extreme value, or an array shortened), local and global ids, it
+/// must never panic, must fail exactly when the full validation `BiclusterView::new` fails,
+/// and otherwise must equal the unfused gather bit for bit.
+#[test]
+fn corrupt_forms_fail_exactly_when_full_validation_fails() {
+    let t = random_transfer(12, 4, 2, 0.3, 11);
+    let light = random_light(2, 5);
+    let c = Bicluster { block_vertices: 4, ..Bicluster::default() };
+    let local = c.compress(&t, &CompressContext::default()).unwrap();
+    assert!(local.meta["blocks"] > 1, "several blocks, so a row can name another block's bicluster");
+    let global = with_global_ids(&local);
+    assert_eq!(Bicluster::default().gather(&global, &light).unwrap().values, gather_via_view(&local, &light));
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let (mut rejected, mut accepted) = (0, 0);
+    for base in [&local, &global] {
+        for trial in 0..1500 {
+            let mut bad = base.clone();
+            let ai = trial % bad.arrays.len();
+            let n = bad.arrays[ai].data.len();
+            if n == 0 {
+                continue;
+            }
+            let i = rng.gen_range(0..n);
+            let pick = rng.gen_range(0..4);
+            // A value near the old one, a small random one, an extreme one, or a shorter array.
+            let new = |old: i64, max: i64, rng: &mut ChaCha8Rng| match pick {
+                0 => old + if rng.gen_bool(0.5) { 1 } else { -1 },
+                1 => rng.gen_range(0..64),
+                _ => max,
+            };
+            let data = &mut bad.arrays[ai].data;
+            if pick == 3 {
+                *data = match &*data {
+                    ArrayData::U16(v) => ArrayData::U16(v[..n - 1].to_vec()),
+                    ArrayData::U32(v) => ArrayData::U32(v[..n - 1].to_vec()),
+                    ArrayData::I8(v) => ArrayData::I8(v[..n - 1].to_vec()),
+                    other => panic!("unexpected array type {}", other.element_type()),
+                };
+            } else {
+                match data {
+                    ArrayData::U16(v) => {
+                        v[i] = new(v[i] as i64, u16::MAX as i64, &mut rng).clamp(0, u16::MAX as i64) as u16
+                    }
+                    ArrayData::U32(v) => {
+                        v[i] = new(v[i] as i64, u32::MAX as i64, &mut rng).clamp(0, u32::MAX as i64) as u32
+                    }
+                    ArrayData::I8(v) => v[i] = new(v[i] as i64, i8::MAX as i64, &mut rng).clamp(-128, 127) as i8,
+                    other => panic!("unexpected array type {}", other.element_type()),
+                }
+            }
+            let full = BiclusterView::new(&bad);
+            let got = Bicluster::default().gather(&bad, &light);
+            match (&full, &got) {
+                (Ok(_), Ok(g)) => {
+                    assert_eq!(g.values, gather_via_view(&bad, &light), "array {} element {i}", bad.arrays[ai].name);
+                    accepted += 1;
+                }
+                (Err(_), Err(e)) => {
+                    assert!(matches!(e, CompressError::Malformed(_)), "{e}");
+                    rejected += 1;
+                }
+                _ => panic!(
+                    "array {} element {i} (change {pick}): full validation {:?}, gather {:?}",
+                    bad.arrays[ai].name,
+                    full.err(),
+                    got.err()
+                ),
+            }
+        }
+    }
+    // Both outcomes must actually occur, or the test proves nothing.
+    assert!(rejected > 300 && accepted > 300, "rejected {rejected}, accepted {accepted}");
+}

@@ -20,29 +20,12 @@
 //! # Ok::<(), biscale_gpu::GpuError>(())
 //! ```
 
-use super::program::{Count, Factor, GatherProgram, KernelPass, ScratchBuffer};
+use super::program::{GatherProgram, KernelPass, ScratchBuffer};
 use super::GpuGather;
 use crate::context::GpuContext;
 use crate::error::Result;
 use biscale_core::compress::CompressedForm;
-use biscale_core::kernels::{self as desc, KernelDesc};
-
-fn factor(f: &desc::Factor) -> Factor {
-    match f {
-        desc::Factor::Const(c) => Factor::Const(*c),
-        desc::Factor::Rows => Factor::Rows,
-        desc::Factor::Cols => Factor::Cols,
-        desc::Factor::Vertices => Factor::Vertices,
-        desc::Factor::LocalDirs => Factor::LocalDirs,
-        desc::Factor::Meta(k) => Factor::Meta(k.clone()),
-        desc::Factor::MetaPlus(k, a) => Factor::MetaPlus(k.clone(), *a),
-        desc::Factor::Len(a) => Factor::Len(a.clone()),
-    }
-}
-
-fn count(c: &desc::Count) -> Count {
-    Count(c.0.iter().map(factor).collect())
-}
+use biscale_core::kernels::KernelDesc;
 
 /// The gather program of a kernel description (no `validate`: see the module docs).
 pub fn program(k: &KernelDesc) -> GatherProgram {
@@ -52,9 +35,9 @@ pub fn program(k: &KernelDesc) -> GatherProgram {
         passes: k
             .passes
             .iter()
-            .map(|p| KernelPass { entry_point: p.entry_point.clone(), threads: count(&p.threads) })
+            .map(|p| KernelPass { entry_point: p.entry_point.clone(), threads: p.threads.clone() })
             .collect(),
-        scratch: k.scratch.iter().map(|s| ScratchBuffer { name: s.name.clone(), words: count(&s.words) }).collect(),
+        scratch: k.scratch.iter().map(|s| ScratchBuffer { name: s.name.clone(), words: s.words.clone() }).collect(),
         meta_keys: k.meta_keys.clone(),
         validate: None,
     }

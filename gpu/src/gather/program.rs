@@ -11,57 +11,11 @@
 use crate::error::{GpuError, Result};
 use biscale_core::compress::{ArrayData, CompressedForm};
 
-/// One factor of a [`Count`].
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub enum Factor {
-    Const(u64),
-    /// Rows of `T` (vertices x M).
-    Rows,
-    /// Columns of `T` (N).
-    Cols,
-    /// Vertices (rows / M).
-    Vertices,
-    /// Local directions per vertex, M.
-    LocalDirs,
-    /// A `meta` value of the form.
-    Meta(String),
-    /// A `meta` value plus a constant (e.g. components + 1 for a mean and its components).
-    MetaPlus(String, u64),
-    /// The element count of a form array.
-    Len(String),
-}
-
-/// A size computed from the form: the product of its factors (empty = 1).
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Count(pub Vec<Factor>);
-
-impl Count {
-    pub fn of(factors: impl IntoIterator<Item = Factor>) -> Self {
-        Count(factors.into_iter().collect())
-    }
-
-    /// Evaluate on `form` (checked multiplication).
-    pub fn eval(&self, form: &CompressedForm) -> Result<u64> {
-        let mut n: u64 = 1;
-        for f in &self.0 {
-            let v = match f {
-                Factor::Const(c) => *c,
-                Factor::Rows => form.rows as u64,
-                Factor::Cols => form.cols as u64,
-                Factor::Vertices => (form.rows / form.local_dirs.max(1)) as u64,
-                Factor::LocalDirs => form.local_dirs as u64,
-                Factor::Meta(k) => form.meta(k)?,
-                Factor::MetaPlus(k, a) => form
-                    .meta(k)?
-                    .checked_add(*a)
-                    .ok_or_else(|| GpuError::Form(format!("meta '{k}' + {a} overflows u64")))?,
-                Factor::Len(a) => form.array(a)?.len() as u64,
-            };
-            n = n.checked_mul(v).ok_or_else(|| GpuError::Form(format!("size {self:?} overflows u64")))?;
-        }
-        Ok(n)
-    }
-}
+/// Sizes computed from a form (a product of factors: rows, columns, meta values, array
+/// lengths), shared with the plugin interface in `biscale-core` so built-in and plugin
+/// programs use one definition. `Count::eval` returns a `CompressError`, which `?` turns
+/// into [`GpuError::Form`].
+pub use biscale_core::kernels::{Count, Factor};
 
 /// One compute dispatch: a WGSL entry point run for `threads` invocations.
 #[derive(Clone, Debug, PartialEq, Eq)]
