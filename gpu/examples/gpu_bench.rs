@@ -20,7 +20,7 @@ use biscale_compressors::testing::{random_light, random_transfer};
 use biscale_core::compress::{CompressContext, Compressor};
 use biscale_core::gather::{reference_product, relative_l2_error};
 use biscale_core::geometry::{vertex_frames, Mesh};
-use biscale_gpu::{GpuCamera, GpuContext, GpuGather, GpuShader, ShadeInputs, Timing};
+use biscale_gpu::{GpuCamera, GpuContext, GpuGather, GpuMaterial, GpuShader, ShadeInputs, Timing};
 use biscale_shading::btf::Btf;
 use biscale_shading::camera::Camera;
 use std::time::Instant;
@@ -172,10 +172,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         tangents: &tangents,
         uvs: uvs.as_deref(),
         triangles: &mesh.triangles,
-        btf_data: &data,
-        btf_spatial: [texels, texels],
+        materials: &[GpuMaterial { btf_data: &data, btf_spatial: [texels, texels], view_m: Some(12), tiling: 1.0 }],
+        triangle_materials: None,
         light_m: local_m,
-        view_m: Some(12),
         camera,
     };
     let mut shader = GpuShader::new(&ctx, &inputs)?;

@@ -23,7 +23,7 @@ use biscale_core::compress::{CompressContext, Compressor};
 use biscale_core::geometry::{vertex_frames, Mesh};
 use biscale_core::sampling::EnvMap;
 use biscale_core::transfer::{self, TransferSettings};
-use biscale_gpu::viewer::{run_viewer, Screenshot, ViewerForm, ViewerSetup};
+use biscale_gpu::viewer::{run_viewer, Screenshot, ViewerForm, ViewerMaterial, ViewerSetup};
 use biscale_gpu::GpuCamera;
 use biscale_shading::btf::Btf;
 use biscale_shading::camera::Camera;
@@ -96,10 +96,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         tangents: frames.iter().map(|f| f.tangent.to_array()).collect(),
         uvs: mesh.uvs.as_ref().map(|u| u.iter().map(|v| v.to_array()).collect()),
         triangles: mesh.triangles.clone(),
-        btf_data: btf.data.clone(),
-        btf_spatial: btf.spatial,
+        materials: vec![ViewerMaterial {
+            btf_data: btf.data.clone(),
+            btf_spatial: btf.spatial,
+            view_m: btf.view_grid.map(|g| g.m),
+            tiling: 1.0,
+        }],
+        triangle_materials: None,
         light_m: btf.light_grid.m,
-        view_m: btf.view_grid.map(|g| g.m),
         forms,
         initial_form: arg("--form").unwrap_or(0),
         env,

@@ -11,7 +11,7 @@
 //!   arrays and its WGSL kernels leave `L* = T L` in a GPU buffer.
 //! * [`GpuShader`]: visibility-buffer shading: triangles rasterized to (id, barycentrics),
 //!   then one compute invocation per pixel interpolates `L*` and the vertex frame and takes
-//!   the dot product with the BTF (bilinear in the view direction).
+//!   the dot product with the BTF of the triangle's material (bilinear in the view direction).
 //! * [`Timing`]: per-pass GPU timestamps (or wall-clock) medians over repetitions.
 //! * [`ToneMap`]: the HDR image tone-mapped on the GPU into a display target.
 //! * `viewer` (cargo feature `viewer`): `viewer::run_viewer`, an interactive
@@ -43,10 +43,12 @@ pub use error::{GpuError, Result};
 pub use gather::program::{Count, Factor, GatherProgram, KernelPass, ScratchBuffer, ValidateFn};
 pub use gather::{GatherParams, GpuGather};
 pub use present::{Rgba8Image, ToneMap, ToneMapSettings};
-pub use shade::{GpuCamera, GpuShader, GpuVertex, ShadeInputs, ShadeParams, ShadedImage};
-#[cfg(feature = "viewer")]
-pub use viewer::{run_viewer, Screenshot, ViewerForm, ViewerSetup};
+pub use shade::{
+    GpuCamera, GpuMaterial, GpuMaterialHeader, GpuShader, GpuVertex, ShadeInputs, ShadeParams, ShadedImage,
+};
 pub use timing::{PassTiming, Timing, TimingMethod};
+#[cfg(feature = "viewer")]
+pub use viewer::{run_viewer, Screenshot, ViewerForm, ViewerMaterial, ViewerSetup};
 
 #[cfg(test)]
 mod tests;

@@ -16,7 +16,9 @@ use biscale_core::compress::{CompressContext, Compressor};
 use biscale_core::geometry::{shapes, VertexFrame};
 use biscale_core::sampling::{EnvMap, LightVector};
 use biscale_gpu::viewer::{run_viewer, Screenshot, ViewerForm, ViewerSetup};
-use biscale_gpu::{GpuCamera, GpuContext, GpuGather, GpuShader, ShadeInputs, ToneMap, ToneMapSettings};
+use biscale_gpu::{
+    GpuCamera, GpuContext, GpuGather, GpuMaterial, GpuShader, ShadeInputs, ToneMap, ToneMapSettings, ViewerMaterial,
+};
 use biscale_shading::btf::Btf;
 use glam::Vec3;
 
@@ -69,10 +71,14 @@ fn window_shows_the_tone_mapped_frame() {
         tangents: vec![frame.tangent.to_array(); nv],
         uvs: None,
         triangles: mesh.triangles.clone(),
-        btf_data: btf.data.clone(),
-        btf_spatial: btf.spatial,
+        materials: vec![ViewerMaterial {
+            btf_data: btf.data.clone(),
+            btf_spatial: btf.spatial,
+            view_m: Some(4),
+            tiling: 1.0,
+        }],
+        triangle_materials: None,
         light_m: 4,
-        view_m: Some(4),
         forms: vec![ViewerForm { label: "sparse".into(), form: form.clone() }],
         initial_form: 0,
         env: env.clone(),
@@ -108,10 +114,9 @@ fn window_shows_the_tone_mapped_frame() {
         tangents: &vec![frame.tangent.to_array(); nv],
         uvs: None,
         triangles: &mesh.triangles,
-        btf_data: &btf.data,
-        btf_spatial: btf.spatial,
+        materials: &[GpuMaterial { btf_data: &btf.data, btf_spatial: btf.spatial, view_m: Some(4), tiling: 1.0 }],
+        triangle_materials: None,
         light_m: 4,
-        view_m: Some(4),
         camera,
     };
     let mut shader = GpuShader::new(&ctx, &inputs).unwrap();

@@ -4,7 +4,8 @@
 //! Per pixel: one primary ray through the pixel centre, the closest hit, the three vertices'
 //! `L*` (M x RGB each) and frames interpolated barycentrically, the view direction (towards
 //! the camera) expressed in the interpolated frame, the BTF looked up for it
-//! ([`Btf::eval_into`]) and dotted with the interpolated `L*`.
+//! ([`Btf::eval_into`]) and dotted with the interpolated `L*`. Each triangle has a material
+//! (a BTF and a tiling scale, [`Material`]); a one-material scene has no per-triangle ids.
 //!
 //! Precision: interpolation and the dot product accumulate in f64, so this is a reference
 //! and not merely another f32 evaluation: the terms `b_j L*_j` are non-negative for physical
@@ -54,8 +55,40 @@ pub struct ShadeScene<'a> {
     pub frames: &'a [VertexFrame],
     /// BVH over `mesh` (triangle ids are the mesh's).
     pub bvh: &'a SceneBvh,
-    pub btf: &'a Btf,
+    /// The scene's materials; all share one light grid (the rows of `T` are per vertex, not
+    /// per material, so `L*` has one set of bins).
+    pub materials: &'a [Material],
+    /// Index into `materials` per triangle; `None` for a one-material scene (no id buffer).
+    pub triangle_materials: Option<&'a [u16]>,
     pub background: Background<'a>,
+}
+
+/// A BTF and how often its patch repeats per unit of texture coordinate.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Material {
+    pub btf: Btf,
+    /// Patch repetitions per unit of uv: the BTF is looked up at `uv * tiling`.
+    pub tiling: f32,
+}
+
+impl Material {
+    /// A material with the patch tiled once per unit of uv.
+    pub fn new(btf: Btf) -> Self {
+        Self { btf, tiling: 1.0 }
+    }
+}
+
+impl<'a> ShadeScene<'a> {
+    /// The material of triangle `t`.
+    pub fn material(&self, triangle: u32) -> &'a Material {
+        let i = self.triangle_materials.map_or(0, |ids| ids[triangle as usize] as usize);
+        &self.materials[i]
+    }
+
+    /// The number of light bins `M` every material shares.
+    pub fn light_count(&self) -> usize {
+        self.materials.first().map_or(0, |m| m.btf.light_count())
+    }
 }
 
 /// A rendered image and its coverage.
@@ -85,7 +118,34 @@ impl ShadeScene<'_> {
         if self.bvh.len() != self.mesh.triangles.len() {
             return bad(format!("BVH has {} triangles, the mesh {}", self.bvh.len(), self.mesh.triangles.len()));
         }
-        self.btf.validate()
+        let Some(first) = self.materials.first() else {
+            return bad("the scene has no material".into());
+        };
+        for (i, m) in self.materials.iter().enumerate() {
+            m.btf.validate()?;
+            if m.btf.light_grid != first.btf.light_grid {
+                return bad(format!(
+                    "material {i} ({}) has a {}x{} light grid, material 0 ({}) {}x{}: all must share the local grid",
+                    m.btf.name, m.btf.light_grid.m, m.btf.light_grid.m, first.btf.name, first.btf.light_grid.m, first.btf.light_grid.m
+                ));
+            }
+            if !(m.tiling.is_finite() && m.tiling > 0.0) {
+                return bad(format!("material {i} ({}) has tiling {}, must be finite and > 0", m.btf.name, m.tiling));
+            }
+        }
+        match self.triangle_materials {
+            None if self.materials.len() > 1 => {
+                bad(format!("{} materials but no per-triangle material ids", self.materials.len()))
+            }
+            Some(ids) if ids.len() != self.mesh.triangles.len() => {
+                bad(format!("{} material ids for {} triangles", ids.len(), self.mesh.triangles.len()))
+            }
+            Some(ids) => match ids.iter().position(|&i| i as usize >= self.materials.len()) {
+                Some(t) => bad(format!("triangle {t} uses material {} of {}", ids[t], self.materials.len())),
+                None => Ok(()),
+            },
+            None => Ok(()),
+        }
     }
 }
 
@@ -98,6 +158,8 @@ pub struct SurfacePoint {
     pub frame: VertexFrame,
     /// The triangle's vertices and their barycentric weights (non-negative, summing to 1).
     pub vertices: [u32; 3],
+    /// The triangle hit (selects the material).
+    pub triangle: u32,
     pub weights: [f32; 3],
     /// Texture coordinates (0 without mesh UVs).
     pub uv: Vec2,
@@ -128,12 +190,21 @@ pub fn primary_hit(scene: &ShadeScene, origin: Vec3, dir: Vec3) -> Option<Surfac
         Some(uvs) => (0..3).map(|i| uvs[tri[i] as usize] * weights[i]).sum(),
         None => Vec2::ZERO,
     };
-    Some(SurfacePoint { position, frame, vertices: tri, weights, uv, view_local: frame.to_local(-dir) })
+    Some(SurfacePoint {
+        position,
+        frame,
+        vertices: tri,
+        triangle: hit.triangle,
+        weights,
+        uv,
+        view_local: frame.to_local(-dir),
+    })
 }
 
 /// `sum_j b(u, e, d_j) L*_j` in f64 for one shading point; `scratch` holds `M` values.
-pub fn shade_point(btf: &Btf, uv: Vec2, view_local: Vec3, lstar: &[[f64; 3]], scratch: &mut [Rgb]) -> Rgb {
-    btf.eval_into(uv, view_local, scratch);
+/// `uv` is the mesh's texture coordinate; the BTF is looked up at `uv * material.tiling`.
+pub fn shade_point(material: &Material, uv: Vec2, view_local: Vec3, lstar: &[[f64; 3]], scratch: &mut [Rgb]) -> Rgb {
+    material.btf.eval_into(uv * material.tiling, view_local, scratch);
     let mut acc = [0.0f64; 3];
     for (b, l) in scratch.iter().zip(lstar) {
         for c in 0..3 {
@@ -155,7 +226,7 @@ pub(crate) fn render_rows(
     f: &HitShader,
 ) -> Render {
     let (w, h) = (camera.width as usize, camera.height as usize);
-    let m = scene.btf.light_count();
+    let m = scene.light_count();
     let mut image = HdrImage::new(camera.width, camera.height);
     let mut mask = vec![false; w * h];
     image.pixels.par_chunks_mut(w).zip(mask.par_chunks_mut(w)).enumerate().for_each(|(y, (row, row_mask))| {
@@ -178,7 +249,7 @@ pub(crate) fn render_rows(
 
 /// Check `L*` against the scene: one block of `M` bins per vertex, all finite.
 fn check_lstar(scene: &ShadeScene, lstar: &LocalRadiance) -> Result<()> {
-    let (n, m) = (scene.mesh.positions.len(), scene.btf.light_count());
+    let (n, m) = (scene.mesh.positions.len(), scene.light_count());
     if lstar.vertices != n || lstar.local_dirs != m || lstar.values.len() != n * m {
         return Err(ShadingError::Invalid(format!(
             "L* has {} vertices x {} bins ({} values); the mesh has {n} vertices and the BTF {m} light bins",
@@ -212,7 +283,7 @@ pub fn shade(scene: &ShadeScene, lstar: &LocalRadiance, camera: &Camera) -> Resu
                 }
             }
         }
-        shade_point(scene.btf, p.uv, p.view_local, acc, scratch)
+        shade_point(scene.material(p.triangle), p.uv, p.view_local, acc, scratch)
     }))
 }
 
@@ -280,7 +351,7 @@ pub(crate) mod tests {
         let light = LightVector::constant(32, [1.0; 3]);
         let lstar = vertex_lstar(&mesh, &frames, &bvh, &sampler, &light);
         let btf = Btf::lambertian([albedo; 3], 8).unwrap();
-        let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, btf: &btf, background: Background::Black };
+        let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, materials: &[Material::new(btf.clone())], triangle_materials: None, background: Background::Black };
         let camera = Camera::frame_bounds(Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 0.0, 1.0), 48, 40, 30.0, 90.0, 40.0);
         let render = shade(&scene, &lstar, &camera).unwrap();
         // (1) The pipeline's conventions, to float precision: every vertex of the plane has the
@@ -340,7 +411,7 @@ pub(crate) mod tests {
         let (lo, hi) = b.iter().fold((f64::MAX, f64::MIN), |(l, h), &x| (l.min(x), h.max(x)));
 
         let env = EnvMap::constant(8, 4, [0.1, 0.2, 0.3]);
-        let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, btf: &btf, background: Background::Env { env: &env, rotation: 0.3 } };
+        let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, materials: &[Material::new(btf.clone())], triangle_materials: None, background: Background::Env { env: &env, rotation: 0.3 } };
         let (w, h) = (96, 96);
         let camera = Camera::frame_bounds(Vec3::splat(-1.0), Vec3::ONE, w, h, 40.0, 25.0, 40.0);
         let render = shade(&scene, &lstar, &camera).unwrap();
@@ -373,7 +444,7 @@ pub(crate) mod tests {
         let (frames, _) = vertex_frames(&mesh);
         let bvh = SceneBvh::build(&mesh.positions, &mesh.triangles);
         let btf = Btf::lambertian([0.5; 3], 8).unwrap();
-        let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, btf: &btf, background: Background::Black };
+        let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, materials: &[Material::new(btf.clone())], triangle_materials: None, background: Background::Black };
         let camera = Camera::frame_bounds(Vec3::splat(-1.0), Vec3::ONE, 8, 8, 0.0, 60.0, 40.0);
         assert!(shade(&scene, &LocalRadiance::zeros(9, 64), &camera).is_ok());
         assert!(shade(&scene, &LocalRadiance::zeros(8, 64), &camera).is_err(), "vertex count");
@@ -403,7 +474,7 @@ pub(crate) mod tests {
         let bins: Vec<Rgb> = (0..64).map(|_| [rng.gen(), rng.gen(), rng.gen()]).collect();
         let n = mesh.positions.len();
         let lstar = LocalRadiance { vertices: n, local_dirs: 64, values: bins.iter().copied().cycle().take(n * 64).collect() };
-        let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, btf: &btf, background: Background::Black };
+        let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, materials: &[Material::new(btf.clone())], triangle_materials: None, background: Background::Black };
         let camera = Camera { position: Vec3::new(0.3, 1.5, 2.0), target: Vec3::ZERO, up: Vec3::Y, fov_y_degrees: 50.0, width: 32, height: 24 };
         let render = shade(&scene, &lstar, &camera).unwrap();
         let mut scratch = vec![[0.0f32; 3]; 64];
@@ -436,5 +507,75 @@ pub(crate) mod tests {
         }
         assert!(count > 200, "{count}");
         assert!(hi > 1.2 * lo, "view dependence visible across the image: {lo}..{hi}");
+    }
+
+    #[test]
+    fn each_triangle_uses_its_material_and_tiling() {
+        use rand::{Rng, SeedableRng};
+        // Left half (x < 0) of a plane: red Lambertian. Right half: a 2 x 1 texel patch
+        // (white, and half white) tiled 3 times per unit of uv. The same random L* at every
+        // vertex, so each pixel must equal its own material's BTF at its own texel dotted with
+        // L*, computed here from the analytic hit point.
+        let mesh = shapes::grid_plane(4, 2.0);
+        let (frames, _) = vertex_frames(&mesh);
+        let bvh = SceneBvh::build(&mesh.positions, &mesh.triangles);
+        let red = Btf::lambertian([0.9, 0.1, 0.1], 8).unwrap();
+        let white = Btf::lambertian([1.0; 3], 8).unwrap();
+        let mut patch = white.clone();
+        patch.spatial = [2, 1];
+        patch.data = white.data.iter().copied().chain(white.data.iter().map(|v| v.map(|x| 0.5 * x))).collect();
+        let materials = [Material::new(red.clone()), Material { btf: patch.clone(), tiling: 3.0 }];
+        let ids: Vec<u16> = mesh
+            .triangles
+            .iter()
+            .map(|t| {
+                let cx: f32 = t.iter().map(|&i| mesh.positions[i as usize].x).sum();
+                u16::from(cx > 0.0)
+            })
+            .collect();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
+        let bins: Vec<Rgb> = (0..64).map(|_| [rng.gen(), rng.gen(), rng.gen()]).collect();
+        let n = mesh.positions.len();
+        let lstar = LocalRadiance { vertices: n, local_dirs: 64, values: bins.iter().copied().cycle().take(n * 64).collect() };
+        let scene = ShadeScene {
+            mesh: &mesh,
+            frames: &frames,
+            bvh: &bvh,
+            materials: &materials,
+            triangle_materials: Some(&ids),
+            background: Background::Black,
+        };
+        let camera = Camera { position: Vec3::new(0.0, 3.0, 0.5), target: Vec3::ZERO, up: Vec3::Y, fov_y_degrees: 45.0, width: 40, height: 40 };
+        let render = shade(&scene, &lstar, &camera).unwrap();
+        let mut scratch = vec![[0.0f32; 3]; 64];
+        let mut seen = [0usize; 3];
+        for y in 0..40 {
+            for x in 0..40 {
+                let (o, d) = camera.ray(x as f32 + 0.5, y as f32 + 0.5);
+                let p = o + d * (-o.y / d.y);
+                let uv = Vec2::new((p.x + 1.0) / 2.0, (p.z + 1.0) / 2.0);
+                // Skip pixels within 1e-3 of a material or texel boundary (either side is right).
+                let near_edge = |t: f32| (t - t.round()).abs() < 1e-3;
+                if p.x.abs() > 0.999 || p.z.abs() > 0.999 || p.x.abs() < 1e-3 || near_edge(uv.x * 6.0) || near_edge(uv.y * 3.0) {
+                    continue;
+                }
+                let (btf, tiling) = if p.x < 0.0 { (&red, 1.0) } else { (&patch, 3.0) };
+                btf.eval_into(uv * tiling, Vec3::Z, &mut scratch);
+                let expect: f64 = scratch.iter().zip(&bins).map(|(b, l)| b[1] as f64 * l[1] as f64).sum();
+                let got = render.image.get(x, y)[1] as f64;
+                // f64 accumulation of f32 inputs on both sides: 1e-5 relative is generous.
+                assert!((got - expect).abs() <= 1e-5 * expect, "({x},{y}): {got} vs {expect}");
+                seen[if p.x < 0.0 { 0 } else { 1 + patch.texel_of(uv * 3.0) }] += 1;
+            }
+        }
+        assert!(seen.iter().all(|&c| c > 100), "every material and texel is exercised: {seen:?}");
+        // Mismatched ids are errors, not panics.
+        let short = &ids[1..];
+        assert!(shade(&ShadeScene { triangle_materials: Some(short), ..scene }, &lstar, &camera).is_err());
+        let bad: Vec<u16> = ids.iter().map(|&i| i * 5).collect();
+        assert!(shade(&ShadeScene { triangle_materials: Some(&bad), ..scene }, &lstar, &camera).is_err());
+        assert!(shade(&ShadeScene { triangle_materials: None, ..scene }, &lstar, &camera).is_err(), "2 materials need ids");
+        let coarse = [Material::new(red), Material::new(Btf::lambertian([1.0; 3], 4).unwrap())];
+        assert!(shade(&ShadeScene { materials: &coarse, ..scene }, &lstar, &camera).is_err(), "light grids differ");
     }
 }

@@ -16,13 +16,13 @@
 //! ```no_run
 //! use biscale_core::geometry::{shapes, vertex_frames, SceneBvh};
 //! use biscale_core::gather::LocalRadiance;
-//! use biscale_shading::{btf::Btf, camera::Camera, cpu::{shade, Background, ShadeScene}};
+//! use biscale_shading::{btf::Btf, camera::Camera, cpu::{shade, Background, Material, ShadeScene}};
 //! let mesh = shapes::uv_sphere(glam::Vec3::ZERO, 1.0, 16, 32);
 //! let (frames, _) = vertex_frames(&mesh);
 //! let bvh = SceneBvh::build(&mesh.positions, &mesh.triangles);
 //! let btf = Btf::lambertian([0.8; 3], 8).unwrap();
 //! let lstar = LocalRadiance::zeros(mesh.positions.len(), 64); // from the gather stage
-//! let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, btf: &btf, background: Background::Black };
+//! let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, materials: &[Material::new(btf)], triangle_materials: None, background: Background::Black };
 //! let camera = Camera::frame_bounds(glam::Vec3::splat(-1.0), glam::Vec3::ONE, 640, 480, 30.0, 20.0, 40.0);
 //! let render = shade(&scene, &lstar, &camera).unwrap();
 //! render.image.write_exr("out.exr".as_ref()).unwrap();

@@ -50,10 +50,11 @@ pub fn render_reference(
             sampler.cubemap.texel_count()
         )));
     }
-    if sampler.grid != scene.btf.light_grid {
+    if sampler.grid.len() != scene.light_count() {
         return Err(ShadingError::Invalid(format!(
-            "sampler's local grid is {0}x{0}, the BTF's light grid {1}x{1}",
-            sampler.grid.m, scene.btf.light_grid.m
+            "sampler's local grid is {0}x{0}, the BTF's light grid has {1} bins",
+            sampler.grid.m,
+            scene.light_count()
         )));
     }
     if let Some(k) = light.power.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
@@ -77,7 +78,7 @@ pub fn render_reference(
                 a[c] += v as f64 * l[c] as f64;
             }
         });
-        shade_point(scene.btf, p.uv, p.view_local, acc, scratch)
+        shade_point(scene.material(p.triangle), p.uv, p.view_local, acc, scratch)
     }))
 }
 
@@ -86,7 +87,7 @@ mod tests {
     use super::*;
     use crate::btf::Btf;
     use crate::cpu::tests::vertex_lstar;
-    use crate::cpu::{primary_hit, shade, Background};
+    use crate::cpu::{primary_hit, shade, Background, Material};
     use biscale_core::geometry::{shapes, vertex_frames, SceneBvh, VertexFrame};
     use biscale_core::transfer::TransferSettings;
     use glam::Vec3;
@@ -102,7 +103,7 @@ mod tests {
         let sampler = VisibilitySampler::new(&TransferSettings::default()).unwrap();
         let light = LightVector::constant(32, [1.0, 0.5, 0.25]);
         let btf = Btf::phong([0.4, 0.3, 0.2], [0.3; 3], 12.0, 8, 8).unwrap();
-        let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, btf: &btf, background: Background::Black };
+        let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, materials: &[Material::new(btf)], triangle_materials: None, background: Background::Black };
         let camera = Camera::frame_bounds(Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 0.0, 1.0), 32, 24, 10.0, 50.0, 40.0);
         let lstar = vertex_lstar(&mesh, &frames, &bvh, &sampler, &light);
         let vertex = shade(&scene, &lstar, &camera).unwrap();
@@ -170,7 +171,7 @@ mod tests {
         let sampler = VisibilitySampler::new(&settings).unwrap();
         let light = LightVector::constant(16, [1.0; 3]);
         let btf = Btf::lambertian([albedo as f32; 3], 8).unwrap();
-        let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, btf: &btf, background: Background::Black };
+        let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, materials: &[Material::new(btf)], triangle_materials: None, background: Background::Black };
         let camera = Camera {
             position: Vec3::new(0.0, 3.0, 4.0),
             target: Vec3::new(0.0, 0.0, 1.6),

@@ -7,7 +7,7 @@ use crate::pipeline::{PipelineError, Result, Scene};
 use biscale_core::compress::CompressedForm;
 use biscale_core::gather::relative_l2_error;
 use biscale_core::sampling::LightVector;
-use biscale_gpu::{GpuCamera, GpuContext, GpuGather, GpuShader, ShadeInputs};
+use biscale_gpu::{GpuCamera, GpuContext, GpuGather, GpuMaterial, GpuShader, ShadeInputs};
 use biscale_shading::camera::Camera;
 use biscale_shading::cpu::Render;
 use biscale_shading::image::{compare, HdrImage};
@@ -32,16 +32,28 @@ impl GpuBackend {
         let normals: Vec<[f32; 3]> = scene.frames.iter().map(|f| f.normal.to_array()).collect();
         let tangents: Vec<[f32; 3]> = scene.frames.iter().map(|f| f.tangent.to_array()).collect();
         let uvs: Option<Vec<[f32; 2]>> = scene.mesh.uvs.as_ref().map(|u| u.iter().map(|v| v.to_array()).collect());
+        let materials: Vec<GpuMaterial> = scene
+            .materials
+            .materials
+            .iter()
+            .map(|m| GpuMaterial {
+                btf_data: &m.btf.data,
+                btf_spatial: m.btf.spatial,
+                view_m: m.btf.view_grid.map(|g| g.m),
+                tiling: m.tiling,
+            })
+            .collect();
+        let ids: Option<Vec<u32>> =
+            scene.materials.triangle_materials.as_ref().map(|ids| ids.iter().map(|&i| i as u32).collect());
         let inputs = ShadeInputs {
             positions: &positions,
             normals: &normals,
             tangents: &tangents,
             uvs: uvs.as_deref(),
             triangles: &scene.mesh.triangles,
-            btf_data: &scene.btf.data,
-            btf_spatial: scene.btf.spatial,
-            light_m: scene.btf.light_grid.m,
-            view_m: scene.btf.view_grid.map(|g| g.m),
+            materials: &materials,
+            triangle_materials: ids.as_deref(),
+            light_m: scene.materials.materials[0].btf.light_grid.m,
             camera: GpuCamera {
                 position: camera.position,
                 target: camera.target,

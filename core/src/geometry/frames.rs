@@ -154,6 +154,7 @@ mod tests {
             positions: vec![Vec3::ZERO, n.any_orthonormal_vector(), n.cross(n.any_orthonormal_vector())],
             uvs: None,
             triangles: vec![[0, 1, 2]],
+            materials: None,
         };
         let a = vertex_frames(&mesh(Vec3::new(0.6, 0.8, 0.001).normalize())).0[0];
         let b = vertex_frames(&mesh(Vec3::new(0.6, 0.8, -0.001).normalize())).0[0];
@@ -167,6 +168,7 @@ mod tests {
             positions: vec![Vec3::ZERO, Vec3::X, Vec3::new(1.0, 0.0, 1.0), Vec3::Z],
             uvs: Some(vec![glam::Vec2::ZERO, glam::Vec2::X, glam::Vec2::ONE, glam::Vec2::Y]),
             triangles: vec![[0, 3, 2], [0, 2, 1]],
+            materials: None,
         };
         let (frames, fallbacks) = vertex_frames(&mesh);
         assert_eq!(fallbacks, 0);

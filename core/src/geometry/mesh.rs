@@ -14,6 +14,11 @@
 //!   are dropped, then unreferenced vertices are dropped and the rest renumbered in their
 //!   original order.
 //!
+//! Materials: [`Mesh::load_obj`] records each triangle's `usemtl` name (or, in a file without
+//! `usemtl`, its `g`/`o` group name) in [`Mesh::materials`]; the `.mtl` library itself is
+//! never read (the BTFs come from the experiment config). Faces before the first `usemtl`
+//! are named [`MaterialIds::DEFAULT_NAME`]. Repairs keep every kept triangle's material.
+//!
 //! Why repair at all: degenerate triangles have no normal and no area, so they only add
 //! noise to the area-weighted vertex normals and dead weight to the BVH; duplicated vertices
 //! split the smooth normal of a surface into several frames (visible seams in `T`).
@@ -36,6 +41,34 @@ pub struct Mesh {
     /// Per-vertex texture coordinates, when the mesh has them (used for tangents).
     pub uvs: Option<Vec<Vec2>>,
     pub triangles: Vec<[u32; 3]>,
+    /// Which material each triangle uses, when the source names materials (OBJ `usemtl`, or
+    /// OBJ groups when there is no `usemtl`). `None`: one material for the whole mesh.
+    pub materials: Option<MaterialIds>,
+}
+
+/// Per-triangle material names, stored as indices into `names` (first-appearance order).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct MaterialIds {
+    /// Distinct material names, in the order they first appear.
+    pub names: Vec<String>,
+    /// One index into `names` per triangle of the mesh.
+    pub per_triangle: Vec<u16>,
+}
+
+impl MaterialIds {
+    /// Name of the material used by faces that come before any `usemtl` (or outside any group).
+    pub const DEFAULT_NAME: &'static str = "default";
+
+    /// Triangles per material name, in `names` order.
+    pub fn counts(&self) -> Vec<usize> {
+        let mut c = vec![0; self.names.len()];
+        for &i in &self.per_triangle {
+            if let Some(x) = c.get_mut(i as usize) {
+                *x += 1;
+            }
+        }
+        c
+    }
 }
 
 /// A loaded (and possibly repaired) mesh with a human-readable line per repair made.
@@ -53,6 +86,7 @@ enum Issue {
     UvCount { uvs: usize, positions: usize },
     IndexOutOfRange { triangle: usize, index: u32, vertices: usize },
     NoFaces(String),
+    Materials(String),
 }
 
 impl Issue {
@@ -71,6 +105,7 @@ impl Issue {
                 format!("triangle {triangle} refers to vertex {index}, out of range (the mesh has {vertices} vertices)")
             }
             Issue::NoFaces(detail) => format!("no faces{detail}"),
+            Issue::Materials(detail) => format!("bad material ids: {detail}"),
         }
     }
 }
@@ -95,23 +130,33 @@ impl Mesh {
             ignore_lines: true,
             ..Default::default()
         };
-        // Materials are not used: refuse to open any .mtl (tobj then only records that the
-        // material library failed, which we ignore).
-        let (models, _materials) =
-            tobj::load_obj_buf(&mut bytes.as_slice(), &options, |_| Err(tobj::LoadError::OpenFileFailed)).map_err(
-                |e| {
-                    let text = String::from_utf8_lossy(&bytes);
+        // Material names, not material libraries: tobj only resolves `usemtl` names that a
+        // loaded `.mtl` defines, so every `mtllib` (and one injected in front of the file)
+        // is answered with a synthesized library holding exactly the names the file uses.
+        // The `.mtl` files themselves are never opened.
+        let text = String::from_utf8_lossy(&bytes);
+        let used_names = obj_usemtl_names(&text);
+        let library: String = used_names.iter().map(|n| format!("newmtl {n}\n")).collect();
+        let mut source = b"mtllib biscale-material-names\n".to_vec();
+        source.extend_from_slice(&bytes);
+        let (models, materials) = tobj::load_obj_buf(&mut source.as_slice(), &options, |_| {
+            tobj::load_mtl_buf(&mut library.as_bytes())
+        })
+        .map_err(|e| {
                     let place = match locate_obj_error(&text, &e) {
                         Some((line, content)) => format!(" at line {line}: `{content}`"),
                         None => String::new(),
                     };
                     input_err(format!("OBJ parse error: {e}{place}"))
-                },
-            )?;
+        })?;
+        let materials = materials.unwrap_or_default();
+        let has_groups = text.lines().any(|l| matches!(l.split_whitespace().next(), Some("g" | "o")));
 
         let mut positions = Vec::new();
         let mut uvs = Vec::new();
         let mut triangles = Vec::new();
+        let mut names: Vec<String> = Vec::new();
+        let mut per_triangle: Vec<u16> = Vec::new();
         let mut vertices_with_uv = 0usize;
         let mut all_uvs = true;
         for model in &models {
@@ -134,7 +179,30 @@ impl Mesh {
                 }
                 triangles.push(idx.map(|i| i as u32));
             }
+            // This model's material name: its `usemtl`, else (in a file without any) its group.
+            let name = if !used_names.is_empty() {
+                match m.material_id.and_then(|i| materials.get(i)) {
+                    Some(mat) => mat.name.clone(),
+                    None => MaterialIds::DEFAULT_NAME.to_string(),
+                }
+            } else if has_groups && !model.name.is_empty() && model.name != "unnamed_object" {
+                model.name.clone()
+            } else {
+                MaterialIds::DEFAULT_NAME.to_string()
+            };
+            let id = match names.iter().position(|n| *n == name) {
+                Some(i) => i,
+                None => {
+                    names.push(name);
+                    names.len() - 1
+                }
+            };
+            if id > u16::MAX as usize {
+                return Err(input_err(format!("more than {} distinct materials", u16::MAX as usize + 1)));
+            }
+            per_triangle.extend(std::iter::repeat(id as u16).take(m.indices.len() / 3));
         }
+        let material_ids = (!used_names.is_empty() || has_groups).then_some(MaterialIds { names, per_triangle });
         let mut repairs = Vec::new();
         let uvs = if all_uvs && !positions.is_empty() {
             Some(uvs)
@@ -147,7 +215,7 @@ impl Mesh {
             }
             None
         };
-        match validate_and_repair(positions, uvs, triangles) {
+        match validate_and_repair(positions, uvs, triangles, material_ids) {
             Ok(mut load) => {
                 repairs.append(&mut load.repairs);
                 load.repairs = repairs;
@@ -155,7 +223,6 @@ impl Mesh {
             }
             Err(Issue::NonFinitePosition { vertex, value }) => {
                 // tobj renumbers vertices (single index): name the OBJ's own `v` line.
-                let text = String::from_utf8_lossy(&bytes);
                 let place = match first_nonfinite_obj_vertex(&text) {
                     Some((number, line)) => format!("OBJ vertex {number} (line {line})"),
                     None => format!("vertex {vertex}"),
@@ -174,7 +241,19 @@ impl Mesh {
         triangles: Vec<[u32; 3]>,
         source: &str,
     ) -> Result<MeshLoad> {
-        validate_and_repair(positions, uvs, triangles)
+        Self::from_parts_with_materials(positions, uvs, triangles, None, source)
+    }
+
+    /// [`Mesh::from_parts`] with a material per triangle (validated: one id per triangle,
+    /// each naming one of `materials.names`, names distinct and non-empty).
+    pub fn from_parts_with_materials(
+        positions: Vec<Vec3>,
+        uvs: Option<Vec<Vec2>>,
+        triangles: Vec<[u32; 3]>,
+        materials: Option<MaterialIds>,
+        source: &str,
+    ) -> Result<MeshLoad> {
+        validate_and_repair(positions, uvs, triangles, materials)
             .map_err(|issue| CoreError::Input { path: PathBuf::from(source), message: issue.message() })
     }
 
@@ -189,7 +268,8 @@ impl Mesh {
     }
 
     /// Length of the bounding box diagonal (the mesh's scale; 0 for an empty mesh).
-    /// The mesh as OBJ text (`v`, optional `vt`, and 1-based `f` lines).
+    /// The mesh as OBJ text (`v`, optional `vt`, `usemtl` when it has materials, and 1-based
+    /// `f` lines).
     pub fn to_obj(&self) -> String {
         use std::fmt::Write;
         let mut s = String::new();
@@ -201,7 +281,15 @@ impl Mesh {
                 let _ = writeln!(s, "vt {} {}", t.x, t.y);
             }
         }
-        for t in &self.triangles {
+        let mut current = None;
+        for (k, t) in self.triangles.iter().enumerate() {
+            if let Some(m) = &self.materials {
+                let id = m.per_triangle[k];
+                if current != Some(id) {
+                    let _ = writeln!(s, "usemtl {}", m.names[id as usize]);
+                    current = Some(id);
+                }
+            }
             let [a, b, c] = t.map(|i| i + 1);
             if self.uvs.is_some() {
                 let _ = writeln!(s, "f {a}/{a} {b}/{b} {c}/{c}");
@@ -231,8 +319,30 @@ fn validate_and_repair(
     positions: Vec<Vec3>,
     uvs: Option<Vec<Vec2>>,
     triangles: Vec<[u32; 3]>,
+    materials: Option<MaterialIds>,
 ) -> std::result::Result<MeshLoad, Issue> {
     let n = positions.len();
+    if let Some(m) = &materials {
+        if m.per_triangle.len() != triangles.len() {
+            return Err(Issue::Materials(format!(
+                "{} material ids for {} triangles",
+                m.per_triangle.len(),
+                triangles.len()
+            )));
+        }
+        if let Some(t) = m.per_triangle.iter().position(|&i| i as usize >= m.names.len()) {
+            return Err(Issue::Materials(format!(
+                "triangle {t} uses material {} but only {} are named",
+                m.per_triangle[t],
+                m.names.len()
+            )));
+        }
+        for (i, name) in m.names.iter().enumerate() {
+            if name.trim().is_empty() || m.names[..i].contains(name) {
+                return Err(Issue::Materials(format!("material name {name:?} is empty or repeated")));
+            }
+        }
+    }
     // 1. Validation: what cannot be repaired.
     if let Some(uv) = &uvs {
         if uv.len() != n {
@@ -282,9 +392,11 @@ fn validate_and_repair(
     }
     let min_area = DEGENERATE_AREA_FRACTION * (hi - lo).length_squared();
     let (mut repeated, mut flat) = (0usize, 0usize);
+    let mut kept_materials = materials.as_ref().map(|_| Vec::with_capacity(triangles.len()));
     let kept: Vec<[u32; 3]> = triangles
         .iter()
-        .filter_map(|t| {
+        .enumerate()
+        .filter_map(|(k, t)| {
             let t = t.map(|i| remap[i as usize]);
             if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
                 repeated += 1;
@@ -294,6 +406,9 @@ fn validate_and_repair(
             if 0.5 * (b - a).cross(c - a).length() <= min_area {
                 flat += 1;
                 return None;
+            }
+            if let (Some(out), Some(m)) = (&mut kept_materials, &materials) {
+                out.push(m.per_triangle[k]);
             }
             Some(t)
         })
@@ -337,7 +452,27 @@ fn validate_and_repair(
         repairs.push(format!("dropped {unreferenced} unreferenced vertices"));
     }
     let triangles = kept.into_iter().map(|t| t.map(|i| new_index[i as usize])).collect();
-    Ok(MeshLoad { mesh: Mesh { positions: out_positions, uvs: out_uvs, triangles }, repairs })
+    let materials = match (materials, kept_materials) {
+        (Some(m), Some(per_triangle)) => Some(MaterialIds { names: m.names, per_triangle }),
+        _ => None,
+    };
+    Ok(MeshLoad { mesh: Mesh { positions: out_positions, uvs: out_uvs, triangles, materials }, repairs })
+}
+
+/// The distinct `usemtl` names of an OBJ text, in first-appearance order (parsed as tobj
+/// does: everything after the keyword, trimmed).
+fn obj_usemtl_names(text: &str) -> Vec<String> {
+    let mut names: Vec<String> = Vec::new();
+    for line in text.lines() {
+        let line = line.trim();
+        if line.split_whitespace().next() == Some("usemtl") {
+            let name = line.split_once(' ').map_or("", |x| x.1).trim();
+            if !name.is_empty() && !names.iter().any(|n| n == name) {
+                names.push(name.to_string());
+            }
+        }
+    }
+    names
 }
 
 /// The 1-based number and line of the first OBJ `v` record with a non-finite coordinate.
@@ -632,5 +767,68 @@ mod tests {
             assert_eq!(corners(&back.mesh), corners(&mesh), "{name}");
             assert_eq!(back.mesh.vertex_count(), mesh.vertex_count(), "{name}");
         }
+    }
+
+    const TWO_QUADS: &str = "v 0 0 0\nv 1 0 0\nv 1 0 1\nv 0 0 1\nv 2 0 0\nv 2 0 1\n";
+
+    #[test]
+    fn usemtl_names_each_triangle() {
+        // Faces before the first usemtl are "default"; a name used twice is one material;
+        // an mtllib that does not exist is never opened.
+        let text = format!(
+            "mtllib missing.mtl\n{TWO_QUADS}f 1 2 3\nusemtl stone\nf 1 3 4\nusemtl gold leaf\nf 2 5 6\nf 2 6 3\nusemtl stone\nf 4 3 5\n"
+        );
+        let load = Mesh::load_obj(&write_obj("usemtl", &text)).unwrap();
+        let m = load.mesh.materials.expect("materials recorded");
+        assert_eq!(m.names, ["default", "stone", "gold leaf"]);
+        assert_eq!(m.per_triangle, [0, 1, 2, 2, 1]);
+        assert_eq!(m.counts(), [1, 2, 2]);
+    }
+
+    #[test]
+    fn groups_name_materials_when_there_is_no_usemtl() {
+        let text = format!("{TWO_QUADS}g roof\nf 1 2 3\nf 1 3 4\ng steps\nf 2 5 6\n");
+        let m = Mesh::load_obj(&write_obj("groups", &text)).unwrap().mesh.materials.unwrap();
+        assert_eq!(m.names, ["roof", "steps"]);
+        assert_eq!(m.per_triangle, [0, 0, 1]);
+        // No usemtl and no groups: one material, no ids.
+        let plain = Mesh::load_obj(&write_obj("plain", &format!("{TWO_QUADS}f 1 2 3\n"))).unwrap();
+        assert!(plain.mesh.materials.is_none());
+    }
+
+    #[test]
+    fn repairs_keep_each_triangles_material() {
+        // The degenerate second face is dropped; the survivors keep their own materials.
+        let text = format!("{TWO_QUADS}usemtl a\nf 1 2 3\nusemtl b\nf 1 1 3\nusemtl c\nf 2 5 6\n");
+        let load = Mesh::load_obj(&write_obj("repair-mat", &text)).unwrap();
+        let m = load.mesh.materials.clone().unwrap();
+        assert_eq!(load.mesh.triangle_count(), 2);
+        assert_eq!(m.per_triangle.iter().map(|&i| m.names[i as usize].as_str()).collect::<Vec<_>>(), ["a", "c"]);
+    }
+
+    #[test]
+    fn materials_round_trip_through_obj_and_subdivision() {
+        use crate::geometry::shapes;
+        let a = shapes::with_material(shapes::grid_plane(2, 1.0), "floor");
+        let b = shapes::with_material(shapes::uv_sphere(Vec3::Y, 0.5, 4, 6), "ball");
+        let mesh = shapes::merged(&[a, shapes::grid_plane(1, 3.0), b]);
+        let m = mesh.materials.clone().unwrap();
+        assert_eq!(m.names, ["floor", MaterialIds::DEFAULT_NAME, "ball"]);
+        assert_eq!(m.counts(), [8, 2, mesh.triangle_count() - 10]);
+        let back = Mesh::load_obj(&write_obj("rt-mat", &mesh.to_obj())).unwrap().mesh;
+        assert_eq!(back.materials, mesh.materials);
+        let fine = shapes::subdivide_midpoint(&mesh);
+        let fm = fine.materials.unwrap();
+        assert_eq!(fm.counts(), m.counts().iter().map(|c| 4 * c).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn bad_material_ids_are_rejected() {
+        let tri = vec![[0, 1, 2]];
+        let pos = vec![Vec3::ZERO, Vec3::X, Vec3::Z];
+        let bad = |m: MaterialIds| Mesh::from_parts_with_materials(pos.clone(), None, tri.clone(), Some(m), "t").unwrap_err().to_string();
+        assert!(bad(MaterialIds { names: vec!["a".into()], per_triangle: vec![] }).contains("0 material ids for 1 triangles"));
+        assert!(bad(MaterialIds { names: vec!["a".into()], per_triangle: vec![1] }).contains("uses material 1"));
+        assert!(bad(MaterialIds { names: vec!["a".into(), "a".into()], per_triangle: vec![0] }).contains("repeated"));
     }
 }

@@ -8,4 +8,4 @@ pub mod shapes;
 
 pub use bvh::{Hit, SceneBvh};
 pub use frames::{vertex_frames, VertexFrame};
-pub use mesh::{Mesh, MeshLoad};
+pub use mesh::{MaterialIds, Mesh, MeshLoad};

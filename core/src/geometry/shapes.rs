@@ -1,6 +1,6 @@
 //! Small analytic meshes for tests and examples: a grid plane, a UV sphere, a closed box.
 
-use crate::geometry::Mesh;
+use crate::geometry::{MaterialIds, Mesh};
 use glam::{Vec2, Vec3};
 
 /// A `cells x cells` grid of size `size` in the XZ plane at y = 0, facing +Y, centred on the
@@ -25,7 +25,7 @@ pub fn grid_plane(cells: u32, size: f32) -> Mesh {
             triangles.push([i, i + n + 1, i + 1]);
         }
     }
-    Mesh { positions, uvs: Some(uvs), triangles }
+    Mesh { positions, uvs: Some(uvs), triangles, materials: None }
 }
 
 /// A UV sphere of `radius` centred at `centre` with `rings` latitude bands and `segments`
@@ -54,7 +54,7 @@ pub fn uv_sphere(centre: Vec3, radius: f32, rings: u32, segments: u32) -> Mesh {
             triangles.push([a, d, c]);
         }
     }
-    Mesh { positions, uvs: None, triangles }
+    Mesh { positions, uvs: None, triangles, materials: None }
 }
 
 /// An axis-aligned closed box, outward-facing (8 vertices, 12 triangles).
@@ -74,12 +74,27 @@ pub fn closed_box(min: Vec3, max: Vec3) -> Mesh {
         [3, 7, 6], [3, 6, 2], // +Y
         [0, 1, 5], [0, 5, 4], // -Y
     ];
-    Mesh { positions, uvs: None, triangles }
+    Mesh { positions, uvs: None, triangles, materials: None }
 }
 
-/// Concatenate meshes into one (UVs are kept only if every part has them).
+/// Concatenate meshes into one (UVs are kept only if every part has them). Materials are
+/// merged by name when any part has them; parts without are [`MaterialIds::DEFAULT_NAME`].
 pub fn merged(parts: &[Mesh]) -> Mesh {
-    let mut out = Mesh { positions: vec![], uvs: Some(vec![]), triangles: vec![] };
+    let mut out = Mesh { positions: vec![], uvs: Some(vec![]), triangles: vec![], materials: None };
+    if parts.iter().any(|m| m.materials.is_some()) {
+        let mut ids = MaterialIds::default();
+        for m in parts {
+            let local: Vec<u16> = match &m.materials {
+                Some(mm) => mm.names.iter().map(|n| material_index(&mut ids.names, n)).collect(),
+                None => vec![material_index(&mut ids.names, MaterialIds::DEFAULT_NAME)],
+            };
+            match &m.materials {
+                Some(mm) => ids.per_triangle.extend(mm.per_triangle.iter().map(|&i| local[i as usize])),
+                None => ids.per_triangle.extend(std::iter::repeat(local[0]).take(m.triangles.len())),
+            }
+        }
+        out.materials = Some(ids);
+    }
     for m in parts {
         let base = out.positions.len() as u32;
         out.positions.extend(&m.positions);
@@ -90,6 +105,69 @@ pub fn merged(parts: &[Mesh]) -> Mesh {
         }
     }
     out
+}
+
+/// Index of `name` in `names`, appended when new.
+fn material_index(names: &mut Vec<String>, name: &str) -> u16 {
+    match names.iter().position(|n| n == name) {
+        Some(i) => i as u16,
+        None => {
+            names.push(name.to_string());
+            (names.len() - 1) as u16
+        }
+    }
+}
+
+/// A copy of `mesh` with every triangle using the material `name`.
+pub fn with_material(mut mesh: Mesh, name: &str) -> Mesh {
+    mesh.materials = Some(MaterialIds { names: vec![name.to_string()], per_triangle: vec![0; mesh.triangles.len()] });
+    mesh
+}
+
+/// Cylindrical texture coordinates about the vertical axis through the mesh's bounding-box
+/// centre: `u` = azimuth `atan2(x, z) / 2 pi + 1/2` times the mean radius' circumference,
+/// `v` = height above the lowest vertex, both in world units (so a material's tiling is
+/// patches per unit length and texels stay roughly square away from the poles).
+/// Triangles that straddle the seam (u jumping by more than half a turn) get copies of their
+/// low-u vertices at `u + circumference`, so interpolation never runs the long way round;
+/// the copies are new vertices (the seam then has two frames per position).
+pub fn cylindrical_uvs(mesh: &Mesh) -> Mesh {
+    let (lo, hi) = mesh
+        .positions
+        .iter()
+        .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(a, b), p| (a.min(*p), b.max(*p)));
+    let centre = 0.5 * (lo + hi);
+    let radius = if mesh.positions.is_empty() {
+        1.0
+    } else {
+        mesh.positions.iter().map(|p| Vec2::new(p.x - centre.x, p.z - centre.z).length()).sum::<f32>()
+            / mesh.positions.len() as f32
+    };
+    let circumference = std::f32::consts::TAU * radius.max(1e-6);
+    let uv_of = |p: Vec3| {
+        let turn = (p.x - centre.x).atan2(p.z - centre.z) / std::f32::consts::TAU + 0.5;
+        Vec2::new(turn * circumference, p.y - lo.y)
+    };
+    let mut positions = mesh.positions.clone();
+    let mut uvs: Vec<Vec2> = mesh.positions.iter().map(|&p| uv_of(p)).collect();
+    let mut copy_of: std::collections::HashMap<u32, u32> = Default::default();
+    let mut triangles = mesh.triangles.clone();
+    for t in &mut triangles {
+        let us = t.map(|i| uvs[i as usize].x);
+        let (min, max) = (us.iter().copied().fold(f32::INFINITY, f32::min), us.iter().copied().fold(f32::NEG_INFINITY, f32::max));
+        if max - min > 0.5 * circumference {
+            for i in t.iter_mut() {
+                if uvs[*i as usize].x < 0.5 * circumference {
+                    *i = *copy_of.entry(*i).or_insert_with(|| {
+                        positions.push(positions[*i as usize]);
+                        uvs.push(uvs[*i as usize] + Vec2::new(circumference, 0.0));
+                        positions.len() as u32 - 1
+                    });
+                }
+            }
+        }
+    }
+    Mesh { positions, uvs: Some(uvs), triangles, materials: mesh.materials.clone() }
 }
 
 /// One level of midpoint subdivision: every triangle becomes four, edge midpoints are
@@ -118,7 +196,11 @@ pub fn subdivide_midpoint(mesh: &Mesh) -> Mesh {
         let ca = mid(c, a, &mut positions, &mut uvs);
         triangles.extend([[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
     }
-    Mesh { positions, uvs, triangles }
+    let materials = mesh.materials.as_ref().map(|m| MaterialIds {
+        names: m.names.clone(),
+        per_triangle: m.per_triangle.iter().flat_map(|&i| [i; 4]).collect(),
+    });
+    Mesh { positions, uvs, triangles, materials }
 }
 
 #[cfg(test)]
@@ -165,5 +247,31 @@ mod tests {
             let [a, b, c] = t.map(|i| m.positions[i as usize]);
             assert!((b - a).cross(c - a).y > 0.0);
         }
+    }
+
+    #[test]
+    fn cylindrical_uvs_never_wrap_inside_a_triangle() {
+        let sphere = uv_sphere(Vec3::new(0.3, 1.0, -0.2), 0.7, 12, 24);
+        let m = cylindrical_uvs(&sphere);
+        let uvs = m.uvs.as_ref().unwrap();
+        let circumference = std::f32::consts::TAU * 0.7;
+        assert_eq!(m.triangles.len(), sphere.triangles.len());
+        let pole = |i: u32| i == 0 || i as usize == sphere.positions.len() - 1;
+        // (Fans around a pole on the axis have no meaningful azimuth: skipped.)
+        for t in m.triangles.iter().filter(|t| !t.iter().any(|&i| pole(i))) {
+            let us = t.map(|i| uvs[i as usize].x);
+            let spread = us.iter().copied().fold(f32::MIN, f32::max) - us.iter().copied().fold(f32::MAX, f32::min);
+            // 24 segments: a triangle spans 1/24 of a turn.
+            assert!(spread < 0.5 * circumference, "{us:?}");
+            // Copies keep the position.
+            for &i in t {
+                assert!(i as usize >= sphere.positions.len() || m.positions[i as usize] == sphere.positions[i as usize]);
+            }
+        }
+        // v is the height above the lowest vertex, in world units.
+        for (p, uv) in m.positions.iter().zip(uvs) {
+            assert!((uv.y - (p.y - 0.3)).abs() < 1e-5);
+        }
+        assert!(m.positions.len() > sphere.positions.len(), "the seam was split");
     }
 }

@@ -306,7 +306,7 @@ fn progress_counts_every_vertex_in_order() {
 #[test]
 fn refuses_requests_too_large_before_allocating() {
     // 30 000 vertices at R = 100 (N = 60 000): up to 9e8 non-zeros, ~13 GiB.
-    let mesh = Mesh { positions: vec![Vec3::ZERO; 30_000], uvs: None, triangles: vec![] };
+    let mesh = Mesh { positions: vec![Vec3::ZERO; 30_000], uvs: None, triangles: vec![], materials: None };
     let settings = TransferSettings { cubemap_resolution: 100, visibility_resolution: 200, local_grid: 8 };
     assert!(worst_case_bytes(30_000, &settings) > MAX_TRANSFER_BYTES);
     match build(&mesh, &settings, None) {

@@ -17,14 +17,14 @@ struct ShadeParams {
     local_dirs: u32,
     camera_pos: vec3<f32>,
     light_m: u32,
-    btf_width: u32,
-    btf_height: u32,
-    view_m: u32,
+    material_count: u32,
+    has_material_ids: u32,
     vertex_count: u32,
     triangle_count: u32,
     pad0: u32,
     pad1: u32,
     pad2: u32,
+    pad3: u32,
 }
 
 // Mirror of the Rust `ToneParams` (32 bytes).

@@ -3,7 +3,7 @@
 
 use super::{Rgba8Image, ToneMap, ToneMapSettings};
 use crate::tests::gpu_or_skip;
-use crate::{GpuCamera, GpuContext, GpuGather, GpuShader, ShadeInputs, ShadedImage};
+use crate::{GpuCamera, GpuContext, GpuGather, GpuMaterial, GpuShader, ShadeInputs, ShadedImage};
 use biscale_compressors::sparse::Sparse;
 use biscale_compressors::testing::{random_light, random_transfer};
 use biscale_core::compress::{CompressContext, Compressor};
@@ -35,10 +35,14 @@ fn scene(ctx: &GpuContext, cam: GpuCamera) -> (GpuShader, GpuGather) {
         tangents: &vec![frame.tangent.to_array(); nv],
         uvs: None,
         triangles: &mesh.triangles,
-        btf_data: &btf.data,
-        btf_spatial: btf.spatial,
+        materials: &[GpuMaterial {
+            btf_data: &btf.data,
+            btf_spatial: btf.spatial,
+            view_m: btf.view_grid.map(|g| g.m),
+            tiling: 1.0,
+        }],
+        triangle_materials: None,
         light_m: btf.light_grid.m,
-        view_m: btf.view_grid.map(|g| g.m),
         camera: cam,
     };
     let shader = GpuShader::new(ctx, &inputs).unwrap();

@@ -11,6 +11,16 @@
 //! product over the M light directions. Output: linear HDR RGB (rgba32float) and a coverage
 //! mask, row 0 at the top, pixel centres at +0.5.
 //!
+//! Several materials per scene (as `shading::cpu::ShadeScene`): every material's BTF table
+//! is appended to one storage buffer, a small storage buffer holds one [`GpuMaterialHeader`]
+//! per material (where its table starts, its patch size, its view grid, its tiling), and a
+//! per-triangle buffer holds material ids. Per pixel: the triangle's material, its header,
+//! the nearest texel of `uv * tiling` (wrapping, as `Btf::texel_of`), that material's own
+//! view weights (none for a view-independent one), dot with `L*`. All materials share the
+//! light grid (`L*` has one set of bins). A one-material scene may pass no ids: the id
+//! binding then holds a 4-byte placeholder and `ShadeParams::has_material_ids = 0`, so the
+//! shader never reads it and uses material 0.
+//!
 //! Inputs are plain slices ([`ShadeInputs`]) so this crate does not depend on the shading
 //! crate's types.
 
@@ -44,13 +54,14 @@ pub struct ShadeParams {
     pub local_dirs: u32,
     pub camera_pos: [f32; 3],
     pub light_m: u32,
-    pub btf_width: u32,
-    pub btf_height: u32,
-    /// View grid m; 0 for a view-independent BTF.
-    pub view_m: u32,
+    /// Number of materials (headers in the material buffer).
+    pub material_count: u32,
+    /// 1: the per-triangle material id buffer is real; 0: a placeholder, every triangle uses
+    /// material 0 (one-material scenes).
+    pub has_material_ids: u32,
     pub vertex_count: u32,
     pub triangle_count: u32,
-    pub _pad: [u32; 3],
+    pub _pad: [u32; 4],
 }
 const _: () = assert!(std::mem::size_of::<ShadeParams>() == 160);
 
@@ -166,6 +177,39 @@ pub struct GpuVertex {
 }
 const _: () = assert!(std::mem::size_of::<GpuVertex>() == 48);
 
+/// One material's BTF as the shader reads it (`shading::cpu::Material` as plain slices).
+#[derive(Clone, Copy, Debug)]
+pub struct GpuMaterial<'a> {
+    /// BTF values `[texel][view][light]` RGB (`shading::btf::Btf::data`), texel
+    /// `= ty * width + tx` with `(tx, ty)` the wrapped nearest texel of `uv * tiling`.
+    pub btf_data: &'a [[f32; 3]],
+    /// BTF patch size in texels, `[width, height]`.
+    pub btf_spatial: [u32; 2],
+    /// View grid m of the BTF, `None` for a view-independent BTF.
+    pub view_m: Option<u32>,
+    /// Patch repetitions per unit of uv (finite, > 0): the BTF is looked up at `uv * tiling`.
+    pub tiling: f32,
+}
+
+/// Where one material's table lies in the concatenated BTF buffer and how to index it
+/// (mirrors WGSL `MaterialHeader`, 32 bytes; checked by the layout test).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct GpuMaterialHeader {
+    /// First RGB entry of the material's table in the concatenated buffer.
+    pub data_offset: u32,
+    /// Patch width in texels.
+    pub width: u32,
+    /// Patch height in texels.
+    pub height: u32,
+    /// View grid m; 0 for a view-independent BTF.
+    pub view_m: u32,
+    /// Patch repetitions per unit of uv.
+    pub tiling: f32,
+    pub _pad: [u32; 3],
+}
+const _: () = assert!(std::mem::size_of::<GpuMaterialHeader>() == 32);
+
 /// Everything the shader needs, as plain slices.
 #[derive(Clone, Copy, Debug)]
 pub struct ShadeInputs<'a> {
@@ -179,17 +223,76 @@ pub struct ShadeInputs<'a> {
     /// Texture coordinates of the BTF patch; `None` = all (0, 0).
     pub uvs: Option<&'a [[f32; 2]]>,
     pub triangles: &'a [[u32; 3]],
-    /// BTF values `[texel][view][light]` RGB (`shading::btf::Btf::data`), texel
-    /// `= ty * width + tx` with `(tx, ty)` the wrapped nearest texel of the UV.
-    pub btf_data: &'a [[f32; 3]],
-    /// BTF patch size in texels, `[width, height]`.
-    pub btf_spatial: [u32; 2],
-    /// Light grid m of the BTF; `m * m` must equal L*'s local directions M.
+    /// The scene's materials (at least one); all share the light grid `light_m`.
+    pub materials: &'a [GpuMaterial<'a>],
+    /// Index into `materials` per triangle; `None` only with exactly one material.
+    pub triangle_materials: Option<&'a [u32]>,
+    /// Light grid m of every material; `m * m` must equal L*'s local directions M.
     pub light_m: u32,
-    /// View grid m of the BTF, `None` for a view-independent BTF.
-    pub view_m: Option<u32>,
     /// The camera; its `width x height` is the image size.
     pub camera: GpuCamera,
+}
+
+/// The materials' headers (in input order, tables back to back) and the total number of RGB
+/// entries, after checking every material's shape against the shared `local_dirs` (= M).
+pub(crate) fn material_headers(materials: &[GpuMaterial], local_dirs: u64) -> Result<(Vec<GpuMaterialHeader>, u64)> {
+    if materials.is_empty() {
+        return Err(GpuError::Input("the scene has no material".into()));
+    }
+    if materials.len() > u32::MAX as usize {
+        return Err(GpuError::Input(format!("{} materials do not fit 32-bit ids", materials.len())));
+    }
+    let mut headers = Vec::with_capacity(materials.len());
+    let mut offset = 0u64;
+    for (k, mat) in materials.iter().enumerate() {
+        let [bw, bh] = mat.btf_spatial;
+        if bw == 0 || bh == 0 || mat.view_m == Some(0) {
+            return Err(GpuError::Input(format!(
+                "material {k}: BTF patch {bw}x{bh} and view grid {:?} must be positive",
+                mat.view_m
+            )));
+        }
+        if !(mat.tiling.is_finite() && mat.tiling > 0.0) {
+            return Err(GpuError::Input(format!("material {k}: tiling {} must be finite and > 0", mat.tiling)));
+        }
+        // Saturating: an absurd shape must fail the length check below, not overflow.
+        let views = mat.view_m.map_or(1, |m| m as u64 * m as u64);
+        let expect = (bw as u64 * bh as u64).saturating_mul(views).saturating_mul(local_dirs);
+        if mat.btf_data.len() as u64 != expect {
+            return Err(GpuError::Input(format!(
+                "material {k}: BTF has {} values, expected {bw}x{bh} texels x {views} views x {local_dirs} lights = {expect}",
+                mat.btf_data.len()
+            )));
+        }
+        // Offsets past 32 bits are refused with the total size; saturate until then.
+        headers.push(GpuMaterialHeader {
+            data_offset: offset.min(u32::MAX as u64) as u32,
+            width: bw,
+            height: bh,
+            view_m: mat.view_m.unwrap_or(0),
+            tiling: mat.tiling,
+            _pad: [0; 3],
+        });
+        offset = offset.saturating_add(expect);
+    }
+    Ok((headers, offset))
+}
+
+/// Check the per-triangle material ids (as `shading::cpu::ShadeScene::validate`).
+pub(crate) fn check_material_ids(ids: Option<&[u32]>, materials: usize, triangles: usize) -> Result<()> {
+    match ids {
+        None if materials > 1 => {
+            Err(GpuError::Input(format!("{materials} materials but no per-triangle material ids")))
+        }
+        None => Ok(()),
+        Some(ids) if ids.len() != triangles => {
+            Err(GpuError::Input(format!("{} material ids for {triangles} triangles", ids.len())))
+        }
+        Some(ids) => match ids.iter().position(|&i| i as usize >= materials) {
+            Some(t) => Err(GpuError::Input(format!("triangle {t} uses material {} of {materials}", ids[t]))),
+            None => Ok(()),
+        },
+    }
 }
 
 /// A shaded HDR image: `pixels[row * width + col]`, row 0 at the top.
@@ -203,7 +306,7 @@ pub struct ShadedImage {
     pub coverage: Vec<bool>,
 }
 
-/// The GPU shader for one mesh, BTF and image size.
+/// The GPU shader for one mesh, its materials and an image size.
 pub struct GpuShader {
     ctx: GpuContext,
     params: ShadeParams,
@@ -211,6 +314,8 @@ pub struct GpuShader {
     vertex_buf: wgpu::Buffer,
     index_buf: wgpu::Buffer,
     btf_buf: wgpu::Buffer,
+    material_buf: wgpu::Buffer,
+    material_id_buf: wgpu::Buffer,
     vis_view: wgpu::TextureView,
     depth_view: wgpu::TextureView,
     image: wgpu::Texture,
@@ -227,7 +332,10 @@ pub struct GpuShader {
 }
 
 impl GpuShader {
-    /// Upload the mesh and BTF and build both passes.
+    /// Check the inputs, upload the mesh, the materials' BTF tables and ids, and build both
+    /// passes. Errors ([`GpuError::Input`]) on mismatched sizes, non-finite values, bad material
+    /// ids or tilings; [`GpuError::Limit`] when the concatenated BTF tables exceed the adapter's
+    /// `max_storage_buffer_binding_size`.
     pub fn new(ctx: &GpuContext, inputs: &ShadeInputs) -> Result<Self> {
         let nv = inputs.positions.len();
         if inputs.normals.len() != nv || inputs.tangents.len() != nv || inputs.uvs.is_some_and(|u| u.len() != nv) {
@@ -247,22 +355,31 @@ impl GpuShader {
                 return Err(GpuError::Input(format!("vertex {i}'s {what} is not finite: {:?}", arr[i])));
             }
         }
-        let [bw, bh] = inputs.btf_spatial;
         let m_light = inputs.light_m as u64;
-        let views = inputs.view_m.map_or(1, |m| (m as u64) * (m as u64));
-        let local_dirs = m_light * m_light;
-        if bw == 0 || bh == 0 || m_light == 0 || inputs.view_m == Some(0) {
-            return Err(GpuError::Input("BTF spatial size, light grid and view grid must be positive".into()));
+        if m_light == 0 {
+            return Err(GpuError::Input("the light grid m must be positive".into()));
         }
-        let expect = bw as u64 * bh as u64 * views * local_dirs;
-        if inputs.btf_data.len() as u64 != expect {
+        let local_dirs = m_light * m_light;
+        let tri_count = inputs.triangles.len();
+        let (headers, total_entries) = material_headers(inputs.materials, local_dirs)?;
+        check_material_ids(inputs.triangle_materials, inputs.materials.len(), tri_count)?;
+        // The concatenated tables are one binding: refuse before building it.
+        let btf_bytes = total_entries.saturating_mul(std::mem::size_of::<[f32; 3]>() as u64);
+        let btf_label = format!("BTF tables of {} material(s), concatenated", inputs.materials.len());
+        ctx.check_storage_size(&btf_label, btf_bytes)?;
+        if total_entries.saturating_mul(3) > u32::MAX as u64 {
             return Err(GpuError::Input(format!(
-                "BTF has {} values, expected {bw}x{bh} texels x {views} views x {local_dirs} lights = {expect}",
-                inputs.btf_data.len()
+                "the concatenated BTF tables hold {} floats; the shader indexes them with 32 bits",
+                total_entries * 3
             )));
         }
-        if let Some(i) = finite3(inputs.btf_data) {
-            return Err(GpuError::Input(format!("BTF value {i} is not finite: {:?}", inputs.btf_data[i])));
+        for (k, mat) in inputs.materials.iter().enumerate() {
+            if let Some(i) = finite3(mat.btf_data) {
+                return Err(GpuError::Input(format!(
+                    "material {k}: BTF value {i} is not finite: {:?}",
+                    mat.btf_data[i]
+                )));
+            }
         }
         if let Some(i) = inputs.uvs.and_then(|u| u.iter().position(|p| !p.iter().all(|x| x.is_finite()))) {
             return Err(GpuError::Input(format!("vertex {i}'s uv is not finite")));
@@ -278,7 +395,6 @@ impl GpuShader {
                 max: max_dim as u64,
             });
         }
-        let tri_count = inputs.triangles.len();
         if tri_count as u64 * 3 >= u32::MAX as u64 {
             return Err(GpuError::Input(format!("{tri_count} triangles do not fit 32-bit ids")));
         }
@@ -293,12 +409,11 @@ impl GpuShader {
             local_dirs: local_dirs as u32,
             camera_pos: [0.0; 3],
             light_m: inputs.light_m,
-            btf_width: bw,
-            btf_height: bh,
-            view_m: inputs.view_m.unwrap_or(0),
+            material_count: inputs.materials.len() as u32,
+            has_material_ids: u32::from(inputs.triangle_materials.is_some()),
             vertex_count: nv as u32,
             triangle_count: tri_count as u32,
-            _pad: [0; 3],
+            _pad: [0; 4],
         };
         let (near, far) = depth_range(inputs.positions, inputs.camera.position);
         inputs.camera.write(&mut params, near, far);
@@ -325,9 +440,25 @@ impl GpuShader {
             bytemuck::cast_slice(inputs.triangles),
             wgpu::BufferUsages::empty(),
         )?;
-        let btf_buf = ctx.storage_buffer(
-            &format!("BTF ({bw}x{bh} texels x {views} views x {local_dirs} lights x RGB f32)"),
-            bytemuck::cast_slice(inputs.btf_data),
+        let btf_buf = if let [only] = inputs.materials {
+            ctx.storage_buffer(&btf_label, bytemuck::cast_slice(only.btf_data), wgpu::BufferUsages::empty())?
+        } else {
+            let mut all = Vec::with_capacity(total_entries as usize);
+            for mat in inputs.materials {
+                all.extend_from_slice(mat.btf_data);
+            }
+            ctx.storage_buffer(&btf_label, bytemuck::cast_slice(&all), wgpu::BufferUsages::empty())?
+        };
+        let material_buf = ctx.storage_buffer(
+            "material headers (32 bytes each)",
+            bytemuck::cast_slice(&headers),
+            wgpu::BufferUsages::empty(),
+        )?;
+        // Without ids: a 4-byte placeholder (wgpu cannot bind an empty buffer) that the shader
+        // never reads (`has_material_ids = 0`).
+        let material_id_buf = ctx.storage_buffer(
+            "per-triangle material ids",
+            bytemuck::cast_slice(inputs.triangle_materials.unwrap_or(&[0])),
             wgpu::BufferUsages::empty(),
         )?;
         let padded_row = (w * 16).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
@@ -460,6 +591,8 @@ impl GpuShader {
             vertex_buf,
             index_buf,
             btf_buf,
+            material_buf,
+            material_id_buf,
             vis_view,
             depth_view,
             image,
@@ -524,7 +657,7 @@ impl GpuShader {
     pub(crate) fn check_lstar(&self, vertices: usize, local_dirs: usize) -> Result<()> {
         if vertices != self.vertex_count || local_dirs != self.params.local_dirs as usize {
             return Err(GpuError::Input(format!(
-                "L* has {vertices} vertices x {local_dirs} directions; the mesh has {} vertices and the BTF {} light directions",
+                "L* has {vertices} vertices x {local_dirs} directions; the mesh has {} vertices and the materials {} light directions",
                 self.vertex_count, self.params.local_dirs
             )));
         }
@@ -544,6 +677,8 @@ impl GpuShader {
                     wgpu::BindGroupEntry { binding: 4, resource: self.btf_buf.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: 5, resource: wgpu::BindingResource::TextureView(&self.vis_view) },
                     wgpu::BindGroupEntry { binding: 6, resource: wgpu::BindingResource::TextureView(&self.image_view) },
+                    wgpu::BindGroupEntry { binding: 7, resource: self.material_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 8, resource: self.material_id_buf.as_entire_binding() },
                 ],
             })
         })

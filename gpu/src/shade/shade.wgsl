@@ -7,8 +7,14 @@
 // (M bins x RGB) and frames, finds the view direction in the local frame, and evaluates the
 // meso-scale integral of Sun et al. (eq. 2):  B(x, e) = sum_j b(u, e, d_j) L*(x, d_j),
 // with b bilinear between the 4 nearest view-grid samples.
+//
+// Materials: b is the BTF of the triangle's material (material_ids[tri], or material 0 when
+// params.has_material_ids = 0 and that binding is a placeholder), looked up at the nearest
+// texel of uv * tiling with its own view grid; every table lives in the one `btf` buffer at
+// its header's data_offset.
 
-// Mirror of the Rust `ShadeParams` (#[repr(C)], 160 bytes; checked by the layout test).
+// Mirror of the Rust `ShadeParams` (#[repr(C)], 160 bytes; checked by the layout test, as is
+// the copy in present/present.wgsl).
 // Each vec3 is followed by a scalar so WGSL's 16-byte vec3 alignment adds no hidden padding.
 struct ShadeParams {
     // World to clip, reversed Z (depth 1 at the near plane), for rasterization only.
@@ -24,12 +30,27 @@ struct ShadeParams {
     local_dirs: u32,
     camera_pos: vec3<f32>,
     light_m: u32,
-    btf_width: u32,
-    btf_height: u32,
-    // View grid m, 0 for a view-independent BTF.
-    view_m: u32,
+    material_count: u32,
+    // 1: material_ids holds one id per triangle; 0: a placeholder, every triangle uses material 0.
+    has_material_ids: u32,
     vertex_count: u32,
     triangle_count: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
+    pad3: u32,
+}
+
+// Mirror of the Rust `GpuMaterialHeader` (32 bytes; checked by the layout test).
+struct MaterialHeader {
+    // First RGB entry of this material's table in `btf`.
+    data_offset: u32,
+    width: u32,
+    height: u32,
+    // View grid m, 0 for a view-independent BTF.
+    view_m: u32,
+    // Patch repetitions per unit of uv.
+    tiling: f32,
     pad0: u32,
     pad1: u32,
     pad2: u32,
@@ -50,10 +71,14 @@ struct Vertex {
 @group(0) @binding(2) var<storage, read> indices: array<u32>;
 // L*: (vertex * M + j) * 3 + channel (the gather's output buffer).
 @group(0) @binding(3) var<storage, read> lstar: array<f32>;
-// BTF: ((texel * views + view) * M + j) * 3 + channel.
+// All materials' BTF tables back to back; one material's value is at
+// (data_offset + (texel * views + view) * M + j) * 3 + channel.
 @group(0) @binding(4) var<storage, read> btf: array<f32>;
 @group(0) @binding(5) var visibility: texture_2d<u32>;
 @group(0) @binding(6) var image: texture_storage_2d<rgba32float, write>;
+@group(0) @binding(7) var<storage, read> materials: array<MaterialHeader>;
+// One material id per triangle (validated on the host), or a 4-byte placeholder.
+@group(0) @binding(8) var<storage, read> material_ids: array<u32>;
 
 // ---- pass 1: visibility ----
 
@@ -156,8 +181,8 @@ fn lstar_at(vertex: u32, j: u32) -> vec3<f32> {
     return vec3<f32>(lstar[k], lstar[k + 1u], lstar[k + 2u]);
 }
 
-fn btf_at(texel: u32, view: u32, views: u32, j: u32) -> vec3<f32> {
-    let k = ((texel * views + view) * params.local_dirs + j) * 3u;
+fn btf_at(offset: u32, texel: u32, view: u32, views: u32, j: u32) -> vec3<f32> {
+    let k = (offset + (texel * views + view) * params.local_dirs + j) * 3u;
     return vec3<f32>(btf[k], btf[k + 1u], btf[k + 2u]);
 }
 
@@ -232,16 +257,25 @@ fn shade_pixels(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let e_local = vec3<f32>(dot(-dir, t), dot(-dir, bt), dot(-dir, n));
 
+    // The triangle's material (ids are checked on the host; the min only guards the bounds).
+    var material = 0u;
+    if params.has_material_ids != 0u {
+        material = min(material_ids[tri], params.material_count - 1u);
+    }
+    let mat = materials[material];
+
+    // Btf::texel_of(uv * tiling): the material's nearest texel, wrapping.
     let uv = b.x * vec2<f32>(v0.u, v0.v) + b.y * vec2<f32>(v1.u, v1.v) + b.z * vec2<f32>(v2.u, v2.v);
-    let texel = wrap_texel(uv.y, params.btf_height) * params.btf_width + wrap_texel(uv.x, params.btf_width);
+    let tuv = uv * mat.tiling;
+    let texel = wrap_texel(tuv.y, mat.height) * mat.width + wrap_texel(tuv.x, mat.width);
 
     // View samples: Btf::view_weights, bilinear between the 4 nearest view-grid bin centres.
     var views = 1u;
     var view_idx = array<u32, 4>(0u, 0u, 0u, 0u);
     var view_w = array<f32, 4>(1.0, 0.0, 0.0, 0.0);
     var samples = 1u;
-    if params.view_m > 0u {
-        let m = params.view_m;
+    if mat.view_m > 0u {
+        let m = mat.view_m;
         views = m * m;
         if m > 1u {
             let c = continuous_coords(m, e_local);
@@ -260,7 +294,7 @@ fn shade_pixels(@builtin(global_invocation_id) gid: vec3<u32>) {
         let l = b.x * lstar_at(i0, j) + b.y * lstar_at(i1, j) + b.z * lstar_at(i2, j);
         var bj = vec3<f32>(0.0);
         for (var s = 0u; s < samples; s++) {
-            bj += view_w[s] * btf_at(texel, view_idx[s], views, j);
+            bj += view_w[s] * btf_at(mat.data_offset, texel, view_idx[s], views, j);
         }
         acc += bj * l;
     }

@@ -4,8 +4,9 @@
 //! a missing pad, shows up here instead of as garbage on the GPU.
 
 use crate::gather::program::PRELUDE;
+use crate::present::PRESENT_WGSL;
 use crate::shade::SHADE_WGSL;
-use crate::{GatherParams, GpuVertex, ShadeParams};
+use crate::{GatherParams, GpuMaterialHeader, GpuVertex, ShadeParams};
 use std::mem::{offset_of, size_of};
 
 /// (WGSL struct name, Rust size, [(WGSL member, Rust offset)]) checked against `source`.
@@ -53,28 +54,47 @@ fn gather_params_layout_matches_wgsl() {
 #[test]
 fn shade_params_layout_matches_wgsl() {
     type P = ShadeParams;
+    let members = [
+        ("view_proj", offset_of!(P, view_proj)),
+        ("cam_right", offset_of!(P, cam_right)),
+        ("width", offset_of!(P, width)),
+        ("cam_up", offset_of!(P, cam_up)),
+        ("height", offset_of!(P, height)),
+        ("cam_forward", offset_of!(P, cam_forward)),
+        ("local_dirs", offset_of!(P, local_dirs)),
+        ("camera_pos", offset_of!(P, camera_pos)),
+        ("light_m", offset_of!(P, light_m)),
+        ("material_count", offset_of!(P, material_count)),
+        ("has_material_ids", offset_of!(P, has_material_ids)),
+        ("vertex_count", offset_of!(P, vertex_count)),
+        ("triangle_count", offset_of!(P, triangle_count)),
+        ("pad0", offset_of!(P, _pad)),
+        ("pad1", offset_of!(P, _pad) + 4),
+        ("pad2", offset_of!(P, _pad) + 8),
+        ("pad3", offset_of!(P, _pad) + 12),
+    ];
+    // The shading passes and the tone-mapping pass (camera rays for the background) both
+    // bind the same uniform buffer.
+    check(SHADE_WGSL, "ShadeParams", size_of::<P>(), &members);
+    check(PRESENT_WGSL, "ShadeParams", size_of::<P>(), &members);
+}
+
+#[test]
+fn material_header_layout_matches_wgsl() {
+    type H = GpuMaterialHeader;
     check(
         SHADE_WGSL,
-        "ShadeParams",
-        size_of::<P>(),
+        "MaterialHeader",
+        size_of::<H>(),
         &[
-            ("view_proj", offset_of!(P, view_proj)),
-            ("cam_right", offset_of!(P, cam_right)),
-            ("width", offset_of!(P, width)),
-            ("cam_up", offset_of!(P, cam_up)),
-            ("height", offset_of!(P, height)),
-            ("cam_forward", offset_of!(P, cam_forward)),
-            ("local_dirs", offset_of!(P, local_dirs)),
-            ("camera_pos", offset_of!(P, camera_pos)),
-            ("light_m", offset_of!(P, light_m)),
-            ("btf_width", offset_of!(P, btf_width)),
-            ("btf_height", offset_of!(P, btf_height)),
-            ("view_m", offset_of!(P, view_m)),
-            ("vertex_count", offset_of!(P, vertex_count)),
-            ("triangle_count", offset_of!(P, triangle_count)),
-            ("pad0", offset_of!(P, _pad)),
-            ("pad1", offset_of!(P, _pad) + 4),
-            ("pad2", offset_of!(P, _pad) + 8),
+            ("data_offset", offset_of!(H, data_offset)),
+            ("width", offset_of!(H, width)),
+            ("height", offset_of!(H, height)),
+            ("view_m", offset_of!(H, view_m)),
+            ("tiling", offset_of!(H, tiling)),
+            ("pad0", offset_of!(H, _pad)),
+            ("pad1", offset_of!(H, _pad) + 4),
+            ("pad2", offset_of!(H, _pad) + 8),
         ],
     );
 }

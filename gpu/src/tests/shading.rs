@@ -1,8 +1,8 @@
 //! The GPU shader against analytic scenes and against the CPU reference shader
-//! (`shading::cpu::shade`).
+//! (`shading::cpu::shade`), with one material and with several per scene.
 
 use super::gpu_or_skip;
-use crate::{GpuCamera, GpuContext, GpuGather, GpuShader, ShadeInputs, ShadedImage};
+use crate::{GpuCamera, GpuContext, GpuError, GpuGather, GpuMaterial, GpuShader, ShadeInputs, ShadedImage};
 use biscale_compressors::sparse::Sparse;
 use biscale_compressors::testing::random_transfer;
 use biscale_core::compress::{CompressContext, Compressor};
@@ -11,8 +11,8 @@ use biscale_core::geometry::{shapes, vertex_frames, Mesh, SceneBvh, VertexFrame}
 use biscale_core::sampling::{HemisphereGrid, LightVector};
 use biscale_shading::btf::Btf;
 use biscale_shading::camera::Camera;
-use biscale_shading::cpu::{shade, Background, ShadeScene};
-use glam::Vec3;
+use biscale_shading::cpu::{primary_hit, shade, Background, Material, ShadeScene};
+use glam::{Vec2, Vec3};
 use rand::{Rng, SeedableRng};
 use std::f64::consts::PI;
 
@@ -33,8 +33,47 @@ fn cpu_camera(c: &GpuCamera) -> Camera {
     }
 }
 
-/// Shade `mesh` with `frames`, a BTF table and host L* on the GPU.
-#[allow(clippy::too_many_arguments)]
+/// The GPU form of a CPU material (borrows its table).
+fn gpu_material(m: &Material) -> GpuMaterial<'_> {
+    GpuMaterial {
+        btf_data: &m.btf.data,
+        btf_spatial: m.btf.spatial,
+        view_m: m.btf.view_grid.map(|g| g.m),
+        tiling: m.tiling,
+    }
+}
+
+/// Shade `mesh` with `frames`, materials (per-triangle `ids`) and host L* on the GPU; the
+/// shader is returned too, to move its camera.
+fn gpu_shader(
+    ctx: &GpuContext,
+    mesh: &Mesh,
+    frames: &[VertexFrame],
+    materials: &[Material],
+    ids: Option<&[u16]>,
+    cam: GpuCamera,
+) -> Result<GpuShader, GpuError> {
+    let normals: Vec<[f32; 3]> = frames.iter().map(|f| f.normal.to_array()).collect();
+    let tangents: Vec<[f32; 3]> = frames.iter().map(|f| f.tangent.to_array()).collect();
+    let positions: Vec<[f32; 3]> = mesh.positions.iter().map(|p| p.to_array()).collect();
+    let uvs: Option<Vec<[f32; 2]>> = mesh.uvs.as_ref().map(|u| u.iter().map(|p| p.to_array()).collect());
+    let gpu_materials: Vec<GpuMaterial> = materials.iter().map(gpu_material).collect();
+    let ids: Option<Vec<u32>> = ids.map(|i| i.iter().map(|&x| x as u32).collect());
+    let inputs = ShadeInputs {
+        positions: &positions,
+        normals: &normals,
+        tangents: &tangents,
+        uvs: uvs.as_deref(),
+        triangles: &mesh.triangles,
+        materials: &gpu_materials,
+        triangle_materials: ids.as_deref(),
+        light_m: materials[0].btf.light_grid.m,
+        camera: cam,
+    };
+    GpuShader::new(ctx, &inputs)
+}
+
+/// Shade `mesh` with `frames`, one BTF and host L* on the GPU.
 fn gpu_shade(
     ctx: &GpuContext,
     mesh: &Mesh,
@@ -43,23 +82,7 @@ fn gpu_shade(
     lstar: &LocalRadiance,
     cam: GpuCamera,
 ) -> ShadedImage {
-    let normals: Vec<[f32; 3]> = frames.iter().map(|f| f.normal.to_array()).collect();
-    let tangents: Vec<[f32; 3]> = frames.iter().map(|f| f.tangent.to_array()).collect();
-    let positions: Vec<[f32; 3]> = mesh.positions.iter().map(|p| p.to_array()).collect();
-    let uvs: Option<Vec<[f32; 2]>> = mesh.uvs.as_ref().map(|u| u.iter().map(|p| p.to_array()).collect());
-    let inputs = ShadeInputs {
-        positions: &positions,
-        normals: &normals,
-        tangents: &tangents,
-        uvs: uvs.as_deref(),
-        triangles: &mesh.triangles,
-        btf_data: &btf.data,
-        btf_spatial: btf.spatial,
-        light_m: btf.light_grid.m,
-        view_m: btf.view_grid.map(|g| g.m),
-        camera: cam,
-    };
-    let mut shader = GpuShader::new(ctx, &inputs).unwrap();
+    let mut shader = gpu_shader(ctx, mesh, frames, &[Material::new(btf.clone())], None, cam).unwrap();
     shader.shade_lstar(lstar).unwrap()
 }
 
@@ -254,7 +277,15 @@ fn sphere_with_phong_btf_matches_cpu_shade() {
     let cam = camera(Vec3::new(0.5, 0.8, 3.2), 64, 48);
     let gpu = gpu_shade(ctx, &mesh, &frames, &btf, &lstar, cam);
     let bvh = SceneBvh::build(&mesh.positions, &mesh.triangles);
-    let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, btf: &btf, background: Background::Black };
+    let materials = [Material::new(btf.clone())];
+    let scene = ShadeScene {
+        mesh: &mesh,
+        frames: &frames,
+        bvh: &bvh,
+        materials: &materials,
+        triangle_materials: None,
+        background: Background::Black,
+    };
     let cpu = shade(&scene, &lstar, &cpu_camera(&cam)).unwrap();
     let (mismatched, worst) = compare_with_cpu(&gpu, &cpu, 5e-5);
     eprintln!("sphere vs CPU: {mismatched} coverage mismatches, worst relative error {worst:e}");
@@ -286,10 +317,9 @@ fn gather_to_shade_on_the_gpu_with_32x32_directions_matches_cpu() {
         tangents: &tangents,
         uvs: Some(&uvs),
         triangles: &mesh.triangles,
-        btf_data: &btf.data,
-        btf_spatial: btf.spatial,
+        materials: &[GpuMaterial { btf_data: &btf.data, btf_spatial: btf.spatial, view_m: Some(4), tiling: 1.0 }],
+        triangle_materials: None,
         light_m: 32,
-        view_m: Some(4),
         camera: cam,
     };
     let mut shader = GpuShader::new(ctx, &inputs).unwrap();
@@ -298,7 +328,15 @@ fn gather_to_shade_on_the_gpu_with_32x32_directions_matches_cpu() {
     let via_host = shader.shade_lstar(&lstar).unwrap();
     assert_eq!(direct, via_host);
     let bvh = SceneBvh::build(&mesh.positions, &mesh.triangles);
-    let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, btf: &btf, background: Background::Black };
+    let materials = [Material::new(btf.clone())];
+    let scene = ShadeScene {
+        mesh: &mesh,
+        frames: &frames,
+        bvh: &bvh,
+        materials: &materials,
+        triangle_materials: None,
+        background: Background::Black,
+    };
     let cpu = shade(&scene, &lstar, &cpu_camera(&cam)).unwrap();
     let (mismatched, worst) = compare_with_cpu(&direct, &cpu, 1.5e-4);
     eprintln!("plane M=1024 vs CPU: {mismatched} coverage mismatches, worst relative error {worst:e}");
@@ -329,10 +367,9 @@ fn bad_shading_inputs_are_errors() {
         tangents: &tangents,
         uvs: None,
         triangles: &mesh.triangles,
-        btf_data: &btf.data,
-        btf_spatial: [1, 1],
+        materials: &[GpuMaterial { btf_data: &btf.data, btf_spatial: [1, 1], view_m: None, tiling: 1.0 }],
+        triangle_materials: None,
         light_m: 4,
-        view_m: None,
         camera: camera(Vec3::new(0.0, 2.0, 2.0), 8, 8),
     };
     let mut shader = GpuShader::new(ctx, &good).unwrap();
@@ -341,7 +378,8 @@ fn bad_shading_inputs_are_errors() {
     let bad_tri = [[0, 1, 999]];
     assert!(GpuShader::new(ctx, &ShadeInputs { triangles: &bad_tri, ..good }).is_err());
     assert!(GpuShader::new(ctx, &ShadeInputs { light_m: 5, ..good }).is_err());
-    assert!(GpuShader::new(ctx, &ShadeInputs { view_m: Some(3), ..good }).is_err());
+    let view3 = [GpuMaterial { view_m: Some(3), ..good.materials[0] }];
+    assert!(GpuShader::new(ctx, &ShadeInputs { materials: &view3, ..good }).is_err());
     let mut nan = positions.clone();
     nan[2][1] = f32::NAN;
     let e = GpuShader::new(ctx, &ShadeInputs { positions: &nan, ..good }).err().unwrap();
@@ -349,4 +387,277 @@ fn bad_shading_inputs_are_errors() {
     let mut cam = good.camera;
     cam.target = cam.position;
     assert!(GpuShader::new(ctx, &ShadeInputs { camera: cam, ..good }).is_err());
+}
+
+/// A plane (`grid_plane(8, 2.0)`) with a UV sphere above it, in one mesh (plane triangles
+/// first). Frames from each part alone; the sphere's uvs are its vertices' (x, z), so uv
+/// interpolation is exercised there too.
+fn plane_and_sphere() -> (Mesh, Vec<VertexFrame>, usize) {
+    let plane = shapes::grid_plane(8, 2.0);
+    let (mut frames, _) = vertex_frames(&plane);
+    let sphere = shapes::uv_sphere(Vec3::new(0.25, 0.4, -0.2), 0.35, 12, 24);
+    let (sphere_frames, _) = vertex_frames(&sphere);
+    frames.extend(sphere_frames);
+    let base = plane.positions.len() as u32;
+    let plane_triangles = plane.triangles.len();
+    let mut mesh = plane;
+    mesh.uvs.as_mut().unwrap().extend(sphere.positions.iter().map(|p| Vec2::new(p.x, p.z)));
+    mesh.positions.extend(&sphere.positions);
+    mesh.triangles.extend(sphere.triangles.iter().map(|t| t.map(|i| i + base)));
+    (mesh, frames, plane_triangles)
+}
+
+/// Four materials on one light grid (8 x 8): a view-independent Lambertian, a 3 x 2 texel
+/// Phong patch (view grid 4, texels scaled differently) tiled 2.5 times, a Phong with a 6 x 6
+/// view grid and a glossier one with 12 x 12.
+fn four_materials() -> Vec<Material> {
+    let lambert = Btf::lambertian([0.7, 0.6, 0.5], 8).unwrap();
+    let base = Btf::phong([0.5, 0.4, 0.3], [0.4, 0.4, 0.4], 10.0, 8, 4).unwrap();
+    let mut patch = base.clone();
+    patch.spatial = [3, 2];
+    patch.data = [1.0f32, 0.55, 0.8, 0.3, 0.65, 0.9]
+        .iter()
+        .flat_map(|&s| base.data.iter().map(move |v| v.map(|x| x * s)))
+        .collect();
+    let phong6 = Btf::phong([0.2, 0.3, 0.4], [0.5, 0.4, 0.3], 15.0, 8, 6).unwrap();
+    let phong12 = Btf::phong([0.5, 0.3, 0.2], [0.3, 0.3, 0.3], 30.0, 8, 12).unwrap();
+    vec![Material::new(lambert), Material { btf: patch, tiling: 2.5 }, Material::new(phong6), Material::new(phong12)]
+}
+
+#[test]
+fn several_materials_match_cpu_shade() {
+    // Plane quadrants x < 0, z < 0: Lambertian (view-independent); x >= 0: the tiled 3 x 2
+    // patch (view grid 4); x < 0, z >= 0: Phong with a 6 x 6 view grid; the sphere above:
+    // Phong with 12 x 12. Random positive L* per vertex, two eyes (the second through
+    // set_camera). Each pixel covered on both sides is compared with shading::cpu::shade on
+    // the same scene, relative to the pixel's largest channel.
+    //
+    // Pixels are classed by CPU rays cast 1/16 pixel left, right, above and below the centre.
+    // The rasterizer snaps vertices to sub-pixel bits (at least 4 in Vulkan), so that close to
+    // an edge it may pick the neighbouring triangle, and the GPU then shades that triangle's
+    // nearest point (clamped barycentrics):
+    // * interior (all five rays hit the same triangle): the GPU and CPU shade the same point.
+    //   Tolerance as in sphere_with_phong_btf_matches_cpu_shade (same M = 64, view grids up to
+    //   12): 5e-5.
+    // * edge (same material and texel, different triangles): the GPU's point may sit on the
+    //   shared edge, a barycentric distance dw from the CPU's, and random per-vertex L* changes
+    //   by up to its whole range across a triangle, so the error is up to ~dw. With 8
+    //   sub-pixel bits (lavapipe, NVIDIA) dw <= (1/512 pixel) / (the triangle's smallest
+    //   altitude, >= 1 pixel here): we allow 2e-3.
+    // * material, texel or occlusion boundary: skipped (either side is right).
+    let ctx = gpu_or_skip!();
+    let (mesh, frames, plane_triangles) = plane_and_sphere();
+    let materials = four_materials();
+    let ids: Vec<u16> = mesh
+        .triangles
+        .iter()
+        .enumerate()
+        .map(|(t, tri)| {
+            if t >= plane_triangles {
+                return 3;
+            }
+            let c = tri.iter().map(|&i| mesh.positions[i as usize]).sum::<Vec3>() / 3.0;
+            if c.x >= 0.0 {
+                1
+            } else if c.z < 0.0 {
+                0
+            } else {
+                2
+            }
+        })
+        .collect();
+    let m = 64;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let values = (0..mesh.positions.len() * m)
+        .map(|_| [rng.gen_range(0.0..1.0f32), rng.gen_range(0.0..1.0), rng.gen_range(0.0..1.0)])
+        .collect();
+    let lstar = LocalRadiance { vertices: mesh.positions.len(), local_dirs: m, values };
+    let bvh = SceneBvh::build(&mesh.positions, &mesh.triangles);
+    let scene = ShadeScene {
+        mesh: &mesh,
+        frames: &frames,
+        bvh: &bvh,
+        materials: &materials,
+        triangle_materials: Some(&ids),
+        background: Background::Black,
+    };
+    let (w, h) = (96, 72);
+    let eyes = [Vec3::new(0.5, 1.7, 2.0), Vec3::new(-1.9, 1.1, -0.8)];
+    let mut shader = gpu_shader(ctx, &mesh, &frames, &materials, Some(&ids), camera(eyes[0], w, h)).unwrap();
+    // (material, texel of uv * tiling, triangle) of the CPU hit at sub-pixel position (x, y).
+    let key = |cam: &Camera, x: f32, y: f32| {
+        let (o, d) = cam.ray(x, y);
+        primary_hit(&scene, o, d).map(|p| {
+            let id = ids[p.triangle as usize] as usize;
+            (id, materials[id].btf.texel_of(p.uv * materials[id].tiling), p.triangle)
+        })
+    };
+    let (interior_tol, edge_tol) = (5e-5, 2e-3);
+    let mut per_material = [0usize; 4];
+    let mut per_texel = [0usize; 6];
+    for (e, &eye) in eyes.iter().enumerate() {
+        let cam = camera(eye, w, h);
+        shader.set_camera(&cam).unwrap();
+        let gpu = shader.shade_lstar(&lstar).unwrap();
+        let cpu_cam = cpu_camera(&cam);
+        let cpu = shade(&scene, &lstar, &cpu_cam).unwrap();
+        let covered = cpu.mask.iter().filter(|&&c| c).count();
+        let mismatched = (0..gpu.pixels.len()).filter(|&i| gpu.coverage[i] != cpu.mask[i]).count();
+        assert!(mismatched * 200 <= covered.max(200), "eye {e}: {mismatched} coverage mismatches of {covered}");
+        let (mut interior, mut edge, mut boundary) = (0usize, 0usize, 0usize);
+        let (mut worst_interior, mut worst_edge) = (0.0f64, 0.0f64);
+        for y in 0..h {
+            for x in 0..w {
+                let i = (y * w + x) as usize;
+                if !(gpu.coverage[i] && cpu.mask[i]) {
+                    continue;
+                }
+                let (cx, cy) = (x as f32 + 0.5, y as f32 + 0.5);
+                let Some(centre) = key(&cpu_cam, cx, cy) else {
+                    boundary += 1;
+                    continue;
+                };
+                let d = 1.0 / 16.0;
+                let probes =
+                    [(cx - d, cy), (cx + d, cy), (cx, cy - d), (cx, cy + d)].map(|(px, py)| key(&cpu_cam, px, py));
+                if probes.iter().any(|p| p.is_none_or(|p| (p.0, p.1) != (centre.0, centre.1))) {
+                    boundary += 1;
+                    continue;
+                }
+                let on_edge = probes.iter().any(|p| p.is_some_and(|p| p.2 != centre.2));
+                let (id, texel, _) = centre;
+                let (g, c) = (gpu.pixels[i], cpu.image.pixels[i]);
+                let scale = c.iter().fold(0.0f32, |a, &b| a.max(b.abs())) as f64;
+                assert!(scale > 0.0, "eye {e} ({x},{y}): random positive L* must light every pixel");
+                let err = (0..3).map(|k| (g[k] as f64 - c[k] as f64).abs() / scale).fold(0.0, f64::max);
+                let (tol, worst, count) = if on_edge {
+                    (edge_tol, &mut worst_edge, &mut edge)
+                } else {
+                    (interior_tol, &mut worst_interior, &mut interior)
+                };
+                assert!(
+                    err <= tol,
+                    "eye {e} ({x},{y}) material {id} texel {texel} (edge: {on_edge}): GPU {g:?} vs CPU {c:?} (rel {err:e})"
+                );
+                *worst = worst.max(err);
+                *count += 1;
+                per_material[id] += 1;
+                if id == 1 {
+                    per_texel[texel] += 1;
+                }
+            }
+        }
+        eprintln!(
+            "materials, eye {e}: {interior} interior pixels (worst relative error {worst_interior:e}), {edge} on \
+             triangle edges (worst {worst_edge:e}), {boundary} on material/texel/occlusion boundaries skipped, \
+             {mismatched} coverage mismatches"
+        );
+        // Boundaries are thin (a band 1/8 pixel wide around each), edges too.
+        assert!(interior + edge >= covered * 9 / 10, "eye {e}: only {} of {covered} compared", interior + edge);
+        assert!(interior * 10 >= covered * 7, "eye {e}: only {interior} interior pixels of {covered}");
+    }
+    eprintln!("pixels per material {per_material:?}, per patch texel {per_texel:?}");
+    assert!(per_material.iter().all(|&n| n > 200), "every material is seen: {per_material:?}");
+    assert!(per_texel.iter().all(|&n| n > 20), "every texel of the patch is seen: {per_texel:?}");
+}
+
+#[test]
+fn one_material_with_or_without_ids_is_the_same_image() {
+    // Without ids the id binding is a placeholder the shader must not read; with all-zero ids
+    // it is read. Same data, same kernel otherwise: bit-identical images.
+    let ctx = gpu_or_skip!();
+    let (mesh, frames) = plane();
+    let materials = [Material { btf: Btf::phong([0.4, 0.5, 0.6], [0.3; 3], 12.0, 4, 5).unwrap(), tiling: 1.5 }];
+    let m = 16;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
+    let values = (0..mesh.positions.len() * m).map(|_| [rng.gen(), rng.gen(), rng.gen()]).collect();
+    let lstar = LocalRadiance { vertices: mesh.positions.len(), local_dirs: m, values };
+    let cam = camera(Vec3::new(0.3, 1.6, 2.0), 32, 24);
+    let zeros = vec![0u16; mesh.triangles.len()];
+    let without = gpu_shader(ctx, &mesh, &frames, &materials, None, cam).unwrap().shade_lstar(&lstar).unwrap();
+    let with = gpu_shader(ctx, &mesh, &frames, &materials, Some(&zeros), cam).unwrap().shade_lstar(&lstar).unwrap();
+    assert!(without.coverage.iter().filter(|&&c| c).count() > 200);
+    assert_eq!(without, with);
+}
+
+#[test]
+fn bad_materials_are_errors() {
+    let ctx = gpu_or_skip!();
+    let (mesh, frames) = plane();
+    let materials = four_materials();
+    let n = mesh.triangles.len();
+    let ids: Vec<u16> = (0..n).map(|t| (t % 4) as u16).collect();
+    let cam = camera(Vec3::new(0.0, 2.0, 2.0), 8, 8);
+    let err = |mats: &[Material], ids: Option<&[u16]>| match gpu_shader(ctx, &mesh, &frames, mats, ids, cam) {
+        Ok(_) => panic!("accepted"),
+        Err(GpuError::Input(m)) => m,
+        Err(e) => panic!("not an input error: {e}"),
+    };
+    assert!(gpu_shader(ctx, &mesh, &frames, &materials, Some(&ids), cam).is_ok());
+    let e = err(&materials, Some(&ids[1..]));
+    assert!(e.contains(&format!("{} material ids for {n} triangles", n - 1)), "{e}");
+    let mut out_of_range = ids.clone();
+    out_of_range[5] = 4;
+    let e = err(&materials, Some(&out_of_range));
+    assert!(e.contains("triangle 5 uses material 4 of 4"), "{e}");
+    let e = err(&materials, None);
+    assert!(e.contains("4 materials but no per-triangle material ids"), "{e}");
+    for tiling in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+        let mut bad = materials.clone();
+        bad[2].tiling = tiling;
+        let e = err(&bad, Some(&ids));
+        assert!(e.contains("material 2: tiling"), "{tiling}: {e}");
+    }
+    // A table of the wrong size for its declared shape (the 6 x 6 view grid's data declared
+    // with the 12 x 12 grid's).
+    let mut bad = materials.clone();
+    bad[3].btf.data = materials[2].btf.data.clone();
+    let e = err(&bad, Some(&ids));
+    assert!(e.contains("material 3: BTF has"), "{e}");
+    let mut bad = materials.clone();
+    bad[1].btf.data[7][2] = f32::NAN;
+    let e = err(&bad, Some(&ids));
+    assert!(e.contains("material 1: BTF value 7"), "{e}");
+
+    // No material at all (built by hand: gpu_shader reads materials[0]'s light grid).
+    let positions: Vec<[f32; 3]> = mesh.positions.iter().map(|p| p.to_array()).collect();
+    let normals: Vec<[f32; 3]> = frames.iter().map(|f| f.normal.to_array()).collect();
+    let inputs = ShadeInputs {
+        positions: &positions,
+        normals: &normals,
+        tangents: &normals,
+        uvs: None,
+        triangles: &mesh.triangles,
+        materials: &[],
+        triangle_materials: None,
+        light_m: 8,
+        camera: cam,
+    };
+    let e = GpuShader::new(ctx, &inputs).err().unwrap();
+    assert!(e.to_string().contains("no material"), "{e}");
+
+    // Concatenated tables over the binding limit, while each table alone fits: the same
+    // 3 MiB table (64 x 64 texels x 64 lights) referenced by enough materials. Refused before
+    // anything is concatenated or uploaded.
+    let max = ctx.limits().max_storage_buffer_binding_size;
+    let table = vec![[0.0f32; 3]; 64 * 64 * 64];
+    let table_bytes = (table.len() * 12) as u64;
+    let count = max / table_bytes + 1;
+    if count > 100_000 {
+        eprintln!("skipped the binding-size check: the limit {max} needs {count} materials");
+        return;
+    }
+    let big = GpuMaterial { btf_data: &table, btf_spatial: [64, 64], view_m: None, tiling: 1.0 };
+    let many = vec![big; count as usize];
+    let zero_ids = vec![0u32; n];
+    let inputs = ShadeInputs { materials: &many, triangle_materials: Some(&zero_ids), ..inputs };
+    match GpuShader::new(ctx, &inputs) {
+        Err(GpuError::Limit { limit, needed, max: m, .. }) => {
+            assert_eq!((limit, needed, m), ("max_storage_buffer_binding_size", count * table_bytes, max));
+        }
+        Err(e) => panic!("wrong error: {e}"),
+        Ok(_) => panic!("accepted {} bytes of tables over a {max}-byte limit", count * table_bytes),
+    }
+    let inputs = ShadeInputs { materials: &many[..1], triangle_materials: None, ..inputs };
+    assert!(GpuShader::new(ctx, &inputs).is_ok(), "one table of {table_bytes} bytes fits");
 }

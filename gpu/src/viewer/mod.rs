@@ -26,7 +26,7 @@ use crate::context::GpuContext;
 use crate::error::{GpuError, Result};
 use crate::gather::GpuGather;
 use crate::present::{read_texture_rgba8, Rgba8Image, ToneMap, ToneMapSettings};
-use crate::shade::{GpuCamera, GpuShader, ShadeInputs};
+use crate::shade::{GpuCamera, GpuMaterial, GpuShader, ShadeInputs};
 use crate::timing::{median, PassTimer};
 use biscale_core::compress::CompressedForm;
 use biscale_core::sampling::{EnvMap, LightVector};
@@ -74,14 +74,12 @@ pub struct ViewerSetup {
     /// BTF texture coordinates; `None` = all (0, 0).
     pub uvs: Option<Vec<[f32; 2]>>,
     pub triangles: Vec<[u32; 3]>,
-    /// BTF `[texel][view][light]` RGB (`shading::btf::Btf::data`).
-    pub btf_data: Vec<[f32; 3]>,
-    /// BTF patch size in texels.
-    pub btf_spatial: [u32; 2],
-    /// Light grid m of the BTF (`m * m` = the forms' local directions).
+    /// The scene's materials (at least one), all on the light grid `light_m`.
+    pub materials: Vec<ViewerMaterial>,
+    /// Index into `materials` per triangle; `None` only with exactly one material.
+    pub triangle_materials: Option<Vec<u32>>,
+    /// Light grid m of every material (`m * m` = the forms' local directions).
     pub light_m: u32,
-    /// View grid m of the BTF, `None` when view-independent.
-    pub view_m: Option<u32>,
     /// The compressed forms (at least one); Tab cycles through them in this order.
     pub forms: Vec<ViewerForm>,
     /// Index into `forms` shown first.
@@ -105,6 +103,31 @@ pub struct ViewerSetup {
     pub screenshot: Option<Screenshot>,
     /// Start in continuous mode (redraw and re-gather every frame; Space toggles it).
     pub continuous: bool,
+}
+
+/// One material of the viewed scene (the fields of [`GpuMaterial`], owned).
+#[derive(Clone, Debug)]
+pub struct ViewerMaterial {
+    /// BTF `[texel][view][light]` RGB (`shading::btf::Btf::data`).
+    pub btf_data: Vec<[f32; 3]>,
+    /// BTF patch size in texels.
+    pub btf_spatial: [u32; 2],
+    /// View grid m of the BTF, `None` when view-independent.
+    pub view_m: Option<u32>,
+    /// Patch repetitions per unit of uv (`shading::cpu::Material::tiling`).
+    pub tiling: f32,
+}
+
+impl ViewerMaterial {
+    /// The borrowed form [`GpuShader::new`] takes.
+    pub fn as_gpu(&self) -> GpuMaterial<'_> {
+        GpuMaterial {
+            btf_data: &self.btf_data,
+            btf_spatial: self.btf_spatial,
+            view_m: self.view_m,
+            tiling: self.tiling,
+        }
+    }
 }
 
 /// What the worker thread sends back: a light vector for a rotation.
@@ -154,6 +177,10 @@ impl ViewerSetup {
                 ));
             }
         }
+        // The materials and their ids, as the shader will check them (before a window opens).
+        let materials: Vec<GpuMaterial> = self.materials.iter().map(ViewerMaterial::as_gpu).collect();
+        crate::shade::material_headers(&materials, local as u64)?;
+        crate::shade::check_material_ids(self.triangle_materials.as_deref(), materials.len(), self.triangles.len())?;
         if self.env.width == 0 || self.env.height == 0 || self.env.pixels.len() != self.env.width * self.env.height {
             return bad("empty or inconsistent environment map".into());
         }
@@ -169,19 +196,23 @@ impl ViewerSetup {
         Ok(())
     }
 
-    fn shade_inputs(&self, camera: GpuCamera) -> ShadeInputs<'_> {
-        ShadeInputs {
-            positions: &self.positions,
-            normals: &self.normals,
-            tangents: &self.tangents,
-            uvs: self.uvs.as_deref(),
-            triangles: &self.triangles,
-            btf_data: &self.btf_data,
-            btf_spatial: self.btf_spatial,
-            light_m: self.light_m,
-            view_m: self.view_m,
-            camera,
-        }
+    /// A shader for this scene seen by `camera` (whose size is the image's).
+    fn shader(&self, ctx: &GpuContext, camera: GpuCamera) -> Result<GpuShader> {
+        let materials: Vec<GpuMaterial> = self.materials.iter().map(ViewerMaterial::as_gpu).collect();
+        GpuShader::new(
+            ctx,
+            &ShadeInputs {
+                positions: &self.positions,
+                normals: &self.normals,
+                tangents: &self.tangents,
+                uvs: self.uvs.as_deref(),
+                triangles: &self.triangles,
+                materials: &materials,
+                triangle_materials: self.triangle_materials.as_deref(),
+                light_m: self.light_m,
+                camera,
+            },
+        )
     }
 }
 
@@ -373,8 +404,7 @@ impl App {
             color_space: wgpu::SurfaceColorSpace::Auto,
         };
         ctx.scoped("configuring the surface", || surface.configure(&ctx.device, &config))?;
-        let shader =
-            GpuShader::new(&ctx, &self.setup.shade_inputs(self.state.orbit.camera(config.width, config.height)))?;
+        let shader = self.setup.shader(&ctx, self.state.orbit.camera(config.width, config.height))?;
         let gathers = self
             .setup
             .forms
@@ -501,7 +531,7 @@ impl App {
         let (w, h) = (gpu.config.width, gpu.config.height);
         // Resized: a shader for the new size (the camera's aspect follows the window).
         if gpu.shader.size() != (w, h) {
-            gpu.shader = GpuShader::new(&gpu.ctx, &setup.shade_inputs(s.orbit.camera(w, h)))?;
+            gpu.shader = setup.shader(&gpu.ctx, s.orbit.camera(w, h))?;
             gpu.bind_groups.iter_mut().for_each(|b| *b = None);
         }
         let frame = match gpu.surface.get_current_texture() {

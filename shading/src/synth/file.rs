@@ -324,8 +324,24 @@ pub fn load_btf(path: &Path) -> Result<Btf> {
     // The declared length matched the file's and the dimensions: read the rest.
     bytes.resize(header.total as usize, 0);
     file.read_exact(&mut bytes[head_len..]).map_err(io)?;
+    decode_body(&bytes, header, &fail)
+}
+
+/// Decode a whole BTF file held in memory (what [`encode_btf`] returns), with the same checks
+/// as [`load_btf`]; `source` names it in errors. Used to give a BTF exactly the values its
+/// encoding stores, whether or not it went through a file.
+pub fn decode_btf(bytes: &[u8], source: &Path) -> Result<Btf> {
+    let fail = |message: String| ShadingError::File {
+        path: source.into(),
+        message,
+    };
+    let header = parse_header(bytes, bytes.len() as u64, &fail)?;
+    decode_body(&bytes[..header.total as usize], header, &fail)
+}
+
+fn decode_body(bytes: &[u8], header: Header, fail: &dyn Fn(String) -> ShadingError) -> Result<Btf> {
     let body = bytes.len() - 4;
-    let stored = le_u32(&bytes, body);
+    let stored = le_u32(bytes, body);
     let computed = crc32fast::hash(&bytes[..body]);
     if stored != computed {
         return Err(fail(format!("checksum mismatch (stored {stored:#010x}, computed {computed:#010x}): the file is corrupt")));

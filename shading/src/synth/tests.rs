@@ -553,6 +553,10 @@ fn files_round_trip_and_corruption_is_an_error_naming_the_file() {
     // absolute <= 2^-25 below that (subnormal spacing 6e-8, half of it for rounding).
     save_btf(&btf, &path, BtfEncoding::F16).unwrap();
     let h = load_btf(&path).unwrap();
+    // In memory, the same bytes decode to the same table as the file.
+    let bytes = encode_btf(&btf, BtfEncoding::F16).unwrap();
+    assert_eq!(decode_btf(&bytes, &path).unwrap(), h);
+    assert!(decode_btf(&bytes[..bytes.len() - 1], &path).is_err(), "truncated in memory");
     for (a, b) in btf.data.iter().flatten().zip(h.data.iter().flatten()) {
         assert!((a - b).abs() <= a.abs() / 2048.0 + 3e-8, "{a} vs {b}");
     }
