@@ -132,3 +132,93 @@ fn infinite_env_map_value_is_rejected() {
     let err = run_err(&config_with(dir.path(), "m.obj", "env_map = \"sky.exr\""));
     assert!(err.contains("x=0, y=0"), "{err}");
 }
+
+/// A config over `m.obj` (written from `obj`) with the given material tables.
+fn material_config(dir: &Path, obj: &str, materials: &str) -> std::path::PathBuf {
+    std::fs::write(dir.join("m.obj"), obj).unwrap();
+    write_config(
+        dir,
+        "mat",
+        &format!(
+            "name = \"mat\"\n[scene]\nmesh = \"m.obj\"\n{materials}\n[lighting]\n{SKY}\n[transfer]\ncubemap_resolution = 4\n\
+             visibility_resolution = 8\nlocal_grid = 2\n[[compressors]]\nkind = \"sparse\"\n[runtime]\nwidth = 16\nheight = 16\nrepeats = 1\n"
+        ),
+    )
+}
+
+const TWO_TRIANGLES: &str = "v 0 0 0\nv 1 0 0\nv 1 0 1\nv 0 0 1\nusemtl stone\nf 1 3 2\nusemtl gold\nf 1 4 3\n";
+
+#[test]
+fn an_obj_material_no_entry_names_is_an_error_naming_both() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = material_config(
+        dir.path(),
+        TWO_TRIANGLES,
+        "[[scene.materials]]\nname = \"stone\"\nkind = \"lambertian\"\nalbedo = [0.5, 0.5, 0.5]\n\
+         [[scene.materials]]\nname = \"silver\"\nkind = \"lambertian\"\nalbedo = [0.5, 0.5, 0.5]\n",
+    );
+    let e = run_err(&cfg);
+    assert!(e.contains("m.obj") && e.contains("material \"gold\" (1 triangles)") && e.contains("stone, silver"), "{e}");
+}
+
+#[test]
+fn material_tables_are_checked_with_their_location() {
+    let dir = tempfile::tempdir().unwrap();
+    let lam = "kind = \"lambertian\"\nalbedo = [0.5, 0.5, 0.5]\n";
+    let cases = [
+        (format!("[[scene.materials]]\n{lam}[[scene.materials]]\n{lam}"), "each needs a name"),
+        (format!("[[scene.materials]]\nname = \"a\"\n{lam}[[scene.materials]]\nname = \"a\"\n{lam}"), "used twice"),
+        (format!("[scene.material]\n{lam}[[scene.materials]]\nname = \"a\"\n{lam}"), "not both"),
+        (format!("[scene.material]\n{lam}tiling = -1.0\n"), "tiling must be a positive"),
+        (
+            "[scene.material]\nkind = \"synthesized\"\npattern = \"bumps\"\namplitude = 0.1\nview_grid = 0\n\
+             brdf = { kind = \"phong\", kd = [0.5, 0.5, 0.5], ks = [0.1, 0.1, 0.1], exponent = 8.0 }\n"
+                .to_string(),
+            "view_grid = 0 (no view axis) needs a lambertian brdf",
+        ),
+        (
+            "[scene.material]\nkind = \"synthesized\"\nheight_map = \"nowhere.png\"\namplitude = 0.1\n\
+             brdf = { kind = \"lambertian\", albedo = [0.5, 0.5, 0.5] }\n"
+                .to_string(),
+            "height_map file not found",
+        ),
+    ];
+    for (table, expect) in cases {
+        let cfg = material_config(dir.path(), TWO_TRIANGLES, &table);
+        let e = Experiment::load(&cfg).err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(e.contains(expect) && e.contains("mat.toml:"), "{table}\n=> {e}");
+    }
+}
+
+#[test]
+fn a_height_map_of_the_wrong_shape_is_an_error_naming_the_image() {
+    let dir = tempfile::tempdir().unwrap();
+    image::GrayImage::new(6, 4).save(dir.path().join("h.png")).unwrap();
+    let cfg = material_config(
+        dir.path(),
+        TWO_TRIANGLES,
+        "[scene.material]\nkind = \"synthesized\"\nheight_map = \"h.png\"\namplitude = 0.1\nresolution = 4\nview_grid = 2\n\
+         brdf = { kind = \"lambertian\", albedo = [0.5, 0.5, 0.5] }\n",
+    );
+    let e = run_err(&cfg);
+    assert!(e.contains("h.png") && e.contains("must be square") && e.contains("6x4"), "{e}");
+}
+
+#[test]
+fn an_anisotropic_brdf_on_a_mesh_without_uvs_runs_with_a_warning() {
+    // Repair with a warning: the fixed-axis tangent field stands in for UV tangents.
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = material_config(
+        dir.path(),
+        "v 0 0 0\nv 1 0 0\nv 1 0 1\nv 0 0 1\nf 1 3 2\nf 1 4 3\n",
+        "[scene.material]\nkind = \"synthesized\"\npattern = \"weave\"\namplitude = 0.05\nfrequency = 2\nresolution = 4\nview_grid = 2\n\
+         brdf = { kind = \"ashikhmin_shirley\", rd = [0.3, 0.3, 0.3], rs = [0.2, 0.2, 0.2], nu = 50.0, nv = 5.0 }\n",
+    );
+    let exp = Experiment::load(&cfg).unwrap();
+    let out = dir.path().join("out");
+    let opts = RunOptions { out_dir: Some(out.clone()), cache_dir: None, no_cache: true };
+    let (_, m) = run(&exp, &opts).unwrap();
+    let notes = m.scene.material_notes.join("\n");
+    assert!(notes.contains("anisotropic BRDF on a mesh without texture coordinates"), "{notes}");
+    assert!(notes.contains("material ids: left out"), "{notes}");
+}

@@ -44,6 +44,16 @@ pub fn transfer_key(mesh: &Mesh, s: &TransferSettings) -> u64 {
     h.finish()
 }
 
+/// The run's cache folder (`--cache-dir`, else `<out parent>/.cache`), `None` with `--no-cache`.
+pub fn cache_dir(opts: &RunOptions, out_dir: &Path) -> Option<PathBuf> {
+    if opts.no_cache {
+        return None;
+    }
+    Some(opts.cache_dir.clone().unwrap_or_else(|| {
+        out_dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).join(".cache")
+    }))
+}
+
 pub struct TransferCache {
     dir: PathBuf,
 }
@@ -54,10 +64,7 @@ impl TransferCache {
         if opts.no_cache {
             return None;
         }
-        let dir = opts.cache_dir.clone().unwrap_or_else(|| {
-            out_dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).join(".cache")
-        });
-        Some(Self { dir })
+        cache_dir(opts, out_dir).map(|dir| Self { dir })
     }
 
     pub fn path(&self, key: u64) -> PathBuf {

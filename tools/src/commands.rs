@@ -1,5 +1,6 @@
-//! The smaller commands: `export-matrix` (Matrix Market files for SciPy and friends) and
-//! `diff` (image error between two EXR files).
+//! The smaller commands: `export-matrix` (Matrix Market files for SciPy and friends),
+//! `diff` (image error between two EXR files), `btf` (synthesize a config's materials),
+//! `generate`, `viz` and `view`.
 
 use crate::config::Experiment;
 use crate::pipeline::{self, PipelineError, Result, RunOptions};
@@ -17,7 +18,7 @@ pub fn export_matrix(exp: &Experiment, dir: &Path, opts: &RunOptions) -> Result<
         path: dir.into(),
         source,
     })?;
-    let scene = pipeline::load_scene(exp)?;
+    let scene = pipeline::load_scene(exp, crate::cache::cache_dir(opts, dir).as_deref())?;
     let lighting = pipeline::load_lighting(exp)?;
     let (t, _) = pipeline::transfer_matrix(exp, &scene, opts, dir)?;
     write_mtx(&t, &lighting.light, dir)?;
@@ -89,6 +90,9 @@ pub enum GeneratedScene {
     PlaneSphere,
     /// The grid plane alone (every vertex fully open: the largest biclusters).
     Plane,
+    /// A temple of flat architectural pieces with five materials (`usemtl` ground, steps,
+    /// columns, marble, roof) and planar texture coordinates: the several-BTF example.
+    Temple,
 }
 
 /// Write a generated scene as OBJ (atomically).
@@ -100,6 +104,7 @@ pub fn generate_scene(kind: GeneratedScene, out: &Path) -> Result<biscale_core::
             shapes::uv_sphere(glam::Vec3::new(0.0, 1.001, 0.0), 1.0, 24, 48),
         ]),
         GeneratedScene::Plane => shapes::grid_plane(40, 6.0),
+        GeneratedScene::Temple => crate::temple::build(&crate::temple::TempleOptions::default()),
     };
     write_obj(&mesh, out)?;
     Ok(mesh)
@@ -112,6 +117,15 @@ pub fn subdivide(input: &Path, levels: u32, out: &Path) -> Result<biscale_core::
     for _ in 0..levels {
         mesh = biscale_core::geometry::shapes::subdivide_midpoint(&mesh);
     }
+    write_obj(&mesh, out)?;
+    Ok(mesh)
+}
+
+/// Write the OBJ `input` with cylindrical texture coordinates (about the vertical axis, in
+/// world units; see `shapes::cylindrical_uvs`) to `out`, so patterned BTFs can tile on a mesh
+/// that has none.
+pub fn cylindrical_uv(input: &Path, out: &Path) -> Result<biscale_core::geometry::Mesh> {
+    let mesh = biscale_core::geometry::shapes::cylindrical_uvs(&biscale_core::geometry::Mesh::load_obj(input)?.mesh);
     write_obj(&mesh, out)?;
     Ok(mesh)
 }
@@ -137,7 +151,7 @@ pub fn viz(
         source,
     })?;
     let verr = |e: viz::VizError| PipelineError::Other(format!("viz: {e}"));
-    let scene = pipeline::load_scene(exp)?;
+    let scene = pipeline::load_scene(exp, crate::cache::cache_dir(opts, out).as_deref())?;
     let (t, _) = pipeline::transfer_matrix(exp, &scene, opts, out)?;
     let form = Bicluster::default()
         .compress(
@@ -202,14 +216,14 @@ pub fn viz(
 #[cfg(feature = "viewer")]
 pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &RunOptions) -> Result<()> {
     use biscale_core::compress::CompressContext;
-    use biscale_gpu::{GpuCamera, Screenshot, ViewerForm, ViewerSetup};
+    use biscale_gpu::{GpuCamera, Screenshot, ViewerForm, ViewerMaterial, ViewerSetup};
     let plan = crate::plan::Plan::new(exp);
-    let scene = pipeline::load_scene(exp)?;
-    let lighting = pipeline::load_lighting(exp)?;
     let out = opts
         .out_dir
         .clone()
         .unwrap_or_else(|| Path::new("out").join(exp.name()));
+    let scene = pipeline::load_scene(exp, crate::cache::cache_dir(opts, &out).as_deref())?;
+    let lighting = pipeline::load_lighting(exp)?;
     let (t, _) = pipeline::transfer_matrix(exp, &scene, opts, &out)?;
     let mut forms = vec![];
     for setting in &plan.compressors {
@@ -243,10 +257,19 @@ pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &Run
             .as_ref()
             .map(|u| u.iter().map(|v| v.to_array()).collect()),
         triangles: scene.mesh.triangles.clone(),
-        btf_data: scene.btf.data.clone(),
-        btf_spatial: scene.btf.spatial,
-        light_m: scene.btf.light_grid.m,
-        view_m: scene.btf.view_grid.map(|g| g.m),
+        materials: scene
+            .materials
+            .materials
+            .iter()
+            .map(|m| ViewerMaterial {
+                btf_data: m.btf.data.clone(),
+                btf_spatial: m.btf.spatial,
+                view_m: m.btf.view_grid.map(|g| g.m),
+                tiling: m.tiling,
+            })
+            .collect(),
+        triangle_materials: scene.materials.triangle_materials.as_ref().map(|ids| ids.iter().map(|&i| i as u32).collect()),
+        light_m: scene.materials.materials[0].btf.light_grid.m,
         forms,
         initial_form: 0,
         env: lighting.env,
@@ -267,4 +290,78 @@ pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &Run
         continuous: false,
     };
     biscale_gpu::run_viewer(setup).map_err(|e| PipelineError::Other(format!("viewer: {e}")))
+}
+
+/// One file written by [`btf`].
+pub struct BtfWritten {
+    pub label: String,
+    pub path: std::path::PathBuf,
+    pub preview: Option<std::path::PathBuf>,
+    pub origin: crate::materials::Origin,
+    pub bytes: u64,
+}
+
+/// `biscale btf`: build the BTF of each material of `exp` (or only the one named `only`):
+/// synthesized ones are ray traced or taken from the cache; write each as `<out>/<label>.btf`
+/// (its configured encoding; f32 for analytic ones) and, with `preview`, a contact sheet
+/// `<out>/<label>_preview.png` (rows: views from overhead to grazing; columns: lights from
+/// overhead to grazing, from the +X side).
+pub fn btf(exp: &Experiment, out: &Path, only: Option<&str>, preview: bool, opts: &RunOptions) -> Result<Vec<BtfWritten>> {
+    use crate::config::MaterialConfig;
+    use biscale_shading::synth::{save_btf, save_contact_sheet, BtfEncoding};
+    let configs = exp.materials();
+    let chosen: Vec<&MaterialConfig> = configs.iter().filter(|c| only.is_none_or(|n| c.name() == Some(n))).collect();
+    if chosen.is_empty() {
+        let named: Vec<_> = configs.iter().map(|c| c.label()).collect();
+        return Err(PipelineError::Other(format!(
+            "{}: no material named {:?} (materials: {})",
+            exp.config_path.display(),
+            only.unwrap_or_default(),
+            named.join(", ")
+        )));
+    }
+    std::fs::create_dir_all(out).map_err(|source| PipelineError::Io { path: out.into(), source })?;
+    let cache = crate::cache::cache_dir(opts, out);
+    let light_grid = *exp.file.transfer.local_grid.get_ref();
+    let mut written = vec![];
+    for cfg in chosen {
+        let label = cfg.label();
+        let (btf, origin) = crate::materials::material_btf(cfg, light_grid, cache.as_deref(), &label)?;
+        let encoding = match cfg {
+            MaterialConfig::Synthesized(s) => BtfEncoding::from_name(&s.encoding)?,
+            _ => BtfEncoding::F32,
+        };
+        let stem: String = label.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' }).collect();
+        let path = out.join(format!("{stem}.btf"));
+        save_btf(&btf, &path, encoding)?;
+        let preview_path = if preview {
+            let p = out.join(format!("{stem}_preview.png"));
+            let lights = sweep_bins(&btf.light_grid);
+            let views = btf.view_grid.as_ref().map_or(vec![0], sweep_bins);
+            save_contact_sheet(&btf, &lights, &views, &p)?;
+            Some(p)
+        } else {
+            None
+        };
+        let bytes = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
+        written.push(BtfWritten { label, path, preview: preview_path, origin, bytes });
+    }
+    Ok(written)
+}
+
+/// Up to four distinct bins of `grid` from overhead to grazing along +X (elevations 90, 60,
+/// 35 and 12 degrees): the rows and columns of a contact sheet.
+fn sweep_bins(grid: &biscale_core::sampling::HemisphereGrid) -> Vec<usize> {
+    let mut bins: Vec<usize> = vec![];
+    for elevation in [90.0f32, 60.0, 35.0, 12.0] {
+        let e = elevation.to_radians();
+        let d = glam::Vec3::new(e.cos(), 0.0, e.sin());
+        let best = (0..grid.len() as u32)
+            .max_by(|&a, &b| grid.bin_direction(a).dot(d).total_cmp(&grid.bin_direction(b).dot(d)))
+            .unwrap_or(0) as usize;
+        if !bins.contains(&best) {
+            bins.push(best);
+        }
+    }
+    bins
 }

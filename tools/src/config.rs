@@ -8,7 +8,7 @@
 //! name = "bunny"
 //! [scene]
 //! mesh = "../assets/meshes/bunny.obj"
-//! [scene.material]
+//! [scene.material]                 # or several [[scene.materials]], each with a name
 //! kind = "lambertian"
 //! albedo = [0.8, 0.8, 0.8]
 //! [lighting]
@@ -116,33 +116,209 @@ pub struct ExperimentFile {
 pub struct SceneConfig {
     /// OBJ mesh, relative to the config file.
     pub mesh: Spanned<PathBuf>,
+    /// One material for the whole mesh (ignores the OBJ's material names).
     #[serde(default)]
-    pub material: MaterialConfig,
+    pub material: Option<Spanned<MaterialConfig>>,
+    /// Several materials, matched by `name` to the OBJ's `usemtl` (or group) names.
+    #[serde(default)]
+    pub materials: Vec<Spanned<MaterialConfig>>,
 }
 
-/// The material (one per scene for now).
+/// One material: a BTF (analytic or synthesized) and its tiling.
+///
+/// `name` matches the OBJ's `usemtl` names (or its `g`/`o` groups when it has no `usemtl`;
+/// faces before any `usemtl` are named `default`); it may be left out when the scene has one
+/// material. `tiling` is the number of patch repetitions per unit of texture coordinate.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum MaterialConfig {
     /// View-independent diffuse BTF: `albedo / pi * cos`.
-    Lambertian { albedo: [f32; 3] },
+    Lambertian {
+        #[serde(default)]
+        name: Option<String>,
+        albedo: [f32; 3],
+        #[serde(default = "default_tiling")]
+        tiling: f32,
+    },
     /// Normalized modified Phong, view-dependent (`view_grid` x `view_grid` view samples).
     Phong {
+        #[serde(default)]
+        name: Option<String>,
         kd: [f32; 3],
         ks: [f32; 3],
         exponent: f32,
         #[serde(default = "default_view_grid")]
         view_grid: u32,
+        #[serde(default = "default_tiling")]
+        tiling: f32,
     },
+    /// A BTF ray traced from a tileable height-field patch (`biscale_shading::synth`),
+    /// generated on demand and cached by content.
+    Synthesized(SynthesizedConfig),
+}
+
+/// The parameters of a synthesized BTF (see `biscale_shading::synth::BtfSpec`).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SynthesizedConfig {
+    #[serde(default)]
+    pub name: Option<String>,
+    #[serde(default = "default_tiling")]
+    pub tiling: f32,
+    /// Procedural pattern: bumps, weave, stucco, holes, bricks, scales (or `height_map`).
+    #[serde(default)]
+    pub pattern: Option<String>,
+    /// Grayscale height image (relative to the config file) instead of a pattern.
+    #[serde(default)]
+    pub height_map: Option<PathBuf>,
+    /// Height scale in patch units (0 gives a flat patch, tabulated analytically).
+    pub amplitude: f32,
+    /// Features per patch side (pattern only).
+    #[serde(default = "default_frequency")]
+    pub frequency: u32,
+    #[serde(default)]
+    pub seed: u64,
+    /// Texels per patch side (32 or 64 in the paper's setting).
+    #[serde(default = "default_resolution")]
+    pub resolution: u32,
+    /// View grid side; 0 drops the view axis (the diffuse special case, Lambertian only).
+    #[serde(default = "default_view_grid")]
+    pub view_grid: u32,
+    /// View rays per texel side.
+    #[serde(default = "default_supersample")]
+    pub supersample: u32,
+    /// One bounce of meso-scale interreflection.
+    #[serde(default)]
+    pub interreflection: bool,
+    #[serde(default = "default_bounce_rays")]
+    pub bounce_rays: u32,
+    /// Color texture scaling the diffuse term (relative to the config file).
+    #[serde(default)]
+    pub albedo_map: Option<PathBuf>,
+    /// How the table is stored in the cache and used: f32, f16 (default) or u8.
+    #[serde(default = "default_encoding")]
+    pub encoding: String,
+    /// The meso-scale BRDF.
+    pub brdf: BrdfConfig,
+}
+
+/// A meso-scale BRDF of a synthesized material.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum BrdfConfig {
+    Lambertian { albedo: [f32; 3] },
+    Phong { kd: [f32; 3], ks: [f32; 3], exponent: f32 },
+    /// Anisotropic: `nu` along the tangent, `nv` along the bitangent.
+    AshikhminShirley { rd: [f32; 3], rs: [f32; 3], nu: f32, nv: f32 },
 }
 
 fn default_view_grid() -> u32 {
     12
 }
+fn default_tiling() -> f32 {
+    1.0
+}
+fn default_frequency() -> u32 {
+    4
+}
+fn default_resolution() -> u32 {
+    32
+}
+fn default_supersample() -> u32 {
+    2
+}
+fn default_bounce_rays() -> u32 {
+    16
+}
+fn default_encoding() -> String {
+    "f16".into()
+}
 
 impl Default for MaterialConfig {
     fn default() -> Self {
-        MaterialConfig::Lambertian { albedo: [0.8, 0.8, 0.8] }
+        MaterialConfig::Lambertian { name: None, albedo: [0.8, 0.8, 0.8], tiling: 1.0 }
+    }
+}
+
+impl MaterialConfig {
+    /// The OBJ material name this entry matches, if given.
+    pub fn name(&self) -> Option<&str> {
+        match self {
+            MaterialConfig::Lambertian { name, .. } | MaterialConfig::Phong { name, .. } => name.as_deref(),
+            MaterialConfig::Synthesized(s) => s.name.as_deref(),
+        }
+    }
+
+    /// Patch repetitions per unit of texture coordinate.
+    pub fn tiling(&self) -> f32 {
+        match self {
+            MaterialConfig::Lambertian { tiling, .. } | MaterialConfig::Phong { tiling, .. } => *tiling,
+            MaterialConfig::Synthesized(s) => s.tiling,
+        }
+    }
+
+    /// `lambertian`, `phong` or `synthesized`.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            MaterialConfig::Lambertian { .. } => "lambertian",
+            MaterialConfig::Phong { .. } => "phong",
+            MaterialConfig::Synthesized(_) => "synthesized",
+        }
+    }
+
+    /// A label for plans and reports: the name, else the kind.
+    pub fn label(&self) -> String {
+        self.name().map_or_else(|| self.kind().to_string(), str::to_string)
+    }
+}
+
+/// What is wrong with a material entry, if anything (ranges only; files are checked by the
+/// caller, which resolves their paths).
+fn check_material(m: &MaterialConfig) -> Result<(), String> {
+    let rgb_ok = |v: &[f32; 3]| v.iter().all(|x| x.is_finite() && *x >= 0.0);
+    if !(m.tiling().is_finite() && m.tiling() > 0.0) {
+        return Err(format!("tiling must be a positive finite number, got {}", m.tiling()));
+    }
+    if let Some(n) = m.name() {
+        if n.trim().is_empty() {
+            return Err("name must not be empty".into());
+        }
+    }
+    match m {
+        MaterialConfig::Lambertian { albedo, .. } if !rgb_ok(albedo) => Err("albedo must be finite and >= 0".into()),
+        MaterialConfig::Phong { kd, ks, exponent, view_grid, .. } => {
+            if !(exponent.is_finite() && *exponent >= 0.0) || *view_grid == 0 || *view_grid > 64 {
+                Err("phong needs exponent >= 0 and view_grid in 1..=64".into())
+            } else if !rgb_ok(kd) || !rgb_ok(ks) {
+                Err("kd and ks must be finite and >= 0".into())
+            } else {
+                Ok(())
+            }
+        }
+        MaterialConfig::Synthesized(s) => {
+            match (&s.pattern, &s.height_map) {
+                (Some(_), Some(_)) => return Err("give either pattern or height_map, not both".into()),
+                (None, None) => return Err("a synthesized material needs pattern = \"...\" or height_map = \"...\"".into()),
+                _ => {}
+            }
+            if !(s.amplitude.is_finite() && s.amplitude >= 0.0) {
+                return Err(format!("amplitude must be finite and >= 0, got {}", s.amplitude));
+            }
+            if !(1..=1024).contains(&s.resolution) {
+                return Err(format!("resolution must be in 1..=1024, got {}", s.resolution));
+            }
+            if s.view_grid > 64 {
+                return Err(format!("view_grid must be in 0..=64 (0: no view axis), got {}", s.view_grid));
+            }
+            if s.view_grid == 0 && !matches!(s.brdf, BrdfConfig::Lambertian { .. }) {
+                return Err("view_grid = 0 (no view axis) needs a lambertian brdf".into());
+            }
+            if !["f32", "f16", "u8"].contains(&s.encoding.as_str()) {
+                return Err(format!("encoding must be f32, f16 or u8, got {:?}", s.encoding));
+            }
+            Ok(())
+        }
+        _ => Ok(()),
     }
 }
 
@@ -458,12 +634,35 @@ impl Experiment {
                 *p = full;
             }
         }
-        if let MaterialConfig::Phong { exponent, view_grid, kd, ks } = &file.scene.material {
-            if !(exponent.is_finite() && *exponent >= 0.0) || *view_grid == 0 || *view_grid > 64 {
-                return Err(ConfigError::whole_file(path, "scene.material: phong needs exponent >= 0 and view_grid in 1..=64"));
+        if let (Some(one), Some(first)) = (&file.scene.material, file.scene.materials.first()) {
+            let _ = one;
+            return Err(err(first.span(), "give either [scene.material] or [[scene.materials]], not both".into()));
+        }
+        let mut seen_names: Vec<String> = vec![];
+        let several = file.scene.materials.len() > 1;
+        for m in file.scene.material.iter_mut().chain(file.scene.materials.iter_mut()) {
+            let span = m.span();
+            check_material(m.get_ref()).map_err(|e| err(span.clone(), format!("material: {e}")))?;
+            match m.get_ref().name() {
+                Some(n) if seen_names.iter().any(|s| s == n) => {
+                    return Err(err(span, format!("material name {n:?} is used twice")));
+                }
+                Some(n) => seen_names.push(n.to_string()),
+                None if several => {
+                    return Err(err(span, "with several [[scene.materials]], each needs a name (its OBJ usemtl or group)".into()));
+                }
+                None => {}
             }
-            if kd.iter().chain(ks).any(|v| !v.is_finite() || *v < 0.0) {
-                return Err(ConfigError::whole_file(path, "scene.material: kd and ks must be finite and >= 0"));
+            if let MaterialConfig::Synthesized(syn) = m.get_mut() {
+                for (file_ref, what) in [(&mut syn.height_map, "height_map"), (&mut syn.albedo_map, "albedo_map")] {
+                    if let Some(p) = file_ref {
+                        let full = dir.join(&*p);
+                        if !full.is_file() {
+                            return Err(err(span.clone(), format!("{what} file not found: {}", full.display())));
+                        }
+                        *p = full;
+                    }
+                }
             }
         }
         Ok(Self { config_path: path.to_path_buf(), source, file, mesh_path, env_path })
@@ -471,6 +670,17 @@ impl Experiment {
 
     pub fn name(&self) -> &str {
         self.file.name.get_ref()
+    }
+
+    /// The scene's material entries: `[scene.material]`, or `[[scene.materials]]`, or the
+    /// default white-ish Lambertian when neither is given.
+    pub fn materials(&self) -> Vec<MaterialConfig> {
+        let sc = &self.file.scene;
+        match (&sc.material, sc.materials.is_empty()) {
+            (Some(m), _) => vec![m.get_ref().clone()],
+            (None, false) => sc.materials.iter().map(|m| m.get_ref().clone()).collect(),
+            (None, true) => vec![MaterialConfig::default()],
+        }
     }
 
     /// Transfer settings from the config.

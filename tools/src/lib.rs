@@ -17,11 +17,13 @@ pub mod config;
 #[cfg(feature = "gpu")]
 pub mod gpu_backend;
 pub mod html;
+pub mod materials;
 pub mod metrics;
 pub mod pipeline;
 pub mod plan;
 pub mod plots;
 pub mod registry;
 pub mod report;
+pub mod temple;
 pub mod util;
 pub mod viz;

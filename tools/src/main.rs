@@ -78,6 +78,23 @@ enum Command {
         #[command(subcommand)]
         what: Generate,
     },
+    /// Build the BTFs of a config's materials (synthesized ones are ray traced from their
+    /// height-field patch, or taken from the cache) and write them as .btf files.
+    Btf {
+        config: PathBuf,
+        /// Only the material with this name.
+        #[arg(long)]
+        material: Option<String>,
+        /// Folder for the .btf files (and previews).
+        #[arg(long, default_value = "out/btf")]
+        out: PathBuf,
+        /// Also write a contact sheet PNG per material (the patch under several lights and views).
+        #[arg(long)]
+        preview: bool,
+        /// Do not read or write the BTF cache.
+        #[arg(long)]
+        no_cache: bool,
+    },
     /// Compare two EXR images: prints RMSE, PSNR and relative L2 of A against B.
     Diff {
         a: PathBuf,
@@ -95,6 +112,12 @@ enum Generate {
     Scene {
         #[arg(value_enum)]
         kind: biscale::commands::GeneratedScene,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Add cylindrical texture coordinates (world units, about the vertical axis) to a mesh.
+    Uv {
+        mesh: PathBuf,
         #[arg(long)]
         out: PathBuf,
     },
@@ -154,8 +177,24 @@ fn main() -> anyhow::Result<()> {
             let (mesh, out) = match what {
                 Generate::Scene { kind, out } => (biscale::commands::generate_scene(kind, &out)?, out),
                 Generate::Subdivide { mesh, levels, out } => (biscale::commands::subdivide(&mesh, levels, &out)?, out),
+                Generate::Uv { mesh, out } => (biscale::commands::cylindrical_uv(&mesh, &out)?, out),
             };
             println!("wrote {} ({} vertices, {} triangles)", out.display(), mesh.positions.len(), mesh.triangles.len());
+        }
+        Command::Btf { config, material, out, preview, no_cache } => {
+            let exp = load(&config)?;
+            let opts = RunOptions { out_dir: Some(out.clone()), cache_dir: None, no_cache };
+            for w in biscale::commands::btf(&exp, &out, material.as_deref(), preview, &opts)? {
+                let how = match &w.origin {
+                    biscale::materials::Origin::Analytic => "analytic".to_string(),
+                    biscale::materials::Origin::Synthesized { seconds } => format!("synthesized in {seconds:.1} s"),
+                    biscale::materials::Origin::Cached(p) => format!("from cache {}", p.display()),
+                };
+                println!("{}: wrote {} ({:.2} MB, {how})", w.label, w.path.display(), w.bytes as f64 / 1e6);
+                if let Some(p) = &w.preview {
+                    println!("{}: wrote {}", w.label, p.display());
+                }
+            }
         }
         Command::Diff { a, b, error_image } => {
             let m = biscale::commands::diff(&a, &b, error_image.as_deref())?;

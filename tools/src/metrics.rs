@@ -27,7 +27,10 @@ pub struct SceneMetrics {
     pub vertices: usize,
     pub triangles: usize,
     pub repairs: Vec<String>,
+    /// The materials used: `label (BTF name)`, comma separated.
     pub material: String,
+    /// What the material stage left out or repaired (one line each).
+    pub material_notes: Vec<String>,
 }
 
 #[derive(Debug, Serialize)]

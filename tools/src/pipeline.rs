@@ -1,7 +1,8 @@
 //! The pipeline: wires the stages from an [`Experiment`] and writes the run's output folder
 //! (`plan.txt`, `metrics.json`, `report.md`, `images/`). Stages exchange plain data only.
 
-use crate::config::{Backend, Experiment, MaterialConfig};
+use crate::config::{Backend, Experiment};
+use crate::materials::{load_materials, SceneMaterials};
 use crate::metrics::*;
 use crate::plan::{CompressorSetting, Plan};
 use crate::registry;
@@ -11,7 +12,6 @@ use biscale_core::gather::{reference_product, relative_l2_error, LocalRadiance};
 use biscale_core::geometry::{vertex_frames, Mesh, SceneBvh, VertexFrame};
 use biscale_core::sampling::{EnvMap, LightVector};
 use biscale_core::transfer::{self, TransferMatrix, VisibilitySampler};
-use biscale_shading::btf::Btf;
 use biscale_shading::camera::Camera;
 use biscale_shading::cpu::{shade, Background, Render, ShadeScene};
 use biscale_shading::error::ShadingError;
@@ -53,13 +53,27 @@ pub struct RunOptions {
     pub no_cache: bool,
 }
 
-/// The loaded scene: mesh, frames, BVH, material.
+/// The loaded scene: mesh, frames, BVH, materials.
 pub struct Scene {
     pub mesh: Mesh,
     pub repairs: Vec<String>,
     pub frames: Vec<VertexFrame>,
     pub bvh: SceneBvh,
-    pub btf: Btf,
+    pub materials: SceneMaterials,
+}
+
+impl Scene {
+    /// The CPU shader's view of the scene.
+    pub fn shade_scene<'a>(&'a self, background: Background<'a>) -> ShadeScene<'a> {
+        ShadeScene {
+            mesh: &self.mesh,
+            frames: &self.frames,
+            bvh: &self.bvh,
+            materials: &self.materials.materials,
+            triangle_materials: self.materials.triangle_materials.as_deref(),
+            background,
+        }
+    }
 }
 
 /// The lighting: `L` and the map it came from (for backgrounds).
@@ -69,7 +83,9 @@ pub struct Lighting {
     pub warnings: Vec<String>,
 }
 
-pub fn load_scene(exp: &Experiment) -> Result<Scene> {
+/// Load the mesh and build its frames, BVH and materials; synthesized BTFs are cached in
+/// `cache_dir` when given.
+pub fn load_scene(exp: &Experiment, cache_dir: Option<&Path>) -> Result<Scene> {
     let load = Mesh::load_obj(&exp.mesh_path)?;
     let (frames, fallbacks) = vertex_frames(&load.mesh);
     let mut repairs = load.repairs;
@@ -77,12 +93,8 @@ pub fn load_scene(exp: &Experiment) -> Result<Scene> {
         repairs.push(format!("{fallbacks} vertices had no usable normal (cancelling faces); used +Y"));
     }
     let bvh = SceneBvh::build(&load.mesh.positions, &load.mesh.triangles);
-    let m = *exp.file.transfer.local_grid.get_ref();
-    let btf = match &exp.file.scene.material {
-        MaterialConfig::Lambertian { albedo } => Btf::lambertian(*albedo, m)?,
-        MaterialConfig::Phong { kd, ks, exponent, view_grid } => Btf::phong(*kd, *ks, *exponent, m, *view_grid)?,
-    };
-    Ok(Scene { mesh: load.mesh, repairs, frames, bvh, btf })
+    let materials = load_materials(exp, &load.mesh, cache_dir)?;
+    Ok(Scene { mesh: load.mesh, repairs, frames, bvh, materials })
 }
 
 pub fn load_lighting(exp: &Experiment) -> Result<Lighting> {
@@ -235,9 +247,12 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
         .map(|s| registry::build(s).map(|c| (s.clone(), c)))
         .collect::<Result<_>>()?;
 
-    let scene = load_scene(exp)?;
+    let scene = load_scene(exp, crate::cache::cache_dir(opts, &out_dir).as_deref())?;
     for r in &scene.repairs {
         eprintln!("warning: {}: {r}", exp.mesh_path.display());
+    }
+    for n in &scene.materials.notes {
+        eprintln!("materials: {n}");
     }
     let lighting = load_lighting(exp)?;
     for w in &lighting.warnings {
@@ -266,8 +281,7 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     } else {
         Background::Black
     };
-    let shade_scene =
-        ShadeScene { mesh: &scene.mesh, frames: &scene.frames, bvh: &scene.bvh, btf: &scene.btf, background };
+    let shade_scene = scene.shade_scene(background);
     let cam = camera(exp, &scene.mesh, 1);
     let (base, uncompressed_shade_ms) = timed_shade(&shade_scene, &exact_lstar, &cam, repeats)?;
     let exposure = exp.file.report.exposure;
@@ -385,7 +399,8 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
             vertices: scene.mesh.positions.len(),
             triangles: scene.mesh.triangles.len(),
             repairs: scene.repairs.clone(),
-            material: scene.btf.name.clone(),
+            material: scene.materials.summary(),
+            material_notes: scene.materials.notes.clone(),
         },
         lighting: LightingMetrics {
             source: exp.env_path.as_ref().map_or("constant".into(), |p| p.display().to_string()),

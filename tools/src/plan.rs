@@ -113,17 +113,45 @@ impl Plan {
             ),
             Action::Run,
         );
-        match &f.scene.material {
-            MaterialConfig::Lambertian { .. } => step(
-                "btf",
-                "view axis of the lambertian BTF".into(),
-                Action::LeftOut("a diffuse BTF is view-independent".into()),
-            ),
-            MaterialConfig::Phong { view_grid, .. } => {
-                step("btf", format!("phong BTF with {view_grid}x{view_grid} view directions"), Action::Run)
+        let materials = exp.materials();
+        for m in &materials {
+            let label = m.label();
+            match m {
+                MaterialConfig::Lambertian { .. } => step(
+                    "btf",
+                    format!("{label}: view axis of the lambertian BTF"),
+                    Action::LeftOut("a diffuse BTF is view-independent".into()),
+                ),
+                MaterialConfig::Phong { view_grid, .. } => {
+                    step("btf", format!("{label}: phong BTF with {view_grid}x{view_grid} view directions"), Action::Run)
+                }
+                MaterialConfig::Synthesized(s) if s.amplitude == 0.0 && s.albedo_map.is_none() => step(
+                    "btf",
+                    format!("{label}: ray tracing of a flat patch"),
+                    Action::LeftOut("tabulated analytically from the BRDF".into()),
+                ),
+                MaterialConfig::Synthesized(s) => {
+                    let views = match s.view_grid {
+                        0 => "no view axis (diffuse special case)".to_string(),
+                        v => format!("{v}x{v} views"),
+                    };
+                    step(
+                        "btf",
+                        format!(
+                            "{label}: synthesize {r}x{r} texels x {views} x {m}x{m} lights (cached by content)",
+                            r = s.resolution,
+                            m = t.local_grid
+                        ),
+                        Action::Run,
+                    )
+                }
             }
         }
-        step("btf", "material-id buffer".into(), Action::LeftOut("the scene has one material".into()));
+        if materials.len() == 1 {
+            step("btf", "material-id buffer".into(), Action::LeftOut("the scene has one material".into()));
+        } else {
+            step("btf", format!("material ids per triangle ({} materials)", materials.len()), Action::Run);
+        }
         let mut compressors: Vec<CompressorSetting> = vec![];
         for c in &f.compressors {
             compressors.extend(expand(c.get_ref()));

@@ -19,6 +19,9 @@ pub fn markdown(m: &Metrics, plan: &Plan) -> String {
     for r in &m.scene.repairs {
         let _ = writeln!(s, "- repair: {r}");
     }
+    for n in &m.scene.material_notes {
+        let _ = writeln!(s, "- materials: {n}");
+    }
     let _ = writeln!(
         s,
         "- light: {} at 6x{r}x{r}, rotated {}°, total power (RGB) {:.4} {:.4} {:.4}",

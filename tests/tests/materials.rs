@@ -1,0 +1,157 @@
+//! Several materials per scene, synthesized BTFs through a config, and the temple example:
+//! end to end through `biscale run`, checked against closed-form radiance where there is one.
+
+use biscale::config::Experiment;
+use biscale::pipeline::{run, RunOptions};
+use biscale_core::geometry::{shapes, MaterialIds, Mesh};
+use biscale_shading::image::HdrImage;
+use biscale_tests::{workspace_root, write_config, write_obj};
+
+fn run_in(config: &std::path::Path, out: &std::path::Path) -> biscale::metrics::Metrics {
+    let exp = Experiment::load(config).unwrap();
+    let opts = RunOptions { out_dir: Some(out.to_path_buf()), cache_dir: Some(out.join("cache")), no_cache: false };
+    run(&exp, &opts).unwrap().1
+}
+
+/// An 8 x 8 cell plane of side 2 whose triangles left of x = 0 use `left`, the others `right`.
+fn split_plane(left: &str, right: &str) -> Mesh {
+    let mut mesh = shapes::grid_plane(8, 2.0);
+    let per_triangle = mesh
+        .triangles
+        .iter()
+        .map(|t| u16::from(t.iter().map(|&i| mesh.positions[i as usize].x).sum::<f32>() > 0.0))
+        .collect();
+    mesh.materials = Some(MaterialIds { names: vec![left.into(), right.into()], per_triangle });
+    mesh
+}
+
+const TOP_VIEW: &str = "[runtime.camera]\nposition = [0.0, 3.0, 0.001]\ntarget = [0.0, 0.0, 0.0]\nfov_y_degrees = 30.0";
+
+#[test]
+fn each_half_of_a_plane_shows_its_own_material_under_a_constant_sky() {
+    // An open plane under a constant sky of radiance 1: a Lambertian patch of albedo a shows
+    // radiance a (see end_to_end.rs for the 1% bound). The right half is a *synthesized* flat
+    // patch, which the generator must tabulate analytically and equal exactly the Lambertian
+    // table; a third entry no triangle uses is left out.
+    let dir = tempfile::tempdir().unwrap();
+    write_obj(&dir.path().join("m.obj"), &split_plane("dark", "light"));
+    let cfg = write_config(
+        dir.path(),
+        "two",
+        &format!(
+            "name = \"two\"\n[scene]\nmesh = \"m.obj\"\n\
+             [[scene.materials]]\nname = \"dark\"\nkind = \"lambertian\"\nalbedo = [0.3, 0.3, 0.3]\n\
+             [[scene.materials]]\nname = \"unused\"\nkind = \"phong\"\nkd = [0.1, 0.1, 0.1]\nks = [0.5, 0.5, 0.5]\nexponent = 10.0\n\
+             [[scene.materials]]\nname = \"light\"\nkind = \"synthesized\"\npattern = \"bumps\"\namplitude = 0.0\nview_grid = 0\n\
+             brdf = {{ kind = \"lambertian\", albedo = [0.9, 0.9, 0.9] }}\n\
+             [lighting]\nconstant = [1, 1, 1]\n[transfer]\ncubemap_resolution = 16\nvisibility_resolution = 32\nlocal_grid = 8\n\
+             [[compressors]]\nkind = \"sparse\"\n[runtime]\nwidth = 64\nheight = 64\nrepeats = 1\n{TOP_VIEW}\n[report]\nbackground = false\n"
+        ),
+    );
+    let out = dir.path().join("out");
+    let m = run_in(&cfg, &out);
+    let notes = m.scene.material_notes.join("\n");
+    assert!(notes.contains("unused: left out, no triangle uses it"), "{notes}");
+    assert!(notes.contains("light: flat patch, tabulated analytically"), "{notes}");
+    assert!(!notes.contains("material ids: left out"), "two materials need ids: {notes}");
+    let img = HdrImage::read_exr(&out.join("images/uncompressed.exr")).unwrap().0;
+    let exp = Experiment::load(&cfg).unwrap();
+    let camera = biscale::pipeline::camera(&exp, &split_plane("dark", "light"), 1);
+    let (mut dark, mut light) = (0, 0);
+    for y in 0..64 {
+        for x in 0..64 {
+            let v = img.get(x, y)[1];
+            // Where the pixel's ray meets the plane y = 0 (pixels within 0.02 of the seam
+            // x = 0 may go either way).
+            let (o, d) = camera.ray(x as f32 + 0.5, y as f32 + 0.5);
+            let hit = o + d * (-o.y / d.y);
+            if v == 0.0 || hit.x.abs() < 0.02 {
+                continue;
+            }
+            let expect = if hit.x < 0.0 { 0.3 } else { 0.9 };
+            assert!((v - expect).abs() < 0.01 * expect, "({x},{y}) at x = {}: {v} vs {expect}", hit.x);
+            if hit.x < 0.0 { dark += 1 } else { light += 1 }
+        }
+    }
+    assert!(dark > 500 && light > 500, "{dark} {light}");
+}
+
+#[test]
+fn a_synthesized_btf_is_generated_once_then_read_from_the_cache() {
+    let dir = tempfile::tempdir().unwrap();
+    write_obj(&dir.path().join("m.obj"), &shapes::cylindrical_uvs(&shapes::uv_sphere(glam::Vec3::ZERO, 1.0, 8, 16)));
+    let cfg = write_config(
+        dir.path(),
+        "bumpy",
+        "name = \"bumpy\"\n[scene]\nmesh = \"m.obj\"\n[scene.material]\nkind = \"synthesized\"\npattern = \"bumps\"\n\
+         amplitude = 0.1\nfrequency = 2\nresolution = 8\nview_grid = 3\ntiling = 2.0\n\
+         brdf = { kind = \"phong\", kd = [0.5, 0.4, 0.3], ks = [0.3, 0.3, 0.3], exponent = 20.0 }\n\
+         [lighting]\nconstant = [1, 1, 1]\n[transfer]\ncubemap_resolution = 4\nvisibility_resolution = 8\nlocal_grid = 3\n\
+         [[compressors]]\nkind = \"sparse\"\n[runtime]\nwidth = 24\nheight = 24\nrepeats = 1\n",
+    );
+    let out = dir.path().join("out");
+    run_in(&cfg, &out);
+    let cached: Vec<_> = std::fs::read_dir(out.join("cache"))
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().starts_with("btf-"))
+        .collect();
+    assert_eq!(cached.len(), 1, "one BTF cache file");
+    let first = HdrImage::read_exr(&out.join("images/uncompressed.exr")).unwrap().0;
+    let stamp = cached[0].metadata().unwrap().modified().unwrap();
+    run_in(&cfg, &out);
+    assert_eq!(cached[0].metadata().unwrap().modified().unwrap(), stamp, "not rewritten");
+    let second = HdrImage::read_exr(&out.join("images/uncompressed.exr")).unwrap().0;
+    // The first run already used the table as its encoding (f16) stores it: bit-identical.
+    assert_eq!(first.pixels, second.pixels);
+    // The bumps are visible: the image is not one flat shade of the sphere's lighting.
+    let lit: Vec<f32> = first.pixels.iter().map(|p| p[1]).filter(|&v| v > 0.0).collect();
+    assert!(lit.len() > 100);
+}
+
+#[test]
+fn the_bundled_temple_is_the_generators_and_names_every_configured_material() {
+    let root = workspace_root();
+    let bundled = Mesh::load_obj(&root.join("assets/meshes/temple.obj")).unwrap();
+    assert!(bundled.repairs.is_empty(), "{:?}", bundled.repairs);
+    let generated = biscale::temple::build(&biscale::temple::TempleOptions::default());
+    assert_eq!(bundled.mesh.positions.len(), generated.positions.len(), "regenerate assets/meshes/temple.obj");
+    assert_eq!(bundled.mesh.materials, generated.materials);
+    let exp = Experiment::load(&root.join("configs/temple.toml")).unwrap();
+    let map = biscale::materials::assign(&bundled.mesh, &exp.mesh_path, &exp.materials()).unwrap().expect("per-name map");
+    assert_eq!(map.len(), 5);
+    let plan = biscale::plan::Plan::new(&exp).to_string();
+    assert!(plan.contains("marble: ray tracing of a flat patch"), "{plan}");
+    assert!(plan.contains("ground: synthesize 16x16 texels x no view axis"), "{plan}");
+    assert!(plan.contains("material ids per triangle (5 materials)"), "{plan}");
+}
+
+#[test]
+fn btf_command_writes_tables_and_contact_sheets() {
+    let dir = tempfile::tempdir().unwrap();
+    write_obj(&dir.path().join("m.obj"), &split_plane("a", "b"));
+    let cfg = write_config(
+        dir.path(),
+        "btfs",
+        "name = \"btfs\"\n[scene]\nmesh = \"m.obj\"\n\
+         [[scene.materials]]\nname = \"a\"\nkind = \"synthesized\"\npattern = \"weave\"\namplitude = 0.05\nfrequency = 2\nresolution = 8\nview_grid = 3\n\
+         brdf = { kind = \"phong\", kd = [0.5, 0.4, 0.3], ks = [0.3, 0.3, 0.3], exponent = 20.0 }\n\
+         [[scene.materials]]\nname = \"b\"\nkind = \"lambertian\"\nalbedo = [0.5, 0.5, 0.5]\n\
+         [lighting]\nconstant = [1, 1, 1]\n[transfer]\nlocal_grid = 4\n",
+    );
+    let exp = Experiment::load(&cfg).unwrap();
+    let out = dir.path().join("btf");
+    let opts = RunOptions { out_dir: Some(out.clone()), cache_dir: None, no_cache: true };
+    let written = biscale::commands::btf(&exp, &out, None, true, &opts).unwrap();
+    assert_eq!(written.len(), 2);
+    let a = biscale_shading::synth::load_btf(&written[0].path).unwrap();
+    assert_eq!((a.spatial, a.light_count(), a.view_count()), ([8, 8], 16, 9));
+    for w in &written {
+        let png = image::open(w.preview.as_ref().unwrap()).unwrap();
+        assert!(png.width() >= 32 && png.height() >= 32);
+    }
+    // Only one, by name; an unknown name is an error listing the names.
+    assert_eq!(biscale::commands::btf(&exp, &out, Some("b"), false, &opts).unwrap().len(), 1);
+    let e = biscale::commands::btf(&exp, &out, Some("c"), false, &opts).err().unwrap().to_string();
+    assert!(e.contains("no material named \"c\"") && e.contains("a, b"), "{e}");
+}

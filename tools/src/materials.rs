@@ -1,0 +1,285 @@
+//! A scene's materials: the config's entries turned into BTFs and matched to the mesh.
+//!
+//! * Analytic entries (`lambertian`, `phong`) are tabulated directly (`Btf::lambertian`,
+//!   `Btf::phong`). A `synthesized` entry is ray traced from its height-field patch
+//!   (`biscale_shading::synth`), or loaded from the cache, keyed by a hash of everything that
+//!   determines it (the entry, the files it names, the light grid and the format versions).
+//!   The table a run uses is always the one its encoding stores (it goes through
+//!   `encode_btf` / `decode_btf` even without a cache), so a cached and a fresh run agree
+//!   bit for bit.
+//! * Matching: triangle `t` uses the entry whose `name` is the OBJ's material name of `t`
+//!   (`Mesh::materials`). A single unnamed entry covers the whole mesh. An OBJ material no
+//!   entry names is an error naming both files; an entry no triangle uses is left out (not
+//!   built) and said so.
+//! * Leaving out what a scene does not need: when only one material is used there are no
+//!   per-triangle ids (and no id buffer on the GPU); the diffuse special case drops the view
+//!   axis; a flat patch with an analytic BRDF is tabulated without ray tracing. Each such
+//!   decision is a line in [`SceneMaterials::notes`], printed with the plan.
+
+use crate::config::{BrdfConfig, Experiment, MaterialConfig, SynthesizedConfig};
+use crate::pipeline::{PipelineError, Result};
+use crate::util::{progress_bar, Fnv64};
+use biscale_core::geometry::Mesh;
+use biscale_shading::btf::Btf;
+use biscale_shading::cpu::Material;
+use biscale_shading::synth::{
+    decode_btf, encode_btf, synthesize, AlbedoMap, Brdf, BtfEncoding, BtfSpec, HeightField, Pattern, Recipe,
+    BTF_FORMAT_VERSION,
+};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Bump when the meaning of a synthesized BTF changes, so cached tables are not reused.
+const SYNTH_VERSION: u32 = 1;
+
+/// The materials a scene is shaded with.
+pub struct SceneMaterials {
+    /// The materials used, in the order of [`Self::labels`].
+    pub materials: Vec<Material>,
+    /// Index into `materials` per triangle; `None` when one material covers the mesh.
+    pub triangle_materials: Option<Vec<u16>>,
+    /// The config label (name or kind) of each material.
+    pub labels: Vec<String>,
+    /// What was left out or repaired, one line each (printed with the plan, kept in the report).
+    pub notes: Vec<String>,
+}
+
+impl SceneMaterials {
+    /// One line for reports: `label (btf name)`, comma separated.
+    pub fn summary(&self) -> String {
+        self.labels
+            .iter()
+            .zip(&self.materials)
+            .map(|(l, m)| if *l == m.btf.name { l.clone() } else { format!("{l} ({})", m.btf.name) })
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}
+
+fn shading_err(label: &str) -> impl Fn(biscale_shading::ShadingError) -> PipelineError + '_ {
+    move |e| PipelineError::Other(format!("material {label}: {e}"))
+}
+
+/// The BRDF of a synthesized entry.
+pub fn brdf(cfg: &BrdfConfig) -> Brdf {
+    match *cfg {
+        BrdfConfig::Lambertian { albedo } => Brdf::Lambertian { albedo },
+        BrdfConfig::Phong { kd, ks, exponent } => Brdf::Phong { kd, ks, exponent },
+        BrdfConfig::AshikhminShirley { rd, rs, nu, nv } => Brdf::AshikhminShirley { rd, rs, nu, nv },
+    }
+}
+
+/// The generator's input for a synthesized entry at light grid `light_grid` (paths already
+/// resolved by the config).
+pub fn synth_spec(cfg: &SynthesizedConfig, light_grid: u32, label: &str) -> Result<BtfSpec> {
+    let err = shading_err(label);
+    let height_field = match (&cfg.pattern, &cfg.height_map) {
+        (Some(p), _) => {
+            let pattern = Pattern::from_name(p).map_err(&err)?;
+            HeightField::procedural(&Recipe::new(pattern, cfg.amplitude, cfg.frequency, cfg.seed), cfg.resolution)
+                .map_err(&err)?
+        }
+        (None, Some(path)) => HeightField::from_image(path, cfg.amplitude).map_err(&err)?,
+        (None, None) => return Err(PipelineError::Other(format!("material {label}: no pattern or height_map"))),
+    };
+    let albedo_map = match &cfg.albedo_map {
+        Some(p) => Some(AlbedoMap::from_image(p).map_err(&err)?),
+        None => None,
+    };
+    let spec = BtfSpec {
+        resolution: cfg.resolution,
+        light_grid,
+        view_grid: (cfg.view_grid > 0).then_some(cfg.view_grid),
+        supersample: cfg.supersample,
+        interreflection: cfg.interreflection,
+        bounce_rays: cfg.bounce_rays,
+        albedo_map,
+        name: format!("{label}: {}", describe(cfg)),
+        ..BtfSpec::new(height_field, brdf(&cfg.brdf))
+    };
+    spec.validate().map_err(&err)?;
+    Ok(spec)
+}
+
+/// A short description of a synthesized entry (reports, the BTF's name).
+fn describe(cfg: &SynthesizedConfig) -> String {
+    let shape = match (&cfg.pattern, &cfg.height_map) {
+        (Some(p), _) => format!("{p} x{} a={}", cfg.frequency, cfg.amplitude),
+        (None, Some(h)) => format!("{} a={}", h.file_name().map_or("height map".into(), |n| n.to_string_lossy()), cfg.amplitude),
+        _ => String::new(),
+    };
+    let brdf = match &cfg.brdf {
+        BrdfConfig::Lambertian { .. } => "lambertian".to_string(),
+        BrdfConfig::Phong { exponent, .. } => format!("phong n={exponent}"),
+        BrdfConfig::AshikhminShirley { nu, nv, .. } => format!("ashikhmin-shirley {nu}/{nv}"),
+    };
+    format!("{shape}, {brdf}, {r}x{r}", r = cfg.resolution)
+}
+
+/// Cache key of a synthesized entry: the entry (paths resolved), the bytes of the files it
+/// names, the light grid and the versions of the generator and the file format.
+pub fn synth_key(cfg: &SynthesizedConfig, light_grid: u32) -> Result<u64> {
+    let mut h = Fnv64::default();
+    h.write(&SYNTH_VERSION.to_le_bytes());
+    h.write(&BTF_FORMAT_VERSION.to_le_bytes());
+    h.write(&light_grid.to_le_bytes());
+    // The label is not part of the table's meaning: hash the entry without its name.
+    let unnamed = SynthesizedConfig { name: None, tiling: 1.0, ..cfg.clone() };
+    h.write(format!("{unnamed:?}").as_bytes());
+    for p in [&cfg.height_map, &cfg.albedo_map].into_iter().flatten() {
+        let bytes = std::fs::read(p).map_err(|source| PipelineError::Io { path: p.clone(), source })?;
+        h.write(&bytes);
+    }
+    Ok(h.finish())
+}
+
+/// Where a material's table came from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Origin {
+    /// Tabulated from an analytic BRDF (no ray tracing).
+    Analytic,
+    /// Ray traced now, in this many seconds.
+    Synthesized { seconds: f64 },
+    /// Loaded from this cache file.
+    Cached(PathBuf),
+}
+
+/// The BTF of one entry at light grid `light_grid`; synthesized tables are cached in
+/// `cache_dir` when given. `label` names the entry in messages and progress.
+pub fn material_btf(cfg: &MaterialConfig, light_grid: u32, cache_dir: Option<&Path>, label: &str) -> Result<(Btf, Origin)> {
+    let err = shading_err(label);
+    match cfg {
+        MaterialConfig::Lambertian { albedo, .. } => Ok((Btf::lambertian(*albedo, light_grid).map_err(&err)?, Origin::Analytic)),
+        MaterialConfig::Phong { kd, ks, exponent, view_grid, .. } => {
+            Ok((Btf::phong(*kd, *ks, *exponent, light_grid, *view_grid).map_err(&err)?, Origin::Analytic))
+        }
+        MaterialConfig::Synthesized(s) => {
+            let encoding = BtfEncoding::from_name(&s.encoding).map_err(&err)?;
+            let key = synth_key(s, light_grid)?;
+            let path = cache_dir.map(|d| d.join(format!("btf-{key:016x}-{}.btf", s.encoding)));
+            if let Some(p) = path.as_ref().filter(|p| p.exists()) {
+                match biscale_shading::synth::load_btf(p) {
+                    Ok(btf) => return Ok((btf, Origin::Cached(p.clone()))),
+                    Err(e) => eprintln!("warning: ignoring unusable BTF cache file: {e}"),
+                }
+            }
+            let spec = synth_spec(s, light_grid, label)?;
+            let texels = if spec.height_field.is_flat() && spec.albedo_map.is_none() { 1 } else { (spec.resolution as u64).pow(2) };
+            let pb = progress_bar(texels, &format!("btf {label}"));
+            let tick = |done: usize| pb.set_position(done as u64);
+            let start = Instant::now();
+            let btf = synthesize(&spec, Some(&tick)).map_err(&err)?;
+            let seconds = start.elapsed().as_secs_f64();
+            pb.finish_and_clear();
+            // Use exactly what the encoding stores, cached or not.
+            let bytes = encode_btf(&btf, encoding).map_err(&err)?;
+            let source = path.clone().unwrap_or_else(|| PathBuf::from(format!("<{label} in memory>")));
+            let btf = decode_btf(&bytes, &source).map_err(&err)?;
+            if let Some(p) = &path {
+                let stored = p.parent().map_or(Ok(()), std::fs::create_dir_all).map_err(|e| e.to_string()).and_then(|_| {
+                    crate::util::write_atomic(p, &bytes).map_err(|e| e.to_string())
+                });
+                if let Err(e) = stored {
+                    eprintln!("warning: could not write the BTF cache {}: {e}", p.display());
+                }
+            }
+            Ok((btf, Origin::Synthesized { seconds }))
+        }
+    }
+}
+
+/// Which config entry each of the mesh's material names uses (`None` = one entry for all).
+/// Errors name the OBJ and the material when an OBJ material has no entry.
+pub fn assign(mesh: &Mesh, mesh_path: &Path, configs: &[MaterialConfig]) -> Result<Option<Vec<usize>>> {
+    let single_unnamed = configs.len() == 1 && configs[0].name().is_none();
+    match &mesh.materials {
+        _ if single_unnamed => Ok(None),
+        None if configs.len() == 1 => Ok(None),
+        None => Err(PipelineError::Other(format!(
+            "{}: the config names {} materials but the OBJ has no usemtl or groups to tell them apart",
+            mesh_path.display(),
+            configs.len()
+        ))),
+        Some(ids) => {
+            let counts = ids.counts();
+            let mut of_name = Vec::with_capacity(ids.names.len());
+            for (name, count) in ids.names.iter().zip(counts) {
+                match configs.iter().position(|c| c.name() == Some(name.as_str())) {
+                    Some(i) => of_name.push(i),
+                    None => {
+                        let named: Vec<_> = configs.iter().filter_map(|c| c.name()).collect();
+                        return Err(PipelineError::Other(format!(
+                            "{}: material \"{name}\" ({count} triangles) is not named by any [[scene.materials]] entry (the config names: {})",
+                            mesh_path.display(),
+                            if named.is_empty() { "none".to_string() } else { named.join(", ") }
+                        )));
+                    }
+                }
+            }
+            Ok(Some(of_name))
+        }
+    }
+}
+
+/// Build the experiment's materials for `mesh` (see the module docs).
+pub fn load_materials(exp: &Experiment, mesh: &Mesh, cache_dir: Option<&Path>) -> Result<SceneMaterials> {
+    let configs = exp.materials();
+    let light_grid = *exp.file.transfer.local_grid.get_ref();
+    let mut notes = vec![];
+    let of_name = assign(mesh, &exp.mesh_path, &configs)?;
+    // Which entries are used, in config order, and the compact index of each.
+    let used: Vec<bool> = match (&of_name, &mesh.materials) {
+        (Some(map), Some(ids)) => {
+            let counts = ids.counts();
+            (0..configs.len()).map(|c| map.iter().zip(&counts).any(|(&m, &n)| m == c && n > 0)).collect()
+        }
+        _ => (0..configs.len()).map(|c| c == 0).collect(),
+    };
+    let mut compact = vec![u16::MAX; configs.len()];
+    let (mut materials, mut labels) = (vec![], vec![]);
+    for (c, cfg) in configs.iter().enumerate() {
+        let label = cfg.label();
+        if !used[c] {
+            notes.push(format!("material {label}: left out, no triangle uses it"));
+            continue;
+        }
+        let (btf, origin) = material_btf(cfg, light_grid, cache_dir, &label)?;
+        match &origin {
+            Origin::Analytic => {}
+            Origin::Synthesized { seconds } => eprintln!("btf {label}: synthesized in {seconds:.1} s"),
+            Origin::Cached(p) => eprintln!("btf {label}: loaded from cache {}", p.display()),
+        }
+        if btf.view_grid.is_none() {
+            notes.push(format!("material {label}: view axis left out (view-independent BTF)"));
+        }
+        if let MaterialConfig::Synthesized(s) = cfg {
+            if btf.texel_count() == 1 && s.albedo_map.is_none() {
+                notes.push(format!("material {label}: flat patch, tabulated analytically (no ray tracing)"));
+            }
+            if matches!(s.brdf, BrdfConfig::AshikhminShirley { .. }) && mesh.uvs.is_none() {
+                notes.push(format!(
+                    "material {label}: anisotropic BRDF on a mesh without texture coordinates: tangents come from the \
+                     fixed-axis field (smooth, but the anisotropy direction is not authored)"
+                ));
+            }
+        }
+        if mesh.uvs.is_none() && btf.texel_count() > 1 {
+            notes.push(format!(
+                "material {label}: the mesh has no texture coordinates, so every point shows texel 0 of the patch"
+            ));
+        }
+        compact[c] = materials.len() as u16;
+        materials.push(Material { btf, tiling: cfg.tiling() });
+        labels.push(label);
+    }
+    let triangle_materials = match (&of_name, &mesh.materials) {
+        (Some(map), Some(ids)) if materials.len() > 1 => {
+            Some(ids.per_triangle.iter().map(|&i| compact[map[i as usize]]).collect())
+        }
+        _ => {
+            notes.push("material ids: left out, the scene uses one material".into());
+            None
+        }
+    };
+    Ok(SceneMaterials { materials, triangle_materials, labels, notes })
+}
