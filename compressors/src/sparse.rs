@@ -57,19 +57,27 @@ impl Compressor for Sparse {
         if row_ptr.len() != form.rows + 1 || col_idx.len() != values.len() {
             return Err(CompressError::Malformed("sparse: array lengths do not match the shape".into()));
         }
+        // Row pointers must be monotone and end at nnz, columns in range: checked where read
+        // (`get`), so a corrupt form is an error, never a panic, at no measurable cost.
+        let malformed = |r: usize| CompressError::Malformed(format!("sparse: row {r} has an out-of-range offset or column"));
         let values_out: Vec<[f32; 3]> = (0..form.rows)
             .into_par_iter()
             .map(|r| {
+                let (start, end) = (row_ptr[r] as usize, row_ptr[r + 1] as usize);
+                let (cols, vals) = match (col_idx.get(start..end), values.get(start..end)) {
+                    (Some(c), Some(v)) => (c, v),
+                    _ => return Err(malformed(r)),
+                };
                 let mut acc = [0.0f32; 3];
-                for i in row_ptr[r] as usize..row_ptr[r + 1] as usize {
-                    let (l, v) = (light.power[col_idx[i] as usize], values[i]);
+                for (&k, &v) in cols.iter().zip(vals) {
+                    let l = light.power.get(k as usize).ok_or_else(|| malformed(r))?;
                     for c in 0..3 {
                         acc[c] += v * l[c];
                     }
                 }
-                acc
+                Ok(acc)
             })
-            .collect();
+            .collect::<Result<_, _>>()?;
         Ok(LocalRadiance { vertices: form.rows / form.local_dirs.max(1), local_dirs: form.local_dirs, values: values_out })
     }
 }
@@ -88,5 +96,34 @@ mod tests {
             assert_eq!(form.bytes(), 4 * (t.rows() as u64 + 1) + 8 * t.nnz() as u64);
             assert_lossless(&Sparse, &form, &t, &light);
         }
+    }
+
+    #[test]
+    fn corrupt_offsets_and_columns_are_errors_not_panics() {
+        let t = random_transfer(6, 8, 4, 0.5, 3);
+        let light = random_light(4, 7);
+        let form = Sparse.compress(&t, &CompressContext::default()).unwrap();
+        let corrupt = |array: &str, at: usize, value: u32| {
+            let mut f = form.clone();
+            let a = f.arrays.iter_mut().find(|a| a.name == array).unwrap();
+            let biscale_core::compress::ArrayData::U32(v) = &mut a.data else { panic!("u32 array") };
+            let at = at.min(v.len() - 1);
+            v[at] = value;
+            f
+        };
+        let nnz = t.nnz() as u32;
+        for bad in [
+            corrupt("col_idx", 3, 1_000_000),
+            corrupt("row_ptr", 2, nnz + 5),
+            corrupt("row_ptr", 1, nnz),
+            corrupt("row_ptr", usize::MAX, nnz + 1),
+        ] {
+            let r = Sparse.gather(&bad, &light);
+            // Either an error, or (a still-consistent edit) a result: never a panic.
+            if let Ok(l) = r {
+                assert_eq!(l.values.len(), form.rows);
+            }
+        }
+        assert!(Sparse.gather(&corrupt("col_idx", 0, 1_000_000), &light).is_err());
     }
 }
