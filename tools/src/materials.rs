@@ -94,7 +94,10 @@ pub fn synth_spec(cfg: &SynthesizedConfig, light_grid: u32, label: &str) -> Resu
         interreflection: cfg.interreflection,
         bounce_rays: cfg.bounce_rays,
         albedo_map,
-        name: format!("{label}: {}", describe(cfg)),
+        name: match &cfg.name {
+            Some(n) => format!("{n}: {}", describe(cfg)),
+            None => describe(cfg),
+        },
         ..BtfSpec::new(height_field, brdf(&cfg.brdf))
     };
     spec.validate().map_err(&err)?;

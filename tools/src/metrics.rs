@@ -142,4 +142,9 @@ pub struct GpuRecord {
     pub image_vs_cpu: ImageErrors,
     /// Pixels whose coverage differs between the GPU rasterizer and the CPU ray cast.
     pub coverage_mismatch: usize,
+    /// Covered pixels where GPU and CPU differ by more than 1e-3 of the pixel's value
+    /// (nearest-texel lookups flipping at texel and material boundaries).
+    pub differing_pixels: usize,
+    /// Pixels the CPU render covers.
+    pub covered_pixels: usize,
 }

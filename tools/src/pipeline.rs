@@ -356,8 +356,8 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
         let gpu_record: Option<crate::metrics::GpuRecord> = None;
         if let Some(g) = &gpu_record {
             eprintln!(
-                "{name} on the gpu: gather {:.2} ms, shade {:.2} ms, rel. error of L* {:.2e}, image vs cpu rel. L2 {:.2e}",
-                g.gather_ms, g.shade_ms, g.rel_error_lstar, g.image_vs_cpu.rel_l2
+                "{name} on the gpu: gather {:.2} ms, shade {:.2} ms ({}), rel. error of L* {:.2e}, image vs cpu rel. L2 {:.2e} ({} of {} pixels differ by > 1e-3)",
+                g.gather_ms, g.shade_ms, g.timing, g.rel_error_lstar, g.image_vs_cpu.rel_l2, g.differing_pixels, g.covered_pixels
             );
         }
         let name = &name.replace(':', "-");
