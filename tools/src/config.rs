@@ -634,8 +634,7 @@ impl Experiment {
                 *p = full;
             }
         }
-        if let (Some(one), Some(first)) = (&file.scene.material, file.scene.materials.first()) {
-            let _ = one;
+        if let (Some(_), Some(first)) = (&file.scene.material, file.scene.materials.first()) {
             return Err(err(first.span(), "give either [scene.material] or [[scene.materials]], not both".into()));
         }
         let mut seen_names: Vec<String> = vec![];

@@ -195,7 +195,7 @@ pub fn camera(exp: &Experiment, mesh: &Mesh, downscale: u32) -> Camera {
     let rt = &exp.file.runtime;
     let (w, h) = ((rt.width.get_ref() / downscale).max(1), (rt.height.get_ref() / downscale).max(1));
     let c = &rt.camera;
-    let (min, max) = bounds(mesh);
+    let (min, max) = mesh.bounds();
     let mut cam = Camera::frame_bounds(min, max, w, h, c.azimuth_degrees, c.elevation_degrees, c.fov_y_degrees);
     if let Some(p) = c.position {
         cam.position = p.into();
@@ -204,16 +204,6 @@ pub fn camera(exp: &Experiment, mesh: &Mesh, downscale: u32) -> Camera {
         cam.target = t.into();
     }
     cam
-}
-
-fn bounds(mesh: &Mesh) -> (glam::Vec3, glam::Vec3) {
-    let mut min = glam::Vec3::splat(f32::INFINITY);
-    let mut max = glam::Vec3::splat(f32::NEG_INFINITY);
-    for p in &mesh.positions {
-        min = min.min(*p);
-        max = max.max(*p);
-    }
-    (min, max)
 }
 
 fn median_ms(samples: &mut [f64]) -> f64 {

@@ -36,8 +36,7 @@ struct Builder {
     positions: Vec<Vec3>,
     uvs: Vec<Vec2>,
     triangles: Vec<[u32; 3]>,
-    names: Vec<String>,
-    per_triangle: Vec<u16>,
+    materials: MaterialIds,
     current: u16,
     cell: f32,
     faces: u32,
@@ -53,13 +52,7 @@ impl Builder {
     }
 
     fn material(&mut self, name: &str) {
-        self.current = match self.names.iter().position(|n| n == name) {
-            Some(i) => i as u16,
-            None => {
-                self.names.push(name.to_string());
-                (self.names.len() - 1) as u16
-            }
-        };
+        self.current = self.materials.intern(name).expect("the temple names five materials");
     }
 
     /// The parallelogram `o + s a + t b` (`s, t` in `[0, 1]`), facing `a x b`, meshed as a grid
@@ -83,7 +76,7 @@ impl Builder {
                 // Counter-clockwise about a x b.
                 self.triangles.push([at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
                 self.triangles.push([at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
-                self.per_triangle.extend([self.current; 2]);
+                self.materials.per_triangle.extend([self.current; 2]);
             }
         }
     }
@@ -111,10 +104,10 @@ impl Builder {
         for j in 0..n as usize {
             for i in 0..(n as usize - j) {
                 self.triangles.push([index[j][i], index[j][i + 1], index[j + 1][i]]);
-                self.per_triangle.push(self.current);
+                self.materials.per_triangle.push(self.current);
                 if i + 1 < n as usize - j {
                     self.triangles.push([index[j][i + 1], index[j + 1][i + 1], index[j + 1][i]]);
-                    self.per_triangle.push(self.current);
+                    self.materials.per_triangle.push(self.current);
                 }
             }
         }
@@ -148,7 +141,7 @@ impl Builder {
             positions: self.positions,
             uvs: Some(self.uvs),
             triangles: self.triangles,
-            materials: Some(MaterialIds { names: self.names, per_triangle: self.per_triangle }),
+            materials: Some(self.materials),
         }
     }
 }

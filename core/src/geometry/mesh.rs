@@ -59,6 +59,19 @@ impl MaterialIds {
     /// Name of the material used by faces that come before any `usemtl` (or outside any group).
     pub const DEFAULT_NAME: &'static str = "default";
 
+    /// The index of `name`, appended to `names` when new; `None` when a new name would not fit
+    /// a `u16` index (more than 65,536 names).
+    pub fn intern(&mut self, name: &str) -> Option<u16> {
+        match self.names.iter().position(|n| n == name) {
+            Some(i) => Some(i as u16),
+            None if self.names.len() > u16::MAX as usize => None,
+            None => {
+                self.names.push(name.to_string());
+                Some((self.names.len() - 1) as u16)
+            }
+        }
+    }
+
     /// Triangles per material name, in `names` order.
     pub fn counts(&self) -> Vec<usize> {
         let mut c = vec![0; self.names.len()];
@@ -155,8 +168,7 @@ impl Mesh {
         let mut positions = Vec::new();
         let mut uvs = Vec::new();
         let mut triangles = Vec::new();
-        let mut names: Vec<String> = Vec::new();
-        let mut per_triangle: Vec<u16> = Vec::new();
+        let mut material_ids = MaterialIds::default();
         let mut vertices_with_uv = 0usize;
         let mut all_uvs = true;
         for model in &models {
@@ -190,19 +202,12 @@ impl Mesh {
             } else {
                 MaterialIds::DEFAULT_NAME.to_string()
             };
-            let id = match names.iter().position(|n| *n == name) {
-                Some(i) => i,
-                None => {
-                    names.push(name);
-                    names.len() - 1
-                }
-            };
-            if id > u16::MAX as usize {
+            let Some(id) = material_ids.intern(&name) else {
                 return Err(input_err(format!("more than {} distinct materials", u16::MAX as usize + 1)));
-            }
-            per_triangle.extend(std::iter::repeat(id as u16).take(m.indices.len() / 3));
+            };
+            material_ids.per_triangle.extend(std::iter::repeat_n(id, m.indices.len() / 3));
         }
-        let material_ids = (!used_names.is_empty() || has_groups).then_some(MaterialIds { names, per_triangle });
+        let material_ids = (!used_names.is_empty() || has_groups).then_some(material_ids);
         let mut repairs = Vec::new();
         let uvs = if all_uvs && !positions.is_empty() {
             Some(uvs)

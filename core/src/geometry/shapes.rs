@@ -84,13 +84,16 @@ pub fn merged(parts: &[Mesh]) -> Mesh {
     if parts.iter().any(|m| m.materials.is_some()) {
         let mut ids = MaterialIds::default();
         for m in parts {
+            // Parts come from meshes whose ids fit u16, and a merged mesh of more than 65,536
+            // names is not a test scene: interning cannot fail here.
+            let mut intern = |n: &str| ids.intern(n).expect("fewer than 65,536 material names");
             let local: Vec<u16> = match &m.materials {
-                Some(mm) => mm.names.iter().map(|n| material_index(&mut ids.names, n)).collect(),
-                None => vec![material_index(&mut ids.names, MaterialIds::DEFAULT_NAME)],
+                Some(mm) => mm.names.iter().map(|n| intern(n)).collect(),
+                None => vec![intern(MaterialIds::DEFAULT_NAME)],
             };
             match &m.materials {
                 Some(mm) => ids.per_triangle.extend(mm.per_triangle.iter().map(|&i| local[i as usize])),
-                None => ids.per_triangle.extend(std::iter::repeat(local[0]).take(m.triangles.len())),
+                None => ids.per_triangle.extend(std::iter::repeat_n(local[0], m.triangles.len())),
             }
         }
         out.materials = Some(ids);
@@ -107,17 +110,6 @@ pub fn merged(parts: &[Mesh]) -> Mesh {
     out
 }
 
-/// Index of `name` in `names`, appended when new.
-fn material_index(names: &mut Vec<String>, name: &str) -> u16 {
-    match names.iter().position(|n| n == name) {
-        Some(i) => i as u16,
-        None => {
-            names.push(name.to_string());
-            (names.len() - 1) as u16
-        }
-    }
-}
-
 /// A copy of `mesh` with every triangle using the material `name`.
 pub fn with_material(mut mesh: Mesh, name: &str) -> Mesh {
     mesh.materials = Some(MaterialIds { names: vec![name.to_string()], per_triangle: vec![0; mesh.triangles.len()] });
@@ -132,10 +124,7 @@ pub fn with_material(mut mesh: Mesh, name: &str) -> Mesh {
 /// low-u vertices at `u + circumference`, so interpolation never runs the long way round;
 /// the copies are new vertices (the seam then has two frames per position).
 pub fn cylindrical_uvs(mesh: &Mesh) -> Mesh {
-    let (lo, hi) = mesh
-        .positions
-        .iter()
-        .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(a, b), p| (a.min(*p), b.max(*p)));
+    let (lo, hi) = mesh.bounds();
     let centre = 0.5 * (lo + hi);
     let radius = if mesh.positions.is_empty() {
         1.0
