@@ -268,7 +268,7 @@ pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &Run
                 tiling: m.tiling,
             })
             .collect(),
-        triangle_materials: scene.materials.triangle_materials.as_ref().map(|ids| ids.iter().map(|&i| i as u32).collect()),
+        triangle_materials: scene.materials.triangle_ids_u32(),
         light_m: scene.materials.materials[0].btf.light_grid.m,
         forms,
         initial_form: 0,

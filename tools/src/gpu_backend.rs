@@ -43,8 +43,7 @@ impl GpuBackend {
                 tiling: m.tiling,
             })
             .collect();
-        let ids: Option<Vec<u32>> =
-            scene.materials.triangle_materials.as_ref().map(|ids| ids.iter().map(|&i| i as u32).collect());
+        let ids = scene.materials.triangle_ids_u32();
         let inputs = ShadeInputs {
             positions: &positions,
             normals: &normals,

@@ -45,6 +45,11 @@ pub struct SceneMaterials {
 }
 
 impl SceneMaterials {
+    /// The per-triangle material ids as the GPU shader takes them (32-bit).
+    pub fn triangle_ids_u32(&self) -> Option<Vec<u32>> {
+        self.triangle_materials.as_ref().map(|ids| ids.iter().map(|&i| u32::from(i)).collect())
+    }
+
     /// One line for reports: `label (btf name)`, comma separated.
     pub fn summary(&self) -> String {
         self.labels
