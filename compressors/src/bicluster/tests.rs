@@ -332,33 +332,23 @@ fn with_global_ids(form: &CompressedForm) -> CompressedForm {
     g
 }
 
-/// The unfused gather: full validation, then the accessors, in the same f32 operation order as
-/// the kernel (so results must agree bit for bit).
-#[allow(clippy::needless_range_loop)]
+/// The unfused gather: full validation, then the view's plain accessors, with the kernel's
+/// inner sums ([`bicluster_sum`], [`row_sum`]), so results must agree bit for bit. What this
+/// pins is the fused bounds checking; the arithmetic itself is checked against the f64
+/// product with a derived bound in [`assert_gather_exact`].
 fn gather_via_view(form: &CompressedForm, light: &LightVector) -> Vec<[f32; 3]> {
     let v = BiclusterView::new(form).unwrap();
-    let inv_q = 1.0 / v.value_scale as f32;
+    let lp = prescaled_light(light, v.value_scale);
     let a: Vec<[f32; 3]> = (0..v.biclusters())
         .map(|b| {
             let (ks, ts) = v.bicluster(b);
-            let mut acc = [0.0f32; 3];
-            for (&k, &t) in ks.iter().zip(ts) {
-                for c in 0..3 {
-                    acc[c] += t as f32 * (light.power[k as usize][c] * inv_q);
-                }
-            }
-            acc
+            bicluster_sum(ks, ts, &lp).unwrap()
         })
         .collect();
     (0..v.rows)
         .map(|i| {
-            let mut acc = [0.0f32; 3];
-            for b in v.row_biclusters(i) {
-                for c in 0..3 {
-                    acc[c] += a[b][c];
-                }
-            }
-            acc
+            let ids: Vec<u64> = v.row_biclusters(i).map(|b| b as u64).collect();
+            row_sum(&ids, &a).unwrap()
         })
         .collect()
 }
