@@ -148,18 +148,12 @@ typed_accessor!(u32s, U32, u32);
 typed_accessor!(f32s, F32, f32);
 
 /// What a compressor may use while it works.
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, Default)]
 pub struct CompressContext<'a> {
     /// Seed for every random choice; the same seed gives byte-identical output.
     pub seed: u64,
     /// Called with a fraction in [0, 1] as work completes (may be called from many threads).
     pub progress: Option<&'a (dyn Fn(f64) + Sync)>,
-}
-
-impl Default for CompressContext<'_> {
-    fn default() -> Self {
-        Self { seed: 0, progress: None }
-    }
 }
 
 impl CompressContext<'_> {

@@ -412,7 +412,7 @@ mod tests {
         // The first array's length claims u64::MAX elements: find its length field.
         let form = sample();
         let mut at = PREAMBLE + 4 + form.kind.len() + 24 + 1 + 16 + 4;
-        for (k, _) in &form.meta {
+        for k in form.meta.keys() {
             at += 4 + k.len() + 8;
         }
         at += 4 + 4 + form.arrays[0].name.len() + 1;

@@ -25,7 +25,7 @@ fn run_err(cfg: &Path) -> String {
         Err(e) => e.to_string(),
         Ok(exp) => {
             let opts = RunOptions { out_dir: Some(out.clone()), cache_dir: None, no_cache: true };
-            run(&exp, &opts).err().expect("run must fail").to_string()
+            run(&exp, &opts).expect_err("run must fail").to_string()
         }
     };
     assert!(!out.join("metrics.json").exists() && !out.join("report.md").exists());

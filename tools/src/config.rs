@@ -603,7 +603,7 @@ impl Experiment {
         range(&t.cubemap_resolution, 1, 104, "transfer.cubemap_resolution (N = 6 R^2 must fit 16-bit indices)")?;
         range(&t.visibility_resolution, 1, 1024, "transfer.visibility_resolution")?;
         range(&t.local_grid, 1, 64, "transfer.local_grid")?;
-        if t.visibility_resolution.get_ref() % t.cubemap_resolution.get_ref() != 0 {
+        if !t.visibility_resolution.get_ref().is_multiple_of(*t.cubemap_resolution.get_ref()) {
             return Err(err(
                 t.visibility_resolution.span(),
                 format!(
@@ -696,7 +696,7 @@ impl Experiment {
 fn check_compressor(c: &CompressorConfig) -> Result<(), String> {
     let positive = |s: &Option<Sweep<usize>>, what: &str| -> Result<(), String> {
         if let Some(Sweep(v)) = s {
-            if v.iter().any(|&x| x == 0) {
+            if v.contains(&0) {
                 return Err(format!("{} {what} must be at least 1", c.kind()));
             }
         }

@@ -4,7 +4,7 @@ use anyhow::Context;
 use biscale::config::Experiment;
 use biscale::pipeline::RunOptions;
 use clap::{Parser, Subcommand};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// biscale: all-frequency bi-scale precomputed radiance transfer, as a research pipeline.
 ///
@@ -131,7 +131,7 @@ enum Generate {
     },
 }
 
-fn load(config: &PathBuf) -> anyhow::Result<Experiment> {
+fn load(config: &Path) -> anyhow::Result<Experiment> {
     Ok(Experiment::load(config)?)
 }
 

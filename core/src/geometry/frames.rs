@@ -34,6 +34,8 @@ impl VertexFrame {
         let (nd, td) = (n.as_dvec3().normalize(), t.as_dvec3());
         let t = td - nd * nd.dot(td);
         let len = t.length();
+        // Negated on purpose: a NaN length must also fall back to the normal-only frame.
+        #[allow(clippy::neg_cmp_op_on_partial_ord)]
         if !(len > 1e-6 * td.length()) {
             return Self::from_normal(n);
         }

@@ -141,7 +141,6 @@ impl Mesh {
             single_index: true,
             ignore_points: true,
             ignore_lines: true,
-            ..Default::default()
         };
         // Material names, not material libraries: tobj only resolves `usemtl` names that a
         // loaded `.mtl` defines, so every `mtllib` (and one injected in front of the file)
@@ -487,7 +486,7 @@ fn first_nonfinite_obj_vertex(text: &str) -> Option<(usize, usize)> {
         let mut words = line.split_whitespace();
         if words.next() == Some("v") {
             number += 1;
-            if words.take(3).any(|w| w.parse::<f32>().map_or(false, |x| !x.is_finite())) {
+            if words.take(3).any(|w| w.parse::<f32>().is_ok_and(|x| !x.is_finite())) {
                 return Some((number, line_no + 1));
             }
         }
