@@ -592,18 +592,18 @@ impl Compressor for Cpca {
             return Err(CompressError::Malformed("cpca: array lengths or cluster ids do not match the shape".into()));
         }
         // Projections of the light on every mean and component (f64: a sun may sit beside a
-        // dim sky in L, and the components have both signs).
-        let proj: Vec<[f64; 3]> = basis
+        // dim sky in L, and the components have both signs). The light is laid out per
+        // channel, and each dot product keeps four partial sums per channel: one running sum
+        // would chain every f64 add on the one before (4 cycles each), and the compiler may
+        // not reorder float sums itself. Each projection is stored as RGB padded to four f64
+        // lanes, so the per-row combination below is two packed multiply-adds per term.
+        let channels: [Vec<f64>; 3] = std::array::from_fn(|ch| light.power.iter().map(|l| l[ch] as f64).collect());
+        let proj: Vec<[f64; 4]> = basis
             .par_chunks(n.max(1))
             .take(k * (c + 1))
             .map(|b| {
-                let mut acc = [0.0f64; 3];
-                for (&v, l) in b.iter().zip(&light.power) {
-                    for ch in 0..3 {
-                        acc[ch] += v as f64 * l[ch] as f64;
-                    }
-                }
-                acc
+                let [x, y, z] = split_dot(b, &channels);
+                [x, y, z, 0.0]
             })
             .collect();
         let values: Vec<[f32; 3]> = (0..form.rows)
@@ -615,12 +615,12 @@ impl Compressor for Cpca {
                 }
                 let p = &proj[id * (c + 1)..(id + 1) * (c + 1)];
                 let mut acc = p[0];
-                for (j, &w) in coeffs[r * c..(r + 1) * c].iter().enumerate() {
-                    for ch in 0..3 {
-                        acc[ch] += w as f64 * p[j + 1][ch];
+                for (&w, pj) in coeffs[r * c..(r + 1) * c].iter().zip(&p[1..]) {
+                    for ch in 0..4 {
+                        acc[ch] += w as f64 * pj[ch];
                     }
                 }
-                acc.map(|a| a as f32)
+                [acc[0] as f32, acc[1] as f32, acc[2] as f32]
             })
             .collect();
         Ok(LocalRadiance { vertices: form.rows / form.local_dirs.max(1), local_dirs: form.local_dirs, values })
@@ -677,6 +677,31 @@ pub fn relative_frobenius_error(form: &CompressedForm, t: &TransferMatrix) -> Re
         })
         .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
     Ok(if den > 0.0 { (num / den).sqrt() } else { 0.0 })
+}
+
+/// `sum_i b_i l_i` in f64 for the three channels of `l` at once (`b` is read and widened
+/// once), with four partial sums per channel: element `i` goes to sum `i % 4`, the four added
+/// `(0 + 1) + (2 + 3)`, so consecutive adds do not wait on each other.
+fn split_dot(b: &[f32], l: &[Vec<f64>; 3]) -> [f64; 3] {
+    let mut acc = [[0.0f64; 4]; 3];
+    let n = b.len().min(l[0].len()).min(l[1].len()).min(l[2].len());
+    let (b, l) = (&b[..n], [&l[0][..n], &l[1][..n], &l[2][..n]]);
+    let whole = n / 4 * 4;
+    for i in (0..whole).step_by(4) {
+        let x: [f64; 4] = std::array::from_fn(|e| b[i + e] as f64);
+        for ch in 0..3 {
+            let y = &l[ch][i..i + 4];
+            for e in 0..4 {
+                acc[ch][e] += x[e] * y[e];
+            }
+        }
+    }
+    for i in whole..n {
+        for ch in 0..3 {
+            acc[ch][i - whole] += b[i] as f64 * l[ch][i];
+        }
+    }
+    acc.map(|a| (a[0] + a[1]) + (a[2] + a[3]))
 }
 
 #[cfg(test)]
