@@ -21,6 +21,23 @@ pub struct AdapterSummary {
     pub device_type: String,
     /// Driver name and version string as the driver reports them.
     pub driver: String,
+    /// Whether the adapter advertises timestamp queries (whether they are used is
+    /// [`GpuContext::has_timestamps`]).
+    pub timestamp_queries: bool,
+}
+
+/// Whether stage timings use GPU timestamp queries ([`GpuContext::with_timestamps`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum TimestampPolicy {
+    /// Where the adapter has them, except on a CPU adapter such as lavapipe, whose
+    /// timestamps were measured to be unusable: the default.
+    #[default]
+    Auto,
+    /// Wherever the adapter advertises them, CPU adapters included. For exercising the
+    /// timestamp path on lavapipe (the tests do); the values there mean little.
+    Always,
+    /// Never: every stage is timed by the wall clock from submit until idle.
+    Never,
 }
 
 impl std::fmt::Display for AdapterSummary {
@@ -46,8 +63,13 @@ impl GpuContext {
     /// defaults: the transfer matrix needs large storage buffers) and timestamp queries when
     /// the adapter has them. Fails with [`GpuError::NoAdapter`] when there is no adapter.
     pub fn new() -> Result<Self> {
+        Self::with_timestamps(TimestampPolicy::Auto)
+    }
+
+    /// [`Self::new`] with a choice of how stages are timed.
+    pub fn with_timestamps(policy: TimestampPolicy) -> Result<Self> {
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
-        Self::open(&instance, None).map(|(ctx, _)| ctx)
+        Self::open(&instance, None, policy).map(|(ctx, _)| ctx)
     }
 
     /// Open the default adapter of `instance` that can present to `surface` (the viewer's
@@ -56,6 +78,7 @@ impl GpuContext {
     pub(crate) fn open(
         instance: &wgpu::Instance,
         surface: Option<&wgpu::Surface<'_>>,
+        policy: TimestampPolicy,
     ) -> Result<(Self, wgpu::Adapter)> {
         let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
             power_preference: wgpu::PowerPreference::HighPerformance,
@@ -65,17 +88,24 @@ impl GpuContext {
         }))
         .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
         let info = adapter.get_info();
+        let timestamp_queries = adapter.features().contains(wgpu::Features::TIMESTAMP_QUERY);
         let summary = AdapterSummary {
             name: info.name.clone(),
             backend: format!("{:?}", info.backend),
             device_type: format!("{:?}", info.device_type),
             driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
+            timestamp_queries,
         };
         // A CPU adapter (lavapipe) advertises timestamp queries, but its values were measured
         // to be unusable for multi-pass gathers (bicluster's two passes read 0.09 ms by
-        // timestamps against 40 ms submit-to-idle on the bunny): time it by the wall clock.
-        let timestamps = adapter.features().contains(wgpu::Features::TIMESTAMP_QUERY)
-            && info.device_type != wgpu::DeviceType::Cpu;
+        // timestamps against 40 ms submit-to-idle on the bunny): time it by the wall clock
+        // unless the caller insists.
+        let timestamps = timestamp_queries
+            && match policy {
+                TimestampPolicy::Auto => info.device_type != wgpu::DeviceType::Cpu,
+                TimestampPolicy::Always => true,
+                TimestampPolicy::Never => false,
+            };
         let required_features = if timestamps { wgpu::Features::TIMESTAMP_QUERY } else { wgpu::Features::empty() };
         let limits = adapter.limits();
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {

@@ -38,7 +38,7 @@ pub mod timing;
 #[cfg(feature = "viewer")]
 pub mod viewer;
 
-pub use context::{AdapterSummary, GpuContext};
+pub use context::{AdapterSummary, GpuContext, TimestampPolicy};
 pub use error::{GpuError, Result};
 pub use gather::program::{Count, Factor, GatherProgram, KernelPass, ScratchBuffer, ValidateFn};
 pub use gather::{GatherParams, GpuGather};

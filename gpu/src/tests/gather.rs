@@ -254,6 +254,47 @@ fn gather_timing_gives_finite_medians_per_pass() {
     assert!(biscale_core::gather::relative_l2_error(&got.values, &reference) < 1e-6);
 }
 
+/// The timestamp path (query sets, resolve, read-back, per-pass medians), which the default
+/// policy never takes on a CPU adapter, run by forcing it: on any adapter that advertises
+/// timestamp queries (lavapipe does) a two-pass gather must report per-pass timestamps under
+/// the kernels' names and leave a correct `L*`, and `Never` must fall back to the wall clock.
+#[test]
+fn forced_timestamps_time_every_pass_and_never_means_wall_clock() {
+    use crate::{GpuContext, TimestampPolicy};
+    use biscale_compressors::bicluster::Bicluster;
+    let _ = gpu_or_skip!(); // no adapter at all: skip
+    let t = random_transfer(24, 16, 4, 0.3, 5);
+    let light = random_light(4, 6);
+    let form = Bicluster { block_vertices: 8, ..Bicluster::default() }.compress(&t, &CompressContext::default()).unwrap();
+    let reference = reference_product(&t, &light);
+
+    let never = GpuContext::with_timestamps(TimestampPolicy::Never).unwrap();
+    assert!(!never.has_timestamps());
+    let timing = GpuGather::new(&never, &form).unwrap().time_gather(&light, 2).unwrap();
+    assert_eq!(timing.method, TimingMethod::WallClock);
+    assert!(timing.passes.is_empty());
+
+    let always = GpuContext::with_timestamps(TimestampPolicy::Always).unwrap();
+    assert_eq!(always.has_timestamps(), always.adapter().timestamp_queries, "Always uses every advertised query");
+    if !always.has_timestamps() {
+        eprintln!("SKIPPING the timestamp half: {} has no timestamp queries", always.adapter());
+        return;
+    }
+    let mut g = GpuGather::new(&always, &form).unwrap();
+    let timing = g.time_gather(&light, 3).unwrap();
+    assert_eq!(timing.method, TimingMethod::GpuTimestamps);
+    assert_eq!(timing.repetitions, 3);
+    let names: Vec<&str> = timing.passes.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(names, ["bicluster_sums", "bicluster_rows"]);
+    for p in &timing.passes {
+        assert!(p.median_ms.is_finite() && p.median_ms >= 0.0, "{timing:?}");
+    }
+    assert!(timing.median_ms.is_finite() && timing.median_ms >= 0.0, "{timing:?}");
+    eprintln!("forced timestamps on {}: {timing:?}", always.adapter());
+    let got = g.read_lstar().unwrap();
+    assert!(biscale_core::gather::relative_l2_error(&got.values, &reference) < 1e-6);
+}
+
 /// f16 bits to f32 (normal, subnormal, zero; the forms hold no infinities).
 fn f16_to_f32(b: u16) -> f32 {
     let (sign, exp, frac) = ((b >> 15) as u32, ((b >> 10) & 0x1f) as i32, (b & 0x3ff) as f32);

@@ -661,3 +661,44 @@ fn bad_materials_are_errors() {
     let inputs = ShadeInputs { materials: &many[..1], triangle_materials: None, ..inputs };
     assert!(GpuShader::new(ctx, &inputs).is_ok(), "one table of {table_bytes} bytes fits");
 }
+
+/// The render-pass half of the timestamp path (see the gather test of the same name): with
+/// timestamps forced on, shading reports both passes by name.
+#[test]
+fn forced_timestamps_time_both_shading_passes() {
+    use crate::{GpuContext, TimestampPolicy, TimingMethod};
+    let _ = gpu_or_skip!(); // no adapter at all: skip
+    let ctx = GpuContext::with_timestamps(TimestampPolicy::Always).unwrap();
+    if !ctx.has_timestamps() {
+        eprintln!("SKIPPING: {} has no timestamp queries", ctx.adapter());
+        return;
+    }
+    let mesh = shapes::grid_plane(2, 2.0);
+    let (frames, _) = vertex_frames(&mesh);
+    let btf = Btf::phong([0.5, 0.4, 0.3], [0.3, 0.3, 0.3], 8.0, 8, 4).unwrap();
+    let t = random_transfer(mesh.positions.len(), 64, 2, 0.3, 9);
+    let form = Sparse.compress(&t, &CompressContext::default()).unwrap();
+    let mut gather = GpuGather::new(&ctx, &form).unwrap();
+    gather.gather(&LightVector::constant(2, [1.0, 0.8, 0.6])).unwrap();
+    let positions: Vec<[f32; 3]> = mesh.positions.iter().map(|p| p.to_array()).collect();
+    let normals: Vec<[f32; 3]> = frames.iter().map(|f| f.normal.to_array()).collect();
+    let tangents: Vec<[f32; 3]> = frames.iter().map(|f| f.tangent.to_array()).collect();
+    let uvs: Vec<[f32; 2]> = mesh.uvs.as_ref().unwrap().iter().map(|p| p.to_array()).collect();
+    let inputs = ShadeInputs {
+        positions: &positions,
+        normals: &normals,
+        tangents: &tangents,
+        uvs: Some(&uvs),
+        triangles: &mesh.triangles,
+        materials: &[GpuMaterial { btf_data: &btf.data, btf_spatial: btf.spatial, view_m: Some(4), tiling: 1.0 }],
+        triangle_materials: None,
+        light_m: 8,
+        camera: camera(Vec3::new(0.4, 1.5, 1.8), 32, 24),
+    };
+    let mut shader = GpuShader::new(&ctx, &inputs).unwrap();
+    let timing = shader.time_shade(&gather, 2).unwrap();
+    assert_eq!(timing.method, TimingMethod::GpuTimestamps);
+    let names: Vec<&str> = timing.passes.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(names, ["visibility", "shade"]);
+    assert!(timing.passes.iter().all(|p| p.median_ms.is_finite() && p.median_ms >= 0.0), "{timing:?}");
+}

@@ -372,7 +372,7 @@ impl App {
         let surface = instance
             .create_surface(window.clone())
             .map_err(|e| GpuError::Window(format!("creating the surface: {e}")))?;
-        let (ctx, adapter) = GpuContext::open(&instance, Some(&surface))?;
+        let (ctx, adapter) = GpuContext::open(&instance, Some(&surface), crate::TimestampPolicy::Auto)?;
         let caps = surface.get_capabilities(&adapter);
         // An 8-bit format (the tone map's output is display-referred sRGB), preferring the
         // surface's own order; else whatever it offers first.
