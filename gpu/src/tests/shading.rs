@@ -680,22 +680,8 @@ fn forced_timestamps_time_both_shading_passes() {
     let form = Sparse.compress(&t, &CompressContext::default()).unwrap();
     let mut gather = GpuGather::new(&ctx, &form).unwrap();
     gather.gather(&LightVector::constant(2, [1.0, 0.8, 0.6])).unwrap();
-    let positions: Vec<[f32; 3]> = mesh.positions.iter().map(|p| p.to_array()).collect();
-    let normals: Vec<[f32; 3]> = frames.iter().map(|f| f.normal.to_array()).collect();
-    let tangents: Vec<[f32; 3]> = frames.iter().map(|f| f.tangent.to_array()).collect();
-    let uvs: Vec<[f32; 2]> = mesh.uvs.as_ref().unwrap().iter().map(|p| p.to_array()).collect();
-    let inputs = ShadeInputs {
-        positions: &positions,
-        normals: &normals,
-        tangents: &tangents,
-        uvs: Some(&uvs),
-        triangles: &mesh.triangles,
-        materials: &[GpuMaterial { btf_data: &btf.data, btf_spatial: btf.spatial, view_m: Some(4), tiling: 1.0 }],
-        triangle_materials: None,
-        light_m: 8,
-        camera: camera(Vec3::new(0.4, 1.5, 1.8), 32, 24),
-    };
-    let mut shader = GpuShader::new(&ctx, &inputs).unwrap();
+    let cam = camera(Vec3::new(0.4, 1.5, 1.8), 32, 24);
+    let mut shader = gpu_shader(&ctx, &mesh, &frames, &[Material::new(btf)], None, cam).unwrap();
     let timing = shader.time_shade(&gather, 2).unwrap();
     assert_eq!(timing.method, TimingMethod::GpuTimestamps);
     let names: Vec<&str> = timing.passes.iter().map(|p| p.name.as_str()).collect();
