@@ -457,30 +457,16 @@ impl Compressor for Haar {
         }
         let row_ptr = form.u32s("row_ptr")?;
         let coeff_idx = form.u16s("coeff_idx")?;
-        // Only the shape is checked up front; each row's offsets and each coefficient index
-        // are checked where the row loop reads them (with `row_ptr[0] = 0` and the last entry
-        // equal to the total, the rows' ranges cover every entry), so a corrupt form is an
-        // error exactly as with a separate validation pass, without that O(form size) pass
-        // (it took a third of the gather on the bunny).
-        let shape_ok = |values: usize| {
-            row_ptr.len() == form.rows + 1
-                && values == coeff_idx.len()
-                && row_ptr.first() == Some(&0)
-                && row_ptr.last().map(|&p| p as usize) == Some(coeff_idx.len())
-        };
         // RGB padded to four f64 lanes: two packed multiply-adds per coefficient.
         let lhat: Vec<[f64; 4]> = transform_light(light).into_iter().map(|[x, y, z]| [x, y, z, 0.0]).collect();
-        let values = if form.meta("f16_values")? != 0 {
+        let out = if form.meta("f16_values")? != 0 {
             // Half floats are widened where they are read, not decoded into a copy first.
             let v = form.u16s("coeff_f16")?;
-            shape_ok(v.len()).then(|| rows_dot(form.rows, row_ptr, coeff_idx, v, |b| half::f16::from_bits(b).to_f64(), &lhat))
+            rows_dot(form.rows, row_ptr, coeff_idx, v, |b| half::f16::from_bits(b).to_f64(), &lhat)
         } else {
-            let v = form.f32s("coeff_val")?;
-            shape_ok(v.len()).then(|| rows_dot(form.rows, row_ptr, coeff_idx, v, |x| x as f64, &lhat))
-        };
-        let out = values
-            .ok_or_else(|| CompressError::Malformed("haar: array lengths or indices do not match the shape".into()))?
-            .map_err(CompressError::Malformed)?;
+            rows_dot(form.rows, row_ptr, coeff_idx, form.f32s("coeff_val")?, |x| x as f64, &lhat)
+        }
+        .map_err(CompressError::Malformed)?;
         Ok(LocalRadiance { vertices: form.rows / form.local_dirs.max(1), local_dirs: form.local_dirs, values: out })
     }
 }
@@ -513,8 +499,13 @@ pub fn relative_frobenius_error(form: &CompressedForm, t: &TransferMatrix) -> Re
 }
 
 /// The gather's row loop: `L*_row = sum_e value(e) * lhat[coeff_idx[e]]` over each row's
-/// entries, in f64, rows in parallel chunks. Each row's offsets and each index are checked
-/// where they are read (the caller checked the shape).
+/// entries, in f64, rows in parallel chunks.
+///
+/// Only the shape is checked up front; each row's offsets and each coefficient index are
+/// checked where the loop reads them (with `row_ptr[0] = 0` and the last entry equal to the
+/// total, the rows' ranges cover every entry), so a corrupt form is an error exactly as with
+/// a separate validation pass, without that O(form size) pass (it took a third of the gather
+/// on the bunny).
 fn rows_dot<V: Copy + Sync>(
     rows: usize,
     row_ptr: &[u32],
@@ -523,6 +514,13 @@ fn rows_dot<V: Copy + Sync>(
     widen: impl Fn(V) -> f64 + Sync,
     lhat: &[[f64; 4]],
 ) -> Result<Vec<[f32; 3]>, String> {
+    if row_ptr.len() != rows + 1
+        || values.len() != coeff_idx.len()
+        || row_ptr.first() != Some(&0)
+        || row_ptr.last().map(|&p| p as usize) != Some(coeff_idx.len())
+    {
+        return Err("haar: array lengths or indices do not match the shape".into());
+    }
     let mut out = vec![[0.0f32; 3]; rows];
     out.par_chunks_mut(ROWS_PER_TASK).enumerate().try_for_each(|(chunk, rows)| {
         for (j, o) in rows.iter_mut().enumerate() {
