@@ -936,7 +936,11 @@ mod tests {
                     assert!(matches!(e, CompressError::Malformed(_)), "{e}");
                     rejected += 1;
                 }
-                (want, got) => panic!("trial {trial} ({name}, change {pick}): validation {:?}, gather {:?}", want.is_some(), got.err()),
+                (want, got) => panic!(
+                    "trial {trial} ({name}, change {pick}): validation {:?}, gather {:?}",
+                    want.is_some(),
+                    got.err()
+                ),
             }
         }
         // Both outcomes must occur, or the test proves nothing.

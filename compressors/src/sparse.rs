@@ -59,7 +59,8 @@ impl Compressor for Sparse {
         }
         // Row pointers must be monotone and end at nnz, columns in range: checked where read
         // (`get`), so a corrupt form is an error, never a panic, at no measurable cost.
-        let malformed = |r: usize| CompressError::Malformed(format!("sparse: row {r} has an out-of-range offset or column"));
+        let malformed =
+            |r: usize| CompressError::Malformed(format!("sparse: row {r} has an out-of-range offset or column"));
         let values_out: Vec<[f32; 3]> = (0..form.rows)
             .into_par_iter()
             .map(|r| {
@@ -78,7 +79,11 @@ impl Compressor for Sparse {
                 Ok(acc)
             })
             .collect::<Result<_, _>>()?;
-        Ok(LocalRadiance { vertices: form.rows / form.local_dirs.max(1), local_dirs: form.local_dirs, values: values_out })
+        Ok(LocalRadiance {
+            vertices: form.rows / form.local_dirs.max(1),
+            local_dirs: form.local_dirs,
+            values: values_out,
+        })
     }
 }
 

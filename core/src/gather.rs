@@ -59,7 +59,11 @@ pub fn relative_l2_error(approx: &[Rgb], reference: &[[f64; 3]]) -> f64 {
         }
     }
     if den == 0.0 {
-        if num == 0.0 { 0.0 } else { f64::INFINITY }
+        if num == 0.0 {
+            0.0
+        } else {
+            f64::INFINITY
+        }
     } else {
         (num / den).sqrt()
     }

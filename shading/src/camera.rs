@@ -83,7 +83,13 @@ impl Camera {
         let mut r = f.cross(self.up);
         if r.length_squared() < 1e-12 * self.up.length_squared().max(1e-30) || !r.is_finite() {
             let a = f.abs();
-            let axis = if a.x <= a.y && a.x <= a.z { Vec3::X } else if a.y <= a.z { Vec3::Y } else { Vec3::Z };
+            let axis = if a.x <= a.y && a.x <= a.z {
+                Vec3::X
+            } else if a.y <= a.z {
+                Vec3::Y
+            } else {
+                Vec3::Z
+            };
             r = f.cross(axis);
         }
         let r = r.normalize();
@@ -108,7 +114,14 @@ mod tests {
 
     #[test]
     fn centre_ray_hits_target_and_corners_are_symmetric() {
-        let cam = Camera { position: Vec3::new(0.0, 0.0, 5.0), target: Vec3::ZERO, up: Vec3::Y, fov_y_degrees: 60.0, width: 200, height: 100 };
+        let cam = Camera {
+            position: Vec3::new(0.0, 0.0, 5.0),
+            target: Vec3::ZERO,
+            up: Vec3::Y,
+            fov_y_degrees: 60.0,
+            width: 200,
+            height: 100,
+        };
         cam.validate().unwrap();
         let (o, d) = cam.ray(100.0, 50.0);
         assert_eq!(o, cam.position);
@@ -129,7 +142,9 @@ mod tests {
     fn frame_bounds_fits_the_bounding_sphere() {
         let (min, max) = (Vec3::new(-1.0, 0.0, -2.0), Vec3::new(3.0, 1.0, 0.0));
         let (c, r) = ((min + max) * 0.5, (max - min).length() * 0.5);
-        for (w, h, az, el) in [(640, 480, 30.0, 20.0), (100, 300, -120.0, 60.0), (64, 64, 0.0, 90.0), (64, 64, 45.0, -90.0)] {
+        for (w, h, az, el) in
+            [(640, 480, 30.0, 20.0), (100, 300, -120.0, 60.0), (64, 64, 0.0, 90.0), (64, 64, 45.0, -90.0)]
+        {
             let cam = Camera::frame_bounds(min, max, w, h, az, el, 40.0);
             cam.validate().unwrap();
             let (_, _, f) = cam.basis();
@@ -162,7 +177,8 @@ mod tests {
 
     #[test]
     fn degenerate_cameras_are_rejected_or_handled() {
-        let mut cam = Camera { position: Vec3::Y, target: Vec3::ZERO, up: Vec3::Y, fov_y_degrees: 45.0, width: 8, height: 8 };
+        let mut cam =
+            Camera { position: Vec3::Y, target: Vec3::ZERO, up: Vec3::Y, fov_y_degrees: 45.0, width: 8, height: 8 };
         let (r, u, f) = cam.basis();
         assert!(r.is_normalized() && u.is_normalized() && (f - Vec3::NEG_Y).length() < 1e-6, "up parallel to view");
         cam.width = 0;

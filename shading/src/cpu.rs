@@ -34,7 +34,10 @@ pub enum Background<'a> {
     Black,
     /// The environment map, rotated by `rotation` radians about +Y (as in
     /// [`biscale_core::sampling::LightVector::from_env`]), looked up at the nearest pixel.
-    Env { env: &'a EnvMap, rotation: f64 },
+    Env {
+        env: &'a EnvMap,
+        rotation: f64,
+    },
 }
 
 impl Background<'_> {
@@ -126,7 +129,12 @@ impl ShadeScene<'_> {
             if m.btf.light_grid != first.btf.light_grid {
                 return bad(format!(
                     "material {i} ({}) has a {}x{} light grid, material 0 ({}) {}x{}: all must share the local grid",
-                    m.btf.name, m.btf.light_grid.m, m.btf.light_grid.m, first.btf.name, first.btf.light_grid.m, first.btf.light_grid.m
+                    m.btf.name,
+                    m.btf.light_grid.m,
+                    m.btf.light_grid.m,
+                    first.btf.name,
+                    first.btf.light_grid.m,
+                    first.btf.light_grid.m
                 ));
             }
             if !(m.tiling.is_finite() && m.tiling > 0.0) {
@@ -219,12 +227,7 @@ pub(crate) type HitShader<'a> = dyn Fn(&SurfacePoint, &mut [[f64; 3]], &mut [Rgb
 
 /// Render `camera`'s view: one ray per pixel centre; `f(point, scratch_lstar, scratch_btf)`
 /// returns the radiance of a hit. Rows run in parallel; `row_done` is called after each row.
-pub(crate) fn render_rows(
-    scene: &ShadeScene,
-    camera: &Camera,
-    row_done: &(dyn Fn() + Sync),
-    f: &HitShader,
-) -> Render {
+pub(crate) fn render_rows(scene: &ShadeScene, camera: &Camera, row_done: &(dyn Fn() + Sync), f: &HitShader) -> Render {
     let (w, h) = (camera.width as usize, camera.height as usize);
     let m = scene.light_count();
     let mut image = HdrImage::new(camera.width, camera.height);
@@ -351,8 +354,16 @@ pub(crate) mod tests {
         let light = LightVector::constant(32, [1.0; 3]);
         let lstar = vertex_lstar(&mesh, &frames, &bvh, &sampler, &light);
         let btf = Btf::lambertian([albedo; 3], 8).unwrap();
-        let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, materials: &[Material::new(btf.clone())], triangle_materials: None, background: Background::Black };
-        let camera = Camera::frame_bounds(Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 0.0, 1.0), 48, 40, 30.0, 90.0, 40.0);
+        let scene = ShadeScene {
+            mesh: &mesh,
+            frames: &frames,
+            bvh: &bvh,
+            materials: &[Material::new(btf.clone())],
+            triangle_materials: None,
+            background: Background::Black,
+        };
+        let camera =
+            Camera::frame_bounds(Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 0.0, 1.0), 48, 40, 30.0, 90.0, 40.0);
         let render = shade(&scene, &lstar, &camera).unwrap();
         // (1) The pipeline's conventions, to float precision: every vertex of the plane has the
         // frame (+X, -Z, +Y) and an open sky, so every pixel is albedo times the binned integral
@@ -411,7 +422,14 @@ pub(crate) mod tests {
         let (lo, hi) = b.iter().fold((f64::MAX, f64::MIN), |(l, h), &x| (l.min(x), h.max(x)));
 
         let env = EnvMap::constant(8, 4, [0.1, 0.2, 0.3]);
-        let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, materials: &[Material::new(btf.clone())], triangle_materials: None, background: Background::Env { env: &env, rotation: 0.3 } };
+        let scene = ShadeScene {
+            mesh: &mesh,
+            frames: &frames,
+            bvh: &bvh,
+            materials: &[Material::new(btf.clone())],
+            triangle_materials: None,
+            background: Background::Env { env: &env, rotation: 0.3 },
+        };
         let (w, h) = (96, 96);
         let camera = Camera::frame_bounds(Vec3::splat(-1.0), Vec3::ONE, w, h, 40.0, 25.0, 40.0);
         let render = shade(&scene, &lstar, &camera).unwrap();
@@ -444,7 +462,14 @@ pub(crate) mod tests {
         let (frames, _) = vertex_frames(&mesh);
         let bvh = SceneBvh::build(&mesh.positions, &mesh.triangles);
         let btf = Btf::lambertian([0.5; 3], 8).unwrap();
-        let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, materials: &[Material::new(btf.clone())], triangle_materials: None, background: Background::Black };
+        let scene = ShadeScene {
+            mesh: &mesh,
+            frames: &frames,
+            bvh: &bvh,
+            materials: &[Material::new(btf.clone())],
+            triangle_materials: None,
+            background: Background::Black,
+        };
         let camera = Camera::frame_bounds(Vec3::splat(-1.0), Vec3::ONE, 8, 8, 0.0, 60.0, 40.0);
         assert!(shade(&scene, &LocalRadiance::zeros(9, 64), &camera).is_ok());
         assert!(shade(&scene, &LocalRadiance::zeros(8, 64), &camera).is_err(), "vertex count");
@@ -473,9 +498,24 @@ pub(crate) mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
         let bins: Vec<Rgb> = (0..64).map(|_| [rng.gen(), rng.gen(), rng.gen()]).collect();
         let n = mesh.positions.len();
-        let lstar = LocalRadiance { vertices: n, local_dirs: 64, values: bins.iter().copied().cycle().take(n * 64).collect() };
-        let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, materials: &[Material::new(btf.clone())], triangle_materials: None, background: Background::Black };
-        let camera = Camera { position: Vec3::new(0.3, 1.5, 2.0), target: Vec3::ZERO, up: Vec3::Y, fov_y_degrees: 50.0, width: 32, height: 24 };
+        let lstar =
+            LocalRadiance { vertices: n, local_dirs: 64, values: bins.iter().copied().cycle().take(n * 64).collect() };
+        let scene = ShadeScene {
+            mesh: &mesh,
+            frames: &frames,
+            bvh: &bvh,
+            materials: &[Material::new(btf.clone())],
+            triangle_materials: None,
+            background: Background::Black,
+        };
+        let camera = Camera {
+            position: Vec3::new(0.3, 1.5, 2.0),
+            target: Vec3::ZERO,
+            up: Vec3::Y,
+            fov_y_degrees: 50.0,
+            width: 32,
+            height: 24,
+        };
         let render = shade(&scene, &lstar, &camera).unwrap();
         let mut scratch = vec![[0.0f32; 3]; 64];
         let (mut lo, mut hi, mut count) = (f32::MAX, f32::MIN, 0);
@@ -536,7 +576,8 @@ pub(crate) mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
         let bins: Vec<Rgb> = (0..64).map(|_| [rng.gen(), rng.gen(), rng.gen()]).collect();
         let n = mesh.positions.len();
-        let lstar = LocalRadiance { vertices: n, local_dirs: 64, values: bins.iter().copied().cycle().take(n * 64).collect() };
+        let lstar =
+            LocalRadiance { vertices: n, local_dirs: 64, values: bins.iter().copied().cycle().take(n * 64).collect() };
         let scene = ShadeScene {
             mesh: &mesh,
             frames: &frames,
@@ -545,7 +586,14 @@ pub(crate) mod tests {
             triangle_materials: Some(&ids),
             background: Background::Black,
         };
-        let camera = Camera { position: Vec3::new(0.0, 3.0, 0.5), target: Vec3::ZERO, up: Vec3::Y, fov_y_degrees: 45.0, width: 40, height: 40 };
+        let camera = Camera {
+            position: Vec3::new(0.0, 3.0, 0.5),
+            target: Vec3::ZERO,
+            up: Vec3::Y,
+            fov_y_degrees: 45.0,
+            width: 40,
+            height: 40,
+        };
         let render = shade(&scene, &lstar, &camera).unwrap();
         let mut scratch = vec![[0.0f32; 3]; 64];
         let mut seen = [0usize; 3];
@@ -556,7 +604,12 @@ pub(crate) mod tests {
                 let uv = Vec2::new((p.x + 1.0) / 2.0, (p.z + 1.0) / 2.0);
                 // Skip pixels within 1e-3 of a material or texel boundary (either side is right).
                 let near_edge = |t: f32| (t - t.round()).abs() < 1e-3;
-                if p.x.abs() > 0.999 || p.z.abs() > 0.999 || p.x.abs() < 1e-3 || near_edge(uv.x * 6.0) || near_edge(uv.y * 3.0) {
+                if p.x.abs() > 0.999
+                    || p.z.abs() > 0.999
+                    || p.x.abs() < 1e-3
+                    || near_edge(uv.x * 6.0)
+                    || near_edge(uv.y * 3.0)
+                {
                     continue;
                 }
                 let (btf, tiling) = if p.x < 0.0 { (&red, 1.0) } else { (&patch, 3.0) };
@@ -574,7 +627,10 @@ pub(crate) mod tests {
         assert!(shade(&ShadeScene { triangle_materials: Some(short), ..scene }, &lstar, &camera).is_err());
         let bad: Vec<u16> = ids.iter().map(|&i| i * 5).collect();
         assert!(shade(&ShadeScene { triangle_materials: Some(&bad), ..scene }, &lstar, &camera).is_err());
-        assert!(shade(&ShadeScene { triangle_materials: None, ..scene }, &lstar, &camera).is_err(), "2 materials need ids");
+        assert!(
+            shade(&ShadeScene { triangle_materials: None, ..scene }, &lstar, &camera).is_err(),
+            "2 materials need ids"
+        );
         let coarse = [Material::new(red), Material::new(Btf::lambertian([1.0; 3], 4).unwrap())];
         assert!(shade(&ShadeScene { materials: &coarse, ..scene }, &lstar, &camera).is_err(), "light grids differ");
     }

@@ -101,7 +101,10 @@ impl HdrImage {
         let (_, pixels) = image.layer_data.channel_data.pixels;
         let (width, height) = (size.width(), size.height());
         if width > u32::MAX as usize || height > u32::MAX as usize {
-            return Err(ShadingError::File { path: path.into(), message: format!("image too large: {width}x{height}") });
+            return Err(ShadingError::File {
+                path: path.into(),
+                message: format!("image too large: {width}x{height}"),
+            });
         }
         let img = Self { width: width as u32, height: height as u32, pixels };
         let mut warnings = vec![];
@@ -117,7 +120,11 @@ impl HdrImage {
         let scale = exposure.exp2();
         let enc = |x: f32| {
             let v = (x * scale).clamp(0.0, 1.0);
-            if v.is_nan() { 0 } else { (linear_to_srgb(v) * 255.0 + 0.5) as u8 }
+            if v.is_nan() {
+                0
+            } else {
+                (linear_to_srgb(v) * 255.0 + 0.5) as u8
+            }
         };
         let mut out = image::RgbImage::new(self.width, self.height);
         for (o, p) in out.pixels_mut().zip(&self.pixels) {
@@ -146,9 +153,7 @@ pub fn write_atomic(
 ) -> Result<()> {
     static COUNTER: AtomicU64 = AtomicU64::new(0);
     let io = |source: std::io::Error| ShadingError::Io { path: path.into(), source };
-    let name = path
-        .file_name()
-        .ok_or_else(|| ShadingError::Invalid(format!("{}: not a file path", path.display())))?;
+    let name = path.file_name().ok_or_else(|| ShadingError::Invalid(format!("{}: not a file path", path.display())))?;
     let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let tmp: PathBuf = dir.join(format!(
         ".{}.tmp-{}-{}",
@@ -240,7 +245,11 @@ pub fn compare(a: &HdrImage, b_reference: &HdrImage, mask: Option<&[bool]>) -> R
     let rmse = (d2 / (3 * pixels) as f64).sqrt();
     let psnr = if rmse == 0.0 { f64::INFINITY } else { 20.0 * (peak / rmse).log10() };
     let rel_l2 = if r2 == 0.0 {
-        if d2 == 0.0 { 0.0 } else { f64::INFINITY }
+        if d2 == 0.0 {
+            0.0
+        } else {
+            f64::INFINITY
+        }
     } else {
         (d2 / r2).sqrt()
     };
@@ -281,12 +290,8 @@ pub fn viridis(t: f32) -> [u8; 3] {
 /// used (for the legend). Save it with [`write_rgb8_png`].
 pub fn error_image(a: &HdrImage, b: &HdrImage, scale: Option<f32>) -> Result<(image::RgbImage, f32)> {
     check_pair(a, b, None)?;
-    let err: Vec<f32> = a
-        .pixels
-        .iter()
-        .zip(&b.pixels)
-        .map(|(p, q)| luminance(std::array::from_fn(|c| (p[c] - q[c]).abs())))
-        .collect();
+    let err: Vec<f32> =
+        a.pixels.iter().zip(&b.pixels).map(|(p, q)| luminance(std::array::from_fn(|c| (p[c] - q[c]).abs()))).collect();
     let mut finite: Vec<f32> = err.iter().copied().filter(|e| e.is_finite()).collect();
     let max = finite.iter().copied().fold(0.0f32, f32::max);
     let scale = match scale {
@@ -297,7 +302,13 @@ pub fn error_image(a: &HdrImage, b: &HdrImage, scale: Option<f32>) -> Result<(im
             *finite.select_nth_unstable_by(rank, f32::total_cmp).1
         }
     };
-    let scale = if scale > 0.0 && scale.is_finite() { scale } else if max > 0.0 { max } else { 1.0 };
+    let scale = if scale > 0.0 && scale.is_finite() {
+        scale
+    } else if max > 0.0 {
+        max
+    } else {
+        1.0
+    };
     let mut out = image::RgbImage::new(a.width, a.height);
     for (o, e) in out.pixels_mut().zip(&err) {
         o.0 = if e.is_finite() { viridis(e / scale) } else { NON_FINITE_COLOUR };
@@ -320,7 +331,8 @@ mod tests {
     fn random_image(w: u32, h: u32, seed: u64) -> HdrImage {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         // Values spanning many magnitudes, as HDR renders do.
-        let pixels = (0..w * h).map(|_| std::array::from_fn(|_| rng.gen::<f32>() * 10f32.powi(rng.gen_range(-6..6)))).collect();
+        let pixels =
+            (0..w * h).map(|_| std::array::from_fn(|_| rng.gen::<f32>() * 10f32.powi(rng.gen_range(-6..6)))).collect();
         HdrImage { width: w, height: h, pixels }
     }
 
@@ -349,7 +361,11 @@ mod tests {
     fn png_is_written_with_srgb_encoding() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("a.png");
-        let img = HdrImage { width: 4, height: 1, pixels: vec![[0.0; 3], [0.5, 0.25, 0.125], [2.0, -1.0, f32::NAN], [0.214, 0.214, 0.214]] };
+        let img = HdrImage {
+            width: 4,
+            height: 1,
+            pixels: vec![[0.0; 3], [0.5, 0.25, 0.125], [2.0, -1.0, f32::NAN], [0.214, 0.214, 0.214]],
+        };
         img.write_png(&path, 1.0).unwrap();
         let back = image::open(&path).unwrap().into_rgb8();
         assert_eq!(back.dimensions(), (4, 1));

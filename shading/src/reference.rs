@@ -24,7 +24,11 @@ pub fn mesh_diagonal(mesh: &Mesh) -> f32 {
         lo = lo.min(*p);
         hi = hi.max(*p);
     }
-    if lo.x <= hi.x { (hi - lo).length() } else { 0.0 }
+    if lo.x <= hi.x {
+        (hi - lo).length()
+    } else {
+        0.0
+    }
 }
 
 /// Render the reference image of `scene` under `light` (power per cubemap texel of
@@ -103,8 +107,16 @@ mod tests {
         let sampler = VisibilitySampler::new(&TransferSettings::default()).unwrap();
         let light = LightVector::constant(32, [1.0, 0.5, 0.25]);
         let btf = Btf::phong([0.4, 0.3, 0.2], [0.3; 3], 12.0, 8, 8).unwrap();
-        let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, materials: &[Material::new(btf)], triangle_materials: None, background: Background::Black };
-        let camera = Camera::frame_bounds(Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 0.0, 1.0), 32, 24, 10.0, 50.0, 40.0);
+        let scene = ShadeScene {
+            mesh: &mesh,
+            frames: &frames,
+            bvh: &bvh,
+            materials: &[Material::new(btf)],
+            triangle_materials: None,
+            background: Background::Black,
+        };
+        let camera =
+            Camera::frame_bounds(Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 0.0, 1.0), 32, 24, 10.0, 50.0, 40.0);
         let lstar = vertex_lstar(&mesh, &frames, &bvh, &sampler, &light);
         let vertex = shade(&scene, &lstar, &camera).unwrap();
         let calls = std::sync::Mutex::new(vec![]);
@@ -122,7 +134,8 @@ mod tests {
         calls.sort();
         assert_eq!(calls, (1..=24).collect::<Vec<_>>(), "one call per row, counting up to the height");
         // Mismatched sampler and BTF grids are errors.
-        let coarse = VisibilitySampler::new(&TransferSettings { local_grid: 4, ..TransferSettings::default() }).unwrap();
+        let coarse =
+            VisibilitySampler::new(&TransferSettings { local_grid: 4, ..TransferSettings::default() }).unwrap();
         assert!(render_reference(&scene, &light, &coarse, &camera, None).is_err());
         assert!(render_reference(&scene, &LightVector::constant(16, [1.0; 3]), &sampler, &camera, None).is_err());
     }
@@ -171,7 +184,14 @@ mod tests {
         let sampler = VisibilitySampler::new(&settings).unwrap();
         let light = LightVector::constant(16, [1.0; 3]);
         let btf = Btf::lambertian([albedo as f32; 3], 8).unwrap();
-        let scene = ShadeScene { mesh: &mesh, frames: &frames, bvh: &bvh, materials: &[Material::new(btf)], triangle_materials: None, background: Background::Black };
+        let scene = ShadeScene {
+            mesh: &mesh,
+            frames: &frames,
+            bvh: &bvh,
+            materials: &[Material::new(btf)],
+            triangle_materials: None,
+            background: Background::Black,
+        };
         let camera = Camera {
             position: Vec3::new(0.0, 3.0, 4.0),
             target: Vec3::new(0.0, 0.0, 1.6),
@@ -208,8 +228,12 @@ mod tests {
                 let mut vis = vec![0.0f64; grid.len()];
                 let mut open = vec![0.0f64; grid.len()];
                 let origin = p.position + frame.normal * offset;
-                sampler.point_entries(&bvh, origin, &frame, |j, k, v| vis[j as usize] += v as f64 * light.power[k as usize][0] as f64);
-                sampler.point_entries(&empty, origin, &frame, |j, k, v| open[j as usize] += v as f64 * light.power[k as usize][0] as f64);
+                sampler.point_entries(&bvh, origin, &frame, |j, k, v| {
+                    vis[j as usize] += v as f64 * light.power[k as usize][0] as f64
+                });
+                sampler.point_entries(&empty, origin, &frame, |j, k, v| {
+                    open[j as usize] += v as f64 * light.power[k as usize][0] as f64
+                });
                 let partial: f64 = (0..grid.len())
                     .filter(|&j| vis[j] > 0.0 && vis[j] < open[j] * (1.0 - 1e-6))
                     .map(|j| open[j] * bin_cos_range(grid.m, j as u32))
@@ -218,7 +242,10 @@ mod tests {
                     / PI;
                 let tol = partial + 2e-3 + 1e-2;
                 worst_excess = worst_excess.max((got - analytic).abs() - tol);
-                assert!((got - analytic).abs() <= tol, "rho={rho:.3}: {got:.4} vs analytic {analytic:.4} (tol {tol:.4})");
+                assert!(
+                    (got - analytic).abs() <= tol,
+                    "rho={rho:.3}: {got:.4} vs analytic {analytic:.4} (tol {tol:.4})"
+                );
                 samples.push((rho, got, analytic, tol));
             }
         }
@@ -240,7 +267,10 @@ mod tests {
         // mis-binned cosine moves the mean by > 0.05).
         let mean_err = err.iter().sum::<f64>() / err.len() as f64;
         assert!(mean_err < 0.015, "mean |err| {mean_err}");
-        assert!(samples.len() > 300 && samples[0].0 < 1.2 && samples.last().unwrap().0 > 3.0, "the view covers near and far");
+        assert!(
+            samples.len() > 300 && samples[0].0 < 1.2 && samples.last().unwrap().0 > 3.0,
+            "the view covers near and far"
+        );
         // Monotonic darkening towards the contact point, on means over rings of rho.
         let mean_in = |lo: f64, hi: f64| {
             let v: Vec<f64> = samples.iter().filter(|s| s.0 >= lo && s.0 < hi).map(|s| s.1).collect();

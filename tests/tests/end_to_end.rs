@@ -40,17 +40,36 @@ fn smoke_config_runs_end_to_end_and_caches_the_transfer() {
     // but not zero (a wrong convention would give O(1) errors).
     assert!(reference.uncompressed_vs_reference.rel_l2 < 0.15, "{:?}", reference.uncompressed_vs_reference);
     assert!(reference.uncompressed_vs_reference.rel_l2 > 1e-4);
-    for f in ["plan.txt", "metrics.json", "report.md", "images/uncompressed.png", "images/uncompressed.exr", "images/reference.exr", "images/sparse.png"] {
+    for f in [
+        "plan.txt",
+        "metrics.json",
+        "report.md",
+        "images/uncompressed.png",
+        "images/uncompressed.exr",
+        "images/reference.exr",
+        "images/sparse.png",
+    ] {
         assert!(out.join(f).is_file(), "missing {f}");
     }
-    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
     for key in ["vertices", "triangles"] {
         assert!(json["scene"][key].is_u64());
     }
     for key in ["rows", "cols", "nnz", "value_histogram", "build_seconds"] {
         assert!(!json["transfer"][key].is_null(), "transfer.{key}");
     }
-    for key in ["name", "params", "lossless", "bytes", "flops_per_gather", "build_seconds", "gather_ms", "rel_error_lstar", "image"] {
+    for key in [
+        "name",
+        "params",
+        "lossless",
+        "bytes",
+        "flops_per_gather",
+        "build_seconds",
+        "gather_ms",
+        "rel_error_lstar",
+        "image",
+    ] {
         assert!(!json["compressors"][0][key].is_null(), "compressors[0].{key}");
     }
     // A second run reuses the cached transfer matrix and reproduces the same numbers.

@@ -70,7 +70,11 @@ fn each_half_of_a_plane_shows_its_own_material_under_a_constant_sky() {
             }
             let expect = if hit.x < 0.0 { 0.3 } else { 0.9 };
             assert!((v - expect).abs() < 0.01 * expect, "({x},{y}) at x = {}: {v} vs {expect}", hit.x);
-            if hit.x < 0.0 { dark += 1 } else { light += 1 }
+            if hit.x < 0.0 {
+                dark += 1
+            } else {
+                light += 1
+            }
         }
     }
     assert!(dark > 500 && light > 500, "{dark} {light}");
@@ -118,7 +122,8 @@ fn the_bundled_temple_is_the_generators_and_names_every_configured_material() {
     assert_eq!(bundled.mesh.positions.len(), generated.positions.len(), "regenerate assets/meshes/temple.obj");
     assert_eq!(bundled.mesh.materials, generated.materials);
     let exp = Experiment::load(&root.join("configs/temple.toml")).unwrap();
-    let map = biscale::materials::assign(&bundled.mesh, &exp.mesh_path, &exp.materials()).unwrap().expect("per-name map");
+    let map =
+        biscale::materials::assign(&bundled.mesh, &exp.mesh_path, &exp.materials()).unwrap().expect("per-name map");
     assert_eq!(map.len(), 5);
     let plan = biscale::plan::Plan::new(&exp).to_string();
     assert!(plan.contains("marble: ray tracing of a flat patch"), "{plan}");

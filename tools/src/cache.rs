@@ -81,7 +81,12 @@ impl TransferCache {
         let bad = |m: &str| format!("{}: {m}", path.display());
         let (rows, cols, m) = (form.rows, form.cols, form.local_dirs);
         let cubemap = Cubemap::new(s.cubemap_resolution);
-        if form.kind != "sparse" || cols != cubemap.texel_count() || m != (s.local_grid * s.local_grid) as usize || m == 0 || rows % m != 0 {
+        if form.kind != "sparse"
+            || cols != cubemap.texel_count()
+            || m != (s.local_grid * s.local_grid) as usize
+            || m == 0
+            || rows % m != 0
+        {
             return Err(bad("shape does not match the settings"));
         }
         let row_ptr = form.u32s("row_ptr").map_err(|e| bad(&e.to_string()))?;

@@ -14,10 +14,7 @@ use std::path::Path;
 /// Write `T.mtx` (coordinate, real, general; 1-based) and `L.mtx` (array N x 3, column-major)
 /// into `dir`, both readable by `scipy.io.mmread`.
 pub fn export_matrix(exp: &Experiment, dir: &Path, opts: &RunOptions) -> Result<(TransferMatrix, LightVector)> {
-    std::fs::create_dir_all(dir).map_err(|source| PipelineError::Io {
-        path: dir.into(),
-        source,
-    })?;
+    std::fs::create_dir_all(dir).map_err(|source| PipelineError::Io { path: dir.into(), source })?;
     let scene = pipeline::load_scene(exp, crate::cache::cache_dir(opts, dir).as_deref())?;
     let lighting = pipeline::load_lighting(exp)?;
     let (t, _) = pipeline::transfer_matrix(exp, &scene, opts, dir)?;
@@ -49,10 +46,7 @@ pub fn write_mtx(t: &TransferMatrix, light: &LightVector, dir: &Path) -> Result<
     write_atomic(&lp, |f| {
         (|| -> std::io::Result<()> {
             writeln!(f, "%%MatrixMarket matrix array real general")?;
-            writeln!(
-                f,
-                "% biscale light vector: power per cubemap texel (radiance x solid angle), RGB columns"
-            )?;
+            writeln!(f, "% biscale light vector: power per cubemap texel (radiance x solid angle), RGB columns")?;
             writeln!(f, "{} 3", light.len())?;
             for c in 0..3 {
                 for p in &light.power {
@@ -146,36 +140,19 @@ pub fn viz(
     use crate::viz::{self, HeatmapOptions, PatchLayout, PatchView};
     use biscale_compressors::bicluster::Bicluster;
     use biscale_core::compress::{CompressContext, Compressor};
-    std::fs::create_dir_all(out).map_err(|source| PipelineError::Io {
-        path: out.into(),
-        source,
-    })?;
+    std::fs::create_dir_all(out).map_err(|source| PipelineError::Io { path: out.into(), source })?;
     let verr = |e: viz::VizError| PipelineError::Other(format!("viz: {e}"));
     let scene = pipeline::load_scene(exp, crate::cache::cache_dir(opts, out).as_deref())?;
     let (t, _) = pipeline::transfer_matrix(exp, &scene, opts, out)?;
     let form = Bicluster::default()
-        .compress(
-            &t,
-            &CompressContext {
-                seed: exp.file.seed,
-                progress: None,
-            },
-        )
-        .map_err(|source| PipelineError::Compress {
-            name: "bicluster".into(),
-            source,
-        })?;
+        .compress(&t, &CompressContext { seed: exp.file.seed, progress: None })
+        .map_err(|source| PipelineError::Compress { name: "bicluster".into(), source })?;
     let count = count.clamp(1, t.vertices.max(1));
     let first = match first {
         Some(f) => f,
         None => viz::most_shared_window(&form, count).map_err(verr)?,
     };
-    let panels = PatchView {
-        first_vertex: first,
-        vertices: count,
-        layout: PatchLayout::CubemapPanels,
-        cell: 4,
-    };
+    let panels = PatchView { first_vertex: first, vertices: count, layout: PatchLayout::CubemapPanels, cell: 4 };
     let mut written = vec![
         viz::write_sparsity(&t, &panels, &out.join("sparsity_panels.png")).map_err(verr)?,
         viz::write_bicluster_patch(&t, &form, &panels, &out.join("biclusters_panels.png")).map_err(verr)?,
@@ -218,10 +195,7 @@ pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &Run
     use biscale_core::compress::CompressContext;
     use biscale_gpu::{GpuCamera, Screenshot, ViewerForm, ViewerMaterial, ViewerSetup};
     let plan = crate::plan::Plan::new(exp);
-    let out = opts
-        .out_dir
-        .clone()
-        .unwrap_or_else(|| Path::new("out").join(exp.name()));
+    let out = opts.out_dir.clone().unwrap_or_else(|| Path::new("out").join(exp.name()));
     let scene = pipeline::load_scene(exp, crate::cache::cache_dir(opts, &out).as_deref())?;
     let lighting = pipeline::load_lighting(exp)?;
     let (t, _) = pipeline::transfer_matrix(exp, &scene, opts, &out)?;
@@ -229,21 +203,9 @@ pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &Run
     for setting in &plan.compressors {
         let c = crate::registry::build(setting)?;
         let form = c
-            .compress(
-                &t,
-                &CompressContext {
-                    seed: exp.file.seed,
-                    progress: None,
-                },
-            )
-            .map_err(|source| PipelineError::Compress {
-                name: setting.label.clone(),
-                source,
-            })?;
-        forms.push(ViewerForm {
-            label: setting.label.clone(),
-            form,
-        });
+            .compress(&t, &CompressContext { seed: exp.file.seed, progress: None })
+            .map_err(|source| PipelineError::Compress { name: setting.label.clone(), source })?;
+        forms.push(ViewerForm { label: setting.label.clone(), form });
     }
     let cam = pipeline::camera(exp, &scene.mesh, 1);
     let setup = ViewerSetup {
@@ -251,11 +213,7 @@ pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &Run
         positions: scene.mesh.positions.iter().map(|p| p.to_array()).collect(),
         normals: scene.frames.iter().map(|f| f.normal.to_array()).collect(),
         tangents: scene.frames.iter().map(|f| f.tangent.to_array()).collect(),
-        uvs: scene
-            .mesh
-            .uvs
-            .as_ref()
-            .map(|u| u.iter().map(|v| v.to_array()).collect()),
+        uvs: scene.mesh.uvs.as_ref().map(|u| u.iter().map(|v| v.to_array()).collect()),
         triangles: scene.mesh.triangles.clone(),
         materials: scene
             .materials
@@ -306,7 +264,13 @@ pub struct BtfWritten {
 /// (its configured encoding; f32 for analytic ones) and, with `preview`, a contact sheet
 /// `<out>/<label>_preview.png` (rows: views from overhead to grazing; columns: lights from
 /// overhead to grazing, from the +X side).
-pub fn btf(exp: &Experiment, out: &Path, only: Option<&str>, preview: bool, opts: &RunOptions) -> Result<Vec<BtfWritten>> {
+pub fn btf(
+    exp: &Experiment,
+    out: &Path,
+    only: Option<&str>,
+    preview: bool,
+    opts: &RunOptions,
+) -> Result<Vec<BtfWritten>> {
     use crate::config::MaterialConfig;
     use biscale_shading::synth::{save_btf, save_contact_sheet, BtfEncoding};
     let configs = exp.materials();
@@ -331,7 +295,8 @@ pub fn btf(exp: &Experiment, out: &Path, only: Option<&str>, preview: bool, opts
             MaterialConfig::Synthesized(s) => BtfEncoding::from_name(&s.encoding)?,
             _ => BtfEncoding::F32,
         };
-        let stem: String = label.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' }).collect();
+        let stem: String =
+            label.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' }).collect();
         let path = out.join(format!("{stem}.btf"));
         save_btf(&btf, &path, encoding)?;
         let preview_path = if preview {

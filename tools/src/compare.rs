@@ -90,7 +90,14 @@ mod tests {
             gather_ms: 0.0,
             shade_ms: 0.0,
             rel_error_lstar: err,
-            image: ImageRecord { vs_uncompressed: e, vs_reference: None, png: String::new(), exr: String::new(), error_png: None, error_scale: None },
+            image: ImageRecord {
+                vs_uncompressed: e,
+                vs_reference: None,
+                png: String::new(),
+                exr: String::new(),
+                error_png: None,
+                error_scale: None,
+            },
             stats: None,
             gpu: None,
         }
@@ -98,7 +105,12 @@ mod tests {
 
     #[test]
     fn equal_storage_picks_the_closest_in_log_ratio() {
-        let rs = vec![rec("haar", "h6", 50, 0.5), rec("haar", "h12", 100, 0.3), rec("haar", "h24", 400, 0.1), rec("cpca", "c", 1000, 0.2)];
+        let rs = vec![
+            rec("haar", "h6", 50, 0.5),
+            rec("haar", "h12", 100, 0.3),
+            rec("haar", "h24", 400, 0.1),
+            rec("cpca", "c", 1000, 0.2),
+        ];
         let picked = equal_storage(&rs, 180);
         let names: Vec<&str> = picked.iter().map(|r| r.name.as_str()).collect();
         // 180/100 = 1.8, 400/180 = 2.2: h12 is closer.
@@ -119,7 +131,10 @@ mod tests {
             other => panic!("{other:?}"),
         }
         assert_eq!(storage_for_error(&refs, 0.5).unwrap(), StorageForError::AtMost { bytes: 100, setting: "a".into() });
-        assert_eq!(storage_for_error(&refs, 0.01).unwrap(), StorageForError::NotReached { best_error: 0.1, setting: "b".into() });
+        assert_eq!(
+            storage_for_error(&refs, 0.01).unwrap(),
+            StorageForError::NotReached { best_error: 0.1, setting: "b".into() }
+        );
         assert!(storage_for_error(&[], 0.1).is_none());
     }
 }

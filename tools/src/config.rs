@@ -206,10 +206,21 @@ pub struct SynthesizedConfig {
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum BrdfConfig {
-    Lambertian { albedo: [f32; 3] },
-    Phong { kd: [f32; 3], ks: [f32; 3], exponent: f32 },
+    Lambertian {
+        albedo: [f32; 3],
+    },
+    Phong {
+        kd: [f32; 3],
+        ks: [f32; 3],
+        exponent: f32,
+    },
     /// Anisotropic: `nu` along the tangent, `nv` along the bitangent.
-    AshikhminShirley { rd: [f32; 3], rs: [f32; 3], nu: f32, nv: f32 },
+    AshikhminShirley {
+        rd: [f32; 3],
+        rs: [f32; 3],
+        nu: f32,
+        nv: f32,
+    },
 }
 
 fn default_view_grid() -> u32 {
@@ -298,7 +309,9 @@ fn check_material(m: &MaterialConfig) -> Result<(), String> {
         MaterialConfig::Synthesized(s) => {
             match (&s.pattern, &s.height_map) {
                 (Some(_), Some(_)) => return Err("give either pattern or height_map, not both".into()),
-                (None, None) => return Err("a synthesized material needs pattern = \"...\" or height_map = \"...\"".into()),
+                (None, None) => {
+                    return Err("a synthesized material needs pattern = \"...\" or height_map = \"...\"".into())
+                }
                 _ => {}
             }
             if !(s.amplitude.is_finite() && s.amplitude >= 0.0) {
@@ -382,11 +395,7 @@ pub enum CompressorConfig {
         block_vertices: Option<Sweep<usize>>,
     },
     /// Clustered PCA: `clusters` clusters of `components` principal components.
-    Cpca {
-        clusters: Option<Sweep<usize>>,
-        components: Option<Sweep<usize>>,
-        iterations: Option<usize>,
-    },
+    Cpca { clusters: Option<Sweep<usize>>, components: Option<Sweep<usize>>, iterations: Option<usize> },
     /// Non-linear Haar wavelets: the `terms` largest area-weighted coefficients per row.
     Haar { terms: Option<Sweep<usize>> },
     /// A compressor loaded from a shared library through biscale's plugin C ABI.
@@ -527,7 +536,13 @@ fn default_true() -> bool {
 
 impl Default for ReportConfig {
     fn default() -> Self {
-        Self { reference: false, reference_downscale: default_one(), exposure: 0.0, background: true, target_error: default_target_error() }
+        Self {
+            reference: false,
+            reference_downscale: default_one(),
+            exposure: 0.0,
+            background: true,
+            target_error: default_target_error(),
+        }
     }
 }
 
@@ -648,7 +663,10 @@ impl Experiment {
                 }
                 Some(n) => seen_names.push(n.to_string()),
                 None if several => {
-                    return Err(err(span, "with several [[scene.materials]], each needs a name (its OBJ usemtl or group)".into()));
+                    return Err(err(
+                        span,
+                        "with several [[scene.materials]], each needs a name (its OBJ usemtl or group)".into(),
+                    ));
                 }
                 None => {}
             }
@@ -774,7 +792,11 @@ mod tests {
         let e = parse(&format!("{OK}[[compressors]]\nkind = \"cpca\"\nclusters = [8, 16]\ncomponents = 4\n")).unwrap();
         assert_eq!(
             e.file.compressors[0].get_ref(),
-            &CompressorConfig::Cpca { clusters: Some(Sweep(vec![8, 16])), components: Some(Sweep(vec![4])), iterations: None }
+            &CompressorConfig::Cpca {
+                clusters: Some(Sweep(vec![8, 16])),
+                components: Some(Sweep(vec![4])),
+                iterations: None
+            }
         );
         let e = parse(&format!("{OK}[[compressors]]\nkind = \"zip\"\n")).unwrap_err();
         assert_eq!(e.line, 7, "{e}");
@@ -787,10 +809,16 @@ mod tests {
 
     #[test]
     fn plugin_entries_resolve_their_library() {
-        let e = parse(&format!("{OK}[[compressors]]\nkind = \"plugin\"\npath = \"nope.so\"\nparams = {{ scale = 0.25 }}\n")).unwrap_err();
+        let e = parse(&format!(
+            "{OK}[[compressors]]\nkind = \"plugin\"\npath = \"nope.so\"\nparams = {{ scale = 0.25 }}\n"
+        ))
+        .unwrap_err();
         assert_eq!(e.line, 6, "{e}");
         assert!(e.message.contains("plugin library not found"), "{e}");
-        let e = parse(&format!("{OK}[[compressors]]\nkind = \"plugin\"\npath = \"bunny.toml\"\nparams = {{ scale = 0.25 }}\n")).unwrap();
+        let e = parse(&format!(
+            "{OK}[[compressors]]\nkind = \"plugin\"\npath = \"bunny.toml\"\nparams = {{ scale = 0.25 }}\n"
+        ))
+        .unwrap();
         match e.file.compressors[0].get_ref() {
             CompressorConfig::Plugin { path, params } => {
                 assert!(path.is_absolute() || path.starts_with(env!("CARGO_MANIFEST_DIR")), "{}", path.display());

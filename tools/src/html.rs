@@ -111,9 +111,20 @@ pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, Stri
         if let Some((budget, _)) = crate::report::storage_budget(m) {
             let _ = write!(s, "<div class=\"grid\">");
             for r in crate::compare::equal_storage(&m.compressors, budget) {
-                let _ = write!(s, "<figure>{}<figcaption>{} ({:.2} MB)</figcaption></figure>", img(out_dir, &r.image.png, &r.name), escape(&r.name), r.bytes as f64 / 1e6);
+                let _ = write!(
+                    s,
+                    "<figure>{}<figcaption>{} ({:.2} MB)</figcaption></figure>",
+                    img(out_dir, &r.image.png, &r.name),
+                    escape(&r.name),
+                    r.bytes as f64 / 1e6
+                );
                 if let Some(e) = &r.image.error_png {
-                    let _ = write!(s, "<figure>{}<figcaption>{}: error</figcaption></figure>", img(out_dir, e, &r.name), escape(&r.name));
+                    let _ = write!(
+                        s,
+                        "<figure>{}<figcaption>{}: error</figcaption></figure>",
+                        img(out_dir, e, &r.name),
+                        escape(&r.name)
+                    );
                 }
             }
             let _ = write!(s, "</div>");
@@ -122,17 +133,35 @@ pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, Stri
     if !plots.is_empty() {
         let _ = write!(s, "<h2>Plots</h2><div class=\"grid\">");
         for (rel, caption) in plots {
-            let _ = write!(s, "<figure>{}<figcaption>{}</figcaption></figure>", img(out_dir, rel, caption), escape(caption));
+            let _ = write!(
+                s,
+                "<figure>{}<figcaption>{}</figcaption></figure>",
+                img(out_dir, rel, caption),
+                escape(caption)
+            );
         }
         let _ = write!(s, "</div>");
     }
     let _ = write!(s, "<h2>Images</h2><div class=\"grid\">");
-    let _ = write!(s, "<figure>{}<figcaption>uncompressed T</figcaption></figure>", img(out_dir, "images/uncompressed.png", "uncompressed"));
+    let _ = write!(
+        s,
+        "<figure>{}<figcaption>uncompressed T</figcaption></figure>",
+        img(out_dir, "images/uncompressed.png", "uncompressed")
+    );
     if m.reference.is_some() {
-        let _ = write!(s, "<figure>{}<figcaption>ray-traced reference</figcaption></figure>", img(out_dir, "images/reference.png", "reference"));
+        let _ = write!(
+            s,
+            "<figure>{}<figcaption>ray-traced reference</figcaption></figure>",
+            img(out_dir, "images/reference.png", "reference")
+        );
     }
     for c in &m.compressors {
-        let _ = write!(s, "<figure>{}<figcaption>{}</figcaption></figure>", img(out_dir, &c.image.png, &c.name), escape(&c.name));
+        let _ = write!(
+            s,
+            "<figure>{}<figcaption>{}</figcaption></figure>",
+            img(out_dir, &c.image.png, &c.name),
+            escape(&c.name)
+        );
         if let Some(e) = &c.image.error_png {
             let _ = write!(
                 s,
@@ -153,7 +182,15 @@ mod tests {
 
     #[test]
     fn base64_matches_rfc4648_vectors() {
-        for (i, o) in [("", ""), ("f", "Zg=="), ("fo", "Zm8="), ("foo", "Zm9v"), ("foob", "Zm9vYg=="), ("fooba", "Zm9vYmE="), ("foobar", "Zm9vYmFy")] {
+        for (i, o) in [
+            ("", ""),
+            ("f", "Zg=="),
+            ("fo", "Zm8="),
+            ("foo", "Zm9v"),
+            ("foob", "Zm9vYg=="),
+            ("fooba", "Zm9vYmE="),
+            ("foobar", "Zm9vYmFy"),
+        ] {
             assert_eq!(base64(i.as_bytes()), o);
         }
     }

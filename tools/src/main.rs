@@ -36,9 +36,7 @@ enum Command {
         cache_dir: Option<PathBuf>,
     },
     /// Print what `run` would do and what it leaves out, without running anything.
-    Plan {
-        config: PathBuf,
-    },
+    Plan { config: PathBuf },
     /// Write T.mtx (sparse, Matrix Market) and L.mtx (dense N x 3) for other tools, e.g.
     /// `scipy.io.mmread`.
     ExportMatrix {

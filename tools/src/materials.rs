@@ -113,7 +113,9 @@ pub fn synth_spec(cfg: &SynthesizedConfig, light_grid: u32, label: &str) -> Resu
 fn describe(cfg: &SynthesizedConfig) -> String {
     let shape = match (&cfg.pattern, &cfg.height_map) {
         (Some(p), _) => format!("{p} x{} a={}", cfg.frequency, cfg.amplitude),
-        (None, Some(h)) => format!("{} a={}", h.file_name().map_or("height map".into(), |n| n.to_string_lossy()), cfg.amplitude),
+        (None, Some(h)) => {
+            format!("{} a={}", h.file_name().map_or("height map".into(), |n| n.to_string_lossy()), cfg.amplitude)
+        }
         _ => String::new(),
     };
     let brdf = match &cfg.brdf {
@@ -154,10 +156,17 @@ pub enum Origin {
 
 /// The BTF of one entry at light grid `light_grid`; synthesized tables are cached in
 /// `cache_dir` when given. `label` names the entry in messages and progress.
-pub fn material_btf(cfg: &MaterialConfig, light_grid: u32, cache_dir: Option<&Path>, label: &str) -> Result<(Btf, Origin)> {
+pub fn material_btf(
+    cfg: &MaterialConfig,
+    light_grid: u32,
+    cache_dir: Option<&Path>,
+    label: &str,
+) -> Result<(Btf, Origin)> {
     let err = shading_err(label);
     match cfg {
-        MaterialConfig::Lambertian { albedo, .. } => Ok((Btf::lambertian(*albedo, light_grid).map_err(&err)?, Origin::Analytic)),
+        MaterialConfig::Lambertian { albedo, .. } => {
+            Ok((Btf::lambertian(*albedo, light_grid).map_err(&err)?, Origin::Analytic))
+        }
         MaterialConfig::Phong { kd, ks, exponent, view_grid, .. } => {
             Ok((Btf::phong(*kd, *ks, *exponent, light_grid, *view_grid).map_err(&err)?, Origin::Analytic))
         }
@@ -172,7 +181,11 @@ pub fn material_btf(cfg: &MaterialConfig, light_grid: u32, cache_dir: Option<&Pa
                 }
             }
             let spec = synth_spec(s, light_grid, label)?;
-            let texels = if spec.height_field.is_flat() && spec.albedo_map.is_none() { 1 } else { (spec.resolution as u64).pow(2) };
+            let texels = if spec.height_field.is_flat() && spec.albedo_map.is_none() {
+                1
+            } else {
+                (spec.resolution as u64).pow(2)
+            };
             let pb = progress_bar(texels, &format!("btf {label}"));
             let tick = |done: usize| pb.set_position(done as u64);
             let start = Instant::now();
@@ -184,9 +197,11 @@ pub fn material_btf(cfg: &MaterialConfig, light_grid: u32, cache_dir: Option<&Pa
             let source = path.clone().unwrap_or_else(|| PathBuf::from(format!("<{label} in memory>")));
             let btf = decode_btf(&bytes, &source).map_err(&err)?;
             if let Some(p) = &path {
-                let stored = p.parent().map_or(Ok(()), std::fs::create_dir_all).map_err(|e| e.to_string()).and_then(|_| {
-                    crate::util::write_atomic(p, &bytes).map_err(|e| e.to_string())
-                });
+                let stored = p
+                    .parent()
+                    .map_or(Ok(()), std::fs::create_dir_all)
+                    .map_err(|e| e.to_string())
+                    .and_then(|_| crate::util::write_atomic(p, &bytes).map_err(|e| e.to_string()));
                 if let Err(e) = stored {
                     eprintln!("warning: could not write the BTF cache {}: {e}", p.display());
                 }

@@ -118,7 +118,12 @@ pub fn load_lighting(exp: &Experiment) -> Result<Lighting> {
 }
 
 /// Build (or load from the cache) the transfer matrix with a progress bar.
-pub fn transfer_matrix(exp: &Experiment, scene: &Scene, opts: &RunOptions, out_dir: &Path) -> Result<(TransferMatrix, TransferMetrics)> {
+pub fn transfer_matrix(
+    exp: &Experiment,
+    scene: &Scene,
+    opts: &RunOptions,
+    out_dir: &Path,
+) -> Result<(TransferMatrix, TransferMetrics)> {
     let settings = exp.transfer_settings();
     let cache = crate::cache::TransferCache::new(opts, out_dir);
     let key = crate::cache::transfer_key(&scene.mesh, &settings);
@@ -231,11 +236,8 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     write_atomic(&out_dir.join("plan.txt"), plan.to_string().as_bytes())?;
 
     // Compressors are constructed first so a bad setting fails before any heavy work.
-    let compressors: Vec<(CompressorSetting, Box<dyn Compressor>)> = plan
-        .compressors
-        .iter()
-        .map(|s| registry::build(s).map(|c| (s.clone(), c)))
-        .collect::<Result<_>>()?;
+    let compressors: Vec<(CompressorSetting, Box<dyn Compressor>)> =
+        plan.compressors.iter().map(|s| registry::build(s).map(|c| (s.clone(), c))).collect::<Result<_>>()?;
 
     let scene = load_scene(exp, crate::cache::cache_dir(opts, &out_dir).as_deref())?;
     for r in &scene.repairs {
@@ -285,7 +287,13 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
         let pb = progress_bar(cam_ref.height as u64, "reference");
         let tick = |rows: usize| pb.set_position(rows as u64);
         let start = Instant::now();
-        let r = biscale_shading::reference::render_reference(&shade_scene, &lighting.light, &sampler, &cam_ref, Some(&tick))?;
+        let r = biscale_shading::reference::render_reference(
+            &shade_scene,
+            &lighting.light,
+            &sampler,
+            &cam_ref,
+            Some(&tick),
+        )?;
         let seconds = start.elapsed().as_secs_f64();
         pb.finish_and_clear();
         save_images(&r.image, &images_dir, "reference", exposure)?;
@@ -374,7 +382,14 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
             gather_ms,
             shade_ms,
             rel_error_lstar,
-            image: ImageRecord { vs_uncompressed, vs_reference, png, exr, error_png: Some(error_rel), error_scale: Some(error_scale) },
+            image: ImageRecord {
+                vs_uncompressed,
+                vs_reference,
+                png,
+                exr,
+                error_png: Some(error_rel),
+                error_scale: Some(error_scale),
+            },
             stats: registry::stats(compressor.kind(), &form, &t),
             gpu: gpu_record,
         });

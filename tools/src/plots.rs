@@ -25,7 +25,11 @@ pub struct Series {
 }
 
 /// Group records by compressor kind into series of `(x(record), y(record))`, sorted by x.
-pub fn series_by_kind(records: &[CompressorRecord], x: impl Fn(&CompressorRecord) -> f64, y: impl Fn(&CompressorRecord) -> f64) -> Vec<Series> {
+pub fn series_by_kind(
+    records: &[CompressorRecord],
+    x: impl Fn(&CompressorRecord) -> f64,
+    y: impl Fn(&CompressorRecord) -> f64,
+) -> Vec<Series> {
     let mut by_kind: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
     for r in records {
         by_kind.entry(r.kind.clone()).or_default().push((x(r), y(r)));
@@ -82,16 +86,18 @@ pub fn log_log_plot(path: &Path, title: &str, x_label: &str, y_label: &str, seri
             .map_err(|e| e.to_string())?;
         for (i, s) in series.iter().enumerate() {
             let colour = Palette99::pick(i).to_rgba();
-            let points: Vec<(f64, f64)> =
-                s.points.iter().filter(|(x, y)| x.is_finite() && y.is_finite() && *x > 0.0).map(|&(x, y)| (x, y.max(ERROR_FLOOR))).collect();
+            let points: Vec<(f64, f64)> = s
+                .points
+                .iter()
+                .filter(|(x, y)| x.is_finite() && y.is_finite() && *x > 0.0)
+                .map(|&(x, y)| (x, y.max(ERROR_FLOOR)))
+                .collect();
             chart
                 .draw_series(LineSeries::new(points.clone(), colour.stroke_width(2)))
                 .map_err(|e| e.to_string())?
                 .label(s.name.clone())
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
-            chart
-                .draw_series(points.iter().map(|&p| Circle::new(p, 4, colour.filled())))
-                .map_err(|e| e.to_string())?;
+            chart.draw_series(points.iter().map(|&p| Circle::new(p, 4, colour.filled()))).map_err(|e| e.to_string())?;
         }
         chart
             .configure_series_labels()

@@ -82,14 +82,23 @@ pub fn markdown(m: &Metrics, plan: &Plan) -> String {
     if m.compressors.iter().any(|c| c.gpu.is_some()) {
         let adapter = m.compressors.iter().find_map(|c| c.gpu.as_ref()).map(|g| g.adapter.clone()).unwrap_or_default();
         let _ = writeln!(s, "\n### wgpu backend ({adapter})\n");
-        let _ = writeln!(s, "| setting | gather ms | shade ms | timing | rel. err L* | image rel. L2 vs CPU | coverage mismatches |");
+        let _ = writeln!(
+            s,
+            "| setting | gather ms | shade ms | timing | rel. err L* | image rel. L2 vs CPU | coverage mismatches |"
+        );
         let _ = writeln!(s, "|---|---|---|---|---|---|---|");
         for c in &m.compressors {
             if let Some(g) = &c.gpu {
                 let _ = writeln!(
                     s,
                     "| {} | {:.2} | {:.2} | {} | {:.2e} | {:.2e} | {} |",
-                    c.name, g.gather_ms, g.shade_ms, g.timing, g.rel_error_lstar, g.image_vs_cpu.rel_l2, g.coverage_mismatch
+                    c.name,
+                    g.gather_ms,
+                    g.shade_ms,
+                    g.timing,
+                    g.rel_error_lstar,
+                    g.image_vs_cpu.rel_l2,
+                    g.coverage_mismatch
                 );
             }
         }
@@ -133,8 +142,15 @@ pub fn comparisons_markdown(m: &Metrics) -> String {
         return s;
     }
     if let Some((budget, why)) = storage_budget(m) {
-        let _ = writeln!(s, "\n## Equal storage\n\nEach compressor's setting closest to {why} ({:.2} MB):\n", budget as f64 / 1e6);
-        let _ = writeln!(s, "| setting | MB | rel. err L* | PSNR vs uncompressed | image | error |\n|---|---|---|---|---|---|");
+        let _ = writeln!(
+            s,
+            "\n## Equal storage\n\nEach compressor's setting closest to {why} ({:.2} MB):\n",
+            budget as f64 / 1e6
+        );
+        let _ = writeln!(
+            s,
+            "| setting | MB | rel. err L* | PSNR vs uncompressed | image | error |\n|---|---|---|---|---|---|"
+        );
         for r in equal_storage(&m.compressors, budget) {
             let _ = writeln!(
                 s,
@@ -157,8 +173,12 @@ pub fn comparisons_markdown(m: &Metrics) -> String {
     let _ = writeln!(s, "| compressor | storage needed |\n|---|---|");
     for (kind, recs) in &kinds {
         let text = match storage_for_error(recs, m.target_error) {
-            Some(StorageForError::AtMost { bytes, setting }) => format!("at most {:.2} MB ({setting} already meets it)", bytes as f64 / 1e6),
-            Some(StorageForError::Between { bytes, below, above }) => format!("about {:.2} MB (between {below} and {above})", bytes / 1e6),
+            Some(StorageForError::AtMost { bytes, setting }) => {
+                format!("at most {:.2} MB ({setting} already meets it)", bytes as f64 / 1e6)
+            }
+            Some(StorageForError::Between { bytes, below, above }) => {
+                format!("about {:.2} MB (between {below} and {above})", bytes / 1e6)
+            }
             Some(StorageForError::NotReached { best_error, setting }) => {
                 format!("not reached by the sweep (best {best_error:.2e} at {setting}): sweep further")
             }

@@ -1117,7 +1117,14 @@ pub fn write_vertex_heatmap(
     let bvh = SceneBvh::build(&mesh.positions, &mesh.triangles);
     // The shader's scene wants a BTF; only the geometry is used here.
     let btf = Btf::lambertian([1.0; 3], 1)?;
-    let scene = ShadeScene { mesh, frames: &frames, bvh: &bvh, materials: &[Material::new(btf)], triangle_materials: None, background: Background::Black };
+    let scene = ShadeScene {
+        mesh,
+        frames: &frames,
+        bvh: &bvh,
+        materials: &[Material::new(btf)],
+        triangle_materials: None,
+        background: Background::Black,
+    };
     scene.validate()?;
     let finite = values.iter().copied().filter(|v| v.is_finite());
     let (vmin, vmax) = finite.fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));

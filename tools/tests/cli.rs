@@ -5,11 +5,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn biscale(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_biscale"))
-        .args(args)
-        .current_dir(root())
-        .output()
-        .expect("run biscale");
+    let out = Command::new(env!("CARGO_BIN_EXE_biscale")).args(args).current_dir(root()).output().expect("run biscale");
     (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
 }
 
@@ -35,7 +31,10 @@ fn plan_lists_what_runs_and_what_is_left_out() {
     assert!(out.contains("run   transfer"), "{out}");
     assert!(out.contains("skip  reference") || out.contains("run   reference"), "{out}");
     assert!(out.contains("the light does not change"), "{out}");
-    assert!(out.contains("run   compress   haar-t4") && out.contains("run   compress   haar-t8"), "sweep expanded: {out}");
+    assert!(
+        out.contains("run   compress   haar-t4") && out.contains("run   compress   haar-t8"),
+        "sweep expanded: {out}"
+    );
 }
 
 #[test]
@@ -53,7 +52,8 @@ fn bad_config_is_a_located_error_not_a_panic() {
 fn export_matrix_writes_matrix_market_files_that_parse_back() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("mtx");
-    let (ok, stdout, err) = biscale(&["export-matrix", "configs/smoke.toml", "--out", out.to_str().unwrap(), "--no-cache"]);
+    let (ok, stdout, err) =
+        biscale(&["export-matrix", "configs/smoke.toml", "--out", out.to_str().unwrap(), "--no-cache"]);
     assert!(ok, "{err}");
     assert!(stdout.contains("T.mtx"), "{stdout}");
     let t = std::fs::read_to_string(out.join("T.mtx")).unwrap();
@@ -85,10 +85,12 @@ fn diff_reports_known_errors_and_names_bad_files() {
     HdrImage { width: 4, height: 2, pixels: vec![[1.0, 1.0, 1.0]; 8] }.write_exr(&a).unwrap();
     HdrImage { width: 4, height: 2, pixels: vec![[1.5, 1.0, 1.0]; 8] }.write_exr(&b).unwrap();
     let e = dir.path().join("e.png");
-    let (ok, out, err) = biscale(&["diff", a.to_str().unwrap(), b.to_str().unwrap(), "--error-image", e.to_str().unwrap()]);
+    let (ok, out, err) =
+        biscale(&["diff", a.to_str().unwrap(), b.to_str().unwrap(), "--error-image", e.to_str().unwrap()]);
     assert!(ok, "{err}");
     // Every pixel differs by 0.5 in one of three channels: RMSE = sqrt(0.25 / 3).
-    let rmse: f64 = out.lines().find(|l| l.starts_with("rmse")).unwrap().split_whitespace().nth(1).unwrap().parse().unwrap();
+    let rmse: f64 =
+        out.lines().find(|l| l.starts_with("rmse")).unwrap().split_whitespace().nth(1).unwrap().parse().unwrap();
     assert!((rmse - (0.25f64 / 3.0).sqrt()).abs() < 1e-6, "{out}");
     assert!(e.is_file());
     let (ok, _, err) = biscale(&["diff", a.to_str().unwrap(), "/nonexistent/x.exr"]);
@@ -101,7 +103,14 @@ fn viz_writes_the_structure_pictures() {
     let out = dir.path().join("viz");
     let (ok, stdout, err) = biscale(&["viz", "configs/smoke.toml", "--out", out.to_str().unwrap(), "--count", "4"]);
     assert!(ok, "{err}");
-    for f in ["sparsity_panels.png", "biclusters_panels.png", "bicluster_sizes.png", "values.png", "heat_gather_cost.png", "heat_nnz.png"] {
+    for f in [
+        "sparsity_panels.png",
+        "biclusters_panels.png",
+        "bicluster_sizes.png",
+        "values.png",
+        "heat_gather_cost.png",
+        "heat_nnz.png",
+    ] {
         assert!(out.join(f).is_file(), "{f}: {stdout}");
     }
 }

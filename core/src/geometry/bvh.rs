@@ -381,7 +381,8 @@ mod tests {
         assert!((h.t - 2.0).abs() < 1e-6);
         let tri = t[h.triangle as usize];
         let bary = h.barycentric;
-        let q = p[tri[0] as usize] * (1.0 - bary.x - bary.y) + p[tri[1] as usize] * bary.x + p[tri[2] as usize] * bary.y;
+        let q =
+            p[tri[0] as usize] * (1.0 - bary.x - bary.y) + p[tri[1] as usize] * bary.x + p[tri[2] as usize] * bary.y;
         assert!((q - Vec3::new(0.3, 0.0, 0.6)).length() < 1e-5);
     }
 

@@ -138,7 +138,15 @@ mod tests {
             .filter(|v| v.length() > 1e-3)
             .map(|v| v.normalize())
             .collect();
-        normals.extend([Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z, -Vec3::Z, Vec3::new(0.0, -1e-7, -1.0).normalize()]);
+        normals.extend([
+            Vec3::X,
+            -Vec3::X,
+            Vec3::Y,
+            -Vec3::Y,
+            Vec3::Z,
+            -Vec3::Z,
+            Vec3::new(0.0, -1e-7, -1.0).normalize(),
+        ]);
         for n in normals {
             let f = VertexFrame::from_normal(n);
             assert_orthonormal(&f);

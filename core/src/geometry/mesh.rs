@@ -136,12 +136,8 @@ impl Mesh {
                 _ => format!("cannot read: {e}"),
             })
         })?;
-        let options = tobj::LoadOptions {
-            triangulate: true,
-            single_index: true,
-            ignore_points: true,
-            ignore_lines: true,
-        };
+        let options =
+            tobj::LoadOptions { triangulate: true, single_index: true, ignore_points: true, ignore_lines: true };
         // Material names, not material libraries: tobj only resolves `usemtl` names that a
         // loaded `.mtl` defines, so every `mtllib` (and one injected in front of the file)
         // is answered with a synthesized library holding exactly the names the file uses.
@@ -151,16 +147,15 @@ impl Mesh {
         let library: String = used_names.iter().map(|n| format!("newmtl {n}\n")).collect();
         let mut source = b"mtllib biscale-material-names\n".to_vec();
         source.extend_from_slice(&bytes);
-        let (models, materials) = tobj::load_obj_buf(&mut source.as_slice(), &options, |_| {
-            tobj::load_mtl_buf(&mut library.as_bytes())
-        })
-        .map_err(|e| {
+        let (models, materials) =
+            tobj::load_obj_buf(&mut source.as_slice(), &options, |_| tobj::load_mtl_buf(&mut library.as_bytes()))
+                .map_err(|e| {
                     let place = match locate_obj_error(&text, &e) {
                         Some((line, content)) => format!(" at line {line}: `{content}`"),
                         None => String::new(),
                     };
                     input_err(format!("OBJ parse error: {e}{place}"))
-        })?;
+                })?;
         let materials = materials.unwrap_or_default();
         let has_groups = text.lines().any(|l| matches!(l.split_whitespace().next(), Some("g" | "o")));
 
@@ -766,7 +761,10 @@ mod tests {
             // The loader renumbers vertices in order of first use: compare the triangles'
             // corners (positions exactly: Rust prints the shortest round-tripping float).
             let corners = |m: &Mesh| -> Vec<[(Vec3, Option<glam::Vec2>); 3]> {
-                m.triangles.iter().map(|t| t.map(|i| (m.positions[i as usize], m.uvs.as_ref().map(|u| u[i as usize])))).collect()
+                m.triangles
+                    .iter()
+                    .map(|t| t.map(|i| (m.positions[i as usize], m.uvs.as_ref().map(|u| u[i as usize]))))
+                    .collect()
             };
             assert_eq!(corners(&back.mesh), corners(&mesh), "{name}");
             assert_eq!(back.mesh.vertex_count(), mesh.vertex_count(), "{name}");
@@ -830,8 +828,11 @@ mod tests {
     fn bad_material_ids_are_rejected() {
         let tri = vec![[0, 1, 2]];
         let pos = vec![Vec3::ZERO, Vec3::X, Vec3::Z];
-        let bad = |m: MaterialIds| Mesh::from_parts_with_materials(pos.clone(), None, tri.clone(), Some(m), "t").unwrap_err().to_string();
-        assert!(bad(MaterialIds { names: vec!["a".into()], per_triangle: vec![] }).contains("0 material ids for 1 triangles"));
+        let bad = |m: MaterialIds| {
+            Mesh::from_parts_with_materials(pos.clone(), None, tri.clone(), Some(m), "t").unwrap_err().to_string()
+        };
+        assert!(bad(MaterialIds { names: vec!["a".into()], per_triangle: vec![] })
+            .contains("0 material ids for 1 triangles"));
         assert!(bad(MaterialIds { names: vec!["a".into()], per_triangle: vec![1] }).contains("uses material 1"));
         assert!(bad(MaterialIds { names: vec!["a".into(), "a".into()], per_triangle: vec![0] }).contains("repeated"));
     }

@@ -63,16 +63,28 @@ pub fn closed_box(min: Vec3, max: Vec3) -> Mesh {
         Vec3::new(if x { max.x } else { min.x }, if y { max.y } else { min.y }, if z { max.z } else { min.z })
     };
     let positions = vec![
-        p(false, false, false), p(true, false, false), p(true, true, false), p(false, true, false),
-        p(false, false, true), p(true, false, true), p(true, true, true), p(false, true, true),
+        p(false, false, false),
+        p(true, false, false),
+        p(true, true, false),
+        p(false, true, false),
+        p(false, false, true),
+        p(true, false, true),
+        p(true, true, true),
+        p(false, true, true),
     ];
     let triangles = vec![
-        [0, 3, 2], [0, 2, 1], // -Z
-        [4, 5, 6], [4, 6, 7], // +Z
-        [0, 4, 7], [0, 7, 3], // -X
-        [1, 2, 6], [1, 6, 5], // +X
-        [3, 7, 6], [3, 6, 2], // +Y
-        [0, 1, 5], [0, 5, 4], // -Y
+        [0, 3, 2],
+        [0, 2, 1], // -Z
+        [4, 5, 6],
+        [4, 6, 7], // +Z
+        [0, 4, 7],
+        [0, 7, 3], // -X
+        [1, 2, 6],
+        [1, 6, 5], // +X
+        [3, 7, 6],
+        [3, 6, 2], // +Y
+        [0, 1, 5],
+        [0, 5, 4], // -Y
     ];
     Mesh { positions, uvs: None, triangles, materials: None }
 }
@@ -143,7 +155,8 @@ pub fn cylindrical_uvs(mesh: &Mesh) -> Mesh {
     let mut triangles = mesh.triangles.clone();
     for t in &mut triangles {
         let us = t.map(|i| uvs[i as usize].x);
-        let (min, max) = (us.iter().copied().fold(f32::INFINITY, f32::min), us.iter().copied().fold(f32::NEG_INFINITY, f32::max));
+        let (min, max) =
+            (us.iter().copied().fold(f32::INFINITY, f32::min), us.iter().copied().fold(f32::NEG_INFINITY, f32::max));
         if max - min > 0.5 * circumference {
             for i in t.iter_mut() {
                 if uvs[*i as usize].x < 0.5 * circumference {
@@ -254,7 +267,9 @@ mod tests {
             assert!(spread < 0.5 * circumference, "{us:?}");
             // Copies keep the position.
             for &i in t {
-                assert!(i as usize >= sphere.positions.len() || m.positions[i as usize] == sphere.positions[i as usize]);
+                assert!(
+                    i as usize >= sphere.positions.len() || m.positions[i as usize] == sphere.positions[i as usize]
+                );
             }
         }
         // v is the height above the lowest vertex, in world units.

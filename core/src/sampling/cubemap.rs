@@ -70,8 +70,7 @@ impl Cubemap {
         let a1 = 2.0 * (col + 1) as f64 / r - 1.0;
         let b0 = 2.0 * row as f64 / r - 1.0;
         let b1 = 2.0 * (row + 1) as f64 / r - 1.0;
-        corner_integral(a1, b1) - corner_integral(a0, b1) - corner_integral(a1, b0)
-            + corner_integral(a0, b0)
+        corner_integral(a1, b1) - corner_integral(a0, b1) - corner_integral(a1, b0) + corner_integral(a0, b0)
     }
 
     /// Solid angles of all texels in storage order.

@@ -87,10 +87,7 @@ impl EnvMap {
         if self.width != 2 * self.height {
             return Err(CoreError::Input {
                 path: path.into(),
-                message: format!(
-                    "a lat-long map must be twice as wide as tall, got {}x{}",
-                    self.width, self.height
-                ),
+                message: format!("a lat-long map must be twice as wide as tall, got {}x{}", self.width, self.height),
             });
         }
         let mut negatives = 0usize;
@@ -357,7 +354,8 @@ mod tests {
         for (i, p) in env.pixels.iter_mut().enumerate() {
             *p = [i as f32, 1.0, 0.0];
         }
-        let centre = |x: usize, y: usize| latlong_direction((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64).as_vec3();
+        let centre =
+            |x: usize, y: usize| latlong_direction((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64).as_vec3();
         assert!((env.radiance(centre(3, 1), 0.0)[0] - 11.0).abs() < 1e-3);
         // Half way between pixels (3,1) and (4,1).
         let mid = latlong_direction(4.0 / w as f64, 1.5 / h as f64).as_vec3();

@@ -16,11 +16,7 @@ pub fn square_to_disk(u: f64, v: f64) -> DVec2 {
     if a == 0.0 && b == 0.0 {
         return DVec2::ZERO;
     }
-    let (r, phi) = if a.abs() > b.abs() {
-        (a, FRAC_PI_4 * (b / a))
-    } else {
-        (b, FRAC_PI_2 - FRAC_PI_4 * (a / b))
-    };
+    let (r, phi) = if a.abs() > b.abs() { (a, FRAC_PI_4 * (b / a)) } else { (b, FRAC_PI_2 - FRAC_PI_4 * (a / b)) };
     DVec2::new(r * phi.cos(), r * phi.sin())
 }
 
@@ -232,8 +228,7 @@ mod tests {
     fn mean_cosines_integrate_to_pi() {
         for m in [2, 8, 12] {
             let grid = HemisphereGrid::new(m);
-            let s: f64 = (0..grid.len() as u32).map(|j| grid.bin_mean_cosine(j)).sum::<f64>()
-                * grid.bin_solid_angle();
+            let s: f64 = (0..grid.len() as u32).map(|j| grid.bin_mean_cosine(j)).sum::<f64>() * grid.bin_solid_angle();
             assert!((s - PI).abs() < 1e-12, "m={m}: {s}");
         }
     }

@@ -265,7 +265,8 @@ fn forced_timestamps_time_every_pass_and_never_means_wall_clock() {
     let _ = gpu_or_skip!(); // no adapter at all: skip
     let t = random_transfer(24, 16, 4, 0.3, 5);
     let light = random_light(4, 6);
-    let form = Bicluster { block_vertices: 8, ..Bicluster::default() }.compress(&t, &CompressContext::default()).unwrap();
+    let form =
+        Bicluster { block_vertices: 8, ..Bicluster::default() }.compress(&t, &CompressContext::default()).unwrap();
     let reference = reference_product(&t, &light);
 
     let never = GpuContext::with_timestamps(TimestampPolicy::Never).unwrap();

@@ -33,9 +33,7 @@ fn check_rgb(what: &str, v: Rgb, max: f32) -> Result<()> {
     if v.iter().all(|x| x.is_finite() && (0.0..=max).contains(x)) {
         Ok(())
     } else {
-        Err(ShadingError::Invalid(format!(
-            "{what} must be finite and in [0, {max}], got {v:?}"
-        )))
+        Err(ShadingError::Invalid(format!("{what} must be finite and in [0, {max}], got {v:?}")))
     }
 }
 
@@ -86,18 +84,10 @@ impl Brdf {
             Brdf::Lambertian { albedo } => (albedo.map(|a| a as f64 / PI), [0.0; 3]),
             Brdf::Phong { kd, ks, exponent } => {
                 // phong_brdf computes kd/pi + ks * lobe per channel; kd = 0 leaves the lobe.
-                let spec = phong_brdf(
-                    [0.0; 3],
-                    ks,
-                    exponent as f64,
-                    light.as_vec3(),
-                    view.as_vec3(),
-                );
+                let spec = phong_brdf([0.0; 3], ks, exponent as f64, light.as_vec3(), view.as_vec3());
                 (kd.map(|a| a as f64 / PI), spec)
             }
-            Brdf::AshikhminShirley { rd, rs, nu, nv } => {
-                ashikhmin_shirley(rd, rs, nu as f64, nv as f64, light, view)
-            }
+            Brdf::AshikhminShirley { rd, rs, nu, nv } => ashikhmin_shirley(rd, rs, nu as f64, nv as f64, light, view),
         }
     }
 
@@ -110,32 +100,16 @@ impl Brdf {
 }
 
 /// Ashikhmin-Shirley 2000, equations 4 and 5, with `k1` = light and `k2` = view.
-fn ashikhmin_shirley(
-    rd: Rgb,
-    rs: Rgb,
-    nu: f64,
-    nv: f64,
-    k1: DVec3,
-    k2: DVec3,
-) -> ([f64; 3], [f64; 3]) {
+fn ashikhmin_shirley(rd: Rgb, rs: Rgb, nu: f64, nv: f64, k1: DVec3, k2: DVec3) -> ([f64; 3], [f64; 3]) {
     let (n1, n2) = (k1.z.max(0.0), k2.z.max(0.0));
     let sum = k1 + k2;
-    let h = if sum.length_squared() > 0.0 {
-        sum.normalize()
-    } else {
-        DVec3::Z
-    };
+    let h = if sum.length_squared() > 0.0 { sum.normalize() } else { DVec3::Z };
     let kh = k1.dot(h).max(1e-12);
     let nh = h.z.max(0.0);
     let sin2 = h.x * h.x + h.y * h.y;
     // (nu (h.u)^2 + nv (h.v)^2) / (1 - (h.n)^2); at h = n the power is of 1 whatever the exponent.
-    let e = if sin2 > 0.0 {
-        (nu * h.x * h.x + nv * h.y * h.y) / sin2
-    } else {
-        0.0
-    };
-    let lobe =
-        ((nu + 1.0) * (nv + 1.0)).sqrt() / (8.0 * PI) * nh.powf(e) / (kh * n1.max(n2).max(1e-12));
+    let e = if sin2 > 0.0 { (nu * h.x * h.x + nv * h.y * h.y) / sin2 } else { 0.0 };
+    let lobe = ((nu + 1.0) * (nv + 1.0)).sqrt() / (8.0 * PI) * nh.powf(e) / (kh * n1.max(n2).max(1e-12));
     let schlick = (1.0 - kh).powi(5);
     let g = |c: f64| 1.0 - (1.0 - c / 2.0).powi(5);
     let coupling = 28.0 / (23.0 * PI) * g(n1) * g(n2);
@@ -158,18 +132,10 @@ impl Frame {
     pub fn from_normal(n: DVec3) -> Self {
         if n == DVec3::Z {
             // Exactly the patch frame, so a flat patch reproduces the analytic tables bit for bit.
-            return Self {
-                t: DVec3::X,
-                b: DVec3::Y,
-                n,
-            };
+            return Self { t: DVec3::X, b: DVec3::Y, n };
         }
         let t = (DVec3::X - n.x * n).normalize();
-        Self {
-            t,
-            b: n.cross(t),
-            n,
-        }
+        Self { t, b: n.cross(t), n }
     }
 
     #[inline]
@@ -192,12 +158,7 @@ mod tests {
     fn ashikhmin_shirley_is_reciprocal_and_anisotropic() {
         // Equations 4 and 5 are symmetric in k1, k2 (max(n.k1, n.k2), h.k with k either one),
         // so f(l, v) = f(v, l) to rounding.
-        let brdf = Brdf::AshikhminShirley {
-            rd: [0.3; 3],
-            rs: [0.05; 3],
-            nu: 100.0,
-            nv: 5.0,
-        };
+        let brdf = Brdf::AshikhminShirley { rd: [0.3; 3], rs: [0.05; 3], nu: 100.0, nv: 5.0 };
         brdf.validate().unwrap();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
         let dir = |rng: &mut rand_chacha::ChaCha8Rng| {
@@ -208,14 +169,8 @@ mod tests {
         };
         for _ in 0..1000 {
             let (l, v) = (dir(&mut rng), dir(&mut rng));
-            let (a, b) = (
-                brdf.eval_scaled(l, v, [1.0; 3]),
-                brdf.eval_scaled(v, l, [1.0; 3]),
-            );
-            assert!(
-                (a[0] - b[0]).abs() <= 1e-12 * a[0].max(1.0),
-                "{a:?} vs {b:?}"
-            );
+            let (a, b) = (brdf.eval_scaled(l, v, [1.0; 3]), brdf.eval_scaled(v, l, [1.0; 3]));
+            assert!((a[0] - b[0]).abs() <= 1e-12 * a[0].max(1.0), "{a:?} vs {b:?}");
         }
         // Light 30 degrees and view 50 degrees off the normal, both on the +X side: the
         // half-vector tilts towards +X (exponent nu = 100). The same pair rotated to the +Y
@@ -229,10 +184,7 @@ mod tests {
         };
         let along_x = brdf.eval_parts(rot(30.0, 0.0), rot(50.0, 0.0)).1[0];
         let along_y = brdf.eval_parts(rot(30.0, 90.0), rot(50.0, 90.0)).1[0];
-        assert!(
-            along_y > 2.0 * along_x,
-            "along x {along_x}, along y {along_y}"
-        );
+        assert!(along_y > 2.0 * along_x, "along x {along_x}, along y {along_y}");
     }
 
     #[test]
@@ -251,33 +203,9 @@ mod tests {
 
     #[test]
     fn bad_parameters_are_errors() {
-        assert!(Brdf::Lambertian {
-            albedo: [-0.1, 0.0, 0.0]
-        }
-        .validate()
-        .is_err());
-        assert!(Brdf::Phong {
-            kd: [0.1; 3],
-            ks: [0.1; 3],
-            exponent: f32::NAN
-        }
-        .validate()
-        .is_err());
-        assert!(Brdf::AshikhminShirley {
-            rd: [0.1; 3],
-            rs: [1.5; 3],
-            nu: 10.0,
-            nv: 10.0
-        }
-        .validate()
-        .is_err());
-        assert!(Brdf::AshikhminShirley {
-            rd: [0.1; 3],
-            rs: [0.1; 3],
-            nu: 0.0,
-            nv: 10.0
-        }
-        .validate()
-        .is_err());
+        assert!(Brdf::Lambertian { albedo: [-0.1, 0.0, 0.0] }.validate().is_err());
+        assert!(Brdf::Phong { kd: [0.1; 3], ks: [0.1; 3], exponent: f32::NAN }.validate().is_err());
+        assert!(Brdf::AshikhminShirley { rd: [0.1; 3], rs: [1.5; 3], nu: 10.0, nv: 10.0 }.validate().is_err());
+        assert!(Brdf::AshikhminShirley { rd: [0.1; 3], rs: [0.1; 3], nu: 0.0, nv: 10.0 }.validate().is_err());
     }
 }

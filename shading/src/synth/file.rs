@@ -76,11 +76,7 @@ impl BtfEncoding {
         [BtfEncoding::F32, BtfEncoding::F16, BtfEncoding::U8]
             .into_iter()
             .find(|e| e.name() == name)
-            .ok_or_else(|| {
-                ShadingError::Invalid(format!(
-                    "unknown BTF encoding '{name}' (expected f32, f16 or u8)"
-                ))
-            })
+            .ok_or_else(|| ShadingError::Invalid(format!("unknown BTF encoding '{name}' (expected f32, f16 or u8)")))
     }
 
     fn tag(self) -> u8 {
@@ -137,12 +133,7 @@ pub fn encode_btf(btf: &Btf, encoding: BtfEncoding) -> Result<Vec<u8>> {
     out.extend_from_slice(&BTF_MAGIC);
     out.extend_from_slice(&BTF_FORMAT_VERSION.to_le_bytes());
     out.extend_from_slice(&(total as u64).to_le_bytes());
-    for v in [
-        btf.spatial[0],
-        btf.spatial[1],
-        btf.light_grid.m,
-        btf.view_grid.map_or(0, |g| g.m),
-    ] {
+    for v in [btf.spatial[0], btf.spatial[1], btf.light_grid.m, btf.view_grid.map_or(0, |g| g.m)] {
         out.extend_from_slice(&v.to_le_bytes());
     }
     out.push(encoding.tag());
@@ -176,22 +167,15 @@ pub fn encode_btf(btf: &Btf, encoding: BtfEncoding) -> Result<Vec<u8>> {
                 )));
             }
             let per = btf.data.len() / texels;
-            let scales: Vec<f32> = btf
-                .data
-                .chunks(per)
-                .map(|t| t.iter().flatten().copied().fold(0.0f32, f32::max))
-                .collect();
+            let scales: Vec<f32> =
+                btf.data.chunks(per).map(|t| t.iter().flatten().copied().fold(0.0f32, f32::max)).collect();
             for s in &scales {
                 out.extend_from_slice(&s.to_le_bytes());
             }
             for (t, chunk) in btf.data.chunks(per).enumerate() {
                 let s = scales[t];
                 for c in chunk.iter().flatten() {
-                    out.push(if s > 0.0 {
-                        (c / s * 255.0).round().clamp(0.0, 255.0) as u8
-                    } else {
-                        0
-                    });
+                    out.push(if s > 0.0 { (c / s * 255.0).round().clamp(0.0, 255.0) as u8 } else { 0 });
                 }
             }
         }
@@ -207,8 +191,7 @@ pub fn save_btf(btf: &Btf, path: &Path, encoding: BtfEncoding) -> Result<()> {
     let bytes = encode_btf(btf, encoding)?;
     crate::image::write_atomic(path, |out| {
         use std::io::Write;
-        out.write_all(&bytes)
-            .map_err(|e| format!("cannot write: {e}"))
+        out.write_all(&bytes).map_err(|e| format!("cannot write: {e}"))
     })
 }
 
@@ -238,36 +221,25 @@ fn parse_header(b: &[u8], file_len: u64, fail: &dyn Fn(String) -> ShadingError) 
     }
     let version = le_u32(b, 8);
     if version != BTF_FORMAT_VERSION {
-        return Err(fail(format!(
-            "BTF format version {version}, this build reads version {BTF_FORMAT_VERSION}"
-        )));
+        return Err(fail(format!("BTF format version {version}, this build reads version {BTF_FORMAT_VERSION}")));
     }
     let total = u64::from_le_bytes(b[12..20].try_into().expect("8 bytes"));
     if total != file_len {
-        return Err(fail(format!(
-            "truncated or padded: the file has {file_len} bytes, its header says {total}"
-        )));
+        return Err(fail(format!("truncated or padded: the file has {file_len} bytes, its header says {total}")));
     }
     if b.len() < PREAMBLE + FIXED_HEADER {
         return Err(fail("truncated header".into()));
     }
     let h = PREAMBLE;
-    let (w, ht, light_m, view_m) = (
-        le_u32(b, h),
-        le_u32(b, h + 4),
-        le_u32(b, h + 8),
-        le_u32(b, h + 12),
-    );
-    let encoding = BtfEncoding::from_tag(b[h + 16])
-        .ok_or_else(|| fail(format!("unknown encoding tag {}", b[h + 16])))?;
+    let (w, ht, light_m, view_m) = (le_u32(b, h), le_u32(b, h + 4), le_u32(b, h + 8), le_u32(b, h + 12));
+    let encoding =
+        BtfEncoding::from_tag(b[h + 16]).ok_or_else(|| fail(format!("unknown encoding tag {}", b[h + 16])))?;
     let name_len = le_u32(b, h + 17) as usize;
     if !(1..=MAX_SPATIAL).contains(&w) || !(1..=MAX_SPATIAL).contains(&ht) {
         return Err(fail(format!("corrupt header: spatial size {w}x{ht}")));
     }
     if !(1..=256).contains(&light_m) || view_m > 256 {
-        return Err(fail(format!(
-            "corrupt header: light grid {light_m}, view grid {view_m}"
-        )));
+        return Err(fail(format!("corrupt header: light grid {light_m}, view grid {view_m}")));
     }
     if name_len > MAX_NAME {
         return Err(fail(format!("corrupt header: name length {name_len}")));
@@ -280,11 +252,7 @@ fn parse_header(b: &[u8], file_len: u64, fail: &dyn Fn(String) -> ShadingError) 
         .map_err(|_| fail("corrupt header: name is not UTF-8".into()))?
         .to_string();
     let texels = w as u128 * ht as u128;
-    let views = if view_m == 0 {
-        1
-    } else {
-        view_m as u128 * view_m as u128
-    };
+    let views = if view_m == 0 { 1 } else { view_m as u128 * view_m as u128 };
     let entries = texels * views * (light_m as u128 * light_m as u128);
     let expect = payload as u128 + encoding.payload_len(texels, entries) + 4;
     if expect != total as u128 {
@@ -293,27 +261,13 @@ fn parse_header(b: &[u8], file_len: u64, fail: &dyn Fn(String) -> ShadingError) 
             encoding.name()
         )));
     }
-    Ok(Header {
-        spatial: [w, ht],
-        light_m,
-        view_m,
-        encoding,
-        name,
-        payload,
-        total,
-    })
+    Ok(Header { spatial: [w, ht], light_m, view_m, encoding, name, payload, total })
 }
 
 /// Read a BTF file written by [`save_btf`] (see the module docs for the checks).
 pub fn load_btf(path: &Path) -> Result<Btf> {
-    let io = |source: std::io::Error| ShadingError::Io {
-        path: path.into(),
-        source,
-    };
-    let fail = |message: String| ShadingError::File {
-        path: path.into(),
-        message,
-    };
+    let io = |source: std::io::Error| ShadingError::Io { path: path.into(), source };
+    let fail = |message: String| ShadingError::File { path: path.into(), message };
     let mut file = std::fs::File::open(path).map_err(io)?;
     let file_len = file.metadata().map_err(io)?.len();
     // The header is at most PREAMBLE + FIXED_HEADER + MAX_NAME bytes: read that much first.
@@ -331,10 +285,7 @@ pub fn load_btf(path: &Path) -> Result<Btf> {
 /// as [`load_btf`]; `source` names it in errors. Used to give a BTF exactly the values its
 /// encoding stores, whether or not it went through a file.
 pub fn decode_btf(bytes: &[u8], source: &Path) -> Result<Btf> {
-    let fail = |message: String| ShadingError::File {
-        path: source.into(),
-        message,
-    };
+    let fail = |message: String| ShadingError::File { path: source.into(), message };
     let header = parse_header(bytes, bytes.len() as u64, &fail)?;
     decode_body(&bytes[..header.total as usize], header, &fail)
 }
@@ -344,40 +295,28 @@ fn decode_body(bytes: &[u8], header: Header, fail: &dyn Fn(String) -> ShadingErr
     let stored = le_u32(bytes, body);
     let computed = crc32fast::hash(&bytes[..body]);
     if stored != computed {
-        return Err(fail(format!("checksum mismatch (stored {stored:#010x}, computed {computed:#010x}): the file is corrupt")));
+        return Err(fail(format!(
+            "checksum mismatch (stored {stored:#010x}, computed {computed:#010x}): the file is corrupt"
+        )));
     }
     let payload = &bytes[header.payload..body];
     let texels = header.spatial[0] as usize * header.spatial[1] as usize;
-    let views = if header.view_m == 0 {
-        1
-    } else {
-        (header.view_m * header.view_m) as usize
-    };
+    let views = if header.view_m == 0 { 1 } else { (header.view_m * header.view_m) as usize };
     let entries = texels * views * (header.light_m * header.light_m) as usize;
     let data: Vec<Rgb> = match header.encoding {
         BtfEncoding::F32 => payload
             .chunks_exact(12)
-            .map(|e| {
-                std::array::from_fn(|c| {
-                    f32::from_le_bytes(e[4 * c..4 * c + 4].try_into().expect("4 bytes"))
-                })
-            })
+            .map(|e| std::array::from_fn(|c| f32::from_le_bytes(e[4 * c..4 * c + 4].try_into().expect("4 bytes"))))
             .collect(),
         BtfEncoding::F16 => payload
             .chunks_exact(6)
-            .map(|e| {
-                std::array::from_fn(|c| {
-                    f16::from_bits(u16::from_le_bytes([e[2 * c], e[2 * c + 1]])).to_f32()
-                })
-            })
+            .map(|e| std::array::from_fn(|c| f16::from_bits(u16::from_le_bytes([e[2 * c], e[2 * c + 1]])).to_f32()))
             .collect(),
         BtfEncoding::U8 => {
             let (scales, codes) = payload.split_at(texels * 4);
             let per = entries / texels;
-            let scales: Vec<f32> = scales
-                .chunks_exact(4)
-                .map(|s| f32::from_le_bytes(s.try_into().expect("4 bytes")))
-                .collect();
+            let scales: Vec<f32> =
+                scales.chunks_exact(4).map(|s| f32::from_le_bytes(s.try_into().expect("4 bytes"))).collect();
             if let Some(t) = scales.iter().position(|s| !(s.is_finite() && *s >= 0.0)) {
                 return Err(fail(format!("corrupt: texel {t} has scale {}", scales[t])));
             }

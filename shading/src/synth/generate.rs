@@ -60,33 +60,20 @@ impl BtfSpec {
 
     /// Check every field (ranges above; height field, BRDF and albedo map validated).
     pub fn validate(&self) -> Result<()> {
-        let bad = |m: String| {
-            Err(ShadingError::Invalid(format!(
-                "BTF spec '{}': {m}",
-                self.name
-            )))
-        };
+        let bad = |m: String| Err(ShadingError::Invalid(format!("BTF spec '{}': {m}", self.name)));
         self.height_field.validate()?;
         self.brdf.validate()?;
         if let Some(map) = &self.albedo_map {
             map.validate()?;
         }
         if !(1..=1024).contains(&self.resolution) {
-            return bad(format!(
-                "resolution must be 1..=1024 texels, got {}",
-                self.resolution
-            ));
+            return bad(format!("resolution must be 1..=1024 texels, got {}", self.resolution));
         }
         if !(1..=256).contains(&self.light_grid) {
-            return bad(format!(
-                "light grid must be 1..=256 per side, got {}",
-                self.light_grid
-            ));
+            return bad(format!("light grid must be 1..=256 per side, got {}", self.light_grid));
         }
         match self.view_grid {
-            Some(v) if !(1..=256).contains(&v) => {
-                return bad(format!("view grid must be 1..=256 per side, got {v}"))
-            }
+            Some(v) if !(1..=256).contains(&v) => return bad(format!("view grid must be 1..=256 per side, got {v}")),
             None if !matches!(self.brdf, Brdf::Lambertian { .. }) => {
                 return bad(format!(
                     "a view-independent BTF (no view grid) needs a Lambertian BRDF, got {}",
@@ -96,16 +83,10 @@ impl BtfSpec {
             _ => {}
         }
         if !(1..=16).contains(&self.supersample) {
-            return bad(format!(
-                "supersample must be 1..=16, got {}",
-                self.supersample
-            ));
+            return bad(format!("supersample must be 1..=16, got {}", self.supersample));
         }
         if self.interreflection && !(1..=4096).contains(&self.bounce_rays) {
-            return bad(format!(
-                "bounce_rays must be 1..=4096, got {}",
-                self.bounce_rays
-            ));
+            return bad(format!("bounce_rays must be 1..=4096, got {}", self.bounce_rays));
         }
         Ok(())
     }
@@ -136,33 +117,16 @@ fn flat(spec: &BtfSpec, progress: Option<&(dyn Fn(usize) + Sync)>) -> Result<Btf
         (Brdf::Lambertian { albedo }, None) => Btf::lambertian(albedo, spec.light_grid)?,
         (Brdf::Phong { kd, ks, exponent }, None) => {
             // validate() guarantees a view grid for non-Lambertian BRDFs.
-            Btf::phong(
-                kd,
-                ks,
-                exponent,
-                spec.light_grid,
-                spec.view_grid.unwrap_or(1),
-            )?
+            Btf::phong(kd, ks, exponent, spec.light_grid, spec.view_grid.unwrap_or(1))?
         }
         (_, None) => {
             // Uniform: one texel at one sample.
-            let one = BtfSpec {
-                resolution: 1,
-                supersample: 1,
-                ..spec.clone()
-            };
+            let one = BtfSpec { resolution: 1, supersample: 1, ..spec.clone() };
             run(&one, None, Mode::Plane)?
         }
         (_, Some(_)) => {
             // A flat Lambertian patch has no view dependence even with a texture.
-            let s = if lambertian {
-                BtfSpec {
-                    view_grid: None,
-                    ..spec.clone()
-                }
-            } else {
-                spec.clone()
-            };
+            let s = if lambertian { BtfSpec { view_grid: None, ..spec.clone() } } else { spec.clone() };
             run(&s, None, Mode::Plane)?
         }
     };
@@ -222,21 +186,13 @@ struct Context<'a> {
 /// on. Sample points are rounded to ~1e-16; the facet's own plane is met at |t| ~ 1e-13 or less.
 const TMIN: f64 = 1e-9;
 
-pub(crate) fn run(
-    spec: &BtfSpec,
-    progress: Option<&(dyn Fn(usize) + Sync)>,
-    mode: Mode,
-) -> Result<Btf> {
+pub(crate) fn run(spec: &BtfSpec, progress: Option<&(dyn Fn(usize) + Sync)>, mode: Mode) -> Result<Btf> {
     spec.validate()?;
     let lg = HemisphereGrid::new(spec.light_grid);
     let vg = spec.view_grid.map(HemisphereGrid::new);
-    let lights: Vec<DVec3> = (0..lg.len() as u32)
-        .map(|j| lg.bin_direction(j).as_dvec3())
-        .collect();
+    let lights: Vec<DVec3> = (0..lg.len() as u32).map(|j| lg.bin_direction(j).as_dvec3()).collect();
     let views: Vec<DVec3> = match vg {
-        Some(g) => (0..g.len() as u32)
-            .map(|v| g.bin_direction(v).as_dvec3())
-            .collect(),
+        Some(g) => (0..g.len() as u32).map(|v| g.bin_direction(v).as_dvec3()).collect(),
         None => vec![DVec3::Z],
     };
     let hf = &spec.height_field;
@@ -260,33 +216,21 @@ pub(crate) fn run(
     let (r, m, v) = (spec.resolution as usize, ctx.lights.len(), ctx.views.len());
     let mut data = vec![[0.0f32; 3]; r * r * v * m];
     let done = AtomicUsize::new(0);
-    data.par_chunks_mut(v * m)
-        .enumerate()
-        .for_each(|(texel, out)| {
-            shade_texel(&ctx, texel % r, texel / r, out);
-            let k = done.fetch_add(1, Ordering::Relaxed) + 1;
-            if let Some(p) = progress {
-                p(k);
-            }
-        });
-    let btf = Btf {
-        spatial: [r as u32; 2],
-        light_grid: lg,
-        view_grid: vg,
-        data,
-        name: spec.name.clone(),
-    };
+    data.par_chunks_mut(v * m).enumerate().for_each(|(texel, out)| {
+        shade_texel(&ctx, texel % r, texel / r, out);
+        let k = done.fetch_add(1, Ordering::Relaxed) + 1;
+        if let Some(p) = progress {
+            p(k);
+        }
+    });
+    let btf = Btf { spatial: [r as u32; 2], light_grid: lg, view_grid: vg, data, name: spec.name.clone() };
     btf.validate()?;
     Ok(btf)
 }
 
 fn shade_texel(ctx: &Context, tx: usize, ty: usize, out: &mut [Rgb]) {
     let spec = ctx.spec;
-    let (s, r, m) = (
-        spec.supersample as usize,
-        spec.resolution as f64,
-        ctx.lights.len(),
-    );
+    let (s, r, m) = (spec.supersample as usize, spec.resolution as f64, ctx.lights.len());
     let mut acc = vec![[0.0f64; 3]; m];
     for (vi, &e) in ctx.views.iter().enumerate() {
         acc.fill([0.0; 3]);
@@ -294,9 +238,7 @@ fn shade_texel(ctx: &Context, tx: usize, ty: usize, out: &mut [Rgb]) {
             for sx in 0..s {
                 let px = (tx as f64 + (sx as f64 + 0.5) / s as f64) / r;
                 let py = (ty as f64 + (sy as f64 + 0.5) / s as f64) / r;
-                let seed =
-                    ((((ty * spec.resolution as usize + tx) * ctx.views.len() + vi) * s + sy) * s
-                        + sx) as u64;
+                let seed = ((((ty * spec.resolution as usize + tx) * ctx.views.len() + vi) * s + sy) * s + sx) as u64;
                 shade_sample(ctx, px, py, e, seed, &mut acc);
             }
         }
@@ -331,10 +273,7 @@ fn shade_sample(ctx: &Context, px: f64, py: f64, e: DVec3, seed: u64, acc: &mut 
         e_local.z = 1e-9;
         e_local = e_local.normalize();
     }
-    let albedo = spec
-        .albedo_map
-        .as_ref()
-        .map_or([1.0; 3], |map| map.sample(point.x, point.y));
+    let albedo = spec.albedo_map.as_ref().map_or([1.0; 3], |map| map.sample(point.x, point.y));
     for (j, a) in acc.iter_mut().enumerate() {
         let cos = normal.dot(ctx.light_means[j]);
         if cos <= 0.0 || normal.dot(ctx.lights[j]) <= 0.0 {
@@ -345,17 +284,13 @@ fn shade_sample(ctx: &Context, px: f64, py: f64, e: DVec3, seed: u64, acc: &mut 
                 continue;
             }
         }
-        let f = spec
-            .brdf
-            .eval_scaled(frame.to_local(ctx.lights[j]), e_local, albedo);
+        let f = spec.brdf.eval_scaled(frame.to_local(ctx.lights[j]), e_local, albedo);
         for c in 0..3 {
             a[c] += f[c] * cos;
         }
     }
     if let (Some(tracer), Some(table), Some(_)) = (&ctx.tracer, &ctx.bounce_irradiance, triangle) {
-        bounce(
-            ctx, tracer, table, point, &frame, e_local, albedo, seed, acc,
-        );
+        bounce(ctx, tracer, table, point, &frame, e_local, albedo, seed, acc);
     }
 }
 
@@ -398,14 +333,10 @@ fn bounce(
         if out_q.z <= 0.0 {
             continue;
         }
-        let albedo_q = spec
-            .albedo_map
-            .as_ref()
-            .map_or([1.0; 3], |map| map.sample(hit.point.x, hit.point.y));
+        let albedo_q = spec.albedo_map.as_ref().map_or([1.0; 3], |map| map.sample(hit.point.x, hit.point.y));
         let fp = spec.brdf.eval_scaled(local, e_local, albedo);
         let row = &table[hit.triangle as usize * m..(hit.triangle as usize + 1) * m];
-        let lambert_q = lambert
-            .map(|a| std::array::from_fn::<f64, 3, _>(|c| a[c] as f64 / PI * albedo_q[c] as f64));
+        let lambert_q = lambert.map(|a| std::array::from_fn::<f64, 3, _>(|c| a[c] as f64 / PI * albedo_q[c] as f64));
         for j in 0..m {
             let irr = row[j] as f64;
             if irr == 0.0 {
@@ -413,9 +344,7 @@ fn bounce(
             }
             let fq = match lambert_q {
                 Some(f) => f,
-                None => spec
-                    .brdf
-                    .eval_scaled(fq_frame.to_local(ctx.lights[j]), out_q, albedo_q),
+                None => spec.brdf.eval_scaled(fq_frame.to_local(ctx.lights[j]), out_q, albedo_q),
             };
             for c in 0..3 {
                 acc[j][c] += weight * fp[c] * fq[c] * irr;
@@ -426,8 +355,7 @@ fn bounce(
 
 /// Uniform `[0, 1)` from a seed and a stream.
 fn unit(seed: u64, stream: u64) -> f64 {
-    let mut z =
-        seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ stream.wrapping_mul(0xd1b5_4a32_d192_ed03);
+    let mut z = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ stream.wrapping_mul(0xd1b5_4a32_d192_ed03);
     z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
     ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
@@ -452,13 +380,8 @@ fn direct_irradiance_per_triangle(ctx: &Context) -> Vec<f32> {
         let cell = tri / 2;
         let (i, j) = (cell % n, cell / n);
         let hz = |di: usize, dj: usize| hf.h[((j + dj) % n) * n + (i + di) % n] as f64;
-        let corner = |di: usize, dj: usize| {
-            DVec3::new(
-                (i + di) as f64 / n as f64,
-                (j + dj) as f64 / n as f64,
-                hz(di, dj),
-            )
-        };
+        let corner =
+            |di: usize, dj: usize| DVec3::new((i + di) as f64 / n as f64, (j + dj) as f64 / n as f64, hz(di, dj));
         let v = if tri % 2 == 0 {
             [corner(0, 0), corner(1, 0), corner(1, 1)]
         } else {
@@ -472,13 +395,7 @@ fn direct_irradiance_per_triangle(ctx: &Context) -> Vec<f32> {
             }
             let lit = bary
                 .iter()
-                .filter(|b| {
-                    !tracer.occluded(
-                        v[0] * b[0] + v[1] * b[1] + v[2] * b[2],
-                        ctx.light_rays[jl],
-                        TMIN,
-                    )
-                })
+                .filter(|b| !tracer.occluded(v[0] * b[0] + v[1] * b[1] + v[2] * b[2], ctx.light_rays[jl], TMIN))
                 .count();
             *out = (cos * lit as f64 / bary.len() as f64) as f32;
         }

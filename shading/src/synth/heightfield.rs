@@ -65,14 +65,8 @@ pub enum Pattern {
 
 impl Pattern {
     /// Every pattern, in declaration order.
-    pub const ALL: [Pattern; 6] = [
-        Pattern::Bumps,
-        Pattern::Weave,
-        Pattern::Stucco,
-        Pattern::Holes,
-        Pattern::Bricks,
-        Pattern::Scales,
-    ];
+    pub const ALL: [Pattern; 6] =
+        [Pattern::Bumps, Pattern::Weave, Pattern::Stucco, Pattern::Holes, Pattern::Bricks, Pattern::Scales];
 
     /// The lowercase name used in configs and reports.
     pub fn name(self) -> &'static str {
@@ -88,16 +82,13 @@ impl Pattern {
 
     /// Inverse of [`Self::name`].
     pub fn from_name(name: &str) -> Result<Self> {
-        Self::ALL
-            .into_iter()
-            .find(|p| p.name() == name)
-            .ok_or_else(|| {
-                let names: Vec<_> = Self::ALL.iter().map(|p| p.name()).collect();
-                ShadingError::Invalid(format!(
-                    "unknown height-field pattern '{name}' (expected one of {})",
-                    names.join(", ")
-                ))
-            })
+        Self::ALL.into_iter().find(|p| p.name() == name).ok_or_else(|| {
+            let names: Vec<_> = Self::ALL.iter().map(|p| p.name()).collect();
+            ShadingError::Invalid(format!(
+                "unknown height-field pattern '{name}' (expected one of {})",
+                names.join(", ")
+            ))
+        })
     }
 
     fn needs_even_frequency(self) -> bool {
@@ -119,12 +110,7 @@ pub struct Recipe {
 
 impl Recipe {
     pub fn new(pattern: Pattern, amplitude: f32, frequency: u32, seed: u64) -> Self {
-        Self {
-            pattern,
-            amplitude,
-            frequency,
-            seed,
-        }
+        Self { pattern, amplitude, frequency, seed }
     }
 }
 
@@ -132,37 +118,22 @@ impl HeightField {
     /// A flat field of `size x size` zeros.
     pub fn flat(size: u32) -> Result<Self> {
         check_size(size, size, "flat height field")?;
-        Ok(Self {
-            width: size,
-            height: size,
-            h: vec![0.0; (size * size) as usize],
-        })
+        Ok(Self { width: size, height: size, h: vec![0.0; (size * size) as usize] })
     }
 
     /// Sample a procedural [`Recipe`] at `size x size` points.
     pub fn procedural(recipe: &Recipe, size: u32) -> Result<Self> {
-        let Recipe {
-            pattern,
-            amplitude,
-            frequency: f,
-            seed,
-        } = *recipe;
+        let Recipe { pattern, amplitude, frequency: f, seed } = *recipe;
         let what = format!("{} height field", pattern.name());
         check_size(size, size, &what)?;
         if !(amplitude.is_finite() && amplitude >= 0.0) {
-            return Err(ShadingError::Invalid(format!(
-                "{what}: amplitude must be finite and >= 0, got {amplitude}"
-            )));
+            return Err(ShadingError::Invalid(format!("{what}: amplitude must be finite and >= 0, got {amplitude}")));
         }
         if f == 0 || f > 256 {
-            return Err(ShadingError::Invalid(format!(
-                "{what}: frequency must be 1..=256, got {f}"
-            )));
+            return Err(ShadingError::Invalid(format!("{what}: frequency must be 1..=256, got {f}")));
         }
         if pattern.needs_even_frequency() && f % 2 != 0 {
-            return Err(ShadingError::Invalid(format!(
-                "{what}: frequency must be even to tile, got {f}"
-            )));
+            return Err(ShadingError::Invalid(format!("{what}: frequency must be even to tile, got {f}")));
         }
         let n = size as usize;
         let a = amplitude as f64;
@@ -181,11 +152,7 @@ impl HeightField {
                 h.push((a * v) as f32);
             }
         }
-        Ok(Self {
-            width: size,
-            height: size,
-            h,
-        })
+        Ok(Self { width: size, height: size, h })
     }
 
     /// Load a grayscale height image: `h = amplitude * value`, where `value` is the grey level
@@ -194,20 +161,13 @@ impl HeightField {
     /// luma). Image row 0 is patch `y = 0`. The image must be square, `2..=4096` pixels per
     /// side, and finite; every error names the file.
     pub fn from_image(path: &Path, amplitude: f32) -> Result<Self> {
-        let file_err = |message: String| ShadingError::File {
-            path: path.into(),
-            message,
-        };
+        let file_err = |message: String| ShadingError::File { path: path.into(), message };
         if !(amplitude.is_finite() && amplitude >= 0.0) {
-            return Err(file_err(format!(
-                "height amplitude must be finite and >= 0, got {amplitude}"
-            )));
+            return Err(file_err(format!("height amplitude must be finite and >= 0, got {amplitude}")));
         }
         let (w, hgt, values) = read_gray(path)?;
         if w != hgt {
-            return Err(file_err(format!(
-                "height image must be square (the patch is the unit square), got {w}x{hgt}"
-            )));
+            return Err(file_err(format!("height image must be square (the patch is the unit square), got {w}x{hgt}")));
         }
         if !(MIN_HEIGHT_FIELD_SIZE..=MAX_HEIGHT_FIELD_SIZE).contains(&w) {
             return Err(file_err(format!(
@@ -224,16 +184,9 @@ impl HeightField {
         }
         let h = values.iter().map(|v| v * amplitude).collect::<Vec<_>>();
         if let Some(k) = h.iter().position(|v| !v.is_finite()) {
-            return Err(file_err(format!(
-                "height {} x amplitude {amplitude} overflows at pixel {k}",
-                values[k]
-            )));
+            return Err(file_err(format!("height {} x amplitude {amplitude} overflows at pixel {k}", values[k])));
         }
-        Ok(Self {
-            width: w,
-            height: hgt,
-            h,
-        })
+        Ok(Self { width: w, height: hgt, h })
     }
 
     /// Check the size (square, `2..=4096`), the sample count, and that every height is finite.
@@ -260,11 +213,7 @@ impl HeightField {
 
     /// `(min, max)` height.
     pub fn range(&self) -> (f32, f32) {
-        self.h
-            .iter()
-            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
-                (lo.min(v), hi.max(v))
-            })
+        self.h.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)))
     }
 
     /// True when every sample has the same height (zero amplitude): such a patch is tabulated
@@ -282,9 +231,7 @@ impl HeightField {
 
 fn check_size(w: u32, h: u32, what: &str) -> Result<()> {
     if w != h {
-        return Err(ShadingError::Invalid(format!(
-            "{what}: must be square, got {w}x{h}"
-        )));
+        return Err(ShadingError::Invalid(format!("{what}: must be square, got {w}x{h}")));
     }
     if !(MIN_HEIGHT_FIELD_SIZE..=MAX_HEIGHT_FIELD_SIZE).contains(&w) {
         return Err(ShadingError::Invalid(format!(
@@ -297,28 +244,16 @@ fn check_size(w: u32, h: u32, what: &str) -> Result<()> {
 /// Read an image as one float channel: `(width, height, values)` (see
 /// [`HeightField::from_image`] for the conversion).
 fn read_gray(path: &Path) -> Result<(u32, u32, Vec<f32>)> {
-    let is_exr = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+    let is_exr = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
     if is_exr {
         // NaN pixels come back as warnings; the caller turns them into an error.
         let (img, _warnings) = crate::image::HdrImage::read_exr(path)?;
-        let v = img
-            .pixels
-            .iter()
-            .map(|p| (p[0] + p[1] + p[2]) / 3.0)
-            .collect();
+        let v = img.pixels.iter().map(|p| (p[0] + p[1] + p[2]) / 3.0).collect();
         return Ok((img.width, img.height, v));
     }
     let img = image::open(path).map_err(|e| match e {
-        image::ImageError::IoError(source) => ShadingError::Io {
-            path: path.into(),
-            source,
-        },
-        e => ShadingError::File {
-            path: path.into(),
-            message: format!("cannot read image: {e}"),
-        },
+        image::ImageError::IoError(source) => ShadingError::Io { path: path.into(), source },
+        e => ShadingError::File { path: path.into(), message: format!("cannot read image: {e}") },
     })?;
     let luma = img.to_luma32f();
     Ok((luma.width(), luma.height(), luma.into_raw()))
@@ -339,37 +274,22 @@ impl AlbedoMap {
     /// Load a colour image: PNG (sRGB-encoded, decoded to linear) or OpenEXR (linear). Values
     /// must be finite and in `[0, 1]`; every error names the file.
     pub fn from_image(path: &Path) -> Result<Self> {
-        let is_exr = path
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+        let is_exr = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
         let map = if is_exr {
             let (img, _) = crate::image::HdrImage::read_exr(path)?;
-            Self {
-                width: img.width,
-                height: img.height,
-                rgb: img.pixels,
-            }
+            Self { width: img.width, height: img.height, rgb: img.pixels }
         } else {
             let img = image::open(path)
                 .map_err(|e| match e {
-                    image::ImageError::IoError(source) => ShadingError::Io {
-                        path: path.into(),
-                        source,
-                    },
-                    e => ShadingError::File {
-                        path: path.into(),
-                        message: format!("cannot read image: {e}"),
-                    },
+                    image::ImageError::IoError(source) => ShadingError::Io { path: path.into(), source },
+                    e => ShadingError::File { path: path.into(), message: format!("cannot read image: {e}") },
                 })?
                 .to_rgb32f();
             let (width, height) = img.dimensions();
             let rgb = img.pixels().map(|p| p.0.map(srgb_to_linear)).collect();
             Self { width, height, rgb }
         };
-        map.validate().map_err(|e| ShadingError::File {
-            path: path.into(),
-            message: e.to_string(),
-        })?;
+        map.validate().map_err(|e| ShadingError::File { path: path.into(), message: e.to_string() })?;
         Ok(map)
     }
 
@@ -377,21 +297,12 @@ impl AlbedoMap {
     pub fn validate(&self) -> Result<()> {
         let (w, h) = (self.width, self.height);
         if w == 0 || h == 0 || w > MAX_HEIGHT_FIELD_SIZE || h > MAX_HEIGHT_FIELD_SIZE {
-            return Err(ShadingError::Invalid(format!(
-                "albedo map size {w}x{h} outside 1..=4096"
-            )));
+            return Err(ShadingError::Invalid(format!("albedo map size {w}x{h} outside 1..=4096")));
         }
         if self.rgb.len() != w as usize * h as usize {
-            return Err(ShadingError::Invalid(format!(
-                "albedo map {w}x{h} holds {} pixels",
-                self.rgb.len()
-            )));
+            return Err(ShadingError::Invalid(format!("albedo map {w}x{h} holds {} pixels", self.rgb.len())));
         }
-        if let Some(k) = self
-            .rgb
-            .iter()
-            .position(|p| !p.iter().all(|c| c.is_finite() && (0.0..=1.0).contains(c)))
-        {
+        if let Some(k) = self.rgb.iter().position(|p| !p.iter().all(|c| c.is_finite() && (0.0..=1.0).contains(c))) {
             return Err(ShadingError::Invalid(format!(
                 "albedo map pixel ({}, {}) = {:?} is not in [0, 1]",
                 k % w as usize,
@@ -470,10 +381,7 @@ fn weave(x: f64, y: f64, f: u32, seed: u64) -> f64 {
     // Warp i is over weft k where i + k is even: cos(pi (f y - 0.5 + i)) = +1 there.
     let warp_up = 0.5 + 0.5 * (PI * (fl * y - 0.5 + i)).cos();
     let weft_up = 0.5 - 0.5 * (PI * (fl * x - 0.5 + k)).cos();
-    let (wi, wk) = (
-        (i as i64).rem_euclid(f as i64),
-        (k as i64).rem_euclid(f as i64),
-    );
+    let (wi, wk) = ((i as i64).rem_euclid(f as i64), (k as i64).rem_euclid(f as i64));
     let var_i = 0.95 + 0.1 * rand01(seed, wi, 0, 5);
     let var_k = 0.95 + 0.1 * rand01(seed, 0, wk, 6);
     let warp = profile(a) * (0.45 + 0.5 * warp_up) * var_i;
@@ -536,10 +444,7 @@ fn bricks(x: f64, y: f64, f: u32, seed: u64) -> f64 {
     // Distance to the brick's edge in row-height units (a brick is 2 units long).
     let e = (2.0 * u.min(1.0 - u)).min(v.min(1.0 - v));
     let m = 0.08;
-    let (wc, wr) = (
-        (col as i64).rem_euclid((f / 2) as i64),
-        (row as i64).rem_euclid(f as i64),
-    );
+    let (wc, wr) = ((col as i64).rem_euclid((f / 2) as i64), (row as i64).rem_euclid(f as i64));
     let top = 0.85 + 0.15 * rand01(seed, wc, wr, 31);
     top * smoothstep(m, 2.0 * m, e)
 }
@@ -577,10 +482,7 @@ mod tests {
         for p in Pattern::ALL {
             let f = 4;
             for s in 0..50 {
-                let (x, y) = (
-                    ((s * 37) % 50) as f64 / 50.0 + 0.003,
-                    ((s * 11) % 50) as f64 / 50.0 + 0.007,
-                );
+                let (x, y) = (((s * 37) % 50) as f64 / 50.0 + 0.003, ((s * 11) % 50) as f64 / 50.0 + 0.007);
                 let eval = |x: f64, y: f64| match p {
                     Pattern::Bumps => bumps(x, y, f, 9),
                     Pattern::Weave => weave(x, y, f, 9),
@@ -592,28 +494,15 @@ mod tests {
                 let v = eval(x, y);
                 for (dx, dy) in [(1.0, 0.0), (0.0, 1.0), (-1.0, 2.0)] {
                     let w = eval(x + dx, y + dy);
-                    assert!(
-                        (v - w).abs() < 1e-9,
-                        "{p:?} at ({x},{y}) shifted ({dx},{dy}): {v} vs {w}"
-                    );
+                    assert!((v - w).abs() < 1e-9, "{p:?} at ({x},{y}) shifted ({dx},{dy}): {v} vs {w}");
                 }
             }
             let hf = HeightField::procedural(&Recipe::new(p, 0.1, 4, 3), 64).unwrap();
             hf.validate().unwrap();
             let (lo, hi) = hf.range();
-            let (elo, ehi) = if p == Pattern::Holes {
-                (-0.1, 0.0)
-            } else {
-                (0.0, 0.1)
-            };
-            assert!(
-                lo >= elo - 1e-6 && hi <= ehi + 1e-6,
-                "{p:?}: range {lo}..{hi}"
-            );
-            assert!(
-                hi - lo > 0.03,
-                "{p:?}: pattern is (nearly) flat: {lo}..{hi}"
-            );
+            let (elo, ehi) = if p == Pattern::Holes { (-0.1, 0.0) } else { (0.0, 0.1) };
+            assert!(lo >= elo - 1e-6 && hi <= ehi + 1e-6, "{p:?}: range {lo}..{hi}");
+            assert!(hi - lo > 0.03, "{p:?}: pattern is (nearly) flat: {lo}..{hi}");
             // The seed changes the pattern (stochastic variation is real).
             let other = HeightField::procedural(&Recipe::new(p, 0.1, 4, 4), 64).unwrap();
             assert_ne!(hf, other, "{p:?}: seed has no effect");
@@ -623,9 +512,7 @@ mod tests {
     #[test]
     fn zero_amplitude_is_flat() {
         for p in Pattern::ALL {
-            assert!(HeightField::procedural(&Recipe::new(p, 0.0, 2, 1), 16)
-                .unwrap()
-                .is_flat());
+            assert!(HeightField::procedural(&Recipe::new(p, 0.0, 2, 1), 16).unwrap().is_flat());
         }
     }
 
@@ -647,18 +534,12 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         // 16-bit PNG: grey levels map to [0, 1] x amplitude.
         let png = dir.path().join("h.png");
-        let img = image::ImageBuffer::<image::Luma<u16>, _>::from_fn(8, 8, |x, _| {
-            image::Luma([(x * 9362) as u16])
-        });
+        let img = image::ImageBuffer::<image::Luma<u16>, _>::from_fn(8, 8, |x, _| image::Luma([(x * 9362) as u16]));
         img.save(&png).unwrap();
         let hf = HeightField::from_image(&png, 0.2).unwrap();
         assert_eq!((hf.width, hf.height), (8, 8));
         // 16-bit levels are exact to 1/65535 in [0, 1].
-        assert!(
-            (hf.h[7] - 0.2 * (7.0 * 9362.0 / 65535.0)).abs() < 1e-6,
-            "{}",
-            hf.h[7]
-        );
+        assert!((hf.h[7] - 0.2 * (7.0 * 9362.0 / 65535.0)).abs() < 1e-6, "{}", hf.h[7]);
         assert_eq!(hf.h[0], 0.0);
 
         let wide = dir.path().join("wide.png");
@@ -676,40 +557,23 @@ mod tests {
         hdr.pixels[6] = [f32::NAN; 3];
         hdr.write_exr(&exr).unwrap();
         let e = HeightField::from_image(&exr, 0.1).unwrap_err().to_string();
-        assert!(
-            e.contains("nan.exr") && e.contains("NaN") && e.contains("(2, 1)"),
-            "{e}"
-        );
+        assert!(e.contains("nan.exr") && e.contains("NaN") && e.contains("(2, 1)"), "{e}");
 
         let missing = dir.path().join("missing.png");
-        assert!(HeightField::from_image(&missing, 0.1)
-            .unwrap_err()
-            .to_string()
-            .contains("missing.png"));
+        assert!(HeightField::from_image(&missing, 0.1).unwrap_err().to_string().contains("missing.png"));
         let garbage = dir.path().join("garbage.png");
         std::fs::write(&garbage, b"not a png").unwrap();
-        assert!(HeightField::from_image(&garbage, 0.1)
-            .unwrap_err()
-            .to_string()
-            .contains("garbage.png"));
+        assert!(HeightField::from_image(&garbage, 0.1).unwrap_err().to_string().contains("garbage.png"));
     }
 
     #[test]
     fn albedo_maps_sample_with_wrapping() {
-        let map = AlbedoMap {
-            width: 2,
-            height: 1,
-            rgb: vec![[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
-        };
+        let map = AlbedoMap { width: 2, height: 1, rgb: vec![[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] };
         map.validate().unwrap();
         assert_eq!(map.sample(0.25, 0.5), [1.0, 0.0, 0.0]);
         assert_eq!(map.sample(0.75, 3.5), [0.0, 1.0, 0.0]);
         assert_eq!(map.sample(-0.25, -0.5), [0.0, 1.0, 0.0]);
-        let bad = AlbedoMap {
-            width: 1,
-            height: 1,
-            rgb: vec![[1.5, 0.0, 0.0]],
-        };
+        let bad = AlbedoMap { width: 1, height: 1, rgb: vec![[1.5, 0.0, 0.0]] };
         assert!(bad.validate().is_err());
     }
 }

@@ -17,9 +17,7 @@ pub fn contact_sheet(btf: &Btf, lights: &[usize], views: &[usize]) -> Result<ima
     btf.validate()?;
     let (m, v) = (btf.light_count(), btf.view_count());
     if lights.is_empty() || views.is_empty() {
-        return Err(ShadingError::Invalid(
-            "contact sheet: no lights or no views given".into(),
-        ));
+        return Err(ShadingError::Invalid("contact sheet: no lights or no views given".into()));
     }
     if let Some(j) = lights.iter().find(|&&j| j >= m) {
         return Err(ShadingError::Invalid(format!(
@@ -54,8 +52,7 @@ pub fn contact_sheet(btf: &Btf, lights: &[usize], views: &[usize]) -> Result<ima
             for y in 0..th {
                 for x in 0..tw {
                     let texel = ((y / k) * w + x / k) as usize;
-                    let p = at(texel, e, j)
-                        .map(|c| (linear_to_srgb((c * scale).clamp(0.0, 1.0)) * 255.0 + 0.5) as u8);
+                    let p = at(texel, e, j).map(|c| (linear_to_srgb((c * scale).clamp(0.0, 1.0)) * 255.0 + 0.5) as u8);
                     img.put_pixel(x0 + x, y0 + y, image::Rgb(p));
                 }
             }

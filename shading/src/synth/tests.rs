@@ -8,12 +8,7 @@ use biscale_core::sampling::HemisphereGrid;
 use std::f64::consts::PI;
 
 fn spec(hf: HeightField, brdf: Brdf, res: u32, m: u32, v: Option<u32>) -> BtfSpec {
-    BtfSpec {
-        resolution: res,
-        light_grid: m,
-        view_grid: v,
-        ..BtfSpec::new(hf, brdf)
-    }
+    BtfSpec { resolution: res, light_grid: m, view_grid: v, ..BtfSpec::new(hf, brdf) }
 }
 
 /// Value of `btf` at texel `t`, view `v`, light `j`.
@@ -25,20 +20,9 @@ fn close(a: f32, b: f32, rel: f32) -> bool {
     (a - b).abs() <= rel * a.abs().max(b.abs()) + 1e-9
 }
 
-const LAMBERT: Brdf = Brdf::Lambertian {
-    albedo: [0.8, 0.5, 0.25],
-};
-const PHONG: Brdf = Brdf::Phong {
-    kd: [0.3, 0.2, 0.1],
-    ks: [0.5, 0.6, 0.7],
-    exponent: 20.0,
-};
-const ASHIKHMIN: Brdf = Brdf::AshikhminShirley {
-    rd: [0.4, 0.3, 0.2],
-    rs: [0.05, 0.1, 0.2],
-    nu: 60.0,
-    nv: 8.0,
-};
+const LAMBERT: Brdf = Brdf::Lambertian { albedo: [0.8, 0.5, 0.25] };
+const PHONG: Brdf = Brdf::Phong { kd: [0.3, 0.2, 0.1], ks: [0.5, 0.6, 0.7], exponent: 20.0 };
+const ASHIKHMIN: Brdf = Brdf::AshikhminShirley { rd: [0.4, 0.3, 0.2], rs: [0.05, 0.1, 0.2], nu: 60.0, nv: 8.0 };
 
 #[test]
 fn flat_patches_are_the_analytic_tables() {
@@ -48,17 +32,10 @@ fn flat_patches_are_the_analytic_tables() {
     let expect = Btf::lambertian([0.8, 0.5, 0.25], 8).unwrap();
     assert_eq!(
         (btf.spatial, btf.light_grid, btf.view_grid, &btf.data),
-        (
-            expect.spatial,
-            expect.light_grid,
-            expect.view_grid,
-            &expect.data
-        )
+        (expect.spatial, expect.light_grid, expect.view_grid, &expect.data)
     );
     // ... which is the analytic BRDF times the bin-mean cosine at every sample.
-    let Brdf::Lambertian { albedo } = LAMBERT else {
-        unreachable!()
-    };
+    let Brdf::Lambertian { albedo } = LAMBERT else { unreachable!() };
     for j in 0..64 {
         let c = btf.light_grid.bin_mean_cosine(j as u32);
         for (got, a) in at(&btf, 0, 0, j).into_iter().zip(albedo) {
@@ -70,20 +47,11 @@ fn flat_patches_are_the_analytic_tables() {
     let expect = Btf::phong([0.3, 0.2, 0.1], [0.5, 0.6, 0.7], 20.0, 8, 12).unwrap();
     assert_eq!(
         (btf.spatial, btf.light_grid, btf.view_grid, &btf.data),
-        (
-            expect.spatial,
-            expect.light_grid,
-            expect.view_grid,
-            &expect.data
-        )
+        (expect.spatial, expect.light_grid, expect.view_grid, &expect.data)
     );
     // Zero amplitude in a recipe is a flat patch.
     for p in Pattern::ALL {
-        let f = if p == Pattern::Weave || p == Pattern::Bricks || p == Pattern::Scales {
-            4
-        } else {
-            3
-        };
+        let f = if p == Pattern::Weave || p == Pattern::Bricks || p == Pattern::Scales { 4 } else { 3 };
         s.height_field = HeightField::procedural(&Recipe::new(p, 0.0, f, 5), 32).unwrap();
         assert_eq!(synthesize(&s, None).unwrap().data, expect.data, "{p:?}");
     }
@@ -98,10 +66,7 @@ fn ray_traced_flat_patch_equals_the_analytic_table() {
     let mut flat = HeightField::flat(8).unwrap();
     flat.h.fill(0.3);
     for brdf in [LAMBERT, PHONG, ASHIKHMIN] {
-        let s = BtfSpec {
-            supersample: 2,
-            ..spec(flat.clone(), brdf, 4, 4, Some(5))
-        };
+        let s = BtfSpec { supersample: 2, ..spec(flat.clone(), brdf, 4, 4, Some(5)) };
         let traced = run(&s, None, Mode::Traced).unwrap();
         let analytic = synthesize(&s, None).unwrap();
         assert_eq!(traced.texel_count(), 16);
@@ -112,10 +77,7 @@ fn ray_traced_flat_patch_equals_the_analytic_table() {
                     let a = at(&analytic, 0, v.min(expect_views - 1), j);
                     let b = at(&traced, t, v, j);
                     for c in 0..3 {
-                        assert!(
-                            close(a[c], b[c], 1e-6),
-                            "{brdf:?} t={t} v={v} j={j}: {a:?} vs {b:?}"
-                        );
+                        assert!(close(a[c], b[c], 1e-6), "{brdf:?} t={t} v={v} j={j}: {a:?} vs {b:?}");
                     }
                 }
             }
@@ -129,24 +91,15 @@ fn white_lambertian_never_exceeds_its_albedo() {
     // exceeds the bin's mean clamped cosine, whose integral over the facet's hemisphere is pi),
     // up to the f32 rounding of M values (M ulp ~ 1e-5 relative). Shadows must make some sums
     // clearly smaller, or the test would not exercise them.
-    for (p, a, f) in [
-        (Pattern::Bumps, 0.08, 3),
-        (Pattern::Holes, 0.15, 2),
-        (Pattern::Bricks, 0.05, 4),
-    ] {
+    for (p, a, f) in [(Pattern::Bumps, 0.08, 3), (Pattern::Holes, 0.15, 2), (Pattern::Bricks, 0.05, 4)] {
         let hf = HeightField::procedural(&Recipe::new(p, a, f, 11), 48).unwrap();
-        let s = BtfSpec {
-            supersample: 2,
-            ..spec(hf, Brdf::Lambertian { albedo: [1.0; 3] }, 12, 8, Some(6))
-        };
+        let s = BtfSpec { supersample: 2, ..spec(hf, Brdf::Lambertian { albedo: [1.0; 3] }, 12, 8, Some(6)) };
         let btf = synthesize(&s, None).unwrap();
         let w = btf.light_grid.bin_solid_angle();
         let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
         for t in 0..btf.texel_count() {
             for v in 0..btf.view_count() {
-                let sum: f64 = (0..btf.light_count())
-                    .map(|j| at(&btf, t, v, j)[0] as f64 * w)
-                    .sum();
+                let sum: f64 = (0..btf.light_count()).map(|j| at(&btf, t, v, j)[0] as f64 * w).sum();
                 lo = lo.min(sum);
                 hi = hi.max(sum);
             }
@@ -165,27 +118,9 @@ fn interreflection_adds_light_within_the_energy_bound() {
     // = 12%, so a 3% allowance over the bound is several standard deviations.
     let hf = HeightField::procedural(&Recipe::new(Pattern::Holes, 0.15, 2, 3), 48).unwrap();
     let albedo = 0.9f32;
-    let base = BtfSpec {
-        supersample: 2,
-        ..spec(
-            hf,
-            Brdf::Lambertian {
-                albedo: [albedo; 3],
-            },
-            12,
-            8,
-            Some(4),
-        )
-    };
+    let base = BtfSpec { supersample: 2, ..spec(hf, Brdf::Lambertian { albedo: [albedo; 3] }, 12, 8, Some(4)) };
     let direct = synthesize(&base, None).unwrap();
-    let both = synthesize(
-        &BtfSpec {
-            interreflection: true,
-            ..base.clone()
-        },
-        None,
-    )
-    .unwrap();
+    let both = synthesize(&BtfSpec { interreflection: true, ..base.clone() }, None).unwrap();
     let w = direct.light_grid.bin_solid_angle();
     let (mut gained, mut max_sum) = (0.0f64, 0.0f64);
     for (a, b) in direct.data.iter().zip(&both.data) {
@@ -194,27 +129,14 @@ fn interreflection_adds_light_within_the_energy_bound() {
     }
     for t in 0..both.texel_count() {
         for v in 0..both.view_count() {
-            let sum: f64 = (0..both.light_count())
-                .map(|j| at(&both, t, v, j)[0] as f64 * w)
-                .sum();
+            let sum: f64 = (0..both.light_count()).map(|j| at(&both, t, v, j)[0] as f64 * w).sum();
             max_sum = max_sum.max(sum);
         }
     }
     assert!(gained > 0.01, "the bounce added nothing ({gained})");
     assert!(max_sum <= albedo as f64 * 1.03, "{max_sum}");
     // Deterministic: the same spec gives the same table (per-point seeded sequences).
-    assert_eq!(
-        synthesize(
-            &BtfSpec {
-                interreflection: true,
-                ..base
-            },
-            None
-        )
-        .unwrap()
-        .data,
-        both.data
-    );
+    assert_eq!(synthesize(&BtfSpec { interreflection: true, ..base }, None).unwrap().data, both.data);
 }
 
 #[test]
@@ -235,15 +157,8 @@ fn shadow_of_a_ridge_has_length_height_times_tan_theta() {
             h[j * n + i] = h_ridge;
         }
     }
-    let hf = HeightField {
-        width: n as u32,
-        height: n as u32,
-        h,
-    };
-    let s = BtfSpec {
-        supersample: 2,
-        ..spec(hf, Brdf::Lambertian { albedo: [1.0; 3] }, 64, 8, None)
-    };
+    let hf = HeightField { width: n as u32, height: n as u32, h };
+    let s = BtfSpec { supersample: 2, ..spec(hf, Brdf::Lambertian { albedo: [1.0; 3] }, 64, 8, None) };
     let btf = synthesize(&s, None).unwrap();
     let grid = btf.light_grid;
     let mut checked = 0;
@@ -256,19 +171,14 @@ fn shadow_of_a_ridge_has_length_height_times_tan_theta() {
         }
         let lit = (grid.bin_mean_cosine(j as u32) / PI) as f32;
         for row in [0usize, 17, 63] {
-            let dark: f64 = (0..64)
-                .map(|tx| (1.0 - at(&btf, row * 64 + tx, 0, j)[0] / lit).max(0.0) as f64)
-                .sum::<f64>()
-                / 64.0;
+            let dark: f64 =
+                (0..64).map(|tx| (1.0 - at(&btf, row * 64 + tx, 0, j)[0] / lit).max(0.0) as f64).sum::<f64>() / 64.0;
             assert!(
                 (dark - predicted).abs() <= 2.0 / 128.0 + 1e-6,
                 "light {j} d={d}: dark {dark}, predicted {predicted}"
             );
         }
-        let dark0: f64 = (0..64)
-            .map(|tx| (1.0 - at(&btf, tx, 0, j)[0] / lit).max(0.0) as f64)
-            .sum::<f64>()
-            / 64.0;
+        let dark0: f64 = (0..64).map(|tx| (1.0 - at(&btf, tx, 0, j)[0] / lit).max(0.0) as f64).sum::<f64>() / 64.0;
         lengths.push((d.z, dark0));
         checked += 1;
     }
@@ -284,10 +194,7 @@ fn shadow_of_a_ridge_has_length_height_times_tan_theta() {
     }
     rings.sort_by(|a, b| a.0.total_cmp(&b.0));
     let means: Vec<f64> = rings.iter().map(|r| r.1 / r.2 as f64).collect();
-    assert!(
-        means.len() >= 3 && means.windows(2).all(|w| w[0] > 1.3 * w[1]),
-        "{rings:?}"
-    );
+    assert!(means.len() >= 3 && means.windows(2).all(|w| w[0] > 1.3 * w[1]), "{rings:?}");
 }
 
 #[test]
@@ -296,11 +203,7 @@ fn grazing_lights_shadow_more_of_a_bumpy_patch() {
     let s = spec(hf, Brdf::Lambertian { albedo: [1.0; 3] }, 16, 8, None);
     let btf = synthesize(&s, None).unwrap();
     let grid = btf.light_grid;
-    let dark = |j: usize| {
-        (0..btf.texel_count())
-            .filter(|&t| at(&btf, t, 0, j)[0] == 0.0)
-            .count()
-    };
+    let dark = |j: usize| (0..btf.texel_count()).filter(|&t| at(&btf, t, 0, j)[0] == 0.0).count();
     let overhead = grid.bin_of(glam::Vec3::Z).unwrap() as usize; // a centre bin
     let grazing = 0; // a corner bin of the outer ring, z ~ 0.12
     assert!(grid.bin_direction(0).z < 0.25, "bin 0 is in the outer ring");
@@ -327,16 +230,8 @@ fn deep_pit_bottoms_are_hidden_at_grazing_views() {
             }
         }
     }
-    let hf = HeightField {
-        width: 64,
-        height: 64,
-        h,
-    };
-    let map = AlbedoMap {
-        width: 64,
-        height: 64,
-        rgb,
-    };
+    let hf = HeightField { width: 64, height: 64, h };
+    let map = AlbedoMap { width: 64, height: 64, rgb };
     let s = BtfSpec {
         albedo_map: Some(map),
         supersample: 2,
@@ -356,17 +251,11 @@ fn deep_pit_bottoms_are_hidden_at_grazing_views() {
             assert_eq!(red, 0.0, "view {v} (tan {tan}) sees the pit's bottom");
             grazing += 1;
         } else if tan < 0.3 {
-            assert!(
-                red > 0.0,
-                "view {v} (tan {tan}) does not see the pit's bottom"
-            );
+            assert!(red > 0.0, "view {v} (tan {tan}) does not see the pit's bottom");
             overhead += 1;
         }
     }
-    assert!(
-        grazing >= 60 && overhead >= 4,
-        "{grazing} grazing, {overhead} overhead views"
-    );
+    assert!(grazing >= 60 && overhead >= 4, "{grazing} grazing, {overhead} overhead views");
 }
 
 /// The bin that 90 degrees of rotation about +Z takes bin `j` to: the concentric map turns
@@ -385,41 +274,18 @@ fn swapping_nu_and_nv_rotates_the_ashikhmin_shirley_lobe() {
     // which exponents ~60 amplify to ~4e-6: 1e-4 relative covers it.
     let flat = HeightField::flat(8).unwrap();
     let a = synthesize(&spec(flat.clone(), ASHIKHMIN, 8, 8, Some(8)), None).unwrap();
-    let Brdf::AshikhminShirley { rd, rs, nu, nv } = ASHIKHMIN else {
-        unreachable!()
-    };
-    let b = synthesize(
-        &spec(
-            flat,
-            Brdf::AshikhminShirley {
-                rd,
-                rs,
-                nu: nv,
-                nv: nu,
-            },
-            8,
-            8,
-            Some(8),
-        ),
-        None,
-    )
-    .unwrap();
+    let Brdf::AshikhminShirley { rd, rs, nu, nv } = ASHIKHMIN else { unreachable!() };
+    let b = synthesize(&spec(flat, Brdf::AshikhminShirley { rd, rs, nu: nv, nv: nu }, 8, 8, Some(8)), None).unwrap();
     let (lg, vg) = (a.light_grid, a.view_grid.unwrap());
     // The rotation is what it claims.
     for j in 0..lg.len() {
-        let (d, r) = (
-            lg.bin_direction(j as u32),
-            lg.bin_direction(rotate_bin(lg, j) as u32),
-        );
+        let (d, r) = (lg.bin_direction(j as u32), lg.bin_direction(rotate_bin(lg, j) as u32));
         assert!((glam::Vec3::new(-d.y, d.x, d.z) - r).length() < 1e-6);
     }
     let mut max_diff = 0.0f32;
     for v in 0..vg.len() {
         for j in 0..lg.len() {
-            let (x, y) = (
-                at(&b, 0, v, j),
-                at(&a, 0, rotate_bin(vg, v), rotate_bin(lg, j)),
-            );
+            let (x, y) = (at(&b, 0, v, j), at(&a, 0, rotate_bin(vg, v), rotate_bin(lg, j)));
             for c in 0..3 {
                 assert!(close(x[c], y[c], 1e-4), "v={v} j={j}: {x:?} vs {y:?}");
                 let z = at(&a, 0, v, j)[c];
@@ -427,10 +293,7 @@ fn swapping_nu_and_nv_rotates_the_ashikhmin_shirley_lobe() {
             }
         }
     }
-    assert!(
-        max_diff > 0.5,
-        "the two lobes barely differ ({max_diff}): not anisotropic"
-    );
+    assert!(max_diff > 0.5, "the two lobes barely differ ({max_diff}): not anisotropic");
 }
 
 #[test]
@@ -439,64 +302,16 @@ fn bad_specs_are_errors() {
     let ok = spec(hf.clone(), LAMBERT, 8, 4, Some(4));
     assert!(synthesize(&ok, None).is_ok());
     for bad in [
-        BtfSpec {
-            resolution: 0,
-            ..ok.clone()
-        },
-        BtfSpec {
-            light_grid: 0,
-            ..ok.clone()
-        },
-        BtfSpec {
-            view_grid: Some(0),
-            ..ok.clone()
-        },
-        BtfSpec {
-            view_grid: None,
-            brdf: PHONG,
-            ..ok.clone()
-        },
-        BtfSpec {
-            supersample: 0,
-            ..ok.clone()
-        },
-        BtfSpec {
-            interreflection: true,
-            bounce_rays: 0,
-            ..ok.clone()
-        },
-        BtfSpec {
-            brdf: Brdf::Phong {
-                kd: [0.1; 3],
-                ks: [0.1; 3],
-                exponent: -1.0,
-            },
-            ..ok.clone()
-        },
-        BtfSpec {
-            height_field: HeightField {
-                width: 4,
-                height: 4,
-                h: vec![0.0; 15],
-            },
-            ..ok.clone()
-        },
-        BtfSpec {
-            height_field: HeightField {
-                width: 4,
-                height: 4,
-                h: vec![f32::NAN; 16],
-            },
-            ..ok.clone()
-        },
-        BtfSpec {
-            albedo_map: Some(AlbedoMap {
-                width: 1,
-                height: 1,
-                rgb: vec![[f32::NAN; 3]],
-            }),
-            ..ok.clone()
-        },
+        BtfSpec { resolution: 0, ..ok.clone() },
+        BtfSpec { light_grid: 0, ..ok.clone() },
+        BtfSpec { view_grid: Some(0), ..ok.clone() },
+        BtfSpec { view_grid: None, brdf: PHONG, ..ok.clone() },
+        BtfSpec { supersample: 0, ..ok.clone() },
+        BtfSpec { interreflection: true, bounce_rays: 0, ..ok.clone() },
+        BtfSpec { brdf: Brdf::Phong { kd: [0.1; 3], ks: [0.1; 3], exponent: -1.0 }, ..ok.clone() },
+        BtfSpec { height_field: HeightField { width: 4, height: 4, h: vec![0.0; 15] }, ..ok.clone() },
+        BtfSpec { height_field: HeightField { width: 4, height: 4, h: vec![f32::NAN; 16] }, ..ok.clone() },
+        BtfSpec { albedo_map: Some(AlbedoMap { width: 1, height: 1, rgb: vec![[f32::NAN; 3]] }), ..ok.clone() },
     ] {
         assert!(synthesize(&bad, None).is_err(), "{bad:?}");
     }
@@ -519,13 +334,7 @@ fn progress_counts_every_texel_and_results_are_deterministic() {
     for p in Pattern::ALL {
         let hf = HeightField::procedural(&Recipe::new(p, 0.06, 2, 1), 32).unwrap();
         let btf = synthesize(&spec(hf, ASHIKHMIN, 4, 4, Some(4)), None).unwrap();
-        assert!(
-            btf.data
-                .iter()
-                .flatten()
-                .all(|x| x.is_finite() && *x >= 0.0),
-            "{p:?}"
-        );
+        assert!(btf.data.iter().flatten().all(|x| x.is_finite() && *x >= 0.0), "{p:?}");
     }
 }
 
@@ -533,14 +342,7 @@ fn progress_counts_every_texel_and_results_are_deterministic() {
 fn files_round_trip_and_corruption_is_an_error_naming_the_file() {
     let dir = tempfile::tempdir().unwrap();
     let hf = HeightField::procedural(&Recipe::new(Pattern::Weave, 0.05, 4, 1), 32).unwrap();
-    let btf = synthesize(
-        &BtfSpec {
-            name: "weave \u{2713}".into(),
-            ..spec(hf, PHONG, 8, 4, Some(4))
-        },
-        None,
-    )
-    .unwrap();
+    let btf = synthesize(&BtfSpec { name: "weave \u{2713}".into(), ..spec(hf, PHONG, 8, 4, Some(4)) }, None).unwrap();
     let path = dir.path().join("w.btf");
     save_btf(&btf, &path, BtfEncoding::F32).unwrap();
     assert_eq!(load_btf(&path).unwrap(), btf);
@@ -567,10 +369,7 @@ fn files_round_trip_and_corruption_is_an_error_naming_the_file() {
     for (ta, tb) in btf.data.chunks(per).zip(q.data.chunks(per)) {
         let max = ta.iter().flatten().copied().fold(0.0f32, f32::max);
         for (a, b) in ta.iter().flatten().zip(tb.iter().flatten()) {
-            assert!(
-                (a - b).abs() <= max / 510.0 * (1.0 + 1e-5),
-                "{a} vs {b} (max {max})"
-            );
+            assert!((a - b).abs() <= max / 510.0 * (1.0 + 1e-5), "{a} vs {b} (max {max})");
         }
     }
     // Files are the documented size: f16 is half of f32's payload.
@@ -578,10 +377,7 @@ fn files_round_trip_and_corruption_is_an_error_naming_the_file() {
     let header = 20 + 21 + btf.name.len() + 4;
     assert_eq!(len(BtfEncoding::F32) - header, btf.data.len() * 12);
     assert_eq!(len(BtfEncoding::F16) - header, btf.data.len() * 6);
-    assert_eq!(
-        len(BtfEncoding::U8) - header,
-        btf.data.len() * 3 + btf.texel_count() * 4
-    );
+    assert_eq!(len(BtfEncoding::U8) - header, btf.data.len() * 3 + btf.texel_count() * 4);
 
     // Corruption.
     save_btf(&btf, &path, BtfEncoding::F16).unwrap();
@@ -610,23 +406,15 @@ fn files_round_trip_and_corruption_is_an_error_naming_the_file() {
     let mut enc = good.clone();
     enc[36] = 7;
     check(&enc, "encoding");
-    let e = load_btf(&dir.path().join("missing.btf"))
-        .unwrap_err()
-        .to_string();
+    let e = load_btf(&dir.path().join("missing.btf")).unwrap_err().to_string();
     assert!(e.contains("missing.btf"), "{e}");
     // Values f16 cannot hold are refused at write time; the old file stays.
     let mut big = btf.clone();
     big.data[3][1] = 1e6;
-    assert!(save_btf(&big, &path, BtfEncoding::F16)
-        .unwrap_err()
-        .to_string()
-        .contains("f16"));
+    assert!(save_btf(&big, &path, BtfEncoding::F16).unwrap_err().to_string().contains("f16"));
     assert_eq!(std::fs::read(&path).unwrap(), good);
     // Nothing but the files written is left in the folder (atomic writes clean up).
-    let mut names: Vec<_> = std::fs::read_dir(dir.path())
-        .unwrap()
-        .map(|e| e.unwrap().file_name())
-        .collect();
+    let mut names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
     names.sort();
     assert_eq!(names, ["bad.btf", "w.btf"]);
 }
@@ -647,12 +435,9 @@ fn contact_sheets_lay_tiles_out_with_gaps() {
     for (r, &v) in views.iter().enumerate() {
         for (c, &j) in lights.iter().enumerate() {
             for (tx, ty) in [(0u32, 0u32), (7, 2), (3, 7)] {
-                let px = img
-                    .get_pixel(c as u32 * 33 + tx * 4 + 1, r as u32 * 33 + ty * 4 + 2)
-                    .0;
+                let px = img.get_pixel(c as u32 * 33 + tx * 4 + 1, r as u32 * 33 + ty * 4 + 2).0;
                 let b = at(&btf, (ty * 8 + tx) as usize, v, j);
-                let expect =
-                    b.map(|x| (crate::image::linear_to_srgb(x / peak) * 255.0 + 0.5) as u8);
+                let expect = b.map(|x| (crate::image::linear_to_srgb(x / peak) * 255.0 + 0.5) as u8);
                 assert_eq!(px, expect);
             }
         }
@@ -681,26 +466,13 @@ fn benchmark() {
         ("lambertian+bounce", LAMBERT, true),
     ] {
         let hf = HeightField::procedural(&Recipe::new(Pattern::Bumps, 0.06, 4, 1), 128).unwrap();
-        let s = BtfSpec {
-            interreflection: inter,
-            ..spec(hf, brdf, 64, 8, Some(12))
-        };
+        let s = BtfSpec { interreflection: inter, ..spec(hf, brdf, 64, 8, Some(12)) };
         // The machine is shared: report the process's CPU time too (Linux /proc, clock ticks
         // of 10 ms), which is what two idle cores would divide between them.
         let cpu = || {
             let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-            let fields: Vec<&str> = stat
-                .rsplit(')')
-                .next()
-                .unwrap_or("")
-                .split_whitespace()
-                .collect();
-            let tick = |k: usize| {
-                fields
-                    .get(k)
-                    .and_then(|v| v.parse::<f64>().ok())
-                    .unwrap_or(f64::NAN)
-            };
+            let fields: Vec<&str> = stat.rsplit(')').next().unwrap_or("").split_whitespace().collect();
+            let tick = |k: usize| fields.get(k).and_then(|v| v.parse::<f64>().ok()).unwrap_or(f64::NAN);
             (tick(11) + tick(12)) / 100.0
         };
         let (t, c) = (Instant::now(), cpu());

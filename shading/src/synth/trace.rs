@@ -85,15 +85,7 @@ impl PeriodicTracer {
             skips.push((r, table));
         }
         skips.reverse();
-        Self {
-            n,
-            h,
-            cell_max,
-            hmin,
-            hmax,
-            normals,
-            skips,
-        }
+        Self { n, h, cell_max, hmin, hmax, normals, skips }
     }
 
     pub fn hmax(&self) -> f64 {
@@ -131,16 +123,8 @@ impl PeriodicTracer {
         }
         let (sx, sy) = (if dx > 0.0 { 1 } else { -1 }, if dy > 0.0 { 1 } else { -1 });
         let (ddx, ddy) = (
-            if dx == 0.0 {
-                f64::INFINITY
-            } else {
-                1.0 / dx.abs()
-            },
-            if dy == 0.0 {
-                f64::INFINITY
-            } else {
-                1.0 / dy.abs()
-            },
+            if dx == 0.0 { f64::INFINITY } else { 1.0 / dx.abs() },
+            if dy == 0.0 { f64::INFINITY } else { 1.0 / dy.abs() },
         );
         // Grid units travelled per unit t along the faster axis (for skips).
         let speed = dx.abs().max(dy.abs());
@@ -155,14 +139,7 @@ impl PeriodicTracer {
                     ((i + (d > 0.0) as i64) as f64 - g) / d
                 }
             };
-            (
-                ix.rem_euclid(n),
-                iy.rem_euclid(n),
-                ix,
-                iy,
-                next(gx, ix, dx),
-                next(gy, iy, dy),
-            )
+            (ix.rem_euclid(n), iy.rem_euclid(n), ix, iy, next(gx, ix, dx), next(gy, iy, dy))
         };
         let (mut wi, mut wj, mut ix, mut iy, mut tx, mut ty) = start(0.0);
         let mut t_in = 0.0f64;
@@ -265,21 +242,12 @@ impl PeriodicTracer {
         let n = self.n;
         let i1 = if wi + 1 == n { 0 } else { wi + 1 };
         let j1 = if wj + 1 == n { 0 } else { wj + 1 };
-        let (h00, h10, h11, h01) = (
-            self.h[wj * n + wi],
-            self.h[wj * n + i1],
-            self.h[j1 * n + i1],
-            self.h[j1 * n + wi],
-        );
+        let (h00, h10, h11, h01) = (self.h[wj * n + wi], self.h[wj * n + i1], self.h[j1 * n + i1], self.h[j1 * n + wi]);
         let mut best: Option<(f64, u32)> = None;
         // Plane z = h00 + a x + b y over the triangle's footprint (both planes pass through
         // corner (0, 0)); t from oz + dz t = h00 + a (ox + dx t) + b (oy + dy t).
         for k in 0..2u32 {
-            let (a, b) = if k == 0 {
-                (h10 - h00, h11 - h10)
-            } else {
-                (h11 - h01, h01 - h00)
-            };
+            let (a, b) = if k == 0 { (h10 - h00, h11 - h10) } else { (h11 - h01, h01 - h00) };
             let den = dz - a * dx - b * dy;
             if den == 0.0 {
                 continue;
@@ -292,11 +260,7 @@ impl PeriodicTracer {
             let (x, y) = (ox + dx * t, oy + dy * t);
             let r = -EDGE_EPS..=1.0 + EDGE_EPS;
             // Lower triangle: y <= x; upper: y >= x.
-            let inside = if k == 0 {
-                y <= x + EDGE_EPS
-            } else {
-                y >= x - EDGE_EPS
-            };
+            let inside = if k == 0 { y <= x + EDGE_EPS } else { y >= x - EDGE_EPS };
             if r.contains(&x) && r.contains(&y) && inside {
                 best = Some((t, 2 * (wj * n + wi) as u32 + k));
                 if any {
@@ -305,11 +269,7 @@ impl PeriodicTracer {
             }
         }
         let nf = n as f64;
-        best.map(|(t, triangle)| TraceHit {
-            t,
-            point: origin + t * DVec3::new(dx / nf, dy / nf, dz),
-            triangle,
-        })
+        best.map(|(t, triangle)| TraceHit { t, point: origin + t * DVec3::new(dx / nf, dy / nf, dz), triangle })
     }
 }
 
@@ -353,10 +313,7 @@ pub(crate) mod tests {
         let mut pos = Vec::with_capacity(side * side);
         for j in 0..side {
             for i in 0..side {
-                let (x, y) = (
-                    (i as f64) / n as f64 - r as f64,
-                    (j as f64) / n as f64 - r as f64,
-                );
+                let (x, y) = ((i as f64) / n as f64 - r as f64, (j as f64) / n as f64 - r as f64);
                 pos.push(Vec3::new(x as f32, y as f32, hf.h[(j % n) * n + (i % n)]));
             }
         }
@@ -400,12 +357,8 @@ pub(crate) mod tests {
             let s = (1.0 - z * z).sqrt();
             let dir = -DVec3::new(s * phi.cos(), s * phi.sin(), z);
             let origin = DVec3::new(rng.gen(), rng.gen(), tracer.hmax() + 0.01);
-            let a = tracer
-                .closest_hit(origin, dir, 0.0)
-                .expect("a ray from above always hits a height field");
-            let b = bvh
-                .closest_hit(origin.as_vec3(), dir.as_vec3(), 0.0, f32::INFINITY)
-                .unwrap();
+            let a = tracer.closest_hit(origin, dir, 0.0).expect("a ray from above always hits a height field");
+            let b = bvh.closest_hit(origin.as_vec3(), dir.as_vec3(), 0.0, f32::INFINITY).unwrap();
             if (a.t - b.t as f64).abs() > 1e-4 {
                 mismatches += 1;
                 continue;
@@ -413,11 +366,7 @@ pub(crate) mod tests {
             // Same triangle (up to wrapping): the normals agree.
             let t = tris[b.triangle as usize].map(|k| pos[k as usize].as_dvec3());
             let nb = (t[1] - t[0]).cross(t[2] - t[0]).normalize();
-            assert!(
-                (nb - tracer.normal(a.triangle)).length() < 1e-3,
-                "{nb} vs {}",
-                tracer.normal(a.triangle)
-            );
+            assert!((nb - tracer.normal(a.triangle)).length() < 1e-3, "{nb} vs {}", tracer.normal(a.triangle));
             // Shadow ray towards a random upper direction.
             let z: f64 = rng.gen_range(0.1..1.0);
             let phi: f64 = rng.gen_range(0.0..std::f64::consts::TAU);
@@ -432,16 +381,13 @@ pub(crate) mod tests {
             shadowed += occ_a as u32;
             shadow_mismatch += (occ_a != occ_b) as u32;
         }
-        eprintln!("{} samples: {mismatches} hit and {shadow_mismatch} shadow mismatches, {shadowed} shadowed", hf.width);
-        assert!(
-            mismatches <= 4,
-            "{mismatches} closest-hit mismatches in {rays}"
+        eprintln!(
+            "{} samples: {mismatches} hit and {shadow_mismatch} shadow mismatches, {shadowed} shadowed",
+            hf.width
         );
+        assert!(mismatches <= 4, "{mismatches} closest-hit mismatches in {rays}");
         assert!(shadow_mismatch <= 4, "{shadow_mismatch} shadow mismatches");
-        assert!(
-            shadowed > 100,
-            "the test must exercise shadowing ({shadowed})"
-        );
+        assert!(shadowed > 100, "the test must exercise shadowing ({shadowed})");
     }
 
     #[test]
@@ -454,18 +400,12 @@ pub(crate) mod tests {
         for j in 0..n {
             h[j * n + 8] = 0.1;
         }
-        let hf = HeightField {
-            width: n as u32,
-            height: n as u32,
-            h,
-        };
+        let hf = HeightField { width: n as u32, height: n as u32, h };
         let tracer = PeriodicTracer::new(&hf);
         let dir = DVec3::new(1.0, 0.0, -0.01).normalize();
         // Starts at z = 0.09 above x = 0.9 (past the wall); the next wall (x = 1.5) is reached
         // at z = 0.084 < 0.1: hit in the second tile.
-        let hit = tracer
-            .closest_hit(DVec3::new(0.9, 0.3, 0.09), dir, 0.0)
-            .unwrap();
+        let hit = tracer.closest_hit(DVec3::new(0.9, 0.3, 0.09), dir, 0.0).unwrap();
         assert!(hit.point.x > 1.4 && hit.point.x < 1.5, "{:?}", hit.point);
         // Rising rays past the top stop at once; a flat-out ray above the top is a miss.
         assert!(!tracer.occluded(DVec3::new(0.2, 0.2, 0.2), DVec3::new(1.0, 0.0, 0.0), 0.0));
