@@ -69,13 +69,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         rayon::ThreadPoolBuilder::new().num_threads(args.threads).build_global()?;
     }
     let mesh = Mesh::load_obj(&args.mesh)?.mesh;
-    let settings = TransferSettings { local_grid: args.local_grid, ..TransferSettings::default() };
+    let settings = TransferSettings::default().with_local_grid(args.local_grid)?;
     let t0 = Instant::now();
     let t = transfer::build(&mesh, &settings, None)?.matrix;
     println!(
         "T: {} vertices x {} local dirs = {} rows, {} cols, {} non-zeros ({:.1} per row), built in {:.1} s, {} threads",
-        t.vertices,
-        t.local_dirs,
+        t.vertices(),
+        t.local_dirs(),
         t.rows(),
         t.cols(),
         t.nnz(),

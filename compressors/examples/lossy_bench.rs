@@ -34,11 +34,11 @@ fn main() -> Result<(), Box<dyn Error>> {
     let mesh = Mesh::load_obj(mesh_path.as_ref())?.mesh;
     let settings = TransferSettings::default();
     let t = transfer::build(&mesh, &settings, None)?.matrix;
-    let row_nnz: Vec<usize> = (0..t.rows()).map(|r| t.csr.outer_view(r).map_or(0, |v| v.nnz())).collect();
+    let row_nnz: Vec<usize> = (0..t.rows()).map(|r| t.csr().outer_view(r).map_or(0, |v| v.nnz())).collect();
     let nz_rows = row_nnz.iter().filter(|&&n| n > 0).count();
     println!(
         "T: {mesh_path}: {} vertices, {} x {} ({} rows non-zero), {} nnz, {:.1} nnz/row (max {}), {:.1}s to build",
-        t.vertices,
+        t.vertices(),
         t.rows(),
         t.cols(),
         nz_rows,
@@ -50,9 +50,9 @@ fn main() -> Result<(), Box<dyn Error>> {
 
     let (env, _) = EnvMap::load(env_path.as_ref())?;
     let lights = [
-        ("random+sun", random_light(settings.cubemap_resolution, 1)),
-        ("random", random_light(settings.cubemap_resolution, 2)),
-        ("env", LightVector::from_env(&env, settings.cubemap_resolution, 0.0)),
+        ("random+sun", random_light(settings.cubemap().resolution, 1)),
+        ("random", random_light(settings.cubemap().resolution, 2)),
+        ("env", LightVector::from_env(&env, settings.light_basis(), 0.0)),
     ];
     let references: Vec<_> = lights.iter().map(|(_, l)| reference_product(&t, l)).collect();
     println!("env light: {env_path}");
@@ -85,7 +85,7 @@ fn main() -> Result<(), Box<dyn Error>> {
             let g0 = Instant::now();
             let lstar = c.gather(&form, light)?;
             gather_s = g0.elapsed().as_secs_f64();
-            errs.push(relative_l2_error(&lstar.values, reference));
+            errs.push(relative_l2_error(lstar.values(), reference));
         }
         let t_err = match c.kind() {
             "cpca" => biscale_compressors::cpca::relative_frobenius_error(&form, &t)?,

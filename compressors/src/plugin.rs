@@ -22,7 +22,6 @@
 //! stay within the arrays it is given (a Rust plugin that indexes out of range panics, which
 //! the boundary turns into an error). Every error names the library file.
 
-use crate::check_light;
 use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor, NamedArray};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::kernels::{Count, Factor, FormCheck, KernelDesc, PassDesc, ScratchDesc};
@@ -67,7 +66,9 @@ pub enum PluginError {
 impl From<PluginError> for CompressError {
     fn from(e: PluginError) -> Self {
         match e {
-            PluginError::Invalid { .. } => CompressError::Malformed(e.to_string()),
+            PluginError::Invalid { ref call, ref message, .. } => {
+                CompressError::malformed("plugin", call, message.clone())
+            }
             _ => CompressError::Other(e.to_string()),
         }
     }
@@ -423,7 +424,7 @@ impl PluginCompressor {
             return Err(invalid(format!("meta key '{k}' is not an identifier")));
         }
         self.kernels.check_form(form).map_err(|e| match e {
-            CompressError::Malformed(m) => invalid(m),
+            CompressError::Malformed { array, what, .. } => invalid(format!("'{array}' {what}")),
             e => invalid(e.to_string()),
         })?;
         for (name, elem) in &self.bound {
@@ -450,7 +451,7 @@ impl PluginCompressor {
         let start = Instant::now();
         let call = "biscale_plugin_compress";
         let invalid = |message: String| PluginError::Invalid { path: self.path.clone(), call, message };
-        let csr = &t.csr;
+        let csr = t.csr();
         if !csr.is_csr() || csr.nnz() > u32::MAX as usize {
             return Err(PluginError::Plugin {
                 path: self.path.clone(),
@@ -463,9 +464,9 @@ impl PluginCompressor {
         let input = abi::BpCsr {
             rows: t.rows() as u64,
             cols: t.cols() as u64,
-            vertices: t.vertices as u64,
-            local_dirs: t.local_dirs as u64,
-            resolution: t.cubemap.resolution,
+            vertices: t.vertices() as u64,
+            local_dirs: t.local_dirs() as u64,
+            resolution: t.light_basis().cubemap_layout().map_or(0, |c| c.resolution),
             _reserved: 0,
             seed: ctx.seed,
             row_ptr: row_ptr.as_ptr(),
@@ -486,17 +487,12 @@ impl PluginCompressor {
             1 => true,
             v => return Err(invalid(format!("lossless flag is {v}, not 0 or 1"))),
         };
-        let form = CompressedForm {
-            kind: self.kind.clone(),
-            rows: t.rows(),
-            cols: t.cols(),
-            local_dirs: t.local_dirs,
-            arrays,
-            meta,
-            lossless,
-            flops_per_gather: out.flops_per_gather,
-            build_seconds: start.elapsed().as_secs_f64(),
-        };
+        let mut form = CompressedForm::new(self.kind.clone(), t.shape());
+        form.arrays = arrays;
+        form.meta = meta;
+        form.lossless = lossless;
+        form.flops_per_gather = out.flops_per_gather;
+        form.build_seconds = start.elapsed().as_secs_f64();
         self.check_form(&form).map_err(|e| match e {
             PluginError::Invalid { message, .. } => invalid(message),
             e => e,
@@ -512,10 +508,7 @@ impl PluginCompressor {
         if form.kind != self.kind {
             return Err(fail(format!("given a '{}' form, this plugin's kind is '{}'", form.kind, self.kind)));
         }
-        check_light(form, light).map_err(|e| fail(e.to_string()))?;
-        if form.local_dirs == 0 || !form.rows.is_multiple_of(form.local_dirs) {
-            return Err(fail(format!("{} rows are not whole vertices of {} directions", form.rows, form.local_dirs)));
-        }
+        form.check_light(light).map_err(|e| fail(e.to_string()))?;
         self.check_form(form)?;
         let arrays: Vec<abi::BpArray> = form
             .arrays
@@ -535,16 +528,16 @@ impl PluginCompressor {
         let meta: Vec<abi::BpMeta> =
             form.meta.iter().map(|(k, v)| abi::BpMeta { key: abi::BpStr::of(k), value: *v }).collect();
         let view = abi::BpFormView {
-            rows: form.rows as u64,
-            cols: form.cols as u64,
-            local_dirs: form.local_dirs as u64,
+            rows: form.rows() as u64,
+            cols: form.cols() as u64,
+            local_dirs: form.local_dirs() as u64,
             arrays: arrays.as_ptr(),
             array_count: arrays.len() as u64,
             meta: meta.as_ptr(),
             meta_count: meta.len() as u64,
         };
         // Poisoned, so an element the plugin does not write is caught below like a NaN.
-        let mut lstar = vec![[f32::NAN; 3]; form.rows];
+        let mut lstar = vec![[f32::NAN; 3]; form.rows()];
         // SAFETY: zeroed error struct is valid; every pointer borrows a live host vector of the
         // stated length for the duration of the call.
         let mut err: abi::BpError = unsafe { std::mem::zeroed() };
@@ -568,7 +561,7 @@ impl PluginCompressor {
                 message: format!("L* row {r} is NaN or was not written: {:?}", lstar[r]),
             });
         }
-        Ok(LocalRadiance { vertices: form.rows / form.local_dirs, local_dirs: form.local_dirs, values: lstar })
+        form.lstar(lstar).map_err(|e| fail(e.to_string()))
     }
 }
 

@@ -1,19 +1,32 @@
 //! Test inputs shared by the compressors' tests (and the integration tests): random transfer
 //! matrices with the real value set, random and stiff light vectors, and the lossless check.
 
+use biscale_core::basis::{LightBasis, LocalBasis};
 use biscale_core::compress::{CompressedForm, Compressor};
 use biscale_core::gather::{reference_product, LocalRadiance};
-use biscale_core::sampling::{Cubemap, LightVector};
+use biscale_core::sampling::LightVector;
 use biscale_core::transfer::TransferMatrix;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-/// A random `T` with `vertices * local_dirs` rows and `6 R^2` columns whose non-zeros (a
-/// fraction `density`) take the box-filtered visibility values {1/4, 1/2, 3/4, 1}.
-pub fn random_transfer(vertices: usize, local_dirs: usize, resolution: u32, density: f64, seed: u64) -> TransferMatrix {
+/// The `R x R` cubemap light basis (tests only: panics on a bad resolution).
+pub fn cubemap(resolution: u32) -> LightBasis {
+    LightBasis::cubemap(resolution).expect("a valid cubemap resolution")
+}
+
+/// The `m x m` bin local basis (tests only: panics on a bad grid).
+pub fn bins(m: u32) -> LocalBasis {
+    LocalBasis::bins(m).expect("a valid local grid")
+}
+
+/// A random `T` of `vertices` vertices of `local_grid x local_grid` bins and `6 R^2` columns
+/// whose non-zeros (a fraction `density`) take the box-filtered visibility values
+/// {1/4, 1/2, 3/4, 1}.
+pub fn random_transfer(vertices: usize, local_grid: u32, resolution: u32, density: f64, seed: u64) -> TransferMatrix {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let cubemap = Cubemap::new(resolution);
-    let (rows, cols) = (vertices * local_dirs, cubemap.texel_count());
+    let local = LocalBasis::bins(local_grid).expect("a valid local grid");
+    let light = LightBasis::cubemap(resolution).expect("a valid cubemap resolution");
+    let (rows, cols) = (vertices * local.len(), light.len());
     let mut indptr = vec![0usize];
     let (mut indices, mut data) = (vec![], vec![]);
     for _ in 0..rows {
@@ -25,14 +38,14 @@ pub fn random_transfer(vertices: usize, local_dirs: usize, resolution: u32, dens
         }
         indptr.push(indices.len());
     }
-    TransferMatrix { vertices, local_dirs, cubemap, csr: sprs::CsMat::new((rows, cols), indptr, indices, data) }
+    TransferMatrix::new(local, light, sprs::CsMat::new((rows, cols), indptr, indices, data)).expect("a consistent T")
 }
 
 /// A random positive light vector, with one texel a "sun" 10^6 times brighter when `seed`
 /// is odd (the stiff case).
 pub fn random_light(resolution: u32, seed: u64) -> LightVector {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut light = LightVector::constant(resolution, [1.0; 3]);
+    let mut light = LightVector::constant(LightBasis::cubemap(resolution).expect("a valid resolution"), [1.0; 3]);
     for p in &mut light.power {
         for c in p.iter_mut() {
             *c *= rng.gen_range(0.0..2.0f32);
@@ -56,9 +69,9 @@ pub fn f32_sum_bound(terms: usize) -> f64 {
 pub fn assert_lossless(compressor: &dyn Compressor, form: &CompressedForm, t: &TransferMatrix, light: &LightVector) {
     let got: LocalRadiance = compressor.gather(form, light).expect("gather");
     let reference = reference_product(t, light);
-    let max_row = (0..t.rows()).map(|r| t.csr.outer_view(r).unwrap().nnz()).max().unwrap_or(0);
+    let max_row = (0..t.rows()).map(|r| t.csr().outer_view(r).unwrap().nnz()).max().unwrap_or(0);
     let bound = f32_sum_bound(max_row);
-    for (r, (g, e)) in got.values.iter().zip(&reference).enumerate() {
+    for (r, (g, e)) in got.values().iter().zip(&reference).enumerate() {
         for c in 0..3 {
             let err = (g[c] as f64 - e[c]).abs();
             assert!(err <= bound * e[c].abs() + 1e-30, "row {r} channel {c}: {} vs {} (bound {bound})", g[c], e[c]);

@@ -31,11 +31,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         Ok(args.get(i).map(|s| s.parse()).transpose()?.unwrap_or(default))
     };
     let runs = arg(1, 5)?.max(1);
-    let settings = TransferSettings {
-        cubemap_resolution: arg(2, 32)?,
-        visibility_resolution: arg(3, 64)?,
-        local_grid: arg(4, 8)?,
-    };
+    let settings = TransferSettings::new(arg(2, 32)?, arg(3, 64)?, arg(4, 8)?)?;
     let load = Mesh::load_obj(&path)?;
     for r in &load.repairs {
         println!("repair: {r}");
@@ -72,7 +68,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         median(rays),
         median(rate) / 1e6,
         b.matrix.nnz(),
-        b.matrix.nnz() as f64 / b.matrix.vertices.max(1) as f64,
+        b.matrix.nnz() as f64 / b.matrix.vertices().max(1) as f64,
         b.stats.frame_fallbacks
     );
     println!("value histogram:");

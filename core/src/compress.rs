@@ -6,6 +6,7 @@
 //! [`Compressor::gather`], and the wgpu runtime runs the same arrays through WGSL kernels.
 //! Storage is counted honestly: every array the gather reads, at the width it is stored.
 
+use crate::basis::{LightBasis, LocalBasis, TransferShape};
 use crate::gather::LocalRadiance;
 use crate::sampling::LightVector;
 use crate::transfer::TransferMatrix;
@@ -73,15 +74,16 @@ pub struct NamedArray {
 }
 
 /// A compressed transfer matrix: plain arrays plus the stats every compressor reports.
+///
+/// The shape (vertices and the bases of rows and columns) is the shape of the `T` it stands
+/// for and is fixed at construction ([`CompressedForm::new`]); the arrays and the metadata
+/// are the compressor's own and are open, so the host's checks (and the tests that corrupt
+/// forms on purpose) can reach them.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CompressedForm {
     /// The compressor kind that made it and whose gather reads it (`sparse`, `bicluster`, ...).
     pub kind: String,
-    /// Shape of the matrix it stands for: rows = vertices * M, cols = N.
-    pub rows: usize,
-    pub cols: usize,
-    /// Local directions per vertex, M.
-    pub local_dirs: usize,
+    shape: TransferShape,
     pub arrays: Vec<NamedArray>,
     /// Small integer parameters the gather needs (cluster counts, term counts, ...).
     pub meta: BTreeMap<String, u64>,
@@ -94,6 +96,51 @@ pub struct CompressedForm {
 }
 
 impl CompressedForm {
+    /// An empty form of `kind` for a matrix of `shape` (fill in arrays, meta and stats).
+    pub fn new(kind: impl Into<String>, shape: TransferShape) -> Self {
+        Self {
+            kind: kind.into(),
+            shape,
+            arrays: vec![],
+            meta: BTreeMap::new(),
+            lossless: false,
+            flops_per_gather: 0,
+            build_seconds: 0.0,
+        }
+    }
+
+    /// Add an array (builder style).
+    pub fn with_array(mut self, name: impl Into<String>, data: ArrayData) -> Self {
+        self.arrays.push(NamedArray { name: name.into(), data });
+        self
+    }
+
+    /// The shape of the matrix it stands for.
+    pub fn shape(&self) -> TransferShape {
+        self.shape
+    }
+    pub fn local_basis(&self) -> LocalBasis {
+        self.shape.local
+    }
+    pub fn light_basis(&self) -> LightBasis {
+        self.shape.light
+    }
+    /// Rows of `T`: vertices x M.
+    pub fn rows(&self) -> usize {
+        self.shape.rows()
+    }
+    /// Columns of `T`: N.
+    pub fn cols(&self) -> usize {
+        self.shape.cols()
+    }
+    /// Local directions per vertex, M.
+    pub fn local_dirs(&self) -> usize {
+        self.shape.local_dirs()
+    }
+    pub fn vertices(&self) -> usize {
+        self.shape.vertices
+    }
+
     /// Total stored bytes over all arrays.
     pub fn bytes(&self) -> u64 {
         self.arrays.iter().map(|a| a.data.bytes()).sum()
@@ -110,7 +157,7 @@ impl CompressedForm {
             .iter()
             .find(|a| a.name == name)
             .map(|a| &a.data)
-            .ok_or_else(|| CompressError::Malformed(format!("{} form has no array '{name}'", self.kind)))
+            .ok_or_else(|| CompressError::malformed(&self.kind, name, "the form has no such array"))
     }
 
     /// A metadata value the gather needs.
@@ -118,7 +165,21 @@ impl CompressedForm {
         self.meta
             .get(key)
             .copied()
-            .ok_or_else(|| CompressError::Malformed(format!("{} form has no meta '{key}'", self.kind)))
+            .ok_or_else(|| CompressError::malformed(&self.kind, key, "the form has no such meta value"))
+    }
+
+    /// An error unless `light` is in the basis of the form's columns.
+    pub fn check_light(&self, light: &LightVector) -> Result<(), CompressError> {
+        if light.basis() != self.light_basis() {
+            return Err(CompressError::LightBasis { got: light.basis(), expected: self.light_basis() });
+        }
+        Ok(())
+    }
+
+    /// `L*` of this form's shape from row values (the gathers' common last step).
+    pub fn lstar(&self, values: Vec<crate::Rgb>) -> Result<LocalRadiance, CompressError> {
+        LocalRadiance::new(self.local_basis(), self.vertices(), values)
+            .map_err(|e| CompressError::malformed(&self.kind, "L*", e.to_string()))
     }
 }
 
@@ -129,12 +190,11 @@ macro_rules! typed_accessor {
             pub fn $fn(&self, name: &str) -> Result<&[$t], CompressError> {
                 match self.array(name)? {
                     ArrayData::$variant(v) => Ok(v),
-                    other => Err(CompressError::Malformed(format!(
-                        "{} form: array '{name}' is {}, expected {}",
-                        self.kind,
-                        other.element_type(),
-                        stringify!($t)
-                    ))),
+                    other => Err(CompressError::malformed(
+                        &self.kind,
+                        name,
+                        format!("is {}, expected {}", other.element_type(), stringify!($t)),
+                    )),
                 }
             }
         }
@@ -164,18 +224,28 @@ impl CompressContext<'_> {
     }
 }
 
+/// What can go wrong compressing or gathering. Every variant says what it concerns.
 #[derive(Debug, thiserror::Error)]
 pub enum CompressError {
     #[error("invalid compressor parameter: {0}")]
     Params(String),
-    #[error("malformed compressed form: {0}")]
-    Malformed(String),
-    #[error("light vector has {got} texels, the compressed matrix has {expected} columns")]
-    LightSize { got: usize, expected: usize },
+    /// A form whose arrays do not fit together: `array` names the array (or meta key) and
+    /// `what` what is wrong with it.
+    #[error("malformed {kind} form: '{array}' {what}")]
+    Malformed { kind: String, array: String, what: String },
+    #[error("the light vector is in {got}, the compressed matrix's columns are {expected}")]
+    LightBasis { got: LightBasis, expected: LightBasis },
     #[error("too large: {0}")]
     TooLarge(String),
     #[error("{0}")]
     Other(String),
+}
+
+impl CompressError {
+    /// A [`CompressError::Malformed`].
+    pub fn malformed(kind: &str, array: &str, what: impl Into<String>) -> Self {
+        CompressError::Malformed { kind: kind.to_string(), array: array.to_string(), what: what.into() }
+    }
 }
 
 /// A transfer compressor: builds a compressed form and evaluates its CPU gather.

@@ -10,7 +10,8 @@
 //! total_len        u64      length of the whole file (catches truncation before anything else)
 //! header:
 //!   kind           u32 length + UTF-8 bytes
-//!   rows, cols, local_dirs        u64 each
+//!   vertices                      u64
+//!   local basis, light basis      u32 length + UTF-8 tag each (`bins:8`, `cubemap:32`)
 //!   lossless                      u8 (0 or 1)
 //!   flops_per_gather              u64
 //!   build_seconds                 f64 (IEEE bits)
@@ -26,6 +27,7 @@
 //! every length validated against the bytes actually present before anything is allocated:
 //! a corrupt file is a [`FormFileError`] naming the file and the problem, never a panic.
 
+use crate::basis::{LightBasis, LocalBasis, TransferShape};
 use crate::compress::{ArrayData, CompressedForm, NamedArray};
 use std::collections::BTreeMap;
 use std::io::Write;
@@ -34,7 +36,7 @@ use std::path::{Path, PathBuf};
 /// First eight bytes of every form file.
 pub const MAGIC: [u8; 8] = *b"BSCFORM\0";
 /// The format version this code writes and reads.
-pub const FORMAT_VERSION: u32 = 1;
+pub const FORMAT_VERSION: u32 = 2;
 /// Magic, version and total length.
 const PREAMBLE: usize = 8 + 4 + 8;
 const CRC_BYTES: usize = 4;
@@ -89,9 +91,9 @@ pub fn encode_form(form: &CompressedForm) -> Vec<u8> {
     out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
     out.extend_from_slice(&0u64.to_le_bytes()); // total_len, patched below
     put_str(&mut out, &form.kind);
-    for x in [form.rows as u64, form.cols as u64, form.local_dirs as u64] {
-        out.extend_from_slice(&x.to_le_bytes());
-    }
+    out.extend_from_slice(&(form.vertices() as u64).to_le_bytes());
+    put_str(&mut out, &form.local_basis().tag());
+    put_str(&mut out, &form.light_basis().tag());
     out.push(form.lossless as u8);
     out.extend_from_slice(&form.flops_per_gather.to_le_bytes());
     out.extend_from_slice(&form.build_seconds.to_bits().to_le_bytes());
@@ -230,9 +232,9 @@ pub fn decode_form(bytes: &[u8], path: &Path) -> Result<CompressedForm, FormFile
     }
     let mut r = Reader { bytes: &bytes[..body_end], at: PREAMBLE, path };
     let kind = r.string("kind")?;
-    let rows = r.usize("rows")?;
-    let cols = r.usize("cols")?;
-    let local_dirs = r.usize("local_dirs")?;
+    let vertices = r.usize("vertices")?;
+    let local = LocalBasis::parse(&r.string("local basis")?).map_err(|e| r.corrupt(e.to_string()))?;
+    let light = LightBasis::parse(&r.string("light basis")?).map_err(|e| r.corrupt(e.to_string()))?;
     let lossless = match r.u8("lossless flag")? {
         0 => false,
         1 => true,
@@ -284,7 +286,13 @@ pub fn decode_form(bytes: &[u8], path: &Path) -> Result<CompressedForm, FormFile
         };
         arrays.push(NamedArray { name, data });
     }
-    Ok(CompressedForm { kind, rows, cols, local_dirs, arrays, meta, lossless, flops_per_gather, build_seconds })
+    let mut form = CompressedForm::new(kind, TransferShape::new(vertices, local, light));
+    form.arrays = arrays;
+    form.meta = meta;
+    form.lossless = lossless;
+    form.flops_per_gather = flops_per_gather;
+    form.build_seconds = build_seconds;
+    Ok(form)
 }
 
 /// Load a form written by [`save_form`].
@@ -298,28 +306,20 @@ mod tests {
     use super::*;
 
     fn sample() -> CompressedForm {
-        CompressedForm {
-            kind: "bicluster".into(),
-            rows: 12,
-            cols: 24,
-            local_dirs: 4,
-            arrays: vec![
-                NamedArray { name: "a_u8".into(), data: ArrayData::U8(vec![0, 1, 255]) },
-                NamedArray { name: "a_i8".into(), data: ArrayData::I8(vec![-128, -1, 0, 127]) },
-                NamedArray { name: "a_u16".into(), data: ArrayData::U16(vec![0, 65535, 1234]) },
-                NamedArray { name: "a_i16".into(), data: ArrayData::I16(vec![i16::MIN, -7, i16::MAX]) },
-                NamedArray { name: "a_u32".into(), data: ArrayData::U32(vec![u32::MAX, 0, 42]) },
-                NamedArray { name: "empty".into(), data: ArrayData::F32(vec![]) },
-                NamedArray {
-                    name: "a_f32".into(),
-                    data: ArrayData::F32(vec![-0.0, 1.5e-42, f32::MAX, f32::INFINITY, 0.1]),
-                },
-            ],
-            meta: BTreeMap::from([("value_scale".into(), 4), ("big".into(), u64::MAX)]),
-            lossless: true,
-            flops_per_gather: 123_456_789_012,
-            build_seconds: 0.1 + 0.2,
-        }
+        let shape = TransferShape::new(3, LocalBasis::bins(2).unwrap(), LightBasis::cubemap(2).unwrap());
+        let mut f = CompressedForm::new("bicluster", shape)
+            .with_array("a_u8", ArrayData::U8(vec![0, 1, 255]))
+            .with_array("a_i8", ArrayData::I8(vec![-128, -1, 0, 127]))
+            .with_array("a_u16", ArrayData::U16(vec![0, 65535, 1234]))
+            .with_array("a_i16", ArrayData::I16(vec![i16::MIN, -7, i16::MAX]))
+            .with_array("a_u32", ArrayData::U32(vec![u32::MAX, 0, 42]))
+            .with_array("empty", ArrayData::F32(vec![]))
+            .with_array("a_f32", ArrayData::F32(vec![-0.0, 1.5e-42, f32::MAX, f32::INFINITY, 0.1]));
+        f.meta = BTreeMap::from([("value_scale".into(), 4), ("big".into(), u64::MAX)]);
+        f.lossless = true;
+        f.flops_per_gather = 123_456_789_012;
+        f.build_seconds = 0.1 + 0.2;
+        f
     }
 
     fn tmp(name: &str) -> PathBuf {
@@ -349,7 +349,10 @@ mod tests {
         save_form(&f2, &path).unwrap();
         assert_eq!(load_form(&path).unwrap().kind, "sparse");
         // An empty form too.
-        let empty = CompressedForm { arrays: vec![], meta: BTreeMap::new(), kind: String::new(), ..form };
+        let mut empty = form;
+        empty.arrays.clear();
+        empty.meta.clear();
+        empty.kind.clear();
         assert_eq!(decode_form(&encode_form(&empty), Path::new("x")).unwrap(), empty);
     }
 
@@ -369,10 +372,10 @@ mod tests {
         assert!(matches!(decode_form(b"", path), Err(FormFileError::WrongMagic { .. })));
         // Wrong version.
         let mut b = good.clone();
-        b[8..12].copy_from_slice(&2u32.to_le_bytes());
+        b[8..12].copy_from_slice(&1u32.to_le_bytes());
         let e = decode_form(&b, path).unwrap_err();
-        assert!(matches!(e, FormFileError::WrongVersion { found: 2, supported: 1, .. }));
-        assert!(msg(e).contains("version 2"));
+        assert!(matches!(e, FormFileError::WrongVersion { found: 1, supported: 2, .. }));
+        assert!(msg(e).contains("version 1"));
         // Truncated anywhere (including inside the preamble).
         for cut in [9, 15, 30, good.len() / 2, good.len() - 1] {
             let e = decode_form(&good[..cut], path).unwrap_err();
@@ -411,7 +414,8 @@ mod tests {
         assert!(matches!(decode_form(&reseal(b), path), Err(FormFileError::Corrupt { .. })));
         // The first array's length claims u64::MAX elements: find its length field.
         let form = sample();
-        let mut at = PREAMBLE + 4 + form.kind.len() + 24 + 1 + 16 + 4;
+        let tags = form.local_basis().tag().len() + form.light_basis().tag().len();
+        let mut at = PREAMBLE + 4 + form.kind.len() + 8 + 8 + tags + 1 + 16 + 4;
         for k in form.meta.keys() {
             at += 4 + k.len() + 8;
         }

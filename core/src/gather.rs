@@ -3,34 +3,79 @@
 //! Every compressed gather (CPU or GPU) is checked against [`reference_product`], which
 //! accumulates each row of the uncompressed `T` in f64.
 
+use crate::basis::LocalBasis;
+use crate::error::{CoreError, Result};
 use crate::sampling::LightVector;
 use crate::transfer::TransferMatrix;
 use crate::Rgb;
 
-/// `L*` for every vertex and local direction: `values[v * local_dirs + j]`, RGB power per bin.
+/// `L*` for every vertex: `values[v * M + j]`, RGB, the coefficient of local basis function
+/// `j` (for bins: the power through bin `j`). The length is `vertices * M` by construction.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LocalRadiance {
-    pub vertices: usize,
-    pub local_dirs: usize,
-    pub values: Vec<Rgb>,
+    basis: LocalBasis,
+    vertices: usize,
+    values: Vec<Rgb>,
 }
 
 impl LocalRadiance {
-    pub fn zeros(vertices: usize, local_dirs: usize) -> Self {
-        Self { vertices, local_dirs, values: vec![[0.0; 3]; vertices * local_dirs] }
+    /// `L*` from row values; an error unless there are `vertices * basis.len()` of them.
+    pub fn new(basis: LocalBasis, vertices: usize, values: Vec<Rgb>) -> Result<Self> {
+        if values.len() != vertices * basis.len() {
+            return Err(CoreError::Invalid(format!(
+                "L* has {} values, {vertices} vertices of {basis} need {}",
+                values.len(),
+                vertices * basis.len()
+            )));
+        }
+        Ok(Self { basis, vertices, values })
     }
 
-    /// The `M` bins of vertex `v`.
+    /// All zeros.
+    pub fn zeros(basis: LocalBasis, vertices: usize) -> Self {
+        Self { basis, vertices, values: vec![[0.0; 3]; vertices * basis.len()] }
+    }
+
+    /// The exact product rounded to f32 (the uncompressed `L*`).
+    pub fn from_f64(basis: LocalBasis, vertices: usize, values: &[[f64; 3]]) -> Result<Self> {
+        Self::new(basis, vertices, values.iter().map(|v| v.map(|x| x as f32)).collect())
+    }
+
+    pub fn basis(&self) -> LocalBasis {
+        self.basis
+    }
+    pub fn vertices(&self) -> usize {
+        self.vertices
+    }
+    /// `M`, the coefficients per vertex.
+    pub fn local_dirs(&self) -> usize {
+        self.basis.len()
+    }
+    /// Every row, `values[v * M + j]`.
+    pub fn values(&self) -> &[Rgb] {
+        &self.values
+    }
+    /// Every row, writable (the length stays fixed).
+    pub fn values_mut(&mut self) -> &mut [Rgb] {
+        &mut self.values
+    }
+
+    /// The `M` coefficients of vertex `v`.
     pub fn vertex(&self, v: usize) -> &[Rgb] {
-        &self.values[v * self.local_dirs..(v + 1) * self.local_dirs]
+        let m = self.basis.len();
+        &self.values[v * m..(v + 1) * m]
     }
 }
 
 /// `T L` with every row accumulated in f64 (the reference for all gathers).
+///
+/// # Panics
+/// If `light` is not in `t`'s light basis (a caller bug: the bases come from one
+/// `TransferSettings`).
 pub fn reference_product(t: &TransferMatrix, light: &LightVector) -> Vec<[f64; 3]> {
     use rayon::prelude::*;
-    assert_eq!(t.cols(), light.len(), "light vector size must match T's columns");
-    let csr = &t.csr;
+    assert_eq!(t.light_basis(), light.basis(), "the light vector must be in T's light basis");
+    let csr = t.csr();
     (0..csr.rows())
         .into_par_iter()
         .map(|r| {

@@ -30,10 +30,7 @@ macro_rules! with_ints {
             ArrayData::I16($v) => $body,
             ArrayData::U32($v) => $body,
             ArrayData::F32(_) => {
-                return Err(CompressError::Malformed(format!(
-                    "{}: array '{}' is f32, an integer array was expected",
-                    $form.kind, $name
-                )))
+                return Err(CompressError::malformed(&$form.kind, $name, "is f32, an integer array was expected"))
             }
         }
     };
@@ -74,18 +71,20 @@ impl Count {
         for f in &self.0 {
             let v = match f {
                 Factor::Const(c) => *c,
-                Factor::Rows => form.rows as u64,
-                Factor::Cols => form.cols as u64,
-                Factor::Vertices => (form.rows / form.local_dirs.max(1)) as u64,
-                Factor::LocalDirs => form.local_dirs as u64,
+                Factor::Rows => form.rows() as u64,
+                Factor::Cols => form.cols() as u64,
+                Factor::Vertices => form.vertices() as u64,
+                Factor::LocalDirs => form.local_dirs() as u64,
                 Factor::Meta(k) => form.meta(k)?,
                 Factor::MetaPlus(k, a) => form
                     .meta(k)?
                     .checked_add(*a)
-                    .ok_or_else(|| CompressError::Malformed(format!("meta '{k}' + {a} overflows u64")))?,
+                    .ok_or_else(|| CompressError::malformed(&form.kind, k, format!("+ {a} overflows u64")))?,
                 Factor::Len(a) => form.array(a)?.len() as u64,
             };
-            n = n.checked_mul(v).ok_or_else(|| CompressError::Malformed(format!("size {self:?} overflows u64")))?;
+            n = n
+                .checked_mul(v)
+                .ok_or_else(|| CompressError::malformed(&form.kind, "size", format!("{self:?} overflows u64")))?;
         }
         Ok(n)
     }
@@ -122,27 +121,27 @@ pub enum FormCheck {
 impl FormCheck {
     /// Verify the check on `form`; the error says which check and which element failed.
     pub fn run(&self, form: &CompressedForm) -> Result<(), CompressError> {
-        let bad = |m: String| Err(CompressError::Malformed(format!("{}: {m}", form.kind)));
+        let bad = |array: &str, m: String| Err(CompressError::malformed(&form.kind, array, m));
         match self {
             FormCheck::Len { array, count } => {
                 let (n, want) = (form.array(array)?.len() as u64, count.eval(form)?);
                 if n != want {
-                    return bad(format!("array '{array}' has {n} elements, expected {want} ({count:?})"));
+                    return bad(array, format!("has {n} elements, expected {want} ({count:?})"));
                 }
             }
             FormCheck::Ptr { array, count, target } => {
                 let (n, total) = (count.eval(form)?, form.array(target)?.len() as i64);
                 let r = with_ints!(form, array, v => check_ptr(v, n, total));
-                r.or_else(|m| bad(format!("pointer array '{array}' {m} (len('{target}') = {total})")))?;
+                r.or_else(|m| bad(array, format!("(a pointer array) {m} (len('{target}') = {total})")))?;
             }
             FormCheck::Below { array, bound } => {
                 let b = i64::try_from(bound.eval(form)?).unwrap_or(i64::MAX);
                 let r = with_ints!(form, array, v => check_below(v, b));
-                r.or_else(|(i, v)| bad(format!("{array}[{i}] = {v} is not in 0..{b}")))?;
+                r.or_else(|(i, v)| bad(array, format!("element {i} is {v}, not in 0..{b}")))?;
             }
             FormCheck::Finite { array } => {
                 if let Some(i) = form.f32s(array)?.iter().position(|v| !v.is_finite()) {
-                    return bad(format!("{array}[{i}] is not finite"));
+                    return bad(array, format!("element {i} is not finite"));
                 }
             }
         }
@@ -194,7 +193,11 @@ impl KernelDesc {
     /// that names a missing meta key or array fails here, before any upload).
     pub fn check_form(&self, form: &CompressedForm) -> Result<(), CompressError> {
         if form.kind != self.kind {
-            return Err(CompressError::Malformed(format!("kernels for '{}' given a '{}' form", self.kind, form.kind)));
+            return Err(CompressError::malformed(
+                &form.kind,
+                "kind",
+                format!("given to the kernels of '{}'", self.kind),
+            ));
         }
         for c in &self.checks {
             c.run(form)?;
@@ -215,24 +218,16 @@ impl KernelDesc {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::compress::NamedArray;
+    use crate::basis::{LightBasis, LocalBasis, TransferShape};
 
     fn form() -> CompressedForm {
-        CompressedForm {
-            kind: "probe".into(),
-            rows: 3,
-            cols: 6,
-            local_dirs: 1,
-            arrays: vec![
-                NamedArray { name: "ptr".into(), data: ArrayData::U32(vec![0, 2, 2, 4]) },
-                NamedArray { name: "idx".into(), data: ArrayData::U16(vec![0, 5, 1, 2]) },
-                NamedArray { name: "val".into(), data: ArrayData::F32(vec![1.0, 2.0, 3.0, 4.0]) },
-            ],
-            meta: [("k".to_string(), 2)].into(),
-            lossless: true,
-            flops_per_gather: 0,
-            build_seconds: 0.0,
-        }
+        let shape = TransferShape::new(3, LocalBasis::bins(1).unwrap(), LightBasis::cubemap(1).unwrap());
+        let mut f = CompressedForm::new("probe", shape)
+            .with_array("ptr", ArrayData::U32(vec![0, 2, 2, 4]))
+            .with_array("idx", ArrayData::U16(vec![0, 5, 1, 2]))
+            .with_array("val", ArrayData::F32(vec![1.0, 2.0, 3.0, 4.0]));
+        f.meta = [("k".to_string(), 2)].into();
+        f
     }
 
     fn desc(checks: Vec<FormCheck>) -> KernelDesc {
@@ -285,9 +280,9 @@ mod tests {
             (with("ptr", ArrayData::U32(vec![0, 2, 4])), "expected 3 + 1"),
             (with("ptr", ArrayData::U32(vec![1, 2, 2, 4])), "from 0"),
             (with("ptr", ArrayData::U32(vec![0, 3, 2, 4])), "decreases at entry 1"),
-            (with("idx", ArrayData::U16(vec![0, 6, 1, 2])), "idx[1] = 6"),
+            (with("idx", ArrayData::U16(vec![0, 6, 1, 2])), "'idx' element 1 is 6"),
             (with("idx", ArrayData::F32(vec![0.0; 4])), "integer array"),
-            (with("val", ArrayData::F32(vec![1.0, f32::NAN, 3.0, 4.0])), "val[1]"),
+            (with("val", ArrayData::F32(vec![1.0, f32::NAN, 3.0, 4.0])), "'val' element 1"),
         ];
         for (f, needle) in cases {
             let e = d.check_form(&f).unwrap_err().to_string();

@@ -3,6 +3,7 @@
 //! The plain data that flows between biscale's stages, the conventions every stage agrees
 //! on (DESIGN.md section 3), and the CPU stages that produce the transfer matrix:
 //!
+//! * [`basis`]: the bases stage outputs carry (the light basis of `L`, the local basis of `L*`).
 //! * [`sampling`]: the cubemap layout and its exact texel solid angles, the Shirley-Chiu
 //!   hemisphere grids that index local light and view directions, lat-long environment maps
 //!   and the light vector `L` (power per cubemap texel).
@@ -12,25 +13,33 @@
 //! * [`compress`]: the [`compress::Compressor`] interface and the compressed form as plain
 //!   arrays (DESIGN.md section 4).
 //! * [`gather`]: local incident radiance `L* = T L` and its f64 reference product.
+//! * [`scene`]: what every shader takes and returns: the shade scene (mesh, frames,
+//!   materials), BTF tables, the camera, the RGB image type and its files.
+//! * [`io`]: the atomic writer and the content hash of cache keys; [`stats`]: the median.
 //!
 //! Shortest use, from a mesh and an env map to `L*`:
 //!
 //! ```no_run
-//! use biscale_core::{geometry::Mesh, sampling::{EnvMap, LightVector, HemisphereGrid}, transfer};
+//! use biscale_core::{geometry::Mesh, sampling::{EnvMap, LightVector}, transfer};
+//! let settings = transfer::TransferSettings::default(); // 6x32x32 cubemap, 8x8 bins
 //! let mesh = Mesh::load_obj("assets/meshes/bunny.obj".as_ref()).unwrap().mesh;
 //! let (env, _warnings) = EnvMap::load("assets/envmaps/blender_forest.exr".as_ref()).unwrap();
-//! let light = LightVector::from_env(&env, 32, 0.0);
-//! let t = transfer::build(&mesh, &transfer::TransferSettings::default(), None).unwrap().matrix;
+//! let light = LightVector::from_env(&env, settings.light_basis(), 0.0);
+//! let t = transfer::build(&mesh, &settings, None).unwrap().matrix;
 //! let lstar = biscale_core::gather::reference_product(&t, &light);
 //! ```
 
+pub mod basis;
 pub mod compress;
 pub mod error;
 pub mod form_file;
 pub mod gather;
 pub mod geometry;
+pub mod io;
 pub mod kernels;
 pub mod sampling;
+pub mod scene;
+pub mod stats;
 pub mod transfer;
 
 pub use error::{CoreError, Result};

@@ -181,7 +181,7 @@ fn run_gpu(
         device.poll(wgpu::PollType::wait_indefinitely())?;
         Ok(())
     })?;
-    let err = relative_l2_error(&g.read_lstar()?.values, reference);
+    let err = relative_l2_error(g.read_lstar()?.values(), reference);
     Ok(GpuRow { uploaded: g.uploaded_bytes(), stamp_ms, wall_ms, err })
 }
 
@@ -198,7 +198,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let gbs = |b: f64| b / 1e9;
 
     let mesh = Mesh::load_obj(&args.mesh)?.mesh;
-    let settings = TransferSettings { local_grid: args.local_grid, ..TransferSettings::default() };
+    let settings = TransferSettings::default().with_local_grid(args.local_grid)?;
     let t0 = Instant::now();
     let t = transfer::build(&mesh, &settings, None)?.matrix;
     println!(
@@ -210,7 +210,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         t0.elapsed().as_secs_f64(),
         rayon::current_num_threads()
     );
-    let light = random_light(settings.cubemap_resolution, 3);
+    let light = random_light(settings.cubemap().resolution, 3);
     if light.len() != t.cols() {
         return Err(format!("light has {} texels, T has {} columns", light.len(), t.cols()).into());
     }
@@ -269,7 +269,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             out = Some(c.gather(&form, &light)?);
             Ok::<(), biscale_core::compress::CompressError>(())
         })?;
-        let cpu_err = relative_l2_error(&out.expect("timed at least once").values, &reference);
+        let cpu_err = relative_l2_error(out.expect("timed at least once").values(), &reference);
         let gpu = match &gpu {
             Some((ctx, _)) => match run_gpu(ctx, &form, &light, args.runs, &reference) {
                 Ok(r) => Some(r),

@@ -20,9 +20,8 @@ use biscale_compressors::testing::{random_light, random_transfer};
 use biscale_core::compress::{CompressContext, Compressor};
 use biscale_core::gather::{reference_product, relative_l2_error};
 use biscale_core::geometry::{vertex_frames, Mesh};
-use biscale_gpu::{GpuCamera, GpuContext, GpuGather, GpuMaterial, GpuShader, ShadeInputs, Timing};
-use biscale_shading::btf::Btf;
-use biscale_shading::camera::Camera;
+use biscale_core::scene::{Btf, Camera, Material, ShadeScene};
+use biscale_gpu::{GpuContext, GpuGather, GpuShader, Timing};
 use std::time::Instant;
 
 fn arg<T: std::str::FromStr>(name: &str, default: T) -> T {
@@ -70,17 +69,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let start = Instant::now();
     let real = std::env::args().any(|a| a == "--real");
     let t = if real {
-        let settings = biscale_core::transfer::TransferSettings { local_grid: local_m, ..Default::default() };
+        let settings = biscale_core::transfer::TransferSettings::default().with_local_grid(local_m)?;
         biscale_core::transfer::build(&mesh, &settings, None)?.matrix
     } else {
-        random_transfer(mesh.positions.len(), m, 32, density, 1)
+        random_transfer(mesh.positions.len(), local_m, 32, density, 1)
     };
     println!(
         "{} T: {} x {} ({} vertices x {m}), {} non-zeros ({:.2} %), built in {:.1} s",
         if real { "bunny" } else { "random" },
         t.rows(),
         t.cols(),
-        t.vertices,
+        t.vertices(),
         t.nnz(),
         100.0 * t.nnz() as f64 / (t.rows() as f64 * t.cols() as f64),
         start.elapsed().as_secs_f64()
@@ -115,8 +114,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     println!(
         "relative L2 error vs f64 reference: GPU {:.2e}, CPU f32 {:.2e}",
-        relative_l2_error(&gpu_lstar.values, &reference),
-        relative_l2_error(&cpu_lstar.unwrap().values, &reference)
+        relative_l2_error(gpu_lstar.values(), &reference),
+        relative_l2_error(cpu_lstar.unwrap().values(), &reference)
     );
 
     // The other built-in compressed forms (--all-kinds): build time, GPU and CPU gathers.
@@ -137,53 +136,33 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 f.kind,
                 f.bytes() as f64 / 1e6,
                 f.build_seconds,
-                relative_l2_error(&gpu_l.values, &reference),
-                relative_l2_error(&cpu_l.values, &reference)
+                relative_l2_error(gpu_l.values(), &reference),
+                relative_l2_error(cpu_l.values(), &reference)
             );
             show(&format!("GPU gather ({})", f.kind), &timing);
         }
     }
 
     // Shade.
-    let phong = Btf::phong([0.5, 0.45, 0.4], [0.3, 0.3, 0.3], 20.0, local_m, 12)?;
-    let per_texel = phong.data.len();
+    let phong = Btf::phong([0.5, 0.45, 0.4], [0.3, 0.3, 0.3], 20.0, t.local_basis(), 12)?;
+    let per_texel = phong.data().len();
     let mut data = Vec::with_capacity(per_texel * (texels * texels) as usize);
     for i in 0..texels * texels {
         let s = 0.5 + 0.5 * (i.wrapping_mul(2654435761) as f32 / u32::MAX as f32);
-        data.extend(phong.data.iter().map(|b| b.map(|x| x * s)));
+        data.extend(phong.data().iter().map(|b| b.map(|x| x * s)));
     }
     let (lo, hi) = mesh.bounds();
-    let cam = Camera::frame_bounds(lo, hi, width, height, 30.0, 20.0, 40.0);
-    let camera = GpuCamera {
-        position: cam.position,
-        target: cam.target,
-        up: cam.up,
-        fov_y_degrees: cam.fov_y_degrees,
-        width,
-        height,
-    };
-    let positions: Vec<[f32; 3]> = mesh.positions.iter().map(|p| p.to_array()).collect();
-    let normals: Vec<[f32; 3]> = frames.iter().map(|f| f.normal.to_array()).collect();
-    let tangents: Vec<[f32; 3]> = frames.iter().map(|f| f.tangent.to_array()).collect();
-    let uvs: Option<Vec<[f32; 2]>> = mesh.uvs.as_ref().map(|u| u.iter().map(|p| p.to_array()).collect());
-    let inputs = ShadeInputs {
-        positions: &positions,
-        normals: &normals,
-        tangents: &tangents,
-        uvs: uvs.as_deref(),
-        triangles: &mesh.triangles,
-        materials: &[GpuMaterial { btf_data: &data, btf_spatial: [texels, texels], view_m: Some(12), tiling: 1.0 }],
-        triangle_materials: None,
-        light_m: local_m,
-        camera,
-    };
-    let mut shader = GpuShader::new(&ctx, &inputs)?;
-    let image = shader.shade(&gather)?;
-    let covered = image.coverage.iter().filter(|&&c| c).count();
+    let camera = Camera::frame_bounds(lo, hi, width, height, 30.0, 20.0, 40.0);
+    let btf = Btf::new([texels, texels], t.local_basis(), phong.view_grid(), data, "bench")?;
+    let table_bytes = btf.data().len() * 12;
+    let scene = ShadeScene::new(mesh.clone(), frames, vec![Material::new(btf)], None)?;
+    let mut shader = GpuShader::new(&ctx, &scene, &camera)?;
+    let render = shader.shade(&gather)?;
+    let covered = render.mask.iter().filter(|&&c| c).count();
     println!(
         "shade {width}x{height}: {covered} covered pixels ({:.1} %), BTF {texels}x{texels} texels x 144 views x {m} lights ({:.1} MB)",
-        100.0 * covered as f64 / image.pixels.len() as f64,
-        (data.len() * 12) as f64 / 1e6
+        100.0 * covered as f64 / render.mask.len() as f64,
+        table_bytes as f64 / 1e6
     );
     let timing = shader.time_shade(&gather, reps)?;
     show("GPU shade (visibility + shade)", &timing);

@@ -22,11 +22,9 @@ use biscale_compressors::sparse::Sparse;
 use biscale_core::compress::{CompressContext, Compressor};
 use biscale_core::geometry::{vertex_frames, Mesh};
 use biscale_core::sampling::EnvMap;
+use biscale_core::scene::{Btf, Camera, Material, ShadeScene};
 use biscale_core::transfer::{self, TransferSettings};
-use biscale_gpu::viewer::{run_viewer, Screenshot, ViewerForm, ViewerMaterial, ViewerSetup};
-use biscale_gpu::GpuCamera;
-use biscale_shading::btf::Btf;
-use biscale_shading::camera::Camera;
+use biscale_gpu::viewer::{run_viewer, Screenshot, ViewerForm, ViewerSetup};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -44,11 +42,7 @@ fn flag(name: &str) -> bool {
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let (width, height) = (arg("--width").unwrap_or(800u32), arg("--height").unwrap_or(600u32));
-    let settings = if flag("--full") {
-        TransferSettings::default()
-    } else {
-        TransferSettings { cubemap_resolution: 16, visibility_resolution: 32, local_grid: 8 }
-    };
+    let settings = if flag("--full") { TransferSettings::default() } else { TransferSettings::new(16, 32, 8)? };
 
     let mesh: Mesh = Mesh::load_obj(&root.join("assets/meshes/bunny.obj"))?.mesh;
     let (frames, _) = vertex_frames(&mesh);
@@ -75,7 +69,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         forms.push(ViewerForm { label: label.clone(), form });
     }
 
-    let btf = Btf::phong([0.55, 0.50, 0.45], [0.25, 0.25, 0.25], 24.0, settings.local_grid, 12)?;
+    let btf = Btf::phong([0.55, 0.50, 0.45], [0.25, 0.25, 0.25], 24.0, t.local_basis(), 12)?;
     let env_path = arg::<PathBuf>("--env").unwrap_or_else(|| root.join("assets/envmaps/blender_forest.exr"));
     let (env, warnings) = EnvMap::load(&env_path)?;
     for w in warnings {
@@ -86,38 +80,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         min = min.min(*p);
         max = max.max(*p);
     }
-    let cam = Camera::frame_bounds(min, max, width, height, 25.0, 15.0, 30.0);
+    let camera = Camera::frame_bounds(min, max, width, height, 25.0, 15.0, 30.0);
     let screenshot =
         arg::<PathBuf>("--screenshot").map(|path| Screenshot { path, frames: arg("--frames").unwrap_or(5) });
     let setup = ViewerSetup {
         title: "bunny (view_demo)".into(),
-        positions: mesh.positions.iter().map(|p| p.to_array()).collect(),
-        normals: frames.iter().map(|f| f.normal.to_array()).collect(),
-        tangents: frames.iter().map(|f| f.tangent.to_array()).collect(),
-        uvs: mesh.uvs.as_ref().map(|u| u.iter().map(|v| v.to_array()).collect()),
-        triangles: mesh.triangles.clone(),
-        materials: vec![ViewerMaterial {
-            btf_data: btf.data.clone(),
-            btf_spatial: btf.spatial,
-            view_m: btf.view_grid.map(|g| g.m),
-            tiling: 1.0,
-        }],
-        triangle_materials: None,
-        light_m: btf.light_grid.m,
+        scene: ShadeScene::new(mesh, frames, vec![Material::new(btf)], None)?,
         forms,
         initial_form: arg("--form").unwrap_or(0),
         env,
-        cubemap_resolution: settings.cubemap_resolution,
+        light_basis: settings.light_basis(),
         env_rotation: arg::<f64>("--rotation").unwrap_or(90.0).to_radians(),
         sun_boost: None,
-        camera: GpuCamera {
-            position: cam.position,
-            target: cam.target,
-            up: cam.up,
-            fov_y_degrees: cam.fov_y_degrees,
-            width,
-            height,
-        },
+        camera,
         exposure: arg("--exposure").unwrap_or(0.0),
         background: !flag("--no-background"),
         screenshot,

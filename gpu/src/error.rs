@@ -16,9 +16,16 @@ pub enum GpuError {
     /// No built-in gather program for this compressed form's kind.
     #[error("no GPU gather program for compressor kind '{0}'")]
     UnknownKind(String),
-    /// The compressed form does not match its gather program (missing array, wrong type or length).
+    /// The compressed form does not fit its gather program or the adapter's indices.
     #[error("compressed form: {0}")]
     Form(String),
+    /// A compressed form failed a structural check (missing array, wrong type or length, an
+    /// offset or index out of range).
+    #[error(transparent)]
+    Compress(#[from] biscale_core::compress::CompressError),
+    /// Core data refused its inputs (e.g. `L*` read back in the wrong shape).
+    #[error(transparent)]
+    Core(#[from] biscale_core::CoreError),
     /// A WGSL program failed to parse or does not follow the binding conventions.
     #[error("WGSL program '{program}': {message}")]
     Wgsl { program: String, message: String },
@@ -34,12 +41,6 @@ pub enum GpuError {
     /// The viewer's window or its surface could not be created or used (no display, ...).
     #[error("viewer window: {0}")]
     Window(String),
-}
-
-impl From<biscale_core::compress::CompressError> for GpuError {
-    fn from(e: biscale_core::compress::CompressError) -> Self {
-        GpuError::Form(e.to_string())
-    }
 }
 
 pub type Result<T, E = GpuError> = std::result::Result<T, E>;

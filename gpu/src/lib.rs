@@ -43,12 +43,10 @@ pub use error::{GpuError, Result};
 pub use gather::program::{Count, Factor, GatherProgram, KernelPass, ScratchBuffer, ValidateFn};
 pub use gather::{GatherParams, GpuGather};
 pub use present::{Rgba8Image, ToneMap, ToneMapSettings};
-pub use shade::{
-    GpuCamera, GpuMaterial, GpuMaterialHeader, GpuShader, GpuVertex, ShadeInputs, ShadeParams, ShadedImage,
-};
+pub use shade::{GpuMaterialHeader, GpuShader, GpuVertex, ShadeParams};
 pub use timing::{PassTiming, Timing, TimingMethod};
 #[cfg(feature = "viewer")]
-pub use viewer::{run_viewer, Screenshot, ViewerForm, ViewerMaterial, ViewerSetup};
+pub use viewer::{run_viewer, Screenshot, ViewerForm, ViewerSetup};
 
 #[cfg(test)]
 mod tests;

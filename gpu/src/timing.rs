@@ -36,20 +36,8 @@ pub struct Timing {
     pub repetitions: usize,
 }
 
-/// Median of `v` (mean of the middle two for even lengths); NaN for an empty slice.
-pub fn median(v: &[f64]) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    let mut s = v.to_vec();
-    s.sort_by(|a, b| a.total_cmp(b));
-    let n = s.len();
-    if n % 2 == 1 {
-        s[n / 2]
-    } else {
-        0.5 * (s[n / 2 - 1] + s[n / 2])
-    }
-}
+/// The one median of biscale's measurements (core's), re-exported for the GPU timings.
+pub use biscale_core::stats::median;
 
 /// A timestamp query set with two queries per pass, and the buffers to read it back.
 pub(crate) struct PassTimer {
@@ -177,16 +165,4 @@ pub(crate) fn measure(
         method: if timer.is_some() { TimingMethod::GpuTimestamps } else { TimingMethod::WallClock },
         repetitions,
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::median;
-
-    #[test]
-    fn median_of_odd_and_even_lengths() {
-        assert_eq!(median(&[3.0, 1.0, 2.0]), 2.0);
-        assert_eq!(median(&[4.0, 1.0, 3.0, 2.0]), 2.5);
-        assert!(median(&[]).is_nan());
-    }
 }

@@ -11,15 +11,13 @@
 #![cfg(feature = "viewer")]
 
 use biscale_compressors::sparse::Sparse;
-use biscale_compressors::testing::random_transfer;
+use biscale_compressors::testing::{bins, cubemap, random_transfer};
 use biscale_core::compress::{CompressContext, Compressor};
 use biscale_core::geometry::{shapes, VertexFrame};
 use biscale_core::sampling::{EnvMap, LightVector};
+use biscale_core::scene::{Btf, Camera, Material, ShadeScene};
 use biscale_gpu::viewer::{run_viewer, Screenshot, ViewerForm, ViewerSetup};
-use biscale_gpu::{
-    GpuCamera, GpuContext, GpuGather, GpuMaterial, GpuShader, ShadeInputs, ToneMap, ToneMapSettings, ViewerMaterial,
-};
-use biscale_shading::btf::Btf;
+use biscale_gpu::{GpuContext, GpuGather, GpuShader, ToneMap, ToneMapSettings};
 use glam::Vec3;
 
 #[test]
@@ -40,11 +38,13 @@ fn window_shows_the_tone_mapped_frame() {
     };
 
     // A Phong plane under a smooth sky, T random (cubemap 4, 4x4 local bins).
-    let mesh = shapes::grid_plane(8, 2.0);
+    let mut mesh = shapes::grid_plane(8, 2.0);
+    mesh.uvs = None;
     let nv = mesh.positions.len();
     let frame = VertexFrame::from_normal_tangent(Vec3::Y, Vec3::X);
-    let btf = Btf::phong([0.6, 0.5, 0.4], [0.3, 0.3, 0.3], 16.0, 4, 4).unwrap();
-    let t = random_transfer(nv, 16, 4, 0.3, 5);
+    let btf = Btf::phong([0.6, 0.5, 0.4], [0.3, 0.3, 0.3], 16.0, bins(4), 4).unwrap();
+    let scene = ShadeScene::new(mesh, vec![frame; nv], vec![Material::new(btf)], None).unwrap();
+    let t = random_transfer(nv, 4, 4, 0.3, 5);
     let form = Sparse.compress(&t, &CompressContext::default()).unwrap();
     let (ew, eh) = (64, 32);
     let mut env = EnvMap::constant(ew, eh, [0.0; 3]);
@@ -54,7 +54,7 @@ fn window_shows_the_tone_mapped_frame() {
         }
     }
     let (w, h) = (320, 280);
-    let camera = GpuCamera {
+    let camera = Camera {
         position: Vec3::new(0.3, 0.8, 2.2),
         target: Vec3::new(0.0, 0.0, 0.0),
         up: Vec3::Y,
@@ -63,26 +63,13 @@ fn window_shows_the_tone_mapped_frame() {
         height: h,
     };
     let (rotation, exposure) = (0.7f64, -2.0f32);
-    let positions: Vec<[f32; 3]> = mesh.positions.iter().map(|p| p.to_array()).collect();
     let setup = ViewerSetup {
         title: "viewer test".into(),
-        positions: positions.clone(),
-        normals: vec![frame.normal.to_array(); nv],
-        tangents: vec![frame.tangent.to_array(); nv],
-        uvs: None,
-        triangles: mesh.triangles.clone(),
-        materials: vec![ViewerMaterial {
-            btf_data: btf.data.clone(),
-            btf_spatial: btf.spatial,
-            view_m: Some(4),
-            tiling: 1.0,
-        }],
-        triangle_materials: None,
-        light_m: 4,
+        scene: scene.clone(),
         forms: vec![ViewerForm { label: "sparse".into(), form: form.clone() }],
         initial_form: 0,
         env: env.clone(),
-        cubemap_resolution: 4,
+        light_basis: cubemap(4),
         env_rotation: rotation,
         sun_boost: None,
         camera,
@@ -108,20 +95,9 @@ fn window_shows_the_tone_mapped_frame() {
 
     // The same frame offscreen: same camera, same light (LightVector::from_env at the same
     // rotation), same tone map.
-    let inputs = ShadeInputs {
-        positions: &positions,
-        normals: &vec![frame.normal.to_array(); nv],
-        tangents: &vec![frame.tangent.to_array(); nv],
-        uvs: None,
-        triangles: &mesh.triangles,
-        materials: &[GpuMaterial { btf_data: &btf.data, btf_spatial: btf.spatial, view_m: Some(4), tiling: 1.0 }],
-        triangle_materials: None,
-        light_m: 4,
-        camera,
-    };
-    let mut shader = GpuShader::new(&ctx, &inputs).unwrap();
+    let mut shader = GpuShader::new(&ctx, &scene, &camera).unwrap();
     let mut gather = GpuGather::new(&ctx, &form).unwrap();
-    gather.gather(&LightVector::from_env(&env, 4, rotation)).unwrap();
+    gather.gather(&LightVector::from_env(&env, cubemap(4), rotation)).unwrap();
     let mut tm = ToneMap::new(&ctx, wgpu::TextureFormat::Rgba8UnormSrgb).unwrap();
     tm.set_environment(Some(&env)).unwrap();
     let settings = ToneMapSettings { exposure, env_rotation: rotation as f32, background: true };

@@ -4,8 +4,11 @@
 //! Per pixel: one primary ray through the pixel centre, the closest hit, the three vertices'
 //! `L*` (M x RGB each) and frames interpolated barycentrically, the view direction (towards
 //! the camera) expressed in the interpolated frame, the BTF looked up for it
-//! ([`Btf::eval_into`]) and dotted with the interpolated `L*`. Each triangle has a material
-//! (a BTF and a tiling scale, [`Material`]); a one-material scene has no per-triangle ids.
+//! ([`Btf::eval_into`](biscale_core::scene::Btf::eval_into)) and dotted with the interpolated
+//! `L*`. Each triangle has a material (a BTF and a tiling scale); a one-material scene has no
+//! per-triangle ids. [`shade`] takes what the wgpu shader takes (the [`ShadeScene`], `L*`, the
+//! camera) and returns what it returns (a [`Render`]: uncovered pixels black; add a
+//! background with [`Render::with_background`]).
 //!
 //! Precision: interpolation and the dot product accumulate in f64, so this is a reference
 //! and not merely another f32 evaluation: the terms `b_j L*_j` are non-negative for physical
@@ -14,148 +17,16 @@
 //! difference from the GPU is the GPU's. The cost is irrelevant next to ray casting.
 //!
 //! Surfaces are one-sided: seen from behind (the view below the interpolated frame's
-//! horizon), the BTF is looked up at the horizon ([`Btf::view_weights`]) with the front
-//! side's `L*`.
+//! horizon), the BTF is looked up at the horizon
+//! ([`Btf::view_weights`](biscale_core::scene::Btf::view_weights)) with the front side's `L*`.
 
-use crate::btf::Btf;
-use crate::camera::Camera;
-use crate::error::{Result, ShadingError};
-use crate::image::HdrImage;
+use crate::error::Result;
 use biscale_core::gather::LocalRadiance;
-use biscale_core::geometry::{Mesh, SceneBvh, VertexFrame};
-use biscale_core::sampling::EnvMap;
+use biscale_core::geometry::VertexFrame;
+use biscale_core::scene::{Camera, HdrImage, Material, Render, ShadeScene};
 use biscale_core::Rgb;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
-
-/// What a primary ray that misses the mesh sees.
-#[derive(Clone, Copy, Debug)]
-pub enum Background<'a> {
-    Black,
-    /// The environment map, rotated by `rotation` radians about +Y (as in
-    /// [`biscale_core::sampling::LightVector::from_env`]), looked up at the nearest pixel.
-    Env {
-        env: &'a EnvMap,
-        rotation: f64,
-    },
-}
-
-impl Background<'_> {
-    /// Radiance seen along world direction `dir`.
-    pub fn radiance(&self, dir: Vec3) -> Rgb {
-        match self {
-            Background::Black => [0.0; 3],
-            Background::Env { env, rotation } => env.radiance(dir, *rotation),
-        }
-    }
-}
-
-/// Everything the shader needs besides the light and the camera.
-#[derive(Clone, Copy)]
-pub struct ShadeScene<'a> {
-    pub mesh: &'a Mesh,
-    /// One frame per vertex (see [`biscale_core::geometry::vertex_frames`]).
-    pub frames: &'a [VertexFrame],
-    /// BVH over `mesh` (triangle ids are the mesh's).
-    pub bvh: &'a SceneBvh,
-    /// The scene's materials; all share one light grid (the rows of `T` are per vertex, not
-    /// per material, so `L*` has one set of bins).
-    pub materials: &'a [Material],
-    /// Index into `materials` per triangle; `None` for a one-material scene (no id buffer).
-    pub triangle_materials: Option<&'a [u16]>,
-    pub background: Background<'a>,
-}
-
-/// A BTF and how often its patch repeats per unit of texture coordinate.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Material {
-    pub btf: Btf,
-    /// Patch repetitions per unit of uv: the BTF is looked up at `uv * tiling`.
-    pub tiling: f32,
-}
-
-impl Material {
-    /// A material with the patch tiled once per unit of uv.
-    pub fn new(btf: Btf) -> Self {
-        Self { btf, tiling: 1.0 }
-    }
-}
-
-impl<'a> ShadeScene<'a> {
-    /// The material of triangle `t`.
-    pub fn material(&self, triangle: u32) -> &'a Material {
-        let i = self.triangle_materials.map_or(0, |ids| ids[triangle as usize] as usize);
-        &self.materials[i]
-    }
-
-    /// The number of light bins `M` every material shares.
-    pub fn light_count(&self) -> usize {
-        self.materials.first().map_or(0, |m| m.btf.light_count())
-    }
-}
-
-/// A rendered image and its coverage.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Render {
-    pub image: HdrImage,
-    /// Row-major like the image: true where the pixel centre's ray hits the mesh.
-    pub mask: Vec<bool>,
-}
-
-impl ShadeScene<'_> {
-    /// Check that the parts fit together (sizes and indices), so shading cannot panic.
-    pub fn validate(&self) -> Result<()> {
-        let n = self.mesh.positions.len();
-        let bad = |m: String| Err(ShadingError::Invalid(m));
-        if self.frames.len() != n {
-            return bad(format!("{} vertex frames for {n} vertices", self.frames.len()));
-        }
-        if let Some(uvs) = &self.mesh.uvs {
-            if uvs.len() != n {
-                return bad(format!("{} UVs for {n} vertices", uvs.len()));
-            }
-        }
-        if let Some(t) = self.mesh.triangles.iter().position(|t| t.iter().any(|&i| i as usize >= n)) {
-            return bad(format!("triangle {t} indexes a vertex out of range (n = {n})"));
-        }
-        if self.bvh.len() != self.mesh.triangles.len() {
-            return bad(format!("BVH has {} triangles, the mesh {}", self.bvh.len(), self.mesh.triangles.len()));
-        }
-        let Some(first) = self.materials.first() else {
-            return bad("the scene has no material".into());
-        };
-        for (i, m) in self.materials.iter().enumerate() {
-            m.btf.validate()?;
-            if m.btf.light_grid != first.btf.light_grid {
-                return bad(format!(
-                    "material {i} ({}) has a {}x{} light grid, material 0 ({}) {}x{}: all must share the local grid",
-                    m.btf.name,
-                    m.btf.light_grid.m,
-                    m.btf.light_grid.m,
-                    first.btf.name,
-                    first.btf.light_grid.m,
-                    first.btf.light_grid.m
-                ));
-            }
-            if !(m.tiling.is_finite() && m.tiling > 0.0) {
-                return bad(format!("material {i} ({}) has tiling {}, must be finite and > 0", m.btf.name, m.tiling));
-            }
-        }
-        match self.triangle_materials {
-            None if self.materials.len() > 1 => {
-                bad(format!("{} materials but no per-triangle material ids", self.materials.len()))
-            }
-            Some(ids) if ids.len() != self.mesh.triangles.len() => {
-                bad(format!("{} material ids for {} triangles", ids.len(), self.mesh.triangles.len()))
-            }
-            Some(ids) => match ids.iter().position(|&i| i as usize >= self.materials.len()) {
-                Some(t) => bad(format!("triangle {t} uses material {} of {}", ids[t], self.materials.len())),
-                None => Ok(()),
-            },
-            None => Ok(()),
-        }
-    }
-}
 
 /// A shading point found by a primary ray.
 #[derive(Clone, Copy, Debug)]
@@ -177,24 +48,24 @@ pub struct SurfacePoint {
 
 /// The closest hit of the ray `(origin, dir)` and its interpolated attributes.
 pub fn primary_hit(scene: &ShadeScene, origin: Vec3, dir: Vec3) -> Option<SurfacePoint> {
-    let hit = scene.bvh.closest_hit(origin, dir, 0.0, f32::INFINITY)?;
-    let tri = scene.mesh.triangles[hit.triangle as usize];
+    let hit = scene.bvh().closest_hit(origin, dir, 0.0, f32::INFINITY)?;
+    let tri = scene.mesh().triangles[hit.triangle as usize];
     // Clamp rounding excursions outside the triangle, so interpolation stays convex.
     let w = [1.0 - hit.barycentric.x - hit.barycentric.y, hit.barycentric.x, hit.barycentric.y].map(|x| x.max(0.0));
     let sum = w[0] + w[1] + w[2];
     let weights = if sum > 0.0 && sum.is_finite() { w.map(|x| x / sum) } else { [1.0, 0.0, 0.0] };
     let lerp3 = |f: &dyn Fn(usize) -> Vec3| (0..3).map(|i| f(tri[i] as usize) * weights[i]).sum::<Vec3>();
-    let position = lerp3(&|v| scene.mesh.positions[v]);
-    let mut normal = lerp3(&|v| scene.frames[v].normal);
+    let position = lerp3(&|v| scene.mesh().positions[v]);
+    let mut normal = lerp3(&|v| scene.frames()[v].normal);
     if !normal.is_finite() || normal.length_squared() <= 1e-12 {
         // Opposite vertex normals cancel (a crease): the face normal stands in.
-        let [a, b, c] = tri.map(|i| scene.mesh.positions[i as usize]);
+        let [a, b, c] = tri.map(|i| scene.mesh().positions[i as usize]);
         normal = (b - a).cross(c - a);
     }
     let normal = normal.normalize_or(Vec3::Y);
-    let tangent = lerp3(&|v| scene.frames[v].tangent);
+    let tangent = lerp3(&|v| scene.frames()[v].tangent);
     let frame = VertexFrame::from_normal_tangent(normal, tangent);
-    let uv = match &scene.mesh.uvs {
+    let uv = match &scene.mesh().uvs {
         Some(uvs) => (0..3).map(|i| uvs[tri[i] as usize] * weights[i]).sum(),
         None => Vec2::ZERO,
     };
@@ -226,10 +97,11 @@ pub fn shade_point(material: &Material, uv: Vec2, view_local: Vec3, lstar: &[[f6
 pub(crate) type HitShader<'a> = dyn Fn(&SurfacePoint, &mut [[f64; 3]], &mut [Rgb]) -> Rgb + Sync + 'a;
 
 /// Render `camera`'s view: one ray per pixel centre; `f(point, scratch_lstar, scratch_btf)`
-/// returns the radiance of a hit. Rows run in parallel; `row_done` is called after each row.
+/// returns the radiance of a hit (misses stay black). Rows run in parallel; `row_done` is
+/// called after each row.
 pub(crate) fn render_rows(scene: &ShadeScene, camera: &Camera, row_done: &(dyn Fn() + Sync), f: &HitShader) -> Render {
     let (w, h) = (camera.width as usize, camera.height as usize);
-    let m = scene.light_count();
+    let m = scene.local_basis().len();
     let mut image = HdrImage::new(camera.width, camera.height);
     let mut mask = vec![false; w * h];
     image.pixels.par_chunks_mut(w).zip(mask.par_chunks_mut(w)).enumerate().for_each(|(y, (row, row_mask))| {
@@ -242,7 +114,7 @@ pub(crate) fn render_rows(scene: &ShadeScene, camera: &Camera, row_done: &(dyn F
                     row[x] = f(&p, &mut lstar, &mut scratch);
                     row_mask[x] = true;
                 }
-                None => row[x] = scene.background.radiance(dir),
+                None => {}
             }
         }
         row_done();
@@ -250,37 +122,20 @@ pub(crate) fn render_rows(scene: &ShadeScene, camera: &Camera, row_done: &(dyn F
     Render { image, mask }
 }
 
-/// Check `L*` against the scene: one block of `M` bins per vertex, all finite.
-fn check_lstar(scene: &ShadeScene, lstar: &LocalRadiance) -> Result<()> {
-    let (n, m) = (scene.mesh.positions.len(), scene.light_count());
-    if lstar.vertices != n || lstar.local_dirs != m || lstar.values.len() != n * m {
-        return Err(ShadingError::Invalid(format!(
-            "L* has {} vertices x {} bins ({} values); the mesh has {n} vertices and the BTF {m} light bins",
-            lstar.vertices,
-            lstar.local_dirs,
-            lstar.values.len()
-        )));
-    }
-    if let Some(i) = lstar.values.iter().position(|v| !v.iter().all(|x| x.is_finite())) {
-        return Err(ShadingError::Invalid(format!("L* is not finite at vertex {} bin {}", i / m, i % m)));
-    }
-    Ok(())
-}
-
 /// Shade the mesh from per-vertex `L*` (rows `v * M + j`, see [`LocalRadiance`]).
 ///
-/// Errors when the scene's parts, `L*` or the camera do not fit together (sizes, indices,
-/// non-finite `L*`), never panics on them.
+/// Errors when `L*` does not fit the scene ([`ShadeScene::check_lstar`]) or the camera cannot
+/// make rays; never panics on them.
 pub fn shade(scene: &ShadeScene, lstar: &LocalRadiance, camera: &Camera) -> Result<Render> {
-    scene.validate()?;
     camera.validate()?;
-    check_lstar(scene, lstar)?;
-    let m = lstar.local_dirs;
+    scene.check_lstar(lstar)?;
+    let m = lstar.local_dirs();
+    let values = lstar.values();
     Ok(render_rows(scene, camera, &|| {}, &|p, acc, scratch| {
         acc.fill([0.0; 3]);
         for (&v, &w) in p.vertices.iter().zip(&p.weights) {
             let w = w as f64;
-            for (a, l) in acc.iter_mut().zip(&lstar.values[v as usize * m..(v as usize + 1) * m]) {
+            for (a, l) in acc.iter_mut().zip(&values[v as usize * m..(v as usize + 1) * m]) {
                 for c in 0..3 {
                     a[c] += w * l[c] as f64;
                 }
@@ -293,26 +148,32 @@ pub fn shade(scene: &ShadeScene, lstar: &LocalRadiance, camera: &Camera) -> Resu
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::btf::Btf;
-    use biscale_core::geometry::{shapes, vertex_frames};
+    use biscale_core::basis::LocalBasis;
+    use biscale_core::geometry::{shapes, vertex_frames, Mesh};
     use biscale_core::sampling::{EnvMap, HemisphereGrid, LightVector};
-    use biscale_core::transfer::{TransferSettings, VisibilitySampler};
+    use biscale_core::scene::{Background, Btf};
+    use biscale_core::transfer::{TransferScene, TransferSettings, VisibilitySampler};
 
-    /// Per-vertex `L*` with exact visibility against `bvh`, `f64` accumulation.
-    pub(crate) fn vertex_lstar(
-        mesh: &Mesh,
-        frames: &[VertexFrame],
-        bvh: &SceneBvh,
-        sampler: &VisibilitySampler,
-        light: &LightVector,
-    ) -> LocalRadiance {
-        let m = sampler.grid.len();
-        let offset = 1e-4 * crate::reference::mesh_diagonal(mesh);
-        let mut out = LocalRadiance::zeros(mesh.positions.len(), m);
-        out.values.par_chunks_mut(m).enumerate().for_each(|(v, row)| {
-            let f = frames[v];
+    pub(crate) fn bins(m: u32) -> LocalBasis {
+        LocalBasis::bins(m).unwrap()
+    }
+
+    /// A scene of `mesh` with its own frames.
+    pub(crate) fn scene_of(mesh: &Mesh, materials: Vec<Material>, ids: Option<Vec<u32>>) -> ShadeScene {
+        let (frames, _) = vertex_frames(mesh);
+        ShadeScene::new(mesh.clone(), frames, materials, ids).unwrap()
+    }
+
+    /// Per-vertex `L*` with exact visibility (the transfer stage's own query at each vertex),
+    /// `f64` accumulation.
+    pub(crate) fn vertex_lstar(scene: &ShadeScene, settings: &TransferSettings, light: &LightVector) -> LocalRadiance {
+        let transfer = TransferScene::new(scene.mesh()).unwrap();
+        let sampler = VisibilitySampler::new(settings);
+        let m = settings.local_basis().len();
+        let mut out = LocalRadiance::zeros(settings.local_basis(), scene.mesh().vertex_count());
+        out.values_mut().par_chunks_mut(m).enumerate().for_each(|(v, row)| {
             let mut acc = vec![[0.0f64; 3]; m];
-            sampler.point_entries(bvh, mesh.positions[v] + f.normal * offset, &f, |j, k, val| {
+            transfer.visibility_at(&sampler, scene.mesh().positions[v], &scene.frames()[v], |j, k, val| {
                 for c in 0..3 {
                     acc[j as usize][c] += val as f64 * light.power[k as usize][c] as f64;
                 }
@@ -324,9 +185,14 @@ pub(crate) mod tests {
         out
     }
 
+    /// The same `M` bins at every vertex.
+    pub(crate) fn uniform_lstar(basis: LocalBasis, vertices: usize, bins: &[Rgb]) -> LocalRadiance {
+        LocalRadiance::new(basis, vertices, bins.iter().copied().cycle().take(vertices * bins.len()).collect()).unwrap()
+    }
+
     /// `B` of a Lambertian BTF from `L*` bins (the view-independent dot product, in f64).
     pub(crate) fn lambert_b(btf: &Btf, bins: &[Rgb]) -> f64 {
-        bins.iter().zip(&btf.data).map(|(l, b)| l[0] as f64 * b[0] as f64).sum()
+        bins.iter().zip(btf.data()).map(|(l, b)| l[0] as f64 * b[0] as f64).sum()
     }
 
     /// The binned cosine-weighted integral of a constant unit sky over an unoccluded
@@ -348,27 +214,20 @@ pub(crate) mod tests {
     fn white_plane_under_constant_sky_is_albedo() {
         let albedo = 0.8f32;
         let mesh = shapes::grid_plane(4, 2.0);
-        let (frames, _) = vertex_frames(&mesh);
-        let bvh = SceneBvh::build(&mesh.positions, &mesh.triangles);
-        let sampler = VisibilitySampler::new(&TransferSettings::default()).unwrap();
-        let light = LightVector::constant(32, [1.0; 3]);
-        let lstar = vertex_lstar(&mesh, &frames, &bvh, &sampler, &light);
-        let btf = Btf::lambertian([albedo; 3], 8).unwrap();
-        let scene = ShadeScene {
-            mesh: &mesh,
-            frames: &frames,
-            bvh: &bvh,
-            materials: &[Material::new(btf.clone())],
-            triangle_materials: None,
-            background: Background::Black,
-        };
+        let settings = TransferSettings::default();
+        let light = LightVector::constant(settings.light_basis(), [1.0; 3]);
+        let btf = Btf::lambertian([albedo; 3], settings.local_basis()).unwrap();
+        let scene = scene_of(&mesh, vec![Material::new(btf.clone())], None);
+        let frames = scene.frames();
+        let lstar = vertex_lstar(&scene, &settings, &light);
+        let grid = settings.local_grid();
         let camera =
             Camera::frame_bounds(Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 0.0, 1.0), 48, 40, 30.0, 90.0, 40.0);
         let render = shade(&scene, &lstar, &camera).unwrap();
         // (1) The pipeline's conventions, to float precision: every vertex of the plane has the
         // frame (+X, -Z, +Y) and an open sky, so every pixel is albedo times the binned integral
         // computed independently from the cubemap's texel solid angles.
-        let expect = albedo as f64 * binned_open_sky(32, sampler.grid, &frames[0]);
+        let expect = albedo as f64 * binned_open_sky(32, grid, &frames[0]);
         let covered = render.mask.iter().filter(|&&m| m).count();
         // The plane is a square inscribed in the framed bounding circle: ~700 of 1920 pixels.
         assert!(covered > 500, "{covered}");
@@ -389,11 +248,11 @@ pub(crate) mod tests {
         // 128: +3.7e-5, 256: +7.7e-5. So at the reference R = 32 we allow 2.5e-3, and check
         // that it converges (2.5e-4 at R = 128 and 256). Any convention error is far larger:
         // centre instead of mean cosine +2.5%, a lost 1/pi or a mirrored bin index >10%.
-        let q = binned_open_sky(32, sampler.grid, &frames[0]);
+        let q = binned_open_sky(32, grid, &frames[0]);
         eprintln!("binned open sky at R=32: {q:.6}");
         assert!((q - 1.0).abs() < 2.5e-3, "{q}");
         for r in [128, 256] {
-            let qr = binned_open_sky(r, sampler.grid, &frames[0]);
+            let qr = binned_open_sky(r, grid, &frames[0]);
             assert!((qr - 1.0).abs() < 2.5e-4, "R={r}: {qr}");
         }
         assert!((expect - albedo as f64).abs() < 2.5e-3 * albedo as f64);
@@ -403,12 +262,11 @@ pub(crate) mod tests {
     fn convex_sphere_under_constant_sky_is_albedo() {
         let albedo = 0.6f32;
         let mesh = shapes::uv_sphere(Vec3::ZERO, 1.0, 20, 40);
-        let (frames, _) = vertex_frames(&mesh);
-        let bvh = SceneBvh::build(&mesh.positions, &mesh.triangles);
-        let sampler = VisibilitySampler::new(&TransferSettings::default()).unwrap();
-        let light = LightVector::constant(32, [1.0; 3]);
-        let lstar = vertex_lstar(&mesh, &frames, &bvh, &sampler, &light);
-        let btf = Btf::lambertian([albedo; 3], 8).unwrap();
+        let settings = TransferSettings::default();
+        let light = LightVector::constant(settings.light_basis(), [1.0; 3]);
+        let btf = Btf::lambertian([albedo; 3], settings.local_basis()).unwrap();
+        let scene = scene_of(&mesh, vec![Material::new(btf.clone())], None);
+        let lstar = vertex_lstar(&scene, &settings, &light);
         // Per-vertex B. A convex object sees the whole sky above its tangent plane; the
         // residual is binning texels into bins (as on the plane) plus the horizon, which here
         // cuts through cubemap texels: a texel counts when its centre is above the horizon and
@@ -422,17 +280,11 @@ pub(crate) mod tests {
         let (lo, hi) = b.iter().fold((f64::MAX, f64::MIN), |(l, h), &x| (l.min(x), h.max(x)));
 
         let env = EnvMap::constant(8, 4, [0.1, 0.2, 0.3]);
-        let scene = ShadeScene {
-            mesh: &mesh,
-            frames: &frames,
-            bvh: &bvh,
-            materials: &[Material::new(btf.clone())],
-            triangle_materials: None,
-            background: Background::Env { env: &env, rotation: 0.3 },
-        };
         let (w, h) = (96, 96);
         let camera = Camera::frame_bounds(Vec3::splat(-1.0), Vec3::ONE, w, h, 40.0, 25.0, 40.0);
-        let render = shade(&scene, &lstar, &camera).unwrap();
+        let render = shade(&scene, &lstar, &camera)
+            .unwrap()
+            .with_background(&camera, &Background::Env { env: &env, rotation: 0.3 });
         // A view-independent BTF makes B linear in L*, so a pixel is the barycentric mix of its
         // triangle's vertex values: inside [min_v B_v, max_v B_v] up to f32 rounding.
         for (p, &m) in render.image.pixels.iter().zip(&render.mask) {
@@ -459,29 +311,21 @@ pub(crate) mod tests {
     #[test]
     fn mismatched_inputs_are_errors() {
         let mesh = shapes::grid_plane(2, 1.0);
-        let (frames, _) = vertex_frames(&mesh);
-        let bvh = SceneBvh::build(&mesh.positions, &mesh.triangles);
-        let btf = Btf::lambertian([0.5; 3], 8).unwrap();
-        let scene = ShadeScene {
-            mesh: &mesh,
-            frames: &frames,
-            bvh: &bvh,
-            materials: &[Material::new(btf.clone())],
-            triangle_materials: None,
-            background: Background::Black,
-        };
+        let btf = Btf::lambertian([0.5; 3], bins(8)).unwrap();
+        let scene = scene_of(&mesh, vec![Material::new(btf.clone())], None);
         let camera = Camera::frame_bounds(Vec3::splat(-1.0), Vec3::ONE, 8, 8, 0.0, 60.0, 40.0);
-        assert!(shade(&scene, &LocalRadiance::zeros(9, 64), &camera).is_ok());
-        assert!(shade(&scene, &LocalRadiance::zeros(8, 64), &camera).is_err(), "vertex count");
-        assert!(shade(&scene, &LocalRadiance::zeros(9, 16), &camera).is_err(), "bin count");
-        let mut nan = LocalRadiance::zeros(9, 64);
-        nan.values[70][1] = f32::NAN;
+        assert!(shade(&scene, &LocalRadiance::zeros(bins(8), 9), &camera).is_ok());
+        assert!(shade(&scene, &LocalRadiance::zeros(bins(8), 8), &camera).is_err(), "vertex count");
+        assert!(shade(&scene, &LocalRadiance::zeros(bins(4), 9), &camera).is_err(), "bin count");
+        let mut nan = LocalRadiance::zeros(bins(8), 9);
+        nan.values_mut()[70][1] = f32::NAN;
         let e = shade(&scene, &nan, &camera).unwrap_err().to_string();
-        assert!(e.contains("vertex 1 bin 6"), "{e}");
-        let bad = ShadeScene { frames: &frames[1..], ..scene };
-        assert!(shade(&bad, &LocalRadiance::zeros(9, 64), &camera).is_err(), "frame count");
+        assert!(e.contains("vertex 1 coefficient 6"), "{e}");
+        let (frames, _) = vertex_frames(&mesh);
+        let bad = ShadeScene::new(mesh.clone(), frames[1..].to_vec(), vec![Material::new(btf.clone())], None);
+        assert!(bad.is_err(), "frame count");
         let bad_cam = Camera { width: 0, ..camera };
-        assert!(shade(&scene, &LocalRadiance::zeros(9, 64), &bad_cam).is_err());
+        assert!(shade(&scene, &LocalRadiance::zeros(bins(8), 9), &bad_cam).is_err());
     }
 
     #[test]
@@ -492,22 +336,11 @@ pub(crate) mod tests {
         // computed here independently (analytic ray-plane intersection, the grid plane's frame
         // (tangent +X, bitangent n x t = -Z, normal +Y)) dotted with L*.
         let mesh = shapes::grid_plane(2, 2.0);
-        let (frames, _) = vertex_frames(&mesh);
-        let bvh = SceneBvh::build(&mesh.positions, &mesh.triangles);
-        let btf = Btf::phong([0.1, 0.2, 0.3], [0.8, 0.7, 0.6], 30.0, 8, 12).unwrap();
+        let btf = Btf::phong([0.1, 0.2, 0.3], [0.8, 0.7, 0.6], 30.0, bins(8), 12).unwrap();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
         let bins: Vec<Rgb> = (0..64).map(|_| [rng.gen(), rng.gen(), rng.gen()]).collect();
-        let n = mesh.positions.len();
-        let lstar =
-            LocalRadiance { vertices: n, local_dirs: 64, values: bins.iter().copied().cycle().take(n * 64).collect() };
-        let scene = ShadeScene {
-            mesh: &mesh,
-            frames: &frames,
-            bvh: &bvh,
-            materials: &[Material::new(btf.clone())],
-            triangle_materials: None,
-            background: Background::Black,
-        };
+        let lstar = uniform_lstar(btf.local_basis(), mesh.vertex_count(), &bins);
+        let scene = scene_of(&mesh, vec![Material::new(btf.clone())], None);
         let camera = Camera {
             position: Vec3::new(0.3, 1.5, 2.0),
             target: Vec3::ZERO,
@@ -557,35 +390,23 @@ pub(crate) mod tests {
         // vertex, so each pixel must equal its own material's BTF at its own texel dotted with
         // L*, computed here from the analytic hit point.
         let mesh = shapes::grid_plane(4, 2.0);
-        let (frames, _) = vertex_frames(&mesh);
-        let bvh = SceneBvh::build(&mesh.positions, &mesh.triangles);
-        let red = Btf::lambertian([0.9, 0.1, 0.1], 8).unwrap();
-        let white = Btf::lambertian([1.0; 3], 8).unwrap();
-        let mut patch = white.clone();
-        patch.spatial = [2, 1];
-        patch.data = white.data.iter().copied().chain(white.data.iter().map(|v| v.map(|x| 0.5 * x))).collect();
-        let materials = [Material::new(red.clone()), Material { btf: patch.clone(), tiling: 3.0 }];
-        let ids: Vec<u16> = mesh
+        let red = Btf::lambertian([0.9, 0.1, 0.1], bins(8)).unwrap();
+        let white = Btf::lambertian([1.0; 3], bins(8)).unwrap();
+        let halves = white.data().iter().copied().chain(white.data().iter().map(|v| v.map(|x| 0.5 * x))).collect();
+        let patch = Btf::new([2, 1], bins(8), None, halves, "patch").unwrap();
+        let materials = vec![Material::new(red.clone()), Material { btf: patch.clone(), tiling: 3.0 }];
+        let ids: Vec<u32> = mesh
             .triangles
             .iter()
             .map(|t| {
                 let cx: f32 = t.iter().map(|&i| mesh.positions[i as usize].x).sum();
-                u16::from(cx > 0.0)
+                u32::from(cx > 0.0)
             })
             .collect();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
         let bins: Vec<Rgb> = (0..64).map(|_| [rng.gen(), rng.gen(), rng.gen()]).collect();
-        let n = mesh.positions.len();
-        let lstar =
-            LocalRadiance { vertices: n, local_dirs: 64, values: bins.iter().copied().cycle().take(n * 64).collect() };
-        let scene = ShadeScene {
-            mesh: &mesh,
-            frames: &frames,
-            bvh: &bvh,
-            materials: &materials,
-            triangle_materials: Some(&ids),
-            background: Background::Black,
-        };
+        let lstar = uniform_lstar(red.local_basis(), mesh.vertex_count(), &bins);
+        let scene = scene_of(&mesh, materials.clone(), Some(ids.clone()));
         let camera = Camera {
             position: Vec3::new(0.0, 3.0, 0.5),
             target: Vec3::ZERO,
@@ -622,16 +443,16 @@ pub(crate) mod tests {
             }
         }
         assert!(seen.iter().all(|&c| c > 100), "every material and texel is exercised: {seen:?}");
-        // Mismatched ids are errors, not panics.
-        let short = &ids[1..];
-        assert!(shade(&ShadeScene { triangle_materials: Some(short), ..scene }, &lstar, &camera).is_err());
-        let bad: Vec<u16> = ids.iter().map(|&i| i * 5).collect();
-        assert!(shade(&ShadeScene { triangle_materials: Some(&bad), ..scene }, &lstar, &camera).is_err());
-        assert!(
-            shade(&ShadeScene { triangle_materials: None, ..scene }, &lstar, &camera).is_err(),
-            "2 materials need ids"
-        );
-        let coarse = [Material::new(red), Material::new(Btf::lambertian([1.0; 3], 4).unwrap())];
-        assert!(shade(&ShadeScene { materials: &coarse, ..scene }, &lstar, &camera).is_err(), "light grids differ");
+        // Mismatched ids and materials are errors when the scene is built, not panics.
+        let (frames, _) = vertex_frames(&mesh);
+        let build = |materials: Vec<Material>, ids: Option<Vec<u32>>| {
+            ShadeScene::new(mesh.clone(), frames.clone(), materials, ids)
+        };
+        assert!(build(materials.clone(), Some(ids[1..].to_vec())).is_err());
+        assert!(build(materials.clone(), Some(ids.iter().map(|&i| i * 5).collect())).is_err());
+        assert!(build(materials.clone(), None).is_err(), "2 materials need ids");
+        let coarse =
+            vec![Material::new(red), Material::new(Btf::lambertian([1.0; 3], LocalBasis::bins(4).unwrap()).unwrap())];
+        assert!(build(coarse, Some(ids)).is_err(), "light grids differ");
     }
 }

@@ -13,6 +13,9 @@ pub enum ShadingError {
     /// Inputs that do not fit together or are out of range (sizes, grids, parameters).
     #[error("invalid input: {0}")]
     Invalid(String),
+    /// A core type refused its inputs (a scene, a BTF, an image file).
+    #[error(transparent)]
+    Core(#[from] biscale_core::CoreError),
     /// NaN or infinite values where finite ones are required.
     #[error("{what}: {count} non-finite value(s), first at pixel ({}, {})", first.0, first.1)]
     NonFinite { what: String, count: usize, first: (u32, u32) },

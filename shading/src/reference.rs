@@ -4,36 +4,21 @@
 //! the vertex render) of compression, with the same light, BTF and direction binning.
 //!
 //! Per pixel: the primary hit `p` with its interpolated frame, then
-//! [`VisibilitySampler::point_entries`] from `p + n * offset` (n the interpolated normal,
-//! `offset = 1e-4 * mesh diagonal`, enough to clear f32 self-intersection for meshes of any
-//! scale) accumulates `L*_j = sum_k T[j, k] L_k` in f64, and the BTF dot product follows.
+//! [`TransferScene::visibility_at`], the very query a vertex of `T` is built from (the same
+//! normalised BVH, the same origin offset along the normal), accumulates
+//! `L*_j = sum_k T[j, k] L_k` in f64, and the BTF dot product follows.
 
-use crate::camera::Camera;
-use crate::cpu::{render_rows, shade_point, Render, ShadeScene};
+use crate::cpu::{render_rows, shade_point};
 use crate::error::{Result, ShadingError};
-use biscale_core::geometry::Mesh;
 use biscale_core::sampling::LightVector;
-use biscale_core::transfer::VisibilitySampler;
+use biscale_core::scene::{Camera, Render, ShadeScene};
+use biscale_core::transfer::{TransferScene, VisibilitySampler};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-/// Length of the diagonal of the mesh's bounding box (0 for an empty mesh; non-finite
-/// positions are skipped).
-pub fn mesh_diagonal(mesh: &Mesh) -> f32 {
-    let (mut lo, mut hi) = (glam::Vec3::INFINITY, glam::Vec3::NEG_INFINITY);
-    for p in mesh.positions.iter().filter(|p| p.is_finite()) {
-        lo = lo.min(*p);
-        hi = hi.max(*p);
-    }
-    if lo.x <= hi.x {
-        (hi - lo).length()
-    } else {
-        0.0
-    }
-}
-
-/// Render the reference image of `scene` under `light` (power per cubemap texel of
-/// `sampler.cubemap`), with `sampler`'s visibility resolution and local grid (which must be the
-/// BTF's light grid).
+/// Render the reference image of `scene` under `light` (in `sampler`'s light basis), with
+/// `transfer`'s visibility (built from the same mesh as `scene`) and `sampler`'s visibility
+/// resolution and local basis (which must be the BTFs' light directions). Uncovered pixels
+/// are black ([`Render::with_background`] adds a background).
 ///
 /// `progress`, if given, is called once per finished row with the number of rows finished so
 /// far; calls come from worker threads and may arrive out of order (use the maximum, or treat
@@ -41,30 +26,31 @@ pub fn mesh_diagonal(mesh: &Mesh) -> f32 {
 pub fn render_reference(
     scene: &ShadeScene,
     light: &LightVector,
+    transfer: &TransferScene,
     sampler: &VisibilitySampler,
     camera: &Camera,
     progress: Option<&(dyn Fn(usize) + Sync)>,
 ) -> Result<Render> {
-    scene.validate()?;
     camera.validate()?;
-    if light.len() != sampler.cubemap.texel_count() {
+    if light.basis() != sampler.settings.light_basis() {
         return Err(ShadingError::Invalid(format!(
-            "light vector has {} texels, the sampler's cubemap {}",
-            light.len(),
-            sampler.cubemap.texel_count()
+            "the light vector is in {}, the sampler traces {}",
+            light.basis(),
+            sampler.settings.light_basis()
         )));
     }
-    if sampler.grid.len() != scene.light_count() {
+    if transfer.vertex_count() != scene.mesh().vertex_count() {
         return Err(ShadingError::Invalid(format!(
-            "sampler's local grid is {0}x{0}, the BTF's light grid has {1} bins",
-            sampler.grid.m,
-            scene.light_count()
+            "the transfer scene has {} vertices, the shade scene {}: they must be built from one mesh",
+            transfer.vertex_count(),
+            scene.mesh().vertex_count()
         )));
     }
+    // The per-pixel L* has the sampler's local basis, and must fit the BTFs as a gathered one.
+    scene.check_lstar_shape(sampler.settings.local_basis(), scene.mesh().vertex_count())?;
     if let Some(k) = light.power.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
         return Err(ShadingError::Invalid(format!("light vector is not finite at texel {k}")));
     }
-    let offset = 1e-4 * mesh_diagonal(scene.mesh);
     let rows = AtomicUsize::new(0);
     let row_done = || {
         let n = rows.fetch_add(1, Ordering::Relaxed) + 1;
@@ -74,8 +60,7 @@ pub fn render_reference(
     };
     Ok(render_rows(scene, camera, &row_done, &|p, acc, scratch| {
         acc.fill([0.0; 3]);
-        let origin = p.position + p.frame.normal * offset;
-        sampler.point_entries(scene.bvh, origin, &p.frame, |j, k, v| {
+        transfer.visibility_at(sampler, p.position, &p.frame, |j, k, v| {
             let l = light.power[k as usize];
             let a = &mut acc[j as usize];
             for c in 0..3 {
@@ -89,10 +74,11 @@ pub fn render_reference(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::btf::Btf;
-    use crate::cpu::tests::vertex_lstar;
-    use crate::cpu::{primary_hit, shade, Background, Material};
-    use biscale_core::geometry::{shapes, vertex_frames, SceneBvh, VertexFrame};
+    use crate::cpu::tests::{bins, scene_of, vertex_lstar};
+    use crate::cpu::{primary_hit, shade};
+    use biscale_core::basis::LightBasis;
+    use biscale_core::geometry::{shapes, Mesh, SceneBvh, VertexFrame};
+    use biscale_core::scene::{Btf, Material};
     use biscale_core::transfer::TransferSettings;
     use glam::Vec3;
     use std::f64::consts::PI;
@@ -102,26 +88,19 @@ mod tests {
         // On an open plane every point has the same frame and the same (unoccluded) L*, so the
         // per-pixel and the interpolated L* agree to f32 storage precision.
         let mesh = shapes::grid_plane(3, 2.0);
-        let (frames, _) = vertex_frames(&mesh);
-        let bvh = SceneBvh::build(&mesh.positions, &mesh.triangles);
-        let sampler = VisibilitySampler::new(&TransferSettings::default()).unwrap();
-        let light = LightVector::constant(32, [1.0, 0.5, 0.25]);
-        let btf = Btf::phong([0.4, 0.3, 0.2], [0.3; 3], 12.0, 8, 8).unwrap();
-        let scene = ShadeScene {
-            mesh: &mesh,
-            frames: &frames,
-            bvh: &bvh,
-            materials: &[Material::new(btf)],
-            triangle_materials: None,
-            background: Background::Black,
-        };
+        let settings = TransferSettings::default();
+        let sampler = VisibilitySampler::new(&settings);
+        let light = LightVector::constant(settings.light_basis(), [1.0, 0.5, 0.25]);
+        let btf = Btf::phong([0.4, 0.3, 0.2], [0.3; 3], 12.0, settings.local_basis(), 8).unwrap();
+        let scene = scene_of(&mesh, vec![Material::new(btf)], None);
+        let transfer = TransferScene::new(&mesh).unwrap();
         let camera =
             Camera::frame_bounds(Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 0.0, 1.0), 32, 24, 10.0, 50.0, 40.0);
-        let lstar = vertex_lstar(&mesh, &frames, &bvh, &sampler, &light);
+        let lstar = vertex_lstar(&scene, &settings, &light);
         let vertex = shade(&scene, &lstar, &camera).unwrap();
         let calls = std::sync::Mutex::new(vec![]);
         let progress = |n: usize| calls.lock().unwrap().push(n);
-        let reference = render_reference(&scene, &light, &sampler, &camera, Some(&progress)).unwrap();
+        let reference = render_reference(&scene, &light, &transfer, &sampler, &camera, Some(&progress)).unwrap();
         assert_eq!(vertex.mask, reference.mask);
         assert!(vertex.mask.iter().filter(|&&m| m).count() > 150);
         for (a, b) in vertex.image.pixels.iter().zip(&reference.image.pixels) {
@@ -133,11 +112,13 @@ mod tests {
         let mut calls = calls.into_inner().unwrap();
         calls.sort();
         assert_eq!(calls, (1..=24).collect::<Vec<_>>(), "one call per row, counting up to the height");
-        // Mismatched sampler and BTF grids are errors.
-        let coarse =
-            VisibilitySampler::new(&TransferSettings { local_grid: 4, ..TransferSettings::default() }).unwrap();
-        assert!(render_reference(&scene, &light, &coarse, &camera, None).is_err());
-        assert!(render_reference(&scene, &LightVector::constant(16, [1.0; 3]), &sampler, &camera, None).is_err());
+        // Mismatched sampler and BTF grids, lights and meshes are errors.
+        let coarse = VisibilitySampler::new(&settings.with_local_grid(4).unwrap());
+        assert!(render_reference(&scene, &light, &transfer, &coarse, &camera, None).is_err());
+        let other_light = LightVector::constant(LightBasis::cubemap(16).unwrap(), [1.0; 3]);
+        assert!(render_reference(&scene, &other_light, &transfer, &sampler, &camera, None).is_err());
+        let other_mesh = TransferScene::new(&shapes::grid_plane(2, 2.0)).unwrap();
+        assert!(render_reference(&scene, &light, &other_mesh, &sampler, &camera, None).is_err());
     }
 
     /// Concatenate meshes (UVs dropped unless all have them).
@@ -178,20 +159,12 @@ mod tests {
         let plane = shapes::grid_plane(8, 8.0);
         let sphere = shapes::uv_sphere(Vec3::new(0.0, a, 0.0), a, 24, 48);
         let mesh = merge(&[&plane, &sphere]);
-        let (frames, _) = vertex_frames(&mesh);
-        let bvh = SceneBvh::build(&mesh.positions, &mesh.triangles);
-        let settings = TransferSettings { cubemap_resolution: 16, visibility_resolution: 32, local_grid: 8 };
-        let sampler = VisibilitySampler::new(&settings).unwrap();
-        let light = LightVector::constant(16, [1.0; 3]);
-        let btf = Btf::lambertian([albedo as f32; 3], 8).unwrap();
-        let scene = ShadeScene {
-            mesh: &mesh,
-            frames: &frames,
-            bvh: &bvh,
-            materials: &[Material::new(btf)],
-            triangle_materials: None,
-            background: Background::Black,
-        };
+        let settings = TransferSettings::new(16, 32, 8).unwrap();
+        let sampler = VisibilitySampler::new(&settings);
+        let light = LightVector::constant(settings.light_basis(), [1.0; 3]);
+        let btf = Btf::lambertian([albedo as f32; 3], bins(8)).unwrap();
+        let scene = scene_of(&mesh, vec![Material::new(btf)], None);
+        let transfer = TransferScene::new(&mesh).unwrap();
         let camera = Camera {
             position: Vec3::new(0.0, 3.0, 4.0),
             target: Vec3::new(0.0, 0.0, 1.6),
@@ -200,9 +173,8 @@ mod tests {
             width: 40,
             height: 30,
         };
-        let render = render_reference(&scene, &light, &sampler, &camera, None).unwrap();
+        let render = render_reference(&scene, &light, &transfer, &sampler, &camera, None).unwrap();
         let empty = SceneBvh::build(&[], &[]);
-        let offset = 1e-4 * mesh_diagonal(&mesh);
         let grid = sampler.grid;
         let (mut samples, mut worst_excess) = (vec![], f64::MIN);
         for y in 0..camera.height {
@@ -227,11 +199,11 @@ mod tests {
                 let frame: VertexFrame = p.frame;
                 let mut vis = vec![0.0f64; grid.len()];
                 let mut open = vec![0.0f64; grid.len()];
-                let origin = p.position + frame.normal * offset;
-                sampler.point_entries(&bvh, origin, &frame, |j, k, v| {
+                transfer.visibility_at(&sampler, p.position, &frame, |j, k, v| {
                     vis[j as usize] += v as f64 * light.power[k as usize][0] as f64
                 });
-                sampler.point_entries(&empty, origin, &frame, |j, k, v| {
+                // An empty scene: every ray above the tangent plane is open, wherever it starts.
+                sampler.point_entries(&empty, p.position, &frame, |j, k, v| {
                     open[j as usize] += v as f64 * light.power[k as usize][0] as f64
                 });
                 let partial: f64 = (0..grid.len())

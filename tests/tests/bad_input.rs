@@ -3,7 +3,7 @@
 
 use biscale::config::Experiment;
 use biscale::pipeline::{run, RunOptions};
-use biscale_shading::image::HdrImage;
+use biscale_core::scene::HdrImage;
 use biscale_tests::{workspace_root, write_config};
 use std::path::Path;
 

@@ -4,7 +4,7 @@
 use biscale::config::Experiment;
 use biscale::pipeline::{run, RunOptions};
 use biscale_core::geometry::shapes;
-use biscale_shading::image::HdrImage;
+use biscale_core::scene::HdrImage;
 use biscale_tests::{workspace_root, write_config, write_obj};
 use glam::Vec3;
 

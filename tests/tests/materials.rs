@@ -4,7 +4,7 @@
 use biscale::config::Experiment;
 use biscale::pipeline::{run, RunOptions};
 use biscale_core::geometry::{shapes, MaterialIds, Mesh};
-use biscale_shading::image::HdrImage;
+use biscale_core::scene::HdrImage;
 use biscale_tests::{workspace_root, write_config, write_obj};
 
 fn run_in(config: &std::path::Path, out: &std::path::Path) -> biscale::metrics::Metrics {
@@ -150,7 +150,7 @@ fn btf_command_writes_tables_and_contact_sheets() {
     let written = biscale::commands::btf(&exp, &out, None, true, &opts).unwrap();
     assert_eq!(written.len(), 2);
     let a = biscale_shading::synth::load_btf(&written[0].path).unwrap();
-    assert_eq!((a.spatial, a.light_count(), a.view_count()), ([8, 8], 16, 9));
+    assert_eq!((a.spatial(), a.light_count(), a.view_count()), ([8, 8], 16, 9));
     for w in &written {
         let png = image::open(w.preview.as_ref().unwrap()).unwrap();
         assert!(png.width() >= 32 && png.height() >= 32);

@@ -17,8 +17,8 @@ use biscale::viz::{self, HeatmapOptions, PatchLayout, PatchView};
 use biscale_compressors::bicluster::Bicluster;
 use biscale_core::compress::{CompressContext, Compressor};
 use biscale_core::geometry::Mesh;
+use biscale_core::scene::Camera;
 use biscale_core::transfer::{self, TransferSettings};
-use biscale_shading::camera::Camera;
 use std::path::PathBuf;
 
 fn main() -> anyhow::Result<()> {

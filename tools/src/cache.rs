@@ -4,12 +4,11 @@
 //! atomically and carry a checksum; a corrupt file is reported and rebuilt, never trusted.
 
 use crate::pipeline::RunOptions;
-use crate::util::Fnv64;
 use biscale_compressors::sparse::Sparse;
 use biscale_core::compress::{CompressContext, Compressor};
 use biscale_core::form_file::{load_form, save_form};
 use biscale_core::geometry::Mesh;
-use biscale_core::sampling::Cubemap;
+use biscale_core::io::ContentHash;
 use biscale_core::transfer::{TransferMatrix, TransferSettings};
 use std::path::{Path, PathBuf};
 
@@ -18,11 +17,11 @@ const TRANSFER_VERSION: u32 = 1;
 
 /// Content hash of the inputs of the transfer stage.
 pub fn transfer_key(mesh: &Mesh, s: &TransferSettings) -> u64 {
-    let mut h = Fnv64::default();
+    let mut h = ContentHash::default();
     h.write(&TRANSFER_VERSION.to_le_bytes());
-    for v in [s.cubemap_resolution, s.visibility_resolution, s.local_grid] {
-        h.write(&v.to_le_bytes());
-    }
+    h.write_str(&s.light_basis().tag())
+        .write(&s.visibility_resolution().to_le_bytes())
+        .write_str(&s.local_basis().tag());
     h.write(&(mesh.positions.len() as u64).to_le_bytes());
     for p in &mesh.positions {
         for c in p.to_array() {
@@ -79,14 +78,8 @@ impl TransferCache {
         }
         let form = load_form(&path).map_err(|e| e.to_string())?;
         let bad = |m: &str| format!("{}: {m}", path.display());
-        let (rows, cols, m) = (form.rows, form.cols, form.local_dirs);
-        let cubemap = Cubemap::new(s.cubemap_resolution);
-        if form.kind != "sparse"
-            || cols != cubemap.texel_count()
-            || m != (s.local_grid * s.local_grid) as usize
-            || m == 0
-            || rows % m != 0
-        {
+        let (rows, cols) = (form.rows(), form.cols());
+        if form.kind != "sparse" || form.light_basis() != s.light_basis() || form.local_basis() != s.local_basis() {
             return Err(bad("shape does not match the settings"));
         }
         let row_ptr = form.u32s("row_ptr").map_err(|e| bad(&e.to_string()))?;
@@ -99,7 +92,7 @@ impl TransferCache {
             values.to_vec(),
         )
         .map_err(|e| bad(&format!("invalid CSR: {}", e.3)))?;
-        Ok(Some(TransferMatrix { vertices: rows / m, local_dirs: m, cubemap, csr }))
+        Ok(Some(TransferMatrix::new(s.local_basis(), s.light_basis(), csr).map_err(|e| bad(&e.to_string()))?))
     }
 
     pub fn store(&self, key: u64, t: &TransferMatrix) -> Result<(), String> {

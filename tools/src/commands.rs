@@ -4,10 +4,12 @@
 
 use crate::config::Experiment;
 use crate::pipeline::{self, PipelineError, Result, RunOptions};
+use biscale_core::io::write_atomic;
 use biscale_core::sampling::LightVector;
+use biscale_core::scene::image::write_rgb8_png;
+use biscale_core::scene::HdrImage;
 use biscale_core::transfer::TransferMatrix;
-use biscale_shading::image::write_atomic;
-use biscale_shading::image::{compare, error_image as error_image_of, write_rgb8_png, HdrImage, ImageMetrics};
+use biscale_shading::image::{compare, error_image as error_image_of, ImageMetrics};
 use std::io::Write;
 use std::path::Path;
 
@@ -15,9 +17,9 @@ use std::path::Path;
 /// into `dir`, both readable by `scipy.io.mmread`.
 pub fn export_matrix(exp: &Experiment, dir: &Path, opts: &RunOptions) -> Result<(TransferMatrix, LightVector)> {
     std::fs::create_dir_all(dir).map_err(|source| PipelineError::Io { path: dir.into(), source })?;
-    let scene = pipeline::load_scene(exp, crate::cache::cache_dir(opts, dir).as_deref())?;
+    let geometry = pipeline::load_geometry(exp)?;
     let lighting = pipeline::load_lighting(exp)?;
-    let (t, _) = pipeline::transfer_matrix(exp, &scene, opts, dir)?;
+    let (t, _) = pipeline::transfer_matrix(exp, &geometry, opts, dir)?;
     write_mtx(&t, &lighting.light, dir)?;
     Ok((t, lighting.light))
 }
@@ -30,10 +32,10 @@ pub fn write_mtx(t: &TransferMatrix, light: &LightVector, dir: &Path) -> Result<
             writeln!(
                 f,
                 "% biscale transfer matrix: row = vertex * M + j (M = {}), column = cubemap texel",
-                t.local_dirs
+                t.local_dirs()
             )?;
             writeln!(f, "{} {} {}", t.rows(), t.cols(), t.nnz())?;
-            for (r, row) in t.csr.outer_iterator().enumerate() {
+            for (r, row) in t.csr().outer_iterator().enumerate() {
                 for (c, v) in row.iter() {
                     writeln!(f, "{} {} {}", r + 1, c + 1, v)?;
                 }
@@ -125,7 +127,7 @@ pub fn cylindrical_uv(input: &Path, out: &Path) -> Result<biscale_core::geometry
 }
 
 fn write_obj(mesh: &biscale_core::geometry::Mesh, out: &Path) -> Result<()> {
-    Ok(crate::util::write_atomic(out, mesh.to_obj().as_bytes())?)
+    Ok(biscale_core::io::write_atomic_bytes(out, mesh.to_obj().as_bytes())?)
 }
 
 /// `biscale viz`: the matrix-structure pictures of a config's scene (transfer matrix from the
@@ -142,12 +144,12 @@ pub fn viz(
     use biscale_core::compress::{CompressContext, Compressor};
     std::fs::create_dir_all(out).map_err(|source| PipelineError::Io { path: out.into(), source })?;
     let verr = |e: viz::VizError| PipelineError::Other(format!("viz: {e}"));
-    let scene = pipeline::load_scene(exp, crate::cache::cache_dir(opts, out).as_deref())?;
-    let (t, _) = pipeline::transfer_matrix(exp, &scene, opts, out)?;
+    let geometry = pipeline::load_geometry(exp)?;
+    let (t, _) = pipeline::transfer_matrix(exp, &geometry, opts, out)?;
     let form = Bicluster::default()
         .compress(&t, &CompressContext { seed: exp.file.seed, progress: None })
         .map_err(|source| PipelineError::Compress { name: "bicluster".into(), source })?;
-    let count = count.clamp(1, t.vertices.max(1));
+    let count = count.clamp(1, t.vertices().max(1));
     let first = match first {
         Some(f) => f,
         None => viz::most_shared_window(&form, count).map_err(verr)?,
@@ -159,13 +161,13 @@ pub fn viz(
         viz::write_bicluster_size_histograms(&form, &out.join("bicluster_sizes.png")).map_err(verr)?,
         viz::write_value_histograms(&t, Some(&form), &out.join("values.png")).map_err(verr)?,
     ];
-    let camera = pipeline::camera(exp, &scene.mesh, 1);
+    let camera = pipeline::camera(exp, &geometry.mesh, 1);
     let heat = HeatmapOptions::default();
     let cost = viz::gather_cost_per_vertex(&form).map_err(verr)?;
     let nnz = viz::nnz_per_vertex(&t);
     written.push(
         viz::write_vertex_heatmap(
-            &scene.mesh,
+            &geometry.mesh,
             &camera,
             &cost,
             "gather flops per vertex (biclusters)",
@@ -176,7 +178,7 @@ pub fn viz(
     );
     written.push(
         viz::write_vertex_heatmap(
-            &scene.mesh,
+            &geometry.mesh,
             &camera,
             &nnz,
             "non-zeros of T per vertex",
@@ -193,12 +195,13 @@ pub fn viz(
 #[cfg(feature = "viewer")]
 pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &RunOptions) -> Result<()> {
     use biscale_core::compress::CompressContext;
-    use biscale_gpu::{GpuCamera, Screenshot, ViewerForm, ViewerMaterial, ViewerSetup};
+    use biscale_gpu::{Screenshot, ViewerForm, ViewerSetup};
     let plan = crate::plan::Plan::new(exp);
     let out = opts.out_dir.clone().unwrap_or_else(|| Path::new("out").join(exp.name()));
-    let scene = pipeline::load_scene(exp, crate::cache::cache_dir(opts, &out).as_deref())?;
+    let geometry = pipeline::load_geometry(exp)?;
     let lighting = pipeline::load_lighting(exp)?;
-    let (t, _) = pipeline::transfer_matrix(exp, &scene, opts, &out)?;
+    let (t, _) = pipeline::transfer_matrix(exp, &geometry, opts, &out)?;
+    let (scene, _) = pipeline::shade_scene(exp, &geometry, &t, crate::cache::cache_dir(opts, &out).as_deref())?;
     let mut forms = vec![];
     for setting in &plan.compressors {
         let c = crate::registry::build(setting)?;
@@ -207,41 +210,16 @@ pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &Run
             .map_err(|source| PipelineError::Compress { name: setting.label.clone(), source })?;
         forms.push(ViewerForm { label: setting.label.clone(), form });
     }
-    let cam = pipeline::camera(exp, &scene.mesh, 1);
     let setup = ViewerSetup {
         title: format!("biscale: {}", exp.name()),
-        positions: scene.mesh.positions.iter().map(|p| p.to_array()).collect(),
-        normals: scene.frames.iter().map(|f| f.normal.to_array()).collect(),
-        tangents: scene.frames.iter().map(|f| f.tangent.to_array()).collect(),
-        uvs: scene.mesh.uvs.as_ref().map(|u| u.iter().map(|v| v.to_array()).collect()),
-        triangles: scene.mesh.triangles.clone(),
-        materials: scene
-            .materials
-            .materials
-            .iter()
-            .map(|m| ViewerMaterial {
-                btf_data: m.btf.data.clone(),
-                btf_spatial: m.btf.spatial,
-                view_m: m.btf.view_grid.map(|g| g.m),
-                tiling: m.tiling,
-            })
-            .collect(),
-        triangle_materials: scene.materials.triangle_ids_u32(),
-        light_m: scene.materials.materials[0].btf.light_grid.m,
+        camera: pipeline::camera(exp, &geometry.mesh, 1),
+        scene,
         forms,
         initial_form: 0,
         env: lighting.env,
-        cubemap_resolution: *exp.file.transfer.cubemap_resolution.get_ref(),
-        env_rotation: exp.file.lighting.rotation_degrees.to_radians(),
+        light_basis: t.light_basis(),
+        env_rotation: lighting.rotation,
         sun_boost: exp.file.lighting.sun_boost.as_ref().map(|b| *b.get_ref()),
-        camera: GpuCamera {
-            position: cam.position,
-            target: cam.target,
-            up: cam.up,
-            fov_y_degrees: cam.fov_y_degrees,
-            width: cam.width,
-            height: cam.height,
-        },
         exposure: exp.file.report.exposure,
         background: exp.file.report.background,
         screenshot: screenshot.map(|path| Screenshot { path, frames: 5 }),
@@ -286,11 +264,11 @@ pub fn btf(
     }
     std::fs::create_dir_all(out).map_err(|source| PipelineError::Io { path: out.into(), source })?;
     let cache = crate::cache::cache_dir(opts, out);
-    let light_grid = *exp.file.transfer.local_grid.get_ref();
+    let local_basis = exp.transfer_settings().local_basis();
     let mut written = vec![];
     for cfg in chosen {
         let label = cfg.label();
-        let (btf, origin) = crate::materials::material_btf(cfg, light_grid, cache.as_deref(), &label)?;
+        let (btf, origin) = crate::materials::material_btf(cfg, local_basis, cache.as_deref(), &label)?;
         let encoding = match cfg {
             MaterialConfig::Synthesized(s) => BtfEncoding::from_name(&s.encoding)?,
             _ => BtfEncoding::F32,
@@ -301,8 +279,8 @@ pub fn btf(
         save_btf(&btf, &path, encoding)?;
         let preview_path = if preview {
             let p = out.join(format!("{stem}_preview.png"));
-            let lights = sweep_bins(&btf.light_grid);
-            let views = btf.view_grid.as_ref().map_or(vec![0], sweep_bins);
+            let lights = btf.local_basis().grid().map_or(vec![0], |g| sweep_bins(&g));
+            let views = btf.view_grid().as_ref().map_or(vec![0], sweep_bins);
             save_contact_sheet(&btf, &lights, &views, &p)?;
             Some(p)
         } else {

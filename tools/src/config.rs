@@ -554,6 +554,8 @@ pub struct Experiment {
     pub file: ExperimentFile,
     pub mesh_path: PathBuf,
     pub env_path: Option<PathBuf>,
+    /// `[transfer]` as bases (validated at parse).
+    transfer: biscale_core::transfer::TransferSettings,
 }
 
 impl Experiment {
@@ -628,6 +630,14 @@ impl Experiment {
                 ),
             ));
         }
+        // The one place the transfer keys become bases: everything downstream (the light
+        // vector, T, the BTFs) takes them from these settings.
+        let transfer = biscale_core::transfer::TransferSettings::new(
+            *t.cubemap_resolution.get_ref(),
+            *t.visibility_resolution.get_ref(),
+            *t.local_grid.get_ref(),
+        )
+        .map_err(|e| err(t.local_grid.span(), e.to_string()))?;
         range(&file.runtime.width, 1, 16384, "runtime.width")?;
         range(&file.runtime.height, 1, 16384, "runtime.height")?;
         range(&file.report.reference_downscale, 1, 64, "report.reference_downscale")?;
@@ -682,7 +692,7 @@ impl Experiment {
                 }
             }
         }
-        Ok(Self { config_path: path.to_path_buf(), source, file, mesh_path, env_path })
+        Ok(Self { config_path: path.to_path_buf(), source, file, mesh_path, env_path, transfer })
     }
 
     pub fn name(&self) -> &str {
@@ -700,14 +710,10 @@ impl Experiment {
         }
     }
 
-    /// Transfer settings from the config.
+    /// The transfer settings: the light basis of `L` and `T`, the local basis of `T`, `L*` and
+    /// the BTFs, and the visibility resolution.
     pub fn transfer_settings(&self) -> biscale_core::transfer::TransferSettings {
-        let t = &self.file.transfer;
-        biscale_core::transfer::TransferSettings {
-            cubemap_resolution: *t.cubemap_resolution.get_ref(),
-            visibility_resolution: *t.visibility_resolution.get_ref(),
-            local_grid: *t.local_grid.get_ref(),
-        }
+        self.transfer
     }
 }
 

@@ -3,14 +3,13 @@
 //! and checked against the CPU results of the same run.
 
 use crate::metrics::{GpuRecord, ImageErrors};
-use crate::pipeline::{PipelineError, Result, Scene};
+use crate::pipeline::{PipelineError, Result};
 use biscale_core::compress::CompressedForm;
 use biscale_core::gather::relative_l2_error;
 use biscale_core::sampling::LightVector;
-use biscale_gpu::{GpuCamera, GpuContext, GpuGather, GpuMaterial, GpuShader, ShadeInputs};
-use biscale_shading::camera::Camera;
-use biscale_shading::cpu::Render;
-use biscale_shading::image::{compare, HdrImage};
+use biscale_core::scene::{Camera, Render, ShadeScene};
+use biscale_gpu::{GpuContext, GpuGather, GpuShader};
+use biscale_shading::image::compare;
 
 fn gpu_err(e: biscale_gpu::GpuError) -> PipelineError {
     PipelineError::Other(format!("gpu backend: {e}"))
@@ -24,45 +23,11 @@ pub struct GpuBackend {
 }
 
 impl GpuBackend {
-    pub fn new(scene: &Scene, camera: &Camera) -> Result<Self> {
+    pub fn new(scene: &ShadeScene, camera: &Camera) -> Result<Self> {
         let ctx = GpuContext::new().map_err(gpu_err)?;
         let a = ctx.adapter();
         let adapter = format!("{} ({:?}, {})", a.name, a.backend, a.driver);
-        let positions: Vec<[f32; 3]> = scene.mesh.positions.iter().map(|p| p.to_array()).collect();
-        let normals: Vec<[f32; 3]> = scene.frames.iter().map(|f| f.normal.to_array()).collect();
-        let tangents: Vec<[f32; 3]> = scene.frames.iter().map(|f| f.tangent.to_array()).collect();
-        let uvs: Option<Vec<[f32; 2]>> = scene.mesh.uvs.as_ref().map(|u| u.iter().map(|v| v.to_array()).collect());
-        let materials: Vec<GpuMaterial> = scene
-            .materials
-            .materials
-            .iter()
-            .map(|m| GpuMaterial {
-                btf_data: &m.btf.data,
-                btf_spatial: m.btf.spatial,
-                view_m: m.btf.view_grid.map(|g| g.m),
-                tiling: m.tiling,
-            })
-            .collect();
-        let ids = scene.materials.triangle_ids_u32();
-        let inputs = ShadeInputs {
-            positions: &positions,
-            normals: &normals,
-            tangents: &tangents,
-            uvs: uvs.as_deref(),
-            triangles: &scene.mesh.triangles,
-            materials: &materials,
-            triangle_materials: ids.as_deref(),
-            light_m: scene.materials.materials[0].btf.light_grid.m,
-            camera: GpuCamera {
-                position: camera.position,
-                target: camera.target,
-                up: camera.up,
-                fov_y_degrees: camera.fov_y_degrees,
-                width: camera.width,
-                height: camera.height,
-            },
-        };
-        let shader = GpuShader::new(&ctx, &inputs).map_err(gpu_err)?;
+        let shader = GpuShader::new(&ctx, scene, camera).map_err(gpu_err)?;
         Ok(Self { ctx, shader, adapter })
     }
 
@@ -86,15 +51,15 @@ impl GpuBackend {
         gather.gather(light).map_err(gpu_err)?;
         let lstar = gather.read_lstar().map_err(gpu_err)?;
         let shade_timing = self.shader.time_shade(&gather, repeats).map_err(gpu_err)?;
-        let img = self.shader.shade(&gather).map_err(gpu_err)?;
-        let gpu_image = HdrImage { width: img.width, height: img.height, pixels: img.pixels };
+        let gpu = self.shader.shade(&gather).map_err(gpu_err)?;
         // The GPU draws no background: compare where the CPU render covers the mesh.
-        let m = compare(&gpu_image, &cpu.image, Some(&cpu.mask))?;
-        let coverage_mismatch = img.coverage.iter().zip(&cpu.mask).filter(|(a, b)| a != b).count();
+        let m = compare(&gpu.image, &cpu.image, Some(&cpu.mask))?;
+        let coverage_mismatch = gpu.mask.iter().zip(&cpu.mask).filter(|(a, b)| a != b).count();
         // Where the two differ by more than 1e-3 of the pixel's value: with nearest-texel BTF
         // lookups, a hit point that rounds across a texel (or material) boundary picks the
         // neighbouring texel, a large difference in a few pixels; elsewhere they agree to f32.
-        let differing_pixels = gpu_image
+        let differing_pixels = gpu
+            .image
             .pixels
             .iter()
             .zip(&cpu.image.pixels)
@@ -109,7 +74,7 @@ impl GpuBackend {
             timing: format!("{:?}", gather_timing.method),
             gather_ms: gather_timing.median_ms,
             shade_ms: shade_timing.median_ms,
-            rel_error_lstar: relative_l2_error(&lstar.values, exact),
+            rel_error_lstar: relative_l2_error(lstar.values(), exact),
             image_vs_cpu: ImageErrors { rmse: m.rmse, psnr: m.psnr, rel_l2: m.rel_l2 },
             coverage_mismatch,
             differing_pixels,

@@ -3,7 +3,9 @@
 //! * Analytic entries (`lambertian`, `phong`) are tabulated directly (`Btf::lambertian`,
 //!   `Btf::phong`). A `synthesized` entry is ray traced from its height-field patch
 //!   (`biscale_shading::synth`), or loaded from the cache, keyed by a hash of everything that
-//!   determines it (the entry, the files it names, the light grid and the format versions).
+//!   determines it (the entry, the files it names, the local basis and the format versions).
+//!   Every BTF is tabulated on `T`'s local basis (the caller passes `t.local_basis()`), so
+//!   the BTFs' light directions are the rows of `T` by construction.
 //!   The table a run uses is always the one its encoding stores (it goes through
 //!   `encode_btf` / `decode_btf` even without a cache), so a cached and a fresh run agree
 //!   bit for bit.
@@ -18,10 +20,11 @@
 
 use crate::config::{BrdfConfig, Experiment, MaterialConfig, SynthesizedConfig};
 use crate::pipeline::{PipelineError, Result};
-use crate::util::{progress_bar, Fnv64};
+use crate::util::progress_bar;
+use biscale_core::basis::LocalBasis;
 use biscale_core::geometry::Mesh;
-use biscale_shading::btf::Btf;
-use biscale_shading::cpu::Material;
+use biscale_core::io::ContentHash;
+use biscale_core::scene::{Btf, Material};
 use biscale_shading::synth::{
     decode_btf, encode_btf, synthesize, AlbedoMap, Brdf, BtfEncoding, BtfSpec, HeightField, Pattern, Recipe,
     BTF_FORMAT_VERSION,
@@ -37,7 +40,7 @@ pub struct SceneMaterials {
     /// The materials used, in the order of [`Self::labels`].
     pub materials: Vec<Material>,
     /// Index into `materials` per triangle; `None` when one material covers the mesh.
-    pub triangle_materials: Option<Vec<u16>>,
+    pub triangle_materials: Option<Vec<u32>>,
     /// The config label (name or kind) of each material.
     pub labels: Vec<String>,
     /// What was left out or repaired, one line each (printed with the plan, kept in the report).
@@ -45,17 +48,12 @@ pub struct SceneMaterials {
 }
 
 impl SceneMaterials {
-    /// The per-triangle material ids as the GPU shader takes them (32-bit).
-    pub fn triangle_ids_u32(&self) -> Option<Vec<u32>> {
-        self.triangle_materials.as_ref().map(|ids| ids.iter().map(|&i| u32::from(i)).collect())
-    }
-
     /// One line for reports: `label (btf name)`, comma separated.
     pub fn summary(&self) -> String {
         self.labels
             .iter()
             .zip(&self.materials)
-            .map(|(l, m)| if *l == m.btf.name { l.clone() } else { format!("{l} ({})", m.btf.name) })
+            .map(|(l, m)| if l == m.btf.name() { l.clone() } else { format!("{l} ({})", m.btf.name()) })
             .collect::<Vec<_>>()
             .join(", ")
     }
@@ -74,9 +72,9 @@ pub fn brdf(cfg: &BrdfConfig) -> Brdf {
     }
 }
 
-/// The generator's input for a synthesized entry at light grid `light_grid` (paths already
-/// resolved by the config).
-pub fn synth_spec(cfg: &SynthesizedConfig, light_grid: u32, label: &str) -> Result<BtfSpec> {
+/// The generator's input for a synthesized entry on `local_basis` (paths already resolved
+/// by the config).
+pub fn synth_spec(cfg: &SynthesizedConfig, local_basis: LocalBasis, label: &str) -> Result<BtfSpec> {
     let err = shading_err(label);
     let height_field = match (&cfg.pattern, &cfg.height_map) {
         (Some(p), _) => {
@@ -93,7 +91,7 @@ pub fn synth_spec(cfg: &SynthesizedConfig, light_grid: u32, label: &str) -> Resu
     };
     let spec = BtfSpec {
         resolution: cfg.resolution,
-        light_grid,
+        local_basis,
         view_grid: (cfg.view_grid > 0).then_some(cfg.view_grid),
         supersample: cfg.supersample,
         interreflection: cfg.interreflection,
@@ -127,12 +125,12 @@ fn describe(cfg: &SynthesizedConfig) -> String {
 }
 
 /// Cache key of a synthesized entry: the entry (paths resolved), the bytes of the files it
-/// names, the light grid and the versions of the generator and the file format.
-pub fn synth_key(cfg: &SynthesizedConfig, light_grid: u32) -> Result<u64> {
-    let mut h = Fnv64::default();
+/// names, the local basis and the versions of the generator and the file format.
+pub fn synth_key(cfg: &SynthesizedConfig, local_basis: LocalBasis) -> Result<u64> {
+    let mut h = ContentHash::default();
     h.write(&SYNTH_VERSION.to_le_bytes());
     h.write(&BTF_FORMAT_VERSION.to_le_bytes());
-    h.write(&light_grid.to_le_bytes());
+    h.write_str(&local_basis.tag());
     // The label is not part of the table's meaning: hash the entry without its name.
     let unnamed = SynthesizedConfig { name: None, tiling: 1.0, ..cfg.clone() };
     h.write(format!("{unnamed:?}").as_bytes());
@@ -154,25 +152,26 @@ pub enum Origin {
     Cached(PathBuf),
 }
 
-/// The BTF of one entry at light grid `light_grid`; synthesized tables are cached in
-/// `cache_dir` when given. `label` names the entry in messages and progress.
+/// The BTF of one entry on `local_basis`; synthesized tables are cached in `cache_dir` when
+/// given. `label` names the entry in messages and progress.
 pub fn material_btf(
     cfg: &MaterialConfig,
-    light_grid: u32,
+    local_basis: LocalBasis,
     cache_dir: Option<&Path>,
     label: &str,
 ) -> Result<(Btf, Origin)> {
     let err = shading_err(label);
+    let core_err = |e: biscale_core::CoreError| err(e.into());
     match cfg {
         MaterialConfig::Lambertian { albedo, .. } => {
-            Ok((Btf::lambertian(*albedo, light_grid).map_err(&err)?, Origin::Analytic))
+            Ok((Btf::lambertian(*albedo, local_basis).map_err(core_err)?, Origin::Analytic))
         }
         MaterialConfig::Phong { kd, ks, exponent, view_grid, .. } => {
-            Ok((Btf::phong(*kd, *ks, *exponent, light_grid, *view_grid).map_err(&err)?, Origin::Analytic))
+            Ok((Btf::phong(*kd, *ks, *exponent, local_basis, *view_grid).map_err(core_err)?, Origin::Analytic))
         }
         MaterialConfig::Synthesized(s) => {
             let encoding = BtfEncoding::from_name(&s.encoding).map_err(&err)?;
-            let key = synth_key(s, light_grid)?;
+            let key = synth_key(s, local_basis)?;
             let path = cache_dir.map(|d| d.join(format!("btf-{key:016x}-{}.btf", s.encoding)));
             if let Some(p) = path.as_ref().filter(|p| p.exists()) {
                 match biscale_shading::synth::load_btf(p) {
@@ -180,7 +179,7 @@ pub fn material_btf(
                     Err(e) => eprintln!("warning: ignoring unusable BTF cache file: {e}"),
                 }
             }
-            let spec = synth_spec(s, light_grid, label)?;
+            let spec = synth_spec(s, local_basis, label)?;
             let texels = if spec.height_field.is_flat() && spec.albedo_map.is_none() {
                 1
             } else {
@@ -201,7 +200,7 @@ pub fn material_btf(
                     .parent()
                     .map_or(Ok(()), std::fs::create_dir_all)
                     .map_err(|e| e.to_string())
-                    .and_then(|_| crate::util::write_atomic(p, &bytes).map_err(|e| e.to_string()));
+                    .and_then(|_| biscale_core::io::write_atomic_bytes(p, &bytes).map_err(|e| e.to_string()));
                 if let Err(e) = stored {
                     eprintln!("warning: could not write the BTF cache {}: {e}", p.display());
                 }
@@ -244,10 +243,14 @@ pub fn assign(mesh: &Mesh, mesh_path: &Path, configs: &[MaterialConfig]) -> Resu
     }
 }
 
-/// Build the experiment's materials for `mesh` (see the module docs).
-pub fn load_materials(exp: &Experiment, mesh: &Mesh, cache_dir: Option<&Path>) -> Result<SceneMaterials> {
+/// Build the experiment's materials for `mesh` on `local_basis` (`T`'s; see the module docs).
+pub fn load_materials(
+    exp: &Experiment,
+    mesh: &Mesh,
+    local_basis: LocalBasis,
+    cache_dir: Option<&Path>,
+) -> Result<SceneMaterials> {
     let configs = exp.materials();
-    let light_grid = *exp.file.transfer.local_grid.get_ref();
     let mut notes = vec![];
     let of_name = assign(mesh, &exp.mesh_path, &configs)?;
     // Which entries are used, in config order, and the compact index of each.
@@ -258,7 +261,7 @@ pub fn load_materials(exp: &Experiment, mesh: &Mesh, cache_dir: Option<&Path>) -
         }
         _ => (0..configs.len()).map(|c| c == 0).collect(),
     };
-    let mut compact = vec![u16::MAX; configs.len()];
+    let mut compact = vec![u32::MAX; configs.len()];
     let (mut materials, mut labels) = (vec![], vec![]);
     for (c, cfg) in configs.iter().enumerate() {
         let label = cfg.label();
@@ -266,13 +269,13 @@ pub fn load_materials(exp: &Experiment, mesh: &Mesh, cache_dir: Option<&Path>) -
             notes.push(format!("material {label}: left out, no triangle uses it"));
             continue;
         }
-        let (btf, origin) = material_btf(cfg, light_grid, cache_dir, &label)?;
+        let (btf, origin) = material_btf(cfg, local_basis, cache_dir, &label)?;
         match &origin {
             Origin::Analytic => {}
             Origin::Synthesized { seconds } => eprintln!("btf {label}: synthesized in {seconds:.1} s"),
             Origin::Cached(p) => eprintln!("btf {label}: loaded from cache {}", p.display()),
         }
-        if btf.view_grid.is_none() {
+        if btf.view_grid().is_none() {
             notes.push(format!("material {label}: view axis left out (view-independent BTF)"));
         }
         if let MaterialConfig::Synthesized(s) = cfg {
@@ -291,7 +294,7 @@ pub fn load_materials(exp: &Experiment, mesh: &Mesh, cache_dir: Option<&Path>) -
                 "material {label}: the mesh has no texture coordinates, so every point shows texel 0 of the patch"
             ));
         }
-        compact[c] = materials.len() as u16;
+        compact[c] = materials.len() as u32;
         materials.push(Material { btf, tiling: cfg.tiling() });
         labels.push(label);
     }

@@ -1,21 +1,27 @@
 //! The pipeline: wires the stages from an [`Experiment`] and writes the run's output folder
-//! (`plan.txt`, `metrics.json`, `report.md`, `images/`). Stages exchange plain data only.
+//! (`plan.txt`, `metrics.json`, `report.md`, `report.html`, plots, `images/`).
+//!
+//! [`run`] reads as the data flow of the README: geometry, lighting, transfer, materials (on
+//! `T`'s local basis), the uncompressed baseline, the reference, then every compressor
+//! setting, then the report. Each step is a function below that takes plain data and returns
+//! a plain record; stages never reach into each other.
 
 use crate::config::{Backend, Experiment};
 use crate::materials::{load_materials, SceneMaterials};
 use crate::metrics::*;
 use crate::plan::{CompressorSetting, Plan};
 use crate::registry;
-use crate::util::{progress_bar, write_atomic};
+use crate::util::progress_bar;
 use biscale_core::compress::{CompressContext, Compressor};
 use biscale_core::gather::{reference_product, relative_l2_error, LocalRadiance};
-use biscale_core::geometry::{vertex_frames, Mesh, SceneBvh, VertexFrame};
+use biscale_core::geometry::Mesh;
+use biscale_core::io::write_atomic_bytes;
 use biscale_core::sampling::{EnvMap, LightVector};
-use biscale_core::transfer::{self, TransferMatrix, VisibilitySampler};
-use biscale_shading::camera::Camera;
-use biscale_shading::cpu::{shade, Background, Render, ShadeScene};
+use biscale_core::scene::{Background, Camera, HdrImage, Render, ShadeScene};
+use biscale_core::transfer::{self, TransferMatrix, TransferScene, TransferSettings, VisibilitySampler};
+use biscale_shading::cpu::shade;
 use biscale_shading::error::ShadingError;
-use biscale_shading::image::{compare, HdrImage, ImageMetrics};
+use biscale_shading::image::{compare, ImageMetrics};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -53,80 +59,73 @@ pub struct RunOptions {
     pub no_cache: bool,
 }
 
-/// The loaded scene: mesh, frames, BVH, materials.
-pub struct Scene {
+/// The loaded mesh and the geometry every visibility query shares.
+pub struct Geometry {
     pub mesh: Mesh,
+    /// What the loader repaired, and vertices whose normal fell back (one line each).
     pub repairs: Vec<String>,
-    pub frames: Vec<VertexFrame>,
-    pub bvh: SceneBvh,
-    pub materials: SceneMaterials,
+    pub transfer: TransferScene,
 }
 
-impl Scene {
-    /// The CPU shader's view of the scene.
-    pub fn shade_scene<'a>(&'a self, background: Background<'a>) -> ShadeScene<'a> {
-        ShadeScene {
-            mesh: &self.mesh,
-            frames: &self.frames,
-            bvh: &self.bvh,
-            materials: &self.materials.materials,
-            triangle_materials: self.materials.triangle_materials.as_deref(),
-            background,
-        }
+/// Load the mesh and build its transfer scene (frames and the normalised BVH), once.
+pub fn load_geometry(exp: &Experiment) -> Result<Geometry> {
+    let load = Mesh::load_obj(&exp.mesh_path)?;
+    let transfer = TransferScene::new(&load.mesh)?;
+    let mut repairs = load.repairs;
+    if transfer.frame_fallbacks() > 0 {
+        repairs
+            .push(format!("{} vertices had no usable normal (cancelling faces); used +Y", transfer.frame_fallbacks()));
     }
+    Ok(Geometry { mesh: load.mesh, repairs, transfer })
 }
 
 /// The lighting: `L` and the map it came from (for backgrounds).
 pub struct Lighting {
     pub light: LightVector,
     pub env: EnvMap,
+    pub rotation: f64,
     pub warnings: Vec<String>,
 }
 
-/// Load the mesh and build its frames, BVH and materials; synthesized BTFs are cached in
-/// `cache_dir` when given.
-pub fn load_scene(exp: &Experiment, cache_dir: Option<&Path>) -> Result<Scene> {
-    let load = Mesh::load_obj(&exp.mesh_path)?;
-    let (frames, fallbacks) = vertex_frames(&load.mesh);
-    let mut repairs = load.repairs;
-    if fallbacks > 0 {
-        repairs.push(format!("{fallbacks} vertices had no usable normal (cancelling faces); used +Y"));
+impl Lighting {
+    /// What a primary ray that misses the mesh sees (per `report.background`).
+    pub fn background(&self, exp: &Experiment) -> Background<'_> {
+        if exp.file.report.background {
+            Background::Env { env: &self.env, rotation: self.rotation }
+        } else {
+            Background::Black
+        }
     }
-    let bvh = SceneBvh::build(&load.mesh.positions, &load.mesh.triangles);
-    let materials = load_materials(exp, &load.mesh, cache_dir)?;
-    Ok(Scene { mesh: load.mesh, repairs, frames, bvh, materials })
 }
 
+/// `L` in the experiment's light basis, from its env map or constant sky (and `sun_boost`).
 pub fn load_lighting(exp: &Experiment) -> Result<Lighting> {
     let l = &exp.file.lighting;
-    let r = *exp.file.transfer.cubemap_resolution.get_ref();
     let rotation = l.rotation_degrees.to_radians();
     let (env, mut warnings) = match (&exp.env_path, l.constant) {
         (Some(p), _) => EnvMap::load(p)?,
         (None, Some(c)) => (EnvMap::constant(64, 32, c), vec![]),
         (None, None) => unreachable!("validated by the config"),
     };
-    let mut light = LightVector::from_env(&env, r, rotation);
+    let mut light = LightVector::from_env(&env, exp.transfer_settings().light_basis(), rotation);
     if let Some(boost) = &l.sun_boost {
-        let lum = |p: &[f32; 3]| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2];
-        if let Some(k) = (0..light.len()).max_by(|&a, &b| lum(&light.power[a]).total_cmp(&lum(&light.power[b]))) {
-            light.power[k] = light.power[k].map(|v| v * boost.get_ref());
+        if let Some(k) = light.boost_brightest(*boost.get_ref()) {
             warnings.push(format!("sun_boost: texel {k} multiplied by {}", boost.get_ref()));
         }
     }
-    Ok(Lighting { light, env, warnings })
+    Ok(Lighting { light, env, rotation, warnings })
 }
 
 /// Build (or load from the cache) the transfer matrix with a progress bar.
 pub fn transfer_matrix(
     exp: &Experiment,
-    scene: &Scene,
+    geometry: &Geometry,
     opts: &RunOptions,
     out_dir: &Path,
 ) -> Result<(TransferMatrix, TransferMetrics)> {
     let settings = exp.transfer_settings();
     let cache = crate::cache::TransferCache::new(opts, out_dir);
-    let key = crate::cache::transfer_key(&scene.mesh, &settings);
+    let key = crate::cache::transfer_key(&geometry.mesh, &settings);
     if let Some(cache) = &cache {
         match cache.load(key, &settings) {
             Ok(Some(t)) => {
@@ -138,9 +137,14 @@ pub fn transfer_matrix(
             Err(e) => eprintln!("warning: ignoring unusable cache file: {e}"),
         }
     }
-    let pb = progress_bar(scene.mesh.positions.len() as u64, "transfer");
+    let vertices = geometry.mesh.vertex_count();
+    let pb = progress_bar(vertices as u64, "transfer");
     let tick = |done: usize| pb.set_position(done as u64);
-    let build = transfer::build(&scene.mesh, &settings, Some(&tick))?;
+    let start = Instant::now();
+    let mut build = transfer::build_range(&geometry.transfer, &settings, 0..vertices, Some(&tick))?;
+    // The scene was built with the geometry; count its time here too, as a whole build would.
+    build.stats.seconds = start.elapsed().as_secs_f64();
+    build.stats.rays_per_second = build.stats.rays_traced as f64 / build.stats.seconds.max(1e-12);
     pb.finish_and_clear();
     eprintln!(
         "transfer: {} x {} with {} non-zeros in {:.2} s ({:.1} M rays/s)",
@@ -172,10 +176,10 @@ fn transfer_metrics(
     rays: u64,
     rays_per_second: f64,
     cached: bool,
-    settings: &transfer::TransferSettings,
+    settings: &TransferSettings,
 ) -> TransferMetrics {
     let mut hist = std::collections::BTreeMap::<u32, u64>::new();
-    for v in t.csr.data() {
+    for v in t.csr().data() {
         *hist.entry(v.to_bits()).or_default() += 1;
     }
     let mut value_histogram: Vec<ValueCount> =
@@ -185,14 +189,32 @@ fn transfer_metrics(
         rows: t.rows(),
         cols: t.cols(),
         nnz: t.nnz(),
-        local_dirs: t.local_dirs,
-        visibility_resolution: settings.visibility_resolution,
+        local_dirs: t.local_dirs(),
+        visibility_resolution: settings.visibility_resolution(),
         value_histogram,
         build_seconds: seconds,
         rays_traced: rays,
         rays_per_second,
         cached,
     }
+}
+
+/// The shade scene: the mesh, the transfer scene's frames and the materials, whose BTFs are
+/// built on `T`'s local basis (synthesized ones cached in `cache_dir` when given).
+pub fn shade_scene(
+    exp: &Experiment,
+    geometry: &Geometry,
+    t: &TransferMatrix,
+    cache_dir: Option<&Path>,
+) -> Result<(ShadeScene, SceneMaterials)> {
+    let materials = load_materials(exp, &geometry.mesh, t.local_basis(), cache_dir)?;
+    let scene = ShadeScene::new(
+        geometry.mesh.clone(),
+        geometry.transfer.frames().to_vec(),
+        materials.materials.clone(),
+        materials.triangle_materials.clone(),
+    )?;
+    Ok((scene, materials))
 }
 
 /// The camera of the experiment at `downscale`.
@@ -211,13 +233,93 @@ pub fn camera(exp: &Experiment, mesh: &Mesh, downscale: u32) -> Camera {
     cam
 }
 
-fn median_ms(samples: &mut [f64]) -> f64 {
-    samples.sort_by(f64::total_cmp);
-    samples[samples.len() / 2] * 1e3
-}
-
 fn errors(m: &ImageMetrics) -> ImageErrors {
     ImageErrors { rmse: m.rmse, psnr: m.psnr, rel_l2: m.rel_l2 }
+}
+
+/// The uncompressed baseline: the f64 product `T L` (the reference for `L*` errors) and,
+/// rounded to f32, the image every compressor is compared with.
+pub struct Baseline {
+    pub exact: Vec<[f64; 3]>,
+    pub lstar: LocalRadiance,
+    pub render: Render,
+    pub gather_ms: f64,
+    pub shade_ms: f64,
+}
+
+fn baseline(t: &TransferMatrix, lighting: &Lighting, view: &View, repeats: usize) -> Result<Baseline> {
+    let (exact, gather_ms) = timed(repeats, || Ok(reference_product(t, &lighting.light)))?;
+    let lstar = LocalRadiance::from_f64(t.local_basis(), t.vertices(), &exact)?;
+    let (render, shade_ms) = view.timed_render(&lstar, repeats)?;
+    Ok(Baseline { exact, lstar, render, gather_ms, shade_ms })
+}
+
+/// What every render of the run shares: the scene, the camera and the background.
+struct View<'a> {
+    scene: &'a ShadeScene,
+    camera: Camera,
+    background: Background<'a>,
+}
+
+impl View<'_> {
+    /// The image of `lstar` with the background behind it.
+    fn render(&self, lstar: &LocalRadiance, camera: &Camera) -> Result<Render> {
+        Ok(shade(self.scene, lstar, camera)?.with_background(camera, &self.background))
+    }
+
+    /// [`Self::render`] at the run's camera, `repeats` times: the image and the median ms.
+    fn timed_render(&self, lstar: &LocalRadiance, repeats: usize) -> Result<(Render, f64)> {
+        timed(repeats, || self.render(lstar, &self.camera))
+    }
+}
+
+/// Run `f` `repeats` times (at least once): its last result and the median wall time (ms).
+fn timed<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(T, f64)> {
+    let mut samples = vec![];
+    let mut last = None;
+    for _ in 0..repeats.max(1) {
+        let start = Instant::now();
+        last = Some(f()?);
+        samples.push(start.elapsed().as_secs_f64() * 1e3);
+    }
+    Ok((last.expect("at least one run"), biscale_core::stats::median(&samples)))
+}
+
+/// The ray-traced reference at the reference resolution, and the baseline's error against it.
+pub struct Reference {
+    pub render: Render,
+    pub camera: Camera,
+    pub seconds: f64,
+    pub baseline_error: ImageMetrics,
+}
+
+fn reference(
+    exp: &Experiment,
+    geometry: &Geometry,
+    view: &View,
+    lighting: &Lighting,
+    baseline: &Baseline,
+) -> Result<Reference> {
+    let camera = self::camera(exp, &geometry.mesh, *exp.file.report.reference_downscale.get_ref());
+    let sampler = VisibilitySampler::new(&exp.transfer_settings());
+    let pb = progress_bar(camera.height as u64, "reference");
+    let tick = |rows: usize| pb.set_position(rows as u64);
+    let start = Instant::now();
+    let render = biscale_shading::reference::render_reference(
+        view.scene,
+        &lighting.light,
+        &geometry.transfer,
+        &sampler,
+        &camera,
+        Some(&tick),
+    )?
+    .with_background(&camera, &view.background);
+    let seconds = start.elapsed().as_secs_f64();
+    pb.finish_and_clear();
+    let small = view.render(&baseline.lstar, &camera)?;
+    let baseline_error = compare(&small.image, &render.image, Some(&render.mask))?;
+    eprintln!("reference: traced {}x{} in {seconds:.1} s", camera.width, camera.height);
+    Ok(Reference { render, camera, seconds, baseline_error })
 }
 
 /// Run the whole experiment; returns the metrics that were written.
@@ -233,82 +335,44 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     let out_dir = opts.out_dir.clone().unwrap_or_else(|| Path::new("out").join(exp.name()));
     let images_dir = out_dir.join("images");
     std::fs::create_dir_all(&images_dir).map_err(io_err(&images_dir))?;
-    write_atomic(&out_dir.join("plan.txt"), plan.to_string().as_bytes())?;
+    write_atomic_bytes(&out_dir.join("plan.txt"), plan.to_string().as_bytes())?;
+    let cache_dir = crate::cache::cache_dir(opts, &out_dir);
 
     // Compressors are constructed first so a bad setting fails before any heavy work.
     let compressors: Vec<(CompressorSetting, Box<dyn Compressor>)> =
         plan.compressors.iter().map(|s| registry::build(s).map(|c| (s.clone(), c))).collect::<Result<_>>()?;
 
-    let scene = load_scene(exp, crate::cache::cache_dir(opts, &out_dir).as_deref())?;
-    for r in &scene.repairs {
+    let geometry = load_geometry(exp)?;
+    for r in &geometry.repairs {
         eprintln!("warning: {}: {r}", exp.mesh_path.display());
-    }
-    for n in &scene.materials.notes {
-        eprintln!("materials: {n}");
     }
     let lighting = load_lighting(exp)?;
     for w in &lighting.warnings {
         eprintln!("warning: {w}");
     }
-    let (t, transfer_metrics) = transfer_matrix(exp, &scene, opts, &out_dir)?;
-    let repeats = exp.file.runtime.repeats;
-
-    // The uncompressed product, in f64: the reference for L* errors, and (cast to f32) the
-    // image every compressor is compared with.
-    let mut samples = vec![];
-    let mut exact = vec![];
-    for _ in 0..repeats {
-        let start = Instant::now();
-        exact = reference_product(&t, &lighting.light);
-        samples.push(start.elapsed().as_secs_f64());
+    let (t, transfer_metrics) = transfer_matrix(exp, &geometry, opts, &out_dir)?;
+    let (scene, materials) = shade_scene(exp, &geometry, &t, cache_dir.as_deref())?;
+    for n in &materials.notes {
+        eprintln!("materials: {n}");
     }
-    let uncompressed_gather_ms = median_ms(&mut samples);
-    let exact_lstar = LocalRadiance {
-        vertices: t.vertices,
-        local_dirs: t.local_dirs,
-        values: exact.iter().map(|v| [v[0] as f32, v[1] as f32, v[2] as f32]).collect(),
-    };
-    let background = if exp.file.report.background {
-        Background::Env { env: &lighting.env, rotation: exp.file.lighting.rotation_degrees.to_radians() }
-    } else {
-        Background::Black
-    };
-    let shade_scene = scene.shade_scene(background);
-    let cam = camera(exp, &scene.mesh, 1);
-    let (base, uncompressed_shade_ms) = timed_shade(&shade_scene, &exact_lstar, &cam, repeats)?;
+    let repeats = exp.file.runtime.repeats;
+    let view = View { scene: &scene, camera: camera(exp, &geometry.mesh, 1), background: lighting.background(exp) };
+    let base = baseline(&t, &lighting, &view, repeats)?;
     let exposure = exp.file.report.exposure;
-    save_images(&base.image, &images_dir, "uncompressed", exposure)?;
-
-    // The reference (only when asked for), at the reference resolution.
-    let ds = *exp.file.report.reference_downscale.get_ref();
-    let reference = if plan.reference {
-        let cam_ref = camera(exp, &scene.mesh, ds);
-        let sampler = VisibilitySampler::new(&exp.transfer_settings())?;
-        let pb = progress_bar(cam_ref.height as u64, "reference");
-        let tick = |rows: usize| pb.set_position(rows as u64);
-        let start = Instant::now();
-        let r = biscale_shading::reference::render_reference(
-            &shade_scene,
-            &lighting.light,
-            &sampler,
-            &cam_ref,
-            Some(&tick),
-        )?;
-        let seconds = start.elapsed().as_secs_f64();
-        pb.finish_and_clear();
-        save_images(&r.image, &images_dir, "reference", exposure)?;
-        let base_small = shade(&shade_scene, &exact_lstar, &cam_ref)?;
-        let m = compare(&base_small.image, &r.image, Some(&r.mask))?;
-        eprintln!("reference: traced {}x{} in {seconds:.1} s", cam_ref.width, cam_ref.height);
-        Some((r, cam_ref, seconds, m))
-    } else {
-        None
+    save_images(&base.render.image, &images_dir, "uncompressed", exposure)?;
+    let reference = match plan.reference {
+        true => {
+            let r = reference(exp, &geometry, &view, &lighting, &base)?;
+            save_images(&r.render.image, &images_dir, "reference", exposure)?;
+            Some(r)
+        }
+        false => None,
     };
 
     #[cfg(feature = "gpu")]
     let mut gpu = match exp.file.runtime.backend {
         Backend::Gpu => {
-            let g = crate::gpu_backend::GpuBackend::new(&scene, &cam)?;
+            let g = crate::gpu_backend::GpuBackend::new(&scene, &view.camera)?;
             eprintln!("gpu: {}", g.adapter);
             Some(g)
         }
@@ -323,22 +387,14 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
         let cerr = |source| PipelineError::Compress { name: name.clone(), source };
         let form = compressor.compress(&t, &ctx).map_err(cerr)?;
         pb.finish_and_clear();
-        let mut samples = vec![];
-        let mut lstar = None;
-        for _ in 0..repeats {
-            let start = Instant::now();
-            lstar = Some(compressor.gather(&form, &lighting.light).map_err(cerr)?);
-            samples.push(start.elapsed().as_secs_f64());
-        }
-        let lstar = lstar.expect("repeats >= 1");
-        let gather_ms = median_ms(&mut samples);
-        let rel_error_lstar = relative_l2_error(&lstar.values, &exact);
-        let (render, shade_ms) = timed_shade(&shade_scene, &lstar, &cam, repeats)?;
-        let vs_uncompressed = errors(&compare(&render.image, &base.image, Some(&base.mask))?);
+        let (lstar, gather_ms) = timed(repeats, || compressor.gather(&form, &lighting.light).map_err(cerr))?;
+        let rel_error_lstar = relative_l2_error(lstar.values(), &base.exact);
+        let (render, shade_ms) = view.timed_render(&lstar, repeats)?;
+        let vs_uncompressed = errors(&compare(&render.image, &base.render.image, Some(&base.render.mask))?);
         let vs_reference = match &reference {
-            Some((r, cam_ref, _, _)) => {
-                let small = shade(&shade_scene, &lstar, cam_ref)?;
-                Some(errors(&compare(&small.image, &r.image, Some(&r.mask))?))
+            Some(r) => {
+                let small = view.render(&lstar, &r.camera)?;
+                Some(errors(&compare(&small.image, &r.render.image, Some(&r.render.mask))?))
             }
             None => None,
         };
@@ -346,7 +402,7 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
         let gpu_record = match gpu.as_mut() {
             Some(g) => {
                 let kernels = registry::plugin_kernels(setting)?;
-                Some(g.run(&form, &lighting.light, &exact, &render, repeats, kernels.as_ref())?)
+                Some(g.run(&form, &lighting.light, &base.exact, &render, repeats, kernels.as_ref())?)
             }
             None => None,
         };
@@ -361,8 +417,12 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
         let name = &name.replace(':', "-");
         let (png, exr) = save_images(&render.image, &images_dir, name, exposure)?;
         let error_rel = format!("images/{name}_error.png");
-        let error_scale =
-            biscale_shading::image::write_error_image(&render.image, &base.image, None, &out_dir.join(&error_rel))?;
+        let error_scale = biscale_shading::image::write_error_image(
+            &render.image,
+            &base.render.image,
+            None,
+            &out_dir.join(&error_rel),
+        )?;
         eprintln!(
             "{name}: {:.2} MB, {:.2} Mflop/gather, built in {:.2} s, gather {gather_ms:.2} ms, rel. error of L* {rel_error_lstar:.2e}",
             form.bytes() as f64 / 1e6,
@@ -401,40 +461,44 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
         backend: format!("{:?}", exp.file.runtime.backend).to_lowercase(),
         scene: SceneMetrics {
             mesh: exp.mesh_path.display().to_string(),
-            vertices: scene.mesh.positions.len(),
-            triangles: scene.mesh.triangles.len(),
-            repairs: scene.repairs.clone(),
-            material: scene.materials.summary(),
-            material_notes: scene.materials.notes.clone(),
+            vertices: geometry.mesh.vertex_count(),
+            triangles: geometry.mesh.triangle_count(),
+            repairs: geometry.repairs.clone(),
+            material: materials.summary(),
+            material_notes: materials.notes.clone(),
         },
         lighting: LightingMetrics {
             source: exp.env_path.as_ref().map_or("constant".into(), |p| p.display().to_string()),
-            cubemap_resolution: lighting.light.cubemap.resolution,
+            cubemap_resolution: lighting.light.cubemap().resolution,
             rotation_degrees: exp.file.lighting.rotation_degrees,
             total_power: lighting.light.total(),
             warnings: lighting.warnings.clone(),
         },
         transfer: transfer_metrics,
-        uncompressed: UncompressedMetrics { gather_ms: uncompressed_gather_ms, shade_ms: uncompressed_shade_ms },
-        reference: reference.as_ref().map(|(r, _, seconds, m)| ReferenceMetrics {
-            width: r.image.width,
-            height: r.image.height,
-            seconds: *seconds,
-            uncompressed_vs_reference: errors(m),
+        uncompressed: UncompressedMetrics { gather_ms: base.gather_ms, shade_ms: base.shade_ms },
+        reference: reference.as_ref().map(|r| ReferenceMetrics {
+            width: r.render.image.width,
+            height: r.render.image.height,
+            seconds: r.seconds,
+            uncompressed_vs_reference: errors(&r.baseline_error),
         }),
         compressors: records,
         target_error: exp.file.report.target_error,
     };
-    let json = serde_json::to_string_pretty(&metrics).expect("metrics serialize");
-    let metrics_path = out_dir.join("metrics.json");
-    write_atomic(&metrics_path, json.as_bytes())?;
-    let plots = write_plots(&metrics, &out_dir);
-    let html_path = out_dir.join("report.html");
-    write_atomic(&html_path, crate::html::html(&metrics, &plan.to_string(), &out_dir, &plots).as_bytes())?;
-    let report_path = out_dir.join("report.md");
-    write_atomic(&report_path, crate::report::markdown(&metrics, &plan).as_bytes())?;
+    write_report(&metrics, &plan, &out_dir)?;
     eprintln!("wrote {}", out_dir.display());
     Ok((out_dir, metrics))
+}
+
+/// `metrics.json`, the plots, `report.html` and `report.md`.
+fn write_report(metrics: &Metrics, plan: &Plan, out_dir: &Path) -> Result<()> {
+    let json = serde_json::to_string_pretty(metrics).expect("metrics serialize");
+    write_atomic_bytes(&out_dir.join("metrics.json"), json.as_bytes())?;
+    let plots = write_plots(metrics, out_dir);
+    let html = crate::html::html(metrics, &plan.to_string(), out_dir, &plots);
+    write_atomic_bytes(&out_dir.join("report.html"), html.as_bytes())?;
+    write_atomic_bytes(&out_dir.join("report.md"), crate::report::markdown(metrics, plan).as_bytes())?;
+    Ok(())
 }
 
 /// The comparison plots (only when there is something to compare); returns (path, caption).
@@ -456,17 +520,6 @@ fn write_plots(m: &Metrics, out_dir: &Path) -> Vec<(String, String)> {
         }
     }
     out
-}
-
-fn timed_shade(scene: &ShadeScene, lstar: &LocalRadiance, cam: &Camera, repeats: usize) -> Result<(Render, f64)> {
-    let mut samples = vec![];
-    let mut render = None;
-    for _ in 0..repeats.min(3) {
-        let start = Instant::now();
-        render = Some(shade(scene, lstar, cam)?);
-        samples.push(start.elapsed().as_secs_f64());
-    }
-    Ok((render.expect("at least one shade"), median_ms(&mut samples)))
 }
 
 /// Write `<name>.png` and `<name>.exr`; returns their paths relative to the output folder.

@@ -98,8 +98,8 @@ impl Plan {
         step(
             "sampling",
             match &exp.env_path {
-                Some(p) => format!("light vector L from {} (6x{r}x{r})", p.display(), r = t.cubemap_resolution),
-                None => format!("light vector L from a constant sky (6x{r}x{r})", r = t.cubemap_resolution),
+                Some(p) => format!("light vector L from {} (6x{r}x{r})", p.display(), r = t.cubemap().resolution),
+                None => format!("light vector L from a constant sky (6x{r}x{r})", r = t.cubemap().resolution),
             },
             Action::Run,
         );
@@ -107,9 +107,9 @@ impl Plan {
             "transfer",
             format!(
                 "T: visibility 6x{v}x{v} box-filtered to 6x{r}x{r}, local grid {m}x{m} (cached by content)",
-                v = t.visibility_resolution,
-                r = t.cubemap_resolution,
-                m = t.local_grid
+                v = t.visibility_resolution(),
+                r = t.cubemap().resolution,
+                m = t.local_grid().m
             ),
             Action::Run,
         );
@@ -140,7 +140,7 @@ impl Plan {
                         format!(
                             "{label}: synthesize {r}x{r} texels x {views} x {m}x{m} lights (cached by content)",
                             r = s.resolution,
-                            m = t.local_grid
+                            m = t.local_grid().m
                         ),
                         Action::Run,
                     )

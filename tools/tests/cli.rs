@@ -78,7 +78,7 @@ fn export_matrix_writes_matrix_market_files_that_parse_back() {
 
 #[test]
 fn diff_reports_known_errors_and_names_bad_files() {
-    use biscale_shading::image::HdrImage;
+    use biscale_core::scene::HdrImage;
     let dir = tempfile::tempdir().unwrap();
     let a = dir.path().join("a.exr");
     let b = dir.path().join("b.exr");

@@ -53,7 +53,7 @@ fn code_of(v: f32, q: u32) -> Option<i32> {
 /// The smallest scale `q` in `1..=CODE_MAX` for which every value of `t` is a code.
 pub fn detect_scale(t: &TransferMatrix) -> Result<u32, CompressError> {
     let mut distinct = BTreeSet::new();
-    for &v in t.csr.data() {
+    for &v in t.csr().data() {
         if v != 0.0 {
             if !v.is_finite() {
                 return Err(CompressError::Params(format!("bicluster: T holds a non-finite value {v}")));
@@ -88,10 +88,10 @@ pub fn quantize(t: &TransferMatrix, scale: u32) -> Result<CodeMatrix, CompressEr
         return Err(CompressError::TooLarge(format!("bicluster: {} columns do not fit u16 indices", t.cols())));
     }
     let owned;
-    let csr = if t.csr.is_csr() {
-        &t.csr
+    let csr = if t.csr().is_csr() {
+        &t.csr()
     } else {
-        owned = t.csr.to_csr();
+        owned = t.csr().to_csr();
         &owned
     };
     let mut indptr = Vec::with_capacity(csr.rows() + 1);

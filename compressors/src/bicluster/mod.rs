@@ -45,8 +45,7 @@ pub mod greedy;
 #[cfg(test)]
 mod tests;
 
-use crate::check_light;
-use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor, NamedArray};
+use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::sampling::LightVector;
 use biscale_core::transfer::TransferMatrix;
@@ -128,37 +127,37 @@ impl<'a> BiclusterView<'a> {
     /// checked, so the accessors may panic on such a view; the gather, which only gets this
     /// view, checks each offset and index where it reads it instead.
     fn header(form: &'a CompressedForm) -> Result<Self, CompressError> {
-        let bad = |m: String| CompressError::Malformed(format!("bicluster: {m}"));
+        let bad = |array: &str, m: &str| CompressError::malformed("bicluster", array, m);
         if form.kind != "bicluster" {
-            return Err(bad(format!("form kind is '{}'", form.kind)));
+            return Err(CompressError::malformed(&form.kind, "kind", "is not bicluster"));
         }
         let value_scale = form.meta("value_scale")?;
         let block_rows = form.meta("block_rows")? as usize;
         let nb = form.meta("biclusters")? as usize;
         let local = form.meta("row_bc_local")? == 1;
         if value_scale == 0 || value_scale > codes::CODE_MAX as u64 {
-            return Err(bad(format!("value_scale {value_scale} out of range")));
+            return Err(bad("value_scale", &format!("= {value_scale} is out of range")));
         }
         let (bc_col_ptr, bc_cols, bc_vals) = (form.u32s("bc_col_ptr")?, form.u16s("bc_cols")?, form.i8s("bc_vals")?);
         let (row_ptr, block_bc_base) = (form.u32s("row_ptr")?, form.u32s("block_bc_base")?);
         let row_bc = if local { RowBc::Local(form.u16s("row_bc")?) } else { RowBc::Global(form.u32s("row_bc")?) };
         let ends_ok = |p: &[u32], n: usize, total: usize| p.len() == n + 1 && p[0] == 0 && p[n] as usize == total;
         if !ends_ok(bc_col_ptr, nb, bc_cols.len()) || bc_vals.len() != bc_cols.len() {
-            return Err(bad("bc_col_ptr / bc_cols / bc_vals do not agree".into()));
+            return Err(bad("bc_col_ptr", "does not agree with bc_cols / bc_vals"));
         }
-        if !ends_ok(row_ptr, form.rows, row_bc.len()) {
-            return Err(bad("row_ptr does not match the rows and row_bc".into()));
+        if !ends_ok(row_ptr, form.rows(), row_bc.len()) {
+            return Err(bad("row_ptr", "does not match the rows and row_bc"));
         }
-        let blocks = if form.rows == 0 { 0 } else { form.rows.div_ceil(block_rows.max(1)) };
-        if block_rows == 0 && form.rows > 0
+        let blocks = if form.rows() == 0 { 0 } else { form.rows().div_ceil(block_rows.max(1)) };
+        if block_rows == 0 && form.rows() > 0
             || !ends_ok(block_bc_base, blocks, nb)
             || !block_bc_base.windows(2).all(|w| w[0] <= w[1])
         {
-            return Err(bad("block_bc_base does not match the blocks".into()));
+            return Err(bad("block_bc_base", "does not match the blocks"));
         }
         Ok(Self {
-            rows: form.rows,
-            cols: form.cols,
+            rows: form.rows(),
+            cols: form.cols(),
             value_scale: value_scale as u32,
             block_rows,
             bc_col_ptr,
@@ -173,16 +172,16 @@ impl<'a> BiclusterView<'a> {
     /// The O(form size) rest of [`Self::new`]: offsets non-decreasing, columns below `cols`,
     /// and every row's ids naming a bicluster of its own block (any bicluster for global ids).
     fn check_indices(&self) -> Result<(), CompressError> {
-        let bad = |m: String| CompressError::Malformed(format!("bicluster: {m}"));
+        let bad = |array: &str, m: String| CompressError::malformed("bicluster", array, m);
         let monotone = |p: &[u32]| p.windows(2).all(|w| w[0] <= w[1]);
         if !monotone(self.bc_col_ptr) {
-            return Err(bad("bc_col_ptr / bc_cols / bc_vals do not agree".into()));
+            return Err(bad("bc_col_ptr", "does not agree with bc_cols / bc_vals".into()));
         }
         if !monotone(self.row_ptr) {
-            return Err(bad("row_ptr does not match the rows and row_bc".into()));
+            return Err(bad("row_ptr", "does not match the rows and row_bc".into()));
         }
         if self.bc_cols.iter().any(|&k| k as usize >= self.cols) {
-            return Err(bad("a column index is out of range".into()));
+            return Err(bad("bc_cols", "has a column index out of range".into()));
         }
         let nb = self.biclusters();
         for i in 0..self.rows {
@@ -194,7 +193,7 @@ impl<'a> BiclusterView<'a> {
                 RowBc::Global(v) => v[r].iter().all(|&x| (x as usize) < nb),
             };
             if !ok {
-                return Err(bad(format!("row {i} names a bicluster out of range")));
+                return Err(bad("row_bc", format!("row {i} names a bicluster out of range")));
             }
         }
         Ok(())
@@ -249,7 +248,8 @@ impl Compressor for Bicluster {
         if rows > u32::MAX as usize || codes.nnz() > u32::MAX as usize / 2 {
             return Err(CompressError::TooLarge(format!("bicluster: {rows} rows / {} non-zeros", codes.nnz())));
         }
-        let block_rows = if self.block_vertices == 0 { rows.max(1) } else { self.block_vertices * t.local_dirs.max(1) };
+        let block_rows =
+            if self.block_vertices == 0 { rows.max(1) } else { self.block_vertices * t.local_dirs().max(1) };
         let nblocks = if rows == 0 { 0 } else { rows.div_ceil(block_rows) };
         let max_code = codes.codes.iter().map(|&c| (c as i32).abs()).max().unwrap_or(1);
         let done = AtomicUsize::new(0);
@@ -273,7 +273,9 @@ impl Compressor for Bicluster {
             )
             .collect();
         let form = assemble(t, &codes, block_rows, &blocks)?;
-        Ok(CompressedForm { build_seconds: start.elapsed().as_secs_f64(), ..form })
+        let mut form = form;
+        form.build_seconds = start.elapsed().as_secs_f64();
+        Ok(form)
     }
 
     /// Algorithm 2 on the stored arrays. Only the form's header is checked up front
@@ -287,9 +289,8 @@ impl Compressor for Bicluster {
     /// tried on the bunny and gained nothing measurable). Work is handed to rayon in chunks
     /// of biclusters and rows, not one task per element.
     fn gather(&self, form: &CompressedForm, light: &LightVector) -> Result<LocalRadiance, CompressError> {
-        check_light(form, light)?;
+        form.check_light(light)?;
         let v = BiclusterView::header(form)?;
-        let bad = |m: String| CompressError::Malformed(format!("bicluster: {m}"));
         let lp = prescaled_light(light, v.value_scale);
         // Pass 1: one scalar per bicluster.
         let mut a = vec![[0.0f32; 3]; v.biclusters()];
@@ -307,7 +308,7 @@ impl Compressor for Bicluster {
                 }
                 Ok(())
             })
-            .map_err(bad)?;
+            .map_err(|what: String| CompressError::malformed("bicluster", "bc_col_ptr", what))?;
         // Pass 2: each row sums the scalars of its biclusters.
         let mut values = vec![[0.0f32; 3]; v.rows];
         values
@@ -341,8 +342,8 @@ impl Compressor for Bicluster {
                 }
                 Ok(())
             })
-            .map_err(bad)?;
-        Ok(LocalRadiance { vertices: form.rows / form.local_dirs.max(1), local_dirs: form.local_dirs, values })
+            .map_err(|what: String| CompressError::malformed("bicluster", "row_bc", what))?;
+        form.lstar(values)
     }
 }
 
@@ -445,25 +446,17 @@ fn assemble(
         ("biclusters".to_string(), nb as u64),
         ("row_bc_local".to_string(), local as u64),
     ]);
-    let arr = |name: &str, data| NamedArray { name: name.into(), data };
-    Ok(CompressedForm {
-        kind: "bicluster".into(),
-        rows: codes.rows,
-        cols: codes.cols,
-        local_dirs: t.local_dirs,
-        arrays: vec![
-            arr("bc_col_ptr", ArrayData::U32(bc_col_ptr)),
-            arr("bc_cols", ArrayData::U16(bc_cols)),
-            arr("bc_vals", ArrayData::I8(bc_vals)),
-            arr("row_ptr", ArrayData::U32(row_ptr)),
-            arr("row_bc", row_bc),
-            arr("block_bc_base", ArrayData::U32(block_bc_base)),
-        ],
-        meta,
-        lossless: true,
-        flops_per_gather: flops,
-        build_seconds: 0.0,
-    })
+    let mut form = CompressedForm::new("bicluster", t.shape())
+        .with_array("bc_col_ptr", ArrayData::U32(bc_col_ptr))
+        .with_array("bc_cols", ArrayData::U16(bc_cols))
+        .with_array("bc_vals", ArrayData::I8(bc_vals))
+        .with_array("row_ptr", ArrayData::U32(row_ptr))
+        .with_array("row_bc", row_bc)
+        .with_array("block_bc_base", ArrayData::U32(block_bc_base));
+    form.meta = meta;
+    form.lossless = true;
+    form.flops_per_gather = flops;
+    Ok(form)
 }
 
 /// Rebuild `T` in integer codes from a form's biclusters (`sum_i B_i`, exact).
@@ -490,7 +483,11 @@ pub fn decompress_codes(form: &CompressedForm) -> Result<CodeMatrix, CompressErr
             let c = std::mem::take(&mut acc[k as usize]);
             if c != 0 {
                 if c.abs() > codes::CODE_MAX {
-                    return Err(CompressError::Malformed(format!("bicluster: row {i} column {k} sums to code {c}")));
+                    return Err(CompressError::malformed(
+                        "bicluster",
+                        "bc_vals",
+                        format!("row {i} column {k} sums to code {c}"),
+                    ));
                 }
                 col_idx.push(k);
                 out.push(c as i8);
@@ -583,15 +580,13 @@ pub struct BiclusterStats {
 pub fn table_stats(form: &CompressedForm, t: &TransferMatrix) -> Result<BiclusterStats, CompressError> {
     let v = BiclusterView::new(form)?;
     if (v.rows, v.cols) != (t.rows(), t.cols()) {
-        return Err(CompressError::Malformed(format!(
-            "bicluster: form is {}x{}, T is {}x{}",
-            v.rows,
-            v.cols,
-            t.rows(),
-            t.cols()
-        )));
+        return Err(CompressError::malformed(
+            "bicluster",
+            "shape",
+            format!("is {}x{}, T is {}x{}", v.rows, v.cols, t.rows(), t.cols()),
+        ));
     }
-    let nnz = t.csr.data().iter().filter(|&&x| x != 0.0).count() as u64;
+    let nnz = t.csr().data().iter().filter(|&&x| x != 0.0).count() as u64;
     let r: Vec<u64> = v.bicluster_rows().into_iter().map(u64::from).collect();
     let l: Vec<u64> = v.bc_col_ptr.windows(2).map(|w| (w[1] - w[0]) as u64).collect();
     let w: u64 = r.iter().zip(&l).map(|(&r, &l)| r + 2 * l - 1).sum();

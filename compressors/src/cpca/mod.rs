@@ -62,7 +62,6 @@
 
 pub mod linalg;
 
-use crate::check_light;
 use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor, NamedArray};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::sampling::LightVector;
@@ -435,8 +434,11 @@ impl Compressor for Cpca {
         if self.iterations == 0 {
             return Err(CompressError::Params("cpca: iterations must be at least 1".into()));
         }
-        let csr =
-            if t.csr.is_csr() { std::borrow::Cow::Borrowed(&t.csr) } else { std::borrow::Cow::Owned(t.csr.to_csr()) };
+        let csr = if t.csr().is_csr() {
+            std::borrow::Cow::Borrowed(t.csr())
+        } else {
+            std::borrow::Cow::Owned(t.csr().to_csr())
+        };
         let indptr_view = csr.indptr();
         let indptr = indptr_view.to_proper();
         let rows = Rows { indptr: &indptr, indices: csr.indices(), data: csr.data() };
@@ -561,35 +563,31 @@ impl Compressor for Cpca {
         }
         ctx.report(1.0);
         let exact = nz_rows.is_empty();
-        Ok(CompressedForm {
-            kind: "cpca".into(),
-            rows: n_rows,
-            cols: n,
-            local_dirs: t.local_dirs,
-            arrays: vec![
-                NamedArray { name: "basis".into(), data: ArrayData::F32(basis) },
-                NamedArray { name: "cluster".into(), data: ArrayData::U16(cluster) },
-                NamedArray { name: "coeffs".into(), data: ArrayData::F32(coeffs) },
-            ],
-            meta: [("clusters".to_string(), k_out as u64), ("components".into(), c as u64)].into_iter().collect(),
-            lossless: exact,
-            flops_per_gather: 2 * (n * k_out * (c + 1)) as u64 + 2 * (c * nz_rows.len()) as u64,
-            build_seconds: start.elapsed().as_secs_f64(),
-        })
+        let mut form = CompressedForm::new("cpca", t.shape());
+        form.arrays = vec![
+            NamedArray { name: "basis".into(), data: ArrayData::F32(basis) },
+            NamedArray { name: "cluster".into(), data: ArrayData::U16(cluster) },
+            NamedArray { name: "coeffs".into(), data: ArrayData::F32(coeffs) },
+        ];
+        form.meta = [("clusters".to_string(), k_out as u64), ("components".into(), c as u64)].into_iter().collect();
+        form.lossless = exact;
+        form.flops_per_gather = 2 * (n * k_out * (c + 1)) as u64 + 2 * (c * nz_rows.len()) as u64;
+        form.build_seconds = start.elapsed().as_secs_f64();
+        Ok(form)
     }
 
     fn gather(&self, form: &CompressedForm, light: &LightVector) -> Result<LocalRadiance, CompressError> {
-        check_light(form, light)?;
-        let (k, c, n) = (form.meta("clusters")? as usize, form.meta("components")? as usize, form.cols);
+        form.check_light(light)?;
+        let (k, c, n) = (form.meta("clusters")? as usize, form.meta("components")? as usize, form.cols());
         let basis = form.f32s("basis")?;
         let cluster = form.u16s("cluster")?;
         let coeffs = form.f32s("coeffs")?;
         if basis.len() != k * (c + 1) * n
-            || cluster.len() != form.rows
-            || coeffs.len() != form.rows * c
+            || cluster.len() != form.rows()
+            || coeffs.len() != form.rows() * c
             || cluster.iter().any(|&id| id as usize > k)
         {
-            return Err(CompressError::Malformed("cpca: array lengths or cluster ids do not match the shape".into()));
+            return Err(CompressError::malformed("cpca", "cluster", "lengths or ids do not match the shape"));
         }
         // Projections of the light on every mean and component (f64: a sun may sit beside a
         // dim sky in L, and the components have both signs). The light is laid out per
@@ -606,7 +604,7 @@ impl Compressor for Cpca {
                 [x, y, z, 0.0]
             })
             .collect();
-        let values: Vec<[f32; 3]> = (0..form.rows)
+        let values: Vec<[f32; 3]> = (0..form.rows())
             .into_par_iter()
             .map(|r| {
                 let id = cluster[r] as usize;
@@ -623,7 +621,7 @@ impl Compressor for Cpca {
                 [acc[0] as f32, acc[1] as f32, acc[2] as f32]
             })
             .collect();
-        Ok(LocalRadiance { vertices: form.rows / form.local_dirs.max(1), local_dirs: form.local_dirs, values })
+        form.lstar(values)
     }
 }
 
@@ -634,15 +632,15 @@ impl Compressor for Cpca {
 /// the expansion loses about `eps ||x||^2` absolute per row (fine for a diagnostic; 0 when
 /// `T` is 0).
 pub fn relative_frobenius_error(form: &CompressedForm, t: &TransferMatrix) -> Result<f64, CompressError> {
-    let (k, c, n) = (form.meta("clusters")? as usize, form.meta("components")? as usize, form.cols);
+    let (k, c, n) = (form.meta("clusters")? as usize, form.meta("components")? as usize, form.cols());
     let (basis, cluster, coeffs) = (form.f32s("basis")?, form.u16s("cluster")?, form.f32s("coeffs")?);
-    if form.rows != t.rows()
+    if form.rows() != t.rows()
         || n != t.cols()
         || basis.len() != k * (c + 1) * n
-        || cluster.len() != form.rows
-        || coeffs.len() != form.rows * c
+        || cluster.len() != form.rows()
+        || coeffs.len() != form.rows() * c
     {
-        return Err(CompressError::Malformed("cpca: form does not match T".into()));
+        return Err(CompressError::malformed("cpca", "basis", "does not match T"));
     }
     let w = c + 1;
     let gram: Vec<f64> = (0..k)
@@ -652,8 +650,9 @@ pub fn relative_frobenius_error(form: &CompressedForm, t: &TransferMatrix) -> Re
             (0..w * w).map(move |ab| b(ab / w).iter().zip(b(ab % w)).map(|(&x, &y)| x as f64 * y as f64).sum::<f64>())
         })
         .collect();
-    let csr = if t.csr.is_csr() { std::borrow::Cow::Borrowed(&t.csr) } else { std::borrow::Cow::Owned(t.csr.to_csr()) };
-    let (num, den) = (0..form.rows)
+    let csr =
+        if t.csr().is_csr() { std::borrow::Cow::Borrowed(t.csr()) } else { std::borrow::Cow::Owned(t.csr().to_csr()) };
+    let (num, den) = (0..form.rows())
         .into_par_iter()
         .map(|r| {
             let row = csr.outer_view(r).expect("row in range");

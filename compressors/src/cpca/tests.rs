@@ -4,6 +4,7 @@
 
 use super::*;
 use crate::testing::{random_light, random_transfer};
+use biscale_core::basis::{LightBasis, LocalBasis};
 use biscale_core::gather::{reference_product, relative_l2_error};
 use biscale_core::sampling::Cubemap;
 
@@ -22,14 +23,14 @@ fn from_dense(rows: &[Vec<f64>], resolution: u32) -> TransferMatrix {
             }
         }
     }
-    TransferMatrix { vertices: rows.len(), local_dirs: 1, cubemap, csr: tri.to_csr() }
+    TransferMatrix::new(LocalBasis::bins(1).unwrap(), LightBasis::Cubemap(cubemap), tri.to_csr()).unwrap()
 }
 
 fn to_dense(t: &TransferMatrix) -> Vec<Vec<f64>> {
     (0..t.rows())
         .map(|r| {
             let mut row = vec![0.0; t.cols()];
-            for (k, &v) in t.csr.outer_view(r).unwrap().iter() {
+            for (k, &v) in t.csr().outer_view(r).unwrap().iter() {
                 row[k] = v as f64;
             }
             row
@@ -39,10 +40,10 @@ fn to_dense(t: &TransferMatrix) -> Vec<Vec<f64>> {
 
 /// The rows the form stands for, decoded from its arrays in f64.
 fn decode(form: &CompressedForm) -> Vec<Vec<f64>> {
-    let (k, c, n) = (form.meta("clusters").unwrap() as usize, form.meta("components").unwrap() as usize, form.cols);
+    let (k, c, n) = (form.meta("clusters").unwrap() as usize, form.meta("components").unwrap() as usize, form.cols());
     let (basis, cluster, coeffs) =
         (form.f32s("basis").unwrap(), form.u16s("cluster").unwrap(), form.f32s("coeffs").unwrap());
-    (0..form.rows)
+    (0..form.rows())
         .map(|r| {
             let id = cluster[r] as usize;
             if id == k {
@@ -115,7 +116,7 @@ fn assert_exact(cpca: &Cpca, form: &CompressedForm, t: &TransferMatrix, light: &
     let got = cpca.gather(form, light).unwrap();
     let reference = reference_product(t, light);
     let dense = to_dense(t);
-    let (k, c, n) = (form.meta("clusters").unwrap() as usize, form.meta("components").unwrap() as usize, form.cols);
+    let (k, c, n) = (form.meta("clusters").unwrap() as usize, form.meta("components").unwrap() as usize, form.cols());
     let (basis, cluster) = (form.f32s("basis").unwrap(), form.u16s("cluster").unwrap());
     for ch in 0..3 {
         let lnorm = light.power.iter().map(|p| (p[ch] as f64).powi(2)).sum::<f64>().sqrt();
@@ -130,11 +131,11 @@ fn assert_exact(cpca: &Cpca, form: &CompressedForm, t: &TransferMatrix, light: &
                 (mu_norm, res)
             };
             let bound = 4.0 * (c as f64 + 3.0) * EPS * (mu_norm + res_norm) * lnorm + EPS * reference[r][ch].abs();
-            let err = (got.values[r][ch] as f64 - reference[r][ch]).abs();
+            let err = (got.values()[r][ch] as f64 - reference[r][ch]).abs();
             assert!(
                 err <= bound,
                 "row {r} channel {ch}: {} vs {} (bound {bound})",
-                got.values[r][ch],
+                got.values()[r][ch],
                 reference[r][ch]
             );
         }
@@ -194,7 +195,7 @@ fn one_cluster_matches_dense_eigen_decomposition() {
         let light = random_light(4, 3);
         let want = reference_product(&from_dense(&svd_rows, 4), &light);
         let approx = cpca.gather(&form, &light).unwrap();
-        let diff = relative_l2_error(&approx.values, &want);
+        let diff = relative_l2_error(&approx.values(), &want);
         assert!(diff < 1e-5, "C={c}: L* differs from the truncated SVD's by {diff}");
         // The tolerance discriminates: a random C-dimensional subspace (no power iteration,
         // no oversampling) is far from optimal on this matrix.
@@ -216,7 +217,7 @@ fn error_falls_as_clusters_and_components_grow() {
     let run = |k: usize, c: usize| {
         let cpca = Cpca::new(k, c);
         let form = cpca.compress(&t, &CompressContext { seed: 5, progress: None }).unwrap();
-        (frob2(&decode(&form), &dense), relative_l2_error(&cpca.gather(&form, &light).unwrap().values, &reference))
+        (frob2(&decode(&form), &dense), relative_l2_error(&cpca.gather(&form, &light).unwrap().values(), &reference))
     };
     for k in [1usize, 4] {
         let mut last = (f64::INFINITY, f64::INFINITY);
@@ -242,7 +243,7 @@ fn error_falls_as_clusters_and_components_grow() {
 #[test]
 fn full_rank_components_are_exact_including_hdr_sun() {
     // 24 rows x 24 columns: C = 24 (= N) spans everything.
-    let t = random_transfer(6, 4, 2, 0.4, 3);
+    let t = random_transfer(6, 2, 2, 0.4, 3);
     for k in [1usize, 3] {
         let cpca = Cpca::new(k, 100); // capped at N = 24
         let form = cpca.compress(&t, &CompressContext::default()).unwrap();
@@ -252,7 +253,7 @@ fn full_rank_components_are_exact_including_hdr_sun() {
         }
     }
     // Clusters with fewer rows than components (rank-deficient): 12 rows, C = 16 < N = 96.
-    let t = random_transfer(3, 4, 4, 0.3, 4);
+    let t = random_transfer(3, 2, 4, 0.3, 4);
     for k in [1usize, 2, 5] {
         let cpca = Cpca::new(k, 16);
         let form = cpca.compress(&t, &CompressContext::default()).unwrap();
@@ -276,17 +277,17 @@ fn all_zero_rows_gather_to_zero() {
         let zero = [0, 3, 4, 11].contains(&r);
         assert_eq!(cluster[r] == k, zero, "row {r}");
         if zero {
-            assert_eq!(got.values[r], [0.0; 3]);
+            assert_eq!(got.values()[r], [0.0; 3]);
         }
     }
     // Only non-zero rows cost flops: 2 N K (C + 1) + 2 C (8 rows).
     assert_eq!(form.flops_per_gather, 2 * 24 * k as u64 * 2 + 2 * 8);
     // An all-zero matrix compresses to nothing and gathers to zero.
-    let z = random_transfer(3, 2, 2, 0.0, 0);
+    let z = random_transfer(6, 1, 2, 0.0, 0);
     let form = cpca.compress(&z, &CompressContext::default()).unwrap();
     assert!(form.lossless);
     assert_eq!(form.meta("clusters").unwrap(), 0);
-    assert!(cpca.gather(&form, &random_light(2, 3)).unwrap().values.iter().all(|v| *v == [0.0; 3]));
+    assert!(cpca.gather(&form, &random_light(2, 3)).unwrap().values().iter().all(|v| *v == [0.0; 3]));
 }
 
 #[test]
@@ -314,32 +315,31 @@ fn degenerate_tiny_matrices() {
     let cpca = Cpca::default();
     let form = cpca.compress(&t, &CompressContext::default()).unwrap();
     assert_exact(&cpca, &form, &t, &random_light(2, 1));
-    // One column (not a cubemap; CPCA does not care).
+    // One non-zero column of the smallest cubemap (N = 6).
+    let cubemap = LightBasis::cubemap(1).unwrap();
     let one = |vals: Vec<f32>| {
         let rows = vals.len();
         let indptr = (0..=rows).collect();
-        TransferMatrix {
-            vertices: rows,
-            local_dirs: 1,
-            cubemap: Cubemap::new(1),
-            csr: sprs::CsMat::new((rows, 1), indptr, vec![0; rows], vals),
-        }
+        let csr = sprs::CsMat::new((rows, 6), indptr, vec![0; rows], vals);
+        TransferMatrix::new(LocalBasis::bins(1).unwrap(), cubemap, csr).unwrap()
     };
-    let light = LightVector { cubemap: Cubemap::new(1), power: vec![[1e6, 2.0, 0.5]] };
+    let mut power = vec![[0.0; 3]; 6];
+    power[0] = [1e6, 2.0, 0.5];
+    let light = LightVector::new(cubemap, power).unwrap();
     for vals in [vec![0.5f32], vec![0.25, 1.0, 0.75, 0.25]] {
         let t = one(vals.clone());
-        // One cluster with C = 1 (C = 3 is capped at N = 1), or a cluster per distinct value.
-        for (k, c) in [(1, 1), (1, 3), (3, 0)] {
+        // One cluster with C = 1 (C = 7 is capped at N = 6), or a cluster per distinct value.
+        for (k, c) in [(1, 1), (1, 7), (3, 0)] {
             let cpca = Cpca::new(k, c);
             let form = cpca.compress(&t, &CompressContext::default()).unwrap();
-            assert!(form.meta("components").unwrap() <= 1);
+            assert!(form.meta("components").unwrap() <= 6);
             assert_exact(&cpca, &form, &t, &light);
         }
         // One cluster, no components: every row gathers the mean (exact f32 sums here).
         let cpca = Cpca::new(1, 0);
         let form = cpca.compress(&t, &CompressContext::default()).unwrap();
         let mean = vals.iter().sum::<f32>() / vals.len() as f32;
-        for v in cpca.gather(&form, &light).unwrap().values {
+        for &v in cpca.gather(&form, &light).unwrap().values() {
             assert_eq!(v, [mean * 1e6, mean * 2.0, mean * 0.5]);
         }
     }
@@ -363,7 +363,7 @@ fn gather_matches_decoded_rows() {
                 let scale: f64 = terms.iter().map(|x| x.abs()).sum();
                 // The gather projects first, so its rounding is bounded via the stored terms.
                 let bound = EPS * want.abs() + 1e-12 * scale * (form.meta("components").unwrap() as f64 + 1.0);
-                assert!((got.values[r][ch] as f64 - want).abs() <= bound, "row {r}");
+                assert!((got.values()[r][ch] as f64 - want).abs() <= bound, "row {r}");
             }
         }
     }
@@ -398,17 +398,18 @@ fn same_seed_same_bytes_and_storage_is_counted() {
 
 #[test]
 fn bad_inputs_are_errors_not_panics() {
-    let t = random_transfer(2, 2, 2, 0.5, 0);
+    let t = random_transfer(4, 1, 2, 0.5, 0);
     let ctx = CompressContext::default();
     assert!(matches!(Cpca::new(0, 2).compress(&t, &ctx), Err(CompressError::Params(_))));
     assert!(matches!(Cpca::new(70_000, 2).compress(&t, &ctx), Err(CompressError::Params(_))));
     assert!(matches!(Cpca { iterations: 0, ..Cpca::default() }.compress(&t, &ctx), Err(CompressError::Params(_))));
-    let mut tn = t.clone();
-    tn.csr.data_mut()[0] = f32::INFINITY;
-    assert!(matches!(Cpca::default().compress(&tn, &ctx), Err(CompressError::Params(_))));
+    // A non-finite value cannot reach a compressor: T refuses it.
+    let mut csr = t.csr().clone();
+    csr.data_mut()[0] = f32::INFINITY;
+    assert!(TransferMatrix::new(t.local_basis(), t.light_basis(), csr).is_err());
     let form = Cpca::default().compress(&t, &ctx).unwrap();
-    assert!(matches!(Cpca::default().gather(&form, &random_light(4, 0)), Err(CompressError::LightSize { .. })));
+    assert!(matches!(Cpca::default().gather(&form, &random_light(4, 0)), Err(CompressError::LightBasis { .. })));
     let mut broken = form.clone();
     broken.meta.insert("clusters".into(), 99);
-    assert!(matches!(Cpca::default().gather(&broken, &random_light(2, 0)), Err(CompressError::Malformed(_))));
+    assert!(matches!(Cpca::default().gather(&broken, &random_light(2, 0)), Err(CompressError::Malformed { .. })));
 }

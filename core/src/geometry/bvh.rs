@@ -40,6 +40,12 @@ pub struct SceneBvh {
     cones: ConeTree,
 }
 
+impl std::fmt::Debug for SceneBvh {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "SceneBvh({} triangles)", self.tri_ids.len())
+    }
+}
+
 impl SceneBvh {
     /// Build over `triangles` (indices into `positions`). An empty mesh gives a BVH that
     /// nothing hits.

@@ -12,6 +12,7 @@
 //! so the total power equals the integral of the piecewise-constant source map exactly and a
 //! sun a few pixels wide keeps its energy.
 
+use crate::basis::LightBasis;
 use crate::error::{CoreError, Result};
 use crate::sampling::Cubemap;
 use crate::Rgb;
@@ -164,21 +165,9 @@ pub fn pixel_solid_angle(w: usize, h: usize, y: usize) -> f64 {
 }
 
 fn load_exr(path: &Path) -> Result<EnvMap> {
-    use exr::prelude::*;
-    let image = read_first_rgba_layer_from_file(
-        path,
-        |resolution, _| {
-            let (w, h) = (resolution.width(), resolution.height());
-            (w, vec![[0.0f32; 3]; w * h])
-        },
-        |(w, px): &mut (usize, Vec<Rgb>), pos, (r, g, b, _a): (f32, f32, f32, f32)| {
-            px[pos.y() * *w + pos.x()] = [r, g, b];
-        },
-    )
-    .map_err(|e| CoreError::Input { path: path.into(), message: format!("cannot read OpenEXR: {e}") })?;
-    let size = image.layer_data.size;
-    let (_, pixels) = image.layer_data.channel_data.pixels;
-    Ok(EnvMap { width: size.width(), height: size.height(), pixels })
+    // Non-finite pixels come back as warnings; `validate` rejects them, naming the first.
+    let (img, _) = crate::scene::HdrImage::read_exr(path)?;
+    Ok(EnvMap { width: img.width as usize, height: img.height as usize, pixels: img.pixels })
 }
 
 fn load_hdr(path: &Path) -> Result<EnvMap> {
@@ -191,18 +180,44 @@ fn load_hdr(path: &Path) -> Result<EnvMap> {
 }
 
 /// The light vector `L`: power per cubemap texel (radiance integrated over the texel's solid
-/// angle), RGB, in the order of [`Cubemap`] texels.
+/// angle), RGB, in the order of [`Cubemap`] texels. Its basis is fixed at construction; the
+/// values are open (the stiff cases of the tests and `sun_boost` edit them).
 #[derive(Clone, Debug, PartialEq)]
 pub struct LightVector {
-    pub cubemap: Cubemap,
+    basis: LightBasis,
     pub power: Vec<Rgb>,
 }
 
 impl LightVector {
-    /// Integrate `env` (rotated by `rotation` radians about +Y) over every texel of a cubemap
-    /// of resolution `resolution`.
-    pub fn from_env(env: &EnvMap, resolution: u32, rotation: f64) -> Self {
-        let cubemap = Cubemap::new(resolution);
+    /// `L` from power values in `basis`; an error unless there are `basis.len()` of them.
+    pub fn new(basis: LightBasis, power: Vec<Rgb>) -> Result<Self> {
+        if power.len() != basis.len() {
+            return Err(CoreError::Invalid(format!(
+                "a light vector in the {basis} needs {} values, got {}",
+                basis.len(),
+                power.len()
+            )));
+        }
+        Ok(Self { basis, power })
+    }
+
+    /// The basis of the values (the columns of the `T` it may be gathered with).
+    pub fn basis(&self) -> LightBasis {
+        self.basis
+    }
+
+    /// The cubemap layout of the values.
+    pub fn cubemap(&self) -> Cubemap {
+        match self.basis {
+            LightBasis::Cubemap(c) => c,
+        }
+    }
+
+    /// Integrate `env` (rotated by `rotation` radians about +Y) over every texel of the
+    /// cubemap `basis`.
+    pub fn from_env(env: &EnvMap, basis: LightBasis, rotation: f64) -> Self {
+        let LightBasis::Cubemap(cubemap) = basis;
+        let resolution = cubemap.resolution;
         let n = cubemap.texel_count();
         // Sub-pixels small against a cubemap texel (about a quarter of its angular size).
         let s = 4usize.max((16.0 * resolution as f64 / env.height as f64).ceil() as usize);
@@ -247,18 +262,18 @@ impl LightVector {
                 },
             );
         let power = acc.iter().map(|p| [p[0] as f32, p[1] as f32, p[2] as f32]).collect();
-        Self { cubemap, power }
+        Self { basis, power }
     }
 
     /// A light vector of constant radiance `rgb` in every direction: `L_k = rgb * omega_k`.
-    pub fn constant(resolution: u32, rgb: Rgb) -> Self {
-        let cubemap = Cubemap::new(resolution);
+    pub fn constant(basis: LightBasis, rgb: Rgb) -> Self {
+        let LightBasis::Cubemap(cubemap) = basis;
         let power = cubemap
             .solid_angles()
             .iter()
             .map(|&w| [(rgb[0] as f64 * w) as f32, (rgb[1] as f64 * w) as f32, (rgb[2] as f64 * w) as f32])
             .collect();
-        Self { cubemap, power }
+        Self { basis, power }
     }
 
     /// Number of texels N.
@@ -272,9 +287,18 @@ impl LightVector {
 
     /// Mean radiance of texel `k` (power / solid angle), for drawing the background.
     pub fn radiance(&self, k: usize) -> Rgb {
-        let w = self.cubemap.texel_solid_angle(k) as f32;
+        let w = self.cubemap().texel_solid_angle(k) as f32;
         let p = self.power[k];
         [p[0] / w, p[1] / w, p[2] / w]
+    }
+
+    /// Multiply the brightest texel (by Rec. 709 luminance) by `factor`: the stiff "sun" case
+    /// of the experiments (`lighting.sun_boost`). Returns the texel, `None` for an empty `L`.
+    pub fn boost_brightest(&mut self, factor: f32) -> Option<usize> {
+        let lum = |p: &Rgb| crate::scene::image::luminance(*p);
+        let k = (0..self.len()).max_by(|&a, &b| lum(&self.power[a]).total_cmp(&lum(&self.power[b])))?;
+        self.power[k] = self.power[k].map(|v| v * factor);
+        Some(k)
     }
 
     /// Total power per channel (f64 sum).
@@ -307,17 +331,17 @@ mod tests {
     #[test]
     fn constant_map_gives_four_pi() {
         let env = EnvMap::constant(256, 128, [1.0, 2.0, 0.5]);
-        let l = LightVector::from_env(&env, 8, 0.3);
+        let l = LightVector::from_env(&env, LightBasis::cubemap(8).unwrap(), 0.3);
         let t = l.total();
         let fp = 4.0 * PI;
         assert!((t[0] - fp).abs() < 1e-5 * fp && (t[1] - 2.0 * fp).abs() < 1e-5 * fp);
         // Each texel receives close to its own solid angle: splatting misassigns at most the
         // sub-pixels along its border (sub-pixel 0.18 deg against a 11 deg texel: < 3%).
         for k in 0..l.len() {
-            let w = l.cubemap.texel_solid_angle(k);
+            let w = l.cubemap().texel_solid_angle(k);
             assert!((l.power[k][0] as f64 - w).abs() < 0.03 * w, "texel {k}: {} vs {w}", l.power[k][0]);
         }
-        assert!((LightVector::constant(8, [1.0; 3]).total()[0] - fp).abs() < 1e-5);
+        assert!((LightVector::constant(LightBasis::cubemap(8).unwrap(), [1.0; 3]).total()[0] - fp).abs() < 1e-5);
     }
 
     #[test]
@@ -327,10 +351,10 @@ mod tests {
         // A pixel near u = 0.25 (+X), slightly above the horizon.
         let (x, y) = (128, 100);
         env.pixels[y * w + x] = [1000.0, 1.0, 0.0];
-        let l = LightVector::from_env(&env, 32, 0.0);
+        let l = LightVector::from_env(&env, LightBasis::cubemap(32).unwrap(), 0.0);
         let d = latlong_direction((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64);
-        let k = l.cubemap.texel_of(d.as_vec3());
-        assert_eq!(l.cubemap.texel_coords(k).0, 0, "must be on the +X face");
+        let k = l.cubemap().texel_of(d.as_vec3());
+        assert_eq!(l.cubemap().texel_coords(k).0, 0, "must be on the +X face");
         let energy = 1000.0 * pixel_solid_angle(w, h, y);
         assert!((l.power[k][0] as f64 - energy).abs() < 1e-6 * energy);
         assert!((l.total()[0] - energy).abs() < 1e-6 * energy);
@@ -341,10 +365,10 @@ mod tests {
         let (w, h) = (256, 128);
         let mut env = EnvMap::constant(w, h, [0.0; 3]);
         env.pixels[64 * w] = [1.0; 3]; // u ~ 0: looks down -Z at the horizon
-        let l = LightVector::from_env(&env, 16, std::f64::consts::FRAC_PI_2);
+        let l = LightVector::from_env(&env, LightBasis::cubemap(16).unwrap(), std::f64::consts::FRAC_PI_2);
         let k = (0..l.len()).max_by(|&a, &b| l.power[a][0].total_cmp(&l.power[b][0])).unwrap();
         // Rotating -Z by +90 degrees about +Y gives -X.
-        assert_eq!(l.cubemap.texel_coords(k).0, 1);
+        assert_eq!(l.cubemap().texel_coords(k).0, 1);
     }
 
     #[test]

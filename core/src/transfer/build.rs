@@ -2,18 +2,8 @@
 //! [`VisibilitySampler::point_counts`] query per vertex, in parallel over vertices (rayon),
 //! assembled into rows `v * M + j` with sorted column indices.
 //!
-//! * **Ray origin.** Each vertex traces from `p + eps n` with `eps = 1e-4 * diagonal`
-//!   ([`ORIGIN_OFFSET`]): relative to the mesh's scale so any unit works; far above the f32
-//!   rounding of positions (~1e-7 relative), so the vertex's own triangles are not hit by
-//!   rays above its tangent plane through rounding noise; far below any feature (bunny:
-//!   1.4e-3 against edges of ~0.2), so real close occluders (creases, concavities) still
-//!   occlude. Rays start at `t = 0` from the offset point.
-//! * **Scale.** The BVH is built on the mesh translated to its bounding-box centre and
-//!   scaled to a diagonal of [`BVH_DIAGONAL`], a similarity transform that leaves every
-//!   visibility answer unchanged but (a) keeps f32 precision for meshes far from the origin
-//!   and (b) keeps obvhs's absolute node epsilon (`1e-4` world units: boxes the ray leaves
-//!   before `t = 1e-4` are skipped) negligible against the origin offset whatever the
-//!   mesh's units (a 1 mm mesh would otherwise lose its nearby occluders).
+//! * **Geometry.** Frames, the normalised BVH and the ray origins come from a
+//!   [`TransferScene`] (see there for the origin offset and the normalisation).
 //! * **Determinism.** Each vertex's entries depend only on that vertex (the per-thread
 //!   scratch is reset per query and the ray order within a vertex is fixed), and rayon's
 //!   indexed `collect` keeps vertex order, so `T` does not depend on the thread count.
@@ -22,19 +12,13 @@
 //!   so a vertex has at most `N / 2` non-zeros. Requests whose worst case exceeds
 //!   [`MAX_TRANSFER_BYTES`] are refused before anything is allocated.
 
-use super::{TransferMatrix, TransferSettings, VisibilitySampler, VisibilityScratch};
+use super::{TransferMatrix, TransferScene, TransferSettings, VisibilitySampler, VisibilityScratch};
 use crate::error::{CoreError, Result};
-use crate::geometry::{vertex_frames, Mesh, SceneBvh};
+use crate::geometry::Mesh;
 use rayon::prelude::*;
+use std::ops::Range;
 use std::sync::Mutex;
 use std::time::Instant;
-
-/// Ray origins are offset along the vertex normal by this fraction of the mesh's bounding
-/// box diagonal (see the module docs).
-pub const ORIGIN_OFFSET: f32 = 1e-4;
-
-/// The diagonal of the normalised copy of the mesh the BVH is built on (module docs).
-pub const BVH_DIAGONAL: f32 = 1024.0;
 
 /// Largest worst-case memory a transfer build may need (8 GiB): see [`worst_case_bytes`].
 pub const MAX_TRANSFER_BYTES: u64 = 8 << 30;
@@ -69,8 +53,8 @@ pub struct TransferStats {
 /// Worst-case peak bytes of a build of `vertices` vertices: `vertices * N/2` non-zeros at
 /// [`BYTES_PER_NONZERO`] plus the row pointers.
 pub fn worst_case_bytes(vertices: usize, settings: &TransferSettings) -> u64 {
-    let n = 6 * (settings.cubemap_resolution as u64).pow(2);
-    let m = (settings.local_grid as u64).pow(2);
+    let n = settings.light_basis().len() as u64;
+    let m = settings.local_basis().len() as u64;
     let nnz = vertices as u64 * (n / 2);
     nnz.saturating_mul(BYTES_PER_NONZERO)
         .saturating_add((vertices as u64 * m + 1).saturating_mul(std::mem::size_of::<usize>() as u64))
@@ -91,58 +75,60 @@ pub fn build(
     progress: Option<&(dyn Fn(usize) + Sync)>,
 ) -> Result<TransferBuild> {
     let start = Instant::now();
-    settings.validate()?;
-    let s = settings.supersampling() as u64;
-    if s * s > u16::MAX as u64 {
-        return Err(CoreError::Invalid(format!(
-            "supersampling {s} (visibility_resolution / cubemap_resolution) gives more than 65535 children per texel"
-        )));
-    }
-    let vertices = mesh.vertex_count();
+    check_size(mesh.vertex_count(), settings)?;
+    let scene = TransferScene::new(mesh)?;
+    let mut b = build_range(&scene, settings, 0..mesh.vertex_count(), progress)?;
+    b.stats.seconds = start.elapsed().as_secs_f64();
+    b.stats.rays_per_second = b.stats.rays_traced as f64 / b.stats.seconds.max(1e-12);
+    Ok(b)
+}
+
+/// Refuse a build whose worst case exceeds [`MAX_TRANSFER_BYTES`], before allocating.
+fn check_size(vertices: usize, settings: &TransferSettings) -> Result<()> {
     let bytes = worst_case_bytes(vertices, settings);
     if bytes > MAX_TRANSFER_BYTES {
         return Err(CoreError::TooLarge(format!(
-            "transfer matrix for {vertices} vertices at cubemap {r} and local grid {m}x{m}: up to {nnz} non-zeros, \
+            "transfer matrix for {vertices} vertices at {light} and {local}: up to {nnz} non-zeros, \
              {gib:.1} GiB worst case, over the {lim} GiB limit (MAX_TRANSFER_BYTES)",
-            r = settings.cubemap_resolution,
-            m = settings.local_grid,
-            nnz = vertices as u64 * 3 * (settings.cubemap_resolution as u64).pow(2),
+            light = settings.light_basis(),
+            local = settings.local_basis(),
+            nnz = vertices as u64 * (settings.light_basis().len() as u64 / 2),
             gib = bytes as f64 / (1u64 << 30) as f64,
             lim = MAX_TRANSFER_BYTES >> 30,
         )));
     }
-    if let Some((t, &bad)) = mesh.triangles.iter().enumerate().find(|(_, t)| t.iter().any(|&i| i as usize >= vertices))
-    {
+    Ok(())
+}
+
+/// Build the rows of `T` for the vertices in `range` of `scene` (a shard of the whole
+/// matrix: its row `i * M + j` is row `(range.start + i) * M + j` of the full `T`, bit for
+/// bit). `progress` counts the range's vertices finished so far.
+pub fn build_range(
+    scene: &TransferScene,
+    settings: &TransferSettings,
+    range: Range<usize>,
+    progress: Option<&(dyn Fn(usize) + Sync)>,
+) -> Result<TransferBuild> {
+    let start = Instant::now();
+    if range.start > range.end || range.end > scene.vertex_count() {
         return Err(CoreError::Invalid(format!(
-            "triangle {t} refers to vertex {bad:?}, the mesh has {vertices} vertices"
+            "vertex range {range:?} is not within the scene's {} vertices",
+            scene.vertex_count()
         )));
     }
-    if let Some(v) = mesh.positions.iter().position(|p| !p.is_finite()) {
-        return Err(CoreError::Invalid(format!("vertex {v} has a non-finite position")));
-    }
-
-    let sampler = VisibilitySampler::new(settings)?;
-    let (frames, frame_fallbacks) = vertex_frames(mesh);
-    let (lo, hi) = mesh.bounds();
-    let centre = 0.5 * (lo + hi);
-    let diagonal = mesh.diagonal();
-    let scale = if diagonal > 0.0 { BVH_DIAGONAL / diagonal } else { 1.0 };
-    let positions: Vec<_> = mesh.positions.iter().map(|p| (*p - centre) * scale).collect();
-    let bvh = SceneBvh::build(&positions, &mesh.triangles);
-    let offset = ORIGIN_OFFSET * diagonal * scale;
-
+    let vertices = range.len();
+    check_size(vertices, settings)?;
+    let s = settings.supersampling() as u64;
+    let sampler = VisibilitySampler::new(settings);
     let m = sampler.grid.len();
     let done = Mutex::new(0usize);
-    let per_vertex: Vec<(VertexRows, u64)> = (0..vertices)
+    let per_vertex: Vec<(VertexRows, u64)> = range
         .into_par_iter()
         .map_init(
             || (VisibilityScratch::default(), Vec::<(u32, u16, u16)>::new()),
             |(scratch, entries), v| {
-                let frame = &frames[v];
-                let origin = positions[v] + frame.normal * offset;
                 entries.clear();
-                let rays =
-                    sampler.point_counts(&bvh, origin, frame, scratch, |j, k, c| entries.push((j, k as u16, c as u16)));
+                let rays = scene.vertex_counts(&sampler, v, scratch, |j, k, c| entries.push((j, k as u16, c as u16)));
                 // Counting sort by row j; entries arrive in increasing k, so each row's
                 // columns stay sorted.
                 let mut row_len = vec![0u32; m];
@@ -196,18 +182,18 @@ pub fn build(
             data.push(value_of[c as usize]);
         }
     }
-    let n = sampler.cubemap.texel_count();
+    let n = settings.light_basis().len();
     let csr = sprs::CsMat::try_new((vertices * m, n), indptr, indices, data)
         .map_err(|e| CoreError::Invalid(format!("internal error assembling T: {}", e.3)))?;
     let seconds = start.elapsed().as_secs_f64();
     Ok(TransferBuild {
-        matrix: TransferMatrix { vertices, local_dirs: m, cubemap: sampler.cubemap, csr },
+        matrix: TransferMatrix::new(settings.local_basis(), settings.light_basis(), csr)?,
         stats: TransferStats {
             rays_traced,
             seconds,
             rays_per_second: rays_traced as f64 / seconds.max(1e-12),
             value_histogram: (1..=s2).map(|c| (value_of[c], histogram[c])).collect(),
-            frame_fallbacks,
+            frame_fallbacks: scene.frame_fallbacks(),
         },
     })
 }

@@ -6,73 +6,159 @@
 //! the local bin of `F.to_local(d_k)`. Children below the tangent plane count as occluded
 //! (the surface itself blocks them). Everything else is 0, so values are multiples of
 //! `1 / s^2` in (0, 1]: {1/4, 1/2, 3/4, 1} at the reference `s = 2`.
+//!
+//! * [`TransferSettings`]: the bases of `T` (light: the cubemap; local: the bin grid) and the
+//!   visibility resolution, validated once.
+//! * [`TransferScene`]: the geometry every visibility query of a mesh shares (frames, the
+//!   normalised BVH, the origin offset), built once and used by the transfer build and by the
+//!   ray-traced reference, so both have the same visibility semantics.
+//! * [`build`] / [`build_range`]: `T` for a mesh, or for a range of its vertices (a shard).
+//! * [`TransferMatrix`]: the stacked result, carrying its bases.
 
 mod build;
+mod sampler;
+mod scene;
 
 pub use build::{
-    build, worst_case_bytes, TransferBuild, TransferStats, BVH_DIAGONAL, BYTES_PER_NONZERO, MAX_TRANSFER_BYTES,
-    ORIGIN_OFFSET,
+    build, build_range, worst_case_bytes, TransferBuild, TransferStats, BYTES_PER_NONZERO, MAX_TRANSFER_BYTES,
 };
+pub use sampler::{VisibilitySampler, VisibilityScratch};
+pub use scene::{TransferScene, BVH_DIAGONAL, ORIGIN_OFFSET};
 
+use crate::basis::{LightBasis, LocalBasis, TransferShape};
 use crate::error::{CoreError, Result};
-use crate::geometry::bvh::{Cone, RayDir};
-use crate::geometry::{SceneBvh, VertexFrame};
 use crate::sampling::{Cubemap, HemisphereGrid};
-use glam::{Vec3, Vec3A};
 
-/// Settings that determine `T`.
-#[derive(Clone, Debug, PartialEq)]
+/// Settings that determine `T`: the bases of its rows and columns and the visibility
+/// resolution. Constructed through [`TransferSettings::new`], so a value in hand is valid.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct TransferSettings {
-    /// Cubemap resolution R of the light (N = 6 R^2). Reference: 32.
-    pub cubemap_resolution: u32,
-    /// Resolution of the visibility cubemap; a multiple of `cubemap_resolution`.
-    /// Reference: 64 (2x2 box filter).
-    pub visibility_resolution: u32,
-    /// Local direction grid m (M = m^2 bins). Reference: 8.
-    pub local_grid: u32,
+    light: LightBasis,
+    visibility_resolution: u32,
+    local: LocalBasis,
 }
 
 impl Default for TransferSettings {
+    /// The reference settings: cubemap 6x32x32, visibility 6x64x64 (2x2 box filter), 8x8 bins.
     fn default() -> Self {
-        Self { cubemap_resolution: 32, visibility_resolution: 64, local_grid: 8 }
+        Self::new(32, 64, 8).expect("the reference settings are valid")
     }
 }
 
 impl TransferSettings {
-    /// Supersampling factor `s = visibility_resolution / cubemap_resolution`.
-    pub fn supersampling(&self) -> u32 {
-        self.visibility_resolution / self.cubemap_resolution.max(1)
-    }
-
-    /// Check the settings are usable.
-    pub fn validate(&self) -> Result<()> {
-        let (r, v, m) = (self.cubemap_resolution, self.visibility_resolution, self.local_grid);
-        if r == 0 || m == 0 || v == 0 {
-            return Err(CoreError::Invalid("cubemap, visibility and local grid resolutions must be positive".into()));
-        }
-        if v % r != 0 {
+    /// Light cubemap resolution `R` (N = 6 R^2), visibility cubemap resolution (a multiple of
+    /// `R`: the box filter's `s = visibility / R`), local bin grid `m` (M = m^2).
+    pub fn new(cubemap_resolution: u32, visibility_resolution: u32, local_grid: u32) -> Result<Self> {
+        let light = LightBasis::cubemap(cubemap_resolution)?;
+        let local = LocalBasis::bins(local_grid)?;
+        let r = cubemap_resolution;
+        if visibility_resolution == 0 || !visibility_resolution.is_multiple_of(r) {
             return Err(CoreError::Invalid(format!(
-                "visibility_resolution ({v}) must be a multiple of cubemap_resolution ({r})"
+                "visibility_resolution ({visibility_resolution}) must be a positive multiple of cubemap_resolution ({r})"
             )));
         }
-        if 6 * (r as u64).pow(2) > u16::MAX as u64 + 1 {
-            return Err(CoreError::Invalid(format!("cubemap_resolution {r} gives more than 65536 texels")));
+        let s = (visibility_resolution / r) as u64;
+        if s * s > u16::MAX as u64 {
+            return Err(CoreError::Invalid(format!(
+                "supersampling {s} (visibility_resolution / cubemap_resolution) gives more than 65535 children per texel"
+            )));
         }
-        Ok(())
+        Ok(Self { light, visibility_resolution, local })
+    }
+
+    /// These settings with another local grid `m`.
+    pub fn with_local_grid(&self, m: u32) -> Result<Self> {
+        Self::new(self.cubemap().resolution, self.visibility_resolution, m)
+    }
+
+    /// The basis of `L` and of `T`'s columns.
+    pub fn light_basis(&self) -> LightBasis {
+        self.light
+    }
+
+    /// The basis of `L*` and of each vertex's rows of `T`.
+    pub fn local_basis(&self) -> LocalBasis {
+        self.local
+    }
+
+    /// The light cubemap (R x R per face).
+    pub fn cubemap(&self) -> Cubemap {
+        match self.light {
+            LightBasis::Cubemap(c) => c,
+        }
+    }
+
+    /// The local bin grid (m x m).
+    pub fn local_grid(&self) -> HemisphereGrid {
+        match self.local {
+            LocalBasis::Bins(g) => g,
+        }
+    }
+
+    /// Resolution of the visibility cubemap.
+    pub fn visibility_resolution(&self) -> u32 {
+        self.visibility_resolution
+    }
+
+    /// Supersampling factor `s = visibility_resolution / cubemap_resolution`.
+    pub fn supersampling(&self) -> u32 {
+        self.visibility_resolution / self.cubemap().resolution
+    }
+
+    /// The shape of `T` for `vertices` vertices.
+    pub fn shape(&self, vertices: usize) -> TransferShape {
+        TransferShape::new(vertices, self.local, self.light)
     }
 }
 
-/// The stacked transfer matrix: row `v * M + j`, column = cubemap texel `k`.
-/// Values are visibility fractions in (0, 1], multiples of `1 / s^2` for supersampling `s`.
-#[derive(Clone, Debug)]
+/// The stacked transfer matrix: row `v * M + j`, column = light coefficient `k`. Values are
+/// visibility fractions in (0, 1], multiples of `1 / s^2` for supersampling `s`.
+///
+/// The bases are part of the value: `rows == vertices * local_basis.len()` and
+/// `cols == light_basis.len()` hold by construction ([`TransferMatrix::new`]).
+#[derive(Clone, Debug, PartialEq)]
 pub struct TransferMatrix {
-    pub vertices: usize,
-    pub local_dirs: usize,
-    pub cubemap: Cubemap,
-    pub csr: sprs::CsMat<f32>,
+    shape: TransferShape,
+    csr: sprs::CsMat<f32>,
 }
 
 impl TransferMatrix {
+    /// `T` in the given bases; the CSR's shape must be `(vertices * M, N)` and its values
+    /// finite, or the error says which does not hold.
+    pub fn new(local: LocalBasis, light: LightBasis, csr: sprs::CsMat<f32>) -> Result<Self> {
+        if !csr.is_csr() {
+            return Err(CoreError::Invalid("the transfer matrix must be stored by rows (CSR)".into()));
+        }
+        if csr.cols() != light.len() {
+            return Err(CoreError::Invalid(format!(
+                "the transfer matrix has {} columns, its light basis ({light}) has {}",
+                csr.cols(),
+                light.len()
+            )));
+        }
+        let shape = TransferShape::from_rows(csr.rows(), local, light)?;
+        if let Some(i) = csr.data().iter().position(|v| !v.is_finite()) {
+            return Err(CoreError::Invalid(format!("the transfer matrix's value {i} is not finite")));
+        }
+        Ok(Self { shape, csr })
+    }
+
+    pub fn shape(&self) -> TransferShape {
+        self.shape
+    }
+    pub fn local_basis(&self) -> LocalBasis {
+        self.shape.local
+    }
+    pub fn light_basis(&self) -> LightBasis {
+        self.shape.light
+    }
+    pub fn vertices(&self) -> usize {
+        self.shape.vertices
+    }
+    /// `M`, the rows per vertex.
+    pub fn local_dirs(&self) -> usize {
+        self.shape.local_dirs()
+    }
     pub fn rows(&self) -> usize {
         self.csr.rows()
     }
@@ -82,244 +168,13 @@ impl TransferMatrix {
     pub fn nnz(&self) -> usize {
         self.csr.nnz()
     }
-}
-
-/// Directions shared by every point's visibility query: coarse texel centres, their
-/// children in the visibility cubemap, and the local grid.
-pub struct VisibilitySampler {
-    pub settings: TransferSettings,
-    pub cubemap: Cubemap,
-    pub grid: HemisphereGrid,
-    coarse_dirs: Vec<Vec3>,
-    /// Children of coarse texel k: `fine_dirs[k * s^2 .. (k + 1) * s^2]`.
-    fine_dirs: Vec<Vec3>,
-    /// `fine_dirs` with reciprocals, as the BVH traversal wants them.
-    fine_rays: Vec<RayDir>,
-    s2: usize,
-    /// Tiles of `TILE x TILE` coarse texels (ragged at face edges): a cone containing all
-    /// their children's directions, and their texels in `tile_texels[range]`.
-    tiles: Vec<(Cone, std::ops::Range<usize>)>,
-    tile_texels: Vec<u32>,
-}
-
-/// Side of a tile in fine texels (about): tiles of `8 / s` coarse texels, 64 rays.
-const TILE_FINE: usize = 8;
-
-/// A tile whose cone query returns more candidates than this traces its rays through the
-/// BVH instead of testing the list. Tuned on the bunny (CPU seconds per build at tile 8:
-/// 3.9 with 8, 2.8 with 24, 2.6 with 64..256, 2.7 with no limit; tiles of 4 or 16 fine
-/// texels were slower or equal).
-const BRUTE_FORCE_MAX: usize = 96;
-
-/// Per-thread scratch state of [`VisibilitySampler::point_counts`], reset by every query (so
-/// results never depend on which thread, or which earlier query, used it).
-#[derive(Clone, Debug, Default)]
-pub struct VisibilityScratch {
-    /// Unoccluded children per coarse texel.
-    visible: Vec<u16>,
-    /// Candidate occluders of the current tile.
-    candidates: Vec<u32>,
-    /// Tiles traced by brute force over their candidates / through the BVH (last query).
-    #[cfg(test)]
-    paths: [u32; 2],
-}
-
-impl VisibilitySampler {
-    pub fn new(settings: &TransferSettings) -> Result<Self> {
-        settings.validate()?;
-        let cubemap = Cubemap::new(settings.cubemap_resolution);
-        let fine = Cubemap::new(settings.visibility_resolution);
-        let s = settings.supersampling() as usize;
-        let coarse_dirs = (0..cubemap.texel_count()).map(|k| cubemap.texel_direction(k)).collect();
-        let mut fine_dirs = Vec::with_capacity(fine.texel_count());
-        for k in 0..cubemap.texel_count() {
-            let (face, row, col) = cubemap.texel_coords(k);
-            for a in 0..s {
-                for b in 0..s {
-                    fine_dirs.push(fine.texel_direction(fine.texel_index(face, row * s + a, col * s + b)));
-                }
-            }
-        }
-        // Tiles and their cones. The cone axis is the normalised mean of the children's
-        // directions; the half-angle the largest angle to one of them, computed in f64 and
-        // widened by 1e-5 rad so the f32 tests stay conservative.
-        let r = settings.cubemap_resolution as usize;
-        let t = (TILE_FINE / s).max(1);
-        let mut tiles = vec![];
-        let mut tile_texels = vec![];
-        for face in 0..6 {
-            for r0 in (0..r).step_by(t) {
-                for c0 in (0..r).step_by(t) {
-                    let start = tile_texels.len();
-                    let mut sum = glam::DVec3::ZERO;
-                    for row in r0..(r0 + t).min(r) {
-                        for col in c0..(c0 + t).min(r) {
-                            let k = cubemap.texel_index(face, row, col);
-                            tile_texels.push(k as u32);
-                            sum +=
-                                fine_dirs[k * s * s..(k + 1) * s * s].iter().map(|d| d.as_dvec3()).sum::<glam::DVec3>();
-                        }
-                    }
-                    let axis = sum.normalize();
-                    let max_angle = tile_texels[start..]
-                        .iter()
-                        .flat_map(|&k| &fine_dirs[k as usize * s * s..(k as usize + 1) * s * s])
-                        .map(|d| d.as_dvec3().normalize().dot(axis).clamp(-1.0, 1.0).acos())
-                        .fold(0.0, f64::max)
-                        + 1e-5;
-                    let cone =
-                        Cone { axis: axis.as_vec3().into(), cos: max_angle.cos() as f32, sin: max_angle.sin() as f32 };
-                    tiles.push((cone, start..tile_texels.len()));
-                }
-            }
-        }
-        Ok(Self {
-            tiles,
-            tile_texels,
-            settings: settings.clone(),
-            cubemap,
-            grid: HemisphereGrid::new(settings.local_grid),
-            coarse_dirs,
-            fine_rays: fine_dirs.iter().map(|d| RayDir::new(*d)).collect(),
-            fine_dirs,
-            s2: s * s,
-        })
+    /// The sparse matrix itself (rows `v * M + j`).
+    pub fn csr(&self) -> &sprs::CsMat<f32> {
+        &self.csr
     }
-
-    /// Transfer entries of one shading point at `origin` (already offset off the surface)
-    /// with frame `frame`: calls `emit(j, k, value)` for every non-zero, in increasing `k`.
-    /// Returns the number of rays traced.
-    pub fn point_entries(
-        &self,
-        bvh: &SceneBvh,
-        origin: Vec3,
-        frame: &VertexFrame,
-        mut emit: impl FnMut(u32, u32, f32),
-    ) -> u64 {
-        let inv = 1.0 / self.s2 as f32;
-        let mut scratch = VisibilityScratch::default();
-        self.point_counts(bvh, origin, frame, &mut scratch, |j, k, c| emit(j, k, c as f32 * inv))
-    }
-
-    /// [`Self::point_entries`] with the number of unoccluded children (`1..=s^2`) instead of
-    /// the fraction, and caller-owned scratch.
-    pub fn point_counts(
-        &self,
-        bvh: &SceneBvh,
-        origin: Vec3,
-        frame: &VertexFrame,
-        scratch: &mut VisibilityScratch,
-        mut emit: impl FnMut(u32, u32, u32),
-    ) -> u64 {
-        // Same answers as `point_entries_reference`, organised by tiles: a tile whose cone
-        // lies below the horizon is skipped; otherwise one cone query lists the triangles its
-        // rays could hit (above the tangent plane, inside the cone), usually none or a few,
-        // and its rays are tested against that list (or through the BVH if it is long).
-        let n = frame.normal;
-        let n_a = Vec3A::from(n);
-        let o = Vec3A::from(origin);
-        #[cfg(test)]
-        {
-            scratch.paths = [0, 0];
-        }
-        let VisibilityScratch { visible, candidates, .. } = scratch;
-        visible.clear();
-        visible.resize(self.coarse_dirs.len(), 0);
-        let mut rays = 0u64;
-        let mut cache = u32::MAX;
-        #[cfg(test)]
-        let mut path_counts = [0u32; 2];
-        for (cone, texels) in &self.tiles {
-            // All directions of the tile are within the cone's angle of its axis: if the
-            // axis is more than 90 degrees + that angle from n, all are below the horizon.
-            if cone.axis.dot(n_a) < -cone.sin - 1e-6 {
-                continue;
-            }
-            let mut queried = false;
-            let mut brute = true;
-            for &k in &self.tile_texels[texels.clone()] {
-                let k = k as usize;
-                if self.coarse_dirs[k].dot(n) <= 0.0 {
-                    continue;
-                }
-                let range = k * self.s2..(k + 1) * self.s2;
-                let mut count = 0u16;
-                for (c, ray) in self.fine_dirs[range.clone()].iter().zip(&self.fine_rays[range]) {
-                    if c.dot(n) <= 0.0 {
-                        continue;
-                    }
-                    if !queried {
-                        candidates.clear();
-                        bvh.cone_candidates(o, n_a, cone, candidates);
-                        brute = candidates.len() <= BRUTE_FORCE_MAX;
-                        queried = true;
-                        #[cfg(test)]
-                        {
-                            path_counts[!brute as usize] += 1;
-                        }
-                    }
-                    rays += 1;
-                    let occluded = if brute {
-                        !candidates.is_empty() && bvh.occluded_among(o, ray, candidates, &mut cache)
-                    } else {
-                        bvh.occluded_cached(o, ray, &mut cache)
-                    };
-                    count += !occluded as u16;
-                }
-                visible[k] = count;
-            }
-        }
-        for (k, &count) in visible.iter().enumerate() {
-            if count == 0 {
-                continue;
-            }
-            let Some(j) = self.grid.bin_of(frame.to_local(self.coarse_dirs[k])) else {
-                continue;
-            };
-            emit(j, k as u32, count as u32);
-        }
-        #[cfg(test)]
-        {
-            scratch.paths = path_counts;
-        }
-        rays
-    }
-
-    /// The plain definition, kept as the reference the fast paths are tested against
-    /// (rays start at `geometry::bvh::RAY_TMIN`, see there).
-    #[cfg(test)]
-    pub(crate) fn point_entries_reference(
-        &self,
-        bvh: &SceneBvh,
-        origin: Vec3,
-        frame: &VertexFrame,
-        mut emit: impl FnMut(u32, u32, f32),
-    ) -> u64 {
-        let n = frame.normal;
-        let mut rays = 0u64;
-        let inv = 1.0 / self.s2 as f32;
-        for (k, d) in self.coarse_dirs.iter().enumerate() {
-            if d.dot(n) <= 0.0 {
-                continue;
-            }
-            let Some(j) = self.grid.bin_of(frame.to_local(*d)) else {
-                continue;
-            };
-            let mut visible = 0u32;
-            for c in &self.fine_dirs[k * self.s2..(k + 1) * self.s2] {
-                if c.dot(n) <= 0.0 {
-                    continue;
-                }
-                rays += 1;
-                if !bvh.occluded(origin, *c, crate::geometry::bvh::RAY_TMIN, f32::INFINITY) {
-                    visible += 1;
-                }
-            }
-            if visible > 0 {
-                emit(j, k as u32, visible as f32 * inv);
-            }
-        }
-        rays
+    /// The sparse matrix, by value.
+    pub fn into_csr(self) -> sprs::CsMat<f32> {
+        self.csr
     }
 }
 

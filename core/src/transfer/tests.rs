@@ -5,6 +5,8 @@
 use super::*;
 use crate::geometry::shapes::{closed_box, grid_plane, uv_sphere};
 use crate::geometry::{vertex_frames, Mesh};
+use crate::geometry::{SceneBvh, VertexFrame};
+use glam::Vec3;
 use rand::{Rng, SeedableRng};
 use std::f64::consts::PI;
 
@@ -24,14 +26,14 @@ fn sphere_on_plane() -> Mesh {
 }
 
 fn small() -> TransferSettings {
-    TransferSettings { cubemap_resolution: 8, visibility_resolution: 16, local_grid: 4 }
+    TransferSettings::new(8, 16, 4).unwrap()
 }
 
 /// Row `v * M + j` entries `(j, k, value)` of vertex `v`.
 fn vertex_entries(t: &TransferMatrix, v: usize) -> Vec<(usize, usize, f32)> {
     let mut out = vec![];
-    for j in 0..t.local_dirs {
-        let row = t.csr.outer_view(v * t.local_dirs + j).unwrap();
+    for j in 0..t.local_dirs() {
+        let row = t.csr().outer_view(v * t.local_dirs() + j).unwrap();
         out.extend(row.iter().map(|(k, &x)| (j, k, x)));
     }
     out
@@ -44,9 +46,9 @@ fn weighted_sum(t: &TransferMatrix, v: usize, w: impl Fn(usize) -> f64) -> f64 {
 
 fn assert_well_formed(t: &TransferMatrix, s: u32) {
     let s2 = (s * s) as f32;
-    assert_eq!(t.rows(), t.vertices * t.local_dirs);
-    assert_eq!(t.cols(), t.cubemap.texel_count());
-    for (r, row) in t.csr.outer_iterator().enumerate() {
+    assert_eq!(t.rows(), t.vertices() * t.local_dirs());
+    assert_eq!(t.cols(), t.light_basis().cubemap_layout().unwrap().texel_count());
+    for (r, row) in t.csr().outer_iterator().enumerate() {
         let idx = row.indices();
         assert!(idx.windows(2).all(|w| w[0] < w[1]), "row {r}: columns not strictly increasing");
         for &x in row.data() {
@@ -67,7 +69,7 @@ fn open_plane_sees_exactly_the_upper_hemisphere() {
         assert_well_formed(t, settings.supersampling());
         let centre = 12; // (ix, iz) = (2, 2): the middle vertex, normal exactly +Y.
         assert_eq!(mesh.positions[centre], Vec3::ZERO);
-        let omega = t.cubemap.solid_angles();
+        let omega = t.light_basis().cubemap_layout().unwrap().solid_angles();
         // With the normal along +Y and R even, the horizon y = 0 runs along texel edges of
         // both the coarse and the fine cubemap: every texel is entirely above or below, no
         // centre lies on it, and the plane is never hit from above. So T = 1 exactly on the
@@ -81,20 +83,24 @@ fn open_plane_sees_exactly_the_upper_hemisphere() {
         }
         // Every entry sits in the local bin of its texel centre.
         let (frames, _) = vertex_frames(&mesh);
-        let grid = HemisphereGrid::new(settings.local_grid);
+        let grid = settings.local_grid();
         for (j, k, _) in vertex_entries(t, centre) {
-            assert_eq!(grid.bin_of(frames[centre].to_local(t.cubemap.texel_direction(k))), Some(j as u32));
+            assert_eq!(
+                grid.bin_of(frames[centre].to_local(t.light_basis().cubemap_layout().unwrap().texel_direction(k))),
+                Some(j as u32)
+            );
         }
         // Cosine-weighted: the midpoint rule over texels of int cos dw = pi. Measured error:
         // 3.3e-4 relative at R = 32, 5.1e-3 at R = 8; it shrinks as 1/R^2 (the texel
         // solid angle), as a midpoint rule should. Tolerance 1/R^2 relative (9.8e-4 at
         // R = 32, 1.6e-2 at R = 8) holds with a margin of 3.
-        let cosine = weighted_sum(t, centre, |k| omega[k] * t.cubemap.texel_direction_f64(k).y);
-        let r = settings.cubemap_resolution as f64;
+        let cosine =
+            weighted_sum(t, centre, |k| omega[k] * t.light_basis().cubemap_layout().unwrap().texel_direction_f64(k).y);
+        let r = settings.cubemap().resolution as f64;
         assert!((cosine - PI).abs() < PI / (r * r), "R={r}: {cosine} vs pi, rel {}", (cosine - PI).abs() / PI);
         // Each local bin receives about its 2 pi / M of solid angle (coarse texels snap to
         // bins, so only approximately): here just check every bin got something.
-        let mut per_bin = vec![0.0; t.local_dirs];
+        let mut per_bin = vec![0.0; t.local_dirs()];
         for (j, k, x) in vertex_entries(t, centre) {
             per_bin[j] += x as f64 * omega[k];
         }
@@ -125,7 +131,7 @@ fn sphere_on_plane_occludes_the_plane_near_its_base() {
     let settings = TransferSettings::default();
     let t = build(&mesh, &settings, None).unwrap().matrix;
     assert_well_formed(&t, 2);
-    let omega = t.cubemap.solid_angles();
+    let omega = t.light_basis().cubemap_layout().unwrap().solid_angles();
     let vertex_at = |p: Vec3| mesh.positions.iter().position(|q| *q == p).unwrap();
     // Plane vertex at horizontal distance x from the contact point: the sphere (centre at
     // distance D = sqrt(x^2 + 1)) hides a cone of half-angle asin(1/D), entirely above the
@@ -166,8 +172,8 @@ fn fast_kernel_matches_the_plain_definition() {
     }
     let bvh = SceneBvh::build(&positions, &triangles);
     let mut paths = [0u32; 2];
-    for settings in [small(), TransferSettings { cubemap_resolution: 16, visibility_resolution: 48, local_grid: 5 }] {
-        let sampler = VisibilitySampler::new(&settings).unwrap();
+    for settings in [small(), TransferSettings::new(16, 48, 5).unwrap()] {
+        let sampler = VisibilitySampler::new(&settings);
         for q in 0..40 {
             let origin = Vec3::new(rng.gen_range(-1.2..1.2), rng.gen_range(-1.2..1.2), rng.gen_range(-1.2..1.2));
             let n = if q % 10 == 0 {
@@ -203,7 +209,7 @@ fn fast_kernel_matches_the_plain_definition_on_the_bunny() {
     let mesh = Mesh::load_obj(&path).unwrap().mesh;
     let (frames, _) = vertex_frames(&mesh);
     let bvh = SceneBvh::build(&mesh.positions, &mesh.triangles);
-    let sampler = VisibilitySampler::new(&TransferSettings::default()).unwrap();
+    let sampler = VisibilitySampler::new(&TransferSettings::default());
     let offset = 1e-4 * mesh.diagonal();
     let mut occluded_some = 0;
     for v in (0..mesh.vertex_count()).step_by(97) {
@@ -232,7 +238,7 @@ fn independent_of_thread_count() {
             .build()
             .unwrap()
             .install(|| build(&mesh, &settings, None).unwrap());
-        assert_eq!(b.matrix.csr, reference.matrix.csr, "{threads} threads");
+        assert_eq!(b.matrix.csr(), reference.matrix.csr(), "{threads} threads");
         assert_eq!(b.stats.rays_traced, reference.stats.rays_traced);
         assert_eq!(b.stats.value_histogram, reference.stats.value_histogram);
     }
@@ -241,7 +247,7 @@ fn independent_of_thread_count() {
     assert_eq!(hist.iter().map(|h| h.0).collect::<Vec<_>>(), vec![0.25, 0.5, 0.75, 1.0]);
     assert_eq!(hist.iter().map(|h| h.1).sum::<u64>(), reference.matrix.nnz() as u64);
     for &(v, c) in hist {
-        assert_eq!(reference.matrix.csr.data().iter().filter(|&&x| x == v).count() as u64, c);
+        assert_eq!(reference.matrix.csr().data().iter().filter(|&&x| x == v).count() as u64, c);
     }
 }
 
@@ -258,22 +264,22 @@ fn scale_and_position_do_not_change_t() {
     let settings = small();
     let a = build(&mesh, &settings, None).unwrap().matrix;
     let b = build(&tiny, &settings, None).unwrap().matrix;
-    assert_eq!(a.csr, b.csr);
+    assert_eq!(a.csr(), b.csr());
 }
 
 #[test]
 fn fine_local_grid_and_small_cubemap() {
     // 32x32 local directions (M = 1024) on a 16x16 cubemap.
-    let settings = TransferSettings { cubemap_resolution: 16, visibility_resolution: 32, local_grid: 32 };
+    let settings = TransferSettings::new(16, 32, 32).unwrap();
     let mesh = merge(&[grid_plane(4, 8.0), uv_sphere(Vec3::new(0.0, 1.0, 0.0), 1.0, 8, 16)]);
     let b = build(&mesh, &settings, None).unwrap();
     let t = &b.matrix;
-    assert_eq!((t.local_dirs, t.rows(), t.cols()), (1024, mesh.vertex_count() * 1024, 6 * 256));
+    assert_eq!((t.local_dirs(), t.rows(), t.cols()), (1024, mesh.vertex_count() * 1024, 6 * 256));
     assert_well_formed(t, 2);
     // The far plane corner (-4, 0, -4) is open: 2 pi exactly, as in the open-plane test
     // (the sphere is below its horizon? no: it is above, but at distance ~5.7 it hides a
     // cone of ~10 degrees, so check against the analytic cap instead).
-    let omega = t.cubemap.solid_angles();
+    let omega = t.light_basis().cubemap_layout().unwrap().solid_angles();
     let corner = mesh.positions.iter().position(|p| *p == Vec3::new(-4.0, 0.0, -4.0)).unwrap();
     let seen = weighted_sum(t, corner, |k| omega[k]);
     let d2 = 32.0 + 1.0;
@@ -286,7 +292,8 @@ fn fine_local_grid_and_small_cubemap() {
     for v in [0, corner, mesh.vertex_count() - 1] {
         for (j, k, _) in vertex_entries(t, v) {
             assert_eq!(
-                HemisphereGrid::new(32).bin_of(frames[v].to_local(t.cubemap.texel_direction(k))),
+                HemisphereGrid::new(32)
+                    .bin_of(frames[v].to_local(t.light_basis().cubemap_layout().unwrap().texel_direction(k))),
                 Some(j as u32)
             );
         }
@@ -307,13 +314,14 @@ fn progress_counts_every_vertex_in_order() {
 fn refuses_requests_too_large_before_allocating() {
     // 30 000 vertices at R = 100 (N = 60 000): up to 9e8 non-zeros, ~13 GiB.
     let mesh = Mesh { positions: vec![Vec3::ZERO; 30_000], uvs: None, triangles: vec![], materials: None };
-    let settings = TransferSettings { cubemap_resolution: 100, visibility_resolution: 200, local_grid: 8 };
+    let settings = TransferSettings::new(100, 200, 8).unwrap();
     assert!(worst_case_bytes(30_000, &settings) > MAX_TRANSFER_BYTES);
     match build(&mesh, &settings, None) {
         Err(CoreError::TooLarge(msg)) => assert!(msg.contains("8 GiB") && msg.contains("MAX_TRANSFER_BYTES"), "{msg}"),
         other => panic!("expected TooLarge, got {other:?}"),
     }
     // Bad settings are refused too.
-    let bad = TransferSettings { cubemap_resolution: 32, visibility_resolution: 48, local_grid: 8 };
-    assert!(matches!(build(&grid_plane(1, 1.0), &bad, None), Err(CoreError::Invalid(_))));
+    assert!(matches!(TransferSettings::new(32, 48, 8), Err(CoreError::Invalid(_))));
+    assert!(matches!(TransferSettings::new(32, 64, 0), Err(CoreError::Invalid(_))));
+    assert!(matches!(TransferSettings::new(105, 210, 8), Err(CoreError::Invalid(_))));
 }

@@ -123,9 +123,9 @@ fn validate_sparse(form: &CompressedForm) -> Check {
     if col_idx.len() != values.len() {
         return Err(format!("sparse: {} column indices but {} values", col_idx.len(), values.len()));
     }
-    check_ptr("sparse", "row_ptr", row_ptr, form.rows, values.len())?;
-    if let Some(i) = col_idx.iter().position(|&c| c as usize >= form.cols) {
-        return Err(format!("sparse: col_idx[{i}] = {} is not below cols = {}", col_idx[i], form.cols));
+    check_ptr("sparse", "row_ptr", row_ptr, form.rows(), values.len())?;
+    if let Some(i) = col_idx.iter().position(|&c| c as usize >= form.cols()) {
+        return Err(format!("sparse: col_idx[{i}] = {} is not below cols = {}", col_idx[i], form.cols()));
     }
     if let Some(i) = values.iter().position(|v| !v.is_finite()) {
         return Err(format!("sparse: values[{i}] = {} is not finite", values[i]));
@@ -148,13 +148,13 @@ fn validate_bicluster(form: &CompressedForm) -> Check {
         return Err("bicluster: bc_cols and bc_vals differ in length".into());
     }
     check_ptr("bicluster", "bc_col_ptr", bc_col_ptr, nb, bc_cols.len())?;
-    if bc_cols.iter().any(|&k| k as usize >= form.cols) {
+    if bc_cols.iter().any(|&k| k as usize >= form.cols()) {
         return Err("bicluster: a column index is out of range".into());
     }
     let row_ptr = form.u32s("row_ptr").map_err(err)?;
-    let blocks = if form.rows == 0 { 0 } else { form.rows.div_ceil(block_rows.max(1)) };
+    let blocks = if form.rows() == 0 { 0 } else { form.rows().div_ceil(block_rows.max(1)) };
     let base = form.u32s("block_bc_base").map_err(err)?;
-    if block_rows == 0 && form.rows > 0 {
+    if block_rows == 0 && form.rows() > 0 {
         return Err("bicluster: block_rows is 0".into());
     }
     check_ptr("bicluster", "block_bc_base", base, blocks, nb)?;
@@ -163,8 +163,8 @@ fn validate_bicluster(form: &CompressedForm) -> Check {
     } else {
         form.u32s("row_bc").map_err(err)?.iter().map(|&x| x as usize).collect()
     };
-    check_ptr("bicluster", "row_ptr", row_ptr, form.rows, ids.len())?;
-    for i in 0..form.rows {
+    check_ptr("bicluster", "row_ptr", row_ptr, form.rows(), ids.len())?;
+    for i in 0..form.rows() {
         let (lo, hi, off) = if local {
             let b = i / block_rows;
             (base[b] as usize, base[b + 1] as usize, base[b] as usize)
@@ -181,8 +181,8 @@ fn validate_bicluster(form: &CompressedForm) -> Check {
 /// Row lists, coefficient indices below N = 6 R^2, finite values.
 fn validate_haar(form: &CompressedForm) -> Check {
     let r = form.meta("resolution").map_err(err)? as usize;
-    if r == 0 || !r.is_power_of_two() || 6 * r * r != form.cols {
-        return Err(format!("haar: resolution {r} does not give {} columns", form.cols));
+    if r == 0 || !r.is_power_of_two() || 6 * r * r != form.cols() {
+        return Err(format!("haar: resolution {r} does not give {} columns", form.cols()));
     }
     let row_ptr = form.u32s("row_ptr").map_err(err)?;
     let idx = form.u16s("coeff_idx").map_err(err)?;
@@ -203,8 +203,8 @@ fn validate_haar(form: &CompressedForm) -> Check {
     if n != idx.len() {
         return Err("haar: coefficient indices and values differ in length".into());
     }
-    check_ptr("haar", "row_ptr", row_ptr, form.rows, idx.len())?;
-    if idx.iter().any(|&k| k as usize >= form.cols) {
+    check_ptr("haar", "row_ptr", row_ptr, form.rows(), idx.len())?;
+    if idx.iter().any(|&k| k as usize >= form.cols()) {
         return Err("haar: a coefficient index is out of range".into());
     }
     Ok(())
@@ -217,11 +217,12 @@ fn validate_cpca(form: &CompressedForm) -> Check {
     let basis = form.f32s("basis").map_err(err)?;
     let cluster = form.u16s("cluster").map_err(err)?;
     let coeffs = form.f32s("coeffs").map_err(err)?;
-    let expect = k.checked_mul(c + 1).and_then(|x| x.checked_mul(form.cols));
-    if expect != Some(basis.len()) || cluster.len() != form.rows || Some(coeffs.len()) != form.rows.checked_mul(c) {
+    let expect = k.checked_mul(c + 1).and_then(|x| x.checked_mul(form.cols()));
+    if expect != Some(basis.len()) || cluster.len() != form.rows() || Some(coeffs.len()) != form.rows().checked_mul(c) {
         return Err(format!(
             "cpca: array lengths do not match K = {k}, C = {c}, N = {}, rows = {}",
-            form.cols, form.rows
+            form.cols(),
+            form.rows()
         ));
     }
     if let Some(r) = cluster.iter().position(|&id| id as usize > k) {

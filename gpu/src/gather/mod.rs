@@ -26,6 +26,7 @@ pub mod program;
 use crate::context::{bytes_to_f32, GpuContext};
 use crate::error::{GpuError, Result};
 use crate::timing::{measure, Timing};
+use biscale_core::basis::TransferShape;
 use biscale_core::compress::CompressedForm;
 use biscale_core::gather::LocalRadiance;
 use biscale_core::sampling::LightVector;
@@ -63,9 +64,7 @@ struct Pass {
 pub struct GpuGather {
     ctx: GpuContext,
     kind: String,
-    rows: usize,
-    cols: usize,
-    local_dirs: usize,
+    shape: TransferShape,
     light: wgpu::Buffer,
     lstar: wgpu::Buffer,
     passes: Vec<Pass>,
@@ -84,13 +83,7 @@ impl GpuGather {
         if program.kind != form.kind {
             return Err(GpuError::Form(format!("program for '{}' given a '{}' form", program.kind, form.kind)));
         }
-        if form.local_dirs == 0 || !form.rows.is_multiple_of(form.local_dirs) {
-            return Err(GpuError::Form(format!(
-                "{} rows are not a whole number of {}-direction vertices",
-                form.rows, form.local_dirs
-            )));
-        }
-        for (what, n) in [("rows", form.rows), ("cols", form.cols)] {
+        for (what, n) in [("rows", form.rows()), ("cols", form.cols())] {
             if n > u32::MAX as usize / 3 {
                 return Err(GpuError::Form(format!("{what} = {n} does not fit 32-bit GPU indices")));
             }
@@ -138,7 +131,7 @@ impl GpuGather {
             };
             let buffer = match name {
                 "light" | "lstar" => {
-                    let (n, rw) = if name == "light" { (form.cols, false) } else { (form.rows, true) };
+                    let (n, rw) = if name == "light" { (form.cols(), false) } else { (form.rows(), true) };
                     if elem != Elem::F32 || read_only == rw {
                         return Err(wgsl_err(format!("'{name}' must be array<f32> with the prelude's access mode")));
                     }
@@ -247,7 +240,6 @@ impl GpuGather {
                 count: None,
             })
             .collect();
-        let vertices = form.rows / form.local_dirs;
         let label = format!("gather '{}'", program.kind);
         let max_groups = limits.max_compute_workgroups_per_dimension as u64;
         let mut passes = Vec::with_capacity(program.passes.len());
@@ -289,10 +281,10 @@ impl GpuGather {
                 });
             }
             let params = GatherParams {
-                rows: form.rows as u32,
-                cols: form.cols as u32,
-                local_dirs: form.local_dirs as u32,
-                vertices: vertices as u32,
+                rows: form.rows() as u32,
+                cols: form.cols() as u32,
+                local_dirs: form.local_dirs() as u32,
+                vertices: form.vertices() as u32,
                 threads: threads32,
                 pass_index: index as u32,
                 _pad: [0; 2],
@@ -342,9 +334,7 @@ impl GpuGather {
         Ok(Self {
             ctx: ctx.clone(),
             kind: form.kind.clone(),
-            rows: form.rows,
-            cols: form.cols,
-            local_dirs: form.local_dirs,
+            shape: form.shape(),
             light,
             lstar,
             passes,
@@ -365,11 +355,12 @@ impl GpuGather {
 
     /// Read `L*` back: `values[v * M + j]`.
     pub fn read_lstar(&self) -> Result<LocalRadiance> {
-        let bytes = self.ctx.read_buffer("L*", &self.lstar, 0, (self.rows * 12).max(4) as u64)?;
+        let rows = self.shape.rows();
+        let bytes = self.ctx.read_buffer("L*", &self.lstar, 0, (rows * 12).max(4) as u64)?;
         let mut f = bytes_to_f32(&bytes);
-        f.truncate(self.rows * 3);
+        f.truncate(rows * 3);
         let values = f.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        Ok(LocalRadiance { vertices: self.rows / self.local_dirs, local_dirs: self.local_dirs, values })
+        Ok(LocalRadiance::new(self.shape.local, self.shape.vertices, values)?)
     }
 
     /// Median gather time over `repetitions` runs with `light` (GPU timestamps per pass where
@@ -383,7 +374,7 @@ impl GpuGather {
     /// Overwrite every element of `L*` with `value` (tests poison it with NaN to prove every
     /// element is written).
     pub fn fill_lstar(&self, value: f32) -> Result<()> {
-        let data = vec![value; self.rows * 3];
+        let data = vec![value; self.shape.rows() * 3];
         self.ctx.scoped("filling L*", || {
             if !data.is_empty() {
                 self.ctx.queue.write_buffer(&self.lstar, 0, bytemuck::cast_slice(&data));
@@ -399,14 +390,18 @@ impl GpuGather {
     pub fn kind(&self) -> &str {
         &self.kind
     }
+    /// The shape of the form (and of the `L*` the gather leaves).
+    pub fn shape(&self) -> TransferShape {
+        self.shape
+    }
     pub fn rows(&self) -> usize {
-        self.rows
+        self.shape.rows()
     }
     pub fn local_dirs(&self) -> usize {
-        self.local_dirs
+        self.shape.local_dirs()
     }
     pub fn vertices(&self) -> usize {
-        self.rows / self.local_dirs
+        self.shape.vertices
     }
     /// Bytes of form arrays uploaded (after packing to 32-bit words).
     pub fn uploaded_bytes(&self) -> u64 {
@@ -414,11 +409,11 @@ impl GpuGather {
     }
 
     pub(crate) fn upload_light(&self, light: &LightVector) -> Result<()> {
-        if light.len() != self.cols {
+        if light.basis() != self.shape.light {
             return Err(GpuError::Input(format!(
-                "light vector has {} texels, the form has {} columns",
-                light.len(),
-                self.cols
+                "the light vector is in {}, the form's columns are {}",
+                light.basis(),
+                self.shape.light
             )));
         }
         if let Some(k) = light.power.iter().position(|p| !p.iter().all(|v| v.is_finite())) {

@@ -16,7 +16,10 @@ use biscale_core::sampling::EnvMap;
 use wgpu::util::DeviceExt;
 
 /// The WGSL of the tone-mapping pass.
-pub const PRESENT_WGSL: &str = include_str!("present.wgsl");
+/// The tone-mapping pass's WGSL ([`crate::shade::SHADE_PARAMS_WGSL`] prepended).
+pub fn present_wgsl() -> String {
+    format!("{}\n{}", crate::shade::SHADE_PARAMS_WGSL, include_str!("present.wgsl"))
+}
 
 /// Uniform block of the pass; mirrored by `ToneParams` in `present.wgsl`.
 #[repr(C)]
@@ -80,7 +83,7 @@ impl ToneMap {
         let (pipeline, layout, env_view) = ctx.scoped("building the tone-mapping pass", || {
             let module = ctx.device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some("present.wgsl"),
-                source: wgpu::ShaderSource::Wgsl(PRESENT_WGSL.into()),
+                source: wgpu::ShaderSource::Wgsl(present_wgsl().into()),
             });
             let uniform = |binding| wgpu::BindGroupLayoutEntry {
                 binding,
@@ -281,7 +284,7 @@ impl ToneMap {
         gather: &GpuGather,
         settings: &ToneMapSettings,
     ) -> Result<Rgba8Image> {
-        shader.check_lstar(gather.vertices(), gather.local_dirs())?;
+        shader.check_lstar(gather)?;
         let (w, h) = shader.size();
         let bind_group = shader.shade_bind_group(gather.lstar_buffer())?;
         let ctx = &self.ctx;

@@ -3,29 +3,10 @@
 // One full-screen triangle. Every target pixel reads the HDR image's pixel under it (nearest,
 // so a target of the image's size is a 1:1 copy), puts the environment behind uncovered
 // pixels (alpha 0) when one is bound, then applies the tone map of
-// shading::image::HdrImage::to_srgb8: value * 2^exposure, NaN to 0, clamped to [0, 1], and
+// biscale_core::scene::HdrImage::to_srgb8: value * 2^exposure, NaN to 0, clamped to [0, 1], and
 // sRGB-encoded here unless the target format encodes itself (an *Srgb format).
 
-// Mirror of the Rust `ShadeParams` (shade/shade.wgsl; 160 bytes).
-struct ShadeParams {
-    view_proj: mat4x4<f32>,
-    cam_right: vec3<f32>,
-    width: u32,
-    cam_up: vec3<f32>,
-    height: u32,
-    cam_forward: vec3<f32>,
-    local_dirs: u32,
-    camera_pos: vec3<f32>,
-    light_m: u32,
-    material_count: u32,
-    has_material_ids: u32,
-    vertex_count: u32,
-    triangle_count: u32,
-    pad0: u32,
-    pad1: u32,
-    pad2: u32,
-    pad3: u32,
-}
+// ShadeParams: see shade/shade_params.wgsl, prepended by the host.
 
 // Mirror of the Rust `ToneParams` (32 bytes).
 struct ToneParams {

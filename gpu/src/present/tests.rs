@@ -3,15 +3,14 @@
 
 use super::{Rgba8Image, ToneMap, ToneMapSettings};
 use crate::tests::gpu_or_skip;
-use crate::{GpuCamera, GpuContext, GpuGather, GpuMaterial, GpuShader, ShadeInputs, ShadedImage};
+use crate::{GpuContext, GpuGather, GpuShader};
 use biscale_compressors::sparse::Sparse;
-use biscale_compressors::testing::{random_light, random_transfer};
+use biscale_compressors::testing::{bins, random_light, random_transfer};
 use biscale_core::compress::{CompressContext, Compressor};
 use biscale_core::geometry::{shapes, VertexFrame};
 use biscale_core::sampling::EnvMap;
-use biscale_shading::btf::Btf;
-use biscale_shading::camera::Camera;
-use biscale_shading::image::{linear_to_srgb, HdrImage};
+use biscale_core::scene::image::linear_to_srgb;
+use biscale_core::scene::{Btf, Camera, Material, Render, ShadeScene};
 use glam::Vec3;
 
 const FORMATS: [wgpu::TextureFormat; 4] = [
@@ -23,38 +22,23 @@ const FORMATS: [wgpu::TextureFormat; 4] = [
 
 /// A Lambertian plane ([-1, 1]^2 in XZ) seen at a grazing angle so the top of the image is
 /// sky, with a random sparse T gathered on the GPU.
-fn scene(ctx: &GpuContext, cam: GpuCamera) -> (GpuShader, GpuGather) {
-    let mesh = shapes::grid_plane(6, 2.0);
+fn scene(ctx: &GpuContext, cam: Camera) -> (GpuShader, GpuGather) {
+    let mut mesh = shapes::grid_plane(6, 2.0);
+    mesh.uvs = None;
     let nv = mesh.positions.len();
     let frame = VertexFrame::from_normal_tangent(Vec3::Y, Vec3::X);
-    let btf = Btf::phong([0.6, 0.5, 0.4], [0.3, 0.3, 0.3], 16.0, 4, 4).unwrap();
-    let positions: Vec<[f32; 3]> = mesh.positions.iter().map(|p| p.to_array()).collect();
-    let inputs = ShadeInputs {
-        positions: &positions,
-        normals: &vec![frame.normal.to_array(); nv],
-        tangents: &vec![frame.tangent.to_array(); nv],
-        uvs: None,
-        triangles: &mesh.triangles,
-        materials: &[GpuMaterial {
-            btf_data: &btf.data,
-            btf_spatial: btf.spatial,
-            view_m: btf.view_grid.map(|g| g.m),
-            tiling: 1.0,
-        }],
-        triangle_materials: None,
-        light_m: btf.light_grid.m,
-        camera: cam,
-    };
-    let shader = GpuShader::new(ctx, &inputs).unwrap();
-    let t = random_transfer(nv, 16, 4, 0.3, 5);
+    let btf = Btf::phong([0.6, 0.5, 0.4], [0.3, 0.3, 0.3], 16.0, bins(4), 4).unwrap();
+    let scene = ShadeScene::new(mesh, vec![frame; nv], vec![Material::new(btf)], None).unwrap();
+    let shader = GpuShader::new(ctx, &scene, &cam).unwrap();
+    let t = random_transfer(nv, 4, 4, 0.3, 5);
     let form = Sparse.compress(&t, &CompressContext::default()).unwrap();
     let mut gather = GpuGather::new(ctx, &form).unwrap();
     gather.gather(&random_light(4, 6)).unwrap();
     (shader, gather)
 }
 
-fn camera(w: u32, h: u32) -> GpuCamera {
-    GpuCamera {
+fn camera(w: u32, h: u32) -> Camera {
+    Camera {
         position: Vec3::new(0.3, 0.6, 2.2),
         target: Vec3::new(0.0, 0.2, 0.0),
         up: Vec3::Y,
@@ -67,8 +51,8 @@ fn camera(w: u32, h: u32) -> GpuCamera {
 /// Exposures (stops) that map the brightest covered pixel to 4 (many clip), 0.9, 0.3, 0.05
 /// and 0.004 (the linear toe of the sRGB curve): the random scene has a small dynamic range,
 /// so several exposures are needed to compare the whole curve.
-fn exposures_for(img: &ShadedImage) -> Vec<f32> {
-    let max = img.pixels.iter().flat_map(|p| p.iter().copied()).fold(0.0f32, f32::max);
+fn exposures_for(img: &Render) -> Vec<f32> {
+    let max = img.image.pixels.iter().flat_map(|p| p.iter().copied()).fold(0.0f32, f32::max);
     assert!(max > 0.0, "the test scene must be lit");
     [4.0f32, 0.9, 0.3, 0.05, 0.004].iter().map(|t| (t / max).log2()).collect()
 }
@@ -88,19 +72,19 @@ fn tone_map_matches_the_cpu_tone_map_on_every_format() {
     let (w, h) = (48, 36);
     let (mut shader, gather) = scene(ctx, camera(w, h));
     let hdr = shader.shade(&gather).unwrap();
-    let covered = hdr.coverage.iter().filter(|&&c| c).count();
+    let covered = hdr.mask.iter().filter(|&&c| c).count();
     assert!(covered > (w * h / 8) as usize && covered < (w * h) as usize, "{covered} covered pixels");
     for format in FORMATS {
         let tm = ToneMap::new(ctx, format).unwrap();
         let (mut mid, mut clipped, mut toe) = (0, 0, 0);
         for exposure in exposures_for(&hdr) {
-            let cpu = HdrImage { width: w, height: h, pixels: hdr.pixels.clone() }.to_srgb8(exposure);
+            let cpu = hdr.image.to_srgb8(exposure);
             let settings = ToneMapSettings { exposure, env_rotation: 0.0, background: true };
             let gpu = tm.render_rgba8(&mut shader, &gather, &settings).unwrap();
             assert_eq!((gpu.width, gpu.height), (w, h));
             for i in 0..(w * h) as usize {
                 let g = px(&gpu, i);
-                if !hdr.coverage[i] {
+                if !hdr.mask[i] {
                     // No environment set: black background.
                     assert_eq!(g, [0, 0, 0], "{format:?} background pixel {i}");
                     continue;
@@ -162,7 +146,7 @@ fn background_is_the_rotated_environment_seen_through_the_pixel() {
         for y in 0..h {
             for x in 0..w {
                 let i = (y * w + x) as usize;
-                if hdr.coverage[i] {
+                if hdr.mask[i] {
                     continue;
                 }
                 sky += 1;
@@ -178,7 +162,7 @@ fn background_is_the_rotated_environment_seen_through_the_pixel() {
         // Without the background flag the sky is black.
         let settings = ToneMapSettings { background: false, ..settings };
         let dark = tm.render_rgba8(&mut shader, &gather, &settings).unwrap();
-        assert!((0..(w * h) as usize).filter(|&i| !hdr.coverage[i]).all(|i| px(&dark, i) == [0, 0, 0]));
+        assert!((0..(w * h) as usize).filter(|&i| !hdr.mask[i]).all(|i| px(&dark, i) == [0, 0, 0]));
     }
 }
 

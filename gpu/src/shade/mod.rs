@@ -21,19 +21,28 @@
 //! binding then holds a 4-byte placeholder and `ShadeParams::has_material_ids = 0`, so the
 //! shader never reads it and uses material 0.
 //!
-//! Inputs are plain slices ([`ShadeInputs`]) so this crate does not depend on the shading
-//! crate's types.
+//! Inputs are core's shading vocabulary, as for the CPU shader
+//! (`biscale_shading::cpu::shade`): the [`ShadeScene`] (validated when it was built, so only
+//! the adapter's limits are checked here), `L*` and the [`Camera`]; the output is a
+//! [`Render`].
 
 use crate::context::{bytes_to_f32, GpuContext};
 use crate::error::{GpuError, Result};
 use crate::gather::GpuGather;
 use crate::timing::{measure, PassTimer, Timing};
 use biscale_core::gather::LocalRadiance;
+use biscale_core::scene::{Camera, HdrImage, Render, ShadeScene};
 use glam::{DMat4, DVec3, DVec4, Vec3};
 use wgpu::util::DeviceExt;
 
-/// The WGSL of both shading passes.
-pub const SHADE_WGSL: &str = include_str!("shade.wgsl");
+/// The WGSL declaration of [`ShadeParams`], shared by the shading passes and the tone-mapping
+/// pass (`present.wgsl`), which both bind it.
+pub const SHADE_PARAMS_WGSL: &str = include_str!("shade_params.wgsl");
+
+/// The WGSL of both shading passes ([`SHADE_PARAMS_WGSL`] prepended).
+pub fn shade_wgsl() -> String {
+    format!("{SHADE_PARAMS_WGSL}\n{}", include_str!("shade.wgsl"))
+}
 
 /// Uniform block of both shading passes. Mirrored by `ShadeParams` in `shade/shade.wgsl`
 /// (size and member offsets checked by the layout test; every `[f32; 3]` is followed by a
@@ -53,7 +62,7 @@ pub struct ShadeParams {
     pub cam_forward: [f32; 3],
     pub local_dirs: u32,
     pub camera_pos: [f32; 3],
-    pub light_m: u32,
+    pub _pad0: u32,
     /// Number of materials (headers in the material buffer).
     pub material_count: u32,
     /// 1: the per-triangle material id buffer is real; 0: a placeholder, every triangle uses
@@ -65,91 +74,42 @@ pub struct ShadeParams {
 }
 const _: () = assert!(std::mem::size_of::<ShadeParams>() == 160);
 
-/// A pinhole camera, field for field `shading::camera::Camera` (pixel centres at +0.5, row 0
-/// at the top, `fov_y_degrees` the full vertical field of view, square pixels).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct GpuCamera {
-    pub position: Vec3,
-    pub target: Vec3,
-    pub up: Vec3,
-    pub fov_y_degrees: f32,
-    pub width: u32,
-    pub height: u32,
-}
-
-impl GpuCamera {
-    /// `(right, up, forward)`, exactly as `shading::camera::Camera::basis` (including its
-    /// fallback when `up` is parallel to the viewing direction).
-    pub fn basis(&self) -> (Vec3, Vec3, Vec3) {
-        let f = (self.target - self.position).normalize_or(Vec3::NEG_Z);
-        let mut r = f.cross(self.up);
-        if r.length_squared() < 1e-12 * self.up.length_squared().max(1e-30) || !r.is_finite() {
-            let a = f.abs();
-            let axis = if a.x <= a.y && a.x <= a.z {
-                Vec3::X
-            } else if a.y <= a.z {
-                Vec3::Y
-            } else {
-                Vec3::Z
-            };
-            r = f.cross(axis);
-        }
-        let r = r.normalize();
-        (r, r.cross(f), f)
-    }
-
-    fn validate(&self) -> Result<()> {
-        let ok = self.width > 0
-            && self.height > 0
-            && self.fov_y_degrees > 0.0
-            && self.fov_y_degrees < 180.0
-            && self.position.is_finite()
-            && self.target.is_finite()
-            && self.up.is_finite()
-            && self.target != self.position;
-        if ok {
-            Ok(())
-        } else {
-            Err(GpuError::Input(format!("unusable camera {self:?}")))
-        }
-    }
-
-    /// Fill the camera fields of `p`; `near` and `far` (view distances) bound the scene.
-    fn write(&self, p: &mut ShadeParams, near: f64, far: f64) {
-        let (r, u, f) = self.basis();
-        let t = (self.fov_y_degrees.to_radians() * 0.5).tan();
-        let aspect = self.width as f32 / self.height as f32;
-        p.cam_right = (r * (t * aspect)).to_array();
-        p.cam_up = (u * t).to_array();
-        p.cam_forward = f.to_array();
-        p.camera_pos = self.position.to_array();
-        // View matrix from the same basis (rows r, u, -f), then a reversed-Z perspective
-        // (depth = near / distance-ish, 1 at near, 0 at far), all in f64.
-        let (r, u, f, e) = (r.as_dvec3(), u.as_dvec3(), f.as_dvec3(), self.position.as_dvec3());
-        let view = DMat4::from_cols(
-            DVec4::new(r.x, u.x, -f.x, 0.0),
-            DVec4::new(r.y, u.y, -f.y, 0.0),
-            DVec4::new(r.z, u.z, -f.z, 0.0),
-            DVec4::new(-r.dot(e), -u.dot(e), f.dot(e), 1.0),
-        );
-        let (t, aspect) = (t as f64, aspect as f64);
-        let (a, b) = (near / (far - near), near * far / (far - near));
-        let proj = DMat4::from_cols(
-            DVec4::new(1.0 / (t * aspect), 0.0, 0.0, 0.0),
-            DVec4::new(0.0, 1.0 / t, 0.0, 0.0),
-            DVec4::new(0.0, 0.0, a, -1.0),
-            DVec4::new(0.0, 0.0, b, 0.0),
-        );
-        p.view_proj = (proj * view).as_mat4().to_cols_array_2d();
-    }
+/// Fill the camera fields of `p` from `camera` (its basis, [`Camera::basis`]); `near` and
+/// `far` (view distances) bound the scene.
+fn write_camera(camera: &Camera, p: &mut ShadeParams, near: f64, far: f64) {
+    let (r, u, f) = camera.basis();
+    let t = (camera.fov_y_degrees.to_radians() * 0.5).tan();
+    let aspect = camera.width as f32 / camera.height as f32;
+    p.cam_right = (r * (t * aspect)).to_array();
+    p.cam_up = (u * t).to_array();
+    p.cam_forward = f.to_array();
+    p.camera_pos = camera.position.to_array();
+    // View matrix from the same basis (rows r, u, -f), then a reversed-Z perspective
+    // (depth = near / distance-ish, 1 at near, 0 at far), all in f64.
+    let (r, u, f, e) = (r.as_dvec3(), u.as_dvec3(), f.as_dvec3(), camera.position.as_dvec3());
+    let view = DMat4::from_cols(
+        DVec4::new(r.x, u.x, -f.x, 0.0),
+        DVec4::new(r.y, u.y, -f.y, 0.0),
+        DVec4::new(r.z, u.z, -f.z, 0.0),
+        DVec4::new(-r.dot(e), -u.dot(e), f.dot(e), 1.0),
+    );
+    let (t, aspect) = (t as f64, aspect as f64);
+    let (a, b) = (near / (far - near), near * far / (far - near));
+    let proj = DMat4::from_cols(
+        DVec4::new(1.0 / (t * aspect), 0.0, 0.0, 0.0),
+        DVec4::new(0.0, 1.0 / t, 0.0, 0.0),
+        DVec4::new(0.0, 0.0, a, -1.0),
+        DVec4::new(0.0, 0.0, b, 0.0),
+    );
+    p.view_proj = (proj * view).as_mat4().to_cols_array_2d();
 }
 
 /// Near and far view distances that enclose the bounding sphere of `positions` seen from
 /// `eye` (near never below 1e-5 of far; geometry closer than that is clipped).
-fn depth_range(positions: &[[f32; 3]], eye: Vec3) -> (f64, f64) {
+fn depth_range(positions: &[Vec3], eye: Vec3) -> (f64, f64) {
     let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
     for p in positions {
-        let p = Vec3::from(*p).as_dvec3();
+        let p = p.as_dvec3();
         lo = lo.min(p);
         hi = hi.max(p);
     }
@@ -177,20 +137,6 @@ pub struct GpuVertex {
 }
 const _: () = assert!(std::mem::size_of::<GpuVertex>() == 48);
 
-/// One material's BTF as the shader reads it (`shading::cpu::Material` as plain slices).
-#[derive(Clone, Copy, Debug)]
-pub struct GpuMaterial<'a> {
-    /// BTF values `[texel][view][light]` RGB (`shading::btf::Btf::data`), texel
-    /// `= ty * width + tx` with `(tx, ty)` the wrapped nearest texel of `uv * tiling`.
-    pub btf_data: &'a [[f32; 3]],
-    /// BTF patch size in texels, `[width, height]`.
-    pub btf_spatial: [u32; 2],
-    /// View grid m of the BTF, `None` for a view-independent BTF.
-    pub view_m: Option<u32>,
-    /// Patch repetitions per unit of uv (finite, > 0): the BTF is looked up at `uv * tiling`.
-    pub tiling: f32,
-}
-
 /// Where one material's table lies in the concatenated BTF buffer and how to index it
 /// (mirrors WGSL `MaterialHeader`, 32 bytes; checked by the layout test).
 #[repr(C)]
@@ -210,100 +156,26 @@ pub struct GpuMaterialHeader {
 }
 const _: () = assert!(std::mem::size_of::<GpuMaterialHeader>() == 32);
 
-/// Everything the shader needs, as plain slices.
-#[derive(Clone, Copy, Debug)]
-pub struct ShadeInputs<'a> {
-    /// World-space vertex positions.
-    pub positions: &'a [[f32; 3]],
-    /// Unit vertex normals (the transfer frames' normals).
-    pub normals: &'a [[f32; 3]],
-    /// Vertex tangents (the frames' tangents; made orthogonal to the interpolated normal per
-    /// pixel; the bitangent is always n x t, the core frame convention).
-    pub tangents: &'a [[f32; 3]],
-    /// Texture coordinates of the BTF patch; `None` = all (0, 0).
-    pub uvs: Option<&'a [[f32; 2]]>,
-    pub triangles: &'a [[u32; 3]],
-    /// The scene's materials (at least one); all share the light grid `light_m`.
-    pub materials: &'a [GpuMaterial<'a>],
-    /// Index into `materials` per triangle; `None` only with exactly one material.
-    pub triangle_materials: Option<&'a [u32]>,
-    /// Light grid m of every material; `m * m` must equal L*'s local directions M.
-    pub light_m: u32,
-    /// The camera; its `width x height` is the image size.
-    pub camera: GpuCamera,
-}
-
-/// The materials' headers (in input order, tables back to back) and the total number of RGB
-/// entries, after checking every material's shape against the shared `local_dirs` (= M).
-pub(crate) fn material_headers(materials: &[GpuMaterial], local_dirs: u64) -> Result<(Vec<GpuMaterialHeader>, u64)> {
-    if materials.is_empty() {
-        return Err(GpuError::Input("the scene has no material".into()));
-    }
-    if materials.len() > u32::MAX as usize {
-        return Err(GpuError::Input(format!("{} materials do not fit 32-bit ids", materials.len())));
-    }
-    let mut headers = Vec::with_capacity(materials.len());
+/// The materials' headers (in scene order, tables back to back) and the total number of RGB
+/// entries.
+pub(crate) fn material_headers(scene: &ShadeScene) -> (Vec<GpuMaterialHeader>, u64) {
+    let mut headers = Vec::with_capacity(scene.materials().len());
     let mut offset = 0u64;
-    for (k, mat) in materials.iter().enumerate() {
-        let [bw, bh] = mat.btf_spatial;
-        if bw == 0 || bh == 0 || mat.view_m == Some(0) {
-            return Err(GpuError::Input(format!(
-                "material {k}: BTF patch {bw}x{bh} and view grid {:?} must be positive",
-                mat.view_m
-            )));
-        }
-        if !(mat.tiling.is_finite() && mat.tiling > 0.0) {
-            return Err(GpuError::Input(format!("material {k}: tiling {} must be finite and > 0", mat.tiling)));
-        }
-        // Saturating: an absurd shape must fail the length check below, not overflow.
-        let views = mat.view_m.map_or(1, |m| m as u64 * m as u64);
-        let expect = (bw as u64 * bh as u64).saturating_mul(views).saturating_mul(local_dirs);
-        if mat.btf_data.len() as u64 != expect {
-            return Err(GpuError::Input(format!(
-                "material {k}: BTF has {} values, expected {bw}x{bh} texels x {views} views x {local_dirs} lights = {expect}",
-                mat.btf_data.len()
-            )));
-        }
-        // Offsets past 32 bits are refused with the total size; saturate until then.
+    for mat in scene.materials() {
+        let btf = &mat.btf;
+        let [width, height] = btf.spatial();
+        // Offsets past 32 bits are refused by the caller with the total size; saturate until then.
         headers.push(GpuMaterialHeader {
             data_offset: offset.min(u32::MAX as u64) as u32,
-            width: bw,
-            height: bh,
-            view_m: mat.view_m.unwrap_or(0),
+            width,
+            height,
+            view_m: btf.view_grid().map_or(0, |g| g.m),
             tiling: mat.tiling,
             _pad: [0; 3],
         });
-        offset = offset.saturating_add(expect);
+        offset += btf.data().len() as u64;
     }
-    Ok((headers, offset))
-}
-
-/// Check the per-triangle material ids (as `shading::cpu::ShadeScene::validate`).
-pub(crate) fn check_material_ids(ids: Option<&[u32]>, materials: usize, triangles: usize) -> Result<()> {
-    match ids {
-        None if materials > 1 => {
-            Err(GpuError::Input(format!("{materials} materials but no per-triangle material ids")))
-        }
-        None => Ok(()),
-        Some(ids) if ids.len() != triangles => {
-            Err(GpuError::Input(format!("{} material ids for {triangles} triangles", ids.len())))
-        }
-        Some(ids) => match ids.iter().position(|&i| i as usize >= materials) {
-            Some(t) => Err(GpuError::Input(format!("triangle {t} uses material {} of {materials}", ids[t]))),
-            None => Ok(()),
-        },
-    }
-}
-
-/// A shaded HDR image: `pixels[row * width + col]`, row 0 at the top.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ShadedImage {
-    pub width: u32,
-    pub height: u32,
-    /// Linear RGB radiance (0 where nothing is covered).
-    pub pixels: Vec<[f32; 3]>,
-    /// True where a triangle covers the pixel centre.
-    pub coverage: Vec<bool>,
+    (headers, offset)
 }
 
 /// The GPU shader for one mesh, its materials and an image size.
@@ -328,44 +200,27 @@ pub struct GpuShader {
     vertex_count: usize,
     triangle_count: u32,
     /// Kept for the depth range when the camera moves.
-    positions: Vec<[f32; 3]>,
+    positions: Vec<Vec3>,
+    /// What the scene's BTFs are dotted with, for [`Self::check_lstar`].
+    scene_basis: biscale_core::basis::LocalBasis,
 }
 
 impl GpuShader {
-    /// Check the inputs, upload the mesh, the materials' BTF tables and ids, and build both
-    /// passes. Errors ([`GpuError::Input`]) on mismatched sizes, non-finite values, bad material
-    /// ids or tilings; [`GpuError::Limit`] when the concatenated BTF tables exceed the adapter's
-    /// `max_storage_buffer_binding_size`.
-    pub fn new(ctx: &GpuContext, inputs: &ShadeInputs) -> Result<Self> {
-        let nv = inputs.positions.len();
-        if inputs.normals.len() != nv || inputs.tangents.len() != nv || inputs.uvs.is_some_and(|u| u.len() != nv) {
-            return Err(GpuError::Input(format!(
-                "{nv} positions but {} normals, {} tangents, {:?} uvs",
-                inputs.normals.len(),
-                inputs.tangents.len(),
-                inputs.uvs.map(|u| u.len())
-            )));
-        }
-        if let Some((t, tri)) = inputs.triangles.iter().enumerate().find(|(_, t)| t.iter().any(|&i| i as usize >= nv)) {
-            return Err(GpuError::Input(format!("triangle {t} = {tri:?} indexes past {nv} vertices")));
-        }
-        let finite3 = |v: &[[f32; 3]]| v.iter().position(|p| !p.iter().all(|x| x.is_finite()));
-        for (what, arr) in [("position", inputs.positions), ("normal", inputs.normals), ("tangent", inputs.tangents)] {
-            if let Some(i) = finite3(arr) {
-                return Err(GpuError::Input(format!("vertex {i}'s {what} is not finite: {:?}", arr[i])));
-            }
-        }
-        let m_light = inputs.light_m as u64;
-        if m_light == 0 {
-            return Err(GpuError::Input("the light grid m must be positive".into()));
-        }
-        let local_dirs = m_light * m_light;
-        let tri_count = inputs.triangles.len();
-        let (headers, total_entries) = material_headers(inputs.materials, local_dirs)?;
-        check_material_ids(inputs.triangle_materials, inputs.materials.len(), tri_count)?;
+    /// Upload the scene's mesh, the materials' BTF tables and ids, and build both passes for
+    /// images of `camera`'s size. The scene was checked when it was built; here only the
+    /// adapter's limits are: [`GpuError::Limit`] when the concatenated BTF tables exceed the
+    /// adapter's `max_storage_buffer_binding_size` or the image its texture size,
+    /// [`GpuError::Input`] for an unusable camera or counts past 32-bit indices.
+    pub fn new(ctx: &GpuContext, scene: &ShadeScene, camera: &Camera) -> Result<Self> {
+        let mesh = scene.mesh();
+        let nv = mesh.vertex_count();
+        let tri_count = mesh.triangle_count();
+        let local_dirs = scene.local_basis().len() as u64;
+        let (headers, total_entries) = material_headers(scene);
+        let materials = scene.materials();
         // The concatenated tables are one binding: refuse before building it.
         let btf_bytes = total_entries.saturating_mul(std::mem::size_of::<[f32; 3]>() as u64);
-        let btf_label = format!("BTF tables of {} material(s), concatenated", inputs.materials.len());
+        let btf_label = format!("BTF tables of {} material(s), concatenated", materials.len());
         ctx.check_storage_size(&btf_label, btf_bytes)?;
         if total_entries.saturating_mul(3) > u32::MAX as u64 {
             return Err(GpuError::Input(format!(
@@ -373,21 +228,10 @@ impl GpuShader {
                 total_entries * 3
             )));
         }
-        for (k, mat) in inputs.materials.iter().enumerate() {
-            if let Some(i) = finite3(mat.btf_data) {
-                return Err(GpuError::Input(format!(
-                    "material {k}: BTF value {i} is not finite: {:?}",
-                    mat.btf_data[i]
-                )));
-            }
-        }
-        if let Some(i) = inputs.uvs.and_then(|u| u.iter().position(|p| !p.iter().all(|x| x.is_finite()))) {
-            return Err(GpuError::Input(format!("vertex {i}'s uv is not finite")));
-        }
-        inputs.camera.validate()?;
-        let (w, h) = (inputs.camera.width, inputs.camera.height);
+        camera.validate().map_err(|e| GpuError::Input(e.to_string()))?;
+        let (w, h) = (camera.width, camera.height);
         let max_dim = ctx.limits().max_texture_dimension_2d;
-        if w == 0 || h == 0 || w > max_dim || h > max_dim {
+        if w > max_dim || h > max_dim {
             return Err(GpuError::Limit {
                 what: format!("a {w}x{h} image"),
                 limit: "max_texture_dimension_2d",
@@ -395,8 +239,8 @@ impl GpuShader {
                 max: max_dim as u64,
             });
         }
-        if tri_count as u64 * 3 >= u32::MAX as u64 {
-            return Err(GpuError::Input(format!("{tri_count} triangles do not fit 32-bit ids")));
+        if tri_count as u64 * 3 >= u32::MAX as u64 || nv as u64 >= u32::MAX as u64 {
+            return Err(GpuError::Input(format!("{tri_count} triangles / {nv} vertices do not fit 32-bit ids")));
         }
 
         let mut params = ShadeParams {
@@ -408,24 +252,25 @@ impl GpuShader {
             cam_forward: [0.0; 3],
             local_dirs: local_dirs as u32,
             camera_pos: [0.0; 3],
-            light_m: inputs.light_m,
-            material_count: inputs.materials.len() as u32,
-            has_material_ids: u32::from(inputs.triangle_materials.is_some()),
+            _pad0: 0,
+            material_count: materials.len() as u32,
+            has_material_ids: u32::from(scene.triangle_materials().is_some()),
             vertex_count: nv as u32,
             triangle_count: tri_count as u32,
             _pad: [0; 4],
         };
-        let (near, far) = depth_range(inputs.positions, inputs.camera.position);
-        inputs.camera.write(&mut params, near, far);
+        let (near, far) = depth_range(&mesh.positions, camera.position);
+        write_camera(camera, &mut params, near, far);
+        let frames = scene.frames();
         let verts: Vec<GpuVertex> = (0..nv)
             .map(|i| {
-                let uv = inputs.uvs.map_or([0.0; 2], |u| u[i]);
+                let uv = mesh.uvs.as_ref().map_or([0.0; 2], |u| u[i].to_array());
                 GpuVertex {
-                    position: inputs.positions[i],
+                    position: mesh.positions[i].to_array(),
                     u: uv[0],
-                    normal: inputs.normals[i],
+                    normal: frames[i].normal.to_array(),
                     v: uv[1],
-                    tangent: inputs.tangents[i],
+                    tangent: frames[i].tangent.to_array(),
                     _pad: 0.0,
                 }
             })
@@ -435,17 +280,14 @@ impl GpuShader {
             bytemuck::cast_slice(&verts),
             wgpu::BufferUsages::empty(),
         )?;
-        let index_buf = ctx.storage_buffer(
-            "triangle indices",
-            bytemuck::cast_slice(inputs.triangles),
-            wgpu::BufferUsages::empty(),
-        )?;
-        let btf_buf = if let [only] = inputs.materials {
-            ctx.storage_buffer(&btf_label, bytemuck::cast_slice(only.btf_data), wgpu::BufferUsages::empty())?
+        let index_buf =
+            ctx.storage_buffer("triangle indices", bytemuck::cast_slice(&mesh.triangles), wgpu::BufferUsages::empty())?;
+        let btf_buf = if let [only] = materials {
+            ctx.storage_buffer(&btf_label, bytemuck::cast_slice(only.btf.data()), wgpu::BufferUsages::empty())?
         } else {
             let mut all = Vec::with_capacity(total_entries as usize);
-            for mat in inputs.materials {
-                all.extend_from_slice(mat.btf_data);
+            for mat in materials {
+                all.extend_from_slice(mat.btf.data());
             }
             ctx.storage_buffer(&btf_label, bytemuck::cast_slice(&all), wgpu::BufferUsages::empty())?
         };
@@ -458,7 +300,7 @@ impl GpuShader {
         // never reads (`has_material_ids = 0`).
         let material_id_buf = ctx.storage_buffer(
             "per-triangle material ids",
-            bytemuck::cast_slice(inputs.triangle_materials.unwrap_or(&[0])),
+            bytemuck::cast_slice(scene.triangle_materials().unwrap_or(&[0])),
             wgpu::BufferUsages::empty(),
         )?;
         let padded_row = (w * 16).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
@@ -472,7 +314,7 @@ impl GpuShader {
             });
             let module = ctx.device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some("shade.wgsl"),
-                source: wgpu::ShaderSource::Wgsl(SHADE_WGSL.into()),
+                source: wgpu::ShaderSource::Wgsl(shade_wgsl().into()),
             });
             let size = wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 };
             let tex = |label, format, usage| {
@@ -604,13 +446,14 @@ impl GpuShader {
             padded_row,
             vertex_count: nv,
             triangle_count: tri_count as u32,
-            positions: inputs.positions.to_vec(),
+            positions: mesh.positions.clone(),
+            scene_basis: scene.local_basis(),
         })
     }
 
     /// Move the camera (the image size must stay the same).
-    pub fn set_camera(&mut self, camera: &GpuCamera) -> Result<()> {
-        camera.validate()?;
+    pub fn set_camera(&mut self, camera: &Camera) -> Result<()> {
+        camera.validate().map_err(|e| GpuError::Input(e.to_string()))?;
         if (camera.width, camera.height) != (self.params.width, self.params.height) {
             return Err(GpuError::Input(format!(
                 "camera is {}x{}, the shader was built for {}x{}",
@@ -618,28 +461,25 @@ impl GpuShader {
             )));
         }
         let (near, far) = depth_range(&self.positions, camera.position);
-        camera.write(&mut self.params, near, far);
+        write_camera(camera, &mut self.params, near, far);
         self.ctx.scoped("updating the camera", || {
             self.ctx.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
         })
     }
 
     /// Shade with the `L*` a [`GpuGather`] left on the GPU (no read-back in between).
-    pub fn shade(&mut self, gather: &GpuGather) -> Result<ShadedImage> {
-        self.check_lstar(gather.vertices(), gather.local_dirs())?;
+    pub fn shade(&mut self, gather: &GpuGather) -> Result<Render> {
+        self.check_lstar(gather)?;
         self.run(gather.lstar_buffer())?;
         self.read_image()
     }
 
     /// Shade with `L*` from the host (e.g. a CPU gather).
-    pub fn shade_lstar(&mut self, lstar: &LocalRadiance) -> Result<ShadedImage> {
-        self.check_lstar(lstar.vertices, lstar.local_dirs)?;
-        if lstar.values.len() != lstar.vertices * lstar.local_dirs {
-            return Err(GpuError::Input("L* values do not match vertices x local_dirs".into()));
-        }
+    pub fn shade_lstar(&mut self, lstar: &LocalRadiance) -> Result<Render> {
+        self.check_lstar_shape(lstar.basis(), lstar.vertices())?;
         let buf = self.ctx.storage_buffer(
             "L* (from host)",
-            bytemuck::cast_slice(&lstar.values),
+            bytemuck::cast_slice(lstar.values()),
             wgpu::BufferUsages::empty(),
         )?;
         self.run(&buf)?;
@@ -648,20 +488,19 @@ impl GpuShader {
 
     /// Median time of the two shading passes (`visibility`, `shade`) over `repetitions` frames.
     pub fn time_shade(&mut self, gather: &GpuGather, repetitions: usize) -> Result<Timing> {
-        self.check_lstar(gather.vertices(), gather.local_dirs())?;
+        self.check_lstar(gather)?;
         let bind_group = self.shade_bind_group(gather.lstar_buffer())?;
         let names = ["visibility".to_string(), "shade".to_string()];
         measure(&self.ctx, &names, repetitions, |enc, timer| self.record(enc, &bind_group, timer))
     }
 
-    pub(crate) fn check_lstar(&self, vertices: usize, local_dirs: usize) -> Result<()> {
-        if vertices != self.vertex_count || local_dirs != self.params.local_dirs as usize {
-            return Err(GpuError::Input(format!(
-                "L* has {vertices} vertices x {local_dirs} directions; the mesh has {} vertices and the materials {} light directions",
-                self.vertex_count, self.params.local_dirs
-            )));
-        }
-        Ok(())
+    /// An error unless `gather`'s `L*` fits the scene.
+    pub(crate) fn check_lstar(&self, gather: &GpuGather) -> Result<()> {
+        self.check_lstar_shape(gather.shape().local, gather.vertices())
+    }
+
+    fn check_lstar_shape(&self, basis: biscale_core::basis::LocalBasis, vertices: usize) -> Result<()> {
+        Ok(biscale_core::scene::check_lstar_shape(self.scene_basis, self.vertex_count, basis, vertices)?)
     }
 
     pub(crate) fn shade_bind_group(&self, lstar: &wgpu::Buffer) -> Result<wgpu::BindGroup> {
@@ -768,19 +607,19 @@ impl GpuShader {
         })
     }
 
-    fn read_image(&self) -> Result<ShadedImage> {
+    fn read_image(&self) -> Result<Render> {
         let bytes = self.ctx.map_read("the shaded image", &self.readback)?;
         let (w, h) = (self.params.width as usize, self.params.height as usize);
         let mut pixels = Vec::with_capacity(w * h);
-        let mut coverage = Vec::with_capacity(w * h);
+        let mut mask = Vec::with_capacity(w * h);
         for row in 0..h {
             let start = row * self.padded_row as usize;
             let f = bytes_to_f32(&bytes[start..start + w * 16]);
             for px in f.chunks_exact(4) {
                 pixels.push([px[0], px[1], px[2]]);
-                coverage.push(px[3] > 0.5);
+                mask.push(px[3] > 0.5);
             }
         }
-        Ok(ShadedImage { width: w as u32, height: h as u32, pixels, coverage })
+        Ok(Render { image: HdrImage { width: w as u32, height: h as u32, pixels }, mask })
     }
 }

@@ -13,33 +13,7 @@
 // texel of uv * tiling with its own view grid; every table lives in the one `btf` buffer at
 // its header's data_offset.
 
-// Mirror of the Rust `ShadeParams` (#[repr(C)], 160 bytes; checked by the layout test, as is
-// the copy in present/present.wgsl).
-// Each vec3 is followed by a scalar so WGSL's 16-byte vec3 alignment adds no hidden padding.
-struct ShadeParams {
-    // World to clip, reversed Z (depth 1 at the near plane), for rasterization only.
-    view_proj: mat4x4<f32>,
-    // Pixel rays exactly as shading::camera::Camera::ray builds them:
-    // dir = normalize(forward + right * (2 px / w - 1) + up * (1 - 2 py / h)), with `right`
-    // and `up` already scaled by tan(fov_y / 2) * aspect and tan(fov_y / 2).
-    cam_right: vec3<f32>,
-    width: u32,
-    cam_up: vec3<f32>,
-    height: u32,
-    cam_forward: vec3<f32>,
-    local_dirs: u32,
-    camera_pos: vec3<f32>,
-    light_m: u32,
-    material_count: u32,
-    // 1: material_ids holds one id per triangle; 0: a placeholder, every triangle uses material 0.
-    has_material_ids: u32,
-    vertex_count: u32,
-    triangle_count: u32,
-    pad0: u32,
-    pad1: u32,
-    pad2: u32,
-    pad3: u32,
-}
+// ShadeParams: see shade_params.wgsl, prepended by the host.
 
 // Mirror of the Rust `GpuMaterialHeader` (32 bytes; checked by the layout test).
 struct MaterialHeader {

@@ -11,8 +11,8 @@ use super::gpu_or_skip;
 use crate::gather::kinds::builtin_program;
 use crate::{Count, Factor, GatherProgram, GpuError, GpuGather, KernelPass, ScratchBuffer, TimingMethod};
 use biscale_compressors::sparse::Sparse;
-use biscale_compressors::testing::{f32_sum_bound, random_light, random_transfer};
-use biscale_core::compress::{ArrayData, CompressContext, CompressedForm, Compressor, NamedArray};
+use biscale_compressors::testing::{bins, cubemap, f32_sum_bound, random_light, random_transfer};
+use biscale_core::compress::{ArrayData, CompressContext, CompressedForm, Compressor};
 use biscale_core::gather::reference_product;
 use biscale_core::sampling::LightVector;
 use biscale_core::transfer::TransferMatrix;
@@ -28,10 +28,10 @@ fn check_sparse(ctx: &crate::GpuContext, t: &TransferMatrix, light: &LightVector
     g.fill_lstar(f32::NAN).unwrap();
     g.gather(light).unwrap();
     let got = g.read_lstar().unwrap();
-    assert_eq!((got.vertices, got.local_dirs, got.values.len()), (t.vertices, t.local_dirs, t.rows()));
+    assert_eq!((got.vertices(), got.local_dirs(), got.values().len()), (t.vertices(), t.local_dirs(), t.rows()));
     let reference = reference_product(t, light);
-    for (r, (g, e)) in got.values.iter().zip(&reference).enumerate() {
-        let n = t.csr.outer_view(r).unwrap().nnz();
+    for (r, (g, e)) in got.values().iter().zip(&reference).enumerate() {
+        let n = t.csr().outer_view(r).unwrap().nnz();
         let bound = f32_sum_bound(n);
         for c in 0..3 {
             assert!(g[c].is_finite(), "row {r} channel {c} not written (or not finite): {}", g[c]);
@@ -50,9 +50,9 @@ fn check_sparse(ctx: &crate::GpuContext, t: &TransferMatrix, light: &LightVector
 fn sparse_matches_f64_reference_with_8x8_and_16x16_local_directions() {
     let ctx = gpu_or_skip!();
     // Odd seeds put a sun 10^6 times brighter than the sky into the light (the stiff case).
-    for (local_dirs, seeds) in [(64usize, 0..4u64), (256, 4..6)] {
+    for (local_grid, seeds) in [(8u32, 0..4u64), (16, 4..6)] {
         for seed in seeds {
-            let t = random_transfer(5, local_dirs, 6, 0.15, seed);
+            let t = random_transfer(5, local_grid, 6, 0.15, seed);
             check_sparse(ctx, &t, &random_light(6, seed + 50), None);
         }
     }
@@ -62,10 +62,10 @@ fn sparse_matches_f64_reference_with_8x8_and_16x16_local_directions() {
 fn sparse_matches_f64_reference_on_the_real_cubemap_with_an_hdr_sun() {
     let ctx = gpu_or_skip!();
     // N = 6 * 32^2 = 6144 columns, as in the reference settings.
-    let t = random_transfer(3, 64, 32, 0.03, 11);
+    let t = random_transfer(3, 8, 32, 0.03, 11);
     check_sparse(ctx, &t, &random_light(32, 13), None);
     // A sun 10^7 times the sky in one texel, and in one texel of each face.
-    let mut light = LightVector::constant(32, [0.5, 0.4, 0.3]);
+    let mut light = LightVector::constant(cubemap(32), [0.5, 0.4, 0.3]);
     light.power[1234] = [1e7, 9e6, 8e6];
     check_sparse(ctx, &t, &light, None);
     for face in 0..6 {
@@ -78,9 +78,9 @@ fn sparse_matches_f64_reference_on_the_real_cubemap_with_an_hdr_sun() {
 fn all_black_light_and_empty_rows_give_exact_zeros() {
     let ctx = gpu_or_skip!();
     // Density 0.02 over 24 columns leaves most rows empty.
-    let t = random_transfer(8, 64, 2, 0.02, 3);
-    assert!((0..t.rows()).any(|r| t.csr.outer_view(r).unwrap().nnz() == 0));
-    check_sparse(ctx, &t, &LightVector::constant(2, [0.0; 3]), None);
+    let t = random_transfer(8, 8, 2, 0.02, 3);
+    assert!((0..t.rows()).any(|r| t.csr().outer_view(r).unwrap().nnz() == 0));
+    check_sparse(ctx, &t, &LightVector::constant(cubemap(2), [0.0; 3]), None);
     check_sparse(ctx, &t, &random_light(2, 4), None);
 }
 
@@ -95,7 +95,7 @@ fn dispatch_folds_past_the_workgroups_per_dimension_limit() {
         return;
     }
     let vertices = max / 64 + 2;
-    let t = random_transfer(vertices, 64, 1, 0.5, 9);
+    let t = random_transfer(vertices, 8, 1, 0.5, 9);
     let mut program = builtin_program(&Sparse.compress(&t, &CompressContext::default()).unwrap()).unwrap();
     program.wgsl = program.wgsl.replace("@workgroup_size(64)", "@workgroup_size(1)").replace("lid, 64u)", "lid, 1u)");
     assert!(t.rows() > max);
@@ -114,22 +114,15 @@ fn narrow_integers_unpack_exactly_through_scratch_and_meta() {
     let u16s: Vec<u16> = (0..n).map(|i| if i == 1 { u16::MAX } else { rng.gen() }).collect();
     let i16s: Vec<i16> = (0..n).map(|i| if i == 2 { i16::MIN } else { rng.gen() }).collect();
     let offset = 100_000u64;
-    let form = CompressedForm {
-        kind: "probe".into(),
-        rows: n,
-        cols: 6, // a resolution-1 cubemap's texels
-        local_dirs: 1,
-        arrays: vec![
-            NamedArray { name: "bytes_u8".into(), data: ArrayData::U8(u8s.clone()) },
-            NamedArray { name: "bytes_i8".into(), data: ArrayData::I8(i8s.clone()) },
-            NamedArray { name: "halves_u16".into(), data: ArrayData::U16(u16s.clone()) },
-            NamedArray { name: "halves_i16".into(), data: ArrayData::I16(i16s.clone()) },
-        ],
-        meta: [("offset".to_string(), offset)].into(),
-        lossless: true,
-        flops_per_gather: 0,
-        build_seconds: 0.0,
-    };
+    // n vertices of one direction over a resolution-1 cubemap (6 texels).
+    let shape = biscale_core::basis::TransferShape::new(n, bins(1), cubemap(1));
+    let mut form = CompressedForm::new("probe", shape)
+        .with_array("bytes_u8", ArrayData::U8(u8s.clone()))
+        .with_array("bytes_i8", ArrayData::I8(i8s.clone()))
+        .with_array("halves_u16", ArrayData::U16(u16s.clone()))
+        .with_array("halves_i16", ArrayData::I16(i16s.clone()));
+    form.meta = [("offset".to_string(), offset)].into();
+    form.lossless = true;
     let wgsl = r#"
 @group(0) @binding(4) var<storage, read> bytes_u8: array<u32>;
 @group(0) @binding(5) var<storage, read> bytes_i8: array<u32>;
@@ -168,19 +161,19 @@ fn second(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
     };
     let mut g = GpuGather::with_program(ctx, &form, &program).unwrap();
     g.fill_lstar(f32::NAN).unwrap();
-    g.gather(&LightVector::constant(1, [0.0; 3])).unwrap();
+    g.gather(&LightVector::constant(cubemap(1), [0.0; 3])).unwrap();
     let got = g.read_lstar().unwrap();
     for i in 0..n {
         // All values are integers below 2^24 in magnitude: exact in f32.
         let expect = [u8s[i] as f32, i8s[i] as f32 * 65536.0 + i16s[i] as f32, (u16s[i] as u64 + offset) as f32];
-        assert_eq!(got.values[i], expect, "element {i}");
+        assert_eq!(got.values()[i], expect, "element {i}");
     }
 }
 
 #[test]
 fn bad_forms_programs_and_lights_are_errors_not_panics() {
     let ctx = gpu_or_skip!();
-    let t = random_transfer(2, 4, 1, 0.5, 1);
+    let t = random_transfer(2, 2, 1, 0.5, 1);
     let form = Sparse.compress(&t, &CompressContext::default()).unwrap();
 
     let mut other = form.clone();
@@ -235,7 +228,7 @@ fn bad_forms_programs_and_lights_are_errors_not_panics() {
 #[test]
 fn gather_timing_gives_finite_medians_per_pass() {
     let ctx = gpu_or_skip!();
-    let t = random_transfer(16, 64, 4, 0.2, 2);
+    let t = random_transfer(16, 8, 4, 0.2, 2);
     let form = Sparse.compress(&t, &CompressContext::default()).unwrap();
     let mut g = GpuGather::new(ctx, &form).unwrap();
     let timing = g.time_gather(&random_light(4, 2), 3).unwrap();
@@ -251,7 +244,7 @@ fn gather_timing_gives_finite_medians_per_pass() {
     // Timing leaves a correct L* behind.
     let got = g.read_lstar().unwrap();
     let reference = reference_product(&t, &random_light(4, 2));
-    assert!(biscale_core::gather::relative_l2_error(&got.values, &reference) < 1e-6);
+    assert!(biscale_core::gather::relative_l2_error(&got.values(), &reference) < 1e-6);
 }
 
 /// The timestamp path (query sets, resolve, read-back, per-pass medians), which the default
@@ -263,7 +256,7 @@ fn forced_timestamps_time_every_pass_and_never_means_wall_clock() {
     use crate::{GpuContext, TimestampPolicy};
     use biscale_compressors::bicluster::Bicluster;
     let _ = gpu_or_skip!(); // no adapter at all: skip
-    let t = random_transfer(24, 16, 4, 0.3, 5);
+    let t = random_transfer(24, 4, 4, 0.3, 5);
     let light = random_light(4, 6);
     let form =
         Bicluster { block_vertices: 8, ..Bicluster::default() }.compress(&t, &CompressContext::default()).unwrap();
@@ -293,7 +286,7 @@ fn forced_timestamps_time_every_pass_and_never_means_wall_clock() {
     assert!(timing.median_ms.is_finite() && timing.median_ms >= 0.0, "{timing:?}");
     eprintln!("forced timestamps on {}: {timing:?}", always.adapter());
     let got = g.read_lstar().unwrap();
-    assert!(biscale_core::gather::relative_l2_error(&got.values, &reference) < 1e-6);
+    assert!(biscale_core::gather::relative_l2_error(&got.values(), &reference) < 1e-6);
 }
 
 /// f16 bits to f32 (normal, subnormal, zero; the forms hold no infinities).
@@ -317,7 +310,7 @@ fn bicluster_matches_f64_reference() {
     let ctx = gpu_or_skip!();
     let u = f32::EPSILON as f64 / 2.0;
     for (seed, block_vertices) in [(1u64, 4usize), (2, 0)] {
-        let t = random_transfer(24, 64, 4, 0.2, seed);
+        let t = random_transfer(24, 8, 4, 0.2, seed);
         let form = Bicluster { block_vertices, value_scale: 0 }
             .compress(&t, &CompressContext { seed, progress: None })
             .unwrap();
@@ -348,7 +341,7 @@ fn bicluster_matches_f64_reference() {
                     let sum_a: f64 = ids.iter().map(|&b| a[b][c].abs()).sum();
                     let sum_p: f64 = ids.iter().map(|&b| (len[b] as f64 + 3.0) * abs[b][c]).sum();
                     let bound = u * (ids.len() as f64 * sum_a + sum_p);
-                    let v = got.values[i][c];
+                    let v = got.values()[i][c];
                     assert!(v.is_finite(), "row {i} not written");
                     assert!(
                         (v as f64 - reference[i][c]).abs() <= bound,
@@ -363,7 +356,7 @@ fn bicluster_matches_f64_reference() {
 
 /// The light transform with every sign made +: bounds |W L| and its rounding error.
 fn abs_transform(light: &LightVector) -> Vec<[f64; 3]> {
-    let r = light.cubemap.resolution as usize;
+    let r = light.cubemap().resolution as usize;
     let mut out: Vec<[f64; 3]> = light.power.iter().map(|p| p.map(|x| (x as f64).abs())).collect();
     for face in out.chunks_mut(r * r) {
         let mut s = r;
@@ -405,7 +398,7 @@ fn haar_matches_its_cpu_gather_with_f32_and_f16_values() {
     let u = f32::EPSILON as f64 / 2.0;
     let r = 8u32;
     let levels = r.trailing_zeros() as f64;
-    let t = random_transfer(6, 64, r, 0.2, 5);
+    let t = random_transfer(6, 8, r, 0.2, 5);
     for haar in [
         Haar { terms: 12, area_weighted: true, f16_values: false },
         Haar { terms: 20, area_weighted: false, f16_values: true },
@@ -426,19 +419,19 @@ fn haar_matches_its_cpu_gather_with_f32_and_f16_values() {
             } else {
                 form.f32s("coeff_val").unwrap().to_vec()
             };
-            for row in 0..form.rows {
+            for row in 0..form.rows() {
                 let span = row_ptr[row] as usize..row_ptr[row + 1] as usize;
                 let n = span.len() as f64;
                 for c in 0..3 {
                     let mag: f64 = span.clone().map(|e| (coeff[e] as f64).abs() * a[idx[e] as usize][c]).sum();
-                    let bound = u * ((n + 3.0 + 3.0 * levels) * mag + (cpu.values[row][c] as f64).abs());
-                    let v = got.values[row][c];
+                    let bound = u * ((n + 3.0 + 3.0 * levels) * mag + (cpu.values()[row][c] as f64).abs());
+                    let v = got.values()[row][c];
                     assert!(v.is_finite(), "row {row} not written");
-                    let err = (v as f64 - cpu.values[row][c] as f64).abs();
+                    let err = (v as f64 - cpu.values()[row][c] as f64).abs();
                     assert!(
                         err <= bound,
                         "{haar:?} row {row} c{c}: GPU {v} vs CPU {} (bound {bound:e})",
-                        cpu.values[row][c]
+                        cpu.values()[row][c]
                     );
                 }
             }
@@ -456,9 +449,9 @@ fn cpca_matches_its_cpu_gather() {
     use biscale_compressors::cpca::Cpca;
     let ctx = gpu_or_skip!();
     let u = f32::EPSILON as f64 / 2.0;
-    let t = random_transfer(20, 64, 4, 0.05, 12);
+    let t = random_transfer(20, 8, 4, 0.05, 12);
     let form = Cpca::new(6, 3).compress(&t, &CompressContext { seed: 3, progress: None }).unwrap();
-    let (k, c, n) = (form.meta("clusters").unwrap() as usize, form.meta("components").unwrap() as usize, form.cols);
+    let (k, c, n) = (form.meta("clusters").unwrap() as usize, form.meta("components").unwrap() as usize, form.cols());
     let cluster = form.u16s("cluster").unwrap();
     assert!(cluster.iter().any(|&id| id as usize == k), "want at least one all-zero row");
     let (basis, coeffs) = (form.f32s("basis").unwrap(), form.f32s("coeffs").unwrap());
@@ -483,10 +476,10 @@ fn cpca_matches_its_cpu_gather() {
                 (p, a)
             })
             .collect();
-        for r in 0..form.rows {
+        for r in 0..form.rows() {
             let id = cluster[r] as usize;
             for ch in 0..3 {
-                let v = got.values[r][ch];
+                let v = got.values()[r][ch];
                 assert!(v.is_finite(), "row {r} not written");
                 let bound = if id == k {
                     0.0
@@ -495,10 +488,10 @@ fn cpca_matches_its_cpu_gather() {
                     let w = |j: usize| if j == 0 { 1.0 } else { coeffs[r * c + j - 1] as f64 };
                     let terms: f64 = (0..=c).map(|j| (w(j) * proj[base + j].0[ch]).abs()).sum();
                     let prop: f64 = (0..=c).map(|j| w(j).abs() * lane * u * proj[base + j].1[ch]).sum();
-                    (c as f64 + 1.0) * u * terms + prop + u * (cpu.values[r][ch] as f64).abs()
+                    (c as f64 + 1.0) * u * terms + prop + u * (cpu.values()[r][ch] as f64).abs()
                 };
-                let err = (v as f64 - cpu.values[r][ch] as f64).abs();
-                assert!(err <= bound, "row {r} c{ch}: GPU {v} vs CPU {} (bound {bound:e})", cpu.values[r][ch]);
+                let err = (v as f64 - cpu.values()[r][ch] as f64).abs();
+                assert!(err <= bound, "row {r} c{ch}: GPU {v} vs CPU {} (bound {bound:e})", cpu.values()[r][ch]);
             }
         }
     }

@@ -4,8 +4,8 @@
 //! a missing pad, shows up here instead of as garbage on the GPU.
 
 use crate::gather::program::PRELUDE;
-use crate::present::PRESENT_WGSL;
-use crate::shade::SHADE_WGSL;
+use crate::present::present_wgsl;
+use crate::shade::shade_wgsl;
 use crate::{GatherParams, GpuMaterialHeader, GpuVertex, ShadeParams};
 use std::mem::{offset_of, size_of};
 
@@ -63,7 +63,7 @@ fn shade_params_layout_matches_wgsl() {
         ("cam_forward", offset_of!(P, cam_forward)),
         ("local_dirs", offset_of!(P, local_dirs)),
         ("camera_pos", offset_of!(P, camera_pos)),
-        ("light_m", offset_of!(P, light_m)),
+        ("pad_camera", offset_of!(P, _pad0)),
         ("material_count", offset_of!(P, material_count)),
         ("has_material_ids", offset_of!(P, has_material_ids)),
         ("vertex_count", offset_of!(P, vertex_count)),
@@ -75,15 +75,15 @@ fn shade_params_layout_matches_wgsl() {
     ];
     // The shading passes and the tone-mapping pass (camera rays for the background) both
     // bind the same uniform buffer.
-    check(SHADE_WGSL, "ShadeParams", size_of::<P>(), &members);
-    check(PRESENT_WGSL, "ShadeParams", size_of::<P>(), &members);
+    check(&shade_wgsl(), "ShadeParams", size_of::<P>(), &members);
+    check(&present_wgsl(), "ShadeParams", size_of::<P>(), &members);
 }
 
 #[test]
 fn material_header_layout_matches_wgsl() {
     type H = GpuMaterialHeader;
     check(
-        SHADE_WGSL,
+        &shade_wgsl(),
         "MaterialHeader",
         size_of::<H>(),
         &[
@@ -103,7 +103,7 @@ fn material_header_layout_matches_wgsl() {
 fn vertex_layout_matches_wgsl() {
     type V = GpuVertex;
     check(
-        SHADE_WGSL,
+        &shade_wgsl(),
         "Vertex",
         size_of::<V>(),
         &[

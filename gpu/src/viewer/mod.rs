@@ -26,10 +26,12 @@ use crate::context::GpuContext;
 use crate::error::{GpuError, Result};
 use crate::gather::GpuGather;
 use crate::present::{read_texture_rgba8, Rgba8Image, ToneMap, ToneMapSettings};
-use crate::shade::{GpuCamera, GpuMaterial, GpuShader, ShadeInputs};
+use crate::shade::GpuShader;
 use crate::timing::{median, PassTimer};
+use biscale_core::basis::LightBasis;
 use biscale_core::compress::CompressedForm;
 use biscale_core::sampling::{EnvMap, LightVector};
+use biscale_core::scene::{Camera, ShadeScene};
 use orbit::Orbit;
 use overlay::Overlay;
 use std::path::PathBuf;
@@ -59,42 +61,29 @@ pub struct Screenshot {
     pub frames: u32,
 }
 
-/// Everything the viewer shows, as plain data (the fields of [`ShadeInputs`], owned, plus the
-/// forms and the lighting).
+/// Everything the viewer shows: the scene (as every shader takes it), the forms and the
+/// lighting.
 #[derive(Clone, Debug)]
 pub struct ViewerSetup {
     /// Window title (e.g. the experiment's name).
     pub title: String,
-    /// World-space vertex positions.
-    pub positions: Vec<[f32; 3]>,
-    /// Unit vertex normals (the transfer frames' normals).
-    pub normals: Vec<[f32; 3]>,
-    /// Vertex tangents (the transfer frames' tangents).
-    pub tangents: Vec<[f32; 3]>,
-    /// BTF texture coordinates; `None` = all (0, 0).
-    pub uvs: Option<Vec<[f32; 2]>>,
-    pub triangles: Vec<[u32; 3]>,
-    /// The scene's materials (at least one), all on the light grid `light_m`.
-    pub materials: Vec<ViewerMaterial>,
-    /// Index into `materials` per triangle; `None` only with exactly one material.
-    pub triangle_materials: Option<Vec<u32>>,
-    /// Light grid m of every material (`m * m` = the forms' local directions).
-    pub light_m: u32,
+    /// The scene, exactly as the pipeline shades it.
+    pub scene: ShadeScene,
     /// The compressed forms (at least one); Tab cycles through them in this order.
     pub forms: Vec<ViewerForm>,
     /// Index into `forms` shown first.
     pub initial_form: usize,
     /// The environment map `L` is computed from (`LightVector::from_env`).
     pub env: EnvMap,
-    /// Cubemap resolution r of `L` (the forms have `6 r^2` columns).
-    pub cubemap_resolution: u32,
+    /// The basis `L` is computed in (the forms' columns).
+    pub light_basis: LightBasis,
     /// Initial rotation of the environment about +Y, radians (the config's rotation).
     pub env_rotation: f64,
-    /// The config's `lighting.sun_boost`: the brightest texel of every recomputed `L` (by
-    /// luminance) is multiplied by it, as the pipeline's `load_lighting` does.
+    /// The config's `lighting.sun_boost`: the brightest texel of every recomputed `L` is
+    /// multiplied by it ([`LightVector::boost_brightest`], as the pipeline does).
     pub sun_boost: Option<f32>,
     /// Initial camera; its `width x height` is the initial window size (pixels).
-    pub camera: GpuCamera,
+    pub camera: Camera,
     /// Exposure in stops (the config's `report.exposure`).
     pub exposure: f32,
     /// Draw the environment behind the mesh.
@@ -105,31 +94,6 @@ pub struct ViewerSetup {
     pub continuous: bool,
 }
 
-/// One material of the viewed scene (the fields of [`GpuMaterial`], owned).
-#[derive(Clone, Debug)]
-pub struct ViewerMaterial {
-    /// BTF `[texel][view][light]` RGB (`shading::btf::Btf::data`).
-    pub btf_data: Vec<[f32; 3]>,
-    /// BTF patch size in texels.
-    pub btf_spatial: [u32; 2],
-    /// View grid m of the BTF, `None` when view-independent.
-    pub view_m: Option<u32>,
-    /// Patch repetitions per unit of uv (`shading::cpu::Material::tiling`).
-    pub tiling: f32,
-}
-
-impl ViewerMaterial {
-    /// The borrowed form [`GpuShader::new`] takes.
-    pub fn as_gpu(&self) -> GpuMaterial<'_> {
-        GpuMaterial {
-            btf_data: &self.btf_data,
-            btf_spatial: self.btf_spatial,
-            view_m: self.view_m,
-            tiling: self.tiling,
-        }
-    }
-}
-
 /// What the worker thread sends back: a light vector for a rotation.
 struct LightReady {
     rotation: f64,
@@ -137,14 +101,11 @@ struct LightReady {
     ms: f64,
 }
 
-/// `L` for `rotation`, exactly as the pipeline's `load_lighting`.
-fn compute_light(env: &EnvMap, resolution: u32, rotation: f64, sun_boost: Option<f32>) -> LightVector {
-    let mut light = LightVector::from_env(env, resolution, rotation);
+/// `L` for `rotation`, exactly as the pipeline's lighting stage makes it.
+fn compute_light(env: &EnvMap, basis: LightBasis, rotation: f64, sun_boost: Option<f32>) -> LightVector {
+    let mut light = LightVector::from_env(env, basis, rotation);
     if let Some(boost) = sun_boost {
-        let lum = |p: &[f32; 3]| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2];
-        if let Some(k) = (0..light.len()).max_by(|&a, &b| lum(&light.power[a]).total_cmp(&lum(&light.power[b]))) {
-            light.power[k] = light.power[k].map(|v| v * boost);
-        }
+        light.boost_brightest(boost);
     }
     light
 }
@@ -159,28 +120,16 @@ impl ViewerSetup {
         if self.initial_form >= self.forms.len() {
             return bad(format!("initial form {} of {} forms", self.initial_form, self.forms.len()));
         }
-        let r = self.cubemap_resolution as usize;
-        if r == 0 {
-            return bad("cubemap resolution 0".into());
-        }
-        let local = (self.light_m as usize).pow(2);
+        let shape = biscale_core::basis::TransferShape::new(
+            self.scene.mesh().vertex_count(),
+            self.scene.local_basis(),
+            self.light_basis,
+        );
         for f in &self.forms {
-            let rows = self.positions.len() * local;
-            if f.form.cols != 6 * r * r || f.form.rows != rows || f.form.local_dirs != local {
-                return bad(format!(
-                    "form '{}' is {} x {} with {} local directions; the scene needs {rows} x {} with {local}",
-                    f.label,
-                    f.form.rows,
-                    f.form.cols,
-                    f.form.local_dirs,
-                    6 * r * r
-                ));
+            if f.form.shape() != shape {
+                return bad(format!("form '{}' is {}; the scene needs {shape}", f.label, f.form.shape()));
             }
         }
-        // The materials and their ids, as the shader will check them (before a window opens).
-        let materials: Vec<GpuMaterial> = self.materials.iter().map(ViewerMaterial::as_gpu).collect();
-        crate::shade::material_headers(&materials, local as u64)?;
-        crate::shade::check_material_ids(self.triangle_materials.as_deref(), materials.len(), self.triangles.len())?;
         if self.env.width == 0 || self.env.height == 0 || self.env.pixels.len() != self.env.width * self.env.height {
             return bad("empty or inconsistent environment map".into());
         }
@@ -197,22 +146,8 @@ impl ViewerSetup {
     }
 
     /// A shader for this scene seen by `camera` (whose size is the image's).
-    fn shader(&self, ctx: &GpuContext, camera: GpuCamera) -> Result<GpuShader> {
-        let materials: Vec<GpuMaterial> = self.materials.iter().map(ViewerMaterial::as_gpu).collect();
-        GpuShader::new(
-            ctx,
-            &ShadeInputs {
-                positions: &self.positions,
-                normals: &self.normals,
-                tangents: &self.tangents,
-                uvs: self.uvs.as_deref(),
-                triangles: &self.triangles,
-                materials: &materials,
-                triangle_materials: self.triangle_materials.as_deref(),
-                light_m: self.light_m,
-                camera,
-            },
-        )
+    fn shader(&self, ctx: &GpuContext, camera: Camera) -> Result<GpuShader> {
+        GpuShader::new(ctx, &self.scene, &camera)
     }
 }
 
@@ -233,7 +168,7 @@ pub fn run_viewer(setup: ViewerSetup) -> Result<()> {
         .build()
         .map_err(|e| GpuError::Window(format!("{e} (is DISPLAY or WAYLAND_DISPLAY set? try xvfb-run)")))?;
     let start = Instant::now();
-    let light = compute_light(&setup.env, setup.cubemap_resolution, setup.env_rotation, setup.sun_boost);
+    let light = compute_light(&setup.env, setup.light_basis, setup.env_rotation, setup.sun_boost);
     let light_ms = start.elapsed().as_secs_f64() * 1e3;
     let mut app = App {
         proxy: event_loop.create_proxy(),
@@ -423,7 +358,7 @@ impl App {
         let (tx, rx) = mpsc::channel::<f64>();
         let proxy = self.proxy.clone();
         let env = Arc::new(self.setup.env.clone());
-        let (res, boost) = (self.setup.cubemap_resolution, self.setup.sun_boost);
+        let (basis, boost) = (self.setup.light_basis, self.setup.sun_boost);
         std::thread::Builder::new()
             .name("biscale-view-light".into())
             .spawn(move || {
@@ -432,7 +367,7 @@ impl App {
                         rotation = r;
                     }
                     let start = Instant::now();
-                    let light = compute_light(&env, res, rotation, boost);
+                    let light = compute_light(&env, basis, rotation, boost);
                     let ms = start.elapsed().as_secs_f64() * 1e3;
                     if proxy.send_event(LightReady { rotation, light, ms }).is_err() {
                         break;

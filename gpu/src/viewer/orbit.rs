@@ -3,13 +3,13 @@
 //! from +Z, positive azimuth moves the eye towards +X), so the config's camera and the viewer's
 //! agree.
 
-use crate::shade::GpuCamera;
+use biscale_core::scene::Camera;
 use glam::{DVec3, Vec3};
 
 /// Elevation stays this far (radians) from the poles while dragging, so the view never flips.
 const POLE_MARGIN: f64 = 1e-3;
 
-/// Orbit state; [`Self::camera`] turns it into a [`GpuCamera`].
+/// Orbit state; [`Self::camera`] turns it into a [`Camera`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Orbit {
     pub target: Vec3,
@@ -23,7 +23,7 @@ pub struct Orbit {
 impl Orbit {
     /// The orbit through `camera`'s position around its target (its `up` is replaced by the
     /// orbit's own, which is +Y tilted with the elevation as `frame_bounds` builds it).
-    pub fn from_camera(camera: &GpuCamera) -> Self {
+    pub fn from_camera(camera: &Camera) -> Self {
         let back = (camera.position - camera.target).as_dvec3();
         let distance = back.length();
         let (azimuth, elevation) = if distance > 0.0 {
@@ -42,11 +42,11 @@ impl Orbit {
     }
 
     /// The camera of this orbit for a `width x height` image.
-    pub fn camera(&self, width: u32, height: u32) -> GpuCamera {
+    pub fn camera(&self, width: u32, height: u32) -> Camera {
         let (az, el) = (self.azimuth, self.elevation);
         let back = DVec3::new(el.cos() * az.sin(), el.sin(), el.cos() * az.cos());
         let up = DVec3::new(-el.sin() * az.sin(), el.cos(), -el.sin() * az.cos());
-        GpuCamera {
+        Camera {
             position: self.target + (back * self.distance).as_vec3(),
             target: self.target,
             up: up.as_vec3(),
@@ -77,8 +77,8 @@ impl Orbit {
 mod tests {
     use super::*;
 
-    fn cam(position: Vec3, target: Vec3) -> GpuCamera {
-        GpuCamera { position, target, up: Vec3::Y, fov_y_degrees: 30.0, width: 64, height: 48 }
+    fn cam(position: Vec3, target: Vec3) -> Camera {
+        Camera { position, target, up: Vec3::Y, fov_y_degrees: 30.0, width: 64, height: 48 }
     }
 
     #[test]

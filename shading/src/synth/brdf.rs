@@ -2,7 +2,7 @@
 //! (+Z = the meso-surface normal, +X = the tangent: the patch's +X projected onto the facet).
 //!
 //! * Lambertian: `f = albedo / pi`.
-//! * Phong: the normalized modified Phong BRDF of [`crate::btf::phong_brdf`].
+//! * Phong: the normalized modified Phong BRDF of [`phong_brdf`].
 //! * Ashikhmin-Shirley: the anisotropic Phong BRDF of Ashikhmin and Shirley 2000 ("An
 //!   anisotropic Phong BRDF model", J. Graphics Tools 5(2)), equations 4 (specular, with
 //!   Schlick's Fresnel term) and 5 (the coupled diffuse term). `nu` is the exponent for
@@ -11,8 +11,8 @@
 //! Evaluation returns the diffuse and specular parts separately, because an
 //! [`AlbedoMap`](super::AlbedoMap) scales the diffuse part only.
 
-use crate::btf::phong_brdf;
 use crate::error::{Result, ShadingError};
+use biscale_core::scene::btf::phong_brdf;
 use biscale_core::Rgb;
 use glam::DVec3;
 use std::f64::consts::PI;
@@ -22,7 +22,7 @@ use std::f64::consts::PI;
 pub enum Brdf {
     /// `f = albedo / pi`.
     Lambertian { albedo: Rgb },
-    /// `f = kd / pi + ks (n + 2) / (2 pi) cos^n(alpha)` ([`crate::btf::phong_brdf`]).
+    /// `f = kd / pi + ks (n + 2) / (2 pi) cos^n(alpha)` ([`phong_brdf`]).
     Phong { kd: Rgb, ks: Rgb, exponent: f32 },
     /// Ashikhmin-Shirley: diffuse reflectance `rd`, specular reflectance at normal incidence
     /// `rs`, Phong-like exponents `nu` (along the tangent) and `nv` (along the bitangent).

@@ -28,14 +28,15 @@
 //! maximum), 226 MB; u8 relative RMS error 1.1e-2 (max 2.0e-3 of the texel's maximum), 113 MB.
 //! f16 is accurate enough for rendering; u8 is for previews and storage-bound experiments.
 //!
-//! Writes are atomic ([`crate::image::write_atomic`]). Loading checks the size, magic, version
+//! Writes are atomic ([`biscale_core::io::write_atomic`]). Loading checks the size, magic, version
 //! and declared length before reading the rest, so a truncated or huge-claiming file never
 //! causes a large allocation; then the checksum; then every value is decoded and checked
 //! finite. Every error names the file.
 
-use crate::btf::Btf;
 use crate::error::{Result, ShadingError};
+use biscale_core::basis::LocalBasis;
 use biscale_core::sampling::HemisphereGrid;
+use biscale_core::scene::Btf;
 use biscale_core::Rgb;
 use half::f16;
 use std::io::Read;
@@ -106,52 +107,57 @@ impl BtfEncoding {
     }
 }
 
-/// Encode `btf` as the bytes of a BTF file (see the module docs). Errors: an invalid table,
+/// Encode `btf` as the bytes of a BTF file (see the module docs). Errors:
 /// values that f16 cannot hold (above 65504), negative values with the u8 encoding, a name
 /// longer than 4096 bytes.
 pub fn encode_btf(btf: &Btf, encoding: BtfEncoding) -> Result<Vec<u8>> {
-    btf.validate()?;
-    if btf.name.len() > MAX_NAME {
+    if btf.name().len() > MAX_NAME {
         return Err(ShadingError::Invalid(format!(
             "BTF name is {} bytes, at most {MAX_NAME} are stored",
-            btf.name.len()
+            btf.name().len()
         )));
     }
-    if btf.spatial.iter().any(|&s| s > MAX_SPATIAL) {
+    if btf.spatial().iter().any(|&s| s > MAX_SPATIAL) {
         return Err(ShadingError::Invalid(format!(
             "BTF '{}': {:?} texels exceeds {MAX_SPATIAL} per side",
-            btf.name, btf.spatial
+            btf.name(),
+            btf.spatial()
         )));
     }
     let texels = btf.texel_count();
     let total = PREAMBLE
         + FIXED_HEADER
-        + btf.name.len()
-        + encoding.payload_len(texels as u128, btf.data.len() as u128) as usize
+        + btf.name().len()
+        + encoding.payload_len(texels as u128, btf.data().len() as u128) as usize
         + 4;
     let mut out = Vec::with_capacity(total);
     out.extend_from_slice(&BTF_MAGIC);
     out.extend_from_slice(&BTF_FORMAT_VERSION.to_le_bytes());
     out.extend_from_slice(&(total as u64).to_le_bytes());
-    for v in [btf.spatial[0], btf.spatial[1], btf.light_grid.m, btf.view_grid.map_or(0, |g| g.m)] {
+    let light_m = btf
+        .local_basis()
+        .grid()
+        .map(|g| g.m)
+        .ok_or_else(|| ShadingError::Invalid(format!("BTF '{}': only bin bases have a file format", btf.name())))?;
+    for v in [btf.spatial()[0], btf.spatial()[1], light_m, btf.view_grid().map_or(0, |g| g.m)] {
         out.extend_from_slice(&v.to_le_bytes());
     }
     out.push(encoding.tag());
-    out.extend_from_slice(&(btf.name.len() as u32).to_le_bytes());
-    out.extend_from_slice(btf.name.as_bytes());
+    out.extend_from_slice(&(btf.name().len() as u32).to_le_bytes());
+    out.extend_from_slice(btf.name().as_bytes());
     match encoding {
         BtfEncoding::F32 => {
-            for c in btf.data.iter().flatten() {
+            for c in btf.data().iter().flatten() {
                 out.extend_from_slice(&c.to_le_bytes());
             }
         }
         BtfEncoding::F16 => {
-            for (i, c) in btf.data.iter().flatten().enumerate() {
+            for (i, c) in btf.data().iter().flatten().enumerate() {
                 let h = f16::from_f32(*c);
                 if !h.is_finite() {
                     return Err(ShadingError::Invalid(format!(
                         "BTF '{}': value {c} at entry {} does not fit f16 (max 65504); use f32",
-                        btf.name,
+                        btf.name(),
                         i / 3
                     )));
                 }
@@ -159,20 +165,20 @@ pub fn encode_btf(btf: &Btf, encoding: BtfEncoding) -> Result<Vec<u8>> {
             }
         }
         BtfEncoding::U8 => {
-            if let Some(i) = btf.data.iter().flatten().position(|c| *c < 0.0) {
+            if let Some(i) = btf.data().iter().flatten().position(|c| *c < 0.0) {
                 return Err(ShadingError::Invalid(format!(
                     "BTF '{}': negative value at entry {}: the u8 encoding needs non-negative values",
-                    btf.name,
+                    btf.name(),
                     i / 3
                 )));
             }
-            let per = btf.data.len() / texels;
+            let per = btf.data().len() / texels;
             let scales: Vec<f32> =
-                btf.data.chunks(per).map(|t| t.iter().flatten().copied().fold(0.0f32, f32::max)).collect();
+                btf.data().chunks(per).map(|t| t.iter().flatten().copied().fold(0.0f32, f32::max)).collect();
             for s in &scales {
                 out.extend_from_slice(&s.to_le_bytes());
             }
-            for (t, chunk) in btf.data.chunks(per).enumerate() {
+            for (t, chunk) in btf.data().chunks(per).enumerate() {
                 let s = scales[t];
                 for c in chunk.iter().flatten() {
                     out.push(if s > 0.0 { (c / s * 255.0).round().clamp(0.0, 255.0) as u8 } else { 0 });
@@ -189,10 +195,7 @@ pub fn encode_btf(btf: &Btf, encoding: BtfEncoding) -> Result<Vec<u8>> {
 /// Write `btf` to `path` atomically (see the module docs).
 pub fn save_btf(btf: &Btf, path: &Path, encoding: BtfEncoding) -> Result<()> {
     let bytes = encode_btf(btf, encoding)?;
-    crate::image::write_atomic(path, |out| {
-        use std::io::Write;
-        out.write_all(&bytes).map_err(|e| format!("cannot write: {e}"))
-    })
+    Ok(biscale_core::io::write_atomic_bytes(path, &bytes)?)
 }
 
 /// The parsed fixed part of a BTF file.
@@ -334,13 +337,7 @@ fn decode_body(bytes: &[u8], header: Header, fail: &dyn Fn(String) -> ShadingErr
     if let Some(i) = data.iter().position(|v| !v.iter().all(|c| c.is_finite())) {
         return Err(fail(format!("corrupt: non-finite value at entry {i}")));
     }
-    let btf = Btf {
-        spatial: header.spatial,
-        light_grid: HemisphereGrid::new(header.light_m),
-        view_grid: (header.view_m > 0).then(|| HemisphereGrid::new(header.view_m)),
-        data,
-        name: header.name,
-    };
-    btf.validate().map_err(|e| fail(e.to_string()))?;
-    Ok(btf)
+    let local = LocalBasis::bins(header.light_m).map_err(|e| fail(format!("corrupt: {e}")))?;
+    let views = (header.view_m > 0).then(|| HemisphereGrid::new(header.view_m));
+    Btf::new(header.spatial, local, views, data, header.name).map_err(|e| fail(e.to_string()))
 }

@@ -4,10 +4,11 @@
 use super::brdf::{Brdf, Frame};
 use super::heightfield::{AlbedoMap, HeightField};
 use super::trace::PeriodicTracer;
-use crate::btf::Btf;
 use crate::error::{Result, ShadingError};
+use biscale_core::basis::LocalBasis;
 use biscale_core::sampling::hemisphere::{square_to_disk, square_to_hemisphere};
 use biscale_core::sampling::HemisphereGrid;
+use biscale_core::scene::Btf;
 use biscale_core::Rgb;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -21,8 +22,9 @@ pub struct BtfSpec {
     pub height_field: HeightField,
     /// Texels per patch side (the reference settings use 32 or 64; `1..=1024`).
     pub resolution: u32,
-    /// Light grid side `m`: `m x m` bins (default 8; `1..=256`).
-    pub light_grid: u32,
+    /// The light directions: the local basis of the `L*` the BTF will be dotted with (take
+    /// it from `T`; default 8 x 8 bins).
+    pub local_basis: LocalBasis,
     /// View grid side (default 12), or `None` for a view-independent BTF (no view axis),
     /// which is seen from straight above (`e = +Z`) and needs a Lambertian BRDF.
     pub view_grid: Option<u32>,
@@ -47,7 +49,7 @@ impl BtfSpec {
         Self {
             height_field,
             resolution: 64,
-            light_grid: 8,
+            local_basis: LocalBasis::bins(8).expect("8 is a valid grid"),
             view_grid: Some(12),
             brdf,
             supersample: 2,
@@ -69,11 +71,11 @@ impl BtfSpec {
         if !(1..=1024).contains(&self.resolution) {
             return bad(format!("resolution must be 1..=1024 texels, got {}", self.resolution));
         }
-        if !(1..=256).contains(&self.light_grid) {
-            return bad(format!("light grid must be 1..=256 per side, got {}", self.light_grid));
+        if self.local_basis.grid().is_none() {
+            return bad(format!("a synthesized BTF needs a bin basis, not {}", self.local_basis));
         }
         match self.view_grid {
-            Some(v) if !(1..=256).contains(&v) => return bad(format!("view grid must be 1..=256 per side, got {v}")),
+            Some(v) if !(1..=64).contains(&v) => return bad(format!("view grid must be 1..=64 per side, got {v}")),
             None if !matches!(self.brdf, Brdf::Lambertian { .. }) => {
                 return bad(format!(
                     "a view-independent BTF (no view grid) needs a Lambertian BRDF, got {}",
@@ -113,11 +115,11 @@ pub(crate) enum Mode {
 
 fn flat(spec: &BtfSpec, progress: Option<&(dyn Fn(usize) + Sync)>) -> Result<Btf> {
     let lambertian = matches!(spec.brdf, Brdf::Lambertian { .. });
-    let mut btf = match (spec.brdf, &spec.albedo_map) {
-        (Brdf::Lambertian { albedo }, None) => Btf::lambertian(albedo, spec.light_grid)?,
+    let btf = match (spec.brdf, &spec.albedo_map) {
+        (Brdf::Lambertian { albedo }, None) => Btf::lambertian(albedo, spec.local_basis)?,
         (Brdf::Phong { kd, ks, exponent }, None) => {
             // validate() guarantees a view grid for non-Lambertian BRDFs.
-            Btf::phong(kd, ks, exponent, spec.light_grid, spec.view_grid.unwrap_or(1))?
+            Btf::phong(kd, ks, exponent, spec.local_basis, spec.view_grid.unwrap_or(1))?
         }
         (_, None) => {
             // Uniform: one texel at one sample.
@@ -130,7 +132,7 @@ fn flat(spec: &BtfSpec, progress: Option<&(dyn Fn(usize) + Sync)>) -> Result<Btf
             run(&s, None, Mode::Plane)?
         }
     };
-    btf.name = spec.name.clone();
+    let btf = btf.renamed(spec.name.clone());
     if let Some(p) = progress {
         p(btf.texel_count());
     }
@@ -188,7 +190,7 @@ const TMIN: f64 = 1e-9;
 
 pub(crate) fn run(spec: &BtfSpec, progress: Option<&(dyn Fn(usize) + Sync)>, mode: Mode) -> Result<Btf> {
     spec.validate()?;
-    let lg = HemisphereGrid::new(spec.light_grid);
+    let lg = spec.local_basis.grid().expect("validate() checked it is a bin basis");
     let vg = spec.view_grid.map(HemisphereGrid::new);
     let lights: Vec<DVec3> = (0..lg.len() as u32).map(|j| lg.bin_direction(j).as_dvec3()).collect();
     let views: Vec<DVec3> = match vg {
@@ -223,9 +225,7 @@ pub(crate) fn run(spec: &BtfSpec, progress: Option<&(dyn Fn(usize) + Sync)>, mod
             p(k);
         }
     });
-    let btf = Btf { spatial: [r as u32; 2], light_grid: lg, view_grid: vg, data, name: spec.name.clone() };
-    btf.validate()?;
-    Ok(btf)
+    Ok(Btf::new([r as u32; 2], spec.local_basis, vg, data, spec.name.clone())?)
 }
 
 fn shade_texel(ctx: &Context, tx: usize, ty: usize, out: &mut [Rgb]) {

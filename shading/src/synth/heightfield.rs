@@ -247,7 +247,7 @@ fn read_gray(path: &Path) -> Result<(u32, u32, Vec<f32>)> {
     let is_exr = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
     if is_exr {
         // NaN pixels come back as warnings; the caller turns them into an error.
-        let (img, _warnings) = crate::image::HdrImage::read_exr(path)?;
+        let (img, _warnings) = biscale_core::scene::HdrImage::read_exr(path)?;
         let v = img.pixels.iter().map(|p| (p[0] + p[1] + p[2]) / 3.0).collect();
         return Ok((img.width, img.height, v));
     }
@@ -276,7 +276,7 @@ impl AlbedoMap {
     pub fn from_image(path: &Path) -> Result<Self> {
         let is_exr = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
         let map = if is_exr {
-            let (img, _) = crate::image::HdrImage::read_exr(path)?;
+            let (img, _) = biscale_core::scene::HdrImage::read_exr(path)?;
             Self { width: img.width, height: img.height, rgb: img.pixels }
         } else {
             let img = image::open(path)
@@ -553,7 +553,7 @@ mod tests {
         assert!(e.contains("tiny.png") && e.contains("1x1"), "{e}");
 
         let exr = dir.path().join("nan.exr");
-        let mut hdr = crate::image::HdrImage::new(4, 4);
+        let mut hdr = biscale_core::scene::HdrImage::new(4, 4);
         hdr.pixels[6] = [f32::NAN; 3];
         hdr.write_exr(&exr).unwrap();
         let e = HeightField::from_image(&exr, 0.1).unwrap_err().to_string();

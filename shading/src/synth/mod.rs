@@ -30,7 +30,7 @@
 //!   anisotropic Ashikhmin-Shirley BRDF needs.
 //! * **Directions.** `d_j` and `e` are the bin centres of the light and view
 //!   [`HemisphereGrid`](biscale_core::sampling::HemisphereGrid)s (local +Z = macro normal, +X =
-//!   tangent). The cosine uses the same **bin-mean** convention as [`Btf::lambertian`](crate::btf::Btf::lambertian):
+//!   tangent). The cosine uses the same **bin-mean** convention as [`Btf::lambertian`](biscale_core::scene::Btf::lambertian):
 //!   `dbar_j` is the mean direction over bin `j` (its `z` is the bin-mean cosine), so a flat
 //!   patch gives `cosbar_j` exactly, and for a tilted facet `n . dbar_j` is the exact mean
 //!   cosine whenever the bin lies wholly above the facet's horizon (bins straddling it use the
@@ -46,7 +46,7 @@
 //!   direction). The estimator is unbiased for the triangle-averaged visibility; its noise
 //!   falls as `1 / sqrt(K s^2)` per texel.
 //! * **Flat patches** (zero amplitude) are tabulated without ray tracing: with no albedo map,
-//!   [`Btf::lambertian`](crate::btf::Btf::lambertian) / [`Btf::phong`](crate::btf::Btf::phong)
+//!   [`Btf::lambertian`](biscale_core::scene::Btf::lambertian) / [`Btf::phong`](biscale_core::scene::Btf::phong)
 //!   themselves (one texel; a Lambertian one has no view axis), Ashikhmin-Shirley analytically
 //!   at one texel.
 //!

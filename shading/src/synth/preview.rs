@@ -1,8 +1,8 @@
 //! Contact sheets: a BTF patch under several light and view directions, for looking at.
 
-use crate::btf::Btf;
 use crate::error::{Result, ShadingError};
-use crate::image::{linear_to_srgb, write_rgb8_png};
+use biscale_core::scene::image::{linear_to_srgb, write_rgb8_png};
+use biscale_core::scene::Btf;
 use std::path::Path;
 
 /// Tiles narrower than this are enlarged (nearest neighbour) by an integer factor.
@@ -12,9 +12,8 @@ const MIN_TILE: u32 = 32;
 /// each tile is the patch's texels (texel row 0 at the tile's top), enlarged by an integer
 /// factor to at least 32 pixels, with 1-pixel black gaps between tiles. Values are scaled so
 /// the largest value shown is white, then sRGB-encoded. A view-independent BTF has one view,
-/// index 0. Errors: empty lists, indices out of range, an invalid table.
+/// index 0. Errors: empty lists, indices out of range.
 pub fn contact_sheet(btf: &Btf, lights: &[usize], views: &[usize]) -> Result<image::RgbImage> {
-    btf.validate()?;
     let (m, v) = (btf.light_count(), btf.view_count());
     if lights.is_empty() || views.is_empty() {
         return Err(ShadingError::Invalid("contact sheet: no lights or no views given".into()));
@@ -22,20 +21,20 @@ pub fn contact_sheet(btf: &Btf, lights: &[usize], views: &[usize]) -> Result<ima
     if let Some(j) = lights.iter().find(|&&j| j >= m) {
         return Err(ShadingError::Invalid(format!(
             "contact sheet: light {j} out of range (BTF '{}' has {m})",
-            btf.name
+            btf.name()
         )));
     }
     if let Some(e) = views.iter().find(|&&e| e >= v) {
         return Err(ShadingError::Invalid(format!(
             "contact sheet: view {e} out of range (BTF '{}' has {v})",
-            btf.name
+            btf.name()
         )));
     }
-    let [w, h] = btf.spatial;
+    let [w, h] = btf.spatial();
     let k = MIN_TILE.div_ceil(w.min(h)).max(1);
     let (tw, th) = (w * k, h * k);
     let (cols, rows) = (lights.len() as u32, views.len() as u32);
-    let at = |texel: usize, view: usize, light: usize| btf.data[(texel * v + view) * m + light];
+    let at = |texel: usize, view: usize, light: usize| btf.data()[(texel * v + view) * m + light];
     let mut peak = 0.0f32;
     for t in 0..btf.texel_count() {
         for &e in views {
@@ -63,5 +62,5 @@ pub fn contact_sheet(btf: &Btf, lights: &[usize], views: &[usize]) -> Result<ima
 
 /// [`contact_sheet`] written as a PNG, atomically.
 pub fn save_contact_sheet(btf: &Btf, lights: &[usize], views: &[usize], path: &Path) -> Result<()> {
-    write_rgb8_png(&contact_sheet(btf, lights, views)?, path)
+    Ok(write_rgb8_png(&contact_sheet(btf, lights, views)?, path)?)
 }

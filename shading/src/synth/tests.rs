@@ -3,17 +3,22 @@
 
 use super::generate::{run, Mode};
 use super::*;
-use crate::btf::Btf;
+use biscale_core::basis::LocalBasis;
 use biscale_core::sampling::HemisphereGrid;
+use biscale_core::scene::Btf;
 use std::f64::consts::PI;
 
 fn spec(hf: HeightField, brdf: Brdf, res: u32, m: u32, v: Option<u32>) -> BtfSpec {
-    BtfSpec { resolution: res, light_grid: m, view_grid: v, ..BtfSpec::new(hf, brdf) }
+    BtfSpec { resolution: res, local_basis: bins(m), view_grid: v, ..BtfSpec::new(hf, brdf) }
+}
+
+fn bins(m: u32) -> LocalBasis {
+    LocalBasis::bins(m).unwrap()
 }
 
 /// Value of `btf` at texel `t`, view `v`, light `j`.
 fn at(btf: &Btf, t: usize, v: usize, j: usize) -> [f32; 3] {
-    btf.data[(t * btf.view_count() + v) * btf.light_count() + j]
+    btf.data()[(t * btf.view_count() + v) * btf.light_count() + j]
 }
 
 fn close(a: f32, b: f32, rel: f32) -> bool {
@@ -29,31 +34,31 @@ fn flat_patches_are_the_analytic_tables() {
     let flat = HeightField::flat(16).unwrap();
     let mut s = spec(flat.clone(), LAMBERT, 32, 8, Some(12));
     let btf = synthesize(&s, None).unwrap();
-    let expect = Btf::lambertian([0.8, 0.5, 0.25], 8).unwrap();
+    let expect = Btf::lambertian([0.8, 0.5, 0.25], bins(8)).unwrap();
     assert_eq!(
-        (btf.spatial, btf.light_grid, btf.view_grid, &btf.data),
-        (expect.spatial, expect.light_grid, expect.view_grid, &expect.data)
+        (btf.spatial(), btf.local_basis(), btf.view_grid(), btf.data()),
+        (expect.spatial(), expect.local_basis(), expect.view_grid(), expect.data())
     );
     // ... which is the analytic BRDF times the bin-mean cosine at every sample.
     let Brdf::Lambertian { albedo } = LAMBERT else { unreachable!() };
     for j in 0..64 {
-        let c = btf.light_grid.bin_mean_cosine(j as u32);
+        let c = btf.local_basis().grid().unwrap().bin_mean_cosine(j as u32);
         for (got, a) in at(&btf, 0, 0, j).into_iter().zip(albedo) {
             assert!(close(got, (a as f64 / PI * c) as f32, 1e-7));
         }
     }
     s.brdf = PHONG;
     let btf = synthesize(&s, None).unwrap();
-    let expect = Btf::phong([0.3, 0.2, 0.1], [0.5, 0.6, 0.7], 20.0, 8, 12).unwrap();
+    let expect = Btf::phong([0.3, 0.2, 0.1], [0.5, 0.6, 0.7], 20.0, bins(8), 12).unwrap();
     assert_eq!(
-        (btf.spatial, btf.light_grid, btf.view_grid, &btf.data),
-        (expect.spatial, expect.light_grid, expect.view_grid, &expect.data)
+        (btf.spatial(), btf.local_basis(), btf.view_grid(), btf.data()),
+        (expect.spatial(), expect.local_basis(), expect.view_grid(), expect.data())
     );
     // Zero amplitude in a recipe is a flat patch.
     for p in Pattern::ALL {
         let f = if p == Pattern::Weave || p == Pattern::Bricks || p == Pattern::Scales { 4 } else { 3 };
         s.height_field = HeightField::procedural(&Recipe::new(p, 0.0, f, 5), 32).unwrap();
-        assert_eq!(synthesize(&s, None).unwrap().data, expect.data, "{p:?}");
+        assert_eq!(synthesize(&s, None).unwrap().data(), expect.data(), "{p:?}");
     }
 }
 
@@ -95,7 +100,7 @@ fn white_lambertian_never_exceeds_its_albedo() {
         let hf = HeightField::procedural(&Recipe::new(p, a, f, 11), 48).unwrap();
         let s = BtfSpec { supersample: 2, ..spec(hf, Brdf::Lambertian { albedo: [1.0; 3] }, 12, 8, Some(6)) };
         let btf = synthesize(&s, None).unwrap();
-        let w = btf.light_grid.bin_solid_angle();
+        let w = btf.local_basis().grid().unwrap().bin_solid_angle();
         let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
         for t in 0..btf.texel_count() {
             for v in 0..btf.view_count() {
@@ -121,9 +126,9 @@ fn interreflection_adds_light_within_the_energy_bound() {
     let base = BtfSpec { supersample: 2, ..spec(hf, Brdf::Lambertian { albedo: [albedo; 3] }, 12, 8, Some(4)) };
     let direct = synthesize(&base, None).unwrap();
     let both = synthesize(&BtfSpec { interreflection: true, ..base.clone() }, None).unwrap();
-    let w = direct.light_grid.bin_solid_angle();
+    let w = direct.local_basis().grid().unwrap().bin_solid_angle();
     let (mut gained, mut max_sum) = (0.0f64, 0.0f64);
-    for (a, b) in direct.data.iter().zip(&both.data) {
+    for (a, b) in direct.data().iter().zip(both.data()) {
         assert!(b[0] >= a[0], "{a:?} -> {b:?}");
         gained = gained.max((b[0] - a[0]) as f64);
     }
@@ -136,7 +141,7 @@ fn interreflection_adds_light_within_the_energy_bound() {
     assert!(gained > 0.01, "the bounce added nothing ({gained})");
     assert!(max_sum <= albedo as f64 * 1.03, "{max_sum}");
     // Deterministic: the same spec gives the same table (per-point seeded sequences).
-    assert_eq!(synthesize(&BtfSpec { interreflection: true, ..base }, None).unwrap().data, both.data);
+    assert_eq!(synthesize(&BtfSpec { interreflection: true, ..base }, None).unwrap().data(), both.data());
 }
 
 #[test]
@@ -160,7 +165,7 @@ fn shadow_of_a_ridge_has_length_height_times_tan_theta() {
     let hf = HeightField { width: n as u32, height: n as u32, h };
     let s = BtfSpec { supersample: 2, ..spec(hf, Brdf::Lambertian { albedo: [1.0; 3] }, 64, 8, None) };
     let btf = synthesize(&s, None).unwrap();
-    let grid = btf.light_grid;
+    let grid = btf.local_basis().grid().unwrap();
     let mut checked = 0;
     let mut lengths = vec![];
     for j in 0..grid.len() {
@@ -202,7 +207,7 @@ fn grazing_lights_shadow_more_of_a_bumpy_patch() {
     let hf = HeightField::procedural(&Recipe::new(Pattern::Bumps, 0.08, 3, 2), 64).unwrap();
     let s = spec(hf, Brdf::Lambertian { albedo: [1.0; 3] }, 16, 8, None);
     let btf = synthesize(&s, None).unwrap();
-    let grid = btf.light_grid;
+    let grid = btf.local_basis().grid().unwrap();
     let dark = |j: usize| (0..btf.texel_count()).filter(|&t| at(&btf, t, 0, j)[0] == 0.0).count();
     let overhead = grid.bin_of(glam::Vec3::Z).unwrap() as usize; // a centre bin
     let grazing = 0; // a corner bin of the outer ring, z ~ 0.12
@@ -238,7 +243,7 @@ fn deep_pit_bottoms_are_hidden_at_grazing_views() {
         ..spec(hf, Brdf::Lambertian { albedo: [1.0; 3] }, 32, 4, Some(12))
     };
     let btf = synthesize(&s, None).unwrap();
-    let vg = btf.view_grid.unwrap();
+    let vg = btf.view_grid().unwrap();
     let (mut grazing, mut overhead) = (0, 0);
     for v in 0..vg.len() {
         let e = vg.bin_direction(v as u32).as_dvec3();
@@ -276,7 +281,7 @@ fn swapping_nu_and_nv_rotates_the_ashikhmin_shirley_lobe() {
     let a = synthesize(&spec(flat.clone(), ASHIKHMIN, 8, 8, Some(8)), None).unwrap();
     let Brdf::AshikhminShirley { rd, rs, nu, nv } = ASHIKHMIN else { unreachable!() };
     let b = synthesize(&spec(flat, Brdf::AshikhminShirley { rd, rs, nu: nv, nv: nu }, 8, 8, Some(8)), None).unwrap();
-    let (lg, vg) = (a.light_grid, a.view_grid.unwrap());
+    let (lg, vg) = (a.local_basis().grid().unwrap(), a.view_grid().unwrap());
     // The rotation is what it claims.
     for j in 0..lg.len() {
         let (d, r) = (lg.bin_direction(j as u32), lg.bin_direction(rotate_bin(lg, j) as u32));
@@ -303,7 +308,7 @@ fn bad_specs_are_errors() {
     assert!(synthesize(&ok, None).is_ok());
     for bad in [
         BtfSpec { resolution: 0, ..ok.clone() },
-        BtfSpec { light_grid: 0, ..ok.clone() },
+        BtfSpec { view_grid: Some(65), ..ok.clone() },
         BtfSpec { view_grid: Some(0), ..ok.clone() },
         BtfSpec { view_grid: None, brdf: PHONG, ..ok.clone() },
         BtfSpec { supersample: 0, ..ok.clone() },
@@ -334,7 +339,7 @@ fn progress_counts_every_texel_and_results_are_deterministic() {
     for p in Pattern::ALL {
         let hf = HeightField::procedural(&Recipe::new(p, 0.06, 2, 1), 32).unwrap();
         let btf = synthesize(&spec(hf, ASHIKHMIN, 4, 4, Some(4)), None).unwrap();
-        assert!(btf.data.iter().flatten().all(|x| x.is_finite() && *x >= 0.0), "{p:?}");
+        assert!(btf.data().iter().flatten().all(|x| x.is_finite() && *x >= 0.0), "{p:?}");
     }
 }
 
@@ -347,7 +352,7 @@ fn files_round_trip_and_corruption_is_an_error_naming_the_file() {
     save_btf(&btf, &path, BtfEncoding::F32).unwrap();
     assert_eq!(load_btf(&path).unwrap(), btf);
     // View-independent and one-texel tables.
-    let lam = Btf::lambertian([0.5; 3], 8).unwrap();
+    let lam = Btf::lambertian([0.5; 3], bins(8)).unwrap();
     save_btf(&lam, &path, BtfEncoding::F32).unwrap();
     assert_eq!(load_btf(&path).unwrap(), lam);
 
@@ -359,14 +364,14 @@ fn files_round_trip_and_corruption_is_an_error_naming_the_file() {
     let bytes = encode_btf(&btf, BtfEncoding::F16).unwrap();
     assert_eq!(decode_btf(&bytes, &path).unwrap(), h);
     assert!(decode_btf(&bytes[..bytes.len() - 1], &path).is_err(), "truncated in memory");
-    for (a, b) in btf.data.iter().flatten().zip(h.data.iter().flatten()) {
+    for (a, b) in btf.data().iter().flatten().zip(h.data().iter().flatten()) {
         assert!((a - b).abs() <= a.abs() / 2048.0 + 3e-8, "{a} vs {b}");
     }
     // u8: per-texel scale, rounding error <= half a step = max / 510 (plus f32 rounding).
     save_btf(&btf, &path, BtfEncoding::U8).unwrap();
     let q = load_btf(&path).unwrap();
     let per = btf.view_count() * btf.light_count();
-    for (ta, tb) in btf.data.chunks(per).zip(q.data.chunks(per)) {
+    for (ta, tb) in btf.data().chunks(per).zip(q.data().chunks(per)) {
         let max = ta.iter().flatten().copied().fold(0.0f32, f32::max);
         for (a, b) in ta.iter().flatten().zip(tb.iter().flatten()) {
             assert!((a - b).abs() <= max / 510.0 * (1.0 + 1e-5), "{a} vs {b} (max {max})");
@@ -374,10 +379,10 @@ fn files_round_trip_and_corruption_is_an_error_naming_the_file() {
     }
     // Files are the documented size: f16 is half of f32's payload.
     let len = |e| encode_btf(&btf, e).unwrap().len();
-    let header = 20 + 21 + btf.name.len() + 4;
-    assert_eq!(len(BtfEncoding::F32) - header, btf.data.len() * 12);
-    assert_eq!(len(BtfEncoding::F16) - header, btf.data.len() * 6);
-    assert_eq!(len(BtfEncoding::U8) - header, btf.data.len() * 3 + btf.texel_count() * 4);
+    let header = 20 + 21 + btf.name().len() + 4;
+    assert_eq!(len(BtfEncoding::F32) - header, btf.data().len() * 12);
+    assert_eq!(len(BtfEncoding::F16) - header, btf.data().len() * 6);
+    assert_eq!(len(BtfEncoding::U8) - header, btf.data().len() * 3 + btf.texel_count() * 4);
 
     // Corruption.
     save_btf(&btf, &path, BtfEncoding::F16).unwrap();
@@ -409,8 +414,9 @@ fn files_round_trip_and_corruption_is_an_error_naming_the_file() {
     let e = load_btf(&dir.path().join("missing.btf")).unwrap_err().to_string();
     assert!(e.contains("missing.btf"), "{e}");
     // Values f16 cannot hold are refused at write time; the old file stays.
-    let mut big = btf.clone();
-    big.data[3][1] = 1e6;
+    let mut data = btf.data().to_vec();
+    data[3][1] = 1e6;
+    let big = Btf::new(btf.spatial(), btf.local_basis(), btf.view_grid(), data, btf.name()).unwrap();
     assert!(save_btf(&big, &path, BtfEncoding::F16).unwrap_err().to_string().contains("f16"));
     assert_eq!(std::fs::read(&path).unwrap(), good);
     // Nothing but the files written is left in the folder (atomic writes clean up).
@@ -427,7 +433,7 @@ fn contact_sheets_lay_tiles_out_with_gaps() {
     let img = contact_sheet(&btf, &lights, &views).unwrap();
     // 8 texels enlarged 4x to 32 px; 3 columns and 2 rows with 1 px gaps.
     assert_eq!(img.dimensions(), (3 * 32 + 2, 2 * 32 + 1));
-    let peak = btf.data.iter().enumerate().filter(|(i, _)| {
+    let peak = btf.data().iter().enumerate().filter(|(i, _)| {
         let (v, j) = ((i / 16) % 9, i % 16);
         views.contains(&v) && lights.contains(&j)
     });
@@ -437,7 +443,7 @@ fn contact_sheets_lay_tiles_out_with_gaps() {
             for (tx, ty) in [(0u32, 0u32), (7, 2), (3, 7)] {
                 let px = img.get_pixel(c as u32 * 33 + tx * 4 + 1, r as u32 * 33 + ty * 4 + 2).0;
                 let b = at(&btf, (ty * 8 + tx) as usize, v, j);
-                let expect = b.map(|x| (crate::image::linear_to_srgb(x / peak) * 255.0 + 0.5) as u8);
+                let expect = b.map(|x| (biscale_core::scene::image::linear_to_srgb(x / peak) * 255.0 + 0.5) as u8);
                 assert_eq!(px, expect);
             }
         }
@@ -491,7 +497,7 @@ fn benchmark() {
                 let q = load_btf(&p).unwrap();
                 let (mut num, mut den, mut max_rel_texel) = (0.0f64, 0.0f64, 0.0f64);
                 let per = btf.view_count() * btf.light_count();
-                for (ta, tb) in btf.data.chunks(per).zip(q.data.chunks(per)) {
+                for (ta, tb) in btf.data().chunks(per).zip(q.data().chunks(per)) {
                     let max = ta.iter().flatten().copied().fold(0.0f32, f32::max) as f64;
                     for (a, b) in ta.iter().flatten().zip(tb.iter().flatten()) {
                         num += ((a - b) as f64).powi(2);

@@ -1,10 +1,11 @@
-//! A pinhole camera: primary rays for the shader and the reference renderer.
+//! The pinhole camera every shader uses (the CPU shader, the reference renderer, the wgpu
+//! shader and the viewer): primary rays and the camera basis, defined once.
 //!
 //! Image coordinates: `px` grows to the right, `py` downwards, row 0 is the top of the image;
 //! pixel `(x, y)` covers `[x, x + 1) x [y, y + 1)`, so its centre is `(x + 0.5, y + 0.5)`.
 //! `fov_y_degrees` is the full vertical field of view; pixels are square.
 
-use crate::error::{Result, ShadingError};
+use crate::error::{CoreError, Result};
 use glam::Vec3;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -60,7 +61,7 @@ impl Camera {
 
     /// Check the camera can produce rays.
     pub fn validate(&self) -> Result<()> {
-        let bad = |m: String| Err(ShadingError::Invalid(format!("camera: {m}")));
+        let bad = |m: String| Err(CoreError::Invalid(format!("camera: {m}")));
         if self.width == 0 || self.height == 0 {
             return bad(format!("empty image {}x{}", self.width, self.height));
         }

@@ -22,26 +22,24 @@
 //! section 5), `M` the number of light bins. View samples sit at the bin centres of
 //! `view_grid` and are interpolated bilinearly in the concentric-square parameterization.
 
-use crate::error::{Result, ShadingError};
-use biscale_core::sampling::HemisphereGrid;
-use biscale_core::Rgb;
+use crate::basis::LocalBasis;
+use crate::error::{CoreError, Result};
+use crate::sampling::HemisphereGrid;
+use crate::Rgb;
 use glam::{Vec2, Vec3};
 use std::f64::consts::PI;
 
-/// A tabulated BTF: `spatial[0] x spatial[1]` texels, `M` light bins, optionally `V` view
-/// samples.
+/// A tabulated BTF: `spatial[0] x spatial[1]` texels, `M` light directions (the local basis
+/// of `L*` it is dotted with), optionally `V` view samples. Built through [`Btf::new`] (or
+/// the analytic constructors), which checks that the parts fit together and the table is
+/// finite, so a `Btf` in hand is valid and no consumer checks it again.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Btf {
-    /// Patch size in texels, `[width, height]`.
-    pub spatial: [u32; 2],
-    /// Light directions `d_j`: the same grid as the rows of each vertex's block of `T`.
-    pub light_grid: HemisphereGrid,
-    /// View directions sampled at bin centres; `None` for a view-independent BTF (no view axis).
-    pub view_grid: Option<HemisphereGrid>,
-    /// `[texel][view][light]`, linear RGB, see the module docs.
-    pub data: Vec<Rgb>,
-    /// Human-readable description (for reports).
-    pub name: String,
+    spatial: [u32; 2],
+    local_basis: LocalBasis,
+    view_grid: Option<HemisphereGrid>,
+    data: Vec<Rgb>,
+    name: String,
 }
 
 /// The normalized modified Phong BRDF (Lafortune and Willems 1994, "Using the modified Phong
@@ -62,44 +60,68 @@ fn check_rgb(what: &str, v: Rgb) -> Result<()> {
     if v.iter().all(|x| x.is_finite() && *x >= 0.0) {
         Ok(())
     } else {
-        Err(ShadingError::Invalid(format!("{what} must be finite and non-negative, got {v:?}")))
+        Err(CoreError::Invalid(format!("{what} must be finite and non-negative, got {v:?}")))
     }
 }
 
-fn check_grid(what: &str, m: u32) -> Result<HemisphereGrid> {
-    // 256^2 = 65536 bins is far past the 32 x 32 of the scaling study.
-    if m == 0 || m > 256 {
-        return Err(ShadingError::Invalid(format!("{what} grid must be 1..=256 per side, got {m}")));
+/// The view grid of side `m` (1..=64, as the local grid).
+pub fn view_grid(m: u32) -> Result<HemisphereGrid> {
+    if m == 0 || m > crate::basis::MAX_LOCAL_GRID {
+        return Err(CoreError::Invalid(format!(
+            "view grid must be 1..={} per side, got {m}",
+            crate::basis::MAX_LOCAL_GRID
+        )));
     }
     Ok(HemisphereGrid::new(m))
 }
 
+/// The bin grid of a local basis the BTF tables can be tabulated on.
+fn light_bins(basis: LocalBasis) -> Result<HemisphereGrid> {
+    basis.grid().ok_or_else(|| CoreError::Invalid(format!("a tabulated BTF needs a bin basis, not {basis}")))
+}
+
 impl Btf {
+    /// A table from its parts: `spatial` texels, light directions in `local_basis`, view
+    /// samples on `view_grid` (`None`: no view axis), `data[(texel * V + view) * M + light]`.
+    /// Errors name what does not fit: an empty patch, a table of the wrong length, a
+    /// non-finite entry.
+    pub fn new(
+        spatial: [u32; 2],
+        local_basis: LocalBasis,
+        view_grid: Option<HemisphereGrid>,
+        data: Vec<Rgb>,
+        name: impl Into<String>,
+    ) -> Result<Self> {
+        let btf = Self { spatial, local_basis, view_grid, data, name: name.into() };
+        btf.validate()?;
+        Ok(btf)
+    }
+
     /// A white-or-coloured Lambertian material: `b(d_j) = albedo / pi * cosbar_j`,
     /// view-independent (no view axis), spatially uniform (one texel).
-    pub fn lambertian(albedo: Rgb, light_grid: u32) -> Result<Self> {
+    pub fn lambertian(albedo: Rgb, local_basis: LocalBasis) -> Result<Self> {
         check_rgb("lambertian albedo", albedo)?;
-        let grid = check_grid("light", light_grid)?;
+        let grid = light_bins(local_basis)?;
         let data = (0..grid.len() as u32)
             .map(|j| {
                 let c = grid.bin_mean_cosine(j) / PI;
                 albedo.map(|a| (a as f64 * c) as f32)
             })
             .collect();
-        Ok(Self { spatial: [1, 1], light_grid: grid, view_grid: None, data, name: format!("lambertian {albedo:?}") })
+        Self::new([1, 1], local_basis, None, data, format!("lambertian {albedo:?}"))
     }
 
     /// The normalized modified Phong material ([`phong_brdf`]) tabulated at the bin centres of
-    /// `view_grid x view_grid` view directions and `light_grid x light_grid` light bins:
+    /// `view_grid x view_grid` view directions and the light bins of `local_basis`:
     /// `b(e_v, d_j) = f(d_j, e_v) * cosbar_j`. Spatially uniform (one texel).
-    pub fn phong(kd: Rgb, ks: Rgb, exponent: f32, light_grid: u32, view_grid: u32) -> Result<Self> {
+    pub fn phong(kd: Rgb, ks: Rgb, exponent: f32, local_basis: LocalBasis, view_grid_m: u32) -> Result<Self> {
         check_rgb("phong kd", kd)?;
         check_rgb("phong ks", ks)?;
         if !(exponent.is_finite() && exponent >= 0.0) {
-            return Err(ShadingError::Invalid(format!("phong exponent must be finite and >= 0, got {exponent}")));
+            return Err(CoreError::Invalid(format!("phong exponent must be finite and >= 0, got {exponent}")));
         }
-        let lg = check_grid("light", light_grid)?;
-        let vg = check_grid("view", view_grid)?;
+        let lg = light_bins(local_basis)?;
+        let vg = view_grid(view_grid_m)?;
         let cosbar: Vec<f64> = (0..lg.len() as u32).map(|j| lg.bin_mean_cosine(j)).collect();
         let mut data = Vec::with_capacity(vg.len() * lg.len());
         for v in 0..vg.len() as u32 {
@@ -109,18 +131,43 @@ impl Btf {
                 data.push(f.map(|x| (x * cb) as f32));
             }
         }
-        Ok(Self {
-            spatial: [1, 1],
-            light_grid: lg,
-            view_grid: Some(vg),
-            data,
-            name: format!("phong kd={kd:?} ks={ks:?} n={exponent}"),
-        })
+        Self::new([1, 1], local_basis, Some(vg), data, format!("phong kd={kd:?} ks={ks:?} n={exponent}"))
     }
 
-    /// Number of light bins `M`.
+    /// Patch size in texels, `[width, height]`.
+    pub fn spatial(&self) -> [u32; 2] {
+        self.spatial
+    }
+
+    /// The light directions `d_j`: the local basis of the `L*` the table is dotted with.
+    pub fn local_basis(&self) -> LocalBasis {
+        self.local_basis
+    }
+
+    /// View directions sampled at bin centres; `None` for a view-independent BTF.
+    pub fn view_grid(&self) -> Option<HemisphereGrid> {
+        self.view_grid
+    }
+
+    /// `[texel][view][light]`, linear RGB (see the module docs).
+    pub fn data(&self) -> &[Rgb] {
+        &self.data
+    }
+
+    /// Human-readable description (for reports).
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The same table under another name.
+    pub fn renamed(mut self, name: impl Into<String>) -> Self {
+        self.name = name.into();
+        self
+    }
+
+    /// Number of light directions `M`.
     pub fn light_count(&self) -> usize {
-        self.light_grid.len()
+        self.local_basis.len()
     }
 
     /// Number of view samples `V` (1 without a view axis).
@@ -133,19 +180,18 @@ impl Btf {
         self.spatial[0] as usize * self.spatial[1] as usize
     }
 
-    /// Check that the fields fit together and the table is finite (the fields are public, so
-    /// a table built elsewhere is checked before use).
-    pub fn validate(&self) -> Result<()> {
+    /// Check that the fields fit together and the table is finite ([`Self::new`]).
+    fn validate(&self) -> Result<()> {
         let [w, h] = self.spatial;
         if w == 0 || h == 0 {
-            return Err(ShadingError::Invalid(format!("BTF '{}': empty patch {w}x{h}", self.name)));
+            return Err(CoreError::Invalid(format!("BTF '{}': empty patch {w}x{h}", self.name)));
         }
-        if self.light_grid.m == 0 || self.view_grid.is_some_and(|g| g.m == 0) {
-            return Err(ShadingError::Invalid(format!("BTF '{}': empty direction grid", self.name)));
+        if self.view_grid.is_some_and(|g| g.m == 0) {
+            return Err(CoreError::Invalid(format!("BTF '{}': empty view grid", self.name)));
         }
         let expect = self.texel_count() * self.view_count() * self.light_count();
         if self.data.len() != expect {
-            return Err(ShadingError::Invalid(format!(
+            return Err(CoreError::Invalid(format!(
                 "BTF '{}': table has {} entries, expected {w}x{h} texels x {} views x {} lights = {expect}",
                 self.name,
                 self.data.len(),
@@ -154,7 +200,7 @@ impl Btf {
             )));
         }
         if let Some(i) = self.data.iter().position(|v| !v.iter().all(|x| x.is_finite())) {
-            return Err(ShadingError::Invalid(format!("BTF '{}': non-finite entry at index {i}", self.name)));
+            return Err(CoreError::Invalid(format!("BTF '{}': non-finite entry at index {i}", self.name)));
         }
         Ok(())
     }
@@ -233,20 +279,23 @@ impl Btf {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use biscale_core::sampling::hemisphere::square_to_hemisphere;
+
+    fn bins(m: u32) -> LocalBasis {
+        LocalBasis::bins(m).unwrap()
+    }
+    use crate::sampling::hemisphere::square_to_hemisphere;
     use rand::{Rng, SeedableRng};
 
     #[test]
     fn lambertian_values_are_analytic() {
         let albedo = [0.8, 0.5, 0.25];
-        let btf = Btf::lambertian(albedo, 8).unwrap();
-        btf.validate().unwrap();
+        let btf = Btf::lambertian(albedo, bins(8)).unwrap();
         assert_eq!((btf.light_count(), btf.view_count(), btf.texel_count()), (64, 1, 1));
         let mut out = vec![[0.0; 3]; 64];
         // Any view and any uv give the same values: view-independent, one texel.
         btf.eval_into(Vec2::new(-3.7, 12.2), Vec3::new(0.3, -0.2, 0.9).normalize(), &mut out);
         for (j, o) in out.iter().enumerate() {
-            let c = btf.light_grid.bin_mean_cosine(j as u32);
+            let c = btf.local_basis().grid().unwrap().bin_mean_cosine(j as u32);
             for k in 0..3 {
                 let expect = albedo[k] as f64 / PI * c;
                 assert!((o[k] as f64 - expect).abs() <= 1e-7 * expect.max(1e-3), "bin {j}: {} vs {expect}", o[k]);
@@ -260,9 +309,9 @@ mod tests {
         // bin-mean cosines integrate the cosine exactly (core tests it to 1e-12); f32 storage of
         // M values adds at most M ulp.
         for m in [1, 2, 8, 12, 32] {
-            let btf = Btf::lambertian([0.7; 3], m).unwrap();
-            let w = btf.light_grid.bin_solid_angle();
-            let s: f64 = btf.data.iter().map(|b| b[0] as f64 * w).sum();
+            let btf = Btf::lambertian([0.7; 3], bins(m)).unwrap();
+            let w = btf.local_basis().grid().unwrap().bin_solid_angle();
+            let s: f64 = btf.data().iter().map(|b| b[0] as f64 * w).sum();
             assert!((s - 0.7).abs() < 1e-6, "m={m}: {s}");
         }
     }
@@ -270,9 +319,8 @@ mod tests {
     #[test]
     fn phong_at_view_samples_equals_formula() {
         let (kd, ks, n) = ([0.3, 0.2, 0.1], [0.5, 0.6, 0.7], 20.0f32);
-        let btf = Btf::phong(kd, ks, n, 8, 12).unwrap();
-        btf.validate().unwrap();
-        let (lg, vg) = (btf.light_grid, btf.view_grid.unwrap());
+        let btf = Btf::phong(kd, ks, n, bins(8), 12).unwrap();
+        let (lg, vg) = (btf.local_basis().grid().unwrap(), btf.view_grid().unwrap());
         let mut out = vec![[0.0; 3]; lg.len()];
         for v in 0..vg.len() as u32 {
             let e = vg.bin_direction(v).as_dvec3();
@@ -299,16 +347,16 @@ mod tests {
         // A table with random values, so any mix-up of indices shows.
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         let (m_l, m_v) = (4u32, 6u32);
-        let mut btf = Btf::phong([0.5; 3], [0.5; 3], 10.0, m_l, m_v).unwrap();
+        let mut btf = Btf::phong([0.5; 3], [0.5; 3], 10.0, bins(m_l), m_v).unwrap();
         for v in btf.data.iter_mut() {
             *v = [rng.gen(), rng.gen(), rng.gen()];
         }
         let ml = btf.light_count();
         let mut out = vec![[0.0; 3]; ml];
-        let at = |view: usize, j: usize, c: usize| btf.data[view * ml + j][c];
+        let at = |view: usize, j: usize, c: usize| btf.data()[view * ml + j][c];
         // Exact values at every sample centre.
         for v in 0..(m_v * m_v) as usize {
-            btf.eval_into(Vec2::ZERO, btf.view_grid.unwrap().bin_direction(v as u32), &mut out);
+            btf.eval_into(Vec2::ZERO, btf.view_grid().unwrap().bin_direction(v as u32), &mut out);
             for j in 0..ml {
                 for c in 0..3 {
                     assert!((out[j][c] - at(v, j, c)).abs() < 1e-5, "centre {v}");
@@ -344,10 +392,7 @@ mod tests {
 
     #[test]
     fn texels_wrap_around() {
-        let mut btf = Btf::lambertian([1.0; 3], 1).unwrap();
-        btf.spatial = [4, 2];
-        btf.data = (0..8).map(|i| [i as f32; 3]).collect();
-        btf.validate().unwrap();
+        let btf = Btf::new([4, 2], bins(1), None, (0..8).map(|i| [i as f32; 3]).collect(), "ramp").unwrap();
         let mut out = [[0.0; 3]];
         for (uv, texel) in [
             ((0.1, 0.1), 0),
@@ -365,12 +410,17 @@ mod tests {
 
     #[test]
     fn bad_parameters_are_errors() {
-        assert!(Btf::lambertian([f32::NAN, 0.0, 0.0], 8).is_err());
-        assert!(Btf::lambertian([0.5; 3], 0).is_err());
-        assert!(Btf::phong([0.5; 3], [-0.1, 0.0, 0.0], 10.0, 8, 8).is_err());
-        assert!(Btf::phong([0.5; 3], [0.1; 3], f32::INFINITY, 8, 8).is_err());
-        let mut b = Btf::phong([0.5; 3], [0.1; 3], 10.0, 8, 8).unwrap();
-        b.data.pop();
-        assert!(b.validate().is_err());
+        assert!(Btf::lambertian([f32::NAN, 0.0, 0.0], bins(8)).is_err());
+        assert!(Btf::phong([0.5; 3], [-0.1, 0.0, 0.0], 10.0, bins(8), 8).is_err());
+        assert!(Btf::phong([0.5; 3], [0.1; 3], f32::INFINITY, bins(8), 8).is_err());
+        assert!(Btf::phong([0.5; 3], [0.1; 3], 10.0, bins(8), 0).is_err());
+        let b = Btf::phong([0.5; 3], [0.1; 3], 10.0, bins(8), 8).unwrap();
+        let mut short = b.data().to_vec();
+        short.pop();
+        assert!(Btf::new(b.spatial(), b.local_basis(), b.view_grid(), short, "short").is_err());
+        let mut nan = b.data().to_vec();
+        nan[3][1] = f32::NAN;
+        assert!(Btf::new(b.spatial(), b.local_basis(), b.view_grid(), nan, "nan").is_err());
+        assert!(Btf::new([0, 1], b.local_basis(), None, vec![], "empty").is_err());
     }
 }

@@ -1,0 +1,285 @@
+//! The one RGB image type of biscale ([`HdrImage`]: linear radiance, row-major, row 0 at the
+//! top), its files (OpenEXR for numbers, PNG for looking, both written atomically through
+//! [`crate::io::write_atomic`]), and a rendered image with its coverage ([`Render`]), which
+//! every shader returns (the CPU shader, the reference renderer and the wgpu shader).
+//!
+//! The OpenEXR reader here is the only one: environment maps are read through it too.
+
+use crate::error::{CoreError, Result};
+use crate::io::write_atomic;
+use crate::sampling::EnvMap;
+use crate::scene::Camera;
+use crate::Rgb;
+use glam::Vec3;
+use std::path::Path;
+
+/// A linear-RGB image, row-major, row 0 at the top.
+#[derive(Clone, Debug, PartialEq)]
+pub struct HdrImage {
+    pub width: u32,
+    pub height: u32,
+    pub pixels: Vec<Rgb>,
+}
+
+/// Rec. 709 / sRGB luminance of linear RGB.
+pub fn luminance(c: Rgb) -> f32 {
+    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+}
+
+/// The sRGB transfer function (IEC 61966-2-1) of a linear value in [0, 1].
+pub fn linear_to_srgb(x: f32) -> f32 {
+    if x <= 0.003_130_8 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+impl HdrImage {
+    /// A black image.
+    pub fn new(width: u32, height: u32) -> Self {
+        Self { width, height, pixels: vec![[0.0; 3]; width as usize * height as usize] }
+    }
+
+    /// Pixel `(x, y)`.
+    pub fn get(&self, x: u32, y: u32) -> Rgb {
+        self.pixels[y as usize * self.width as usize + x as usize]
+    }
+
+    /// An error unless the pixel count is `width * height`.
+    pub fn check_size(&self, what: &str) -> Result<()> {
+        if self.pixels.len() != self.width as usize * self.height as usize {
+            return Err(CoreError::Invalid(format!(
+                "{what}: {} pixels for a {}x{} image",
+                self.pixels.len(),
+                self.width,
+                self.height
+            )));
+        }
+        Ok(())
+    }
+
+    /// Number of pixels with a NaN or infinite channel, and the first one `(x, y)`.
+    pub fn non_finite(&self) -> Option<(usize, (u32, u32))> {
+        let w = self.width.max(1) as usize;
+        let mut bad = self.pixels.iter().enumerate().filter(|(_, p)| !p.iter().all(|c| c.is_finite()));
+        let (first, _) = bad.next()?;
+        Some((1 + bad.count(), ((first % w) as u32, (first / w) as u32)))
+    }
+
+    /// Write a 32-bit float RGB OpenEXR file (lossless), atomically.
+    pub fn write_exr(&self, path: &Path) -> Result<()> {
+        use exr::prelude::*;
+        self.check_size(&path.display().to_string())?;
+        let w = self.width as usize;
+        let channels = SpecificChannels::rgb(|Vec2(x, y): Vec2<usize>| {
+            let p = self.pixels[y * w + x];
+            (p[0], p[1], p[2])
+        });
+        let image = Image::from_channels((w, self.height as usize), channels);
+        write_atomic(path, |out| image.write().to_buffered(out).map_err(|e| format!("cannot write OpenEXR: {e}")))
+    }
+
+    /// Read the first RGB(A) layer of an OpenEXR file (alpha is ignored). NaN and infinite
+    /// pixels are kept as they are and reported in the returned warnings (with their count and
+    /// the first position), so a caller decides; [`compare`] rejects them.
+    pub fn read_exr(path: &Path) -> Result<(Self, Vec<String>)> {
+        use exr::prelude::*;
+        let image = read_first_rgba_layer_from_file(
+            path,
+            |resolution, _| {
+                let (w, h) = (resolution.width(), resolution.height());
+                (w, vec![[0.0f32; 3]; w * h])
+            },
+            |(w, px): &mut (usize, Vec<Rgb>), pos, (r, g, b, _a): (f32, f32, f32, f32)| {
+                px[pos.y() * *w + pos.x()] = [r, g, b];
+            },
+        )
+        .map_err(|e| match e {
+            exr::error::Error::Io(source) => CoreError::Io { path: path.into(), source },
+            e => CoreError::Input { path: path.into(), message: format!("cannot read OpenEXR: {e}") },
+        })?;
+        let size = image.layer_data.size;
+        let (_, pixels) = image.layer_data.channel_data.pixels;
+        let (width, height) = (size.width(), size.height());
+        if width > u32::MAX as usize || height > u32::MAX as usize {
+            return Err(CoreError::Input { path: path.into(), message: format!("image too large: {width}x{height}") });
+        }
+        let img = Self { width: width as u32, height: height as u32, pixels };
+        let mut warnings = vec![];
+        if let Some((count, (x, y))) = img.non_finite() {
+            warnings.push(format!("{}: {count} pixel(s) with NaN or Inf, first at ({x}, {y})", path.display()));
+        }
+        Ok((img, warnings))
+    }
+
+    /// Tone map for display: `value * 2^exposure` (exposure in stops, 0 = unchanged), clamped
+    /// to [0, 1], sRGB-encoded, rounded to 8 bits. NaN becomes 0.
+    pub fn to_srgb8(&self, exposure: f32) -> image::RgbImage {
+        let scale = exposure.exp2();
+        let enc = |x: f32| {
+            let v = (x * scale).clamp(0.0, 1.0);
+            if v.is_nan() {
+                0
+            } else {
+                (linear_to_srgb(v) * 255.0 + 0.5) as u8
+            }
+        };
+        let mut out = image::RgbImage::new(self.width, self.height);
+        for (o, p) in out.pixels_mut().zip(&self.pixels) {
+            o.0 = p.map(enc);
+        }
+        out
+    }
+
+    /// Write an 8-bit sRGB PNG ([`Self::to_srgb8`]), atomically.
+    pub fn write_png(&self, path: &Path, exposure: f32) -> Result<()> {
+        self.check_size(&path.display().to_string())?;
+        write_rgb8_png(&self.to_srgb8(exposure), path)
+    }
+}
+
+/// Write an 8-bit RGB image (e.g. from [`error_image`]) as PNG, atomically.
+pub fn write_rgb8_png(img: &image::RgbImage, path: &Path) -> Result<()> {
+    write_atomic(path, |out| img.write_to(out, image::ImageFormat::Png).map_err(|e| format!("cannot write PNG: {e}")))
+}
+
+/// A rendered image and its coverage: what every shader returns.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Render {
+    pub image: HdrImage,
+    /// Row-major like the image: true where the pixel centre's ray hits the mesh.
+    pub mask: Vec<bool>,
+}
+
+/// What a primary ray that misses the mesh sees.
+#[derive(Clone, Copy, Debug)]
+pub enum Background<'a> {
+    Black,
+    /// The environment map, rotated by `rotation` radians about +Y (as
+    /// [`crate::sampling::LightVector::from_env`] rotates it), looked up bilinearly.
+    Env {
+        env: &'a EnvMap,
+        rotation: f64,
+    },
+}
+
+impl Background<'_> {
+    /// Radiance seen along world direction `dir`.
+    pub fn radiance(&self, dir: Vec3) -> Rgb {
+        match self {
+            Background::Black => [0.0; 3],
+            Background::Env { env, rotation } => env.radiance(dir, *rotation),
+        }
+    }
+}
+
+impl Render {
+    /// Fill every uncovered pixel with what `camera`'s ray through its centre sees of
+    /// `background` (shaders leave uncovered pixels black).
+    pub fn with_background(mut self, camera: &Camera, background: &Background) -> Self {
+        if matches!(background, Background::Black) {
+            return self;
+        }
+        let w = self.image.width as usize;
+        for (i, (p, covered)) in self.image.pixels.iter_mut().zip(&self.mask).enumerate() {
+            if !covered {
+                let (_, dir) = camera.ray((i % w) as f32 + 0.5, (i / w) as f32 + 0.5);
+                *p = background.radiance(dir);
+            }
+        }
+        self
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use std::io::Write;
+
+    fn random_image(w: u32, h: u32, seed: u64) -> HdrImage {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        // Values spanning many magnitudes, as HDR renders do.
+        let pixels =
+            (0..w * h).map(|_| std::array::from_fn(|_| rng.gen::<f32>() * 10f32.powi(rng.gen_range(-6..6)))).collect();
+        HdrImage { width: w, height: h, pixels }
+    }
+
+    #[test]
+    fn exr_round_trip_is_exact() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.exr");
+        let mut img = random_image(37, 23, 1);
+        img.pixels[5] = [f32::MAX, f32::MIN_POSITIVE, 0.0];
+        img.pixels[6] = [f32::NAN, f32::INFINITY, -1.5];
+        img.write_exr(&path).unwrap();
+        let (back, warnings) = HdrImage::read_exr(&path).unwrap();
+        assert_eq!((back.width, back.height), (37, 23));
+        for (a, b) in img.pixels.iter().zip(&back.pixels) {
+            for c in 0..3 {
+                assert_eq!(a[c].to_bits(), b[c].to_bits(), "bit-exact f32 (NaN payload included)");
+            }
+        }
+        assert_eq!(warnings.len(), 1);
+        assert!(warnings[0].contains("1 pixel(s)") && warnings[0].contains("(6, 0)"), "{warnings:?}");
+        // No temporary file is left behind.
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn png_is_written_with_srgb_encoding() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.png");
+        let img = HdrImage {
+            width: 4,
+            height: 1,
+            pixels: vec![[0.0; 3], [0.5, 0.25, 0.125], [2.0, -1.0, f32::NAN], [0.214, 0.214, 0.214]],
+        };
+        img.write_png(&path, 1.0).unwrap();
+        let back = image::open(&path).unwrap().into_rgb8();
+        assert_eq!(back.dimensions(), (4, 1));
+        // exposure +1 stop doubles: 0.5 -> 1.0 -> 255; 0.25 -> 0.5 -> sRGB 0.7354 -> 188;
+        // 0.125 -> 0.25 -> 0.5371 -> 137; 0.214 * 2 = 0.428 -> 0.6860 -> 175.
+        assert_eq!(back.get_pixel(0, 0).0, [0, 0, 0]);
+        assert_eq!(back.get_pixel(1, 0).0, [255, 188, 137]);
+        assert_eq!(back.get_pixel(2, 0).0, [255, 0, 0]);
+        assert_eq!(back.get_pixel(3, 0).0, [175, 175, 175]);
+    }
+
+    #[test]
+    fn bad_exr_is_a_clear_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("garbage.exr");
+        std::fs::write(&path, b"this is not an OpenEXR file").unwrap();
+        let e = HdrImage::read_exr(&path).unwrap_err().to_string();
+        assert!(e.contains("garbage.exr") && e.contains("OpenEXR"), "{e}");
+        let e = HdrImage::read_exr(&dir.path().join("missing.exr")).unwrap_err().to_string();
+        assert!(e.contains("missing.exr"), "{e}");
+    }
+
+    #[test]
+    fn atomic_write_leaves_nothing_on_failure() {
+        let dir = tempfile::tempdir().unwrap();
+        let img = random_image(4, 4, 2);
+        let missing = dir.path().join("no_such_dir").join("x.exr");
+        let e = img.write_exr(&missing).unwrap_err().to_string();
+        assert!(e.contains("x.exr"), "{e}");
+        assert!(!missing.exists() && !dir.path().join("no_such_dir").exists());
+        // An encoder failure mid-write leaves no output and no temporary file, and keeps an
+        // existing output intact.
+        let target = dir.path().join("keep.png");
+        std::fs::write(&target, b"old").unwrap();
+        let r = write_atomic(&target, |out| {
+            out.write_all(b"partial").unwrap();
+            Err("encoder exploded".into())
+        });
+        assert!(r.unwrap_err().to_string().contains("encoder exploded"));
+        assert_eq!(std::fs::read(&target).unwrap(), b"old");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+        // A wrong pixel count is an error, not a panic.
+        let bad = HdrImage { width: 3, height: 3, pixels: vec![[0.0; 3]; 4] };
+        assert!(bad.write_exr(&dir.path().join("bad.exr")).is_err());
+        assert!(bad.write_png(&dir.path().join("bad.png"), 0.0).is_err());
+    }
+}
