@@ -1,8 +1,12 @@
 //! # biscale-compressors
 //!
-//! The built-in transfer compressors, a closed set dispatched by one `match` on the config
-//! `kind` ([`BuiltinCompressor`]). Each compressor lives in its own module with its
-//! documentation, its build, its CPU gather on the compressed arrays, and its tests:
+//! The transfer compressors. Each built-in is one folder, `<kind>/`, holding everything
+//! about it: its documentation and form layout (`mod.rs`), its parameters (`params.rs`: a
+//! serde type that serves the config, the setting's label and `metrics.json`), its CPU gather,
+//! its GPU gather program (`gather.wgsl`, described by `Compressor::kernels` with the
+//! declarative checks the host runs), and its tests (`tests.rs`). [`registry`] lists the kinds
+//! (one line each); [`plugin`] loads compressors from shared libraries, which take the same
+//! path.
 //!
 //! * [`sparse`]: the raw CSR matrix, the uncompressed baseline.
 //! * [`bicluster`]: lossless greedy constant-column biclustering (Sun et al.), block-parallel.
@@ -17,6 +21,8 @@
 //! let form = Sparse.compress(&t, &CompressContext::default()).unwrap();
 //! let lstar = Sparse.gather(&form, &light).unwrap();
 //! assert_eq!(lstar.values().len(), t.rows());
+//! // The same form's GPU program, as plain data.
+//! assert_eq!(Sparse.kernels(&form).unwrap().kind, "sparse");
 //! ```
 
 pub mod bicluster;
@@ -24,47 +30,6 @@ pub mod cpca;
 pub mod haar;
 #[cfg(feature = "plugin")]
 pub mod plugin;
+pub mod registry;
 pub mod sparse;
 pub mod testing;
-
-use biscale_core::compress::{CompressContext, CompressError, CompressedForm, Compressor};
-use biscale_core::gather::LocalRadiance;
-use biscale_core::sampling::LightVector;
-use biscale_core::transfer::TransferMatrix;
-
-/// Every compressor compiled into biscale.
-pub enum BuiltinCompressor {
-    Sparse(sparse::Sparse),
-    Bicluster(bicluster::Bicluster),
-    Haar(haar::Haar),
-    Cpca(cpca::Cpca),
-}
-
-impl BuiltinCompressor {
-    /// The config `kind` strings of the built-ins.
-    pub const KINDS: &'static [&'static str] = &["sparse", "bicluster", "cpca", "haar"];
-
-    fn inner(&self) -> &dyn Compressor {
-        match self {
-            BuiltinCompressor::Sparse(c) => c,
-            BuiltinCompressor::Bicluster(c) => c,
-            BuiltinCompressor::Haar(c) => c,
-            BuiltinCompressor::Cpca(c) => c,
-        }
-    }
-}
-
-impl Compressor for BuiltinCompressor {
-    fn kind(&self) -> &str {
-        self.inner().kind()
-    }
-    fn params(&self) -> serde_json::Value {
-        self.inner().params()
-    }
-    fn compress(&self, t: &TransferMatrix, ctx: &CompressContext) -> Result<CompressedForm, CompressError> {
-        self.inner().compress(t, ctx)
-    }
-    fn gather(&self, form: &CompressedForm, light: &LightVector) -> Result<LocalRadiance, CompressError> {
-        self.inner().gather(form, light)
-    }
-}

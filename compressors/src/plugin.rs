@@ -7,35 +7,66 @@
 //! major is refused before any other symbol is called), then the struct-layout fingerprint,
 //! the plugin's name, and its GPU kernels for the given parameters. The result implements
 //! [`Compressor`] (kind `plugin:<name>`) and hands its kernels to the GPU runtime as plain data
-//! ([`PluginCompressor::gpu_kernels`], a [`KernelDesc`]; `biscale_gpu::GpuGather::with_kernels`).
+//! (`Compressor::kernels`, a [`KernelDesc`]), exactly as a built-in compressor does.
 //!
 //! Nothing a plugin returns is trusted. The host copies every string and array out of plugin
 //! memory (then returns it to the plugin's own `free`) after checking: UTF-8; null and
 //! misaligned pointers; element tags; array and meta names (WGSL identifiers, unique, not
-//! reserved by the GPU prelude); the WGSL, parsed and validated with naga at load (with the
-//! `wgsl-check` feature: entry points exist, scratch buffers are read-write, every form array the
-//! WGSL binds exists in each form with a compatible element type); and every structural check
-//! the plugin declares ([`biscale_core::kernels::FormCheck`]: lengths, pointer arrays, index
-//! bounds, finiteness), run by the host on every form before a CPU or GPU gather. What no check
+//! reserved by the GPU prelude); the WGSL, parsed and validated at load by
+//! `biscale_kernels::reflect` (with the `wgsl-check` feature: entry points exist, scratch
+//! buffers are read-write, and every form array the WGSL binds exists in each form with a
+//! compatible element type); and every structural check the plugin declares
+//! ([`biscale_kernels::FormCheck`]: lengths, pointer arrays, index bounds, finiteness), run by
+//! the host on every form before a CPU or GPU gather. What no check
 //! states is not verified: an index array without a `Below` check can make a GPU kernel read
 //! wrong (clamped) elements, and a plugin's CPU gather is the plugin's own code, trusted to
 //! stay within the arrays it is given (a Rust plugin that indexes out of range panics, which
 //! the boundary turns into an error). Every error names the library file.
 
+use crate::registry::{self, Kind};
 use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor, NamedArray};
 use biscale_core::gather::LocalRadiance;
-use biscale_core::kernels::{Count, Factor, FormCheck, KernelDesc, PassDesc, ScratchDesc};
 use biscale_core::sampling::LightVector;
 use biscale_core::transfer::TransferMatrix;
+use biscale_kernels::{Count, Factor, FormCheck, KernelDesc, PassDesc, ScratchDesc, RESERVED_NAMES};
 use biscale_plugin as abi;
+use serde::{Deserialize, Serialize};
 use serde_json::Value;
 use std::collections::BTreeSet;
 use std::ffi::c_void;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// Names the GPU prelude declares; no form array, meta key or scratch buffer may take them.
-pub const RESERVED_NAMES: &[&str] = &["params", "light", "lstar", "meta_values"];
+/// The parameters of a `kind = "plugin"` setting.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct PluginParams {
+    /// The library (the config resolves it against its own folder).
+    pub path: PathBuf,
+    /// Free-form parameters handed to the plugin as JSON (default: none).
+    #[serde(default = "empty_object")]
+    pub params: Value,
+}
+
+fn empty_object() -> Value {
+    Value::Object(Default::default())
+}
+
+/// The registry entry: the label is `plugin-<library stem>` (`libquantized.so` gives
+/// `plugin-quantized`); building loads the library.
+pub const KIND: Kind = Kind {
+    name: "plugin",
+    about: "a compressor loaded from a shared library through biscale's plugin C ABI (`path`, `params`)",
+    label: |p| {
+        let stem = registry::parse::<PluginParams>(p)?.path.file_stem().map(|s| s.to_string_lossy().into_owned());
+        Ok(format!("plugin-{}", stem.unwrap_or_default().trim_start_matches("lib")))
+    },
+    check: |p| registry::parse::<PluginParams>(p).map(drop),
+    build: |p| {
+        let p: PluginParams = registry::parse(p)?;
+        Ok(Box::new(PluginCompressor::load(&p.path, p.params)?))
+    },
+};
 
 /// Upper bounds on what a plugin may return (far above any real use; they keep a garbage
 /// count from turning into a huge allocation or read).
@@ -64,13 +95,10 @@ pub enum PluginError {
 }
 
 impl From<PluginError> for CompressError {
+    /// Kept whole (it names the library file): `CompressError::External`, which a caller can
+    /// downcast back to the [`PluginError`].
     fn from(e: PluginError) -> Self {
-        match e {
-            PluginError::Invalid { ref call, ref message, .. } => {
-                CompressError::malformed("plugin", call, message.clone())
-            }
-            _ => CompressError::Other(e.to_string()),
-        }
+        CompressError::External(Box::new(e))
     }
 }
 
@@ -81,15 +109,6 @@ struct Api {
     free: abi::sig::Free,
 }
 
-/// Element type of a form array that the WGSL binds (from naga reflection).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(not(feature = "wgsl-check"), allow(dead_code))]
-enum BoundElem {
-    F32,
-    Int,
-    Other,
-}
-
 /// A compressor loaded from a shared library (see the module docs).
 pub struct PluginCompressor {
     path: PathBuf,
@@ -98,8 +117,9 @@ pub struct PluginCompressor {
     params: Value,
     params_json: String,
     kernels: KernelDesc,
-    /// Form arrays the WGSL binds, with their WGSL element type (empty without `wgsl-check`).
-    bound: Vec<(String, BoundElem)>,
+    /// The kernels' reflection (which globals bind form arrays), from the load-time check.
+    #[cfg(feature = "wgsl-check")]
+    reflected: biscale_kernels::reflect::Reflected,
     api: Api,
     // Last: dropped (unloaded) after everything that points into it.
     _lib: libloading::Library,
@@ -234,7 +254,7 @@ unsafe fn read_kernels(k: &abi::BpKernels, kind: &str) -> Result<KernelDesc, Str
             abi::CHECK_PTR => FormCheck::Ptr {
                 array,
                 count: count()?,
-                target: unsafe { read_ident(c.target, &format!("{what} target")) }?,
+                total: Count::of([Factor::Len(unsafe { read_ident(c.target, &format!("{what} target")) }?)]),
             },
             abi::CHECK_BELOW => FormCheck::Below { array, bound: count()? },
             abi::CHECK_FINITE => FormCheck::Finite { array },
@@ -248,76 +268,6 @@ unsafe fn read_kernels(k: &abi::BpKernels, kind: &str) -> Result<KernelDesc, Str
         }
     }
     Ok(KernelDesc { kind: kind.to_string(), wgsl, passes, scratch, meta_keys, checks })
-}
-
-/// The GPU prelude every gather program is compiled with (the runtime's own file).
-#[cfg(feature = "wgsl-check")]
-const PRELUDE: &str = include_str!("../../gpu/src/gather/prelude.wgsl");
-
-/// Parse and validate the kernels' WGSL (prelude included) with naga, check entry points and
-/// scratch buffers, and list the form arrays it binds.
-#[cfg(feature = "wgsl-check")]
-fn check_wgsl(k: &KernelDesc) -> Result<Vec<(String, BoundElem)>, String> {
-    let source = format!("{PRELUDE}\n{}", k.wgsl);
-    let located = |report: String| {
-        let n = PRELUDE.lines().count() + 1;
-        format!("{report}\n(line numbers count the {n} lines of the GPU prelude before the plugin's WGSL)")
-    };
-    let module = naga::front::wgsl::parse_str(&source).map_err(|e| located(e.emit_to_string(&source)))?;
-    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::default())
-        .validate(&module)
-        .map_err(|e| located(e.emit_to_string(&source)))?;
-    for p in &k.passes {
-        if !module.entry_points.iter().any(|e| e.stage == naga::ShaderStage::Compute && e.name == p.entry_point) {
-            let names: Vec<&str> = module.entry_points.iter().map(|e| e.name.as_str()).collect();
-            return Err(format!("pass entry point '{}' is not a @compute function (found {names:?})", p.entry_point));
-        }
-    }
-    let mut bound = Vec::new();
-    let mut declared_scratch = BTreeSet::new();
-    for (_, g) in module.global_variables.iter() {
-        let Some(rb) = &g.binding else { continue };
-        let name = g.name.clone().unwrap_or_default();
-        if rb.group != 0 {
-            return Err(format!("global '{name}' is in group {}; gather programs use group 0 only", rb.group));
-        }
-        if RESERVED_NAMES.contains(&name.as_str()) {
-            continue;
-        }
-        let naga::AddressSpace::Storage { access } = g.space else {
-            return Err(format!("global '{name}': only 'params' may be a uniform; form arrays are storage buffers"));
-        };
-        let read_only = !access.contains(naga::StorageAccess::STORE);
-        if k.scratch.iter().any(|s| s.name == name) {
-            if read_only {
-                return Err(format!("scratch buffer '{name}' must be var<storage, read_write>"));
-            }
-            declared_scratch.insert(name);
-            continue;
-        }
-        if !read_only {
-            return Err(format!("global '{name}' is read_write but is not a declared scratch buffer"));
-        }
-        let elem = match &module.types[g.ty].inner {
-            naga::TypeInner::Array { base, .. } => match module.types[*base].inner {
-                naga::TypeInner::Scalar(naga::Scalar { kind: naga::ScalarKind::Float, width: 4 }) => BoundElem::F32,
-                naga::TypeInner::Scalar(naga::Scalar {
-                    kind: naga::ScalarKind::Uint | naga::ScalarKind::Sint,
-                    width: 4,
-                }) => BoundElem::Int,
-                _ => BoundElem::Other,
-            },
-            _ => BoundElem::Other,
-        };
-        if elem == BoundElem::Other {
-            return Err(format!("form array '{name}' must be declared array<f32>, array<u32> or array<i32>"));
-        }
-        bound.push((name, elem));
-    }
-    if let Some(s) = k.scratch.iter().find(|s| !declared_scratch.contains(&s.name)) {
-        return Err(format!("scratch buffer '{}' is not declared in the WGSL", s.name));
-    }
-    Ok(bound)
 }
 
 impl PluginCompressor {
@@ -386,10 +336,20 @@ impl PluginCompressor {
             s => return Err(status_error(&path, call, s, &err, api.free)),
         };
         #[cfg(feature = "wgsl-check")]
-        let bound = check_wgsl(&kernels).map_err(|message| PluginError::Wgsl { path: path.clone(), message })?;
-        #[cfg(not(feature = "wgsl-check"))]
-        let bound = Vec::new();
-        Ok(Self { path, name, kind, params, params_json, kernels, bound, api, _lib: lib })
+        let reflected = biscale_kernels::reflect::reflect(&kernels)
+            .map_err(|e| PluginError::Wgsl { path: path.clone(), message: e.message })?;
+        Ok(Self {
+            path,
+            name,
+            kind,
+            params,
+            params_json,
+            kernels,
+            #[cfg(feature = "wgsl-check")]
+            reflected,
+            api,
+            _lib: lib,
+        })
     }
 
     /// The library file.
@@ -402,8 +362,7 @@ impl PluginCompressor {
         &self.name
     }
 
-    /// The GPU gather program as plain data, for `biscale_gpu::GpuGather::with_kernels` (or
-    /// `biscale_gpu::gather::plugin::program` + `GpuGather::with_program`).
+    /// The GPU gather program as plain data (what `Compressor::kernels` returns).
     pub fn gpu_kernels(&self) -> &KernelDesc {
         &self.kernels
     }
@@ -423,26 +382,9 @@ impl PluginCompressor {
         if let Some(k) = form.meta.keys().find(|k| !is_ident(k)) {
             return Err(invalid(format!("meta key '{k}' is not an identifier")));
         }
-        self.kernels.check_form(form).map_err(|e| match e {
-            CompressError::Malformed { array, what, .. } => invalid(format!("'{array}' {what}")),
-            e => invalid(e.to_string()),
-        })?;
-        for (name, elem) in &self.bound {
-            let data = form.array(name).map_err(|_| {
-                invalid(format!("the WGSL binds '{name}' but the form has no such array (nor is it a scratch buffer)"))
-            })?;
-            let ok = match data {
-                ArrayData::F32(_) => *elem == BoundElem::F32,
-                _ => *elem == BoundElem::Int,
-            };
-            if !ok {
-                return Err(invalid(format!(
-                    "array '{name}' is {} but the WGSL declares it array<{}> (f32 arrays need array<f32>, integer arrays array<u32> or array<i32>)",
-                    data.element_type(),
-                    if *elem == BoundElem::F32 { "f32" } else { "u32/i32" }
-                )));
-            }
-        }
+        self.kernels.check_form(form).map_err(|e| invalid(format!("'{}' {}", e.array, e.what)))?;
+        #[cfg(feature = "wgsl-check")]
+        self.reflected.check_arrays(form).map_err(|e| invalid(format!("'{}' {}", e.array, e.what)))?;
         Ok(())
     }
 
@@ -621,6 +563,13 @@ impl Compressor for PluginCompressor {
 
     fn gather(&self, form: &CompressedForm, light: &LightVector) -> Result<LocalRadiance, CompressError> {
         Ok(self.gather_plugin(form, light)?)
+    }
+
+    fn kernels(&self, form: &CompressedForm) -> Result<KernelDesc, CompressError> {
+        // Every form this plugin's compress returns was checked; a form from elsewhere (a
+        // cache) is checked here before the runtime sees it.
+        self.check_form(form)?;
+        Ok(self.kernels.clone())
     }
 }
 

@@ -3,68 +3,19 @@
 //! A [`Compressor`] turns the transfer matrix `T` into a [`CompressedForm`]: a few named flat
 //! arrays at their stored width plus the stats every form reports. The form is plain data:
 //! the CPU gather (`L* = T L` evaluated on the compressed arrays) is the compressor's
-//! [`Compressor::gather`], and the wgpu runtime runs the same arrays through WGSL kernels.
-//! Storage is counted honestly: every array the gather reads, at the width it is stored.
+//! [`Compressor::gather`], and its GPU gather is the program it describes with
+//! [`Compressor::kernels`] (a `biscale_kernels::KernelDesc`), which the wgpu runtime runs on
+//! the same arrays. Storage is counted honestly: every array the gather reads, at the width it
+//! is stored.
 
 use crate::basis::{LightBasis, LocalBasis, TransferShape};
 use crate::gather::LocalRadiance;
 use crate::sampling::LightVector;
 use crate::transfer::TransferMatrix;
+use biscale_kernels::{FormData, FormError, KernelDesc};
 use std::collections::BTreeMap;
 
-/// Element storage of one array of a compressed form.
-#[derive(Clone, Debug, PartialEq)]
-pub enum ArrayData {
-    U8(Vec<u8>),
-    I8(Vec<i8>),
-    U16(Vec<u16>),
-    I16(Vec<i16>),
-    U32(Vec<u32>),
-    F32(Vec<f32>),
-}
-
-impl ArrayData {
-    pub fn len(&self) -> usize {
-        match self {
-            ArrayData::U8(v) => v.len(),
-            ArrayData::I8(v) => v.len(),
-            ArrayData::U16(v) => v.len(),
-            ArrayData::I16(v) => v.len(),
-            ArrayData::U32(v) => v.len(),
-            ArrayData::F32(v) => v.len(),
-        }
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
-    /// Bytes per element as stored.
-    pub fn element_bytes(&self) -> usize {
-        match self {
-            ArrayData::U8(_) | ArrayData::I8(_) => 1,
-            ArrayData::U16(_) | ArrayData::I16(_) => 2,
-            ArrayData::U32(_) | ArrayData::F32(_) => 4,
-        }
-    }
-
-    /// Element type name (`u8`, `i8`, `u16`, `i16`, `u32`, `f32`).
-    pub fn element_type(&self) -> &'static str {
-        match self {
-            ArrayData::U8(_) => "u8",
-            ArrayData::I8(_) => "i8",
-            ArrayData::U16(_) => "u16",
-            ArrayData::I16(_) => "i16",
-            ArrayData::U32(_) => "u32",
-            ArrayData::F32(_) => "f32",
-        }
-    }
-
-    /// Stored size in bytes.
-    pub fn bytes(&self) -> u64 {
-        (self.len() * self.element_bytes()) as u64
-    }
-}
+pub use biscale_kernels::ArrayData;
 
 /// One named array of a compressed form.
 #[derive(Clone, Debug, PartialEq)]
@@ -237,8 +188,40 @@ pub enum CompressError {
     LightBasis { got: LightBasis, expected: LightBasis },
     #[error("too large: {0}")]
     TooLarge(String),
-    #[error("{0}")]
-    Other(String),
+    /// A failure of a compressor's own code (a plugin library's), kept whole so a caller can
+    /// `downcast_ref` it to its type.
+    #[error(transparent)]
+    External(Box<dyn std::error::Error + Send + Sync>),
+}
+
+impl From<FormError> for CompressError {
+    fn from(e: FormError) -> Self {
+        CompressError::Malformed { kind: e.kind, array: e.array, what: e.what }
+    }
+}
+
+impl FormData for CompressedForm {
+    fn kind(&self) -> &str {
+        &self.kind
+    }
+    fn find_array(&self, name: &str) -> Option<&ArrayData> {
+        self.arrays.iter().find(|a| a.name == name).map(|a| &a.data)
+    }
+    fn find_meta(&self, key: &str) -> Option<u64> {
+        self.meta.get(key).copied()
+    }
+    fn rows(&self) -> usize {
+        self.shape.rows()
+    }
+    fn cols(&self) -> usize {
+        self.shape.cols()
+    }
+    fn vertices(&self) -> usize {
+        self.shape.vertices
+    }
+    fn local_dirs(&self) -> usize {
+        self.shape.local_dirs()
+    }
 }
 
 impl CompressError {
@@ -248,7 +231,9 @@ impl CompressError {
     }
 }
 
-/// A transfer compressor: builds a compressed form and evaluates its CPU gather.
+/// A transfer compressor as one self-describing unit: it builds a compressed form, evaluates
+/// the form's CPU gather, describes the form's GPU gather program, and reports its own
+/// statistics. Built-in compressors and plugins implement it alike.
 pub trait Compressor: Send + Sync {
     /// The config `kind` of this compressor (`sparse`, `bicluster`, `cpca`, `haar`, ...).
     fn kind(&self) -> &str;
@@ -258,4 +243,12 @@ pub trait Compressor: Send + Sync {
     fn compress(&self, t: &TransferMatrix, ctx: &CompressContext) -> Result<CompressedForm, CompressError>;
     /// The CPU gather on the compressed arrays: `L*` for every row of `T`, RGB.
     fn gather(&self, form: &CompressedForm, light: &LightVector) -> Result<LocalRadiance, CompressError>;
+    /// The GPU gather program of `form` (a form of this compressor), as plain data with the
+    /// structural checks the host runs before any upload.
+    fn kernels(&self, form: &CompressedForm) -> Result<KernelDesc, CompressError>;
+    /// Compressor-specific statistics of `form` for the report (biclustering: the paper's
+    /// Table I quantities); none by default.
+    fn stats(&self, _form: &CompressedForm, _t: &TransferMatrix) -> Option<serde_json::Value> {
+        None
+    }
 }

@@ -36,7 +36,6 @@ pub mod form_file;
 pub mod gather;
 pub mod geometry;
 pub mod io;
-pub mod kernels;
 pub mod sampling;
 pub mod scene;
 pub mod stats;

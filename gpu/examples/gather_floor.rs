@@ -169,11 +169,12 @@ struct GpuRow {
 fn run_gpu(
     ctx: &GpuContext,
     form: &CompressedForm,
+    kernels: &biscale_kernels::KernelDesc,
     light: &LightVector,
     runs: usize,
     reference: &[[f64; 3]],
 ) -> Result<GpuRow, Box<dyn std::error::Error>> {
-    let mut g = GpuGather::new(ctx, form)?;
+    let mut g = GpuGather::new(ctx, form, kernels)?;
     let stamp_ms = g.time_gather(light, runs)?.median_ms;
     let device = ctx.device();
     let wall_ms = time_ms(runs, || -> Result<(), Box<dyn std::error::Error>> {
@@ -271,7 +272,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         })?;
         let cpu_err = relative_l2_error(out.expect("timed at least once").values(), &reference);
         let gpu = match &gpu {
-            Some((ctx, _)) => match run_gpu(ctx, &form, &light, args.runs, &reference) {
+            Some((ctx, _)) => match run_gpu(ctx, &form, &c.kernels(&form)?, &light, args.runs, &reference) {
                 Ok(r) => Some(r),
                 Err(e) => {
                     println!("{}: GPU gather skipped: {e}", form.kind);

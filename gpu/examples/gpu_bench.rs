@@ -89,7 +89,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     // Gather.
     let start = Instant::now();
-    let mut gather = GpuGather::new(&ctx, &form)?;
+    let mut gather = GpuGather::new(&ctx, &form, &Sparse.kernels(&form)?)?;
     println!(
         "upload + pipeline: {:.1} ms, {:.1} MB",
         start.elapsed().as_secs_f64() * 1e3,
@@ -125,7 +125,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             vec![Box::new(Haar::with_terms(12)), Box::new(Cpca::new(32, 8)), Box::new(Bicluster::default())];
         for c in compressors {
             let f = c.compress(&t, &CompressContext::default())?;
-            let mut g = GpuGather::new(&ctx, &f)?;
+            let mut g = GpuGather::new(&ctx, &f, &c.kernels(&f)?)?;
             let timing = g.time_gather(&light, reps)?;
             let gpu_l = g.read_lstar()?;
             let s = Instant::now();

@@ -66,7 +66,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let start = Instant::now();
         let form = c.compress(&t, &CompressContext { seed: 1, progress: None })?;
         eprintln!("{label}: {:.2} MB in {:.1} s", form.bytes() as f64 / 1e6, start.elapsed().as_secs_f64());
-        forms.push(ViewerForm { label: label.clone(), form });
+        forms.push(ViewerForm { label: label.clone(), kernels: c.kernels(&form)?, form });
     }
 
     let btf = Btf::phong([0.55, 0.50, 0.45], [0.25, 0.25, 0.25], 24.0, t.local_basis(), 12)?;

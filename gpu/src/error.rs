@@ -13,9 +13,6 @@ pub enum GpuError {
     /// A resource exceeds one of the adapter's limits; `limit` is the wgpu `Limits` field.
     #[error("{what} needs {needed} but the adapter's {limit} is {max}")]
     Limit { what: String, limit: &'static str, needed: u64, max: u64 },
-    /// No built-in gather program for this compressed form's kind.
-    #[error("no GPU gather program for compressor kind '{0}'")]
-    UnknownKind(String),
     /// The compressed form does not fit its gather program or the adapter's indices.
     #[error("compressed form: {0}")]
     Form(String),

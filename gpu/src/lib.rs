@@ -7,8 +7,8 @@
 //! * [`GpuContext`]: a headless device (on machines without a GPU, Mesa's lavapipe software
 //!   Vulkan driver; install it with `scripts/setup-vulkan.sh`).
 //! * [`GpuGather`]: the generic gather host. Any [`biscale_core::compress::CompressedForm`]
-//!   with a [`GatherProgram`] (built-in: [`gather::kinds::BUILTIN_KINDS`]) is uploaded as plain
-//!   arrays and its WGSL kernels leave `L* = T L` in a GPU buffer.
+//!   with its compressor's program (a `biscale_kernels::KernelDesc`, built-in or plugin) is
+//!   uploaded as plain arrays and its WGSL kernels leave `L* = T L` in a GPU buffer.
 //! * [`GpuShader`]: visibility-buffer shading: triangles rasterized to (id, barycentrics),
 //!   then one compute invocation per pixel interpolates `L*` and the vertex frame and takes
 //!   the dot product with the BTF of the triangle's material (bilinear in the view direction).
@@ -21,9 +21,10 @@
 //!
 //! ```no_run
 //! # let form: biscale_core::compress::CompressedForm = unimplemented!();
+//! # let kernels: biscale_kernels::KernelDesc = unimplemented!(); // compressor.kernels(&form)
 //! # let light: biscale_core::sampling::LightVector = unimplemented!();
 //! let ctx = biscale_gpu::GpuContext::new()?;
-//! let mut gather = biscale_gpu::GpuGather::new(&ctx, &form)?;
+//! let mut gather = biscale_gpu::GpuGather::new(&ctx, &form, &kernels)?;
 //! gather.gather(&light)?;
 //! let lstar = gather.read_lstar()?; // or shade straight from gather.lstar_buffer()
 //! # Ok::<(), biscale_gpu::GpuError>(())
@@ -40,8 +41,7 @@ pub mod viewer;
 
 pub use context::{AdapterSummary, GpuContext, TimestampPolicy};
 pub use error::{GpuError, Result};
-pub use gather::program::{Count, Factor, GatherProgram, KernelPass, ScratchBuffer, ValidateFn};
-pub use gather::{GatherParams, GpuGather};
+pub use gather::GpuGather;
 pub use present::{Rgba8Image, ToneMap, ToneMapSettings};
 pub use shade::{GpuMaterialHeader, GpuShader, GpuVertex, ShadeParams};
 pub use timing::{PassTiming, Timing, TimingMethod};

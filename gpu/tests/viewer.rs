@@ -66,7 +66,7 @@ fn window_shows_the_tone_mapped_frame() {
     let setup = ViewerSetup {
         title: "viewer test".into(),
         scene: scene.clone(),
-        forms: vec![ViewerForm { label: "sparse".into(), form: form.clone() }],
+        forms: vec![ViewerForm { label: "sparse".into(), form: form.clone(), kernels: Sparse.kernels(&form).unwrap() }],
         initial_form: 0,
         env: env.clone(),
         light_basis: cubemap(4),
@@ -96,7 +96,7 @@ fn window_shows_the_tone_mapped_frame() {
     // The same frame offscreen: same camera, same light (LightVector::from_env at the same
     // rotation), same tone map.
     let mut shader = GpuShader::new(&ctx, &scene, &camera).unwrap();
-    let mut gather = GpuGather::new(&ctx, &form).unwrap();
+    let mut gather = GpuGather::new(&ctx, &form, &Sparse.kernels(&form).unwrap()).unwrap();
     gather.gather(&LightVector::from_env(&env, cubemap(4), rotation)).unwrap();
     let mut tm = ToneMap::new(&ctx, wgpu::TextureFormat::Rgba8UnormSrgb).unwrap();
     tm.set_environment(Some(&env)).unwrap();

@@ -204,11 +204,11 @@ pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &Run
     let (scene, _) = pipeline::shade_scene(exp, &geometry, &t, crate::cache::cache_dir(opts, &out).as_deref())?;
     let mut forms = vec![];
     for setting in &plan.compressors {
-        let c = crate::registry::build(setting)?;
-        let form = c
-            .compress(&t, &CompressContext { seed: exp.file.seed, progress: None })
-            .map_err(|source| PipelineError::Compress { name: setting.label.clone(), source })?;
-        forms.push(ViewerForm { label: setting.label.clone(), form });
+        let c = pipeline::build_compressor(setting)?;
+        let cerr = |source| PipelineError::Compress { name: setting.label.clone(), source };
+        let form = c.compress(&t, &CompressContext { seed: exp.file.seed, progress: None }).map_err(cerr)?;
+        let kernels = c.kernels(&form).map_err(cerr)?;
+        forms.push(ViewerForm { label: setting.label.clone(), form, kernels });
     }
     let setup = ViewerSetup {
         title: format!("biscale: {}", exp.name()),
@@ -225,7 +225,7 @@ pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &Run
         screenshot: screenshot.map(|path| Screenshot { path, frames: 5 }),
         continuous: false,
     };
-    biscale_gpu::run_viewer(setup).map_err(|e| PipelineError::Other(format!("viewer: {e}")))
+    Ok(biscale_gpu::run_viewer(setup)?)
 }
 
 /// One file written by [`btf`].

@@ -17,9 +17,8 @@
 //! kind = "sparse"
 //! ```
 
-use serde::de::{self, Deserializer, SeqAccess, Visitor};
 use serde::Deserialize;
-use std::fmt;
+use std::collections::BTreeMap;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use toml::Spanned;
@@ -54,42 +53,6 @@ impl ConfigError {
     }
 }
 
-/// A parameter that is either one value or a list of values to sweep over.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Sweep<T>(pub Vec<T>);
-
-impl<'de, T: Deserialize<'de>> Deserialize<'de> for Sweep<T> {
-    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        struct V<T>(std::marker::PhantomData<T>);
-        impl<'de, T: Deserialize<'de>> Visitor<'de> for V<T> {
-            type Value = Sweep<T>;
-            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
-                f.write_str("a value or a non-empty array of values to sweep")
-            }
-            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
-                let mut v = vec![];
-                while let Some(x) = seq.next_element()? {
-                    v.push(x);
-                }
-                if v.is_empty() {
-                    return Err(de::Error::custom("a sweep needs at least one value"));
-                }
-                Ok(Sweep(v))
-            }
-            fn visit_i64<E: de::Error>(self, x: i64) -> Result<Self::Value, E> {
-                T::deserialize(de::value::I64Deserializer::new(x)).map(|t| Sweep(vec![t]))
-            }
-            fn visit_u64<E: de::Error>(self, x: u64) -> Result<Self::Value, E> {
-                T::deserialize(de::value::U64Deserializer::new(x)).map(|t| Sweep(vec![t]))
-            }
-            fn visit_f64<E: de::Error>(self, x: f64) -> Result<Self::Value, E> {
-                T::deserialize(de::value::F64Deserializer::new(x)).map(|t| Sweep(vec![t]))
-            }
-        }
-        d.deserialize_any(V(std::marker::PhantomData))
-    }
-}
-
 /// The whole experiment file.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -103,8 +66,10 @@ pub struct ExperimentFile {
     pub lighting: LightingConfig,
     #[serde(default)]
     pub transfer: TransferConfig,
+    /// `[[compressors]]` entries: `kind` plus the compressor's own keys (see
+    /// [`CompressorTable`]).
     #[serde(default)]
-    pub compressors: Vec<Spanned<CompressorConfig>>,
+    pub compressors: Vec<Spanned<CompressorTable>>,
     #[serde(default)]
     pub runtime: RuntimeConfig,
     #[serde(default)]
@@ -383,41 +348,104 @@ impl Default for TransferConfig {
     }
 }
 
-/// One compressor entry; list-valued parameters are swept (every combination runs).
-#[derive(Clone, Debug, Deserialize, PartialEq)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
-pub enum CompressorConfig {
-    /// The raw CSR matrix (the uncompressed baseline).
-    Sparse {},
-    /// Greedy constant-column biclustering (lossless).
-    Bicluster {
-        /// Vertices per independently biclustered block (0 = the whole matrix at once).
-        block_vertices: Option<Sweep<usize>>,
-    },
-    /// Clustered PCA: `clusters` clusters of `components` principal components.
-    Cpca { clusters: Option<Sweep<usize>>, components: Option<Sweep<usize>>, iterations: Option<usize> },
-    /// Non-linear Haar wavelets: the `terms` largest area-weighted coefficients per row.
-    Haar { terms: Option<Sweep<usize>> },
-    /// A compressor loaded from a shared library through biscale's plugin C ABI.
-    Plugin {
-        /// The `cdylib` (relative to the config file).
-        path: PathBuf,
-        /// Free-form parameters handed to the plugin as JSON.
-        #[serde(default)]
-        params: toml::Table,
-    },
+/// One `[[compressors]]` entry as written: `kind` and the compressor's own keys, each with its
+/// place in the file. The compressor parses the keys itself (its parameter type, in its
+/// folder of `biscale-compressors`); the config only expands sweeps: a key whose value is a
+/// list runs every value, and several lists run every combination (keys in alphabetical
+/// order, the first varying slowest).
+pub type CompressorTable = BTreeMap<Spanned<String>, Spanned<toml::Value>>;
+
+/// One compressor setting after sweep expansion.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CompressorSetting {
+    /// Label used for file names and report rows, e.g. `cpca-k32-c8`.
+    pub label: String,
+    /// The registry kind (`sparse`, `bicluster`, `cpca`, `haar`, `plugin`).
+    pub kind: String,
+    /// The compressor's parameters for this setting, as JSON (paths resolved).
+    pub params: serde_json::Value,
 }
 
-impl CompressorConfig {
-    pub fn kind(&self) -> &'static str {
-        match self {
-            CompressorConfig::Sparse {} => "sparse",
-            CompressorConfig::Bicluster { .. } => "bicluster",
-            CompressorConfig::Cpca { .. } => "cpca",
-            CompressorConfig::Haar { .. } => "haar",
-            CompressorConfig::Plugin { .. } => "plugin",
+/// The settings of one `[[compressors]]` entry (see [`CompressorTable`]); errors are located
+/// at the key (or value) they concern.
+fn compressor_settings(
+    entry: &Spanned<CompressorTable>,
+    dir: &Path,
+    err: &dyn Fn(Range<usize>, String) -> ConfigError,
+) -> Result<Vec<CompressorSetting>, ConfigError> {
+    use biscale_compressors::registry;
+    let names = registry::names().join("`, `");
+    let Some((kind_key, kind_value)) = entry.get_ref().iter().find(|(k, _)| k.get_ref() == "kind") else {
+        return Err(err(entry.span(), format!("a compressor needs kind = one of `{names}`")));
+    };
+    let Some(kind) = kind_value.get_ref().as_str().and_then(registry::find) else {
+        let got = kind_value.get_ref().to_string();
+        return Err(err(kind_value.span(), format!("unknown compressor kind {got}, expected one of `{names}`")));
+    };
+    let _ = kind_key;
+    // Every key but `kind`, each value a list of sweep values (one for a plain value).
+    let mut keys: Vec<(&Spanned<String>, Range<usize>, Vec<serde_json::Value>)> = vec![];
+    for (k, v) in entry.get_ref().iter().filter(|(k, _)| k.get_ref() != "kind") {
+        let mut values = match v.get_ref() {
+            toml::Value::Array(a) if a.is_empty() => {
+                return Err(err(v.span(), "a sweep needs at least one value".into()));
+            }
+            toml::Value::Array(a) => a.clone(),
+            one => vec![one.clone()],
+        };
+        if kind.name == "plugin" && k.get_ref() == "path" {
+            // Resolved against the config's folder and made absolute, so the loader opens
+            // exactly this file (a bare file name would be searched for on the library path).
+            for p in &mut values {
+                let Some(rel) = p.as_str() else { continue };
+                let full = dir.join(rel);
+                let found = full.canonicalize().ok().filter(|f| f.is_file());
+                let Some(full) = found else {
+                    return Err(err(v.span(), format!("plugin library not found: {}", full.display())));
+                };
+                *p = toml::Value::String(full.display().to_string());
+            }
         }
+        let json = values.iter().map(|x| serde_json::to_value(x).expect("a TOML value is JSON")).collect();
+        keys.push((k, v.span(), json));
     }
+    let mut combos = vec![serde_json::Map::new()];
+    for (k, _, values) in &keys {
+        combos = combos
+            .into_iter()
+            .flat_map(|c| {
+                values.iter().map(move |x| {
+                    let mut c = c.clone();
+                    c.insert(k.get_ref().clone(), x.clone());
+                    c
+                })
+            })
+            .collect();
+    }
+    let mut settings = vec![];
+    for combo in combos {
+        let params = serde_json::Value::Object(combo);
+        let checked = (kind.check)(&params).and_then(|()| (kind.label)(&params));
+        let label = checked.map_err(|message| {
+            // The key the message is about: the one it names (`unknown field `x``), else the
+            // one that fails on its own, else the whole entry.
+            let named = keys.iter().find(|(k, _, _)| message.contains(&format!("`{}`", k.get_ref())));
+            let alone = || {
+                keys.iter().find(|(k, _, _)| {
+                    let one = serde_json::json!({ k.get_ref().as_str(): params[k.get_ref().as_str()] });
+                    (kind.check)(&one).is_err_and(|m| !m.starts_with("missing field"))
+                })
+            };
+            let span = match named.or_else(alone) {
+                Some((k, value_span, _)) if message.contains("unknown field") => k.span().start..value_span.end,
+                Some((_, value_span, _)) => value_span.clone(),
+                None => entry.span(),
+            };
+            err(span, format!("{} compressor: {message}", kind.name))
+        })?;
+        settings.push(CompressorSetting { label, kind: kind.name.to_string(), params });
+    }
+    Ok(settings)
 }
 
 #[derive(Debug, Deserialize)]
@@ -556,6 +584,8 @@ pub struct Experiment {
     pub env_path: Option<PathBuf>,
     /// `[transfer]` as bases (validated at parse).
     transfer: biscale_core::transfer::TransferSettings,
+    /// Every compressor setting, sweeps expanded (checked at parse).
+    compressors: Vec<CompressorSetting>,
 }
 
 impl Experiment {
@@ -648,15 +678,16 @@ impl Experiment {
             return Err(ConfigError::whole_file(path, "runtime.repeats must be at least 1"));
         }
         let mut file = file;
-        for c in &mut file.compressors {
-            let span = c.span();
-            check_compressor(c.get_ref()).map_err(|m| err(span.clone(), m))?;
-            if let CompressorConfig::Plugin { path: p, .. } = c.get_mut() {
-                let full = dir.join(&*p);
-                if !full.is_file() {
-                    return Err(err(span, format!("plugin library not found: {}", full.display())));
+        let mut compressors: Vec<CompressorSetting> = vec![];
+        for c in &file.compressors {
+            for setting in compressor_settings(c, &dir, &err)? {
+                if compressors.iter().any(|s| s.label == setting.label) {
+                    return Err(err(
+                        c.span(),
+                        format!("setting {} appears twice (its images and report rows would collide)", setting.label),
+                    ));
                 }
-                *p = full;
+                compressors.push(setting);
             }
         }
         if let (Some(_), Some(first)) = (&file.scene.material, file.scene.materials.first()) {
@@ -692,7 +723,7 @@ impl Experiment {
                 }
             }
         }
-        Ok(Self { config_path: path.to_path_buf(), source, file, mesh_path, env_path, transfer })
+        Ok(Self { config_path: path.to_path_buf(), source, file, mesh_path, env_path, transfer, compressors })
     }
 
     pub fn name(&self) -> &str {
@@ -710,34 +741,15 @@ impl Experiment {
         }
     }
 
+    /// Every compressor setting, in config order with sweeps expanded.
+    pub fn compressor_settings(&self) -> &[CompressorSetting] {
+        &self.compressors
+    }
+
     /// The transfer settings: the light basis of `L` and `T`, the local basis of `T`, `L*` and
     /// the BTFs, and the visibility resolution.
     pub fn transfer_settings(&self) -> biscale_core::transfer::TransferSettings {
         self.transfer
-    }
-}
-
-fn check_compressor(c: &CompressorConfig) -> Result<(), String> {
-    let positive = |s: &Option<Sweep<usize>>, what: &str| -> Result<(), String> {
-        if let Some(Sweep(v)) = s {
-            if v.contains(&0) {
-                return Err(format!("{} {what} must be at least 1", c.kind()));
-            }
-        }
-        Ok(())
-    };
-    match c {
-        CompressorConfig::Sparse {} | CompressorConfig::Bicluster { .. } => Ok(()),
-        CompressorConfig::Cpca { clusters, components, iterations } => {
-            positive(clusters, "clusters")?;
-            positive(components, "components")?;
-            if iterations == &Some(0) {
-                return Err("cpca iterations must be at least 1".into());
-            }
-            Ok(())
-        }
-        CompressorConfig::Haar { terms } => positive(terms, "terms"),
-        CompressorConfig::Plugin { .. } => Ok(()),
     }
 }
 
@@ -795,22 +807,31 @@ mod tests {
 
     #[test]
     fn compressor_sweeps_and_bad_kinds() {
-        let e = parse(&format!("{OK}[[compressors]]\nkind = \"cpca\"\nclusters = [8, 16]\ncomponents = 4\n")).unwrap();
-        assert_eq!(
-            e.file.compressors[0].get_ref(),
-            &CompressorConfig::Cpca {
-                clusters: Some(Sweep(vec![8, 16])),
-                components: Some(Sweep(vec![4])),
-                iterations: None
-            }
-        );
+        let e =
+            parse(&format!("{OK}[[compressors]]\nkind = \"cpca\"\nclusters = [8, 16]\ncomponents = [2, 4]\n")).unwrap();
+        let labels: Vec<&str> = e.compressor_settings().iter().map(|s| s.label.as_str()).collect();
+        assert_eq!(labels, ["cpca-k8-c2", "cpca-k8-c4", "cpca-k16-c2", "cpca-k16-c4"]);
+        assert_eq!(e.compressor_settings()[1].params, serde_json::json!({ "clusters": 8, "components": 4 }));
         let e = parse(&format!("{OK}[[compressors]]\nkind = \"zip\"\n")).unwrap_err();
-        assert_eq!(e.line, 7, "{e}");
-        assert!(e.message.contains("unknown variant `zip`"), "{e}");
+        assert_eq!((e.line, e.column), (7, 8), "{e}");
+        assert!(e.message.contains("unknown compressor kind \"zip\""), "{e}");
         let e = parse(&format!("{OK}[[compressors]]\nkind = \"haar\"\nterms = 0\n")).unwrap_err();
         assert!(e.message.contains("terms must be at least 1"), "{e}");
+        assert_eq!((e.line, e.column), (8, 9), "{e}");
         let e = parse(&format!("{OK}[[compressors]]\nkind = \"haar\"\nterms = []\n")).unwrap_err();
         assert!(e.message.contains("at least one value"), "{e}");
+        // The compressor's own keys are checked by its parameter type, at the key.
+        let e = parse(&format!("{OK}[[compressors]]\nkind = \"cpca\"\nclustrs = 8\n")).unwrap_err();
+        assert!(e.message.contains("unknown field `clustrs`"), "{e}");
+        assert_eq!((e.line, e.column), (8, 1), "{e}");
+        let e = parse(&format!("{OK}[[compressors]]\nkind = \"cpca\"\nclusters = \"8\"\n")).unwrap_err();
+        assert!(e.message.contains("invalid type"), "{e}");
+        assert_eq!((e.line, e.column), (8, 12), "{e}");
+        // The same setting twice would overwrite its own images.
+        let twice = format!(
+            "{OK}[[compressors]]\nkind = \"haar\"\nterms = [4, 8]\n[[compressors]]\nkind = \"haar\"\nterms = 8\n"
+        );
+        assert!(parse(&twice).unwrap_err().message.contains("haar-t8 appears twice"));
     }
 
     #[test]
@@ -819,19 +840,17 @@ mod tests {
             "{OK}[[compressors]]\nkind = \"plugin\"\npath = \"nope.so\"\nparams = {{ scale = 0.25 }}\n"
         ))
         .unwrap_err();
-        assert_eq!(e.line, 6, "{e}");
+        assert_eq!((e.line, e.column), (8, 8), "{e}");
         assert!(e.message.contains("plugin library not found"), "{e}");
         let e = parse(&format!(
             "{OK}[[compressors]]\nkind = \"plugin\"\npath = \"bunny.toml\"\nparams = {{ scale = 0.25 }}\n"
         ))
         .unwrap();
-        match e.file.compressors[0].get_ref() {
-            CompressorConfig::Plugin { path, params } => {
-                assert!(path.is_absolute() || path.starts_with(env!("CARGO_MANIFEST_DIR")), "{}", path.display());
-                assert_eq!(params["scale"].as_float(), Some(0.25));
-            }
-            other => panic!("{other:?}"),
-        }
+        let s = &e.compressor_settings()[0];
+        assert_eq!(s.label, "plugin-bunny");
+        let path = Path::new(s.params["path"].as_str().unwrap());
+        assert!(path.is_absolute() && path.is_file(), "{}", path.display());
+        assert_eq!(s.params["params"]["scale"].as_f64(), Some(0.25));
     }
 
     #[test]

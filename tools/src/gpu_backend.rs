@@ -3,17 +3,14 @@
 //! and checked against the CPU results of the same run.
 
 use crate::metrics::{GpuRecord, ImageErrors};
-use crate::pipeline::{PipelineError, Result};
+use crate::pipeline::Result;
 use biscale_core::compress::CompressedForm;
 use biscale_core::gather::relative_l2_error;
 use biscale_core::sampling::LightVector;
 use biscale_core::scene::{Camera, Render, ShadeScene};
 use biscale_gpu::{GpuContext, GpuGather, GpuShader};
+use biscale_kernels::KernelDesc;
 use biscale_shading::image::compare;
-
-fn gpu_err(e: biscale_gpu::GpuError) -> PipelineError {
-    PipelineError::Other(format!("gpu backend: {e}"))
-}
 
 /// A device plus the shader for the run's scene and camera.
 pub struct GpuBackend {
@@ -24,34 +21,31 @@ pub struct GpuBackend {
 
 impl GpuBackend {
     pub fn new(scene: &ShadeScene, camera: &Camera) -> Result<Self> {
-        let ctx = GpuContext::new().map_err(gpu_err)?;
+        let ctx = GpuContext::new()?;
         let a = ctx.adapter();
         let adapter = format!("{} ({:?}, {})", a.name, a.backend, a.driver);
-        let shader = GpuShader::new(&ctx, scene, camera).map_err(gpu_err)?;
+        let shader = GpuShader::new(&ctx, scene, camera)?;
         Ok(Self { ctx, shader, adapter })
     }
 
-    /// Gather and shade `form` on the GPU; errors are measured against the f64 product
-    /// (`exact`) and the CPU render of the same form (`cpu`, over the CPU's coverage).
+    /// Gather `form` with its program `kernels` and shade it on the GPU; errors are measured
+    /// against the f64 product (`exact`) and the CPU render of the same form (`cpu`, over the
+    /// CPU's coverage).
     pub fn run(
         &mut self,
         form: &CompressedForm,
+        kernels: &KernelDesc,
         light: &LightVector,
         exact: &[[f64; 3]],
         cpu: &Render,
         repeats: usize,
-        plugin_kernels: Option<&biscale_core::kernels::KernelDesc>,
     ) -> Result<GpuRecord> {
-        let mut gather = match plugin_kernels {
-            Some(k) => GpuGather::with_kernels(&self.ctx, form, k),
-            None => GpuGather::new(&self.ctx, form),
-        }
-        .map_err(gpu_err)?;
-        let gather_timing = gather.time_gather(light, repeats).map_err(gpu_err)?;
-        gather.gather(light).map_err(gpu_err)?;
-        let lstar = gather.read_lstar().map_err(gpu_err)?;
-        let shade_timing = self.shader.time_shade(&gather, repeats).map_err(gpu_err)?;
-        let gpu = self.shader.shade(&gather).map_err(gpu_err)?;
+        let mut gather = GpuGather::new(&self.ctx, form, kernels)?;
+        let gather_timing = gather.time_gather(light, repeats)?;
+        gather.gather(light)?;
+        let lstar = gather.read_lstar()?;
+        let shade_timing = self.shader.time_shade(&gather, repeats)?;
+        let gpu = self.shader.shade(&gather)?;
         // The GPU draws no background: compare where the CPU render covers the mesh.
         let m = compare(&gpu.image, &cpu.image, Some(&cpu.mask))?;
         let coverage_mismatch = gpu.mask.iter().zip(&cpu.mask).filter(|(a, b)| a != b).count();

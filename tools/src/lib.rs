@@ -22,7 +22,6 @@ pub mod metrics;
 pub mod pipeline;
 pub mod plan;
 pub mod plots;
-pub mod registry;
 pub mod report;
 pub mod temple;
 pub mod util;

@@ -6,12 +6,12 @@
 //! setting, then the report. Each step is a function below that takes plain data and returns
 //! a plain record; stages never reach into each other.
 
-use crate::config::{Backend, Experiment};
+use crate::config::{Backend, CompressorSetting, Experiment};
 use crate::materials::{load_materials, SceneMaterials};
 use crate::metrics::*;
-use crate::plan::{CompressorSetting, Plan};
-use crate::registry;
+use crate::plan::Plan;
 use crate::util::progress_bar;
+use biscale_compressors::registry::{self, BuildError};
 use biscale_core::compress::{CompressContext, Compressor};
 use biscale_core::gather::{reference_product, relative_l2_error, LocalRadiance};
 use biscale_core::geometry::Mesh;
@@ -33,7 +33,12 @@ pub enum PipelineError {
     #[error(transparent)]
     Core(#[from] biscale_core::CoreError),
     #[error("compressor {name}: {source}")]
+    Build { name: String, source: BuildError },
+    #[error("compressor {name}: {source}")]
     Compress { name: String, source: biscale_core::compress::CompressError },
+    #[cfg(feature = "gpu")]
+    #[error("gpu backend: {0}")]
+    Gpu(#[from] biscale_gpu::GpuError),
     #[error(transparent)]
     Shading(#[from] ShadingError),
     #[error("{}: {source}", path.display())]
@@ -322,6 +327,12 @@ fn reference(
     Ok(Reference { render, camera, seconds, baseline_error })
 }
 
+/// The compressor of one setting (a plugin loads its library here).
+pub fn build_compressor(setting: &CompressorSetting) -> Result<Box<dyn Compressor>> {
+    registry::build(&setting.kind, &setting.params)
+        .map_err(|source| PipelineError::Build { name: setting.label.clone(), source })
+}
+
 /// Run the whole experiment; returns the metrics that were written.
 pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     let plan = Plan::new(exp);
@@ -340,7 +351,7 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
 
     // Compressors are constructed first so a bad setting fails before any heavy work.
     let compressors: Vec<(CompressorSetting, Box<dyn Compressor>)> =
-        plan.compressors.iter().map(|s| registry::build(s).map(|c| (s.clone(), c))).collect::<Result<_>>()?;
+        plan.compressors.iter().map(|s| build_compressor(s).map(|c| (s.clone(), c))).collect::<Result<_>>()?;
 
     let geometry = load_geometry(exp)?;
     for r in &geometry.repairs {
@@ -401,8 +412,8 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
         #[cfg(feature = "gpu")]
         let gpu_record = match gpu.as_mut() {
             Some(g) => {
-                let kernels = registry::plugin_kernels(setting)?;
-                Some(g.run(&form, &lighting.light, &base.exact, &render, repeats, kernels.as_ref())?)
+                let kernels = compressor.kernels(&form).map_err(cerr)?;
+                Some(g.run(&form, &kernels, &lighting.light, &base.exact, &render, repeats)?)
             }
             None => None,
         };
@@ -450,7 +461,7 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
                 error_png: Some(error_rel),
                 error_scale: Some(error_scale),
             },
-            stats: registry::stats(compressor.kind(), &form, &t),
+            stats: compressor.stats(&form, &t),
             gpu: gpu_record,
         });
     }

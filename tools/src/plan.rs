@@ -1,16 +1,8 @@
 //! The planner (DESIGN.md section 5): from the experiment, decide which stages and data
 //! dimensions are needed, and say what is left out and why. Printed before every run.
 
-use crate::config::{CompressorConfig, Experiment, MaterialConfig, Sweep};
+use crate::config::{CompressorSetting, Experiment, MaterialConfig};
 use std::fmt;
-
-/// One compressor setting after sweep expansion.
-#[derive(Clone, Debug, PartialEq)]
-pub struct CompressorSetting {
-    /// Label used for file names and report rows, e.g. `cpca-k32-c8`.
-    pub label: String,
-    pub config: CompressorConfig,
-}
 
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Action {
@@ -30,63 +22,6 @@ pub struct Plan {
     pub steps: Vec<Step>,
     pub compressors: Vec<CompressorSetting>,
     pub reference: bool,
-}
-
-fn values<T: Clone>(s: &Option<Sweep<T>>, default: T) -> Vec<T> {
-    s.as_ref().map(|s| s.0.clone()).unwrap_or_else(|| vec![default])
-}
-
-/// Expand every swept parameter into one setting per combination.
-pub fn expand(c: &CompressorConfig) -> Vec<CompressorSetting> {
-    match c {
-        CompressorConfig::Sparse {} => vec![CompressorSetting { label: "sparse".into(), config: c.clone() }],
-        CompressorConfig::Bicluster { block_vertices } => {
-            let blocks: Vec<Option<usize>> = match block_vertices {
-                Some(s) => s.0.iter().map(|&b| Some(b)).collect(),
-                None => vec![None],
-            };
-            blocks
-                .into_iter()
-                .map(|b| CompressorSetting {
-                    label: match b {
-                        Some(b) => format!("bicluster-b{b}"),
-                        None => "bicluster".into(),
-                    },
-                    config: CompressorConfig::Bicluster { block_vertices: b.map(|b| Sweep(vec![b])) },
-                })
-                .collect()
-        }
-        CompressorConfig::Cpca { clusters, components, iterations } => {
-            let mut out = vec![];
-            for k in values(clusters, 32) {
-                for c in values(components, 8) {
-                    out.push(CompressorSetting {
-                        label: format!("cpca-k{k}-c{c}"),
-                        config: CompressorConfig::Cpca {
-                            clusters: Some(Sweep(vec![k])),
-                            components: Some(Sweep(vec![c])),
-                            iterations: *iterations,
-                        },
-                    });
-                }
-            }
-            out
-        }
-        CompressorConfig::Plugin { path, .. } => vec![CompressorSetting {
-            label: format!(
-                "plugin-{}",
-                path.file_stem().map(|s| s.to_string_lossy().trim_start_matches("lib").to_string()).unwrap_or_default()
-            ),
-            config: c.clone(),
-        }],
-        CompressorConfig::Haar { terms } => values(terms, 12)
-            .into_iter()
-            .map(|t| CompressorSetting {
-                label: format!("haar-t{t}"),
-                config: CompressorConfig::Haar { terms: Some(Sweep(vec![t])) },
-            })
-            .collect(),
-    }
 }
 
 impl Plan {
@@ -152,15 +87,12 @@ impl Plan {
         } else {
             step("btf", format!("material ids per triangle ({} materials)", materials.len()), Action::Run);
         }
-        let mut compressors: Vec<CompressorSetting> = vec![];
-        for c in &f.compressors {
-            compressors.extend(expand(c.get_ref()));
-        }
+        let compressors: Vec<CompressorSetting> = exp.compressor_settings().to_vec();
         for c in &compressors {
             step("compress", c.label.clone(), Action::Run);
         }
-        for kind in ["sparse", "bicluster", "cpca", "haar"] {
-            if !compressors.iter().any(|c| c.config.kind() == kind) {
+        for kind in biscale_compressors::registry::KINDS.iter().map(|k| k.name).filter(|&k| k != "plugin") {
+            if !compressors.iter().any(|c| c.kind == kind) {
                 step("compress", kind.into(), Action::LeftOut("not named in the config".into()));
             }
         }

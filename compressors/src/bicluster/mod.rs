@@ -42,48 +42,40 @@
 
 pub mod codes;
 pub mod greedy;
+mod params;
 #[cfg(test)]
 mod tests;
 
+pub use params::Bicluster;
+
+use crate::registry::{self, Kind};
 use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::sampling::LightVector;
 use biscale_core::transfer::TransferMatrix;
+use biscale_kernels::{Count, Factor, FormCheck, KernelDesc, PassDesc, ScratchDesc};
 use codes::CodeMatrix;
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
+
+fn build(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
+    Ok(Box::new(registry::parse::<Bicluster>(p)?))
+}
+
+/// The registry entry. The label names `block_vertices` only when the config gives it
+/// (`bicluster-b1024`).
+pub const KIND: Kind = Kind {
+    name: "bicluster",
+    about: "lossless greedy constant-column biclustering (Sun et al.), block-parallel",
+    label: |p| {
+        registry::parse::<Bicluster>(p).map(|_| registry::tagged_label("bicluster", p, &[("block_vertices", "b")]))
+    },
+    check: |p| build(p).map(drop),
+    build: |p| Ok(build(p)?),
+};
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
-
-/// Parameters of the biclustering compressor.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Bicluster {
-    /// Vertices per independently biclustered block of rows (rows `v*M + j` of consecutive
-    /// vertices in mesh order). Blocks run in parallel; larger blocks find more sharing.
-    /// 0 = one global block (the paper's setting). Default 1024: on the bunny (6x32x32, 8x8)
-    /// it keeps 22.1% of the raw flops and 1.06 bytes per non-zero against 21.3% / 1.00 for
-    /// the global greedy (256: 25.2% / 1.29; 64: 31.8% / 1.75), while bounding the work per
-    /// block so large meshes scale linearly and in parallel (see `examples/bicluster_bench.rs`).
-    pub block_vertices: usize,
-    /// Denominator `q` of the integer value codes (values are `code / q`); 0 = detect the
-    /// smallest one that represents `T` exactly (4 for the 2x2 box-filtered reference).
-    pub value_scale: u32,
-}
-
-impl Default for Bicluster {
-    fn default() -> Self {
-        Self { block_vertices: 1024, value_scale: 0 }
-    }
-}
-
-impl Bicluster {
-    /// The paper's setting: one global greedy over all rows (single-threaded, slowest).
-    pub fn global() -> Self {
-        Self { block_vertices: 0, ..Self::default() }
-    }
-}
 
 /// The arrays of a bicluster form, borrowed and validated.
 pub struct BiclusterView<'a> {
@@ -234,11 +226,72 @@ impl<'a> BiclusterView<'a> {
 
 impl Compressor for Bicluster {
     fn kind(&self) -> &str {
-        "bicluster"
+        KIND.name
     }
 
     fn params(&self) -> serde_json::Value {
         serde_json::to_value(self).expect("plain struct serializes")
+    }
+
+    /// The two passes of `gather.wgsl`. The checks make every read of both passes in range
+    /// (the GPU would otherwise loop over a decreasing pointer array for billions of steps):
+    /// the pointer arrays are monotone and end where their targets do, columns are below N,
+    /// and each row's ids name a bicluster of its own block (or, with global ids, any).
+    fn kernels(&self, form: &CompressedForm) -> Result<KernelDesc, CompressError> {
+        let local = form.meta("row_bc_local")? == 1;
+        let want = if local { "u16" } else { "u32" };
+        if form.array("row_bc")?.element_type() != want {
+            return Err(CompressError::malformed(
+                KIND.name,
+                "row_bc",
+                format!("must be {want} with row_bc_local = {}", local as u8),
+            ));
+        }
+        let meta = |k: &str| Count::of([Factor::Meta(k.into())]);
+        let len = |a: &str| Count::of([Factor::Len(a.into())]);
+        let ids = if local {
+            FormCheck::Grouped {
+                ids: "row_bc".into(),
+                ptr: "row_ptr".into(),
+                group_rows: meta("block_rows"),
+                bases: "block_bc_base".into(),
+            }
+        } else {
+            FormCheck::Below { array: "row_bc".into(), bound: meta("biclusters") }
+        };
+        Ok(KernelDesc {
+            kind: KIND.name.into(),
+            wgsl: include_str!("gather.wgsl").into(),
+            passes: vec![
+                PassDesc { entry_point: "bicluster_sums".into(), threads: meta("biclusters") },
+                PassDesc { entry_point: "bicluster_rows".into(), threads: Count::of([Factor::Rows]) },
+            ],
+            scratch: vec![ScratchDesc {
+                name: "bc_sums".into(),
+                words: Count::of([Factor::Meta("biclusters".into()), Factor::Const(3)]),
+            }],
+            meta_keys: vec!["value_scale".into(), "block_rows".into(), "row_bc_local".into()],
+            checks: vec![
+                FormCheck::Range { count: meta("value_scale"), min: 1, max: codes::CODE_MAX as u64 },
+                FormCheck::Range { count: meta("block_rows"), min: 1, max: u64::MAX },
+                FormCheck::Len { array: "bc_vals".into(), count: len("bc_cols") },
+                FormCheck::Ptr { array: "bc_col_ptr".into(), count: meta("biclusters"), total: len("bc_cols") },
+                FormCheck::Below { array: "bc_cols".into(), bound: Count::of([Factor::Cols]) },
+                FormCheck::Ptr { array: "block_bc_base".into(), count: meta("blocks"), total: meta("biclusters") },
+                FormCheck::Ptr { array: "row_ptr".into(), count: Count::of([Factor::Rows]), total: len("row_bc") },
+                ids,
+            ],
+        })
+    }
+
+    fn stats(&self, form: &CompressedForm, t: &TransferMatrix) -> Option<serde_json::Value> {
+        match table_stats(form, t) {
+            Ok(s) => serde_json::to_value(s).ok(),
+            Err(e) => {
+                eprintln!("warning: bicluster stats: {e}");
+                None
+            }
+        }
     }
 
     fn compress(&self, t: &TransferMatrix, ctx: &CompressContext) -> Result<CompressedForm, CompressError> {
@@ -446,7 +499,7 @@ fn assemble(
         ("biclusters".to_string(), nb as u64),
         ("row_bc_local".to_string(), local as u64),
     ]);
-    let mut form = CompressedForm::new("bicluster", t.shape())
+    let mut form = CompressedForm::new(KIND.name, t.shape())
         .with_array("bc_col_ptr", ArrayData::U32(bc_col_ptr))
         .with_array("bc_cols", ArrayData::U16(bc_cols))
         .with_array("bc_vals", ArrayData::I8(bc_vals))

@@ -57,52 +57,40 @@
 //!
 //! Gather: `P[k][c] = basis[k][c] . L` for all K (C + 1) vectors (RGB), then
 //! `L*_r = P[k][0] + sum_c coeffs[r][c] P[k][c]` with `k = cluster[r]` (0 when `k = K`).
-//! The CPU gather accumulates both in f64. Flops per monochrome gather:
+//! The CPU gather accumulates both in f64; the GPU gather (`gather.wgsl`) projects with one
+//! workgroup per basis vector, then combines per row. Flops per monochrome gather:
 //! `2 N K (C + 1) + 2 C (non-zero rows)`.
 
 pub mod linalg;
+mod params;
+pub use params::Cpca;
 
+use crate::registry::{self, Kind};
 use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor, NamedArray};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::sampling::LightVector;
 use biscale_core::transfer::TransferMatrix;
+use biscale_kernels::{Count, Factor, FormCheck, KernelDesc, PassDesc, ScratchDesc};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use std::time::Instant;
 
-/// Clustered PCA of the rows of `T`.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Cpca {
-    /// Number of clusters K (at most 65534: ids are u16 with one sentinel). Fewer are made when
-    /// the matrix has fewer distinct non-zero rows. Reference: 32.
-    pub clusters: usize,
-    /// Principal components per cluster C, besides the mean (capped at N). Reference: 8.
-    pub components: usize,
-    /// Most assignment/refit rounds (Sloan et al.'s iterative CPCA); stops earlier when no row
-    /// changes cluster. At least 1.
-    pub iterations: usize,
-    /// Subspace (power) iterations per refit, `Q <- orth(A^T A Q)`. Warm starts from the
-    /// previous round's components make a few enough.
-    pub power_iterations: usize,
-    /// Extra columns of the randomised subspace beyond C (Halko et al.'s p).
-    pub oversampling: usize,
+fn build(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
+    Ok(Box::new(registry::parse::<Cpca>(p)?.validated()?))
 }
 
-impl Default for Cpca {
-    /// The comparison setting of Sloan et al. and the biclustering paper: 32 clusters x 8
-    /// components.
-    fn default() -> Self {
-        Self { clusters: 32, components: 8, iterations: 12, power_iterations: 2, oversampling: 8 }
-    }
-}
-
-impl Cpca {
-    /// `clusters` x `components` with the default iteration settings.
-    pub fn new(clusters: usize, components: usize) -> Self {
-        Self { clusters, components, ..Self::default() }
-    }
-}
+/// The registry entry.
+pub const KIND: Kind = Kind {
+    name: "cpca",
+    about: "clustered PCA: `clusters` clusters of `components` principal components (lossy)",
+    label: |p| {
+        let c: Cpca = registry::parse(p)?;
+        Ok(registry::tagged_label("cpca", &serde_json::to_value(c).unwrap(), &[("clusters", "k"), ("components", "c")]))
+    },
+    check: |p| build(p).map(drop),
+    build: |p| Ok(build(p)?),
+};
 
 /// `T` as plain CSR slices (row `r` is `indices/data[indptr[r]..indptr[r+1]]`).
 struct Rows<'a> {
@@ -413,42 +401,51 @@ fn members_of(assign: &[u32], nz_rows: &[u32], k: usize) -> Vec<Vec<u32>> {
 
 impl Compressor for Cpca {
     fn kind(&self) -> &str {
-        "cpca"
+        KIND.name
     }
 
     fn params(&self) -> serde_json::Value {
-        serde_json::json!({
-            "clusters": self.clusters,
-            "components": self.components,
-            "iterations": self.iterations,
-            "power_iterations": self.power_iterations,
-            "oversampling": self.oversampling,
+        serde_json::to_value(self).expect("plain struct serializes")
+    }
+
+    fn kernels(&self, _form: &CompressedForm) -> Result<KernelDesc, CompressError> {
+        let (k, c) = (|| Factor::Meta("clusters".into()), || Factor::MetaPlus("components".into(), 1));
+        Ok(KernelDesc {
+            kind: KIND.name.into(),
+            wgsl: include_str!("gather.wgsl").into(),
+            passes: vec![
+                // A workgroup of 64 per basis vector (K (C + 1) of them), then a row each.
+                PassDesc { entry_point: "cpca_project".into(), threads: Count::of([k(), c(), Factor::Const(64)]) },
+                PassDesc { entry_point: "cpca_rows".into(), threads: Count::of([Factor::Rows]) },
+            ],
+            scratch: vec![ScratchDesc { name: "proj".into(), words: Count::of([k(), c(), Factor::Const(3)]) }],
+            meta_keys: vec!["clusters".into(), "components".into()],
+            checks: vec![
+                FormCheck::Len { array: "basis".into(), count: Count::of([k(), c(), Factor::Cols]) },
+                FormCheck::Len { array: "cluster".into(), count: Count::of([Factor::Rows]) },
+                FormCheck::Len {
+                    array: "coeffs".into(),
+                    count: Count::of([Factor::Rows, Factor::Meta("components".into())]),
+                },
+                // Id K is the all-zero row's sentinel.
+                FormCheck::Below {
+                    array: "cluster".into(),
+                    bound: Count::of([Factor::MetaPlus("clusters".into(), 1)]),
+                },
+                FormCheck::Finite { array: "basis".into() },
+                FormCheck::Finite { array: "coeffs".into() },
+            ],
         })
     }
 
     fn compress(&self, t: &TransferMatrix, ctx: &CompressContext) -> Result<CompressedForm, CompressError> {
         let start = Instant::now();
-        if self.clusters == 0 || self.clusters > u16::MAX as usize - 1 {
-            return Err(CompressError::Params(format!("cpca: clusters = {} must be in 1..=65534", self.clusters)));
-        }
-        if self.iterations == 0 {
-            return Err(CompressError::Params("cpca: iterations must be at least 1".into()));
-        }
-        let csr = if t.csr().is_csr() {
-            std::borrow::Cow::Borrowed(t.csr())
-        } else {
-            std::borrow::Cow::Owned(t.csr().to_csr())
-        };
+        self.check()?;
+        // T is CSR with finite values by construction (TransferMatrix::new).
+        let csr = t.csr();
         let indptr_view = csr.indptr();
         let indptr = indptr_view.to_proper();
         let rows = Rows { indptr: &indptr, indices: csr.indices(), data: csr.data() };
-        if let Some(i) = rows.data.iter().position(|v| !v.is_finite()) {
-            let row = indptr.partition_point(|&p| p <= i) - 1;
-            return Err(CompressError::Params(format!(
-                "cpca: T has a non-finite value at row {row}, column {}",
-                rows.indices[i]
-            )));
-        }
         let (n, n_rows) = (t.cols(), t.rows());
         let c = self.components.min(n);
         let nz_rows: Vec<u32> =
@@ -563,7 +560,7 @@ impl Compressor for Cpca {
         }
         ctx.report(1.0);
         let exact = nz_rows.is_empty();
-        let mut form = CompressedForm::new("cpca", t.shape());
+        let mut form = CompressedForm::new(KIND.name, t.shape());
         form.arrays = vec![
             NamedArray { name: "basis".into(), data: ArrayData::F32(basis) },
             NamedArray { name: "cluster".into(), data: ArrayData::U16(cluster) },

@@ -1,57 +1,40 @@
 //! The generic gather host: runs any compressed form's WGSL gather program, leaving
 //! `L* = T L` (rows x RGB, f32) in a GPU buffer that the shader reads directly.
 //!
-//! The host knows nothing of any compressor. It uploads every array of the
-//! [`CompressedForm`] as a storage buffer (narrow integers packed into 32-bit words, see
-//! [`program::pack_words`]), parses the program's WGSL to find which global binds which array
-//! (by name), creates the scratch buffers the program declares, and dispatches its passes in
-//! one submission. Everything that could exceed the adapter's limits is checked before the
-//! buffer or dispatch is created, and wgpu's validation errors come back as [`GpuError`]s.
+//! The host knows nothing of any compressor. Given a form and its program (a
+//! [`KernelDesc`], from the compressor's `Compressor::kernels`: built-ins and plugins alike),
+//! it runs the program's declared checks on the form, reflects the WGSL
+//! ([`biscale_kernels::reflect`]) to find which global binds which array (by name), uploads
+//! every array as a storage buffer (narrow integers packed into 32-bit words,
+//! [`biscale_kernels::ArrayData::pack_words`]), creates the scratch buffers the program
+//! declares, and dispatches its passes in one submission. Everything that could exceed the
+//! adapter's limits is checked before the buffer or dispatch is created, and wgpu's
+//! validation errors come back as [`GpuError`]s.
 //!
 //! ```no_run
 //! # use biscale_gpu::{GpuContext, GpuGather};
+//! # use biscale_core::compress::Compressor;
 //! # let form: biscale_core::compress::CompressedForm = unimplemented!();
 //! # let light: biscale_core::sampling::LightVector = unimplemented!();
+//! # let compressor: biscale_compressors::sparse::Sparse = unimplemented!();
 //! let ctx = GpuContext::new()?;
-//! let mut gather = GpuGather::new(&ctx, &form)?;
+//! let mut gather = GpuGather::new(&ctx, &form, &compressor.kernels(&form)?)?;
 //! gather.gather(&light)?;
 //! let lstar = gather.read_lstar()?;
-//! # Ok::<(), biscale_gpu::GpuError>(())
+//! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
-
-pub mod kinds;
-pub mod plugin;
-pub mod program;
 
 use crate::context::{bytes_to_f32, GpuContext};
 use crate::error::{GpuError, Result};
 use crate::timing::{measure, Timing};
 use biscale_core::basis::TransferShape;
-use biscale_core::compress::CompressedForm;
+use biscale_core::compress::{CompressError, CompressedForm};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::sampling::LightVector;
-use program::{compatible, pack_words, reflect, Elem, GatherProgram, GlobalKind};
+use biscale_kernels::reflect::{reflect, Role};
+use biscale_kernels::{GatherParams, KernelDesc};
 use std::collections::BTreeMap;
 use std::num::NonZeroU64;
-
-/// Uniform block of every gather pass. Mirrored by `GatherParams` in `gather/prelude.wgsl`
-/// (size and offsets checked by the layout test).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct GatherParams {
-    pub rows: u32,
-    pub cols: u32,
-    pub local_dirs: u32,
-    pub vertices: u32,
-    /// Invocations of this pass; the rounded-up grid's extra invocations return early.
-    pub threads: u32,
-    pub pass_index: u32,
-    pub _pad: [u32; 2],
-}
-const _: () = assert!(std::mem::size_of::<GatherParams>() == 32);
-
-/// Names the prelude reserves (they are not form arrays).
-const RESERVED: &[&str] = &["params", "light", "lstar", "meta_values"];
 
 struct Pass {
     name: String,
@@ -72,32 +55,24 @@ pub struct GpuGather {
 }
 
 impl GpuGather {
-    /// Upload `form` and build its built-in gather program.
-    pub fn new(ctx: &GpuContext, form: &CompressedForm) -> Result<Self> {
-        let program = kinds::builtin_program(form).ok_or_else(|| GpuError::UnknownKind(form.kind.clone()))?;
-        Self::with_program(ctx, form, &program)
-    }
-
-    /// Upload `form` and build `program` for it (plugins supply their own program).
-    pub fn with_program(ctx: &GpuContext, form: &CompressedForm, program: &GatherProgram) -> Result<Self> {
-        if program.kind != form.kind {
-            return Err(GpuError::Form(format!("program for '{}' given a '{}' form", program.kind, form.kind)));
-        }
+    /// Check `form` against `kernels` (its compressor's GPU program, `Compressor::kernels`),
+    /// upload it and build the program. The kernels' declared checks run first, so a corrupt
+    /// form is a [`GpuError::Compress`] and never a GPU loop of billions of steps; then the
+    /// WGSL is reflected ([`biscale_kernels::reflect`]) and every global bound by name.
+    pub fn new(ctx: &GpuContext, form: &CompressedForm, kernels: &KernelDesc) -> Result<Self> {
         for (what, n) in [("rows", form.rows()), ("cols", form.cols())] {
             if n > u32::MAX as usize / 3 {
                 return Err(GpuError::Form(format!("{what} = {n} does not fit 32-bit GPU indices")));
             }
         }
-        if let Some(validate) = program.validate {
-            validate(form).map_err(GpuError::Form)?;
-        }
-        let reflected = reflect(program)?;
-        let wgsl_err = |message: String| GpuError::Wgsl { program: program.kind.clone(), message };
+        kernels.check_form(form).map_err(CompressError::from)?;
+        let reflected = reflect(kernels).map_err(|e| GpuError::Wgsl { program: e.kind, message: e.message })?;
+        reflected.check_arrays(form).map_err(CompressError::from)?;
         let limits = ctx.limits();
-        let storage_count = reflected.globals.iter().filter(|g| matches!(g.kind, GlobalKind::Storage { .. })).count();
+        let storage_count = reflected.globals.iter().filter(|g| g.uniform_size.is_none()).count();
         if storage_count as u64 > limits.max_storage_buffers_per_shader_stage as u64 {
             return Err(GpuError::Limit {
-                what: format!("gather program '{}' ({storage_count} storage buffers)", program.kind),
+                what: format!("gather program '{}' ({storage_count} storage buffers)", kernels.kind),
                 limit: "max_storage_buffers_per_shader_stage",
                 needed: storage_count as u64,
                 max: limits.max_storage_buffers_per_shader_stage as u64,
@@ -107,34 +82,14 @@ impl GpuGather {
         // Buffers for every global but `params` (per pass).
         let mut buffers: BTreeMap<String, wgpu::Buffer> = BTreeMap::new();
         let mut uploaded_bytes = 0u64;
-        let scratch: BTreeMap<&str, &program::ScratchBuffer> =
-            program.scratch.iter().map(|s| (s.name.as_str(), s)).collect();
-        for s in &program.scratch {
-            if RESERVED.contains(&s.name.as_str()) || form.array(&s.name).is_ok() {
-                return Err(wgsl_err(format!("scratch buffer '{}' shadows a form array or a reserved name", s.name)));
-            }
-        }
         let (mut light, mut lstar) = (None, None);
         for g in &reflected.globals {
             let name = g.name.as_str();
-            let (read_only, elem) = match g.kind {
-                GlobalKind::Uniform { size } => {
-                    if name != "params" {
-                        return Err(wgsl_err(format!("uniform '{name}': only 'params' may be a uniform")));
-                    }
-                    if size != std::mem::size_of::<GatherParams>() as u64 {
-                        return Err(wgsl_err(format!("'params' is {size} bytes, GatherParams is 32")));
-                    }
-                    continue;
-                }
-                GlobalKind::Storage { read_only, elem } => (read_only, elem),
-            };
-            let buffer = match name {
-                "light" | "lstar" => {
-                    let (n, rw) = if name == "light" { (form.cols(), false) } else { (form.rows(), true) };
-                    if elem != Elem::F32 || read_only == rw {
-                        return Err(wgsl_err(format!("'{name}' must be array<f32> with the prelude's access mode")));
-                    }
+            let buffer = match g.role {
+                Role::Params => continue,
+                Role::Light | Role::Lstar => {
+                    let rw = g.role == Role::Lstar;
+                    let n = if rw { form.rows() } else { form.cols() };
                     let bytes = (n * 3 * 4) as u64;
                     let what = if rw { "L* (rows x RGB f32)" } else { "light vector (N x RGB f32)" };
                     ctx.check_storage_size(what, bytes)?;
@@ -156,9 +111,9 @@ impl GpuGather {
                     }
                     b
                 }
-                "meta_values" => {
-                    let mut words = Vec::with_capacity(program.meta_keys.len());
-                    for k in &program.meta_keys {
+                Role::Meta => {
+                    let mut words = Vec::with_capacity(kernels.meta_keys.len());
+                    for k in &kernels.meta_keys {
                         let v = form.meta(k)?;
                         words.push(
                             u32::try_from(v)
@@ -167,11 +122,9 @@ impl GpuGather {
                     }
                     ctx.storage_buffer("meta_values", bytemuck::cast_slice(&words), wgpu::BufferUsages::empty())?
                 }
-                _ if scratch.contains_key(name) => {
-                    if read_only {
-                        return Err(wgsl_err(format!("scratch buffer '{name}' must be read_write")));
-                    }
-                    let words = scratch[name].words.eval(form)?;
+                Role::Scratch => {
+                    let desc = kernels.scratch.iter().find(|s| s.name == name).expect("reflect checked it");
+                    let words = desc.words.eval(form).map_err(CompressError::from)?;
                     let bytes =
                         words.checked_mul(4).ok_or_else(|| GpuError::Form(format!("scratch '{name}' overflows")))?;
                     let what = format!("scratch buffer '{name}' ({words} words)");
@@ -185,24 +138,9 @@ impl GpuGather {
                         })
                     })?
                 }
-                _ => {
-                    let data = &form.array(name).map_err(|_| {
-                        wgsl_err(format!(
-                            "global '{name}' is neither an array of the {} form ({}), a declared scratch buffer, nor one of {RESERVED:?}",
-                            form.kind,
-                            form.arrays.iter().map(|a| a.name.as_str()).collect::<Vec<_>>().join(", ")
-                        ))
-                    })?;
-                    if !compatible(data, elem) {
-                        return Err(wgsl_err(format!(
-                            "form array '{name}' is {} but the WGSL declares array<{elem:?}> (f32 arrays need array<f32>, integer arrays array<u32> or array<i32>)",
-                            data.element_type()
-                        )));
-                    }
-                    if !read_only {
-                        return Err(wgsl_err(format!("form array '{name}' must be bound read-only")));
-                    }
-                    let words = pack_words(data);
+                Role::FormArray => {
+                    let data = form.array(name)?;
+                    let words = data.pack_words();
                     let what = format!(
                         "form array '{name}' ({} x {}, {} bytes packed)",
                         data.len(),
@@ -216,7 +154,7 @@ impl GpuGather {
             buffers.insert(name.to_string(), buffer);
         }
         let (Some(light), Some(lstar)) = (light, lstar) else {
-            return Err(wgsl_err("program does not bind 'light' and 'lstar' (the prelude declares them)".into()));
+            unreachable!("reflect checked that the program binds light and lstar");
         };
 
         // One layout for all passes: every global, visible to compute.
@@ -227,22 +165,19 @@ impl GpuGather {
                 binding: g.binding,
                 visibility: wgpu::ShaderStages::COMPUTE,
                 ty: wgpu::BindingType::Buffer {
-                    ty: match g.kind {
-                        GlobalKind::Uniform { .. } => wgpu::BufferBindingType::Uniform,
-                        GlobalKind::Storage { read_only, .. } => wgpu::BufferBindingType::Storage { read_only },
+                    ty: match g.uniform_size {
+                        Some(_) => wgpu::BufferBindingType::Uniform,
+                        None => wgpu::BufferBindingType::Storage { read_only: g.read_only },
                     },
                     has_dynamic_offset: false,
-                    min_binding_size: match g.kind {
-                        GlobalKind::Uniform { size } => NonZeroU64::new(size),
-                        GlobalKind::Storage { .. } => None,
-                    },
+                    min_binding_size: g.uniform_size.and_then(NonZeroU64::new),
                 },
                 count: None,
             })
             .collect();
-        let label = format!("gather '{}'", program.kind);
+        let label = format!("gather '{}'", kernels.kind);
         let max_groups = limits.max_compute_workgroups_per_dimension as u64;
-        let mut passes = Vec::with_capacity(program.passes.len());
+        let mut passes = Vec::with_capacity(kernels.passes.len());
         let (module, pipeline_layout) = ctx.scoped(&format!("compiling {label}"), || {
             let module = ctx.device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some(&label),
@@ -260,12 +195,9 @@ impl GpuGather {
             (module, (pl, bgl))
         })?;
         let (pipeline_layout, bgl) = pipeline_layout;
-        for (index, pass) in program.passes.iter().enumerate() {
-            let Some(&(_, wg)) = reflected.workgroup_sizes.iter().find(|(n, _)| *n == pass.entry_point) else {
-                return Err(wgsl_err(format!("no @compute entry point '{}'", pass.entry_point)));
-            };
-            let group_size = wg.iter().map(|&x| x as u64).product::<u64>().max(1);
-            let threads = pass.threads.eval(form)?;
+        for (index, pass) in kernels.passes.iter().enumerate() {
+            let group_size = reflected.workgroup_size(&pass.entry_point).expect("reflect checked it").max(1);
+            let threads = pass.threads.eval(form).map_err(CompressError::from)?;
             let threads32 = u32::try_from(threads).map_err(|_| {
                 GpuError::Form(format!("pass '{}' needs {threads} invocations (> u32)", pass.entry_point))
             })?;
@@ -287,7 +219,8 @@ impl GpuGather {
                 vertices: form.vertices() as u32,
                 threads: threads32,
                 pass_index: index as u32,
-                _pad: [0; 2],
+                light_resolution: form.light_basis().cubemap_layout().map_or(0, |c| c.resolution),
+                _pad: 0,
             };
             let pass_label = format!("{label} pass {index} '{}'", pass.entry_point);
             let (pipeline, bind_group) = ctx.scoped(&format!("building {pass_label}"), || {

@@ -32,7 +32,7 @@ fn scene(ctx: &GpuContext, cam: Camera) -> (GpuShader, GpuGather) {
     let shader = GpuShader::new(ctx, &scene, &cam).unwrap();
     let t = random_transfer(nv, 4, 4, 0.3, 5);
     let form = Sparse.compress(&t, &CompressContext::default()).unwrap();
-    let mut gather = GpuGather::new(ctx, &form).unwrap();
+    let mut gather = GpuGather::new(ctx, &form, &Sparse.kernels(&form).unwrap()).unwrap();
     gather.gather(&random_light(4, 6)).unwrap();
     (shader, gather)
 }

@@ -8,22 +8,28 @@
 //! after poisoning `L*` with NaN, so an element the kernel never wrote fails.
 
 use super::gpu_or_skip;
-use crate::gather::kinds::builtin_program;
-use crate::{Count, Factor, GatherProgram, GpuError, GpuGather, KernelPass, ScratchBuffer, TimingMethod};
+use crate::{GpuError, GpuGather, TimingMethod};
 use biscale_compressors::sparse::Sparse;
 use biscale_compressors::testing::{bins, cubemap, f32_sum_bound, random_light, random_transfer};
-use biscale_core::compress::{ArrayData, CompressContext, CompressedForm, Compressor};
+use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor};
 use biscale_core::gather::reference_product;
 use biscale_core::sampling::LightVector;
 use biscale_core::transfer::TransferMatrix;
+use biscale_kernels::{Count, Factor, KernelDesc, PassDesc, ScratchDesc};
 use rand::{Rng, SeedableRng};
 
-/// Gather `t` with `light` on the GPU (built-in or given program) and compare every element.
-fn check_sparse(ctx: &crate::GpuContext, t: &TransferMatrix, light: &LightVector, program: Option<&GatherProgram>) {
+/// `form` uploaded with its compressor's program.
+pub(crate) fn upload(ctx: &crate::GpuContext, c: &dyn Compressor, form: &CompressedForm) -> GpuGather {
+    GpuGather::new(ctx, form, &c.kernels(form).unwrap()).unwrap()
+}
+
+/// Gather `t` with `light` on the GPU (the sparse program, or the given one) and compare
+/// every element.
+fn check_sparse(ctx: &crate::GpuContext, t: &TransferMatrix, light: &LightVector, program: Option<&KernelDesc>) {
     let form = Sparse.compress(t, &CompressContext::default()).unwrap();
     let mut g = match program {
-        Some(p) => GpuGather::with_program(ctx, &form, p).unwrap(),
-        None => GpuGather::new(ctx, &form).unwrap(),
+        Some(p) => GpuGather::new(ctx, &form, p).unwrap(),
+        None => upload(ctx, &Sparse, &form),
     };
     g.fill_lstar(f32::NAN).unwrap();
     g.gather(light).unwrap();
@@ -88,7 +94,7 @@ fn all_black_light_and_empty_rows_give_exact_zeros() {
 fn dispatch_folds_past_the_workgroups_per_dimension_limit() {
     let ctx = gpu_or_skip!();
     // The sparse kernel with one invocation per workgroup, so that rows > the limit forces
-    // the host to fold the grid into y (and exercises the plugin path, with_program).
+    // the host to fold the grid into y (with a program other than the compressor's own).
     let max = ctx.limits().max_compute_workgroups_per_dimension as usize;
     if max > 1 << 20 {
         eprintln!("skipped: max_compute_workgroups_per_dimension = {max} is too large to exceed cheaply");
@@ -96,7 +102,7 @@ fn dispatch_folds_past_the_workgroups_per_dimension_limit() {
     }
     let vertices = max / 64 + 2;
     let t = random_transfer(vertices, 8, 1, 0.5, 9);
-    let mut program = builtin_program(&Sparse.compress(&t, &CompressContext::default()).unwrap()).unwrap();
+    let mut program = Sparse.kernels(&Sparse.compress(&t, &CompressContext::default()).unwrap()).unwrap();
     program.wgsl = program.wgsl.replace("@workgroup_size(64)", "@workgroup_size(1)").replace("lid, 64u)", "lid, 1u)");
     assert!(t.rows() > max);
     check_sparse(ctx, &t, &random_light(1, 10), Some(&program));
@@ -148,18 +154,18 @@ fn second(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
     store_lstar(i, vec3<f32>(a, b, stash[i]));
 }
 "#;
-    let program = GatherProgram {
+    let program = KernelDesc {
         kind: "probe".into(),
         wgsl: wgsl.into(),
         passes: vec![
-            KernelPass { entry_point: "first".into(), threads: Count::of([Factor::Len("halves_u16".into())]) },
-            KernelPass { entry_point: "second".into(), threads: Count::of([Factor::Rows]) },
+            PassDesc { entry_point: "first".into(), threads: Count::of([Factor::Len("halves_u16".into())]) },
+            PassDesc { entry_point: "second".into(), threads: Count::of([Factor::Rows]) },
         ],
-        scratch: vec![ScratchBuffer { name: "stash".into(), words: Count::of([Factor::Rows]) }],
+        scratch: vec![ScratchDesc { name: "stash".into(), words: Count::of([Factor::Rows]) }],
         meta_keys: vec!["offset".into()],
-        validate: None,
+        checks: vec![],
     };
-    let mut g = GpuGather::with_program(ctx, &form, &program).unwrap();
+    let mut g = GpuGather::new(ctx, &form, &program).unwrap();
     g.fill_lstar(f32::NAN).unwrap();
     g.gather(&LightVector::constant(cubemap(1), [0.0; 3])).unwrap();
     let got = g.read_lstar().unwrap();
@@ -176,40 +182,49 @@ fn bad_forms_programs_and_lights_are_errors_not_panics() {
     let t = random_transfer(2, 2, 1, 0.5, 1);
     let form = Sparse.compress(&t, &CompressContext::default()).unwrap();
 
+    let program = Sparse.kernels(&form).unwrap();
     let mut other = form.clone();
     other.kind = "nonesuch".into();
-    assert!(matches!(GpuGather::new(ctx, &other), Err(GpuError::UnknownKind(k)) if k == "nonesuch"));
+    let e = GpuGather::new(ctx, &other, &program).err().expect("a form of another kind accepted");
+    assert!(matches!(&e, GpuError::Compress(CompressError::Malformed { array, .. }) if array == "kind"), "{e}");
 
     // A decreasing row pointer would loop for ~4 billion steps on the GPU.
     let mut bad = form.clone();
     if let ArrayData::U32(rp) = &mut bad.arrays[0].data {
         rp[1] = rp[2] + 1;
     }
-    let e = GpuGather::new(ctx, &bad).err().expect("malformed form accepted");
-    assert!(matches!(e, GpuError::Form(_)), "{e}");
+    let e = GpuGather::new(ctx, &bad, &program).err().expect("malformed form accepted");
+    assert!(matches!(&e, GpuError::Compress(CompressError::Malformed { array, .. }) if array == "row_ptr"), "{e}");
 
     // A WGSL global that names no form array.
-    let mut program = builtin_program(&form).unwrap();
-    program.wgsl.push_str("\n@group(0) @binding(9) var<storage, read> nope: array<u32>;\n");
-    let e = GpuGather::with_program(ctx, &form, &program).err().expect("unknown binding accepted");
-    assert!(matches!(&e, GpuError::Wgsl { message, .. } if message.contains("'nope'")), "{e}");
+    let mut p = program.clone();
+    p.wgsl.push_str(
+        "\n@group(0) @binding(9) var<storage, read> nope: array<u32>;\nfn use_nope() -> u32 { return nope[0]; }\n",
+    );
+    let e = GpuGather::new(ctx, &form, &p).err().expect("unknown binding accepted");
+    assert!(matches!(&e, GpuError::Compress(CompressError::Malformed { array, .. }) if array == "nope"), "{e}");
 
     // A form array bound with the wrong element type.
-    let mut program = builtin_program(&form).unwrap();
-    program.wgsl = program.wgsl.replace("values: array<f32>", "values: array<u32>");
-    let e = GpuGather::with_program(ctx, &form, &program).err().expect("type mismatch accepted");
-    assert!(matches!(&e, GpuError::Wgsl { message, .. } if message.contains("'values' is f32")), "{e}");
+    let mut p = program.clone();
+    p.wgsl = p.wgsl.replace("values: array<f32>", "values: array<u32>").replace("values[i] *", "f32(values[i]) *");
+    let e = GpuGather::new(ctx, &form, &p).err().expect("type mismatch accepted");
+    assert!(
+        matches!(&e, GpuError::Compress(CompressError::Malformed { array, what, .. }) if array == "values" && what.contains("is f32")),
+        "{e}"
+    );
 
     // WGSL that does not compile is a parse error with the source location.
-    let mut program = builtin_program(&form).unwrap();
-    program.wgsl.push_str("\nfn broken( {\n");
-    assert!(matches!(GpuGather::with_program(ctx, &form, &program), Err(GpuError::Wgsl { .. })));
+    let mut p = program.clone();
+    p.wgsl.push_str("\nfn broken( {\n");
+    assert!(matches!(GpuGather::new(ctx, &form, &p), Err(GpuError::Wgsl { .. })));
 
     // A scratch buffer past the binding limit is refused before anything is allocated.
-    let mut program = builtin_program(&form).unwrap();
-    program.wgsl.push_str("\n@group(0) @binding(9) var<storage, read_write> huge: array<f32>;\n");
-    program.scratch.push(ScratchBuffer { name: "huge".into(), words: Count::of([Factor::Const(1 << 40)]) });
-    let e = GpuGather::with_program(ctx, &form, &program).err().expect("huge scratch accepted");
+    let mut p = program.clone();
+    p.wgsl.push_str(
+        "\n@group(0) @binding(9) var<storage, read_write> huge: array<f32>;\nfn use_huge() { huge[0] = 1.0; }\n",
+    );
+    p.scratch.push(ScratchDesc { name: "huge".into(), words: Count::of([Factor::Const(1 << 40)]) });
+    let e = GpuGather::new(ctx, &form, &p).err().expect("huge scratch accepted");
     assert!(
         matches!(&e, GpuError::Limit { limit, .. } if *limit == "max_storage_buffer_binding_size" || *limit == "max_buffer_size"),
         "{e}"
@@ -217,7 +232,7 @@ fn bad_forms_programs_and_lights_are_errors_not_panics() {
     assert!(e.to_string().contains("huge"), "{e}");
 
     // Lights of the wrong size or with NaN.
-    let mut g = GpuGather::new(ctx, &form).unwrap();
+    let mut g = upload(ctx, &Sparse, &form);
     assert!(matches!(g.gather(&random_light(2, 0)), Err(GpuError::Input(_))));
     let mut light = random_light(1, 0);
     light.power[3][1] = f32::NAN;
@@ -230,7 +245,7 @@ fn gather_timing_gives_finite_medians_per_pass() {
     let ctx = gpu_or_skip!();
     let t = random_transfer(16, 8, 4, 0.2, 2);
     let form = Sparse.compress(&t, &CompressContext::default()).unwrap();
-    let mut g = GpuGather::new(ctx, &form).unwrap();
+    let mut g = upload(ctx, &Sparse, &form);
     let timing = g.time_gather(&random_light(4, 2), 3).unwrap();
     assert_eq!(timing.repetitions, 3);
     assert!(timing.median_ms.is_finite() && timing.median_ms >= 0.0, "{timing:?}");
@@ -258,13 +273,14 @@ fn forced_timestamps_time_every_pass_and_never_means_wall_clock() {
     let _ = gpu_or_skip!(); // no adapter at all: skip
     let t = random_transfer(24, 4, 4, 0.3, 5);
     let light = random_light(4, 6);
-    let form =
-        Bicluster { block_vertices: 8, ..Bicluster::default() }.compress(&t, &CompressContext::default()).unwrap();
+    let bicluster = Bicluster { block_vertices: 8, ..Bicluster::default() };
+    let form = bicluster.compress(&t, &CompressContext::default()).unwrap();
+    let kernels = bicluster.kernels(&form).unwrap();
     let reference = reference_product(&t, &light);
 
     let never = GpuContext::with_timestamps(TimestampPolicy::Never).unwrap();
     assert!(!never.has_timestamps());
-    let timing = GpuGather::new(&never, &form).unwrap().time_gather(&light, 2).unwrap();
+    let timing = GpuGather::new(&never, &form, &kernels).unwrap().time_gather(&light, 2).unwrap();
     assert_eq!(timing.method, TimingMethod::WallClock);
     assert!(timing.passes.is_empty());
 
@@ -274,7 +290,7 @@ fn forced_timestamps_time_every_pass_and_never_means_wall_clock() {
         eprintln!("SKIPPING the timestamp half: {} has no timestamp queries", always.adapter());
         return;
     }
-    let mut g = GpuGather::new(&always, &form).unwrap();
+    let mut g = GpuGather::new(&always, &form, &kernels).unwrap();
     let timing = g.time_gather(&light, 3).unwrap();
     assert_eq!(timing.method, TimingMethod::GpuTimestamps);
     assert_eq!(timing.repetitions, 3);
@@ -311,12 +327,11 @@ fn bicluster_matches_f64_reference() {
     let u = f32::EPSILON as f64 / 2.0;
     for (seed, block_vertices) in [(1u64, 4usize), (2, 0)] {
         let t = random_transfer(24, 8, 4, 0.2, seed);
-        let form = Bicluster { block_vertices, value_scale: 0 }
-            .compress(&t, &CompressContext { seed, progress: None })
-            .unwrap();
+        let bicluster = Bicluster { block_vertices, value_scale: 0 };
+        let form = bicluster.compress(&t, &CompressContext { seed, progress: None }).unwrap();
         let view = BiclusterView::new(&form).unwrap();
         for light in [random_light(4, seed + 20), random_light(4, seed + 21)] {
-            let mut g = GpuGather::new(ctx, &form).unwrap();
+            let mut g = upload(ctx, &bicluster, &form);
             g.fill_lstar(f32::NAN).unwrap();
             g.gather(&light).unwrap();
             let got = g.read_lstar().unwrap();
@@ -406,7 +421,7 @@ fn haar_matches_its_cpu_gather_with_f32_and_f16_values() {
         let form = haar.compress(&t, &CompressContext::default()).unwrap();
         for seed in [6u64, 7] {
             let light = random_light(r, seed);
-            let mut g = GpuGather::new(ctx, &form).unwrap();
+            let mut g = upload(ctx, &haar, &form);
             g.fill_lstar(f32::NAN).unwrap();
             g.gather(&light).unwrap();
             let got = g.read_lstar().unwrap();
@@ -457,7 +472,7 @@ fn cpca_matches_its_cpu_gather() {
     let (basis, coeffs) = (form.f32s("basis").unwrap(), form.f32s("coeffs").unwrap());
     for seed in [30u64, 31] {
         let light = random_light(4, seed);
-        let mut g = GpuGather::new(ctx, &form).unwrap();
+        let mut g = upload(ctx, &Cpca::new(6, 3), &form);
         g.fill_lstar(f32::NAN).unwrap();
         g.gather(&light).unwrap();
         let got = g.read_lstar().unwrap();

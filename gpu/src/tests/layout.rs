@@ -1,12 +1,11 @@
 //! Every struct shared between Rust and WGSL has the same size and member offsets on both
-//! sides: naga's WGSL front end lays the WGSL struct out (the same layout wgpu uses) and we
+//! sides (`GatherParams` is checked in biscale-kernels, beside the prelude): naga's WGSL front end lays the WGSL struct out (the same layout wgpu uses) and we
 //! compare with `offset_of!` on the `#[repr(C)]` Rust struct. A vec3 followed by a scalar, or
 //! a missing pad, shows up here instead of as garbage on the GPU.
 
-use crate::gather::program::PRELUDE;
 use crate::present::present_wgsl;
 use crate::shade::shade_wgsl;
-use crate::{GatherParams, GpuMaterialHeader, GpuVertex, ShadeParams};
+use crate::{GpuMaterialHeader, GpuVertex, ShadeParams};
 use std::mem::{offset_of, size_of};
 
 /// (WGSL struct name, Rust size, [(WGSL member, Rust offset)]) checked against `source`.
@@ -29,26 +28,6 @@ fn check(source: &str, name: &str, size: usize, members: &[(&str, usize)]) {
             w.offset
         );
     }
-}
-
-#[test]
-fn gather_params_layout_matches_wgsl() {
-    type P = GatherParams;
-    check(
-        PRELUDE,
-        "GatherParams",
-        size_of::<P>(),
-        &[
-            ("rows", offset_of!(P, rows)),
-            ("cols", offset_of!(P, cols)),
-            ("local_dirs", offset_of!(P, local_dirs)),
-            ("vertices", offset_of!(P, vertices)),
-            ("threads", offset_of!(P, threads)),
-            ("pass_index", offset_of!(P, pass_index)),
-            ("pad0", offset_of!(P, _pad)),
-            ("pad1", offset_of!(P, _pad) + 4),
-        ],
-    );
 }
 
 #[test]

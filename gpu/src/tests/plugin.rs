@@ -9,7 +9,6 @@
 //! `L*` with NaN.
 
 use super::gpu_or_skip;
-use crate::gather::plugin::program;
 use crate::{GpuError, GpuGather};
 use biscale_compressors::plugin::testing::build_plugin;
 use biscale_compressors::plugin::PluginCompressor;
@@ -38,12 +37,13 @@ fn quantized_plugin_form_matches_its_cpu_gather_and_the_f64_reference() {
         let mut sun = LightVector::constant(cubemap(res), [0.5, 0.4, 0.3]);
         sun.power[t.cols() / 3] = [1e7, 9e6, 8e6];
         lights.push(sun);
-        // Both ways in: the checked entry point and the bare program.
+        // Both ways in: the compressor's kernels (checked by the host first), and the plain
+        // description the plugin returned at load.
         for (i, light) in lights.iter().enumerate() {
             let mut g = if i == 0 {
-                GpuGather::with_kernels(ctx, &form, plugin.gpu_kernels()).unwrap()
+                GpuGather::new(ctx, &form, &plugin.kernels(&form).unwrap()).unwrap()
             } else {
-                GpuGather::with_program(ctx, &form, &program(plugin.gpu_kernels())).unwrap()
+                GpuGather::new(ctx, &form, plugin.gpu_kernels()).unwrap()
             };
             assert_eq!(g.kind(), "plugin:quantized");
             g.fill_lstar(f32::NAN).unwrap();
@@ -79,6 +79,6 @@ fn a_tampered_plugin_form_is_refused_before_upload() {
     if let ArrayData::U32(rp) = &mut form.arrays.iter_mut().find(|a| a.name == "row_ptr").unwrap().data {
         rp[1] = rp[2] + 1;
     }
-    let e = GpuGather::with_kernels(ctx, &form, plugin.gpu_kernels()).err().expect("tampered form accepted");
+    let e = GpuGather::new(ctx, &form, plugin.gpu_kernels()).err().expect("tampered form accepted");
     assert!(matches!(&e, GpuError::Compress(CompressError::Malformed { array, .. }) if array == "row_ptr"), "{e}");
 }

@@ -269,7 +269,7 @@ fn gather_to_shade_on_the_gpu_with_32x32_directions_matches_cpu() {
     let btf = Btf::phong([0.5, 0.4, 0.3], [0.3, 0.3, 0.3], 8.0, bins(32), 4).unwrap();
     let t = random_transfer(mesh.positions.len(), 32, 2, 0.3, 8);
     let form = Sparse.compress(&t, &CompressContext::default()).unwrap();
-    let mut gather = GpuGather::new(ctx, &form).unwrap();
+    let mut gather = GpuGather::new(ctx, &form, &Sparse.kernels(&form).unwrap()).unwrap();
     let light = LightVector::constant(t.light_basis(), [1.0, 0.8, 0.6]);
     gather.gather(&light).unwrap();
     let cam = camera(Vec3::new(0.4, 1.5, 1.8), 40, 30);
@@ -545,7 +545,7 @@ fn forced_timestamps_time_both_shading_passes() {
     let btf = Btf::phong([0.5, 0.4, 0.3], [0.3, 0.3, 0.3], 8.0, bins(8), 4).unwrap();
     let t = random_transfer(mesh.positions.len(), 8, 2, 0.3, 9);
     let form = Sparse.compress(&t, &CompressContext::default()).unwrap();
-    let mut gather = GpuGather::new(&ctx, &form).unwrap();
+    let mut gather = GpuGather::new(&ctx, &form, &Sparse.kernels(&form).unwrap()).unwrap();
     gather.gather(&LightVector::constant(t.light_basis(), [1.0, 0.8, 0.6])).unwrap();
     let cam = camera(Vec3::new(0.4, 1.5, 1.8), 32, 24);
     let mut shader = gpu_shader(&ctx, &mesh, &frames, &[Material::new(btf)], None, cam).unwrap();

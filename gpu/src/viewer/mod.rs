@@ -47,9 +47,11 @@ use winit::window::{Window, WindowId};
 /// One compressed form the viewer can show, with the label shown on screen.
 #[derive(Clone, Debug)]
 pub struct ViewerForm {
-    /// e.g. the compressor's label in the config (`cpca_c32_k8`).
+    /// e.g. the compressor's label in the config (`cpca-k32-c8`).
     pub label: String,
     pub form: CompressedForm,
+    /// The form's GPU gather program (its compressor's `Compressor::kernels`).
+    pub kernels: biscale_kernels::KernelDesc,
 }
 
 /// Write a PNG of the window's content after `frames` frames, then close (for scripted
@@ -344,7 +346,9 @@ impl App {
             .setup
             .forms
             .iter()
-            .map(|f| GpuGather::new(&ctx, &f.form).map_err(|e| GpuError::Form(format!("'{}': {e}", f.label))))
+            .map(|f| {
+                GpuGather::new(&ctx, &f.form, &f.kernels).map_err(|e| GpuError::Form(format!("'{}': {e}", f.label)))
+            })
             .collect::<Result<Vec<_>>>()?;
         let gather_timers =
             gathers.iter().map(|g| PassTimer::new(&ctx, g.pass_count() as u32)).collect::<Result<Vec<_>>>()?;

@@ -1,4 +1,4 @@
-// Gather on the raw sparse CSR form (compressor `sparse`, compressors/src/sparse.rs):
+// Gather on the raw sparse CSR form (compressor `sparse`, compressors/src/sparse/mod.rs):
 // L*[r] = sum_{i in row_ptr[r]..row_ptr[r+1]} values[i] * L[col_idx[i]], one invocation per row,
 // accumulated in f32 in column order (the same order as the CPU gather).
 

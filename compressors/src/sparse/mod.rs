@@ -1,25 +1,70 @@
 //! The raw sparse matrix: `T` as plain CSR (u32 row pointers, u32 column indices, f32
 //! values: 8 bytes per non-zero plus 4 per row). The uncompressed baseline every other
-//! compressor is compared with; its gather is the row-wise sparse dot product.
+//! compressor is compared with; its gather is the row-wise sparse dot product, on the CPU
+//! here and on the GPU in `gather.wgsl` (one invocation per row, in the same f32 order).
+//!
+//! Form (`kind = "sparse"`): `row_ptr` (u32, rows + 1), `col_idx` (u32, nnz), `values`
+//! (f32, nnz); no meta values.
 
+mod params;
+pub use params::SparseParams;
+
+use crate::registry::{self, Kind};
 use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor, NamedArray};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::sampling::LightVector;
 use biscale_core::transfer::TransferMatrix;
+use biscale_kernels::{Count, Factor, FormCheck, KernelDesc, PassDesc};
 use rayon::prelude::*;
 use std::time::Instant;
+
+fn build(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
+    Ok(Box::new(Sparse::new(registry::parse(p)?)))
+}
+
+/// The registry entry.
+pub const KIND: Kind = Kind {
+    name: "sparse",
+    about: "the raw CSR matrix: the uncompressed baseline",
+    label: |p| registry::parse::<SparseParams>(p).map(|_| "sparse".into()),
+    check: |p| build(p).map(drop),
+    build: |p| Ok(build(p)?),
+};
 
 /// The raw CSR baseline (no parameters).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Sparse;
 
+impl Sparse {
+    pub fn new(_params: SparseParams) -> Self {
+        Sparse
+    }
+}
+
 impl Compressor for Sparse {
     fn kind(&self) -> &str {
-        "sparse"
+        KIND.name
     }
 
     fn params(&self) -> serde_json::Value {
-        serde_json::json!({})
+        serde_json::to_value(SparseParams {}).expect("plain struct serializes")
+    }
+
+    fn kernels(&self, _form: &CompressedForm) -> Result<KernelDesc, CompressError> {
+        let len = |a: &str| Count::of([Factor::Len(a.into())]);
+        Ok(KernelDesc {
+            kind: KIND.name.into(),
+            wgsl: include_str!("gather.wgsl").into(),
+            passes: vec![PassDesc { entry_point: "sparse_rows".into(), threads: Count::of([Factor::Rows]) }],
+            scratch: vec![],
+            meta_keys: vec![],
+            checks: vec![
+                FormCheck::Len { array: "values".into(), count: len("col_idx") },
+                FormCheck::Ptr { array: "row_ptr".into(), count: Count::of([Factor::Rows]), total: len("col_idx") },
+                FormCheck::Below { array: "col_idx".into(), bound: Count::of([Factor::Cols]) },
+                FormCheck::Finite { array: "values".into() },
+            ],
+        })
     }
 
     fn compress(&self, t: &TransferMatrix, _ctx: &CompressContext) -> Result<CompressedForm, CompressError> {
@@ -79,47 +124,4 @@ impl Compressor for Sparse {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::testing::{assert_lossless, random_light, random_transfer};
-
-    #[test]
-    fn matches_f64_reference_on_random_matrices() {
-        for seed in 0..5 {
-            let t = random_transfer(20, 4, 4, 0.2, seed);
-            let light = random_light(4, seed + 100);
-            let form = Sparse.compress(&t, &CompressContext::default()).unwrap();
-            assert_eq!(form.bytes(), 4 * (t.rows() as u64 + 1) + 8 * t.nnz() as u64);
-            assert_lossless(&Sparse, &form, &t, &light);
-        }
-    }
-
-    #[test]
-    fn corrupt_offsets_and_columns_are_errors_not_panics() {
-        let t = random_transfer(12, 2, 4, 0.5, 3);
-        let light = random_light(4, 7);
-        let form = Sparse.compress(&t, &CompressContext::default()).unwrap();
-        let corrupt = |array: &str, at: usize, value: u32| {
-            let mut f = form.clone();
-            let a = f.arrays.iter_mut().find(|a| a.name == array).unwrap();
-            let biscale_core::compress::ArrayData::U32(v) = &mut a.data else { panic!("u32 array") };
-            let at = at.min(v.len() - 1);
-            v[at] = value;
-            f
-        };
-        let nnz = t.nnz() as u32;
-        for bad in [
-            corrupt("col_idx", 3, 1_000_000),
-            corrupt("row_ptr", 2, nnz + 5),
-            corrupt("row_ptr", 1, nnz),
-            corrupt("row_ptr", usize::MAX, nnz + 1),
-        ] {
-            let r = Sparse.gather(&bad, &light);
-            // Either an error, or (a still-consistent edit) a result: never a panic.
-            if let Ok(l) = r {
-                assert_eq!(l.values().len(), form.rows());
-            }
-        }
-        assert!(Sparse.gather(&corrupt("col_idx", 0, 1_000_000), &light).is_err());
-    }
-}
+mod tests;

@@ -1,11 +1,12 @@
-// Gather on the non-linear Haar form (compressor `haar`, compressors/src/haar.rs; Ng et al.
+// Gather on the non-linear Haar form (compressor `haar`, compressors/src/haar/mod.rs; Ng et al.
 // 2003). Two passes:
 //   haar_light, one invocation per (face, channel) (18): the light's forward non-standard
 //       Haar transform l^ = W L in the standard in-place layout, level by level exactly as
 //       haar::forward_face (f32 here, f64 on the CPU);
 //   haar_rows, one invocation per row r: L*_r = sum_{e in row r} coeff[e] * l^[coeff_idx[e]].
-// meta_values = [resolution R]. The value array is `coeff_val` (f32) or `coeff_f16` (u16 half
-// bits, packed 2 per word); the host splices in the matching declaration below.
+// R is params.light_resolution (the form's cubemap). The value array is `coeff_val` (f32) or
+// `coeff_f16` (u16 half bits, packed 2 per word); the host splices in the matching
+// declaration below.
 
 @group(0) @binding(4) var<storage, read> row_ptr: array<u32>;
 @group(0) @binding(5) var<storage, read> coeff_idx: array<u32>;     // u16, packed 2 per word
@@ -29,7 +30,7 @@ fn haar_light(
     }
     let face = id / 3u;
     let c = id % 3u;
-    let r = meta_values[0];
+    let r = params.light_resolution;
     let base = face * r * r;
     for (var k = 0u; k < r * r; k++) {
         light_hat[3u * (base + k) + c] = light[3u * (base + k) + c];

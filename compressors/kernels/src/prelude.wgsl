@@ -1,4 +1,4 @@
-// Prelude prepended to every gather program (biscale-gpu, gather/prelude.wgsl).
+// Prelude prepended to every gather program (biscale-kernels, src/prelude.wgsl).
 //
 // Binding conventions (all in @group(0); the host reflects the program and binds by NAME).
 // This prelude declares the four standard bindings; kernels declare their form arrays and
@@ -16,7 +16,8 @@
 // zero-padded to whole words). Read them with u8_at(arr[i >> 2u], i), i8_at, u16_at(arr[i >> 1u], i),
 // i16_at; signed values are sign-extended.
 
-// Mirror of the Rust `GatherParams` (#[repr(C)], 32 bytes; checked by a layout test).
+// Mirror of the Rust `biscale_kernels::GatherParams` (#[repr(C)], 32 bytes; checked by a
+// layout test).
 struct GatherParams {
     rows: u32,
     cols: u32,
@@ -26,8 +27,9 @@ struct GatherParams {
     // linear_thread(...) >= threads.
     threads: u32,
     pass_index: u32,
+    // Texels per cubemap face edge R of the form's light basis (0 for another basis).
+    light_resolution: u32,
     pad0: u32,
-    pad1: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: GatherParams;

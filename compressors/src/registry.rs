@@ -1,0 +1,129 @@
+//! The registry of compressor kinds: the one list that maps a config `kind` to a compressor.
+//! Each entry is declared in its compressor's folder (`<kind>/mod.rs`, `pub const KIND`);
+//! adding a compressor is its folder plus one line in [`KINDS`].
+//!
+//! A compressor's parameters are its own serde type (unknown keys are errors, every key has a
+//! documented default), parsed from the config's table for one setting, i.e. after sweep
+//! expansion, as JSON. The same type serves the config, the setting's label and
+//! `metrics.json` (`Compressor::params`).
+
+use biscale_core::compress::Compressor;
+use serde::de::DeserializeOwned;
+use serde_json::Value;
+
+/// Why a setting's compressor could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum BuildError {
+    /// The parameters do not parse or are out of range (serde's or the compressor's message).
+    #[error("{0}")]
+    Params(String),
+    /// A plugin library could not be loaded or refused its parameters.
+    #[cfg(feature = "plugin")]
+    #[error(transparent)]
+    Plugin(#[from] crate::plugin::PluginError),
+}
+
+impl From<String> for BuildError {
+    fn from(m: String) -> Self {
+        BuildError::Params(m)
+    }
+}
+
+/// One compressor kind.
+pub struct Kind {
+    /// The config `kind`.
+    pub name: &'static str,
+    /// One line for plans, `--help` and error messages.
+    pub about: &'static str,
+    /// The setting's label (file names, report rows) from its parameters, e.g. `cpca-k32-c8`.
+    pub label: fn(&Value) -> Result<String, String>,
+    /// Check a setting's parameters without building anything expensive (the config calls it
+    /// when it is read, so a bad key fails before any work).
+    pub check: fn(&Value) -> Result<(), String>,
+    /// The compressor of one setting (cheap for built-ins: construction only; a plugin loads
+    /// its library).
+    pub build: fn(&Value) -> Result<Box<dyn Compressor>, BuildError>,
+}
+
+/// Every compressor kind biscale knows, in report order.
+pub const KINDS: &[Kind] = &[
+    crate::sparse::KIND,
+    crate::bicluster::KIND,
+    crate::cpca::KIND,
+    crate::haar::KIND,
+    #[cfg(feature = "plugin")]
+    crate::plugin::KIND,
+];
+
+/// The kind called `name`.
+pub fn find(name: &str) -> Option<&'static Kind> {
+    KINDS.iter().find(|k| k.name == name)
+}
+
+/// The names of every kind, for messages.
+pub fn names() -> Vec<&'static str> {
+    KINDS.iter().map(|k| k.name).collect()
+}
+
+/// Parameters of type `P` from a JSON object: serde's message on an unknown key, a missing
+/// one or a wrong type (`unknown field `x`, expected one of ...`).
+pub fn parse<P: DeserializeOwned>(params: &Value) -> Result<P, String> {
+    serde_json::from_value(params.clone()).map_err(|e| e.to_string())
+}
+
+/// The kind called `name` builds the compressor of `params`.
+pub fn build(name: &str, params: &Value) -> Result<Box<dyn Compressor>, BuildError> {
+    let kind = find(name).ok_or_else(|| {
+        BuildError::Params(format!("unknown compressor kind `{name}`, expected one of {:?}", names()))
+    })?;
+    (kind.build)(params)
+}
+
+/// `name` followed by `-{tag}{value}` for each `(key, tag)` whose value `params` has: the
+/// label of a setting (`haar-t12`). Values print as they would in a config file.
+pub fn tagged_label(name: &str, params: &Value, tags: &[(&str, &str)]) -> String {
+    let mut label = name.to_string();
+    for (key, tag) in tags {
+        if let Some(v) = params.get(*key) {
+            let v = match v {
+                Value::String(s) => s.clone(),
+                v => v.to_string(),
+            };
+            label.push_str(&format!("-{tag}{v}"));
+        }
+    }
+    label
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    #[test]
+    fn every_kind_builds_with_defaults_and_refuses_unknown_keys() {
+        for k in KINDS.iter().filter(|k| k.name != "plugin") {
+            let c = (k.build)(&json!({})).unwrap_or_else(|e| panic!("{}: {e}", k.name));
+            assert_eq!(c.kind(), k.name);
+            (k.check)(&json!({})).unwrap();
+            let e = (k.build)(&json!({ "no_such_key": 1 })).err().expect("unknown key accepted").to_string();
+            assert!(e.contains("unknown field `no_such_key`"), "{}: {e}", k.name);
+            let e = (k.check)(&json!({ "no_such_key": 1 })).unwrap_err();
+            assert!(e.contains("unknown field `no_such_key`"), "{}: {e}", k.name);
+            assert!((k.label)(&json!({})).unwrap().starts_with(k.name));
+        }
+        assert!(find("zip").is_none());
+        assert_eq!(&names()[..4], ["sparse", "bicluster", "cpca", "haar"]);
+    }
+
+    #[test]
+    fn labels_name_the_setting() {
+        assert_eq!((find("cpca").unwrap().label)(&json!({})).unwrap(), "cpca-k32-c8");
+        assert_eq!((find("cpca").unwrap().label)(&json!({ "clusters": 4, "components": 2 })).unwrap(), "cpca-k4-c2");
+        assert_eq!((find("haar").unwrap().label)(&json!({ "terms": 6 })).unwrap(), "haar-t6");
+        assert_eq!((find("haar").unwrap().label)(&json!({})).unwrap(), "haar-t12");
+        assert_eq!((find("bicluster").unwrap().label)(&json!({})).unwrap(), "bicluster");
+        assert_eq!((find("bicluster").unwrap().label)(&json!({ "block_vertices": 1024 })).unwrap(), "bicluster-b1024");
+        assert_eq!((find("sparse").unwrap().label)(&json!({})).unwrap(), "sparse");
+    }
+}
