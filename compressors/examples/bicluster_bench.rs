@@ -127,9 +127,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
         println!("    bytes by array: {:?}", s.bytes_by_array);
         if let Some(p) = &args.save {
-            let p = p.with_extension(format!("b{bv}.bsform"));
-            biscale_core::form_file::save_form(&form, &p)?;
-            let back = biscale_core::form_file::load_form(&p)?;
+            let p = p.with_extension(format!("b{bv}.bsf"));
+            form.save(&p)?;
+            let back = biscale_core::compress::CompressedForm::load(&p)?;
             assert!(back == form, "form file round trip");
             println!("    saved {}", p.display());
         }

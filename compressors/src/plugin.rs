@@ -112,6 +112,8 @@ struct Api {
 /// A compressor loaded from a shared library (see the module docs).
 pub struct PluginCompressor {
     path: PathBuf,
+    /// Content hash of the library file, read at load ([`Compressor::code_identity`]).
+    library_hash: u64,
     name: String,
     kind: String,
     params: Value,
@@ -279,6 +281,10 @@ impl PluginCompressor {
         if !path.is_file() {
             return Err(PluginError::Load { path, message: "no such file".into() });
         }
+        let bytes =
+            std::fs::read(&path).map_err(|e| PluginError::Load { path: path.clone(), message: e.to_string() })?;
+        let library_hash = biscale_core::io::ContentHash::default().write(&bytes).finish();
+        drop(bytes);
         // SAFETY: loading runs the library's initialisers; a biscale plugin is a Rust cdylib
         // (or C library) whose initialisers do nothing unusual. This is the trust the user
         // extends by naming the file.
@@ -340,6 +346,7 @@ impl PluginCompressor {
             .map_err(|e| PluginError::Wgsl { path: path.clone(), message: e.message })?;
         Ok(Self {
             path,
+            library_hash,
             name,
             kind,
             params,
@@ -570,6 +577,10 @@ impl Compressor for PluginCompressor {
         // cache) is checked here before the runtime sees it.
         self.check_form(form)?;
         Ok(self.kernels.clone())
+    }
+
+    fn code_identity(&self) -> Option<u64> {
+        Some(self.library_hash)
     }
 }
 

@@ -8,12 +8,14 @@
 //! the same arrays. Storage is counted honestly: every array the gather reads, at the width it
 //! is stored.
 
+use crate::artifact::{Artifact, ArtifactError, Field};
 use crate::basis::{LightBasis, LocalBasis, TransferShape};
 use crate::gather::LocalRadiance;
 use crate::sampling::LightVector;
 use crate::transfer::TransferMatrix;
 use biscale_kernels::{FormData, FormError, KernelDesc};
 use std::collections::BTreeMap;
+use std::path::Path;
 
 pub use biscale_kernels::ArrayData;
 
@@ -134,6 +136,64 @@ impl CompressedForm {
     }
 }
 
+/// A compressed form as a file ([`crate::artifact`], kind `form`): the compressor kind, the
+/// shape, the stats, every meta value as a field `meta.<key>`, and the arrays as they are.
+impl CompressedForm {
+    /// The artifact kind of a compressed form.
+    pub const ARTIFACT: &'static str = "form";
+
+    pub fn to_artifact(&self) -> Artifact {
+        let mut a = Artifact::new(Self::ARTIFACT)
+            .with_shape(self.shape)
+            .with("compressor", Field::Str(self.kind.clone()))
+            .with("lossless", Field::U64(self.lossless as u64))
+            .with("flops_per_gather", Field::U64(self.flops_per_gather))
+            .with("build_seconds", Field::F64(self.build_seconds));
+        for (k, v) in &self.meta {
+            a = a.with(&format!("{META_PREFIX}{k}"), Field::U64(*v));
+        }
+        a.arrays = self.arrays.clone();
+        a
+    }
+
+    /// The form an artifact holds. What the arrays mean is the compressor's to check (its
+    /// `KernelDesc` checks run before any gather).
+    pub fn from_artifact(mut a: Artifact) -> Result<Self, ArtifactError> {
+        a.expect_kind(Self::ARTIFACT)?;
+        let mut form = Self::new(a.str("compressor")?, a.shape()?);
+        form.lossless = match a.u64("lossless")? {
+            0 => false,
+            1 => true,
+            x => return Err(a.corrupt(format!("field 'lossless' is {x}, not 0 or 1"))),
+        };
+        form.flops_per_gather = a.u64("flops_per_gather")?;
+        form.build_seconds = a.f64("build_seconds")?;
+        for (name, value) in &a.fields {
+            if let Some(key) = name.strip_prefix(META_PREFIX) {
+                match value {
+                    Field::U64(v) => form.meta.insert(key.to_string(), *v),
+                    _ => return Err(a.corrupt(format!("field '{name}' is not an integer"))),
+                };
+            }
+        }
+        form.arrays = std::mem::take(&mut a.arrays);
+        Ok(form)
+    }
+
+    /// Write the form to `path` atomically.
+    pub fn save(&self, path: &Path) -> crate::Result<()> {
+        self.to_artifact().save(path)
+    }
+
+    /// Read a form written by [`Self::save`].
+    pub fn load(path: &Path) -> Result<Self, ArtifactError> {
+        Self::from_artifact(Artifact::load(path)?)
+    }
+}
+
+/// Field-name prefix of a form's meta values in its file.
+const META_PREFIX: &str = "meta.";
+
 /// Typed accessors: `form.u32s("row_ptr")?` etc.
 macro_rules! typed_accessor {
     ($fn:ident, $variant:ident, $t:ty) => {
@@ -249,6 +309,12 @@ pub trait Compressor: Send + Sync {
     /// Compressor-specific statistics of `form` for the report (biclustering: the paper's
     /// Table I quantities); none by default.
     fn stats(&self, _form: &CompressedForm, _t: &TransferMatrix) -> Option<serde_json::Value> {
+        None
+    }
+    /// A hash of the code that makes this compressor's forms when it is not biscale's own
+    /// (a plugin: its library's bytes), so a cached form is not reused after that code
+    /// changes; `None` for built-ins (biscale's build identifies their code).
+    fn code_identity(&self) -> Option<u64> {
         None
     }
 }

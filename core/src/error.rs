@@ -15,6 +15,9 @@ pub enum CoreError {
     TooLarge(String),
     #[error("{}: {source}", path.display())]
     Io { path: PathBuf, source: std::io::Error },
+    /// A stage output file that cannot be read back.
+    #[error(transparent)]
+    Artifact(#[from] crate::artifact::ArtifactError),
 }
 
 pub type Result<T, E = CoreError> = std::result::Result<T, E>;

@@ -15,6 +15,7 @@
 //! * [`gather`]: local incident radiance `L* = T L` and its f64 reference product.
 //! * [`scene`]: what every shader takes and returns: the shade scene (mesh, frames,
 //!   materials), BTF tables, the camera, the RGB image type and its files.
+//! * [`artifact`]: the one file format of stage outputs (T, compressed forms, BTFs).
 //! * [`io`]: the atomic writer and the content hash of cache keys; [`stats`]: the median.
 //!
 //! Shortest use, from a mesh and an env map to `L*`:
@@ -29,10 +30,10 @@
 //! let lstar = biscale_core::gather::reference_product(&t, &light);
 //! ```
 
+pub mod artifact;
 pub mod basis;
 pub mod compress;
 pub mod error;
-pub mod form_file;
 pub mod gather;
 pub mod geometry;
 pub mod io;

@@ -72,11 +72,75 @@ fn smoke_config_runs_end_to_end_and_caches_the_transfer() {
     ] {
         assert!(!json["compressors"][0][key].is_null(), "compressors[0].{key}");
     }
-    // A second run reuses the cached transfer matrix and reproduces the same numbers.
+    // A second run reuses the cached transfer matrix and forms and reproduces the same numbers.
     let m2 = run_in(&workspace_root().join("configs/smoke.toml"), &out);
     assert!(m2.transfer.cached);
     assert_eq!(m2.transfer.nnz, t.nnz);
-    assert_eq!(m2.compressors[0].rel_error_lstar, sparse.rel_error_lstar);
+    for (a, b) in m.compressors.iter().zip(&m2.compressors) {
+        assert!(!a.cached && b.cached, "{}", a.name);
+        assert_eq!((a.bytes, a.rel_error_lstar, a.build_seconds), (b.bytes, b.rel_error_lstar, b.build_seconds));
+    }
+}
+
+/// Every stage output is cached under a key of what determines it; a cache file that is
+/// corrupt is reported, rebuilt and replaced, never trusted; a changed parameter is a new key.
+#[test]
+fn stage_outputs_are_cached_and_unusable_cache_files_are_rebuilt() {
+    let dir = tempfile::tempdir().unwrap();
+    write_obj(&dir.path().join("m.obj"), &shapes::uv_sphere(Vec3::ZERO, 1.0, 6, 12));
+    let config = |cpca_clusters: u32| {
+        write_config(
+            dir.path(),
+            "cached",
+            &format!(
+                "name = \"cached\"\n[scene]\nmesh = \"m.obj\"\n[lighting]\nconstant = [1, 1, 1]\n\
+                 [transfer]\ncubemap_resolution = 4\nvisibility_resolution = 8\nlocal_grid = 3\n\
+                 [[compressors]]\nkind = \"sparse\"\n[[compressors]]\nkind = \"cpca\"\nclusters = {cpca_clusters}\ncomponents = 2\n\
+                 [runtime]\nwidth = 16\nheight = 16\nrepeats = 1\n"
+            ),
+        )
+    };
+    let out = dir.path().join("out");
+    let cache = out.join("cache");
+    let files = |prefix: &str| -> Vec<std::path::PathBuf> {
+        let mut v: Vec<_> = std::fs::read_dir(&cache)
+            .unwrap()
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| p.file_name().unwrap().to_string_lossy().starts_with(prefix))
+            .collect();
+        v.sort();
+        v
+    };
+    let first = run_in(&config(2), &out);
+    assert!(!first.transfer.cached && first.compressors.iter().all(|c| !c.cached));
+    assert_eq!((files("transfer-").len(), files("form-").len()), (1, 2));
+    // Corrupt T's file and one form's: both are rebuilt (and rewritten), the other form is reused.
+    let flip = |p: &std::path::Path| {
+        let mut b = std::fs::read(p).unwrap();
+        let n = b.len() / 2;
+        b[n] ^= 0x40;
+        std::fs::write(p, b).unwrap();
+    };
+    flip(&files("transfer-")[0]);
+    let cpca_form = files("form-").into_iter().find(|p| p.to_string_lossy().contains("cpca")).unwrap();
+    flip(&cpca_form);
+    let second = run_in(&config(2), &out);
+    assert!(!second.transfer.cached);
+    let cached: Vec<bool> = second.compressors.iter().map(|c| c.cached).collect();
+    assert_eq!(cached, [true, false], "sparse reused, the corrupt cpca form rebuilt");
+    for (a, b) in first.compressors.iter().zip(&second.compressors) {
+        assert_eq!((a.bytes, a.rel_error_lstar), (b.bytes, b.rel_error_lstar), "{}", a.name);
+    }
+    biscale_core::transfer::TransferMatrix::load(&files("transfer-")[0]).expect("rewritten whole");
+    biscale_core::compress::CompressedForm::load(&cpca_form).expect("rewritten whole");
+    // A third run reuses everything; a changed parameter is a new form, T is still reused.
+    let third = run_in(&config(2), &out);
+    assert!(third.transfer.cached && third.compressors.iter().all(|c| c.cached));
+    let fourth = run_in(&config(3), &out);
+    assert!(fourth.transfer.cached);
+    assert_eq!(fourth.compressors.iter().map(|c| c.cached).collect::<Vec<_>>(), [true, false]);
+    assert_eq!(files("form-").len(), 3);
 }
 
 /// Run a single-mesh scene under a constant white sky of radiance 1 with a white-ish

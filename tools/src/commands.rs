@@ -2,6 +2,7 @@
 //! `diff` (image error between two EXR files), `btf` (synthesize a config's materials),
 //! `generate`, `viz` and `view`.
 
+use crate::cache::StageCache;
 use crate::config::Experiment;
 use crate::pipeline::{self, PipelineError, Result, RunOptions};
 use biscale_core::io::write_atomic;
@@ -19,7 +20,7 @@ pub fn export_matrix(exp: &Experiment, dir: &Path, opts: &RunOptions) -> Result<
     std::fs::create_dir_all(dir).map_err(|source| PipelineError::Io { path: dir.into(), source })?;
     let geometry = pipeline::load_geometry(exp)?;
     let lighting = pipeline::load_lighting(exp)?;
-    let (t, _) = pipeline::transfer_matrix(exp, &geometry, opts, dir)?;
+    let t = pipeline::transfer_matrix(exp, &geometry, StageCache::new(opts, dir).as_ref())?.matrix;
     write_mtx(&t, &lighting.light, dir)?;
     Ok((t, lighting.light))
 }
@@ -145,7 +146,7 @@ pub fn viz(
     std::fs::create_dir_all(out).map_err(|source| PipelineError::Io { path: out.into(), source })?;
     let verr = |e: viz::VizError| PipelineError::Other(format!("viz: {e}"));
     let geometry = pipeline::load_geometry(exp)?;
-    let (t, _) = pipeline::transfer_matrix(exp, &geometry, opts, out)?;
+    let t = pipeline::transfer_matrix(exp, &geometry, StageCache::new(opts, out).as_ref())?.matrix;
     let form = Bicluster::default()
         .compress(&t, &CompressContext { seed: exp.file.seed, progress: None })
         .map_err(|source| PipelineError::Compress { name: "bicluster".into(), source })?;
@@ -194,20 +195,20 @@ pub fn viz(
 /// names (feature `viewer`). `screenshot` renders a few frames into a PNG and exits.
 #[cfg(feature = "viewer")]
 pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &RunOptions) -> Result<()> {
-    use biscale_core::compress::CompressContext;
     use biscale_gpu::{Screenshot, ViewerForm, ViewerSetup};
     let plan = crate::plan::Plan::new(exp);
     let out = opts.out_dir.clone().unwrap_or_else(|| Path::new("out").join(exp.name()));
     let geometry = pipeline::load_geometry(exp)?;
     let lighting = pipeline::load_lighting(exp)?;
-    let (t, _) = pipeline::transfer_matrix(exp, &geometry, opts, &out)?;
-    let (scene, _) = pipeline::shade_scene(exp, &geometry, &t, crate::cache::cache_dir(opts, &out).as_deref())?;
+    let cache = StageCache::new(opts, &out);
+    let t = pipeline::transfer_matrix(exp, &geometry, cache.as_ref())?;
+    let (scene, _) = pipeline::shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
     let mut forms = vec![];
     for setting in &plan.compressors {
         let c = pipeline::build_compressor(setting)?;
-        let cerr = |source| PipelineError::Compress { name: setting.label.clone(), source };
-        let form = c.compress(&t, &CompressContext { seed: exp.file.seed, progress: None }).map_err(cerr)?;
-        let kernels = c.kernels(&form).map_err(cerr)?;
+        let (form, _) = pipeline::compressed_form(setting, c.as_ref(), &t, exp.file.seed, cache.as_ref())?;
+        let kernels =
+            c.kernels(&form).map_err(|source| PipelineError::Compress { name: setting.label.clone(), source })?;
         forms.push(ViewerForm { label: setting.label.clone(), form, kernels });
     }
     let setup = ViewerSetup {
@@ -217,7 +218,7 @@ pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &Run
         forms,
         initial_form: 0,
         env: lighting.env,
-        light_basis: t.light_basis(),
+        light_basis: t.matrix.light_basis(),
         env_rotation: lighting.rotation,
         sun_boost: exp.file.lighting.sun_boost.as_ref().map(|b| *b.get_ref()),
         exposure: exp.file.report.exposure,
@@ -263,12 +264,12 @@ pub fn btf(
         )));
     }
     std::fs::create_dir_all(out).map_err(|source| PipelineError::Io { path: out.into(), source })?;
-    let cache = crate::cache::cache_dir(opts, out);
+    let cache = StageCache::new(opts, out);
     let local_basis = exp.transfer_settings().local_basis();
     let mut written = vec![];
     for cfg in chosen {
         let label = cfg.label();
-        let (btf, origin) = crate::materials::material_btf(cfg, local_basis, cache.as_deref(), &label)?;
+        let (btf, origin) = crate::materials::material_btf(cfg, local_basis, cache.as_ref(), &label)?;
         let encoding = match cfg {
             MaterialConfig::Synthesized(s) => BtfEncoding::from_name(&s.encoding)?,
             _ => BtfEncoding::F32,

@@ -87,6 +87,7 @@ mod tests {
             bytes_per_nnz: 0.0,
             flops_per_gather: 0,
             build_seconds: 0.0,
+            cached: false,
             gather_ms: 0.0,
             shade_ms: 0.0,
             rel_error_lstar: err,

@@ -7,8 +7,8 @@
 //!   Every BTF is tabulated on `T`'s local basis (the caller passes `t.local_basis()`), so
 //!   the BTFs' light directions are the rows of `T` by construction.
 //!   The table a run uses is always the one its encoding stores (it goes through
-//!   `encode_btf` / `decode_btf` even without a cache), so a cached and a fresh run agree
-//!   bit for bit.
+//!   `btf_artifact` / `btf_from_artifact` even without a cache), so a cached and a fresh run
+//!   agree bit for bit.
 //! * Matching: triangle `t` uses the entry whose `name` is the OBJ's material name of `t`
 //!   (`Mesh::materials`). A single unnamed entry covers the whole mesh. An OBJ material no
 //!   entry names is an error naming both files; an entry no triangle uses is left out (not
@@ -18,16 +18,18 @@
 //!   axis; a flat patch with an analytic BRDF is tabulated without ray tracing. Each such
 //!   decision is a line in [`SceneMaterials::notes`], printed with the plan.
 
+use crate::cache::StageCache;
 use crate::config::{BrdfConfig, Experiment, MaterialConfig, SynthesizedConfig};
 use crate::pipeline::{PipelineError, Result};
 use crate::util::progress_bar;
+use biscale_core::artifact::Artifact;
 use biscale_core::basis::LocalBasis;
 use biscale_core::geometry::Mesh;
 use biscale_core::io::ContentHash;
 use biscale_core::scene::{Btf, Material};
 use biscale_shading::synth::{
-    decode_btf, encode_btf, synthesize, AlbedoMap, Brdf, BtfEncoding, BtfSpec, HeightField, Pattern, Recipe,
-    BTF_FORMAT_VERSION,
+    btf_artifact, btf_from_artifact, load_btf, synthesize, AlbedoMap, Brdf, BtfEncoding, BtfSpec, HeightField, Pattern,
+    Recipe,
 };
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -125,11 +127,11 @@ fn describe(cfg: &SynthesizedConfig) -> String {
 }
 
 /// Cache key of a synthesized entry: the entry (paths resolved), the bytes of the files it
-/// names, the local basis and the versions of the generator and the file format.
+/// names, the local basis and the versions of the generator and the file container.
 pub fn synth_key(cfg: &SynthesizedConfig, local_basis: LocalBasis) -> Result<u64> {
     let mut h = ContentHash::default();
     h.write(&SYNTH_VERSION.to_le_bytes());
-    h.write(&BTF_FORMAT_VERSION.to_le_bytes());
+    h.write(&biscale_core::artifact::CONTAINER_VERSION.to_le_bytes());
     h.write_str(&local_basis.tag());
     // The label is not part of the table's meaning: hash the entry without its name.
     let unnamed = SynthesizedConfig { name: None, tiling: 1.0, ..cfg.clone() };
@@ -152,12 +154,12 @@ pub enum Origin {
     Cached(PathBuf),
 }
 
-/// The BTF of one entry on `local_basis`; synthesized tables are cached in `cache_dir` when
-/// given. `label` names the entry in messages and progress.
+/// The BTF of one entry on `local_basis`; synthesized tables are cached when there is a
+/// cache. `label` names the entry in messages and progress.
 pub fn material_btf(
     cfg: &MaterialConfig,
     local_basis: LocalBasis,
-    cache_dir: Option<&Path>,
+    cache: Option<&StageCache>,
     label: &str,
 ) -> Result<(Btf, Origin)> {
     let err = shading_err(label);
@@ -172,11 +174,16 @@ pub fn material_btf(
         MaterialConfig::Synthesized(s) => {
             let encoding = BtfEncoding::from_name(&s.encoding).map_err(&err)?;
             let key = synth_key(s, local_basis)?;
-            let path = cache_dir.map(|d| d.join(format!("btf-{key:016x}-{}.btf", s.encoding)));
-            if let Some(p) = path.as_ref().filter(|p| p.exists()) {
-                match biscale_shading::synth::load_btf(p) {
-                    Ok(btf) => return Ok((btf, Origin::Cached(p.clone()))),
-                    Err(e) => eprintln!("warning: ignoring unusable BTF cache file: {e}"),
+            let path = cache.map(|c| c.btf_path(key, &s.encoding));
+            if let (Some(c), Some(p)) = (cache, &path) {
+                let accept = |b: &Btf| match b.local_basis() == local_basis {
+                    true => Ok(()),
+                    false => {
+                        Err(format!("{}: a BTF on {}, this run needs {local_basis}", p.display(), b.local_basis()))
+                    }
+                };
+                if let Some(btf) = c.get(p, load_btf, accept) {
+                    return Ok((btf, Origin::Cached(p.clone())));
                 }
             }
             let spec = synth_spec(s, local_basis, label)?;
@@ -192,19 +199,12 @@ pub fn material_btf(
             let seconds = start.elapsed().as_secs_f64();
             pb.finish_and_clear();
             // Use exactly what the encoding stores, cached or not.
-            let bytes = encode_btf(&btf, encoding).map_err(&err)?;
+            let stored = btf_artifact(&btf, encoding).map_err(&err)?;
             let source = path.clone().unwrap_or_else(|| PathBuf::from(format!("<{label} in memory>")));
-            let btf = decode_btf(&bytes, &source).map_err(&err)?;
-            if let Some(p) = &path {
-                let stored = p
-                    .parent()
-                    .map_or(Ok(()), std::fs::create_dir_all)
-                    .map_err(|e| e.to_string())
-                    .and_then(|_| biscale_core::io::write_atomic_bytes(p, &bytes).map_err(|e| e.to_string()));
-                if let Err(e) = stored {
-                    eprintln!("warning: could not write the BTF cache {}: {e}", p.display());
-                }
+            if let (Some(c), Some(p)) = (cache, &path) {
+                c.put(p, |p| stored.save(p));
             }
+            let btf = btf_from_artifact(Artifact { source, ..stored }).map_err(&err)?;
             Ok((btf, Origin::Synthesized { seconds }))
         }
     }
@@ -248,7 +248,7 @@ pub fn load_materials(
     exp: &Experiment,
     mesh: &Mesh,
     local_basis: LocalBasis,
-    cache_dir: Option<&Path>,
+    cache: Option<&StageCache>,
 ) -> Result<SceneMaterials> {
     let configs = exp.materials();
     let mut notes = vec![];
@@ -269,7 +269,7 @@ pub fn load_materials(
             notes.push(format!("material {label}: left out, no triangle uses it"));
             continue;
         }
-        let (btf, origin) = material_btf(cfg, local_basis, cache_dir, &label)?;
+        let (btf, origin) = material_btf(cfg, local_basis, cache, &label)?;
         match &origin {
             Origin::Analytic => {}
             Origin::Synthesized { seconds } => eprintln!("btf {label}: synthesized in {seconds:.1} s"),

@@ -113,7 +113,10 @@ pub struct CompressorRecord {
     pub bytes_per_nnz: f64,
     /// Monochrome gather flops (an RGB gather does three times the multiply-adds).
     pub flops_per_gather: u64,
+    /// Seconds the compressor took (for a form from the cache: when it was built).
     pub build_seconds: f64,
+    /// True when the form was loaded from the stage cache.
+    pub cached: bool,
     /// Median wall-clock of the RGB gather over `runtime.repeats` runs.
     pub gather_ms: f64,
     pub shade_ms: f64,

@@ -6,13 +6,14 @@
 //! setting, then the report. Each step is a function below that takes plain data and returns
 //! a plain record; stages never reach into each other.
 
+use crate::cache::StageCache;
 use crate::config::{Backend, CompressorSetting, Experiment};
 use crate::materials::{load_materials, SceneMaterials};
 use crate::metrics::*;
 use crate::plan::Plan;
 use crate::util::progress_bar;
 use biscale_compressors::registry::{self, BuildError};
-use biscale_core::compress::{CompressContext, Compressor};
+use biscale_core::compress::{CompressContext, CompressedForm, Compressor};
 use biscale_core::gather::{reference_product, relative_l2_error, LocalRadiance};
 use biscale_core::geometry::Mesh;
 use biscale_core::io::write_atomic_bytes;
@@ -121,25 +122,28 @@ pub fn load_lighting(exp: &Experiment) -> Result<Lighting> {
     Ok(Lighting { light, env, rotation, warnings })
 }
 
+/// `T` with its record and its cache key (which keys every output built from it).
+pub struct Transfer {
+    pub matrix: TransferMatrix,
+    pub metrics: TransferMetrics,
+    pub key: u64,
+}
+
 /// Build (or load from the cache) the transfer matrix with a progress bar.
-pub fn transfer_matrix(
-    exp: &Experiment,
-    geometry: &Geometry,
-    opts: &RunOptions,
-    out_dir: &Path,
-) -> Result<(TransferMatrix, TransferMetrics)> {
+pub fn transfer_matrix(exp: &Experiment, geometry: &Geometry, cache: Option<&StageCache>) -> Result<Transfer> {
     let settings = exp.transfer_settings();
-    let cache = crate::cache::TransferCache::new(opts, out_dir);
     let key = crate::cache::transfer_key(&geometry.mesh, &settings);
-    if let Some(cache) = &cache {
-        match cache.load(key, &settings) {
-            Ok(Some(t)) => {
-                eprintln!("transfer: loaded from cache {}", cache.path(key).display());
-                let metrics = transfer_metrics(&t, 0.0, 0, 0.0, true, &settings);
-                return Ok((t, metrics));
-            }
-            Ok(None) => {}
-            Err(e) => eprintln!("warning: ignoring unusable cache file: {e}"),
+    let shape = settings.shape(geometry.mesh.vertex_count());
+    if let Some(c) = cache {
+        let path = c.transfer_path(key);
+        let accept = |t: &TransferMatrix| match t.shape() == shape {
+            true => Ok(()),
+            false => Err(format!("{}: holds {}, this run needs {shape}", path.display(), t.shape())),
+        };
+        if let Some(matrix) = c.get(&path, TransferMatrix::load, accept) {
+            eprintln!("transfer: loaded from cache {}", path.display());
+            let metrics = transfer_metrics(&matrix, 0.0, 0, 0.0, true, &settings);
+            return Ok(Transfer { matrix, metrics, key });
         }
     }
     let vertices = geometry.mesh.vertex_count();
@@ -159,20 +163,52 @@ pub fn transfer_matrix(
         build.stats.seconds,
         build.stats.rays_per_second / 1e6
     );
-    if let Some(cache) = &cache {
-        if let Err(e) = cache.store(key, &build.matrix) {
-            eprintln!("warning: could not write the transfer cache: {e}");
+    if let Some(c) = cache {
+        c.put(&c.transfer_path(key), |p| build.matrix.save(p));
+    }
+    let s = &build.stats;
+    let metrics = transfer_metrics(&build.matrix, s.seconds, s.rays_traced, s.rays_per_second, false, &settings);
+    Ok(Transfer { matrix: build.matrix, metrics, key })
+}
+
+/// One setting's compressed form, built or loaded from the cache (`true` when loaded). A form
+/// from the cache keeps the build time it was measured with.
+pub fn compressed_form(
+    setting: &CompressorSetting,
+    compressor: &dyn Compressor,
+    t: &Transfer,
+    seed: u64,
+    cache: Option<&StageCache>,
+) -> Result<(CompressedForm, bool)> {
+    let name = &setting.label;
+    let cached = cache.zip(crate::cache::form_key(t.key, compressor, seed)).map(|(c, key)| (c, c.form_path(key, name)));
+    if let Some((c, path)) = &cached {
+        let accept = |f: &CompressedForm| match f.kind == compressor.kind() && f.shape() == t.matrix.shape() {
+            true => Ok(()),
+            false => Err(format!(
+                "{}: holds a {} form of {}, this run needs {}",
+                path.display(),
+                f.kind,
+                f.shape(),
+                t.matrix.shape()
+            )),
+        };
+        if let Some(form) = c.get(path, CompressedForm::load, accept) {
+            eprintln!("{name}: loaded from cache {}", path.display());
+            return Ok((form, true));
         }
     }
-    let m = transfer_metrics(
-        &build.matrix,
-        build.stats.seconds,
-        build.stats.rays_traced,
-        build.stats.rays_per_second,
-        false,
-        &settings,
-    );
-    Ok((build.matrix, m))
+    let pb = progress_bar(1000, name);
+    let progress = |f: f64| pb.set_position((f.clamp(0.0, 1.0) * 1000.0) as u64);
+    let ctx = CompressContext { seed, progress: Some(&progress) };
+    let form = compressor
+        .compress(&t.matrix, &ctx)
+        .map_err(|source| PipelineError::Compress { name: name.clone(), source })?;
+    pb.finish_and_clear();
+    if let Some((c, path)) = &cached {
+        c.put(path, |p| form.save(p));
+    }
+    Ok((form, false))
 }
 
 fn transfer_metrics(
@@ -205,14 +241,14 @@ fn transfer_metrics(
 }
 
 /// The shade scene: the mesh, the transfer scene's frames and the materials, whose BTFs are
-/// built on `T`'s local basis (synthesized ones cached in `cache_dir` when given).
+/// built on `T`'s local basis (synthesized ones cached when there is a cache).
 pub fn shade_scene(
     exp: &Experiment,
     geometry: &Geometry,
     t: &TransferMatrix,
-    cache_dir: Option<&Path>,
+    cache: Option<&StageCache>,
 ) -> Result<(ShadeScene, SceneMaterials)> {
-    let materials = load_materials(exp, &geometry.mesh, t.local_basis(), cache_dir)?;
+    let materials = load_materials(exp, &geometry.mesh, t.local_basis(), cache)?;
     let scene = ShadeScene::new(
         geometry.mesh.clone(),
         geometry.transfer.frames().to_vec(),
@@ -327,6 +363,104 @@ fn reference(
     Ok(Reference { render, camera, seconds, baseline_error })
 }
 
+/// What every compressed form is measured against: the baseline, the reference and the view.
+struct Evaluation<'a> {
+    t: &'a TransferMatrix,
+    lighting: &'a Lighting,
+    base: &'a Baseline,
+    view: &'a View<'a>,
+    reference: Option<&'a Reference>,
+    repeats: usize,
+    exposure: f32,
+    out_dir: &'a Path,
+}
+
+impl Evaluation<'_> {
+    /// Gather and shade `form` (and on the GPU backend when given), compare it with the
+    /// baseline and the reference, write its images: its record.
+    fn record(
+        &self,
+        setting: &CompressorSetting,
+        compressor: &dyn Compressor,
+        form: &CompressedForm,
+        cached: bool,
+        #[cfg(feature = "gpu")] gpu: Option<&mut crate::gpu_backend::GpuBackend>,
+    ) -> Result<CompressorRecord> {
+        let (base, view, repeats) = (self.base, self.view, self.repeats);
+        let cerr = |source| PipelineError::Compress { name: setting.label.clone(), source };
+        let (lstar, gather_ms) = timed(repeats, || compressor.gather(form, &self.lighting.light).map_err(cerr))?;
+        let rel_error_lstar = relative_l2_error(lstar.values(), &base.exact);
+        let (render, shade_ms) = view.timed_render(&lstar, repeats)?;
+        let vs_uncompressed = errors(&compare(&render.image, &base.render.image, Some(&base.render.mask))?);
+        let vs_reference = match self.reference {
+            Some(r) => {
+                let small = view.render(&lstar, &r.camera)?;
+                Some(errors(&compare(&small.image, &r.render.image, Some(&r.render.mask))?))
+            }
+            None => None,
+        };
+        #[cfg(feature = "gpu")]
+        let gpu = match gpu {
+            Some(g) => {
+                let kernels = compressor.kernels(form).map_err(cerr)?;
+                Some(g.run(form, &kernels, &self.lighting.light, &base.exact, &render, repeats)?)
+            }
+            None => None,
+        };
+        #[cfg(not(feature = "gpu"))]
+        let gpu: Option<GpuRecord> = None;
+        let name = &setting.label;
+        if let Some(g) = &gpu {
+            eprintln!(
+                "{name} on the gpu: gather {:.2} ms, shade {:.2} ms ({}), rel. error of L* {:.2e}, image vs cpu rel. L2 {:.2e} ({} of {} pixels differ by > 1e-3)",
+                g.gather_ms, g.shade_ms, g.timing, g.rel_error_lstar, g.image_vs_cpu.rel_l2, g.differing_pixels, g.covered_pixels
+            );
+        }
+        let name = &name.replace(':', "-");
+        let images_dir = self.out_dir.join("images");
+        let (png, exr) = save_images(&render.image, &images_dir, name, self.exposure)?;
+        let error_rel = format!("images/{name}_error.png");
+        let error_scale = biscale_shading::image::write_error_image(
+            &render.image,
+            &base.render.image,
+            None,
+            &self.out_dir.join(&error_rel),
+        )?;
+        eprintln!(
+            "{name}: {:.2} MB, {:.2} Mflop/gather, built in {:.2} s{}, gather {gather_ms:.2} ms, rel. error of L* {rel_error_lstar:.2e}",
+            form.bytes() as f64 / 1e6,
+            form.flops_per_gather as f64 / 1e6,
+            form.build_seconds,
+            if cached { " (cached)" } else { "" },
+        );
+        Ok(CompressorRecord {
+            name: name.clone(),
+            kind: compressor.kind().to_string(),
+            params: compressor.params(),
+            lossless: form.lossless,
+            bytes: form.bytes(),
+            bytes_by_array: form.bytes_by_array(),
+            bytes_per_nnz: form.bytes() as f64 / self.t.nnz().max(1) as f64,
+            flops_per_gather: form.flops_per_gather,
+            build_seconds: form.build_seconds,
+            cached,
+            gather_ms,
+            shade_ms,
+            rel_error_lstar,
+            image: ImageRecord {
+                vs_uncompressed,
+                vs_reference,
+                png,
+                exr,
+                error_png: Some(error_rel),
+                error_scale: Some(error_scale),
+            },
+            stats: compressor.stats(form, self.t),
+            gpu,
+        })
+    }
+}
+
 /// The compressor of one setting (a plugin loads its library here).
 pub fn build_compressor(setting: &CompressorSetting) -> Result<Box<dyn Compressor>> {
     registry::build(&setting.kind, &setting.params)
@@ -347,7 +481,7 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     let images_dir = out_dir.join("images");
     std::fs::create_dir_all(&images_dir).map_err(io_err(&images_dir))?;
     write_atomic_bytes(&out_dir.join("plan.txt"), plan.to_string().as_bytes())?;
-    let cache_dir = crate::cache::cache_dir(opts, &out_dir);
+    let cache = StageCache::new(opts, &out_dir);
 
     // Compressors are constructed first so a bad setting fails before any heavy work.
     let compressors: Vec<(CompressorSetting, Box<dyn Compressor>)> =
@@ -361,14 +495,14 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     for w in &lighting.warnings {
         eprintln!("warning: {w}");
     }
-    let (t, transfer_metrics) = transfer_matrix(exp, &geometry, opts, &out_dir)?;
-    let (scene, materials) = shade_scene(exp, &geometry, &t, cache_dir.as_deref())?;
+    let t = transfer_matrix(exp, &geometry, cache.as_ref())?;
+    let (scene, materials) = shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
     for n in &materials.notes {
         eprintln!("materials: {n}");
     }
     let repeats = exp.file.runtime.repeats;
     let view = View { scene: &scene, camera: camera(exp, &geometry.mesh, 1), background: lighting.background(exp) };
-    let base = baseline(&t, &lighting, &view, repeats)?;
+    let base = baseline(&t.matrix, &lighting, &view, repeats)?;
     let exposure = exp.file.report.exposure;
     save_images(&base.render.image, &images_dir, "uncompressed", exposure)?;
     let reference = match plan.reference {
@@ -389,81 +523,24 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
         }
         Backend::Cpu => None,
     };
+    let eval = Evaluation {
+        t: &t.matrix,
+        lighting: &lighting,
+        base: &base,
+        view: &view,
+        reference: reference.as_ref(),
+        repeats,
+        exposure,
+        out_dir: &out_dir,
+    };
     let mut records = vec![];
     for (setting, compressor) in &compressors {
-        let name = &setting.label;
-        let pb = progress_bar(1000, name);
-        let progress = |f: f64| pb.set_position((f.clamp(0.0, 1.0) * 1000.0) as u64);
-        let ctx = CompressContext { seed: exp.file.seed, progress: Some(&progress) };
-        let cerr = |source| PipelineError::Compress { name: name.clone(), source };
-        let form = compressor.compress(&t, &ctx).map_err(cerr)?;
-        pb.finish_and_clear();
-        let (lstar, gather_ms) = timed(repeats, || compressor.gather(&form, &lighting.light).map_err(cerr))?;
-        let rel_error_lstar = relative_l2_error(lstar.values(), &base.exact);
-        let (render, shade_ms) = view.timed_render(&lstar, repeats)?;
-        let vs_uncompressed = errors(&compare(&render.image, &base.render.image, Some(&base.render.mask))?);
-        let vs_reference = match &reference {
-            Some(r) => {
-                let small = view.render(&lstar, &r.camera)?;
-                Some(errors(&compare(&small.image, &r.render.image, Some(&r.render.mask))?))
-            }
-            None => None,
-        };
+        let (form, cached) = compressed_form(setting, compressor.as_ref(), &t, exp.file.seed, cache.as_ref())?;
         #[cfg(feature = "gpu")]
-        let gpu_record = match gpu.as_mut() {
-            Some(g) => {
-                let kernels = compressor.kernels(&form).map_err(cerr)?;
-                Some(g.run(&form, &kernels, &lighting.light, &base.exact, &render, repeats)?)
-            }
-            None => None,
-        };
+        let record = eval.record(setting, compressor.as_ref(), &form, cached, gpu.as_mut())?;
         #[cfg(not(feature = "gpu"))]
-        let gpu_record: Option<crate::metrics::GpuRecord> = None;
-        if let Some(g) = &gpu_record {
-            eprintln!(
-                "{name} on the gpu: gather {:.2} ms, shade {:.2} ms ({}), rel. error of L* {:.2e}, image vs cpu rel. L2 {:.2e} ({} of {} pixels differ by > 1e-3)",
-                g.gather_ms, g.shade_ms, g.timing, g.rel_error_lstar, g.image_vs_cpu.rel_l2, g.differing_pixels, g.covered_pixels
-            );
-        }
-        let name = &name.replace(':', "-");
-        let (png, exr) = save_images(&render.image, &images_dir, name, exposure)?;
-        let error_rel = format!("images/{name}_error.png");
-        let error_scale = biscale_shading::image::write_error_image(
-            &render.image,
-            &base.render.image,
-            None,
-            &out_dir.join(&error_rel),
-        )?;
-        eprintln!(
-            "{name}: {:.2} MB, {:.2} Mflop/gather, built in {:.2} s, gather {gather_ms:.2} ms, rel. error of L* {rel_error_lstar:.2e}",
-            form.bytes() as f64 / 1e6,
-            form.flops_per_gather as f64 / 1e6,
-            form.build_seconds
-        );
-        records.push(CompressorRecord {
-            name: name.clone(),
-            kind: compressor.kind().to_string(),
-            params: compressor.params(),
-            lossless: form.lossless,
-            bytes: form.bytes(),
-            bytes_by_array: form.bytes_by_array(),
-            bytes_per_nnz: form.bytes() as f64 / t.nnz().max(1) as f64,
-            flops_per_gather: form.flops_per_gather,
-            build_seconds: form.build_seconds,
-            gather_ms,
-            shade_ms,
-            rel_error_lstar,
-            image: ImageRecord {
-                vs_uncompressed,
-                vs_reference,
-                png,
-                exr,
-                error_png: Some(error_rel),
-                error_scale: Some(error_scale),
-            },
-            stats: compressor.stats(&form, &t),
-            gpu: gpu_record,
-        });
+        let record = eval.record(setting, compressor.as_ref(), &form, cached)?;
+        records.push(record);
     }
 
     let metrics = Metrics {
@@ -485,7 +562,7 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
             total_power: lighting.light.total(),
             warnings: lighting.warnings.clone(),
         },
-        transfer: transfer_metrics,
+        transfer: t.metrics,
         uncompressed: UncompressedMetrics { gather_ms: base.gather_ms, shade_ms: base.shade_ms },
         reference: reference.as_ref().map(|r| ReferenceMetrics {
             width: r.render.image.width,

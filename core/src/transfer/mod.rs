@@ -13,7 +13,8 @@
 //!   normalised BVH, the origin offset), built once and used by the transfer build and by the
 //!   ray-traced reference, so both have the same visibility semantics.
 //! * [`build`] / [`build_range`]: `T` for a mesh, or for a range of its vertices (a shard).
-//! * [`TransferMatrix`]: the stacked result, carrying its bases.
+//! * [`TransferMatrix`]: the stacked result, carrying its bases; `save` / `load` keep it as
+//!   a file of its own (the stage cache).
 
 mod build;
 mod sampler;
@@ -25,9 +26,12 @@ pub use build::{
 pub use sampler::{VisibilitySampler, VisibilityScratch};
 pub use scene::{TransferScene, BVH_DIAGONAL, ORIGIN_OFFSET};
 
+use crate::artifact::{Artifact, ArtifactError};
 use crate::basis::{LightBasis, LocalBasis, TransferShape};
+use crate::compress::ArrayData;
 use crate::error::{CoreError, Result};
 use crate::sampling::{Cubemap, HemisphereGrid};
+use std::path::Path;
 
 /// Settings that determine `T`: the bases of its rows and columns and the visibility
 /// resolution. Constructed through [`TransferSettings::new`], so a value in hand is valid.
@@ -175,6 +179,53 @@ impl TransferMatrix {
     /// The sparse matrix, by value.
     pub fn into_csr(self) -> sprs::CsMat<f32> {
         self.csr
+    }
+}
+
+/// `T` as a file ([`crate::artifact`], kind `transfer`): the shape, then the CSR arrays
+/// `row_ptr` (u32, rows + 1), `col` (u16: N <= 6 x 104^2 < 2^16 by the cubemap limit) and
+/// `values` (f32).
+impl TransferMatrix {
+    /// The artifact kind of a transfer matrix.
+    pub const ARTIFACT: &'static str = "transfer";
+
+    /// Write `T` to `path` atomically. More than 2^32 non-zeros are refused.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        if self.nnz() > u32::MAX as usize || self.cols() > u16::MAX as usize + 1 {
+            return Err(CoreError::TooLarge(format!(
+                "{}: {} non-zeros in {} columns do not fit the transfer file's u32 offsets and u16 columns",
+                path.display(),
+                self.nnz(),
+                self.cols()
+            )));
+        }
+        let csr = &self.csr;
+        Artifact::new(Self::ARTIFACT)
+            .with_shape(self.shape)
+            .with_array("row_ptr", ArrayData::U32(csr.indptr().raw_storage().iter().map(|&p| p as u32).collect()))
+            .with_array("col", ArrayData::U16(csr.indices().iter().map(|&c| c as u16).collect()))
+            .with_array("values", ArrayData::F32(csr.data().to_vec()))
+            .save(path)
+    }
+
+    /// Read a matrix written by [`Self::save`]; a file whose arrays are not a valid CSR
+    /// matrix of its shape is an error naming it.
+    pub fn load(path: &Path) -> std::result::Result<Self, ArtifactError> {
+        let mut a = Artifact::load(path)?;
+        a.expect_kind(Self::ARTIFACT)?;
+        let shape = a.shape()?;
+        let (row_ptr, col, values) = match (a.take_array("row_ptr")?, a.take_array("col")?, a.take_array("values")?) {
+            (ArrayData::U32(p), ArrayData::U16(c), ArrayData::F32(v)) => (p, c, v),
+            _ => return Err(a.corrupt("row_ptr, col and values must be u32, u16 and f32")),
+        };
+        let csr = sprs::CsMat::try_new(
+            (shape.rows(), shape.cols()),
+            row_ptr.into_iter().map(|p| p as usize).collect(),
+            col.into_iter().map(|c| c as usize).collect(),
+            values,
+        )
+        .map_err(|e| a.corrupt(format!("not a valid CSR matrix of {shape}: {}", e.3)))?;
+        Self::new(shape.local, shape.light, csr).map_err(|e| a.corrupt(e.to_string()))
     }
 }
 

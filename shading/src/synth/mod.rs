@@ -69,7 +69,9 @@ pub mod preview;
 mod trace;
 
 pub use brdf::Brdf;
-pub use file::{decode_btf, encode_btf, load_btf, save_btf, BtfEncoding, BTF_FORMAT_VERSION, BTF_MAGIC};
+pub use file::{
+    btf_artifact, btf_from_artifact, decode_btf, encode_btf, load_btf, save_btf, BtfEncoding, BTF_ARTIFACT,
+};
 pub use generate::{synthesize, BtfSpec};
 pub use heightfield::{AlbedoMap, HeightField, Pattern, Recipe};
 pub use preview::{contact_sheet, save_contact_sheet};

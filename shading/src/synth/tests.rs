@@ -3,9 +3,12 @@
 
 use super::generate::{run, Mode};
 use super::*;
+use biscale_core::artifact::{Artifact, Field};
 use biscale_core::basis::LocalBasis;
+use biscale_core::compress::ArrayData;
 use biscale_core::sampling::HemisphereGrid;
 use biscale_core::scene::Btf;
+use half::f16;
 use std::f64::consts::PI;
 
 fn spec(hf: HeightField, brdf: Brdf, res: u32, m: u32, v: Option<u32>) -> BtfSpec {
@@ -377,20 +380,23 @@ fn files_round_trip_and_corruption_is_an_error_naming_the_file() {
             assert!((a - b).abs() <= max / 510.0 * (1.0 + 1e-5), "{a} vs {b} (max {max})");
         }
     }
-    // Files are the documented size: f16 is half of f32's payload.
-    let len = |e| encode_btf(&btf, e).unwrap().len();
-    let header = 20 + 21 + btf.name().len() + 4;
-    assert_eq!(len(BtfEncoding::F32) - header, btf.data().len() * 12);
-    assert_eq!(len(BtfEncoding::F16) - header, btf.data().len() * 6);
-    assert_eq!(len(BtfEncoding::U8) - header, btf.data().len() * 3 + btf.texel_count() * 4);
+    // Files are the documented size: f16 is half of f32's payload; u8 a quarter plus the scales.
+    let payload = |e| btf_artifact(&btf, e).unwrap().arrays.iter().map(|a| a.data.bytes()).sum::<u64>() as usize;
+    assert_eq!(payload(BtfEncoding::F32), btf.data().len() * 12);
+    assert_eq!(payload(BtfEncoding::F16), btf.data().len() * 6);
+    assert_eq!(payload(BtfEncoding::U8), btf.data().len() * 3 + btf.texel_count() * 4);
+    for e in [BtfEncoding::F32, BtfEncoding::F16, BtfEncoding::U8] {
+        let header = encode_btf(&btf, e).unwrap().len() - payload(e);
+        assert!(header < 300 + btf.name().len(), "{e:?}: {header} header bytes");
+    }
 
     // Corruption.
     save_btf(&btf, &path, BtfEncoding::F16).unwrap();
     let good = std::fs::read(&path).unwrap();
+    let bad = dir.path().join("bad.btf");
     let check = |bytes: &[u8], what: &str| {
-        let p = dir.path().join("bad.btf");
-        std::fs::write(&p, bytes).unwrap();
-        let e = load_btf(&p).unwrap_err().to_string();
+        std::fs::write(&bad, bytes).unwrap();
+        let e = load_btf(&bad).unwrap_err().to_string();
         assert!(e.contains("bad.btf") && e.contains(what), "{what}: {e}");
     };
     let mut flipped = good.clone();
@@ -403,14 +409,20 @@ fn files_round_trip_and_corruption_is_an_error_naming_the_file() {
     let mut version = good.clone();
     version[8] = 9;
     check(&version, "version 9");
-    // A header claiming a huge table (consistent total length but wrong dimensions) is caught
-    // before anything is allocated.
-    let mut huge = good.clone();
-    huge[20..24].copy_from_slice(&4096u32.to_le_bytes());
-    check(&huge, "corrupt header");
-    let mut enc = good.clone();
-    enc[36] = 7;
-    check(&enc, "encoding");
+    // Consistent files whose fields do not describe their arrays (as a buggy writer could
+    // make): caught before any table is built.
+    let artifact = || btf_artifact(&btf, BtfEncoding::F16).unwrap();
+    let with = |name: &str, f: Field| artifact().with(name, f).encode();
+    check(&with("width", Field::U64(4096)), "need");
+    check(&with("width", Field::U64(4097)), "spatial size");
+    check(&with("view_grid", Field::U64(0)), "need");
+    check(&with("encoding", Field::Str("f64".into())), "unknown BTF encoding");
+    check(&with("encoding", Field::Str("f32".into())), "stored as u16");
+    check(&with("local_basis", Field::Str("cubemap:8".into())), "bins");
+    check(&Artifact::new("form").encode(), "btf was expected");
+    let mut nan = artifact();
+    nan.arrays[0].data = ArrayData::U16(vec![f16::NAN.to_bits(); btf.data().len() * 3]);
+    check(&nan.encode(), "non-finite");
     let e = load_btf(&dir.path().join("missing.btf")).unwrap_err().to_string();
     assert!(e.contains("missing.btf"), "{e}");
     // Values f16 cannot hold are refused at write time; the old file stays.
@@ -423,6 +435,9 @@ fn files_round_trip_and_corruption_is_an_error_naming_the_file() {
     let mut names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
     names.sort();
     assert_eq!(names, ["bad.btf", "w.btf"]);
+    // A file of the BTF format before the shared container is named as such.
+    std::fs::write(&bad, b"BSCBTF\0\0\x01\0\0\0").unwrap();
+    assert!(load_btf(&bad).unwrap_err().to_string().contains("earlier biscale"));
 }
 
 #[test]
