@@ -2,8 +2,9 @@
 //! half-written output file.
 
 use biscale::config::Experiment;
-use biscale::pipeline::{run, RunOptions};
+use biscale::pipeline::{run, PipelineError, RunOptions};
 use biscale_core::scene::HdrImage;
+use biscale_core::CoreError;
 use biscale_tests::{workspace_root, write_config};
 use std::path::Path;
 
@@ -18,14 +19,15 @@ fn config_with(dir: &Path, mesh: &str, lighting: &str) -> std::path::PathBuf {
     )
 }
 
-/// Run and return the error text; asserts that no metrics or report were written.
-fn run_err(cfg: &Path) -> String {
+/// Run and return the error (a config error or the run's); asserts that no metrics or report
+/// were written.
+fn run_err(cfg: &Path) -> PipelineError {
     let out = cfg.parent().unwrap().join("out");
     let err = match Experiment::load(cfg) {
-        Err(e) => e.to_string(),
+        Err(e) => PipelineError::Config(e),
         Ok(exp) => {
             let opts = RunOptions { out_dir: Some(out.clone()), cache_dir: None, no_cache: true };
-            run(&exp, &opts).expect_err("run must fail").to_string()
+            run(&exp, &opts).expect_err("run must fail")
         }
     };
     assert!(!out.join("metrics.json").exists() && !out.join("report.md").exists());
@@ -57,14 +59,15 @@ fn malformed_toml_names_file_and_line() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = write_config(dir.path(), "broken", "name = \"x\"\n[scene\nmesh = 1\n");
     let err = run_err(&cfg);
-    assert!(err.contains("broken.toml:2:"), "{err}");
+    assert!(matches!(&err, PipelineError::Config(c) if c.file.ends_with("broken.toml") && c.line == 2), "{err}");
 }
 
 #[test]
 fn missing_mesh_is_a_config_error() {
     let dir = tempfile::tempdir().unwrap();
     let err = run_err(&config_with(dir.path(), "nothing.obj", SKY));
-    assert!(err.contains("bad.toml:3:8") && err.contains("mesh file not found"), "{err}");
+    let PipelineError::Config(c) = &err else { panic!("{err}") };
+    assert!((c.line, c.column) == (3, 8) && c.message.contains("mesh file not found"), "{err}");
 }
 
 #[test]
@@ -72,7 +75,7 @@ fn corrupt_obj_names_the_file() {
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(dir.path().join("m.obj"), "v 0 0 0\nv 1 0 0\nf 1 2 9\n").unwrap();
     let err = run_err(&config_with(dir.path(), "m.obj", SKY));
-    assert!(err.contains("m.obj"), "{err}");
+    assert!(matches!(&err, PipelineError::Core(CoreError::Input { path, .. }) if path.ends_with("m.obj")), "{err}");
 }
 
 #[test]
@@ -80,7 +83,8 @@ fn mesh_without_faces_is_an_error() {
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(dir.path().join("m.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\n").unwrap();
     let err = run_err(&config_with(dir.path(), "m.obj", SKY));
-    assert!(err.contains("m.obj") && err.contains("no faces"), "{err}");
+    let PipelineError::Core(CoreError::Input { path, message }) = &err else { panic!("{err}") };
+    assert!(path.ends_with("m.obj") && message.contains("no faces"), "{err}");
 }
 
 #[test]
@@ -108,7 +112,7 @@ fn corrupt_exr_names_the_file() {
     std::fs::copy(workspace_root().join("assets/meshes/bunny.obj"), dir.path().join("m.obj")).unwrap();
     std::fs::write(dir.path().join("sky.exr"), b"this is not an OpenEXR file").unwrap();
     let err = run_err(&config_with(dir.path(), "m.obj", "env_map = \"sky.exr\""));
-    assert!(err.contains("sky.exr"), "{err}");
+    assert!(matches!(&err, PipelineError::Core(CoreError::Input { path, .. }) if path.ends_with("sky.exr")), "{err}");
 }
 
 #[test]
@@ -119,7 +123,8 @@ fn nan_in_env_map_is_rejected_with_its_pixel() {
     img.pixels[3 * 16 + 5] = [1.0, f32::NAN, 1.0];
     img.write_exr(&dir.path().join("sky.exr")).unwrap();
     let err = run_err(&config_with(dir.path(), "m.obj", "env_map = \"sky.exr\""));
-    assert!(err.contains("sky.exr") && err.contains("x=5, y=3") && err.contains("NaN"), "{err}");
+    let PipelineError::Core(CoreError::Input { path, message }) = &err else { panic!("{err}") };
+    assert!(path.ends_with("sky.exr") && message.contains("x=5, y=3") && message.contains("NaN"), "{err}");
 }
 
 #[test]
@@ -130,7 +135,8 @@ fn infinite_env_map_value_is_rejected() {
     img.pixels[0] = [f32::INFINITY, 1.0, 1.0];
     img.write_exr(&dir.path().join("sky.exr")).unwrap();
     let err = run_err(&config_with(dir.path(), "m.obj", "env_map = \"sky.exr\""));
-    assert!(err.contains("x=0, y=0"), "{err}");
+    let PipelineError::Core(CoreError::Input { message, .. }) = &err else { panic!("{err}") };
+    assert!(message.contains("x=0, y=0"), "{err}");
 }
 
 /// A config over `m.obj` (written from `obj`) with the given material tables.
@@ -158,7 +164,10 @@ fn an_obj_material_no_entry_names_is_an_error_naming_both() {
          [[scene.materials]]\nname = \"silver\"\nkind = \"lambertian\"\nalbedo = [0.5, 0.5, 0.5]\n",
     );
     let e = run_err(&cfg);
-    assert!(e.contains("m.obj") && e.contains("material \"gold\" (1 triangles)") && e.contains("stone, silver"), "{e}");
+    let PipelineError::Mismatch { path, what } = &e else { panic!("{e}") };
+    assert!(
+        path.ends_with("m.obj") && what.contains("material \"gold\" (1 triangles)") && what.contains("stone, silver")
+    );
 }
 
 #[test]
@@ -201,7 +210,10 @@ fn a_height_map_of_the_wrong_shape_is_an_error_naming_the_image() {
          brdf = { kind = \"lambertian\", albedo = [0.5, 0.5, 0.5] }\n",
     );
     let e = run_err(&cfg);
-    assert!(e.contains("h.png") && e.contains("must be square") && e.contains("6x4"), "{e}");
+    let PipelineError::Material { source: biscale_shading::ShadingError::File { path, message }, .. } = &e else {
+        panic!("{e}")
+    };
+    assert!(path.ends_with("h.png") && message.contains("must be square") && message.contains("6x4"), "{e}");
 }
 
 #[test]

@@ -157,6 +157,7 @@ fn btf_command_writes_tables_and_contact_sheets() {
     }
     // Only one, by name; an unknown name is an error listing the names.
     assert_eq!(biscale::commands::btf(&exp, &out, Some("b"), false, &opts).unwrap().len(), 1);
-    let e = biscale::commands::btf(&exp, &out, Some("c"), false, &opts).err().unwrap().to_string();
-    assert!(e.contains("no material named \"c\"") && e.contains("a, b"), "{e}");
+    let e = biscale::commands::btf(&exp, &out, Some("c"), false, &opts).err().unwrap();
+    let biscale::pipeline::PipelineError::Mismatch { path, what } = &e else { panic!("{e}") };
+    assert!(path == &exp.config_path && what.contains("no material named \"c\"") && what.contains("a, b"), "{e}");
 }

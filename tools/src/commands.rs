@@ -144,7 +144,6 @@ pub fn viz(
     use biscale_compressors::bicluster::Bicluster;
     use biscale_core::compress::{CompressContext, Compressor};
     std::fs::create_dir_all(out).map_err(|source| PipelineError::Io { path: out.into(), source })?;
-    let verr = |e: viz::VizError| PipelineError::Other(format!("viz: {e}"));
     let geometry = pipeline::load_geometry(exp)?;
     let t = pipeline::transfer_matrix(exp, &geometry, StageCache::new(opts, out).as_ref())?.matrix;
     let form = Bicluster::default()
@@ -153,41 +152,35 @@ pub fn viz(
     let count = count.clamp(1, t.vertices().max(1));
     let first = match first {
         Some(f) => f,
-        None => viz::most_shared_window(&form, count).map_err(verr)?,
+        None => viz::most_shared_window(&form, count)?,
     };
     let panels = PatchView { first_vertex: first, vertices: count, layout: PatchLayout::CubemapPanels, cell: 4 };
     let mut written = vec![
-        viz::write_sparsity(&t, &panels, &out.join("sparsity_panels.png")).map_err(verr)?,
-        viz::write_bicluster_patch(&t, &form, &panels, &out.join("biclusters_panels.png")).map_err(verr)?,
-        viz::write_bicluster_size_histograms(&form, &out.join("bicluster_sizes.png")).map_err(verr)?,
-        viz::write_value_histograms(&t, Some(&form), &out.join("values.png")).map_err(verr)?,
+        viz::write_sparsity(&t, &panels, &out.join("sparsity_panels.png"))?,
+        viz::write_bicluster_patch(&t, &form, &panels, &out.join("biclusters_panels.png"))?,
+        viz::write_bicluster_size_histograms(&form, &out.join("bicluster_sizes.png"))?,
+        viz::write_value_histograms(&t, Some(&form), &out.join("values.png"))?,
     ];
     let camera = pipeline::camera(exp, &geometry.mesh, 1);
     let heat = HeatmapOptions::default();
-    let cost = viz::gather_cost_per_vertex(&form).map_err(verr)?;
+    let cost = viz::gather_cost_per_vertex(&form)?;
     let nnz = viz::nnz_per_vertex(&t);
-    written.push(
-        viz::write_vertex_heatmap(
-            &geometry.mesh,
-            &camera,
-            &cost,
-            "gather flops per vertex (biclusters)",
-            &heat,
-            &out.join("heat_gather_cost.png"),
-        )
-        .map_err(verr)?,
-    );
-    written.push(
-        viz::write_vertex_heatmap(
-            &geometry.mesh,
-            &camera,
-            &nnz,
-            "non-zeros of T per vertex",
-            &heat,
-            &out.join("heat_nnz.png"),
-        )
-        .map_err(verr)?,
-    );
+    written.push(viz::write_vertex_heatmap(
+        &geometry.mesh,
+        &camera,
+        &cost,
+        "gather flops per vertex (biclusters)",
+        &heat,
+        &out.join("heat_gather_cost.png"),
+    )?);
+    written.push(viz::write_vertex_heatmap(
+        &geometry.mesh,
+        &camera,
+        &nnz,
+        "non-zeros of T per vertex",
+        &heat,
+        &out.join("heat_nnz.png"),
+    )?);
     Ok(written)
 }
 
@@ -256,12 +249,10 @@ pub fn btf(
     let chosen: Vec<&MaterialConfig> = configs.iter().filter(|c| only.is_none_or(|n| c.name() == Some(n))).collect();
     if chosen.is_empty() {
         let named: Vec<_> = configs.iter().map(|c| c.label()).collect();
-        return Err(PipelineError::Other(format!(
-            "{}: no material named {:?} (materials: {})",
-            exp.config_path.display(),
-            only.unwrap_or_default(),
-            named.join(", ")
-        )));
+        return Err(PipelineError::Mismatch {
+            path: exp.config_path.clone(),
+            what: format!("no material named {:?} (materials: {})", only.unwrap_or_default(), named.join(", ")),
+        });
     }
     std::fs::create_dir_all(out).map_err(|source| PipelineError::Io { path: out.into(), source })?;
     let cache = StageCache::new(opts, out);

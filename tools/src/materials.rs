@@ -62,7 +62,7 @@ impl SceneMaterials {
 }
 
 fn shading_err(label: &str) -> impl Fn(biscale_shading::ShadingError) -> PipelineError + '_ {
-    move |e| PipelineError::Other(format!("material {label}: {e}"))
+    move |source| PipelineError::Material { label: label.to_string(), source }
 }
 
 /// The BRDF of a synthesized entry.
@@ -85,7 +85,11 @@ pub fn synth_spec(cfg: &SynthesizedConfig, local_basis: LocalBasis, label: &str)
                 .map_err(&err)?
         }
         (None, Some(path)) => HeightField::from_image(path, cfg.amplitude).map_err(&err)?,
-        (None, None) => return Err(PipelineError::Other(format!("material {label}: no pattern or height_map"))),
+        (None, None) => {
+            return Err(err(biscale_shading::ShadingError::Invalid(
+                "a synthesized entry needs a pattern or a height_map".into(),
+            )))
+        }
     };
     let albedo_map = match &cfg.albedo_map {
         Some(p) => Some(AlbedoMap::from_image(p).map_err(&err)?),
@@ -217,11 +221,13 @@ pub fn assign(mesh: &Mesh, mesh_path: &Path, configs: &[MaterialConfig]) -> Resu
     match &mesh.materials {
         _ if single_unnamed => Ok(None),
         None if configs.len() == 1 => Ok(None),
-        None => Err(PipelineError::Other(format!(
-            "{}: the config names {} materials but the OBJ has no usemtl or groups to tell them apart",
-            mesh_path.display(),
-            configs.len()
-        ))),
+        None => Err(PipelineError::Mismatch {
+            path: mesh_path.to_path_buf(),
+            what: format!(
+                "the config names {} materials but the OBJ has no usemtl or groups to tell them apart",
+                configs.len()
+            ),
+        }),
         Some(ids) => {
             let counts = ids.counts();
             let mut of_name = Vec::with_capacity(ids.names.len());
@@ -230,11 +236,13 @@ pub fn assign(mesh: &Mesh, mesh_path: &Path, configs: &[MaterialConfig]) -> Resu
                     Some(i) => of_name.push(i),
                     None => {
                         let named: Vec<_> = configs.iter().filter_map(|c| c.name()).collect();
-                        return Err(PipelineError::Other(format!(
-                            "{}: material \"{name}\" ({count} triangles) is not named by any [[scene.materials]] entry (the config names: {})",
-                            mesh_path.display(),
-                            if named.is_empty() { "none".to_string() } else { named.join(", ") }
-                        )));
+                        return Err(PipelineError::Mismatch {
+                            path: mesh_path.to_path_buf(),
+                            what: format!(
+                                "material \"{name}\" ({count} triangles) is not named by any [[scene.materials]] entry (the config names: {})",
+                                if named.is_empty() { "none".to_string() } else { named.join(", ") }
+                            ),
+                        });
                     }
                 }
             }

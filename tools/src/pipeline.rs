@@ -44,8 +44,18 @@ pub enum PipelineError {
     Shading(#[from] ShadingError),
     #[error("{}: {source}", path.display())]
     Io { path: PathBuf, source: std::io::Error },
-    #[error("{0}")]
-    Other(String),
+    /// A material entry whose BTF could not be made (`label` names the entry).
+    #[error("material {label}: {source}")]
+    Material { label: String, source: ShadingError },
+    /// Inputs that do not fit together, named by the file they come from (an OBJ whose
+    /// materials the config does not name, a material the config does not have).
+    #[error("{}: {what}", path.display())]
+    Mismatch { path: PathBuf, what: String },
+    #[error(transparent)]
+    Viz(#[from] crate::viz::VizError),
+    /// The config asks for something this build was compiled without.
+    #[error("{what} needs biscale built with the `{feature}` cargo feature")]
+    Feature { what: String, feature: &'static str },
 }
 
 pub type Result<T, E = PipelineError> = std::result::Result<T, E>;
@@ -473,9 +483,7 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     eprint!("{plan}");
     #[cfg(not(feature = "gpu"))]
     if exp.file.runtime.backend == Backend::Gpu {
-        return Err(PipelineError::Other(
-            "runtime.backend = \"gpu\" needs biscale built with the `gpu` cargo feature".into(),
-        ));
+        return Err(PipelineError::Feature { what: "runtime.backend = \"gpu\"".into(), feature: "gpu" });
     }
     let out_dir = opts.out_dir.clone().unwrap_or_else(|| Path::new("out").join(exp.name()));
     let images_dir = out_dir.join("images");
