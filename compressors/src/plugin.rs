@@ -396,7 +396,11 @@ impl PluginCompressor {
     }
 
     /// [`Compressor::compress`] with the typed error.
-    pub fn compress_plugin(&self, t: &TransferMatrix, ctx: &CompressContext) -> Result<CompressedForm, PluginError> {
+    pub fn compress_plugin(
+        &self,
+        t: &TransferMatrix,
+        ctx: &CompressContext<'_>,
+    ) -> Result<CompressedForm, PluginError> {
         let start = Instant::now();
         let call = "biscale_plugin_compress";
         let invalid = |message: String| PluginError::Invalid { path: self.path.clone(), call, message };
@@ -564,7 +568,7 @@ impl Compressor for PluginCompressor {
         serde_json::json!({ "path": self.path.display().to_string(), "params": self.params })
     }
 
-    fn compress(&self, t: &TransferMatrix, ctx: &CompressContext) -> Result<CompressedForm, CompressError> {
+    fn compress(&self, t: &TransferMatrix, ctx: &CompressContext<'_>) -> Result<CompressedForm, CompressError> {
         Ok(self.compress_plugin(t, ctx)?)
     }
 

@@ -300,7 +300,7 @@ pub trait Compressor: Send + Sync {
     /// Its parameters, as they go into `metrics.json`.
     fn params(&self) -> serde_json::Value;
     /// Compress `t`.
-    fn compress(&self, t: &TransferMatrix, ctx: &CompressContext) -> Result<CompressedForm, CompressError>;
+    fn compress(&self, t: &TransferMatrix, ctx: &CompressContext<'_>) -> Result<CompressedForm, CompressError>;
     /// The CPU gather on the compressed arrays: `L*` for every row of `T`, RGB.
     fn gather(&self, form: &CompressedForm, light: &LightVector) -> Result<LocalRadiance, CompressError>;
     /// The GPU gather program of `form` (a form of this compressor), as plain data with the

@@ -99,7 +99,12 @@ pub(crate) type HitShader<'a> = dyn Fn(&SurfacePoint, &mut [[f64; 3]], &mut [Rgb
 /// Render `camera`'s view: one ray per pixel centre; `f(point, scratch_lstar, scratch_btf)`
 /// returns the radiance of a hit (misses stay black). Rows run in parallel; `row_done` is
 /// called after each row.
-pub(crate) fn render_rows(scene: &ShadeScene, camera: &Camera, row_done: &(dyn Fn() + Sync), f: &HitShader) -> Render {
+pub(crate) fn render_rows(
+    scene: &ShadeScene,
+    camera: &Camera,
+    row_done: &(dyn Fn() + Sync),
+    f: &HitShader<'_>,
+) -> Render {
     let (w, h) = (camera.width as usize, camera.height as usize);
     let m = scene.local_basis().len();
     let mut image = HdrImage::new(camera.width, camera.height);
@@ -109,12 +114,9 @@ pub(crate) fn render_rows(scene: &ShadeScene, camera: &Camera, row_done: &(dyn F
         let mut scratch = vec![[0.0f32; 3]; m];
         for x in 0..w {
             let (origin, dir) = camera.ray(x as f32 + 0.5, y as f32 + 0.5);
-            match primary_hit(scene, origin, dir) {
-                Some(p) => {
-                    row[x] = f(&p, &mut lstar, &mut scratch);
-                    row_mask[x] = true;
-                }
-                None => {}
+            if let Some(p) = primary_hit(scene, origin, dir) {
+                row[x] = f(&p, &mut lstar, &mut scratch);
+                row_mask[x] = true;
             }
         }
         row_done();

@@ -221,3 +221,48 @@ fn plugin_compressor_runs_through_the_same_report() {
     assert!(p.bytes < sparse.bytes / 2, "{} vs {}", p.bytes, sparse.bytes);
     assert!(p.image.vs_uncompressed.rel_l2 < 1e-5);
 }
+
+/// `runtime.backend = "gpu"`: every compressor's form is also gathered and shaded by the
+/// wgpu runtime (lavapipe without a GPU) and checked against the CPU in the same run. Without
+/// an adapter this prints why and passes, unless `BISCALE_REQUIRE_GPU=1` (CI sets it).
+#[test]
+fn the_gpu_backend_records_every_form_against_the_cpu() {
+    let dir = tempfile::tempdir().unwrap();
+    write_obj(&dir.path().join("m.obj"), &shapes::uv_sphere(Vec3::ZERO, 1.0, 8, 16));
+    let cfg = write_config(
+        dir.path(),
+        "gpu",
+        "name = \"gpu\"\n[scene]\nmesh = \"m.obj\"\n[lighting]\nconstant = [1, 0.5, 0.25]\n\
+         [transfer]\ncubemap_resolution = 4\nvisibility_resolution = 8\nlocal_grid = 3\n\
+         [[compressors]]\nkind = \"sparse\"\n[[compressors]]\nkind = \"bicluster\"\n\
+         [runtime]\nbackend = \"gpu\"\nwidth = 64\nheight = 64\nrepeats = 3\n",
+    );
+    let exp = Experiment::load(&cfg).unwrap();
+    let opts = RunOptions { out_dir: Some(dir.path().join("out")), cache_dir: None, no_cache: true };
+    let m = match run(&exp, &opts) {
+        Ok((_, m)) => m,
+        Err(biscale::pipeline::PipelineError::Gpu(biscale_gpu::GpuError::NoAdapter(e)))
+            if std::env::var("BISCALE_REQUIRE_GPU").as_deref() != Ok("1") =>
+        {
+            eprintln!("SKIPPING the gpu backend test: no adapter ({e})");
+            return;
+        }
+        Err(e) => panic!("{e}"),
+    };
+    assert_eq!(m.backend, "gpu");
+    for c in &m.compressors {
+        let g = c.gpu.as_ref().unwrap_or_else(|| panic!("{}: no gpu record", c.name));
+        eprintln!("{}: {g:?}", c.name);
+        assert!(!g.adapter.is_empty() && ["GpuTimestamps", "WallClock"].contains(&g.timing.as_str()), "{g:?}");
+        assert!(g.gather_ms > 0.0 && g.shade_ms > 0.0 && g.gather_ms.is_finite() && g.shade_ms.is_finite());
+        // Both forms are lossless: the GPU's f32 sums of at most N = 96 non-negative terms per
+        // row are within 96 u = 5.7e-6 of the f64 product, like the CPU's.
+        assert!(g.rel_error_lstar < 96.0 * f64::from(f32::EPSILON) / 2.0, "{}: {}", c.name, g.rel_error_lstar);
+        // Rasterised and ray-cast coverage differ at most on silhouette pixels (0.5%, as in
+        // the shading tests); the one-texel Lambertian BTF has no texel boundaries, so the
+        // covered pixels agree to f32 rounding of the interpolated L*.
+        assert!(g.coverage_mismatch * 200 <= g.covered_pixels.max(200), "{g:?}");
+        assert!(g.covered_pixels > 500 && g.differing_pixels == 0, "{g:?}");
+        assert!(g.image_vs_cpu.rel_l2 < 1e-5, "{g:?}");
+    }
+}

@@ -298,7 +298,7 @@ pub struct Baseline {
     pub shade_ms: f64,
 }
 
-fn baseline(t: &TransferMatrix, lighting: &Lighting, view: &View, repeats: usize) -> Result<Baseline> {
+fn baseline(t: &TransferMatrix, lighting: &Lighting, view: &View<'_>, repeats: usize) -> Result<Baseline> {
     let (exact, gather_ms) = timed(repeats, || Ok(reference_product(t, &lighting.light)))?;
     let lstar = LocalRadiance::from_f64(t.local_basis(), t.vertices(), &exact)?;
     let (render, shade_ms) = view.timed_render(&lstar, repeats)?;
@@ -347,7 +347,7 @@ pub struct Reference {
 fn reference(
     exp: &Experiment,
     geometry: &Geometry,
-    view: &View,
+    view: &View<'_>,
     lighting: &Lighting,
     baseline: &Baseline,
 ) -> Result<Reference> {
@@ -602,8 +602,10 @@ fn write_plots(m: &Metrics, out_dir: &Path) -> Vec<(String, String)> {
     if m.compressors.len() < 2 {
         return vec![];
     }
+    /// A plot's file stem, title, x-axis label and x value of a record.
+    type Plot = (&'static str, &'static str, &'static str, fn(&CompressorRecord) -> f64);
     let mut out = vec![];
-    let plots: [(&str, &str, &str, fn(&CompressorRecord) -> f64); 2] = [
+    let plots: [Plot; 2] = [
         ("error_vs_time", "relative error of L* against gather time", "gather time (ms, CPU)", |r| r.gather_ms),
         ("error_vs_storage", "relative error of L* against storage", "storage (MB)", |r| r.bytes as f64 / 1e6),
     ];

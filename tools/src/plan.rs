@@ -123,7 +123,7 @@ impl Plan {
 }
 
 impl fmt::Display for Plan {
-    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(f, "plan:")?;
         for s in &self.steps {
             match &s.action {

@@ -199,7 +199,7 @@ fn for_row(csr: &sprs::CsMat<f32>, i: usize, mut f: impl FnMut(usize, f32)) {
 /// CSR view of `T` (borrowed when it is already CSR).
 fn csr_of(t: &TransferMatrix) -> Cow<'_, sprs::CsMat<f32>> {
     if t.csr().is_csr() {
-        Cow::Borrowed(&t.csr())
+        Cow::Borrowed(t.csr())
     } else {
         Cow::Owned(t.csr().to_csr())
     }
@@ -388,7 +388,7 @@ impl Canvas {
     fn finish(
         mut self,
         path: &Path,
-        draw: impl FnOnce(&DrawingArea<BitMapBackend, Shift>) -> Result<()>,
+        draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<()>,
     ) -> Result<PathBuf> {
         register_font();
         {
@@ -403,7 +403,7 @@ impl Canvas {
     }
 }
 
-fn text(area: &DrawingArea<BitMapBackend, Shift>, s: &str, x: i32, y: i32, size: u32, pos: Pos) -> Result<()> {
+fn text(area: &DrawingArea<BitMapBackend<'_>, Shift>, s: &str, x: i32, y: i32, size: u32, pos: Pos) -> Result<()> {
     let style = ("sans-serif", size).into_font().color(&BLACK).pos(pos);
     area.draw_text(s, &style, (x, y)).map_err(draw_err)
 }
@@ -443,7 +443,7 @@ fn draw_lines(canvas: &mut Canvas, g: &Grid) {
 }
 
 /// Title, face labels and vertex labels shared by both patch pictures.
-fn draw_labels(area: &DrawingArea<BitMapBackend, Shift>, g: &Grid, view: &PatchView, title: &str) -> Result<()> {
+fn draw_labels(area: &DrawingArea<BitMapBackend<'_>, Shift>, g: &Grid, view: &PatchView, title: &str) -> Result<()> {
     text(area, title, 8, 6, 15, TOP_LEFT)?;
     let centred = Pos::new(HPos::Center, VPos::Top);
     if g.panels {
@@ -493,7 +493,7 @@ fn legend_swatches(canvas: &mut Canvas, items: &[([u8; 3], bool, String)]) -> Ve
 }
 
 fn legend_labels(
-    area: &DrawingArea<BitMapBackend, Shift>,
+    area: &DrawingArea<BitMapBackend<'_>, Shift>,
     items: &[([u8; 3], bool, String)],
     at: &[(i32, i32)],
     note: &str,
@@ -781,7 +781,7 @@ struct Bar {
 
 /// A bar chart with a log count axis on `area`.
 fn bar_chart(
-    area: &DrawingArea<BitMapBackend, Shift>,
+    area: &DrawingArea<BitMapBackend<'_>, Shift>,
     title: &str,
     x_desc: &str,
     y_desc: &str,
@@ -843,7 +843,7 @@ fn bar_chart(
 
 fn two_charts(
     path: &Path,
-    draw: impl FnOnce(&DrawingArea<BitMapBackend, Shift>, &DrawingArea<BitMapBackend, Shift>) -> Result<()>,
+    draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>, &DrawingArea<BitMapBackend<'_>, Shift>) -> Result<()>,
 ) -> Result<PathBuf> {
     let (w, h) = HISTOGRAM_SIZE;
     Canvas::new(w, h).finish(path, |root| {

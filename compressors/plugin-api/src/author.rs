@@ -233,7 +233,7 @@ pub trait PluginCompressor {
     /// place to reject unknown or invalid parameters).
     fn kernels(params: &Value) -> Result<Kernels, String>;
     /// Compress `t`.
-    fn compress(t: &CsrView, params: &Value) -> Result<PluginForm, String>;
+    fn compress(t: &CsrView<'_>, params: &Value) -> Result<PluginForm, String>;
     /// The CPU gather: `L*` (rows x RGB) from `light` (N texels x RGB, power per texel).
-    fn gather_cpu(form: &PluginFormView, light: &[[f32; 3]]) -> Result<Vec<[f32; 3]>, String>;
+    fn gather_cpu(form: &PluginFormView<'_>, light: &[[f32; 3]]) -> Result<Vec<[f32; 3]>, String>;
 }

@@ -89,7 +89,7 @@ pub fn quantize(t: &TransferMatrix, scale: u32) -> Result<CodeMatrix, CompressEr
     }
     let owned;
     let csr = if t.csr().is_csr() {
-        &t.csr()
+        t.csr()
     } else {
         owned = t.csr().to_csr();
         &owned

@@ -294,7 +294,7 @@ impl Compressor for Bicluster {
         }
     }
 
-    fn compress(&self, t: &TransferMatrix, ctx: &CompressContext) -> Result<CompressedForm, CompressError> {
+    fn compress(&self, t: &TransferMatrix, ctx: &CompressContext<'_>) -> Result<CompressedForm, CompressError> {
         let start = Instant::now();
         let codes = codes::quantize(t, self.value_scale)?;
         let (rows, cols) = (codes.rows, codes.cols);

@@ -57,7 +57,6 @@ fn light_of(cols: usize, seed: u64) -> LightVector {
 /// off by at most `u |v|` each: add `u sum_k |T_ik| L_k`. Residual biclusters make
 /// `sum_b A_b` larger than `|y|` (cancellation), which is why the bound is relative to the
 /// absolute sums and not to `y`.
-#[allow(clippy::needless_range_loop)]
 fn assert_gather_exact(form: &CompressedForm, t: &TransferMatrix, light: &LightVector) {
     let got = Bicluster::default().gather(form, light).expect("gather");
     let reference = reference_product(t, light);

@@ -149,7 +149,7 @@ impl Table {
     }
 
     /// Best cluster of every listed row and its reconstruction error (ties: lower id).
-    fn assign(&self, rows: &Rows, nz_rows: &[u32], sq_norm: &[f64], c: usize) -> (Vec<u32>, Vec<f64>) {
+    fn assign(&self, rows: &Rows<'_>, nz_rows: &[u32], sq_norm: &[f64], c: usize) -> (Vec<u32>, Vec<f64>) {
         let k_count = self.mean_sq.len();
         nz_rows
             .par_iter()
@@ -193,7 +193,7 @@ fn stream(seed: u64, round: usize, cluster: usize) -> ChaCha8Rng {
 }
 
 /// k-means++ seeding over the non-zero rows: the seed rows (at most `k`).
-fn seed_rows(rows: &Rows, nz_rows: &[u32], sq_norm: &[f64], n: usize, k: usize, seed: u64) -> Vec<u32> {
+fn seed_rows(rows: &Rows<'_>, nz_rows: &[u32], sq_norm: &[f64], n: usize, k: usize, seed: u64) -> Vec<u32> {
     let mut rng = stream(seed, usize::MAX >> 32, usize::MAX >> 32);
     let mut seeds = vec![nz_rows[rng.gen_range(0..nz_rows.len())]];
     let mut d2 = vec![f64::INFINITY; nz_rows.len()];
@@ -237,7 +237,7 @@ fn seed_rows(rows: &Rows, nz_rows: &[u32], sq_norm: &[f64], n: usize, k: usize, 
 
 /// Mean and top `c` principal directions of the rows `members` (see the module doc, step 3).
 fn fit(
-    rows: &Rows,
+    rows: &Rows<'_>,
     members: &[u32],
     prev: Option<&Model>,
     n: usize,
@@ -345,7 +345,7 @@ fn fit(
 }
 
 /// `Z = A Q` (row-major members x l) with `A = X - 1 mu^T`, from the sparse rows.
-fn apply_a(rows: &Rows, members: &[u32], mean: &[f64], q: &[f64], n: usize, l: usize) -> Vec<f64> {
+fn apply_a(rows: &Rows<'_>, members: &[u32], mean: &[f64], q: &[f64], n: usize, l: usize) -> Vec<f64> {
     let mut mu_q = vec![0.0; l];
     for i in 0..n {
         for j in 0..l {
@@ -368,7 +368,7 @@ fn apply_a(rows: &Rows, members: &[u32], mean: &[f64], q: &[f64], n: usize, l: u
 }
 
 /// `Y = A^T Z` (row-major n x l) with `A = X - 1 mu^T`, from the sparse rows.
-fn apply_at(rows: &Rows, members: &[u32], mean: &[f64], z: &[f64], n: usize, l: usize) -> Vec<f64> {
+fn apply_at(rows: &Rows<'_>, members: &[u32], mean: &[f64], z: &[f64], n: usize, l: usize) -> Vec<f64> {
     let mut y = vec![0.0; n * l];
     let mut z_sum = vec![0.0; l];
     for (zr, &r) in z.chunks(l).zip(members) {
@@ -438,7 +438,7 @@ impl Compressor for Cpca {
         })
     }
 
-    fn compress(&self, t: &TransferMatrix, ctx: &CompressContext) -> Result<CompressedForm, CompressError> {
+    fn compress(&self, t: &TransferMatrix, ctx: &CompressContext<'_>) -> Result<CompressedForm, CompressError> {
         let start = Instant::now();
         self.check()?;
         // T is CSR with finite values by construction (TransferMatrix::new).

@@ -195,7 +195,7 @@ fn one_cluster_matches_dense_eigen_decomposition() {
         let light = random_light(4, 3);
         let want = reference_product(&from_dense(&svd_rows, 4), &light);
         let approx = cpca.gather(&form, &light).unwrap();
-        let diff = relative_l2_error(&approx.values(), &want);
+        let diff = relative_l2_error(approx.values(), &want);
         assert!(diff < 1e-5, "C={c}: L* differs from the truncated SVD's by {diff}");
         // The tolerance discriminates: a random C-dimensional subspace (no power iteration,
         // no oversampling) is far from optimal on this matrix.
@@ -217,7 +217,7 @@ fn error_falls_as_clusters_and_components_grow() {
     let run = |k: usize, c: usize| {
         let cpca = Cpca::new(k, c);
         let form = cpca.compress(&t, &CompressContext { seed: 5, progress: None }).unwrap();
-        (frob2(&decode(&form), &dense), relative_l2_error(&cpca.gather(&form, &light).unwrap().values(), &reference))
+        (frob2(&decode(&form), &dense), relative_l2_error(cpca.gather(&form, &light).unwrap().values(), &reference))
     };
     for k in [1usize, 4] {
         let mut last = (f64::INFINITY, f64::INFINITY);

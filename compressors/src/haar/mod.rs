@@ -388,7 +388,7 @@ impl Compressor for Haar {
         })
     }
 
-    fn compress(&self, t: &TransferMatrix, ctx: &CompressContext) -> Result<CompressedForm, CompressError> {
+    fn compress(&self, t: &TransferMatrix, ctx: &CompressContext<'_>) -> Result<CompressedForm, CompressError> {
         let start = Instant::now();
         self.check()?;
         let r = face_resolution(t.light_basis())?;

@@ -211,7 +211,7 @@ fn error_falls_as_terms_grow() {
         for terms in [1, 3, 6, 12, 24, 48, 96, 192, 384] {
             let haar = Haar::with_terms(terms);
             let form = haar.compress(&t, &CompressContext::default()).unwrap();
-            let err = relative_l2_error(&haar.gather(&form, &light).unwrap().values(), &reference);
+            let err = relative_l2_error(haar.gather(&form, &light).unwrap().values(), &reference);
             assert_eq!(form.lossless, terms == 384, "terms {terms}");
             // Keeping more of each row's coefficients can only shrink each row's L2
             // residual; the gather error follows it on these dense-ish random rows.
@@ -266,7 +266,7 @@ fn area_weighting_helps_for_a_smooth_light() {
     let err = |area_weighted| {
         let haar = Haar { terms: 12, area_weighted, f16_values: false };
         let form = haar.compress(&t, &CompressContext::default()).unwrap();
-        relative_l2_error(&haar.gather(&form, &light).unwrap().values(), &reference)
+        relative_l2_error(haar.gather(&form, &light).unwrap().values(), &reference)
     };
     let (weighted, plain) = (err(true), err(false));
     assert!(weighted < plain, "area weighted {weighted} vs plain {plain}");
@@ -282,7 +282,7 @@ fn f16_values_halve_value_storage_with_bounded_error() {
     assert!(!f16_form.lossless);
     let n = f16_form.u16s("coeff_idx").unwrap().len() as u64;
     assert_eq!(f32_form.bytes() - f16_form.bytes(), 2 * n);
-    let err = relative_l2_error(&haar16.gather(&f16_form, &light).unwrap().values(), &reference_product(&t, &light));
+    let err = relative_l2_error(haar16.gather(&f16_form, &light).unwrap().values(), &reference_product(&t, &light));
     // Each value rounded to 11 significant bits (relative 2^-11 ~ 4.9e-4); the error of a
     // sum of such terms is at most that times sum |c||l| / |sum c l|, a small factor here.
     assert!(err < 2e-3, "f16 error {err}");

@@ -67,7 +67,7 @@ impl Compressor for Sparse {
         })
     }
 
-    fn compress(&self, t: &TransferMatrix, _ctx: &CompressContext) -> Result<CompressedForm, CompressError> {
+    fn compress(&self, t: &TransferMatrix, _ctx: &CompressContext<'_>) -> Result<CompressedForm, CompressError> {
         let start = Instant::now();
         let csr = t.csr();
         if csr.nnz() > u32::MAX as usize {

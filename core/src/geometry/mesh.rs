@@ -493,7 +493,7 @@ fn first_nonfinite_obj_vertex(text: &str) -> Option<(usize, usize)> {
 /// the first record of the kind the error names that fails the same check.
 fn locate_obj_error(text: &str, err: &tobj::LoadError) -> Option<(usize, String)> {
     use tobj::LoadError as E;
-    let floats = |words: std::str::SplitWhitespace, n: usize| {
+    let floats = |words: std::str::SplitWhitespace<'_>, n: usize| {
         let ok: Vec<bool> = words.take(n).map(|w| w.parse::<f32>().is_ok()).collect();
         ok.len() == n && ok.iter().all(|&b| b)
     };

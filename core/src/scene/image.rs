@@ -177,7 +177,7 @@ impl Background<'_> {
 impl Render {
     /// Fill every uncovered pixel with what `camera`'s ray through its centre sees of
     /// `background` (shaders leave uncovered pixels black).
-    pub fn with_background(mut self, camera: &Camera, background: &Background) -> Self {
+    pub fn with_background(mut self, camera: &Camera, background: &Background<'_>) -> Self {
         if matches!(background, Background::Black) {
             return self;
         }

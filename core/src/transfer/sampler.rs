@@ -104,7 +104,7 @@ impl VisibilitySampler {
         Self {
             tiles,
             tile_texels,
-            settings: settings.clone(),
+            settings: *settings,
             cubemap,
             grid: settings.local_grid(),
             coarse_dirs,

@@ -238,7 +238,7 @@ impl GpuGather {
                     compilation_options: Default::default(),
                     cache: None,
                 });
-                let entries: Vec<wgpu::BindGroupEntry> = reflected
+                let entries: Vec<wgpu::BindGroupEntry<'_>> = reflected
                     .globals
                     .iter()
                     .map(|g| wgpu::BindGroupEntry {

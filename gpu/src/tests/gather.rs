@@ -259,7 +259,7 @@ fn gather_timing_gives_finite_medians_per_pass() {
     // Timing leaves a correct L* behind.
     let got = g.read_lstar().unwrap();
     let reference = reference_product(&t, &random_light(4, 2));
-    assert!(biscale_core::gather::relative_l2_error(&got.values(), &reference) < 1e-6);
+    assert!(biscale_core::gather::relative_l2_error(got.values(), &reference) < 1e-6);
 }
 
 /// The timestamp path (query sets, resolve, read-back, per-pass medians), which the default
@@ -302,7 +302,7 @@ fn forced_timestamps_time_every_pass_and_never_means_wall_clock() {
     assert!(timing.median_ms.is_finite() && timing.median_ms >= 0.0, "{timing:?}");
     eprintln!("forced timestamps on {}: {timing:?}", always.adapter());
     let got = g.read_lstar().unwrap();
-    assert!(biscale_core::gather::relative_l2_error(&got.values(), &reference) < 1e-6);
+    assert!(biscale_core::gather::relative_l2_error(got.values(), &reference) < 1e-6);
 }
 
 /// f16 bits to f32 (normal, subnormal, zero; the forms hold no infinities).

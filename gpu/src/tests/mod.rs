@@ -2,9 +2,6 @@
 //! [`GpuContext::new`] finds (lavapipe on machines without a GPU). Without any adapter they
 //! print why and pass, unless `BISCALE_REQUIRE_GPU=1` is set, which turns that into a failure.
 
-// Channel and row indices read more plainly than zipped iterators in numeric checks.
-#![allow(clippy::needless_range_loop)]
-
 mod gather;
 mod layout;
 mod plugin;

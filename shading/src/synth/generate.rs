@@ -228,7 +228,7 @@ pub(crate) fn run(spec: &BtfSpec, progress: Option<&(dyn Fn(usize) + Sync)>, mod
     Ok(Btf::new([r as u32; 2], spec.local_basis, vg, data, spec.name.clone())?)
 }
 
-fn shade_texel(ctx: &Context, tx: usize, ty: usize, out: &mut [Rgb]) {
+fn shade_texel(ctx: &Context<'_>, tx: usize, ty: usize, out: &mut [Rgb]) {
     let spec = ctx.spec;
     let (s, r, m) = (spec.supersample as usize, spec.resolution as f64, ctx.lights.len());
     let mut acc = vec![[0.0f64; 3]; m];
@@ -250,7 +250,7 @@ fn shade_texel(ctx: &Context, tx: usize, ty: usize, out: &mut [Rgb]) {
 }
 
 /// Add `b` of the meso point seen along `-e` through macro-plane point `(px, py)` to `acc`.
-fn shade_sample(ctx: &Context, px: f64, py: f64, e: DVec3, seed: u64, acc: &mut [[f64; 3]]) {
+fn shade_sample(ctx: &Context<'_>, px: f64, py: f64, e: DVec3, seed: u64, acc: &mut [[f64; 3]]) {
     let spec = ctx.spec;
     let (point, normal, triangle) = match &ctx.tracer {
         None => (DVec3::new(px, py, ctx.zref), DVec3::Z, None),
@@ -297,7 +297,7 @@ fn shade_sample(ctx: &Context, px: f64, py: f64, e: DVec3, seed: u64, acc: &mut 
 /// One bounce of interreflection at a visible point (the module docs give the estimator).
 #[allow(clippy::too_many_arguments)]
 fn bounce(
-    ctx: &Context,
+    ctx: &Context<'_>,
     tracer: &PeriodicTracer,
     table: &[f32],
     point: DVec3,
@@ -364,7 +364,7 @@ fn unit(seed: u64, stream: u64) -> f64 {
 /// Direct irradiance of every triangle under every light bin, for the bounce: the clamped
 /// mean cosine times the unshadowed fraction of 4 points (centroid and the three points at
 /// barycentrics (2/3, 1/6, 1/6) and permutations).
-fn direct_irradiance_per_triangle(ctx: &Context) -> Vec<f32> {
+fn direct_irradiance_per_triangle(ctx: &Context<'_>) -> Vec<f32> {
     let tracer = ctx.tracer.as_ref().expect("traced mode");
     let hf = &ctx.spec.height_field;
     let n = hf.width as usize;

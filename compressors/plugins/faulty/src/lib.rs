@@ -86,7 +86,7 @@ impl PluginCompressor for Faulty {
         })
     }
 
-    fn compress(t: &CsrView, params: &Value) -> Result<PluginForm, String> {
+    fn compress(t: &CsrView<'_>, params: &Value) -> Result<PluginForm, String> {
         let mode = mode(params)?;
         let mut row_ptr = t.row_ptr.to_vec();
         let mut gather = GATHER_OK;
@@ -115,7 +115,7 @@ impl PluginCompressor for Faulty {
         })
     }
 
-    fn gather_cpu(form: &PluginFormView, light: &[[f32; 3]]) -> Result<Vec<[f32; 3]>, String> {
+    fn gather_cpu(form: &PluginFormView<'_>, light: &[[f32; 3]]) -> Result<Vec<[f32; 3]>, String> {
         match form.meta("gather_fault")? {
             GATHER_ERROR => return Err("faulty plugin: gather failed on purpose".into()),
             GATHER_PANIC => panic!("faulty plugin: gather panicked on purpose"),

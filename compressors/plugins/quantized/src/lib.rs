@@ -63,7 +63,7 @@ impl PluginCompressor for Quantized {
         })
     }
 
-    fn compress(t: &CsrView, params: &Value) -> Result<PluginForm, String> {
+    fn compress(t: &CsrView<'_>, params: &Value) -> Result<PluginForm, String> {
         if t.cols > 1 << 16 {
             return Err(format!("{} columns do not fit u16 column indices (at most 65536)", t.cols));
         }
@@ -110,7 +110,7 @@ impl PluginCompressor for Quantized {
         })
     }
 
-    fn gather_cpu(form: &PluginFormView, light: &[[f32; 3]]) -> Result<Vec<[f32; 3]>, String> {
+    fn gather_cpu(form: &PluginFormView<'_>, light: &[[f32; 3]]) -> Result<Vec<[f32; 3]>, String> {
         let (row_ptr, col_idx, codes) = (form.u32s("row_ptr")?, form.u16s("col_idx")?, form.u8s("codes")?);
         let scale = form.f32s("scale")?[0];
         let row = |r: usize| {
