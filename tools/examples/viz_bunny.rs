@@ -48,7 +48,7 @@ fn main() -> anyhow::Result<()> {
     println!("{} biclusters, {:.1} s", form.meta("biclusters")?, form.build_seconds);
     let first = match first {
         Some(f) => f,
-        None => viz::most_shared_window(&form, count)?,
+        None => biscale_compressors::bicluster::analysis::most_shared_window(&form, count)?,
     };
     println!("patch: vertices {first}..{}", first + count - 1);
     let panels = PatchView { first_vertex: first, vertices: count, layout: PatchLayout::CubemapPanels, cell: 4 };
@@ -64,7 +64,7 @@ fn main() -> anyhow::Result<()> {
     let (lo, hi) = mesh.bounds();
     let camera = Camera::frame_bounds(lo, hi, 640, 480, 0.0, 10.0, 35.0);
     let opts = HeatmapOptions::default();
-    let cost = viz::gather_cost_per_vertex(&form)?;
+    let cost = biscale_compressors::bicluster::analysis::gather_cost_per_vertex(&form)?;
     written.push(viz::write_vertex_heatmap(
         &mesh,
         &camera,

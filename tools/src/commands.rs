@@ -141,18 +141,18 @@ pub fn viz(
     opts: &RunOptions,
 ) -> Result<Vec<std::path::PathBuf>> {
     use crate::viz::{self, HeatmapOptions, PatchLayout, PatchView};
-    use biscale_compressors::bicluster::Bicluster;
+    use biscale_compressors::bicluster::{analysis, Bicluster};
+    let cerr = |source| PipelineError::Compress { name: "bicluster".into(), source };
     use biscale_core::compress::{CompressContext, Compressor};
     std::fs::create_dir_all(out).map_err(|source| PipelineError::Io { path: out.into(), source })?;
     let geometry = pipeline::load_geometry(exp)?;
     let t = pipeline::transfer_matrix(exp, &geometry, StageCache::new(opts, out).as_ref())?.matrix;
-    let form = Bicluster::default()
-        .compress(&t, &CompressContext { seed: exp.file.seed, progress: None })
-        .map_err(|source| PipelineError::Compress { name: "bicluster".into(), source })?;
+    let form =
+        Bicluster::default().compress(&t, &CompressContext { seed: exp.file.seed, progress: None }).map_err(cerr)?;
     let count = count.clamp(1, t.vertices().max(1));
     let first = match first {
         Some(f) => f,
-        None => viz::most_shared_window(&form, count)?,
+        None => analysis::most_shared_window(&form, count).map_err(cerr)?,
     };
     let panels = PatchView { first_vertex: first, vertices: count, layout: PatchLayout::CubemapPanels, cell: 4 };
     let mut written = vec![
@@ -163,7 +163,7 @@ pub fn viz(
     ];
     let camera = pipeline::camera(exp, &geometry.mesh, 1);
     let heat = HeatmapOptions::default();
-    let cost = viz::gather_cost_per_vertex(&form)?;
+    let cost = analysis::gather_cost_per_vertex(&form).map_err(cerr)?;
     let nnz = viz::nnz_per_vertex(&t);
     written.push(viz::write_vertex_heatmap(
         &geometry.mesh,

@@ -25,6 +25,7 @@ impl GpuBackend {
         let a = ctx.adapter();
         let adapter = format!("{} ({:?}, {})", a.name, a.backend, a.driver);
         let shader = GpuShader::new(&ctx, scene, camera)?;
+        eprintln!("gpu: {adapter}");
         Ok(Self { ctx, shader, adapter })
     }
 

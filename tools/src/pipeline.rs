@@ -373,6 +373,37 @@ fn reference(
     Ok(Reference { render, camera, seconds, baseline_error })
 }
 
+#[cfg(feature = "gpu")]
+use crate::gpu_backend::GpuBackend;
+
+/// Without the `gpu` feature there is no wgpu backend: this type has no values, so the
+/// pipeline's code is the same with and without it.
+#[cfg(not(feature = "gpu"))]
+enum GpuBackend {}
+
+#[cfg(not(feature = "gpu"))]
+impl GpuBackend {
+    fn new(_: &ShadeScene, _: &Camera) -> Result<Self> {
+        Err(no_gpu_feature())
+    }
+
+    fn run(
+        &mut self,
+        _: &CompressedForm,
+        _: &biscale_kernels::KernelDesc,
+        _: &LightVector,
+        _: &[[f64; 3]],
+        _: &Render,
+        _: usize,
+    ) -> Result<GpuRecord> {
+        match *self {}
+    }
+}
+
+fn no_gpu_feature() -> PipelineError {
+    PipelineError::Feature { what: "runtime.backend = \"gpu\"".into(), feature: "gpu" }
+}
+
 /// What every compressed form is measured against: the baseline, the reference and the view.
 struct Evaluation<'a> {
     t: &'a TransferMatrix,
@@ -394,7 +425,7 @@ impl Evaluation<'_> {
         compressor: &dyn Compressor,
         form: &CompressedForm,
         cached: bool,
-        #[cfg(feature = "gpu")] gpu: Option<&mut crate::gpu_backend::GpuBackend>,
+        gpu: Option<&mut GpuBackend>,
     ) -> Result<CompressorRecord> {
         let (base, view, repeats) = (self.base, self.view, self.repeats);
         let cerr = |source| PipelineError::Compress { name: setting.label.clone(), source };
@@ -409,7 +440,6 @@ impl Evaluation<'_> {
             }
             None => None,
         };
-        #[cfg(feature = "gpu")]
         let gpu = match gpu {
             Some(g) => {
                 let kernels = compressor.kernels(form).map_err(cerr)?;
@@ -417,8 +447,6 @@ impl Evaluation<'_> {
             }
             None => None,
         };
-        #[cfg(not(feature = "gpu"))]
-        let gpu: Option<GpuRecord> = None;
         let name = &setting.label;
         if let Some(g) = &gpu {
             eprintln!(
@@ -481,9 +509,8 @@ pub fn build_compressor(setting: &CompressorSetting) -> Result<Box<dyn Compresso
 pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     let plan = Plan::new(exp);
     eprint!("{plan}");
-    #[cfg(not(feature = "gpu"))]
-    if exp.file.runtime.backend == Backend::Gpu {
-        return Err(PipelineError::Feature { what: "runtime.backend = \"gpu\"".into(), feature: "gpu" });
+    if exp.file.runtime.backend == Backend::Gpu && !cfg!(feature = "gpu") {
+        return Err(no_gpu_feature());
     }
     let out_dir = opts.out_dir.clone().unwrap_or_else(|| Path::new("out").join(exp.name()));
     let images_dir = out_dir.join("images");
@@ -522,13 +549,8 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
         false => None,
     };
 
-    #[cfg(feature = "gpu")]
     let mut gpu = match exp.file.runtime.backend {
-        Backend::Gpu => {
-            let g = crate::gpu_backend::GpuBackend::new(&scene, &view.camera)?;
-            eprintln!("gpu: {}", g.adapter);
-            Some(g)
-        }
+        Backend::Gpu => Some(GpuBackend::new(&scene, &view.camera)?),
         Backend::Cpu => None,
     };
     let eval = Evaluation {
@@ -544,46 +566,60 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     let mut records = vec![];
     for (setting, compressor) in &compressors {
         let (form, cached) = compressed_form(setting, compressor.as_ref(), &t, exp.file.seed, cache.as_ref())?;
-        #[cfg(feature = "gpu")]
         let record = eval.record(setting, compressor.as_ref(), &form, cached, gpu.as_mut())?;
-        #[cfg(not(feature = "gpu"))]
-        let record = eval.record(setting, compressor.as_ref(), &form, cached)?;
         records.push(record);
     }
 
-    let metrics = Metrics {
-        experiment: exp.name().to_string(),
-        config: exp.config_path.display().to_string(),
-        backend: format!("{:?}", exp.file.runtime.backend).to_lowercase(),
-        scene: SceneMetrics {
-            mesh: exp.mesh_path.display().to_string(),
-            vertices: geometry.mesh.vertex_count(),
-            triangles: geometry.mesh.triangle_count(),
-            repairs: geometry.repairs.clone(),
-            material: materials.summary(),
-            material_notes: materials.notes.clone(),
-        },
-        lighting: LightingMetrics {
-            source: exp.env_path.as_ref().map_or("constant".into(), |p| p.display().to_string()),
-            cubemap_resolution: lighting.light.cubemap().resolution,
-            rotation_degrees: exp.file.lighting.rotation_degrees,
-            total_power: lighting.light.total(),
-            warnings: lighting.warnings.clone(),
-        },
-        transfer: t.metrics,
-        uncompressed: UncompressedMetrics { gather_ms: base.gather_ms, shade_ms: base.shade_ms },
-        reference: reference.as_ref().map(|r| ReferenceMetrics {
-            width: r.render.image.width,
-            height: r.render.image.height,
-            seconds: r.seconds,
-            uncompressed_vs_reference: errors(&r.baseline_error),
-        }),
-        compressors: records,
-        target_error: exp.file.report.target_error,
-    };
+    let metrics = Metrics::of_run(exp, &geometry, &lighting, &materials, t.metrics, &base, reference.as_ref(), records);
     write_report(&metrics, &plan, &out_dir)?;
     eprintln!("wrote {}", out_dir.display());
     Ok((out_dir, metrics))
+}
+
+impl Metrics {
+    /// The run's record from its stages' records.
+    #[allow(clippy::too_many_arguments)]
+    fn of_run(
+        exp: &Experiment,
+        geometry: &Geometry,
+        lighting: &Lighting,
+        materials: &SceneMaterials,
+        transfer: TransferMetrics,
+        base: &Baseline,
+        reference: Option<&Reference>,
+        compressors: Vec<CompressorRecord>,
+    ) -> Self {
+        Metrics {
+            experiment: exp.name().to_string(),
+            config: exp.config_path.display().to_string(),
+            backend: format!("{:?}", exp.file.runtime.backend).to_lowercase(),
+            scene: SceneMetrics {
+                mesh: exp.mesh_path.display().to_string(),
+                vertices: geometry.mesh.vertex_count(),
+                triangles: geometry.mesh.triangle_count(),
+                repairs: geometry.repairs.clone(),
+                material: materials.summary(),
+                material_notes: materials.notes.clone(),
+            },
+            lighting: LightingMetrics {
+                source: exp.env_path.as_ref().map_or("constant".into(), |p| p.display().to_string()),
+                cubemap_resolution: lighting.light.cubemap().resolution,
+                rotation_degrees: exp.file.lighting.rotation_degrees,
+                total_power: lighting.light.total(),
+                warnings: lighting.warnings.clone(),
+            },
+            transfer,
+            uncompressed: UncompressedMetrics { gather_ms: base.gather_ms, shade_ms: base.shade_ms },
+            reference: reference.map(|r| ReferenceMetrics {
+                width: r.render.image.width,
+                height: r.render.image.height,
+                seconds: r.seconds,
+                uncompressed_vs_reference: errors(&r.baseline_error),
+            }),
+            compressors,
+            target_error: exp.file.report.target_error,
+        }
+    }
 }
 
 /// `metrics.json`, the plots, `report.html` and `report.md`.

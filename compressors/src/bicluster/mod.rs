@@ -40,12 +40,14 @@
 //! thread per bicluster: `a_b = sum_{e in b} bc_vals[e] * L'[bc_cols[e]]`; pass 2, one thread
 //! per row: `L*_i = sum_{e in row i} a[id(e)]`. Flops: `sum_b (r_b + 2 l_b - 1) + N`.
 
+pub mod analysis;
 pub mod codes;
 pub mod greedy;
 mod params;
 #[cfg(test)]
 mod tests;
 
+pub use analysis::{table_stats, BiclusterStats, Distribution};
 pub use params::Bicluster;
 
 use crate::registry::{self, Kind};
@@ -56,7 +58,6 @@ use biscale_core::transfer::TransferMatrix;
 use biscale_kernels::{Count, Factor, FormCheck, KernelDesc, PassDesc, ScratchDesc};
 use codes::CodeMatrix;
 use rayon::prelude::*;
-use serde::Serialize;
 
 fn build(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
     Ok(Box::new(registry::parse::<Bicluster>(p)?))
@@ -210,6 +211,11 @@ impl<'a> BiclusterView<'a> {
             RowBc::Global(v) => (&[], &v[r]),
         };
         l.iter().map(move |&x| base + x as usize).chain(g.iter().map(|&x| x as usize))
+    }
+
+    /// Column count l of every bicluster.
+    pub fn bicluster_cols(&self) -> Vec<u32> {
+        self.bc_col_ptr.windows(2).map(|w| w[1] - w[0]).collect()
     }
 
     /// Row count r of every bicluster.
@@ -550,124 +556,4 @@ pub fn decompress_codes(form: &CompressedForm) -> Result<CodeMatrix, CompressErr
         indptr.push(out.len());
     }
     Ok(CodeMatrix { rows: v.rows, cols: v.cols, scale: v.value_scale, indptr, col_idx, codes: out })
-}
-
-/// Quantiles and a power-of-two histogram of a size distribution.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
-pub struct Distribution {
-    pub mean: f64,
-    pub min: u64,
-    pub p50: u64,
-    pub p90: u64,
-    pub p99: u64,
-    pub max: u64,
-    /// `(lo, hi, count)`: how many values lie in `[lo, hi]`, bins 1, 2-3, 4-7, ...
-    pub histogram: Vec<(u64, u64, u64)>,
-}
-
-impl Distribution {
-    pub fn of(values: &[u64]) -> Self {
-        if values.is_empty() {
-            return Self::default();
-        }
-        let mut s = values.to_vec();
-        s.sort_unstable();
-        let q = |p: f64| s[((s.len() - 1) as f64 * p).round() as usize];
-        let mut histogram: Vec<(u64, u64, u64)> = Vec::new();
-        for &x in &s {
-            let bin = 64 - x.max(1).leading_zeros() as u64 - 1;
-            let (lo, hi) = (1u64 << bin, (1u64 << bin) * 2 - 1);
-            match histogram.last_mut() {
-                Some(h) if h.0 == lo => h.2 += 1,
-                _ => histogram.push((lo, hi, 1)),
-            }
-        }
-        Self {
-            mean: s.iter().sum::<u64>() as f64 / s.len() as f64,
-            min: s[0],
-            p50: q(0.5),
-            p90: q(0.9),
-            p99: q(0.99),
-            max: s[s.len() - 1],
-            histogram,
-        }
-    }
-}
-
-/// The paper's Table I for one biclustered matrix, computed from the form's arrays.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct BiclusterStats {
-    pub rows: usize,
-    pub cols: usize,
-    /// Non-zeros of `T`.
-    pub nnz: u64,
-    /// Raw product `T L`: 2 nnz flops (monochrome), in millions.
-    pub mflops_raw: f64,
-    /// `sum_b W(B_b) = sum_b (r_b + 2 l_b - 1)`, in millions (the paper's count).
-    pub mflops_biclustered: f64,
-    /// `mflops_biclustered / mflops_raw` (paper: 27.4% on average).
-    pub flops_ratio: f64,
-    /// The gather's extra `L / q` prescale: N flops.
-    pub prescale_flops: u64,
-    /// Dense `T` at one byte per entry (the paper's 'data size').
-    pub dense_bytes: u64,
-    /// Raw CSR: 8 bytes per non-zero (u32 column, f32 value) + 4 per row.
-    pub csr_bytes: u64,
-    /// Every array of the form at its stored width.
-    pub compressed_bytes: u64,
-    pub bytes_by_array: BTreeMap<String, u64>,
-    pub ratio_to_dense: f64,
-    pub ratio_to_csr: f64,
-    pub bytes_per_nnz: f64,
-    pub biclusters: usize,
-    /// Rows r and columns l per bicluster.
-    pub r: Distribution,
-    pub l: Distribution,
-    /// Biclusters per row (the row list length).
-    pub row_list_mean: f64,
-    pub row_list_max: u64,
-    pub build_seconds: f64,
-}
-
-/// Table I stats of `form` (a bicluster form of `t`).
-pub fn table_stats(form: &CompressedForm, t: &TransferMatrix) -> Result<BiclusterStats, CompressError> {
-    let v = BiclusterView::new(form)?;
-    if (v.rows, v.cols) != (t.rows(), t.cols()) {
-        return Err(CompressError::malformed(
-            "bicluster",
-            "shape",
-            format!("is {}x{}, T is {}x{}", v.rows, v.cols, t.rows(), t.cols()),
-        ));
-    }
-    let nnz = t.csr().data().iter().filter(|&&x| x != 0.0).count() as u64;
-    let r: Vec<u64> = v.bicluster_rows().into_iter().map(u64::from).collect();
-    let l: Vec<u64> = v.bc_col_ptr.windows(2).map(|w| (w[1] - w[0]) as u64).collect();
-    let w: u64 = r.iter().zip(&l).map(|(&r, &l)| r + 2 * l - 1).sum();
-    let list: Vec<u64> = v.row_ptr.windows(2).map(|w| (w[1] - w[0]) as u64).collect();
-    let dense = (v.rows * v.cols) as u64;
-    let csr = 8 * nnz + 4 * v.rows as u64;
-    let bytes = form.bytes();
-    let div = |a: f64, b: f64| if b == 0.0 { 0.0 } else { a / b };
-    Ok(BiclusterStats {
-        rows: v.rows,
-        cols: v.cols,
-        nnz,
-        mflops_raw: 2.0 * nnz as f64 / 1e6,
-        mflops_biclustered: w as f64 / 1e6,
-        flops_ratio: div(w as f64, 2.0 * nnz as f64),
-        prescale_flops: v.cols as u64,
-        dense_bytes: dense,
-        csr_bytes: csr,
-        compressed_bytes: bytes,
-        bytes_by_array: form.bytes_by_array(),
-        ratio_to_dense: div(bytes as f64, dense as f64),
-        ratio_to_csr: div(bytes as f64, csr as f64),
-        bytes_per_nnz: div(bytes as f64, nnz as f64),
-        biclusters: v.biclusters(),
-        r: Distribution::of(&r),
-        l: Distribution::of(&l),
-        row_list_mean: div(list.iter().sum::<u64>() as f64, list.len() as f64),
-        row_list_max: list.iter().copied().max().unwrap_or(0),
-        build_seconds: form.build_seconds,
-    })
 }

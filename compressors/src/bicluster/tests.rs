@@ -433,3 +433,86 @@ fn corrupt_forms_fail_exactly_when_full_validation_fails() {
     // Both outcomes must actually occur, or the test proves nothing.
     assert!(rejected > 300 && accepted > 300, "rejected {rejected}, accepted {accepted}");
 }
+
+/// The per-vertex gather cost splits `W` exactly: it sums to Table I's count, and each
+/// vertex's share is, brute force, its rows' list lengths plus `(2 l - 1) r_v / r` per
+/// bicluster.
+#[test]
+fn gather_cost_per_vertex_splits_w_over_the_vertices() {
+    let t = random_transfer(10, 2, 4, 0.1, 9);
+    let form = Bicluster { block_vertices: 4, value_scale: 0 }.compress(&t, &CompressContext::default()).unwrap();
+    let cost = analysis::gather_cost_per_vertex(&form).unwrap();
+    assert_eq!(cost.len(), 10);
+    // The split is exact in f64; per-vertex sums of < 1e4 are stored in f32 (2^-24 relative
+    // each), so the total agrees with W to ~1e-6 relative.
+    let total: f64 = cost.iter().map(|&c| c as f64).sum();
+    let w = table_stats(&form, &t).unwrap().mflops_biclustered * 1e6;
+    assert!((total - w).abs() <= 1e-6 * w, "{total} vs {w}");
+    let bv = BiclusterView::new(&form).unwrap();
+    let r = bv.bicluster_rows();
+    for v in [0usize, 3, 9] {
+        let mut want = 0.0f64;
+        for (b, &rb) in r.iter().enumerate() {
+            let rv = (4 * v..4 * v + 4).filter(|&i| bv.row_biclusters(i).any(|x| x == b)).count() as f64;
+            let l = bv.bicluster(b).0.len() as f64;
+            want += rv + (2.0 * l - 1.0) * rv / rb as f64;
+        }
+        assert!((cost[v] as f64 - want).abs() <= 1e-6 * want, "vertex {v}: {} vs {want}", cost[v]);
+    }
+}
+
+/// The chosen window maximises `sum_b l_b (n_b - 1)`, recomputed by brute force over sets.
+#[test]
+fn most_shared_window_is_the_best_window() {
+    let t = random_transfer(12, 2, 4, 0.2, 5);
+    let form = Bicluster { block_vertices: 6, value_scale: 0 }.compress(&t, &CompressContext::default()).unwrap();
+    let bv = BiclusterView::new(&form).unwrap();
+    let score = |s: usize, count: usize| -> u64 {
+        let mut n = std::collections::BTreeMap::<usize, u64>::new();
+        for v in s..s + count {
+            let ids: std::collections::BTreeSet<usize> =
+                (4 * v..4 * v + 4).flat_map(|i| bv.row_biclusters(i)).collect();
+            for b in ids {
+                *n.entry(b).or_default() += 1;
+            }
+        }
+        n.iter().map(|(&b, &k)| bv.bicluster(b).0.len() as u64 * (k - 1)).sum()
+    };
+    for count in [1usize, 3, 12] {
+        let best = analysis::most_shared_window(&form, count).unwrap();
+        let top = (0..=12 - count).map(|s| score(s, count)).max().unwrap();
+        assert_eq!(score(best, count), top, "count {count}");
+    }
+    assert!(matches!(analysis::most_shared_window(&form, 0), Err(CompressError::Params(_))));
+    assert!(matches!(analysis::most_shared_window(&form, 13), Err(CompressError::Params(_))));
+}
+
+/// The cover of every row reproduces `T` exactly (codes sum to the value, 0 only where
+/// residuals cancel), and a form of another matrix is refused naming the entry.
+#[test]
+fn row_cover_reproduces_t_and_refuses_a_foreign_form() {
+    let t = random_transfer(6, 2, 4, 0.3, 11);
+    let form = Bicluster::default().compress(&t, &CompressContext::default()).unwrap();
+    let (rows, ids) = analysis::row_cover(&form, &t, 0..t.rows()).unwrap();
+    let bv = BiclusterView::new(&form).unwrap();
+    assert_eq!(ids.len(), bv.biclusters(), "every bicluster lies in some row");
+    for (i, row) in rows.iter().enumerate() {
+        let nnz: Vec<(usize, f32)> = t.csr().outer_view(i).unwrap().iter().map(|(k, &v)| (k, v)).collect();
+        for &(k, v) in &nnz {
+            let e = row.iter().find(|e| e.col == k).expect("every non-zero is listed");
+            assert_eq!(e.value, v);
+            assert!(e.count >= 1 && e.first.is_some(), "lossless: every non-zero is covered");
+        }
+        for e in row.iter().filter(|e| e.value == 0.0) {
+            assert!(e.count >= 2, "a zero entry is listed only where two or more residuals cancel");
+        }
+        let first = |e: &analysis::CoveredEntry| {
+            bv.row_biclusters(i).filter(|&b| bv.bicluster(b).0.contains(&(e.col as u16))).min()
+        };
+        assert!(row.iter().all(|e| e.first == first(e)));
+    }
+    let other = random_transfer(6, 2, 4, 0.3, 12);
+    let e = analysis::row_cover(&form, &other, 0..other.rows()).unwrap_err();
+    assert!(matches!(&e, CompressError::Malformed { what, .. } if what.contains("not of this T")), "{e}");
+    assert!(matches!(analysis::row_cover(&form, &t, 0..t.rows() + 1), Err(CompressError::Params(_))));
+}

@@ -1,0 +1,16 @@
+//! biscale's cross-crate tests, as one test binary: each test binary that links the pipeline
+//! (and so wgpu) costs a link step and tens of megabytes, so the suites are modules of one.
+//!
+//! * [`end_to_end`]: the bundled smoke config, analytic scenes with closed-form radiance, the
+//!   stage cache, and the wgpu backend checked against the CPU.
+//! * [`bad_input`]: every bad input is a typed error naming what and where, with nothing
+//!   half-written left behind.
+//! * [`materials`]: BTF materials from the config (synthesis, the cache, several materials).
+//!
+//! Two suites stay in their own crates because they cannot share a process or a binary:
+//! `tools/tests/cli.rs` runs the `biscale` executable (only its own package's tests can), and
+//! `gpu/tests/viewer.rs` opens a window (winit allows one event loop per process).
+
+mod bad_input;
+mod end_to_end;
+mod materials;
