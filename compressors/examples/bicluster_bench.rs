@@ -7,7 +7,7 @@
 //! ```text
 //! cargo run --release -p biscale-compressors --example bicluster_bench -- \
 //!     [--mesh assets/meshes/bunny.obj] [--local-grid 8] [--blocks 0,64,256] [--runs 3] \
-//!     [--seed 0] [--threads N] [--json out.json] [--save form.bsform]
+//!     [--seed 0] [--threads N] [--json out.json] [--save form.bsf]
 //! ```
 
 use biscale_compressors::bicluster::{decompress_codes, table_stats, Bicluster, BiclusterStats};
@@ -15,74 +15,46 @@ use biscale_core::compress::{CompressContext, Compressor};
 use biscale_core::geometry::Mesh;
 use biscale_core::transfer::{self, TransferSettings};
 use std::path::PathBuf;
-use std::time::Instant;
 
+/// Table I of Sun et al. for biscale's biclustering of a real transfer matrix.
+#[derive(clap::Parser)]
 struct Args {
+    /// The mesh T is built for.
+    #[arg(long, default_value = "assets/meshes/bunny.obj")]
     mesh: PathBuf,
+    /// Local bins per side, m (M = m^2 rows per vertex).
+    #[arg(long, default_value_t = 8)]
     local_grid: u32,
+    /// Block sizes in vertices to bicluster at (0: one block).
+    #[arg(long, value_delimiter = ',', default_value = "0,32,64,128,256")]
     blocks: Vec<usize>,
+    /// Timed runs per block size.
+    #[arg(long, default_value_t = 3)]
     runs: usize,
+    #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Worker threads (0: all cores).
+    #[arg(long, default_value_t = 0)]
     threads: usize,
+    /// Write the stats as JSON here.
+    #[arg(long)]
     json: Option<PathBuf>,
+    /// Save each form next to this path (`<stem>.b<block>.bsf`) and check it loads back.
+    #[arg(long)]
     save: Option<PathBuf>,
 }
 
-fn parse() -> Result<Args, String> {
-    let mut a = Args {
-        mesh: "assets/meshes/bunny.obj".into(),
-        local_grid: 8,
-        blocks: vec![0, 32, 64, 128, 256],
-        runs: 3,
-        seed: 0,
-        threads: 0,
-        json: None,
-        save: None,
-    };
-    let mut it = std::env::args().skip(1);
-    while let Some(k) = it.next() {
-        let mut v = || it.next().ok_or(format!("{k} needs a value"));
-        let num = |s: String| s.parse::<usize>().map_err(|e| format!("{k}: {e}"));
-        match k.as_str() {
-            "--mesh" => a.mesh = v()?.into(),
-            "--local-grid" => a.local_grid = num(v()?)? as u32,
-            "--blocks" => {
-                a.blocks = v()?
-                    .split(',')
-                    .map(|s| s.trim().parse::<usize>().map_err(|e| format!("--blocks: {e}")))
-                    .collect::<Result<_, _>>()?
-            }
-            "--runs" => a.runs = num(v()?)?.max(1),
-            "--seed" => a.seed = num(v()?)? as u64,
-            "--threads" => a.threads = num(v()?)?,
-            "--json" => a.json = Some(v()?.into()),
-            "--save" => a.save = Some(v()?.into()),
-            _ => return Err(format!("unknown argument {k}")),
-        }
-    }
-    Ok(a)
-}
-
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let args = parse()?;
+    let mut args = <Args as clap::Parser>::parse();
+    args.runs = args.runs.max(1);
     if args.threads > 0 {
         rayon::ThreadPoolBuilder::new().num_threads(args.threads).build_global()?;
     }
     let mesh = Mesh::load_obj(&args.mesh)?.mesh;
     let settings = TransferSettings::default().with_local_grid(args.local_grid)?;
-    let t0 = Instant::now();
-    let t = transfer::build(&mesh, &settings, None)?.matrix;
-    println!(
-        "T: {} vertices x {} local dirs = {} rows, {} cols, {} non-zeros ({:.1} per row), built in {:.1} s, {} threads",
-        t.vertices(),
-        t.local_dirs(),
-        t.rows(),
-        t.cols(),
-        t.nnz(),
-        t.nnz() as f64 / t.rows() as f64,
-        t0.elapsed().as_secs_f64(),
-        rayon::current_num_threads()
-    );
+    let build = transfer::build(&mesh, &settings, None)?;
+    println!("T: {build}");
+    let t = build.matrix;
     let mut all: Vec<(usize, Vec<f64>, BiclusterStats)> = vec![];
     for &bv in &args.blocks {
         let c = Bicluster { block_vertices: bv, ..Bicluster::default() };

@@ -71,6 +71,22 @@ pub fn parse<P: DeserializeOwned>(params: &Value) -> Result<P, String> {
     serde_json::from_value(params.clone()).map_err(|e| e.to_string())
 }
 
+/// The two `Compressor` methods every built-in writes the same way: its kind is its registry
+/// entry's name (`KIND` in scope) and its parameters are itself, serialized (the params type
+/// is the compressor). Use inside `impl Compressor for ...`.
+macro_rules! kind_and_params {
+    () => {
+        fn kind(&self) -> &str {
+            KIND.name
+        }
+
+        fn params(&self) -> serde_json::Value {
+            serde_json::to_value(self).expect("plain struct serializes")
+        }
+    };
+}
+pub(crate) use kind_and_params;
+
 /// The kind called `name` builds the compressor of `params`.
 pub fn build(name: &str, params: &Value) -> Result<Box<dyn Compressor>, BuildError> {
     let kind = find(name).ok_or_else(|| {

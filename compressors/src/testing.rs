@@ -78,3 +78,32 @@ pub fn assert_lossless(compressor: &dyn Compressor, form: &CompressedForm, t: &T
         }
     }
 }
+
+/// Assert that every row and channel of `got` is within `bound(row, channel)` of the f64
+/// `reference` (each compressor's test derives its own per-entry rounding bound).
+pub fn assert_within(got: &LocalRadiance, reference: &[[f64; 3]], bound: impl Fn(usize, usize) -> f64) {
+    assert_eq!(got.values().len(), reference.len(), "rows");
+    for (r, (g, e)) in got.values().iter().zip(reference).enumerate() {
+        for c in 0..3 {
+            let (err, b) = ((g[c] as f64 - e[c]).abs(), bound(r, c));
+            assert!(err <= b, "row {r} channel {c}: gather {} vs f64 {} (err {err:e}, bound {b:e})", g[c], e[c]);
+        }
+    }
+}
+
+/// The exact product with `light` of the matrix a form of the example `quantized` plugin
+/// stores (`value = codes[e] * scale`), in f64, with each row's number of stored terms: the
+/// reference both the plugin's CPU and GPU gathers are checked against.
+pub fn quantized_stored_product(form: &CompressedForm, light: &LightVector) -> Vec<([f64; 3], usize)> {
+    let (rp, ci, codes) = (form.u32s("row_ptr").unwrap(), form.u16s("col_idx").unwrap(), form.u8s("codes").unwrap());
+    let s = form.f32s("scale").unwrap()[0] as f64;
+    (0..form.rows())
+        .map(|r| {
+            let span = rp[r] as usize..rp[r + 1] as usize;
+            let row = std::array::from_fn(|c| {
+                span.clone().map(|e| codes[e] as f64 * s * light.power[ci[e] as usize][c] as f64).sum()
+            });
+            (row, span.len())
+        })
+        .collect()
+}

@@ -8,7 +8,9 @@
 
 use biscale_compressors::plugin::testing::build_plugin;
 use biscale_compressors::plugin::{PluginCompressor, PluginError};
-use biscale_compressors::testing::{assert_lossless, f32_sum_bound, random_light, random_transfer};
+use biscale_compressors::testing::{
+    assert_lossless, f32_sum_bound, quantized_stored_product, random_light, random_transfer,
+};
 use biscale_core::basis::LightBasis;
 use biscale_core::compress::{ArrayData, CompressContext, CompressedForm, Compressor};
 use biscale_core::sampling::LightVector;
@@ -124,16 +126,12 @@ fn quantized_gather_matches_the_f64_reference() {
         let form = plugin.compress(&t, &CompressContext::default()).unwrap();
         let light = random_light(4, seed + 30);
         let got = plugin.gather(&form, &light).unwrap();
-        let (rp, ci, codes) =
-            (form.u32s("row_ptr").unwrap(), form.u16s("col_idx").unwrap(), form.u8s("codes").unwrap());
         let s = form.f32s("scale").unwrap()[0] as f64;
-        for r in 0..t.rows() {
-            let span = rp[r] as usize..rp[r + 1] as usize;
-            let bound = f32_sum_bound(span.len() + 1);
+        for (r, (stored, terms)) in quantized_stored_product(&form, &light).into_iter().enumerate() {
+            let bound = f32_sum_bound(terms + 1);
             let row_t = t.csr().outer_view(r).unwrap();
             for c in 0..3 {
-                let stored: f64 =
-                    span.clone().map(|e| codes[e] as f64 * s * light.power[ci[e] as usize][c] as f64).sum();
+                let stored = stored[c];
                 let g = got.values()[r][c] as f64;
                 assert!((g - stored).abs() <= bound * stored, "row {r} c{c}: {g} vs stored-matrix {stored}");
                 let exact: f64 = row_t.iter().map(|(k, &v)| v as f64 * light.power[k][c] as f64).sum();
@@ -161,8 +159,8 @@ fn kernels_are_plain_data_the_host_checked() {
     let k = plugin.gpu_kernels();
     assert_eq!(k.kind, "plugin:quantized");
     assert_eq!(k.passes.len(), 1);
-    assert_eq!(k.passes[0].entry_point, "quantized_rows");
-    assert!(k.wgsl.contains("fn quantized_rows"));
+    assert_eq!(k.passes[0].entry_point, biscale_plugin::ROW_ENTRY);
+    assert!(k.wgsl.contains("fn row_lstar") && k.wgsl.contains(biscale_plugin::ROW_PASS));
     assert_eq!(k.checks.len(), 5);
     // A form tampered with after compression is refused by the declared checks, before the
     // plugin's gather runs.

@@ -103,13 +103,5 @@ pub fn relative_l2_error(approx: &[Rgb], reference: &[[f64; 3]]) -> f64 {
             den += r[c] * r[c];
         }
     }
-    if den == 0.0 {
-        if num == 0.0 {
-            0.0
-        } else {
-            f64::INFINITY
-        }
-    } else {
-        (num / den).sqrt()
-    }
+    crate::stats::relative_l2(num, den)
 }

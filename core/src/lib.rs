@@ -40,6 +40,8 @@ pub mod io;
 pub mod sampling;
 pub mod scene;
 pub mod stats;
+#[cfg(any(test, feature = "testing"))]
+pub mod testing;
 pub mod transfer;
 
 pub use error::{CoreError, Result};

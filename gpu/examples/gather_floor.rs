@@ -46,34 +46,29 @@ use std::hint::black_box;
 use std::path::PathBuf;
 use std::time::Instant;
 
+/// The floor under the GPU gather: copy bandwidth, and the gather on the GPU and the CPU.
+#[derive(clap::Parser)]
 struct Args {
+    /// The mesh T is built for (also relative to the repository root).
+    #[arg(long, default_value = "assets/meshes/bunny.obj")]
     mesh: PathBuf,
+    /// Timed runs of each measurement.
+    #[arg(long, default_value_t = 10)]
     runs: usize,
+    /// Local bins per side, m.
+    #[arg(long, default_value_t = 8)]
     local_grid: u32,
+    /// Size of the copy-bandwidth buffer in MiB.
+    #[arg(long, default_value_t = 1024)]
     copy_mib: usize,
-    gpu: bool,
+    /// Measure the CPU only.
+    #[arg(long)]
+    no_gpu: bool,
 }
 
 fn parse() -> Result<Args, String> {
-    let mut a = Args { mesh: "assets/meshes/bunny.obj".into(), runs: 10, local_grid: 8, copy_mib: 1024, gpu: true };
-    let mut it = std::env::args().skip(1);
-    while let Some(k) = it.next() {
-        let mut v = || it.next().ok_or(format!("{k} needs a value"));
-        let num = |s: String| s.parse::<usize>().map_err(|e| format!("{k}: {e}"));
-        match k.as_str() {
-            "--mesh" => a.mesh = v()?.into(),
-            "--runs" => a.runs = num(v()?)?.max(1),
-            "--local-grid" => a.local_grid = num(v()?)? as u32,
-            "--copy-mib" => a.copy_mib = num(v()?)?.max(1),
-            "--no-gpu" => a.gpu = false,
-            "-h" | "--help" => {
-                return Err(
-                    "usage: gather_floor [--mesh PATH] [--runs N] [--local-grid M] [--copy-mib MIB] [--no-gpu]".into()
-                )
-            }
-            _ => return Err(format!("unknown argument {k}")),
-        }
-    }
+    let mut a = <Args as clap::Parser>::parse();
+    (a.runs, a.copy_mib) = (a.runs.max(1), a.copy_mib.max(1));
     if !a.mesh.exists() {
         // Also accept paths relative to the repository root (cargo runs examples from the cwd).
         let rooted = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..").join(&a.mesh);
@@ -200,17 +195,9 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
 
     let mesh = Mesh::load_obj(&args.mesh)?.mesh;
     let settings = TransferSettings::default().with_local_grid(args.local_grid)?;
-    let t0 = Instant::now();
-    let t = transfer::build(&mesh, &settings, None)?.matrix;
-    println!(
-        "T ({}): {} rows x {} cols, {} non-zeros, built in {:.1} s; {} rayon threads",
-        args.mesh.display(),
-        t.rows(),
-        t.cols(),
-        t.nnz(),
-        t0.elapsed().as_secs_f64(),
-        rayon::current_num_threads()
-    );
+    let build = transfer::build(&mesh, &settings, None)?;
+    println!("T ({}): {build}", args.mesh.display());
+    let t = build.matrix;
     let light = random_light(settings.cubemap().resolution, 3);
     if light.len() != t.cols() {
         return Err(format!("light has {} texels, T has {} columns", light.len(), t.cols()).into());
@@ -226,7 +213,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         gbs(bwp)
     );
 
-    let gpu = if args.gpu {
+    let gpu = if !args.no_gpu {
         match GpuContext::new() {
             Ok(ctx) => {
                 println!("adapter: {} (timestamps: {})", ctx.adapter(), ctx.has_timestamps());

@@ -46,15 +46,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     let mesh: Mesh = Mesh::load_obj(&root.join("assets/meshes/bunny.obj"))?.mesh;
     let (frames, _) = vertex_frames(&mesh);
-    let start = Instant::now();
-    let t = transfer::build(&mesh, &settings, None)?.matrix;
-    eprintln!(
-        "transfer: {} x {} with {} non-zeros in {:.1} s",
-        t.rows(),
-        t.cols(),
-        t.nnz(),
-        start.elapsed().as_secs_f64()
-    );
+    let build = transfer::build(&mesh, &settings, None)?;
+    eprintln!("transfer: {build}");
+    let t = build.matrix;
     let mut compressors: Vec<(String, Box<dyn Compressor>)> =
         vec![("sparse".into(), Box::new(Sparse)), ("haar_t12".into(), Box::new(Haar::with_terms(12)))];
     if flag("--all") {

@@ -173,28 +173,45 @@ impl GpuContext {
 
     /// Check a storage binding of `bytes` against the binding and buffer size limits.
     pub(crate) fn check_storage_size(&self, what: &str, bytes: u64) -> Result<()> {
-        if bytes > self.limits.max_storage_buffer_binding_size {
-            return Err(GpuError::Limit {
-                what: what.to_string(),
-                limit: "max_storage_buffer_binding_size",
-                needed: bytes,
-                max: self.limits.max_storage_buffer_binding_size,
-            });
-        }
+        let l = &self.limits;
+        within(what, bytes, "max_storage_buffer_binding_size", l.max_storage_buffer_binding_size)?;
         self.check_buffer_size(what, bytes)
     }
 
     /// Check a buffer of `bytes` against `max_buffer_size`.
     pub(crate) fn check_buffer_size(&self, what: &str, bytes: u64) -> Result<()> {
-        if bytes > self.limits.max_buffer_size {
-            return Err(GpuError::Limit {
-                what: what.to_string(),
-                limit: "max_buffer_size",
-                needed: bytes,
-                max: self.limits.max_buffer_size,
-            });
-        }
-        Ok(())
+        within(what, bytes, "max_buffer_size", self.limits.max_buffer_size)
+    }
+
+    /// A render pipeline without vertex buffers (its vertex shader makes the geometry from
+    /// indices) drawing into one colour target: the visibility pass, the tone-mapping pass and
+    /// the viewer's overlay.
+    pub(crate) fn render_pipeline(&self, p: RasterPipeline<'_>) -> wgpu::RenderPipeline {
+        self.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some(p.label),
+            layout: p.layout,
+            vertex: wgpu::VertexState {
+                module: p.module,
+                entry_point: Some(p.vertex),
+                compilation_options: Default::default(),
+                buffers: &[],
+            },
+            primitive: p.primitive,
+            depth_stencil: p.depth,
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: p.module,
+                entry_point: Some(p.fragment),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState {
+                    format: p.format,
+                    blend: p.blend,
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        })
     }
 
     /// A storage buffer holding `contents` (at least 4 bytes: wgpu cannot bind empty buffers),
@@ -267,4 +284,26 @@ impl GpuContext {
 /// Reinterpret little-endian bytes read back from the GPU as f32s.
 pub(crate) fn bytes_to_f32(bytes: &[u8]) -> Vec<f32> {
     bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+}
+
+/// An error unless `bytes` is within the adapter limit `limit` (= `max`).
+fn within(what: &str, bytes: u64, limit: &'static str, max: u64) -> Result<()> {
+    if bytes > max {
+        return Err(GpuError::Limit { what: what.to_string(), limit, needed: bytes, max });
+    }
+    Ok(())
+}
+
+/// What differs between biscale's render pipelines ([`GpuContext::render_pipeline`]).
+pub(crate) struct RasterPipeline<'a> {
+    pub label: &'a str,
+    /// `None`: derived from the shader.
+    pub layout: Option<&'a wgpu::PipelineLayout>,
+    pub module: &'a wgpu::ShaderModule,
+    pub vertex: &'a str,
+    pub fragment: &'a str,
+    pub primitive: wgpu::PrimitiveState,
+    pub depth: Option<wgpu::DepthStencilState>,
+    pub format: wgpu::TextureFormat,
+    pub blend: Option<wgpu::BlendState>,
 }

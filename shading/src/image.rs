@@ -73,15 +73,7 @@ pub fn compare(a: &HdrImage, b_reference: &HdrImage, mask: Option<&[bool]>) -> R
     }
     let rmse = (d2 / (3 * pixels) as f64).sqrt();
     let psnr = if rmse == 0.0 { f64::INFINITY } else { 20.0 * (peak / rmse).log10() };
-    let rel_l2 = if r2 == 0.0 {
-        if d2 == 0.0 {
-            0.0
-        } else {
-            f64::INFINITY
-        }
-    } else {
-        (d2 / r2).sqrt()
-    };
+    let rel_l2 = biscale_core::stats::relative_l2(d2, r2);
     Ok(ImageMetrics { rmse, psnr, rel_l2, pixels })
 }
 
@@ -155,19 +147,11 @@ pub fn write_error_image(a: &HdrImage, b: &HdrImage, scale: Option<f32>, path: &
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rand::{Rng, SeedableRng};
-
-    fn random_image(w: u32, h: u32, seed: u64) -> HdrImage {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-        // Values spanning many magnitudes, as HDR renders do.
-        let pixels =
-            (0..w * h).map(|_| std::array::from_fn(|_| rng.gen::<f32>() * 10f32.powi(rng.gen_range(-6..6)))).collect();
-        HdrImage { width: w, height: h, pixels }
-    }
+    use biscale_core::testing::random_hdr_image;
 
     #[test]
     fn metrics_on_known_inputs() {
-        let r = random_image(16, 8, 3);
+        let r = random_hdr_image(16, 8, 3);
         // A constant offset c on every channel: rmse = c exactly (up to f32 rounding of the
         // sums x + c, relative 2^-24 of the values, which reach 1e5 here: keep c large enough).
         let c = 0.5f32;
@@ -198,7 +182,7 @@ mod tests {
         assert_eq!(m.pixels, 2);
         assert!((m.rmse - (9.0f64 / 6.0).sqrt()).abs() < 1e-5, "{}", m.rmse);
         // Errors: size mismatch, bad mask, empty mask, NaN inside the mask.
-        assert!(compare(&random_image(16, 9, 1), &reference, None).is_err());
+        assert!(compare(&random_hdr_image(16, 9, 1), &reference, None).is_err());
         assert!(compare(&b, &reference, Some(&mask[..10])).is_err());
         assert!(compare(&b, &reference, Some(&[false; 128])).is_err());
         b.pixels[2][1] = f32::NAN;

@@ -77,7 +77,7 @@ mod tests {
     use crate::cpu::tests::{bins, scene_of, vertex_lstar};
     use crate::cpu::{primary_hit, shade};
     use biscale_core::basis::LightBasis;
-    use biscale_core::geometry::{shapes, Mesh, SceneBvh, VertexFrame};
+    use biscale_core::geometry::{shapes, SceneBvh, VertexFrame};
     use biscale_core::scene::{Btf, Material};
     use biscale_core::transfer::TransferSettings;
     use glam::Vec3;
@@ -121,17 +121,6 @@ mod tests {
         assert!(render_reference(&scene, &light, &other_mesh, &sampler, &camera, None).is_err());
     }
 
-    /// Concatenate meshes (UVs dropped unless all have them).
-    fn merge(parts: &[&Mesh]) -> Mesh {
-        let mut out = Mesh::default();
-        for m in parts {
-            let base = out.positions.len() as u32;
-            out.positions.extend(&m.positions);
-            out.triangles.extend(m.triangles.iter().map(|t| t.map(|i| i + base)));
-        }
-        out
-    }
-
     /// Range of `cos(theta) = 1 - r^2` over bin `j` of an `m x m` concentric grid, where
     /// `r = max(|a|, |b|)` on the bin's square `[a0, a1] x [b0, b1]` in `[-1, 1]^2`.
     fn bin_cos_range(m: u32, j: u32) -> f64 {
@@ -158,7 +147,7 @@ mod tests {
         let (a, albedo) = (1.0f32, 0.9f64);
         let plane = shapes::grid_plane(8, 8.0);
         let sphere = shapes::uv_sphere(Vec3::new(0.0, a, 0.0), a, 24, 48);
-        let mesh = merge(&[&plane, &sphere]);
+        let mesh = shapes::merged(&[plane.clone(), sphere.clone()]);
         let settings = TransferSettings::new(16, 32, 8).unwrap();
         let sampler = VisibilitySampler::new(&settings);
         let light = LightVector::constant(settings.light_basis(), [1.0; 3]);

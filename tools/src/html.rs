@@ -53,11 +53,10 @@ pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, Stri
     );
     let _ = write!(s, "<p>Config <code>{}</code>, backend {}.</p>", escape(&m.config), escape(&m.backend));
     let _ = write!(s, "<pre>{}</pre>", escape(plan_text));
-    let t = &m.transfer;
     let _ = write!(
         s,
         "<h2>Scene and transfer</h2><p>{} vertices, {} triangles, material {}. Light {} (total power {:.4}, {:.4}, {:.4}).</p>\
-         <p>T is {} x {} with {} non-zeros ({:.2}% dense), built in {:.2} s{} at {:.1} M rays/s.</p>",
+         <p>{}</p>",
         m.scene.vertices,
         m.scene.triangles,
         escape(&m.scene.material),
@@ -65,36 +64,15 @@ pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, Stri
         m.lighting.total_power[0],
         m.lighting.total_power[1],
         m.lighting.total_power[2],
-        t.rows,
-        t.cols,
-        t.nnz,
-        100.0 * t.nnz as f64 / (t.rows as f64 * t.cols as f64).max(1.0),
-        t.build_seconds,
-        if t.cached { " (cached)" } else { "" },
-        t.rays_per_second / 1e6
+        escape(&crate::report::transfer_summary(&m.transfer)),
     );
-    let _ = write!(
-        s,
-        "<h2>Compressors</h2><table><tr><th>setting</th><th>lossless</th><th>MB</th><th>bytes/nnz</th><th>Mflop/gather</th>\
-         <th>build s</th><th>gather ms</th><th>shade ms</th><th>rel. err L*</th><th>RMSE vs uncompressed</th><th>PSNR vs uncompressed</th><th>PSNR vs reference</th></tr>"
-    );
-    for c in &m.compressors {
-        let _ = write!(
-            s,
-            "<tr><td>{}</td><td>{}</td><td>{:.3}</td><td>{:.3}</td><td>{:.3}</td><td>{:.2}</td><td>{:.2}</td><td>{:.1}</td><td>{:.2e}</td><td>{:.3e}</td><td>{:.2}</td><td>{}</td></tr>",
-            escape(&c.name),
-            if c.lossless { "yes" } else { "no" },
-            c.bytes as f64 / 1e6,
-            c.bytes_per_nnz,
-            c.flops_per_gather as f64 / 1e6,
-            c.build_seconds,
-            c.gather_ms,
-            c.shade_ms,
-            c.rel_error_lstar,
-            c.image.vs_uncompressed.rmse,
-            c.image.vs_uncompressed.psnr,
-            c.image.vs_reference.map_or("-".into(), |e| format!("{:.2}", e.psnr))
-        );
+    let (header, rows) = crate::report::compressor_table(m);
+    let cells =
+        |tag: &str, row: &[String]| row.iter().map(|c| format!("<{tag}>{}</{tag}>", escape(c))).collect::<String>();
+    let header: Vec<String> = header.iter().map(|h| h.to_string()).collect();
+    let _ = write!(s, "<h2>Compressors</h2><table><tr>{}</tr>", cells("th", &header));
+    for row in rows {
+        let _ = write!(s, "<tr>{}</tr>", cells("td", &row));
     }
     let _ = write!(s, "</table>");
     if let Some(r) = &m.reference {

@@ -165,14 +165,7 @@ pub fn transfer_matrix(exp: &Experiment, geometry: &Geometry, cache: Option<&Sta
     build.stats.seconds = start.elapsed().as_secs_f64();
     build.stats.rays_per_second = build.stats.rays_traced as f64 / build.stats.seconds.max(1e-12);
     pb.finish_and_clear();
-    eprintln!(
-        "transfer: {} x {} with {} non-zeros in {:.2} s ({:.1} M rays/s)",
-        build.matrix.rows(),
-        build.matrix.cols(),
-        build.matrix.nnz(),
-        build.stats.seconds,
-        build.stats.rays_per_second / 1e6
-    );
+    eprintln!("transfer: {build}");
     if let Some(c) = cache {
         c.put(&c.transfer_path(key), |p| build.matrix.save(p));
     }

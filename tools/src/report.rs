@@ -1,7 +1,7 @@
 //! The run's Markdown report: what ran, the transfer matrix, and one row per compressor
 //! setting, with links to the images. Readable without the program.
 
-use crate::metrics::Metrics;
+use crate::metrics::{Metrics, TransferMetrics};
 use crate::plan::Plan;
 use std::fmt::Write;
 
@@ -34,19 +34,7 @@ pub fn markdown(m: &Metrics, plan: &Plan) -> String {
     );
     let t = &m.transfer;
     let _ = writeln!(s, "\n## Transfer matrix\n");
-    let _ = writeln!(
-        s,
-        "{} x {} ({} local directions per vertex), {} non-zeros ({:.2}% dense); built in {:.2} s{} ({} rays, {:.1} M rays/s).\n",
-        t.rows,
-        t.cols,
-        t.local_dirs,
-        t.nnz,
-        100.0 * t.nnz as f64 / (t.rows as f64 * t.cols as f64).max(1.0),
-        t.build_seconds,
-        if t.cached { " (loaded from the cache)" } else { "" },
-        t.rays_traced,
-        t.rays_per_second / 1e6
-    );
+    let _ = writeln!(s, "{}\n", transfer_summary(t));
     let _ = writeln!(s, "| value | count |\n|---|---|");
     for v in &t.value_histogram {
         let _ = writeln!(s, "| {} | {} |", v.value, v.count);
@@ -57,27 +45,10 @@ pub fn markdown(m: &Metrics, plan: &Plan) -> String {
         "Uncompressed `T L`: gather {:.2} ms (f64 reference), shade {:.1} ms.\n",
         m.uncompressed.gather_ms, m.uncompressed.shade_ms
     );
-    let _ = writeln!(
-        s,
-        "| setting | lossless | MB | bytes/nnz | Mflop/gather | build s | gather ms | shade ms | rel. err L* | PSNR vs uncompressed | PSNR vs reference |"
-    );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
-    for c in &m.compressors {
-        let _ = writeln!(
-            s,
-            "| {} | {} | {:.3} | {:.3} | {:.3} | {:.2} | {:.2} | {:.1} | {:.2e} | {:.2} | {} |",
-            c.name,
-            if c.lossless { "yes" } else { "no" },
-            c.bytes as f64 / 1e6,
-            c.bytes_per_nnz,
-            c.flops_per_gather as f64 / 1e6,
-            c.build_seconds,
-            c.gather_ms,
-            c.shade_ms,
-            c.rel_error_lstar,
-            c.image.vs_uncompressed.psnr,
-            c.image.vs_reference.map_or("-".into(), |e| format!("{:.2}", e.psnr))
-        );
+    let (header, rows) = compressor_table(m);
+    let _ = writeln!(s, "| {} |\n|{}", header.join(" | "), "---|".repeat(header.len()));
+    for row in rows {
+        let _ = writeln!(s, "| {} |", row.join(" | "));
     }
     if m.compressors.iter().any(|c| c.gpu.is_some()) {
         let adapter = m.compressors.iter().find_map(|c| c.gpu.as_ref()).map(|g| g.adapter.clone()).unwrap_or_default();
@@ -120,6 +91,62 @@ pub fn markdown(m: &Metrics, plan: &Plan) -> String {
         let _ = writeln!(s, "**{}** ([EXR]({})):\n\n![{}]({})\n", c.name, c.image.exr, c.name, c.image.png);
     }
     s
+}
+
+/// The transfer matrix in one sentence (both reports).
+pub fn transfer_summary(t: &TransferMetrics) -> String {
+    format!(
+        "T is {} x {} ({} local directions per vertex) with {} non-zeros ({:.2}% dense), built in {:.2} s{} ({} rays, {:.1} M rays/s).",
+        t.rows,
+        t.cols,
+        t.local_dirs,
+        t.nnz,
+        100.0 * t.nnz as f64 / (t.rows as f64 * t.cols as f64).max(1.0),
+        t.build_seconds,
+        if t.cached { " (loaded from the cache)" } else { "" },
+        t.rays_traced,
+        t.rays_per_second / 1e6
+    )
+}
+
+/// The compressor table of both reports (Markdown and HTML): its header and one row of
+/// cells per setting.
+pub fn compressor_table(m: &Metrics) -> (&'static [&'static str], Vec<Vec<String>>) {
+    const HEADER: &[&str] = &[
+        "setting",
+        "lossless",
+        "MB",
+        "bytes/nnz",
+        "Mflop/gather",
+        "build s",
+        "gather ms",
+        "shade ms",
+        "rel. err L*",
+        "RMSE vs uncompressed",
+        "PSNR vs uncompressed",
+        "PSNR vs reference",
+    ];
+    let rows = m
+        .compressors
+        .iter()
+        .map(|c| {
+            vec![
+                c.name.clone(),
+                if c.lossless { "yes" } else { "no" }.to_string(),
+                format!("{:.3}", c.bytes as f64 / 1e6),
+                format!("{:.3}", c.bytes_per_nnz),
+                format!("{:.3}", c.flops_per_gather as f64 / 1e6),
+                format!("{:.2}{}", c.build_seconds, if c.cached { " (cached)" } else { "" }),
+                format!("{:.2}", c.gather_ms),
+                format!("{:.1}", c.shade_ms),
+                format!("{:.2e}", c.rel_error_lstar),
+                format!("{:.3e}", c.image.vs_uncompressed.rmse),
+                format!("{:.2}", c.image.vs_uncompressed.psnr),
+                c.image.vs_reference.map_or("-".into(), |e| format!("{:.2}", e.psnr)),
+            ]
+        })
+        .collect();
+    (HEADER, rows)
 }
 
 /// The storage budget of the equal-storage comparison: the lossless biclustering's storage

@@ -14,8 +14,9 @@
 //!   GPU loop of billions of steps. Built-in compressors and plugins describe their programs
 //!   the same way; the checks are run by the host, never by the compressor.
 //! * [`GatherParams`] and [`PRELUDE`]: the uniform block and the WGSL every gather program
-//!   starts with (the bindings of `params`, `light`, `lstar`, `meta_values`, and the
-//!   narrow-integer unpacking helpers).
+//!   starts with (the bindings of `params`, `light`, `lstar`, `meta_values`, the invocation
+//!   index and the narrow-integer unpacking helpers); [`ROW_PASS`]: the per-row pass a program
+//!   that computes each row of `L*` on its own shares.
 //! * [`reflect`] (feature `reflect`): naga parses and validates a program and lists which
 //!   global binds what, by name: form array `col_idx` <-> `var<storage, read> col_idx:
 //!   array<u32>`. One name per concept from the compressor to the kernel, and no hand-written
@@ -44,6 +45,18 @@ pub use check::{Count, Factor, FormCheck};
 
 /// The WGSL every gather program is compiled with, before its own text.
 pub const PRELUDE: &str = include_str!("prelude.wgsl");
+
+/// The per-row pass: the entry point [`ROW_ENTRY`] runs one thread per row and stores the
+/// program's `fn row_lstar(r: u32) -> vec3<f32>` as row `r` of `L*` ([`with_row_pass`]).
+pub const ROW_PASS: &str = include_str!("row_pass.wgsl");
+
+/// The entry point [`ROW_PASS`] declares.
+pub const ROW_ENTRY: &str = "gather_rows";
+
+/// `wgsl` followed by [`ROW_PASS`], for a program that defines `row_lstar`.
+pub fn with_row_pass(wgsl: &str) -> String {
+    format!("{wgsl}\n{ROW_PASS}")
+}
 
 /// Names the prelude declares: no form array, meta key or scratch buffer may take them.
 pub const RESERVED_NAMES: &[&str] = &["params", "light", "lstar", "meta_values"];

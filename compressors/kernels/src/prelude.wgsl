@@ -24,7 +24,7 @@ struct GatherParams {
     local_dirs: u32,
     vertices: u32,
     // Invocations this pass must run; the grid is rounded up, so kernels return when
-    // linear_thread(...) >= threads.
+    // thread_index(...) >= threads.
     threads: u32,
     pass_index: u32,
     // Texels per cubemap face edge R of the form's light basis (0 for another basis).
@@ -36,6 +36,19 @@ struct GatherParams {
 @group(0) @binding(1) var<storage, read> light: array<f32>;
 @group(0) @binding(2) var<storage, read_write> lstar: array<f32>;
 @group(0) @binding(3) var<storage, read> meta_values: array<u32>;
+
+// The builtins a gather entry point takes: `@compute @workgroup_size(64) fn pass(inv: Invocation)`.
+struct Invocation {
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+}
+
+// This invocation's index among the pass's threads, for workgroups of `group_size` (the
+// entry point's @workgroup_size); kernels return when it is >= params.threads.
+fn thread_index(inv: Invocation, group_size: u32) -> u32 {
+    return linear_thread(inv.wid, inv.nwg, inv.lid, group_size);
+}
 
 // Linear invocation index over a 2D grid of 1D workgroups of `group_size` invocations
 // (the host folds large dispatches into y to respect max_compute_workgroups_per_dimension).

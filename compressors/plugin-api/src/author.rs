@@ -4,16 +4,9 @@
 
 use serde_json::Value;
 
-/// Elements of one array of a plugin's compressed form, at their stored width.
-#[derive(Clone, Debug, PartialEq)]
-pub enum Array {
-    U8(Vec<u8>),
-    I8(Vec<i8>),
-    U16(Vec<u16>),
-    I16(Vec<i16>),
-    U32(Vec<u32>),
-    F32(Vec<f32>),
-}
+/// Elements of one array of a plugin's compressed form, at their stored width: the same type
+/// the host stores every compressed form's arrays in (`biscale_kernels::ArrayData`).
+pub use biscale_kernels::ArrayData as Array;
 
 /// A borrowed array of a form handed back to the plugin's CPU gather.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -26,9 +19,9 @@ pub enum ArrayRef<'a> {
     F32(&'a [f32]),
 }
 
-impl Array {
-    pub fn as_ref(&self) -> ArrayRef<'_> {
-        match self {
+impl<'a> From<&'a Array> for ArrayRef<'a> {
+    fn from(a: &'a Array) -> Self {
+        match a {
             Array::U8(v) => ArrayRef::U8(v),
             Array::I8(v) => ArrayRef::I8(v),
             Array::U16(v) => ArrayRef::U16(v),
@@ -95,7 +88,7 @@ impl PluginForm {
             rows,
             cols,
             local_dirs,
-            arrays: self.arrays.iter().map(|(n, a)| (n.as_str(), a.as_ref())).collect(),
+            arrays: self.arrays.iter().map(|(n, a)| (n.as_str(), ArrayRef::from(a))).collect(),
             meta: self.meta.iter().map(|(k, v)| (k.as_str(), *v)).collect(),
         }
     }
@@ -165,28 +158,9 @@ impl<'a> PluginFormView<'a> {
     typed!(f32s, F32, f32);
 }
 
-/// One factor of a [`Count`] (the same factors as the GPU runtime's `Count`).
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub enum Factor {
-    Const(u64),
-    Rows,
-    Cols,
-    Vertices,
-    LocalDirs,
-    Meta(String),
-    MetaPlus(String, u64),
-    Len(String),
-}
-
-/// A size computed from the form: the product of its factors (empty = 1).
-#[derive(Clone, Debug, PartialEq, Eq, Default)]
-pub struct Count(pub Vec<Factor>);
-
-impl Count {
-    pub fn of(factors: impl IntoIterator<Item = Factor>) -> Self {
-        Count(factors.into_iter().collect())
-    }
-}
+/// Sizes the host computes from a form (the factors and their product), as the host's own
+/// kernel descriptions use them.
+pub use biscale_kernels::{Count, Factor};
 
 /// One compute pass of the GPU gather.
 #[derive(Clone, Debug, PartialEq, Eq)]

@@ -146,40 +146,36 @@ pub unsafe fn kernels<P: PluginCompressor>(params: BpStr, out: *mut BpKernels, e
             return Err("null output pointer".into());
         }
         let kernels = P::kernels(&params_in(params)?)?;
-        let mut factors = Vec::new();
+        // Every count's factors live in `factors` (owned with the kernels); each inner Vec's
+        // buffer stays put as more are pushed, so the pointers stay valid.
+        let mut factors: Vec<Vec<BpFactor>> = Vec::new();
+        let mut count = |c: &Count| {
+            factors.push(count_out(c));
+            bp_count(factors.last().unwrap())
+        };
         let passes: Vec<BpPass> = kernels
             .passes
             .iter()
-            .map(|p| {
-                factors.push(count_out(&p.threads));
-                BpPass { entry_point: BpStr::of(&p.entry_point), threads: bp_count(factors.last().unwrap()) }
-            })
+            .map(|p| BpPass { entry_point: BpStr::of(&p.entry_point), threads: count(&p.threads) })
             .collect();
-        let scratch: Vec<BpScratch> = kernels
-            .scratch
-            .iter()
-            .map(|s| {
-                factors.push(count_out(&s.words));
-                BpScratch { name: BpStr::of(&s.name), words: bp_count(factors.last().unwrap()) }
-            })
-            .collect();
+        let scratch: Vec<BpScratch> =
+            kernels.scratch.iter().map(|s| BpScratch { name: BpStr::of(&s.name), words: count(&s.words) }).collect();
         let checks: Vec<BpCheck> = kernels
             .checks
             .iter()
             .map(|c| {
-                let (tag, array, target, count) = match c {
+                let (tag, array, target, n) = match c {
                     Check::Len { array, count } => (CHECK_LEN, array, None, Some(count)),
                     Check::Ptr { array, count, target } => (CHECK_PTR, array, Some(target), Some(count)),
                     Check::Below { array, bound } => (CHECK_BELOW, array, None, Some(bound)),
                     Check::Finite { array } => (CHECK_FINITE, array, None, None),
                 };
-                factors.push(count.map(count_out).unwrap_or_default());
                 BpCheck {
                     tag,
                     _reserved: 0,
                     array: BpStr::of(array),
                     target: target.map(|t| BpStr::of(t)).unwrap_or(BpStr::EMPTY),
-                    count: bp_count(factors.last().unwrap()),
+                    count: count(n.unwrap_or(&Count(vec![]))),
                 }
             })
             .collect();
@@ -233,7 +229,7 @@ pub unsafe fn compress<P: PluginCompressor>(
             .arrays
             .iter()
             .map(|(name, a)| {
-                let a = a.as_ref();
+                let a = crate::author::ArrayRef::from(a);
                 BpArray { name: BpStr::of(name), elem: a.elem(), _reserved: 0, len: a.len() as u64, data: a.data_ptr() }
             })
             .collect();

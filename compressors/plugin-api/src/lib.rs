@@ -72,6 +72,10 @@ pub mod author;
 pub mod export;
 
 pub use author::*;
+/// The per-row pass a plugin's WGSL may share with the built-in gathers: define
+/// `fn row_lstar(r: u32) -> vec3<f32>`, append [`ROW_PASS`] ([`with_row_pass`]) and name the
+/// pass [`ROW_ENTRY`].
+pub use biscale_kernels::{with_row_pass, ROW_ENTRY, ROW_PASS};
 pub use serde_json;
 
 use std::ffi::c_void;

@@ -3,7 +3,7 @@
 // order as the CPU gather:
 //   bicluster_sums, one invocation per bicluster b:
 //       a_b = sum_{e in b} bc_vals[e] * (L[bc_cols[e]] / q)
-//   bicluster_rows, one invocation per row i:
+//   row_lstar (the shared gather_rows pass), one invocation per row i:
 //       L*_i = sum_{e in row i} a[id(e)],  id = block_bc_base[i / block_rows] + row_bc[e]
 //       (block-local u16 ids when row_bc_local = 1, global u32 ids otherwise)
 // meta_values = [value_scale q, block_rows, row_bc_local].
@@ -17,12 +17,8 @@
 @group(0) @binding(10) var<storage, read_write> bc_sums: array<f32>; // biclusters x RGB
 
 @compute @workgroup_size(64)
-fn bicluster_sums(
-    @builtin(workgroup_id) wid: vec3<u32>,
-    @builtin(num_workgroups) nwg: vec3<u32>,
-    @builtin(local_invocation_index) lid: u32,
-) {
-    let b = linear_thread(wid, nwg, lid, 64u);
+fn bicluster_sums(inv: Invocation) {
+    let b = thread_index(inv, 64u);
     if b >= params.threads {
         return;
     }
@@ -39,16 +35,7 @@ fn bicluster_sums(
     bc_sums[3u * b + 2u] = acc.z;
 }
 
-@compute @workgroup_size(64)
-fn bicluster_rows(
-    @builtin(workgroup_id) wid: vec3<u32>,
-    @builtin(num_workgroups) nwg: vec3<u32>,
-    @builtin(local_invocation_index) lid: u32,
-) {
-    let i = linear_thread(wid, nwg, lid, 64u);
-    if i >= params.threads {
-        return;
-    }
+fn row_lstar(i: u32) -> vec3<f32> {
     let local = meta_values[2] == 1u;
     var base = 0u;
     if local {
@@ -65,5 +52,5 @@ fn bicluster_rows(
         }
         acc += vec3<f32>(bc_sums[3u * b], bc_sums[3u * b + 1u], bc_sums[3u * b + 2u]);
     }
-    store_lstar(i, acc);
+    return acc;
 }

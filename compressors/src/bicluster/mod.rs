@@ -231,13 +231,7 @@ impl<'a> BiclusterView<'a> {
 }
 
 impl Compressor for Bicluster {
-    fn kind(&self) -> &str {
-        KIND.name
-    }
-
-    fn params(&self) -> serde_json::Value {
-        serde_json::to_value(self).expect("plain struct serializes")
-    }
+    registry::kind_and_params!();
 
     /// The two passes of `gather.wgsl`. The checks make every read of both passes in range
     /// (the GPU would otherwise loop over a decreasing pointer array for billions of steps):
@@ -267,10 +261,10 @@ impl Compressor for Bicluster {
         };
         Ok(KernelDesc {
             kind: KIND.name.into(),
-            wgsl: include_str!("gather.wgsl").into(),
+            wgsl: biscale_kernels::with_row_pass(include_str!("gather.wgsl")),
             passes: vec![
                 PassDesc { entry_point: "bicluster_sums".into(), threads: meta("biclusters") },
-                PassDesc { entry_point: "bicluster_rows".into(), threads: Count::of([Factor::Rows]) },
+                PassDesc { entry_point: biscale_kernels::ROW_ENTRY.into(), threads: Count::of([Factor::Rows]) },
             ],
             scratch: vec![ScratchDesc {
                 name: "bc_sums".into(),

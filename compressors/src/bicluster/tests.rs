@@ -64,33 +64,24 @@ fn assert_gather_exact(form: &CompressedForm, t: &TransferMatrix, light: &LightV
     let q = v.value_scale as f64;
     let u = f32::EPSILON as f64 / 2.0;
     let gamma = |n: usize| n as f64 * u / (1.0 - n as f64 * u);
-    for i in 0..t.rows() {
+    crate::testing::assert_within(&got, &reference, |i, c| {
         let ids: Vec<usize> = v.row_biclusters(i).collect();
         let l_max = ids.iter().map(|&b| v.bicluster(b).0.len()).max().unwrap_or(0);
         let n = l_max + ids.len() + 2;
-        for c in 0..3 {
-            let abs_sum: f64 = ids
-                .iter()
-                .map(|&b| {
-                    let (ks, ts) = v.bicluster(b);
-                    ks.iter()
-                        .zip(ts)
-                        .map(|(&k, &tv)| (tv as f64).abs() / q * light.power[k as usize][c] as f64)
-                        .sum::<f64>()
-                })
-                .sum();
-            let t_sum: f64 =
-                t.csr().outer_view(i).unwrap().iter().map(|(k, &x)| (x as f64).abs() * light.power[k][c] as f64).sum();
-            let bound = gamma(n) * abs_sum + u * t_sum;
-            let err = (got.values()[i][c] as f64 - reference[i][c]).abs();
-            assert!(
-                err <= bound,
-                "row {i} channel {c}: gather {} vs f64 {} (err {err:e}, bound {bound:e})",
-                got.values()[i][c],
-                reference[i][c]
-            );
-        }
-    }
+        let abs_sum: f64 = ids
+            .iter()
+            .map(|&b| {
+                let (ks, ts) = v.bicluster(b);
+                ks.iter()
+                    .zip(ts)
+                    .map(|(&k, &tv)| (tv as f64).abs() / q * light.power[k as usize][c] as f64)
+                    .sum::<f64>()
+            })
+            .sum();
+        let t_sum: f64 =
+            t.csr().outer_view(i).unwrap().iter().map(|(k, &x)| (x as f64).abs() * light.power[k][c] as f64).sum();
+        gamma(n) * abs_sum + u * t_sum
+    });
 }
 
 /// The biclusters sum to `T` exactly in integer codes.

@@ -2,7 +2,7 @@
 // al. 2003). Two passes:
 //   cpca_project, one 64-invocation workgroup per basis vector v (K (C + 1) of them):
 //       P[v] = basis[v] . L   (strided partial sums, then a tree reduction in workgroup memory)
-//   cpca_rows, one invocation per row r with cluster k = cluster[r]:
+//   row_lstar (the shared gather_rows pass), one invocation per row r with cluster k = cluster[r]:
 //       L*_r = P[k (C+1)] + sum_{c=1..C} coeffs[r C + c - 1] P[k (C+1) + c],  0 when k = K
 // meta_values = [clusters K, components C].
 
@@ -14,13 +14,10 @@
 var<workgroup> partial: array<vec3<f32>, 64>;
 
 @compute @workgroup_size(64)
-fn cpca_project(
-    @builtin(workgroup_id) wid: vec3<u32>,
-    @builtin(num_workgroups) nwg: vec3<u32>,
-    @builtin(local_invocation_index) lid: u32,
-) {
+fn cpca_project(inv: Invocation) {
     // The whole workgroup works on one vector, so the barriers stay in uniform control flow.
-    let v = wid.y * nwg.x + wid.x;
+    let v = inv.wid.y * inv.nwg.x + inv.wid.x;
+    let lid = inv.lid;
     let vectors = params.threads / 64u;
     let n = params.cols;
     var acc = vec3<f32>(0.0);
@@ -48,27 +45,17 @@ fn proj_at(v: u32) -> vec3<f32> {
     return vec3<f32>(proj[3u * v], proj[3u * v + 1u], proj[3u * v + 2u]);
 }
 
-@compute @workgroup_size(64)
-fn cpca_rows(
-    @builtin(workgroup_id) wid: vec3<u32>,
-    @builtin(num_workgroups) nwg: vec3<u32>,
-    @builtin(local_invocation_index) lid: u32,
-) {
-    let r = linear_thread(wid, nwg, lid, 64u);
-    if r >= params.threads {
-        return;
-    }
+fn row_lstar(r: u32) -> vec3<f32> {
     let k = u16_at(cluster[r >> 1u], r);
     let clusters = meta_values[0];
     let c = meta_values[1];
     if k >= clusters {
-        store_lstar(r, vec3<f32>(0.0));
-        return;
+        return vec3<f32>(0.0);
     }
     let base = k * (c + 1u);
     var acc = proj_at(base);
     for (var j = 0u; j < c; j++) {
         acc += coeffs[r * c + j] * proj_at(base + 1u + j);
     }
-    store_lstar(r, acc);
+    return acc;
 }

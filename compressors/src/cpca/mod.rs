@@ -400,23 +400,17 @@ fn members_of(assign: &[u32], nz_rows: &[u32], k: usize) -> Vec<Vec<u32>> {
 }
 
 impl Compressor for Cpca {
-    fn kind(&self) -> &str {
-        KIND.name
-    }
-
-    fn params(&self) -> serde_json::Value {
-        serde_json::to_value(self).expect("plain struct serializes")
-    }
+    registry::kind_and_params!();
 
     fn kernels(&self, _form: &CompressedForm) -> Result<KernelDesc, CompressError> {
         let (k, c) = (|| Factor::Meta("clusters".into()), || Factor::MetaPlus("components".into(), 1));
         Ok(KernelDesc {
             kind: KIND.name.into(),
-            wgsl: include_str!("gather.wgsl").into(),
+            wgsl: biscale_kernels::with_row_pass(include_str!("gather.wgsl")),
             passes: vec![
                 // A workgroup of 64 per basis vector (K (C + 1) of them), then a row each.
                 PassDesc { entry_point: "cpca_project".into(), threads: Count::of([k(), c(), Factor::Const(64)]) },
-                PassDesc { entry_point: "cpca_rows".into(), threads: Count::of([Factor::Rows]) },
+                PassDesc { entry_point: biscale_kernels::ROW_ENTRY.into(), threads: Count::of([Factor::Rows]) },
             ],
             scratch: vec![ScratchDesc { name: "proj".into(), words: Count::of([k(), c(), Factor::Const(3)]) }],
             meta_keys: vec!["clusters".into(), "components".into()],

@@ -118,28 +118,20 @@ fn assert_exact(cpca: &Cpca, form: &CompressedForm, t: &TransferMatrix, light: &
     let dense = to_dense(t);
     let (k, c, n) = (form.meta("clusters").unwrap() as usize, form.meta("components").unwrap() as usize, form.cols());
     let (basis, cluster) = (form.f32s("basis").unwrap(), form.u16s("cluster").unwrap());
-    for ch in 0..3 {
-        let lnorm = light.power.iter().map(|p| (p[ch] as f64).powi(2)).sum::<f64>().sqrt();
-        for r in 0..t.rows() {
-            let id = cluster[r] as usize;
-            let (mu_norm, res_norm) = if id == k {
-                (0.0, 0.0)
-            } else {
-                let mu = &basis[id * (c + 1) * n..(id * (c + 1) + 1) * n];
-                let mu_norm = mu.iter().map(|&v| (v as f64).powi(2)).sum::<f64>().sqrt();
-                let res = dense[r].iter().zip(mu).map(|(x, &m)| (x - m as f64).powi(2)).sum::<f64>().sqrt();
-                (mu_norm, res)
-            };
-            let bound = 4.0 * (c as f64 + 3.0) * EPS * (mu_norm + res_norm) * lnorm + EPS * reference[r][ch].abs();
-            let err = (got.values()[r][ch] as f64 - reference[r][ch]).abs();
-            assert!(
-                err <= bound,
-                "row {r} channel {ch}: {} vs {} (bound {bound})",
-                got.values()[r][ch],
-                reference[r][ch]
-            );
-        }
-    }
+    let lnorm: [f64; 3] =
+        std::array::from_fn(|ch| light.power.iter().map(|p| (p[ch] as f64).powi(2)).sum::<f64>().sqrt());
+    crate::testing::assert_within(&got, &reference, |r, ch| {
+        let id = cluster[r] as usize;
+        let (mu_norm, res_norm) = if id == k {
+            (0.0, 0.0)
+        } else {
+            let mu = &basis[id * (c + 1) * n..(id * (c + 1) + 1) * n];
+            let mu_norm = mu.iter().map(|&v| (v as f64).powi(2)).sum::<f64>().sqrt();
+            let res = dense[r].iter().zip(mu).map(|(x, &m)| (x - m as f64).powi(2)).sum::<f64>().sqrt();
+            (mu_norm, res)
+        };
+        4.0 * (c as f64 + 3.0) * EPS * (mu_norm + res_norm) * lnorm[ch] + EPS * reference[r][ch].abs()
+    });
 }
 
 /// Eigenvalues (decreasing) of the scatter matrix of the centred rows, in f64 (dense, small).

@@ -3,7 +3,7 @@
 //   haar_light, one invocation per (face, channel) (18): the light's forward non-standard
 //       Haar transform l^ = W L in the standard in-place layout, level by level exactly as
 //       haar::forward_face (f32 here, f64 on the CPU);
-//   haar_rows, one invocation per row r: L*_r = sum_{e in row r} coeff[e] * l^[coeff_idx[e]].
+//   row_lstar (the shared gather_rows pass), one invocation per row r: L*_r = sum_{e in row r} coeff[e] * l^[coeff_idx[e]].
 // R is params.light_resolution (the form's cubemap). The value array is `coeff_val` (f32) or
 // `coeff_f16` (u16 half bits, packed 2 per word); the host splices in the matching
 // declaration below.
@@ -19,12 +19,8 @@ fn lh(base: u32, r: u32, i: u32, j: u32, c: u32) -> u32 {
 }
 
 @compute @workgroup_size(32)
-fn haar_light(
-    @builtin(workgroup_id) wid: vec3<u32>,
-    @builtin(num_workgroups) nwg: vec3<u32>,
-    @builtin(local_invocation_index) lid: u32,
-) {
-    let id = linear_thread(wid, nwg, lid, 32u);
+fn haar_light(inv: Invocation) {
+    let id = thread_index(inv, 32u);
     if id >= params.threads {
         return;
     }
@@ -59,21 +55,12 @@ fn haar_light(
     }
 }
 
-@compute @workgroup_size(64)
-fn haar_rows(
-    @builtin(workgroup_id) wid: vec3<u32>,
-    @builtin(num_workgroups) nwg: vec3<u32>,
-    @builtin(local_invocation_index) lid: u32,
-) {
-    let row = linear_thread(wid, nwg, lid, 64u);
-    if row >= params.threads {
-        return;
-    }
+fn row_lstar(row: u32) -> vec3<f32> {
     let end = row_ptr[row + 1u];
     var acc = vec3<f32>(0.0);
     for (var e = row_ptr[row]; e < end; e++) {
         let k = u16_at(coeff_idx[e >> 1u], e);
         acc += coeff_at(e) * vec3<f32>(light_hat[3u * k], light_hat[3u * k + 1u], light_hat[3u * k + 2u]);
     }
-    store_lstar(row, acc);
+    return acc;
 }

@@ -336,13 +336,7 @@ fn light_transform_flops(r: usize) -> u64 {
 }
 
 impl Compressor for Haar {
-    fn kind(&self) -> &str {
-        KIND.name
-    }
-
-    fn params(&self) -> serde_json::Value {
-        serde_json::to_value(self).expect("plain struct serializes")
-    }
+    registry::kind_and_params!();
 
     fn kernels(&self, form: &CompressedForm) -> Result<KernelDesc, CompressError> {
         // The light transform needs a power-of-two cubemap (the kernel reads R from
@@ -368,11 +362,11 @@ impl Compressor for Haar {
         let light_words = Count::of([Factor::Cols, Factor::Const(3)]);
         Ok(KernelDesc {
             kind: KIND.name.into(),
-            wgsl: include_str!("gather.wgsl").replace("//#VALUES", declaration),
+            wgsl: biscale_kernels::with_row_pass(&include_str!("gather.wgsl").replace("//#VALUES", declaration)),
             passes: vec![
                 // One invocation per (face, channel).
                 PassDesc { entry_point: "haar_light".into(), threads: Count::of([Factor::Const(18)]) },
-                PassDesc { entry_point: "haar_rows".into(), threads: Count::of([Factor::Rows]) },
+                PassDesc { entry_point: biscale_kernels::ROW_ENTRY.into(), threads: Count::of([Factor::Rows]) },
             ],
             scratch: vec![
                 ScratchDesc { name: "light_hat".into(), words: light_words.clone() },

@@ -7,20 +7,11 @@
 @group(0) @binding(5) var<storage, read> col_idx: array<u32>;
 @group(0) @binding(6) var<storage, read> values: array<f32>;
 
-@compute @workgroup_size(64)
-fn sparse_rows(
-    @builtin(workgroup_id) wid: vec3<u32>,
-    @builtin(num_workgroups) nwg: vec3<u32>,
-    @builtin(local_invocation_index) lid: u32,
-) {
-    let r = linear_thread(wid, nwg, lid, 64u);
-    if r >= params.threads {
-        return;
-    }
+fn row_lstar(r: u32) -> vec3<f32> {
     let end = row_ptr[r + 1u];
     var acc = vec3<f32>(0.0);
     for (var i = row_ptr[r]; i < end; i++) {
         acc += values[i] * light_at(col_idx[i]);
     }
-    store_lstar(r, acc);
+    return acc;
 }

@@ -54,8 +54,11 @@ impl Compressor for Sparse {
         let len = |a: &str| Count::of([Factor::Len(a.into())]);
         Ok(KernelDesc {
             kind: KIND.name.into(),
-            wgsl: include_str!("gather.wgsl").into(),
-            passes: vec![PassDesc { entry_point: "sparse_rows".into(), threads: Count::of([Factor::Rows]) }],
+            wgsl: biscale_kernels::with_row_pass(include_str!("gather.wgsl")),
+            passes: vec![PassDesc {
+                entry_point: biscale_kernels::ROW_ENTRY.into(),
+                threads: Count::of([Factor::Rows]),
+            }],
             scratch: vec![],
             meta_keys: vec![],
             checks: vec![

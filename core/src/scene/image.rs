@@ -195,22 +195,14 @@ impl Render {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rand::{Rng, SeedableRng};
+    use crate::testing::random_hdr_image;
     use std::io::Write;
-
-    fn random_image(w: u32, h: u32, seed: u64) -> HdrImage {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-        // Values spanning many magnitudes, as HDR renders do.
-        let pixels =
-            (0..w * h).map(|_| std::array::from_fn(|_| rng.gen::<f32>() * 10f32.powi(rng.gen_range(-6..6)))).collect();
-        HdrImage { width: w, height: h, pixels }
-    }
 
     #[test]
     fn exr_round_trip_is_exact() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("a.exr");
-        let mut img = random_image(37, 23, 1);
+        let mut img = random_hdr_image(37, 23, 1);
         img.pixels[5] = [f32::MAX, f32::MIN_POSITIVE, 0.0];
         img.pixels[6] = [f32::NAN, f32::INFINITY, -1.5];
         img.write_exr(&path).unwrap();
@@ -261,7 +253,7 @@ mod tests {
     #[test]
     fn atomic_write_leaves_nothing_on_failure() {
         let dir = tempfile::tempdir().unwrap();
-        let img = random_image(4, 4, 2);
+        let img = random_hdr_image(4, 4, 2);
         let missing = dir.path().join("no_such_dir").join("x.exr");
         let e = img.write_exr(&missing).unwrap_err().to_string();
         assert!(e.contains("x.exr"), "{e}");

@@ -34,6 +34,25 @@ pub struct TransferBuild {
     pub stats: TransferStats,
 }
 
+/// One line for logs: `T`'s shape and non-zeros, and the build's time and ray rate.
+impl std::fmt::Display for TransferBuild {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let t = &self.matrix;
+        write!(
+            f,
+            "{} x {} ({}), {} non-zeros ({:.1} per row), built in {:.2} s ({:.1} M rays/s, {} threads)",
+            t.rows(),
+            t.cols(),
+            t.shape(),
+            t.nnz(),
+            t.nnz() as f64 / t.rows().max(1) as f64,
+            self.stats.seconds,
+            self.stats.rays_per_second / 1e6,
+            rayon::current_num_threads()
+        )
+    }
+}
+
 /// Statistics of a transfer build.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TransferStats {

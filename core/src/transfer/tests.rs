@@ -3,22 +3,12 @@
 //! thread counts, and the size guard.
 
 use super::*;
-use crate::geometry::shapes::{closed_box, grid_plane, uv_sphere};
+use crate::geometry::shapes::{closed_box, grid_plane, merged as merge, uv_sphere};
 use crate::geometry::{vertex_frames, Mesh};
 use crate::geometry::{SceneBvh, VertexFrame};
 use glam::Vec3;
 use rand::{Rng, SeedableRng};
 use std::f64::consts::PI;
-
-fn merge(parts: &[Mesh]) -> Mesh {
-    let mut out = Mesh::default();
-    for p in parts {
-        let base = out.positions.len() as u32;
-        out.positions.extend(&p.positions);
-        out.triangles.extend(p.triangles.iter().map(|t| t.map(|i| i + base)));
-    }
-    out
-}
 
 /// A unit sphere resting on an 8 x 8 plane at the origin (contact point (0, 0, 0)).
 fn sphere_on_plane() -> Mesh {

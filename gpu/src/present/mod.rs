@@ -7,7 +7,8 @@
 //! Nothing here changes [`GpuShader::shade`]: the image stays linear HDR, and the pass only
 //! reads it, so the same frame can be both read back and displayed.
 
-use crate::context::GpuContext;
+use crate::context::{GpuContext, RasterPipeline};
+
 use crate::error::{GpuError, Result};
 use crate::gather::GpuGather;
 use crate::shade::GpuShader;
@@ -114,30 +115,16 @@ impl ToneMap {
                 bind_group_layouts: &[Some(&layout)],
                 immediate_size: 0,
             });
-            let pipeline = ctx.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some("present"),
+            let pipeline = ctx.render_pipeline(RasterPipeline {
+                label: "present",
                 layout: Some(&pl),
-                vertex: wgpu::VertexState {
-                    module: &module,
-                    entry_point: Some("present_vs"),
-                    compilation_options: Default::default(),
-                    buffers: &[],
-                },
+                module: &module,
+                vertex: "present_vs",
+                fragment: "present_fs",
                 primitive: Default::default(),
-                depth_stencil: None,
-                multisample: Default::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module: &module,
-                    entry_point: Some("present_fs"),
-                    compilation_options: Default::default(),
-                    targets: &[Some(wgpu::ColorTargetState {
-                        format,
-                        blend: None,
-                        write_mask: wgpu::ColorWrites::ALL,
-                    })],
-                }),
-                multiview_mask: None,
-                cache: None,
+                depth: None,
+                format,
+                blend: None,
             });
             let env_view = env_texture(ctx, 1, 1, &[0.0; 4]).create_view(&Default::default());
             (pipeline, layout, env_view)

@@ -26,7 +26,7 @@
 //! the adapter's limits are checked here), `L*` and the [`Camera`]; the output is a
 //! [`Render`].
 
-use crate::context::{bytes_to_f32, GpuContext};
+use crate::context::{bytes_to_f32, GpuContext, RasterPipeline};
 use crate::error::{GpuError, Result};
 use crate::gather::GpuGather;
 use crate::timing::{measure, PassTimer, Timing};
@@ -343,21 +343,18 @@ impl GpuShader {
                     | wgpu::TextureUsages::COPY_SRC
                     | wgpu::TextureUsages::TEXTURE_BINDING,
             );
-            let vis_pipeline = ctx.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some("visibility"),
+            let vis_pipeline = ctx.render_pipeline(RasterPipeline {
+                label: "visibility",
                 layout: None,
-                vertex: wgpu::VertexState {
-                    module: &module,
-                    entry_point: Some("vis_vs"),
-                    compilation_options: Default::default(),
-                    buffers: &[],
-                },
+                module: &module,
+                vertex: "vis_vs",
+                fragment: "vis_fs",
                 primitive: wgpu::PrimitiveState {
                     topology: wgpu::PrimitiveTopology::TriangleList,
                     cull_mode: None,
                     ..Default::default()
                 },
-                depth_stencil: Some(wgpu::DepthStencilState {
+                depth: Some(wgpu::DepthStencilState {
                     format: wgpu::TextureFormat::Depth32Float,
                     depth_write_enabled: Some(true),
                     // Reversed Z: nearer is larger.
@@ -365,19 +362,8 @@ impl GpuShader {
                     stencil: Default::default(),
                     bias: Default::default(),
                 }),
-                multisample: Default::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module: &module,
-                    entry_point: Some("vis_fs"),
-                    compilation_options: Default::default(),
-                    targets: &[Some(wgpu::ColorTargetState {
-                        format: wgpu::TextureFormat::R32Uint,
-                        blend: None,
-                        write_mask: wgpu::ColorWrites::ALL,
-                    })],
-                }),
-                multiview_mask: None,
-                cache: None,
+                format: wgpu::TextureFormat::R32Uint,
+                blend: None,
             });
             let vis_bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("visibility"),

@@ -103,7 +103,7 @@ fn dispatch_folds_past_the_workgroups_per_dimension_limit() {
     let vertices = max / 64 + 2;
     let t = random_transfer(vertices, 8, 1, 0.5, 9);
     let mut program = Sparse.kernels(&Sparse.compress(&t, &CompressContext::default()).unwrap()).unwrap();
-    program.wgsl = program.wgsl.replace("@workgroup_size(64)", "@workgroup_size(1)").replace("lid, 64u)", "lid, 1u)");
+    program.wgsl = program.wgsl.replace("@workgroup_size(64)", "@workgroup_size(1)").replace("(inv, 64u)", "(inv, 1u)");
     assert!(t.rows() > max);
     check_sparse(ctx, &t, &random_light(1, 10), Some(&program));
 }
@@ -137,17 +137,15 @@ fn narrow_integers_unpack_exactly_through_scratch_and_meta() {
 @group(0) @binding(8) var<storage, read_write> stash: array<f32>;
 
 @compute @workgroup_size(16)
-fn first(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
-         @builtin(local_invocation_index) lid: u32) {
-    let i = linear_thread(wid, nwg, lid, 16u);
+fn first(inv: Invocation) {
+    let i = thread_index(inv, 16u);
     if i >= params.threads { return; }
     stash[i] = f32(u16_at(halves_u16[i >> 1u], i) + meta_values[0]);
 }
 
 @compute @workgroup_size(16)
-fn second(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
-          @builtin(local_invocation_index) lid: u32) {
-    let i = linear_thread(wid, nwg, lid, 16u);
+fn second(inv: Invocation) {
+    let i = linear_thread(inv.wid, inv.nwg, inv.lid, 16u);
     if i >= params.threads { return; }
     let a = f32(u8_at(bytes_u8[i >> 2u], i));
     let b = f32(i8_at(bytes_i8[i >> 2u], i)) * 65536.0 + f32(i16_at(bitcast<u32>(halves_i16[i >> 1u]), i));
@@ -252,7 +250,7 @@ fn gather_timing_gives_finite_medians_per_pass() {
     match timing.method {
         TimingMethod::GpuTimestamps => {
             assert_eq!(timing.passes.len(), 1);
-            assert_eq!(timing.passes[0].name, "sparse_rows");
+            assert_eq!(timing.passes[0].name, biscale_kernels::ROW_ENTRY);
         }
         TimingMethod::WallClock => assert!(timing.passes.is_empty()),
     }
@@ -295,7 +293,7 @@ fn forced_timestamps_time_every_pass_and_never_means_wall_clock() {
     assert_eq!(timing.method, TimingMethod::GpuTimestamps);
     assert_eq!(timing.repetitions, 3);
     let names: Vec<&str> = timing.passes.iter().map(|p| p.name.as_str()).collect();
-    assert_eq!(names, ["bicluster_sums", "bicluster_rows"]);
+    assert_eq!(names, ["bicluster_sums", biscale_kernels::ROW_ENTRY]);
     for p in &timing.passes {
         assert!(p.median_ms.is_finite() && p.median_ms >= 0.0, "{timing:?}");
     }

@@ -12,7 +12,7 @@ use super::gpu_or_skip;
 use crate::{GpuError, GpuGather};
 use biscale_compressors::plugin::testing::build_plugin;
 use biscale_compressors::plugin::PluginCompressor;
-use biscale_compressors::testing::{cubemap, f32_sum_bound, random_light, random_transfer};
+use biscale_compressors::testing::{cubemap, f32_sum_bound, quantized_stored_product, random_light, random_transfer};
 use biscale_core::compress::{ArrayData, CompressContext, CompressError, Compressor};
 use biscale_core::sampling::LightVector;
 
@@ -50,15 +50,9 @@ fn quantized_plugin_form_matches_its_cpu_gather_and_the_f64_reference() {
             g.gather(light).unwrap();
             let got = g.read_lstar().unwrap();
             let cpu = plugin.gather(&form, light).unwrap();
-            let (rp, ci, codes) =
-                (form.u32s("row_ptr").unwrap(), form.u16s("col_idx").unwrap(), form.u8s("codes").unwrap());
-            let s = form.f32s("scale").unwrap()[0] as f64;
-            for r in 0..form.rows() {
-                let span = rp[r] as usize..rp[r + 1] as usize;
-                let bound = f32_sum_bound(span.len() + 1);
-                for c in 0..3 {
-                    let exact: f64 =
-                        span.clone().map(|e| codes[e] as f64 * s * light.power[ci[e] as usize][c] as f64).sum();
+            for (r, (exact, terms)) in quantized_stored_product(&form, light).into_iter().enumerate() {
+                let bound = f32_sum_bound(terms + 1);
+                for (c, exact) in exact.into_iter().enumerate() {
                     let (v, w) = (got.values()[r][c], cpu.values()[r][c]);
                     assert!(v.is_finite(), "row {r} channel {c} not written: {v}");
                     assert!((v as f64 - exact).abs() <= bound * exact, "row {r} c{c}: GPU {v} vs f64 {exact}");

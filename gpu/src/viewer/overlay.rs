@@ -4,7 +4,8 @@
 //! at 1:1 pixel size in the top-left corner. A few hundred glyphs per frame cost well under a
 //! millisecond, so the text is simply redrawn every frame.
 
-use crate::context::GpuContext;
+use crate::context::{GpuContext, RasterPipeline};
+
 use crate::error::{GpuError, Result};
 use crate::timing::PassTimer;
 use ab_glyph::{Font, FontRef, PxScale, ScaleFont};
@@ -146,30 +147,16 @@ impl Overlay {
                 dst_factor: wgpu::BlendFactor::OneMinusSrcAlpha,
                 operation: wgpu::BlendOperation::Add,
             };
-            let pipeline = ctx.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some("overlay"),
+            let pipeline = ctx.render_pipeline(RasterPipeline {
+                label: "overlay",
                 layout: None,
-                vertex: wgpu::VertexState {
-                    module: &module,
-                    entry_point: Some("overlay_vs"),
-                    compilation_options: Default::default(),
-                    buffers: &[],
-                },
+                module: &module,
+                vertex: "overlay_vs",
+                fragment: "overlay_fs",
                 primitive: Default::default(),
-                depth_stencil: None,
-                multisample: Default::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module: &module,
-                    entry_point: Some("overlay_fs"),
-                    compilation_options: Default::default(),
-                    targets: &[Some(wgpu::ColorTargetState {
-                        format,
-                        blend: Some(wgpu::BlendState { color: blend, alpha: blend }),
-                        write_mask: wgpu::ColorWrites::ALL,
-                    })],
-                }),
-                multiview_mask: None,
-                cache: None,
+                depth: None,
+                format: format,
+                blend: Some(wgpu::BlendState { color: blend, alpha: blend }),
             });
             (texture, pipeline)
         })?;

@@ -356,19 +356,37 @@ fn smoothstep(e0: f64, e1: f64, x: f64) -> f64 {
     t * t * (3.0 - 2.0 * t)
 }
 
+/// A pattern of one feature per cell: the cell's centre jittered by up to `jitter / 2` cells
+/// on each axis (random streams `salt`, `salt + 1`), looked for `reach` cells around a point.
+struct CellFeatures {
+    reach: i64,
+    jitter: f64,
+    salt: u64,
+}
+
+impl CellFeatures {
+    /// Call `visit(d2, a, b)` for every feature near `(x, y)`: its squared distance to the
+    /// point, and two more uniforms of its cell (streams `salt + 2`, `salt + 3`).
+    fn visit(&self, x: f64, y: f64, f: u32, seed: u64, mut visit: impl FnMut(f64, f64, f64)) {
+        let (fl, salt) = (f as f64, self.salt);
+        for (cj, wj) in cells_around(y, f, self.reach) {
+            for (ci, wi) in cells_around(x, f, self.reach) {
+                let cx = (ci as f64 + 0.5 + self.jitter * (rand01(seed, wi, wj, salt) - 0.5)) / fl;
+                let cy = (cj as f64 + 0.5 + self.jitter * (rand01(seed, wi, wj, salt + 1) - 0.5)) / fl;
+                let d2 = (x - cx).powi(2) + (y - cy).powi(2);
+                visit(d2, rand01(seed, wi, wj, salt + 2), rand01(seed, wi, wj, salt + 3));
+            }
+        }
+    }
+}
+
 fn bumps(x: f64, y: f64, f: u32, seed: u64) -> f64 {
     let fl = f as f64;
     let mut best = 0.0f64;
-    for (cj, wj) in cells_around(y, f, 2) {
-        for (ci, wi) in cells_around(x, f, 2) {
-            let cx = (ci as f64 + 0.5 + 0.6 * (rand01(seed, wi, wj, 1) - 0.5)) / fl;
-            let cy = (cj as f64 + 0.5 + 0.6 * (rand01(seed, wi, wj, 2) - 0.5)) / fl;
-            let sigma = (0.15 + 0.1 * rand01(seed, wi, wj, 3)) / fl;
-            let peak = 0.6 + 0.4 * rand01(seed, wi, wj, 4);
-            let d2 = (x - cx).powi(2) + (y - cy).powi(2);
-            best = best.max(peak * (-d2 / (2.0 * sigma * sigma)).exp());
-        }
-    }
+    CellFeatures { reach: 2, jitter: 0.6, salt: 1 }.visit(x, y, f, seed, |d2, a, b| {
+        let (sigma, peak) = ((0.15 + 0.1 * a) / fl, 0.6 + 0.4 * b);
+        best = best.max(peak * (-d2 / (2.0 * sigma * sigma)).exp());
+    });
     best
 }
 
@@ -420,16 +438,10 @@ fn stucco(x: f64, y: f64, f: u32, seed: u64) -> f64 {
 fn holes(x: f64, y: f64, f: u32, seed: u64) -> f64 {
     let fl = f as f64;
     let mut depth = 0.0f64;
-    for (cj, wj) in cells_around(y, f, 1) {
-        for (ci, wi) in cells_around(x, f, 1) {
-            let cx = (ci as f64 + 0.5 + 0.3 * (rand01(seed, wi, wj, 21) - 0.5)) / fl;
-            let cy = (cj as f64 + 0.5 + 0.3 * (rand01(seed, wi, wj, 22) - 0.5)) / fl;
-            let r = (0.25 + 0.1 * rand01(seed, wi, wj, 23)) / fl;
-            let deep = 0.8 + 0.2 * rand01(seed, wi, wj, 24);
-            let d = ((x - cx).powi(2) + (y - cy).powi(2)).sqrt();
-            depth = depth.max(deep * (1.0 - smoothstep(r - 0.05 / fl, r, d)));
-        }
-    }
+    CellFeatures { reach: 1, jitter: 0.3, salt: 21 }.visit(x, y, f, seed, |d2, a, b| {
+        let (r, deep) = ((0.25 + 0.1 * a) / fl, 0.8 + 0.2 * b);
+        depth = depth.max(deep * (1.0 - smoothstep(r - 0.05 / fl, r, d2.sqrt())));
+    });
     -depth
 }
 

@@ -194,24 +194,17 @@ impl PeriodicTracer {
                     return Some(hit);
                 }
             }
+            // Step to the next cell across x or y; the wrapped index stays in 0..n.
+            let step = |i: &mut i64, w: &mut i64, s: i64| {
+                *i += s;
+                *w = (*w + s).rem_euclid(n);
+            };
             if tx < ty {
-                ix += sx;
-                wi += sx;
-                if wi == n {
-                    wi = 0;
-                } else if wi < 0 {
-                    wi = n - 1;
-                }
+                step(&mut ix, &mut wi, sx);
                 t_in = tx;
                 tx += ddx;
             } else {
-                iy += sy;
-                wj += sy;
-                if wj == n {
-                    wj = 0;
-                } else if wj < 0 {
-                    wj = n - 1;
-                }
+                step(&mut iy, &mut wj, sy);
                 t_in = ty;
                 ty += ddy;
             }

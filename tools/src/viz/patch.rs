@@ -54,6 +54,11 @@ pub struct PatchView {
 }
 
 impl PatchView {
+    /// `vertices a..b`, for titles.
+    fn span(&self) -> String {
+        format!("vertices {}..{}", self.first_vertex, self.first_vertex + self.vertices - 1)
+    }
+
     /// `vertices` vertices from `first_vertex`, cubemap panels, 4-pixel cells.
     pub fn new(first_vertex: usize, vertices: usize) -> Self {
         Self { first_vertex, vertices, layout: PatchLayout::CubemapPanels, cell: 4 }
@@ -391,10 +396,8 @@ pub fn write_sparsity(t: &TransferMatrix, view: &PatchView, path: &Path) -> Resu
         }
     }
     let title = format!(
-        "T: vertices {}..{} ({} rows of M = {m} each) x N = {} columns; {nnz} non-zeros{}",
-        view.first_vertex,
-        view.first_vertex + view.vertices - 1,
-        patch_rows,
+        "T: {} ({patch_rows} rows of M = {m} each) x N = {} columns; {nnz} non-zeros{}",
+        view.span(),
         t.cols(),
         match view.layout {
             PatchLayout::CubemapPanels => ", rows folded onto the cubemap".to_string(),
@@ -504,10 +507,8 @@ pub fn write_bicluster_patch(
         }
     }
     let title = format!(
-        "Biclusters on T: vertices {}..{} ({} rows), {} of the {} biclusters touch these rows",
-        view.first_vertex,
-        view.first_vertex + view.vertices - 1,
-        patch_rows,
+        "Biclusters on T: {} ({patch_rows} rows), {} of the {} biclusters touch these rows",
+        view.span(),
         ids.len(),
         biclusters
     );

@@ -30,16 +30,12 @@ const WGSL: &str = r#"
 @group(0) @binding(5) var<storage, read> col_idx: array<u32>;
 @group(0) @binding(6) var<storage, read> values: array<f32>;
 
-@compute @workgroup_size(64)
-fn faulty_rows(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
-               @builtin(local_invocation_index) lid: u32) {
-    let r = linear_thread(wid, nwg, lid, 64u);
-    if r >= params.threads { return; }
+fn row_lstar(r: u32) -> vec3<f32> {
     var acc = vec3<f32>(0.0);
     for (var i = row_ptr[r]; i < row_ptr[r + 1u]; i++) {
         acc += values[i] * light_at(col_idx[i]);
     }
-    store_lstar(r, acc);
+    return acc;
 }
 "#;
 
@@ -71,10 +67,11 @@ impl PluginCompressor for Faulty {
             "kernels_panic" => panic!("faulty plugin: kernels panicked on purpose"),
             _ => WGSL.to_string(),
         };
+        let wgsl = biscale_plugin::with_row_pass(&wgsl);
         let rows = || Count::of([Factor::Rows]);
         Ok(Kernels {
             wgsl,
-            passes: vec![Pass { entry_point: "faulty_rows".into(), threads: rows() }],
+            passes: vec![Pass { entry_point: biscale_plugin::ROW_ENTRY.into(), threads: rows() }],
             scratch: vec![],
             meta_keys: vec![],
             checks: vec![

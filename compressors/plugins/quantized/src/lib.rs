@@ -21,7 +21,7 @@ use biscale_plugin::{
 /// The quantized sparse-row compressor.
 pub struct Quantized;
 
-/// The WGSL gather: one invocation per row.
+/// The WGSL gather: `row_lstar`, run one invocation per row by the shared row pass.
 pub const WGSL: &str = include_str!("quantized.wgsl");
 
 /// The scale from the parameters (`None`: derive from the matrix).
@@ -48,8 +48,8 @@ impl PluginCompressor for Quantized {
         scale_param(params)?;
         let rows = || Count::of([Factor::Rows]);
         Ok(Kernels {
-            wgsl: WGSL.to_string(),
-            passes: vec![Pass { entry_point: "quantized_rows".into(), threads: rows() }],
+            wgsl: biscale_plugin::with_row_pass(WGSL),
+            passes: vec![Pass { entry_point: biscale_plugin::ROW_ENTRY.into(), threads: rows() }],
             scratch: vec![],
             meta_keys: vec![],
             // Enough that the kernel's loop is bounded and every index is in range.

@@ -9,16 +9,7 @@
 @group(0) @binding(6) var<storage, read> codes: array<u32>;
 @group(0) @binding(7) var<storage, read> scale: array<f32>;
 
-@compute @workgroup_size(64)
-fn quantized_rows(
-    @builtin(workgroup_id) wid: vec3<u32>,
-    @builtin(num_workgroups) nwg: vec3<u32>,
-    @builtin(local_invocation_index) lid: u32,
-) {
-    let r = linear_thread(wid, nwg, lid, 64u);
-    if r >= params.threads {
-        return;
-    }
+fn row_lstar(r: u32) -> vec3<f32> {
     let end = row_ptr[r + 1u];
     var acc = vec3<f32>(0.0);
     for (var e = row_ptr[r]; e < end; e++) {
@@ -26,5 +17,5 @@ fn quantized_rows(
         let q = f32(u8_at(codes[e >> 2u], e));
         acc += q * light_at(k);
     }
-    store_lstar(r, scale[0] * acc);
+    return scale[0] * acc;
 }
