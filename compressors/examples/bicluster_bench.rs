@@ -78,7 +78,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "block_vertices {:>5}: median {:7.2} s (runs {:?}) | biclusters {:>8} | MFLOPs {:.2} -> {:.2} ({:.1}%) | \
              bytes {} = {:.3} B/nnz, {:.2}% of dense, {:.1}% of CSR | r p50/p90/max {}/{}/{} | l p50/p90/max {}/{}/{} | row list mean {:.1} max {}",
             bv,
-            times[times.len() / 2],
+            biscale_core::stats::median(&times),
             times.iter().map(|x| (x * 100.0).round() / 100.0).collect::<Vec<_>>(),
             s.biclusters,
             s.mflops_raw,

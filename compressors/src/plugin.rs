@@ -1,4 +1,4 @@
-//! Compressors loaded from shared libraries (DESIGN.md section 4; issue 7): a researcher
+//! Compressors loaded from shared libraries (docs/DESIGN.md section 4; issue 7): a researcher
 //! builds a transfer compressor as a `cdylib` against `biscale-plugin-api` and names it in the
 //! experiment (`kind = "plugin"`, `path = ...`, `params = { ... }`); biscale needs no rebuild.
 //!

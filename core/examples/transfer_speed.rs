@@ -1,4 +1,4 @@
-//! Speed of the transfer build (DESIGN.md section 8: medians over repeated runs).
+//! Speed of the transfer build (docs/DESIGN.md section 8: medians over repeated runs).
 //!
 //! ```text
 //! cargo run --release -p biscale-core --example transfer_speed -- assets/meshes/bunny.obj [runs] [R] [visibility] [m]
@@ -11,18 +11,9 @@
 //! bunny under 10 s.
 
 use biscale_core::geometry::Mesh;
+use biscale_core::stats::median;
 use biscale_core::transfer::{self, TransferSettings};
 use std::path::PathBuf;
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(|a, b| a.total_cmp(b));
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -64,9 +55,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let b = last.expect("runs >= 1");
     println!(
         "median: {:.3} s, {:.0} rays, {:.2} Mrays/s; nnz {} ({:.2} per vertex); frame fallbacks {}",
-        median(secs),
-        median(rays),
-        median(rate) / 1e6,
+        median(&secs),
+        median(&rays),
+        median(&rate) / 1e6,
         b.matrix.nnz(),
         b.matrix.nnz() as f64 / b.matrix.vertices().max(1) as f64,
         b.stats.frame_fallbacks

@@ -2,7 +2,7 @@
 //! scalar fields and named typed arrays. The transfer matrix (`TransferMatrix::save`), every
 //! compressed form (`CompressedForm::save`) and every BTF (`biscale_shading::synth::save_btf`)
 //! are written as one, so they are cached on disk and loaded back by one reader that trusts
-//! nothing it reads (DESIGN.md sections 2 and 4). It is also simple to read from other
+//! nothing it reads (docs/DESIGN.md sections 2 and 4). It is also simple to read from other
 //! languages: a header of little-endian integers and UTF-8 names, then the raw arrays.
 //!
 //! Layout (all integers little-endian):

@@ -1,4 +1,4 @@
-//! The bases that give stage outputs their meaning (DESIGN.md section 9).
+//! The bases that give stage outputs their meaning (docs/DESIGN.md section 9).
 //!
 //! A light vector, a transfer matrix, a compressed form, `L*` and a BTF all carry the basis
 //! their numbers are coefficients of, instead of a bare size, so that two stages can only be
@@ -12,8 +12,8 @@
 //!
 //! Each is a closed enum: the spherical-harmonics method adds an `Sh { order }` variant to
 //! both. The constructors validate (so a basis in hand is always usable), and
-//! [`LocalBasis::tag`] / [`LocalBasis::parse`] are the one text form written into artifact
-//! headers, plans and reports (`bins:8`, `cubemap:32`).
+//! [`LocalBasis::tag`] / [`LocalBasis::parse`] are the one text form of a basis in artifact
+//! headers and cache keys (`bins:8`, `cubemap:32`).
 
 use crate::error::{CoreError, Result};
 use crate::sampling::{Cubemap, HemisphereGrid};

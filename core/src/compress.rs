@@ -1,4 +1,4 @@
-//! The compression stage's interface (DESIGN.md section 4).
+//! The compression stage's interface (docs/DESIGN.md section 4).
 //!
 //! A [`Compressor`] turns the transfer matrix `T` into a [`CompressedForm`]: a few named flat
 //! arrays at their stored width plus the stats every form reports. The form is plain data:
@@ -156,8 +156,9 @@ impl CompressedForm {
         a
     }
 
-    /// The form an artifact holds. What the arrays mean is the compressor's to check (its
-    /// `KernelDesc` checks run before any gather).
+    /// The form an artifact holds. What the arrays mean is the compressor's to check: its
+    /// gather bounds-checks what it reads, and its `KernelDesc` checks run before any GPU
+    /// upload or plugin gather.
     pub fn from_artifact(mut a: Artifact) -> Result<Self, ArtifactError> {
         a.expect_kind(Self::ARTIFACT)?;
         let mut form = Self::new(a.str("compressor")?, a.shape()?);

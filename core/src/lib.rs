@@ -1,7 +1,7 @@
 //! # biscale-core
 //!
 //! The plain data that flows between biscale's stages, the conventions every stage agrees
-//! on (DESIGN.md section 3), and the CPU stages that produce the transfer matrix:
+//! on (docs/DESIGN.md section 3), and the CPU stages that produce the transfer matrix:
 //!
 //! * [`basis`]: the bases stage outputs carry (the light basis of `L`, the local basis of `L*`).
 //! * [`sampling`]: the cubemap layout and its exact texel solid angles, the Shirley-Chiu
@@ -11,7 +11,7 @@
 //!   every ray query.
 //! * [`transfer`]: the per-vertex visibility transfer matrix `T` ((n M) x N, CSR).
 //! * [`compress`]: the [`compress::Compressor`] interface and the compressed form as plain
-//!   arrays (DESIGN.md section 4).
+//!   arrays (docs/DESIGN.md section 4).
 //! * [`gather`]: local incident radiance `L* = T L` and its f64 reference product.
 //! * [`scene`]: what every shader takes and returns: the shade scene (mesh, frames,
 //!   materials), BTF tables, the camera, the RGB image type and its files.

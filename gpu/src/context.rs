@@ -137,8 +137,9 @@ impl GpuContext {
         &self.limits
     }
 
-    /// True when per-pass GPU timestamps are available and trusted (otherwise timings are
-    /// wall-clock medians from submit to idle): never on a CPU adapter such as lavapipe.
+    /// True when passes are timed with GPU timestamps (otherwise timings are wall-clock
+    /// medians from submit to idle): by default only on a GPU that has them, never on a CPU
+    /// adapter such as lavapipe, whose timestamps are not meaningful (`TimestampPolicy`).
     pub fn has_timestamps(&self) -> bool {
         self.timestamps
     }

@@ -1,6 +1,6 @@
 //! # biscale-gpu
 //!
-//! biscale's wgpu runtime (DESIGN.md sections 2 and 4): the per-frame stages that run on the
+//! biscale's wgpu runtime (docs/DESIGN.md sections 2 and 4): the per-frame stages that run on the
 //! GPU, kept in their own crate so that `biscale-core` knows nothing of wgpu and the rest of
 //! the workspace builds without it.
 //!

@@ -1,8 +1,10 @@
-//! Run-time measurement of GPU stages (DESIGN.md section 8: medians over repetitions).
+//! Run-time measurement of GPU stages (docs/DESIGN.md section 8: medians over repetitions).
 //!
-//! Where the adapter has timestamp queries, every pass (one compute dispatch or one render
-//! pass) is bracketed by GPU timestamps and its duration read back; otherwise each repetition
-//! is submitted on its own and timed by the wall clock from submit until the queue is idle.
+//! Where the context uses timestamp queries ([`crate::GpuContext::has_timestamps`]: a GPU that
+//! has them, or any adapter with `TimestampPolicy::Always`), every pass (one compute dispatch
+//! or one render pass) is bracketed by GPU timestamps and its duration read back; otherwise
+//! (CPU adapters such as lavapipe by default) each repetition is submitted on its own and
+//! timed by the wall clock from submit until the queue is idle.
 
 use crate::context::GpuContext;
 use crate::error::{GpuError, Result};

@@ -1,4 +1,4 @@
-//! Experiment configuration: one TOML file per experiment (DESIGN.md section 7).
+//! Experiment configuration: one TOML file per experiment (docs/DESIGN.md section 7).
 //!
 //! Every table denies unknown keys; type errors, unknown keys, out-of-range values and
 //! missing files are reported as `file:line:column: message` with the offending line shown.

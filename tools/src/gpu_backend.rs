@@ -1,6 +1,7 @@
 //! The wgpu backend of the pipeline (`runtime.backend = "gpu"`, cargo feature `gpu`): the
-//! same compressed forms gathered and shaded by `biscale-gpu`, timed with GPU timestamps,
-//! and checked against the CPU results of the same run.
+//! same compressed forms gathered and shaded by `biscale-gpu`, timed with GPU timestamps
+//! (submit-to-idle wall clock on a CPU adapter), and checked against the CPU results of the
+//! same run.
 
 use crate::metrics::{GpuRecord, ImageErrors};
 use crate::pipeline::Result;

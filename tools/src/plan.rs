@@ -1,4 +1,4 @@
-//! The planner (DESIGN.md section 5): from the experiment, decide which stages and data
+//! The planner (docs/DESIGN.md section 5): from the experiment, decide which stages and data
 //! dimensions are needed, and say what is left out and why. Printed before every run.
 
 use crate::config::{CompressorSetting, Experiment, MaterialConfig};

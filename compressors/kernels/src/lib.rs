@@ -1,6 +1,6 @@
 //! # biscale-kernels
 //!
-//! What a compressed transfer form is to a GPU, as plain data (DESIGN.md section 4:
+//! What a compressed transfer form is to a GPU, as plain data (docs/DESIGN.md section 4:
 //! compressed forms are data), in one small crate without wgpu that every party shares:
 //! `biscale-core` (whose `Compressor` declares its gather program with a [`KernelDesc`]), the
 //! built-in compressors and the plugin host (`biscale-compressors`), and the wgpu runtime

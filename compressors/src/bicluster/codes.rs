@@ -1,4 +1,4 @@
-//! Exact integer value codes of `T` (DESIGN.md section 3: visibility fractions are multiples
+//! Exact integer value codes of `T` (docs/DESIGN.md section 3: visibility fractions are multiples
 //! of `1 / s^2`). Every stored value `v` becomes `code = round(v q)` for the smallest scale `q`
 //! that represents all of them exactly (up to the f32 rounding of `code / q` itself), so the
 //! whole biclustering runs in exact integer arithmetic: no float drift, residuals are exact.

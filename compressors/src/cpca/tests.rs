@@ -1,6 +1,6 @@
 //! CPCA tests: exactness where the model can be exact, agreement with the Eckart-Young optimum
 //! (a dense f64 eigen-decomposition) for one cluster, monotone error in K and C, and the stiff
-//! and degenerate inputs of DESIGN.md section 6.
+//! and degenerate inputs of docs/DESIGN.md section 6.
 
 use super::*;
 use crate::testing::{random_light, random_transfer};

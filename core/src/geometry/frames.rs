@@ -1,4 +1,4 @@
-//! Per-vertex orthonormal frames (DESIGN.md section 3): the area-weighted smooth normal,
+//! Per-vertex orthonormal frames (docs/DESIGN.md section 3): the area-weighted smooth normal,
 //! a tangent from the UV parameterization where the mesh has one (anisotropic BTFs need it),
 //! otherwise the projection of a fixed oblique axis ([`TANGENT_REFERENCE`]), so tangents vary
 //! smoothly between neighbouring vertices; a basis from the normal alone (Duff et al. 2017,

@@ -1,9 +1,9 @@
-//! Triangle meshes: OBJ loading, validation and repair (DESIGN.md section 6: NaN/Inf never
+//! Triangle meshes: OBJ loading, validation and repair (docs/DESIGN.md section 6: NaN/Inf never
 //! propagates silently; zero-area and sliver triangles and duplicate vertices are
 //! first-class inputs).
 //!
-//! Every mesh enters the pipeline through [`Mesh::from_parts`] ([`Mesh::load_obj`] parses
-//! with tobj and calls it), which
+//! Every mesh enters the pipeline through one validation ([`Mesh::from_parts`], which
+//! [`Mesh::load_obj`] shares after parsing with tobj), which
 //!
 //! * rejects what cannot be repaired with a [`CoreError::Input`] that says what and where:
 //!   a non-finite position or uv (naming the vertex), a triangle index out of range (naming
@@ -266,7 +266,6 @@ impl Mesh {
             .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), p| (lo.min(*p), hi.max(*p)))
     }
 
-    /// Length of the bounding box diagonal (the mesh's scale; 0 for an empty mesh).
     /// The mesh as OBJ text (`v`, optional `vt`, `usemtl` when it has materials, and 1-based
     /// `f` lines).
     pub fn to_obj(&self) -> String {
@@ -299,6 +298,7 @@ impl Mesh {
         s
     }
 
+    /// Length of the bounding box diagonal (the mesh's scale; 0 for an empty mesh).
     pub fn diagonal(&self) -> f32 {
         let (lo, hi) = self.bounds();
         (hi - lo).length()

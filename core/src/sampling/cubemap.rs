@@ -1,4 +1,4 @@
-//! The cubemap layout shared by every stage (DESIGN.md section 3).
+//! The cubemap layout shared by every stage (docs/DESIGN.md section 3).
 //!
 //! Faces are ordered +X, -X, +Y, -Y, +Z, -Z with the Vulkan/OpenGL orientation; texel
 //! `k = face*R*R + row*R + col`; directions pass through texel centres. Each texel's solid

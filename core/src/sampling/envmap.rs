@@ -7,7 +7,7 @@
 //! `v = acos(d.y) / pi`.
 //!
 //! `L_k` is the power through cubemap texel `k`: the integral of radiance over the texel's
-//! solid angle (DESIGN.md section 3). It is built by *splatting* every source pixel, split
+//! solid angle (docs/DESIGN.md section 3). It is built by *splatting* every source pixel, split
 //! into sub-pixels each carrying its exact solid angle, into the texel its centre falls in,
 //! so the total power equals the integral of the piecewise-constant source map exactly and a
 //! sun a few pixels wide keeps its energy.

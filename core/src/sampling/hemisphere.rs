@@ -1,4 +1,4 @@
-//! Local direction grids on the hemisphere (DESIGN.md section 3).
+//! Local direction grids on the hemisphere (docs/DESIGN.md section 3).
 //!
 //! An `m x m` grid on the unit square is mapped to the unit disk by the Shirley-Chiu
 //! concentric map and lifted to the hemisphere area-preservingly (`z = 1 - r^2`), so every

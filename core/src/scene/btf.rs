@@ -1,7 +1,7 @@
 //! BTF tables `b(u, e, d_j)` for analytic materials, and their lookup (paper section 3,
 //! `B(x, e) = sum_j b(u, e, d_j) L*(x, d_j)`).
 //!
-//! Convention (DESIGN.md section 3): `b(u, e, d_j)` is the outgoing radiance at patch texel `u`
+//! Convention (docs/DESIGN.md section 3): `b(u, e, d_j)` is the outgoing radiance at patch texel `u`
 //! towards view `e` under a directional light of unit perpendicular irradiance from `d_j`,
 //! *including* `cos(theta_d)`. For an analytic BRDF `f` this is `f(d_j, e) cos(theta_j)`.
 //!
@@ -18,7 +18,7 @@
 //!   is evaluated at the bin-centre direction ([`HemisphereGrid::bin_direction`]).
 //!
 //! Table layout: `data[(texel * V + view) * M + light]`, texel `= ty * spatial[0] + tx`, `V` the
-//! number of view samples (1 when the BTF is view-independent and has no view axis, DESIGN.md
+//! number of view samples (1 when the BTF is view-independent and has no view axis, docs/DESIGN.md
 //! section 5), `M` the number of light bins. View samples sit at the bin centres of
 //! `view_grid` and are interpolated bilinearly in the concentric-square parameterization.
 

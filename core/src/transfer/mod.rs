@@ -1,4 +1,4 @@
-//! Transfer stage: per-vertex visibility transfer matrices (DESIGN.md sections 1 and 3).
+//! Transfer stage: per-vertex visibility transfer matrices (docs/DESIGN.md sections 1 and 3).
 //!
 //! For a point p with frame F and a light texel k of the R x R cubemap whose centre direction
 //! `d_k` lies above p's tangent plane, `T_p[j, k]` is the fraction of k's `s x s` children in

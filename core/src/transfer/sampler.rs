@@ -1,5 +1,5 @@
 //! The directions every visibility query shares, and the per-point kernel that turns one
-//! point's ray queries into its transfer entries (DESIGN.md section 3).
+//! point's ray queries into its transfer entries (docs/DESIGN.md section 3).
 //!
 //! For a point with frame F and a coarse texel k whose centre `d_k` lies above F's tangent
 //! plane, the kernel traces k's `s x s` children of the visibility cubemap and emits the

@@ -9,7 +9,8 @@
 //!   works; far above the f32 rounding of positions (~1e-7 relative), so the point's own
 //!   triangles are not hit by rays above its tangent plane through rounding noise; far below
 //!   any feature (bunny: 1.4e-3 against edges of ~0.2), so real close occluders (creases,
-//!   concavities) still occlude. Rays start at `t = 0` from the offset point.
+//!   concavities) still occlude. Rays leave the offset point from `RAY_TMIN` (the BVH's own
+//!   near limit, `geometry::bvh`).
 //! * **Scale.** The BVH is built on the mesh translated to its bounding-box centre and scaled
 //!   to a diagonal of [`BVH_DIAGONAL`], a similarity transform that leaves every visibility
 //!   answer unchanged but (a) keeps f32 precision for meshes far from the origin and (b) keeps

@@ -11,7 +11,7 @@
 //! product over the M light directions. Output: linear HDR RGB (rgba32float) and a coverage
 //! mask, row 0 at the top, pixel centres at +0.5.
 //!
-//! Several materials per scene (as `shading::cpu::ShadeScene`): every material's BTF table
+//! Several materials per scene (as `biscale_core::scene::ShadeScene`): every material's BTF table
 //! is appended to one storage buffer, a small storage buffer holds one [`GpuMaterialHeader`]
 //! per material (where its table starts, its patch size, its view grid, its tiling), and a
 //! per-triangle buffer holds material ids. Per pixel: the triangle's material, its header,

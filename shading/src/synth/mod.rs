@@ -11,7 +11,7 @@
 //!
 //! # What is computed
 //!
-//! DESIGN.md section 3: `b(u, e, d_j)` is the outgoing radiance at patch texel `u` towards
+//! docs/DESIGN.md section 3: `b(u, e, d_j)` is the outgoing radiance at patch texel `u` towards
 //! view `e` under a directional light of unit perpendicular irradiance from `d_j`:
 //!
 //! ```text

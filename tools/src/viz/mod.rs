@@ -22,7 +22,7 @@
 //! thousand pixels wide in which each row is a few short runs of dots. Two layouts:
 //!
 //! * [`PatchLayout::CubemapPanels`] (the default, the most legible): each transfer entry
-//!   `T_p[j, k]` is non-zero only for the one bin `j` that contains `d_k` (DESIGN.md section 3),
+//!   `T_p[j, k]` is non-zero only for the one bin `j` that contains `d_k` (docs/DESIGN.md section 3),
 //!   so a vertex's M rows never share a column and fold without loss onto the cubemap: one
 //!   strip per vertex of six R x R face panels (+X, -X, +Y, -Y, +Z, -Z, texel row 0 at the top,
 //!   column 0 at the left), cell `(p, k)` showing entry `(p M + j(k), k)`. The visible
