@@ -95,17 +95,22 @@ pub fn markdown(m: &Metrics, plan: &Plan) -> String {
 
 /// The transfer matrix in one sentence (both reports).
 pub fn transfer_summary(t: &TransferMetrics) -> String {
+    let built = match t.cached {
+        true => "loaded from the stage cache".to_string(),
+        false => format!(
+            "built in {:.2} s ({} rays, {:.1} M rays/s)",
+            t.build_seconds,
+            t.rays_traced,
+            t.rays_per_second / 1e6
+        ),
+    };
     format!(
-        "T is {} x {} ({} local directions per vertex) with {} non-zeros ({:.2}% dense), built in {:.2} s{} ({} rays, {:.1} M rays/s).",
+        "T is {} x {} ({} local directions per vertex) with {} non-zeros ({:.2}% dense), {built}.",
         t.rows,
         t.cols,
         t.local_dirs,
         t.nnz,
         100.0 * t.nnz as f64 / (t.rows as f64 * t.cols as f64).max(1.0),
-        t.build_seconds,
-        if t.cached { " (loaded from the cache)" } else { "" },
-        t.rays_traced,
-        t.rays_per_second / 1e6
     )
 }
 
