@@ -52,7 +52,7 @@ fn main() -> Result<(), Box<dyn Error>> {
     let lights = [
         ("random+sun", random_light(settings.cubemap().resolution, 1)),
         ("random", random_light(settings.cubemap().resolution, 2)),
-        ("env", LightVector::from_env(&env, settings.light_basis(), 0.0)),
+        ("env", LightVector::from_env(&env, settings.cubemap(), 0.0)),
     ];
     let references: Vec<_> = lights.iter().map(|(_, l)| reference_product(&t, l)).collect();
     println!("env light: {env_path}");

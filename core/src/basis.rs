@@ -4,19 +4,24 @@
 //! their numbers are coefficients of, instead of a bare size, so that two stages can only be
 //! wired together when they agree, and the agreement is checked where the data is made:
 //!
-//! * [`LightBasis`]: the basis of the distant light `L`, the columns of `T`. Today the
-//!   `R x R` cubemap (`L_k` = power through texel `k`).
+//! * [`LightBasis`]: the basis of the distant light `L`, the columns of `T`: the `R x R`
+//!   cubemap (`L_k` = power through texel `k`), or real spherical harmonics of the world
+//!   frame (`L_i = int L(w) y_i(w) dw`, the low-frequency method).
 //! * [`LocalBasis`]: the basis of the local incident light `L*` at a vertex, the rows of each
-//!   vertex's block of `T` and the light axis of the BTF. Today the `m x m` Shirley-Chiu bins
-//!   of the upper hemisphere (`L*_j` = power through bin `j`).
+//!   vertex's block of `T` and the light axis of the BTF: the `m x m` Shirley-Chiu bins of the
+//!   upper hemisphere (`L*_j` = power through bin `j`), or real spherical harmonics of the
+//!   vertex's local frame (`L*_i = int L*(w) y_i(w) dw`; the BTF's light axis in this basis is
+//!   Sloan et al.'s radiance transfer texture).
 //!
-//! Each is a closed enum: the spherical-harmonics method adds an `Sh { order }` variant to
-//! both. The constructors validate (so a basis in hand is always usable), and
+//! SH follow the one convention of [`crate::sh`]. Each basis is a closed enum, so adding one
+//! makes the compiler list every place that must decide what it means. The constructors
+//! validate (so a basis in hand is always usable), and
 //! [`LocalBasis::tag`] / [`LocalBasis::parse`] are the one text form of a basis in artifact
 //! headers and cache keys (`bins:8`, `cubemap:32`).
 
 use crate::error::{CoreError, Result};
 use crate::sampling::{Cubemap, HemisphereGrid};
+use crate::sh::ShOrder;
 use std::fmt;
 
 /// Largest local grid side: `m = 64` gives 4096 bins per vertex, far past the 32 x 32 of the
@@ -33,6 +38,9 @@ pub enum LocalBasis {
     /// `m x m` equal-solid-angle Shirley-Chiu bins of the upper hemisphere (local frame,
     /// +Z = normal); coefficient `j` is the power through bin `j`.
     Bins(HemisphereGrid),
+    /// Real spherical harmonics of the local frame (+Z = normal) to an order;
+    /// coefficient `i` is `int L*(w) y_i(w) dw`.
+    Sh(ShOrder),
 }
 
 impl LocalBasis {
@@ -44,10 +52,16 @@ impl LocalBasis {
         Ok(LocalBasis::Bins(HemisphereGrid::new(m)))
     }
 
+    /// Local SH of order `n` (`1..=MAX_SH_ORDER`).
+    pub fn sh(n: u32) -> Result<Self> {
+        Ok(LocalBasis::Sh(ShOrder::new(n)?))
+    }
+
     /// Number of coefficients per vertex, `M`.
     pub fn len(&self) -> usize {
         match self {
             LocalBasis::Bins(g) => g.len(),
+            LocalBasis::Sh(o) => o.len(),
         }
     }
 
@@ -60,13 +74,23 @@ impl LocalBasis {
     pub fn grid(&self) -> Option<HemisphereGrid> {
         match self {
             LocalBasis::Bins(g) => Some(*g),
+            LocalBasis::Sh(_) => None,
         }
     }
 
-    /// The text form: `bins:<m>`.
+    /// The SH order, `None` for a basis that is not SH.
+    pub fn sh_order(&self) -> Option<ShOrder> {
+        match self {
+            LocalBasis::Sh(o) => Some(*o),
+            LocalBasis::Bins(_) => None,
+        }
+    }
+
+    /// The text form: `bins:<m>` or `sh:<n>`.
     pub fn tag(&self) -> String {
         match self {
             LocalBasis::Bins(g) => format!("bins:{}", g.m),
+            LocalBasis::Sh(o) => format!("sh:{}", o.n()),
         }
     }
 
@@ -74,7 +98,8 @@ impl LocalBasis {
     pub fn parse(s: &str) -> Result<Self> {
         match s.split_once(':') {
             Some(("bins", m)) => Self::bins(parse_u32(m, s)?),
-            _ => Err(CoreError::Invalid(format!("unknown local basis {s:?} (expected bins:<m>)"))),
+            Some(("sh", n)) => Self::sh(parse_u32(n, s)?),
+            _ => Err(CoreError::Invalid(format!("unknown local basis {s:?} (expected bins:<m> or sh:<n>)"))),
         }
     }
 }
@@ -83,6 +108,7 @@ impl fmt::Display for LocalBasis {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             LocalBasis::Bins(g) => write!(f, "{m}x{m} bins", m = g.m),
+            LocalBasis::Sh(o) => write!(f, "local {o}"),
         }
     }
 }
@@ -93,6 +119,9 @@ pub enum LightBasis {
     /// The `R x R` cubemap (faces +X, -X, +Y, -Y, +Z, -Z); coefficient `k` is the power
     /// through texel `k`.
     Cubemap(Cubemap),
+    /// Real spherical harmonics of the world frame to an order; coefficient `i` is
+    /// `int L(w) y_i(w) dw`.
+    Sh(ShOrder),
 }
 
 impl LightBasis {
@@ -106,10 +135,16 @@ impl LightBasis {
         Ok(LightBasis::Cubemap(Cubemap::new(r)))
     }
 
+    /// World-frame SH of order `n` (`1..=MAX_SH_ORDER`).
+    pub fn sh(n: u32) -> Result<Self> {
+        Ok(LightBasis::Sh(ShOrder::new(n)?))
+    }
+
     /// Number of coefficients, `N`.
     pub fn len(&self) -> usize {
         match self {
             LightBasis::Cubemap(c) => c.texel_count(),
+            LightBasis::Sh(o) => o.len(),
         }
     }
 
@@ -122,13 +157,23 @@ impl LightBasis {
     pub fn cubemap_layout(&self) -> Option<Cubemap> {
         match self {
             LightBasis::Cubemap(c) => Some(*c),
+            LightBasis::Sh(_) => None,
         }
     }
 
-    /// The text form: `cubemap:<R>`.
+    /// The SH order, `None` for a basis that is not SH.
+    pub fn sh_order(&self) -> Option<ShOrder> {
+        match self {
+            LightBasis::Sh(o) => Some(*o),
+            LightBasis::Cubemap(_) => None,
+        }
+    }
+
+    /// The text form: `cubemap:<R>` or `sh:<n>`.
     pub fn tag(&self) -> String {
         match self {
             LightBasis::Cubemap(c) => format!("cubemap:{}", c.resolution),
+            LightBasis::Sh(o) => format!("sh:{}", o.n()),
         }
     }
 
@@ -136,7 +181,8 @@ impl LightBasis {
     pub fn parse(s: &str) -> Result<Self> {
         match s.split_once(':') {
             Some(("cubemap", r)) => Self::cubemap(parse_u32(r, s)?),
-            _ => Err(CoreError::Invalid(format!("unknown light basis {s:?} (expected cubemap:<R>)"))),
+            Some(("sh", n)) => Self::sh(parse_u32(n, s)?),
+            _ => Err(CoreError::Invalid(format!("unknown light basis {s:?} (expected cubemap:<R> or sh:<n>)"))),
         }
     }
 }
@@ -145,6 +191,7 @@ impl fmt::Display for LightBasis {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             LightBasis::Cubemap(c) => write!(f, "6x{r}x{r} cubemap", r = c.resolution),
+            LightBasis::Sh(o) => write!(f, "world {o}"),
         }
     }
 }

@@ -15,6 +15,8 @@
 //! * [`gather`]: local incident radiance `L* = T L` and its f64 reference product.
 //! * [`scene`]: what every shader takes and returns: the shade scene (mesh, frames,
 //!   materials), BTF tables, the camera, the RGB image type and its files.
+//! * [`sh`]: real spherical harmonics (evaluation, exact quadrature, rotation) for the
+//!   low-frequency method.
 //! * [`artifact`]: the one file format of stage outputs (T, compressed forms, BTFs).
 //! * [`io`]: the atomic writer and the content hash of cache keys; [`stats`]: the median.
 //!
@@ -25,7 +27,7 @@
 //! let settings = transfer::TransferSettings::default(); // 6x32x32 cubemap, 8x8 bins
 //! let mesh = Mesh::load_obj("assets/meshes/bunny.obj".as_ref()).unwrap().mesh;
 //! let (env, _warnings) = EnvMap::load("assets/envmaps/blender_forest.exr".as_ref()).unwrap();
-//! let light = LightVector::from_env(&env, settings.light_basis(), 0.0);
+//! let light = LightVector::from_env(&env, settings.cubemap(), 0.0);
 //! let t = transfer::build(&mesh, &settings, None).unwrap().matrix;
 //! let lstar = biscale_core::gather::reference_product(&t, &light);
 //! ```
@@ -39,6 +41,7 @@ pub mod geometry;
 pub mod io;
 pub mod sampling;
 pub mod scene;
+pub mod sh;
 pub mod stats;
 #[cfg(any(test, feature = "testing"))]
 pub mod testing;

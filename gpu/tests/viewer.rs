@@ -97,7 +97,7 @@ fn window_shows_the_tone_mapped_frame() {
     // rotation), same tone map.
     let mut shader = GpuShader::new(&ctx, &scene, &camera).unwrap();
     let mut gather = GpuGather::new(&ctx, &form, &Sparse.kernels(&form).unwrap()).unwrap();
-    gather.gather(&LightVector::from_env(&env, cubemap(4), rotation)).unwrap();
+    gather.gather(&LightVector::from_env(&env, biscale_core::sampling::Cubemap::new(4), rotation)).unwrap();
     let mut tm = ToneMap::new(&ctx, wgpu::TextureFormat::Rgba8UnormSrgb).unwrap();
     tm.set_environment(Some(&env)).unwrap();
     let settings = ToneMapSettings { exposure, env_rotation: rotation as f32, background: true };

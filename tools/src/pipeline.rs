@@ -123,7 +123,7 @@ pub fn load_lighting(exp: &Experiment) -> Result<Lighting> {
         (None, Some(c)) => (EnvMap::constant(64, 32, c), vec![]),
         (None, None) => unreachable!("validated by the config"),
     };
-    let mut light = LightVector::from_env(&env, exp.transfer_settings().light_basis(), rotation);
+    let mut light = LightVector::from_env(&env, exp.transfer_settings().cubemap(), rotation);
     if let Some(boost) = &l.sun_boost {
         if let Some(k) = light.boost_brightest(*boost.get_ref()) {
             warnings.push(format!("sun_boost: texel {k} multiplied by {}", boost.get_ref()));
@@ -596,7 +596,7 @@ impl Metrics {
             },
             lighting: LightingMetrics {
                 source: exp.env_path.as_ref().map_or("constant".into(), |p| p.display().to_string()),
-                cubemap_resolution: lighting.light.cubemap().resolution,
+                cubemap_resolution: exp.transfer_settings().cubemap().resolution,
                 rotation_degrees: exp.file.lighting.rotation_degrees,
                 total_power: lighting.light.total(),
                 warnings: lighting.warnings.clone(),

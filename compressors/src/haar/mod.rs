@@ -164,9 +164,10 @@ pub fn forward_cubemap(v: &mut [f64], r: usize) {
     }
 }
 
-/// `W L` per channel: the transformed light the gather dots every row with.
-pub fn transform_light(light: &LightVector) -> Vec<[f64; 3]> {
-    let r = light.cubemap().resolution as usize;
+/// `W L` per channel: the transformed light the gather dots every row with (an error for a
+/// light that is not on a power-of-two cubemap).
+pub fn transform_light(light: &LightVector) -> Result<Vec<[f64; 3]>, CompressError> {
+    let r = face_resolution(light.basis())?;
     let mut out = vec![[0.0f64; 3]; light.len()];
     for c in 0..3 {
         let mut v: Vec<f64> = light.power.iter().map(|p| p[c] as f64).collect();
@@ -175,7 +176,7 @@ pub fn transform_light(light: &LightVector) -> Vec<[f64; 3]> {
             o[c] = x;
         }
     }
-    out
+    Ok(out)
 }
 
 /// Solid angle (sr) of the support of every basis function, in coefficient order: the
@@ -467,11 +468,10 @@ impl Compressor for Haar {
 
     fn gather(&self, form: &CompressedForm, light: &LightVector) -> Result<LocalRadiance, CompressError> {
         form.check_light(light)?;
-        face_resolution(form.light_basis())?;
         let row_ptr = form.u32s("row_ptr")?;
         let coeff_idx = form.u16s("coeff_idx")?;
         // RGB padded to four f64 lanes: two packed multiply-adds per coefficient.
-        let lhat: Vec<[f64; 4]> = transform_light(light).into_iter().map(|[x, y, z]| [x, y, z, 0.0]).collect();
+        let lhat: Vec<[f64; 4]> = transform_light(light)?.into_iter().map(|[x, y, z]| [x, y, z, 0.0]).collect();
         let out = if form.meta("f16_values")? != 0 {
             // Half floats are widened where they are read, not decoded into a copy first.
             let v = form.u16s("coeff_f16")?;

@@ -320,7 +320,7 @@ fn validated_gather(form: &CompressedForm, light: &LightVector) -> Option<Vec<[f
     if !valid {
         return None;
     }
-    let lhat = transform_light(light);
+    let lhat = transform_light(light).unwrap();
     Some(
         (0..form.rows())
             .map(|row| {

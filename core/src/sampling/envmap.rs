@@ -179,9 +179,10 @@ fn load_hdr(path: &Path) -> Result<EnvMap> {
     Ok(EnvMap { width: w, height: h, pixels })
 }
 
-/// The light vector `L`: power per cubemap texel (radiance integrated over the texel's solid
-/// angle), RGB, in the order of [`Cubemap`] texels. Its basis is fixed at construction; the
-/// values are open (the stiff cases of the tests and `sun_boost` edit them).
+/// The light vector `L` in its basis, RGB: in a cubemap, the power per texel (radiance
+/// integrated over the texel's solid angle) in the order of [`Cubemap`] texels; in SH, the
+/// radiance's coefficients (`crate::sh::light` projects and rotates). Its basis is fixed at
+/// construction; the values are open (the stiff cases of the tests and `sun_boost` edit them).
 #[derive(Clone, Debug, PartialEq)]
 pub struct LightVector {
     basis: LightBasis,
@@ -206,17 +207,14 @@ impl LightVector {
         self.basis
     }
 
-    /// The cubemap layout of the values.
-    pub fn cubemap(&self) -> Cubemap {
-        match self.basis {
-            LightBasis::Cubemap(c) => c,
-        }
+    /// The cubemap layout of the values, `None` for a light in SH.
+    pub fn cubemap(&self) -> Option<Cubemap> {
+        self.basis.cubemap_layout()
     }
 
-    /// Integrate `env` (rotated by `rotation` radians about +Y) over every texel of the
-    /// cubemap `basis`.
-    pub fn from_env(env: &EnvMap, basis: LightBasis, rotation: f64) -> Self {
-        let LightBasis::Cubemap(cubemap) = basis;
+    /// Integrate `env` (rotated by `rotation` radians about +Y) over every texel of `cubemap`.
+    pub fn from_env(env: &EnvMap, cubemap: Cubemap, rotation: f64) -> Self {
+        let basis = LightBasis::Cubemap(cubemap);
         let resolution = cubemap.resolution;
         let n = cubemap.texel_count();
         // Sub-pixels small against a cubemap texel (about a quarter of its angular size).
@@ -265,18 +263,22 @@ impl LightVector {
         Self { basis, power }
     }
 
-    /// A light vector of constant radiance `rgb` in every direction: `L_k = rgb * omega_k`.
+    /// A light vector of constant radiance `rgb` in every direction: `L_k = rgb * omega_k` in a
+    /// cubemap; in SH only the constant coefficient, `rgb * sqrt(4 pi)`.
     pub fn constant(basis: LightBasis, rgb: Rgb) -> Self {
-        let LightBasis::Cubemap(cubemap) = basis;
-        let power = cubemap
-            .solid_angles()
-            .iter()
-            .map(|&w| [(rgb[0] as f64 * w) as f32, (rgb[1] as f64 * w) as f32, (rgb[2] as f64 * w) as f32])
-            .collect();
+        let scale = |w: f64| rgb.map(|c| (c as f64 * w) as f32);
+        let power = match basis {
+            LightBasis::Cubemap(cubemap) => cubemap.solid_angles().iter().map(|&w| scale(w)).collect(),
+            LightBasis::Sh(order) => {
+                let mut p = vec![[0.0; 3]; order.len()];
+                p[0] = scale((4.0 * PI).sqrt());
+                p
+            }
+        };
         Self { basis, power }
     }
 
-    /// Number of texels N.
+    /// Number of coefficients N (texels of a cubemap).
     pub fn len(&self) -> usize {
         self.power.len()
     }
@@ -285,11 +287,11 @@ impl LightVector {
         self.power.is_empty()
     }
 
-    /// Mean radiance of texel `k` (power / solid angle), for drawing the background.
-    pub fn radiance(&self, k: usize) -> Rgb {
-        let w = self.cubemap().texel_solid_angle(k) as f32;
+    /// Mean radiance of cubemap texel `k` (power / solid angle); `None` for a light in SH.
+    pub fn radiance(&self, k: usize) -> Option<Rgb> {
+        let w = self.cubemap()?.texel_solid_angle(k) as f32;
         let p = self.power[k];
-        [p[0] / w, p[1] / w, p[2] / w]
+        Some([p[0] / w, p[1] / w, p[2] / w])
     }
 
     /// Multiply the brightest texel (by Rec. 709 luminance) by `factor`: the stiff "sun" case
@@ -331,14 +333,14 @@ mod tests {
     #[test]
     fn constant_map_gives_four_pi() {
         let env = EnvMap::constant(256, 128, [1.0, 2.0, 0.5]);
-        let l = LightVector::from_env(&env, LightBasis::cubemap(8).unwrap(), 0.3);
+        let l = LightVector::from_env(&env, Cubemap::new(8), 0.3);
         let t = l.total();
         let fp = 4.0 * PI;
         assert!((t[0] - fp).abs() < 1e-5 * fp && (t[1] - 2.0 * fp).abs() < 1e-5 * fp);
         // Each texel receives close to its own solid angle: splatting misassigns at most the
         // sub-pixels along its border (sub-pixel 0.18 deg against a 11 deg texel: < 3%).
         for k in 0..l.len() {
-            let w = l.cubemap().texel_solid_angle(k);
+            let w = l.cubemap().unwrap().texel_solid_angle(k);
             assert!((l.power[k][0] as f64 - w).abs() < 0.03 * w, "texel {k}: {} vs {w}", l.power[k][0]);
         }
         assert!((LightVector::constant(LightBasis::cubemap(8).unwrap(), [1.0; 3]).total()[0] - fp).abs() < 1e-5);
@@ -351,10 +353,10 @@ mod tests {
         // A pixel near u = 0.25 (+X), slightly above the horizon.
         let (x, y) = (128, 100);
         env.pixels[y * w + x] = [1000.0, 1.0, 0.0];
-        let l = LightVector::from_env(&env, LightBasis::cubemap(32).unwrap(), 0.0);
+        let l = LightVector::from_env(&env, Cubemap::new(32), 0.0);
         let d = latlong_direction((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64);
-        let k = l.cubemap().texel_of(d.as_vec3());
-        assert_eq!(l.cubemap().texel_coords(k).0, 0, "must be on the +X face");
+        let k = l.cubemap().unwrap().texel_of(d.as_vec3());
+        assert_eq!(l.cubemap().unwrap().texel_coords(k).0, 0, "must be on the +X face");
         let energy = 1000.0 * pixel_solid_angle(w, h, y);
         assert!((l.power[k][0] as f64 - energy).abs() < 1e-6 * energy);
         assert!((l.total()[0] - energy).abs() < 1e-6 * energy);
@@ -365,10 +367,10 @@ mod tests {
         let (w, h) = (256, 128);
         let mut env = EnvMap::constant(w, h, [0.0; 3]);
         env.pixels[64 * w] = [1.0; 3]; // u ~ 0: looks down -Z at the horizon
-        let l = LightVector::from_env(&env, LightBasis::cubemap(16).unwrap(), std::f64::consts::FRAC_PI_2);
+        let l = LightVector::from_env(&env, Cubemap::new(16), std::f64::consts::FRAC_PI_2);
         let k = (0..l.len()).max_by(|&a, &b| l.power[a][0].total_cmp(&l.power[b][0])).unwrap();
         // Rotating -Z by +90 degrees about +Y gives -X.
-        assert_eq!(l.cubemap().texel_coords(k).0, 1);
+        assert_eq!(l.cubemap().unwrap().texel_coords(k).0, 1);
     }
 
     #[test]

@@ -37,9 +37,9 @@ use std::path::Path;
 /// resolution. Constructed through [`TransferSettings::new`], so a value in hand is valid.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct TransferSettings {
-    light: LightBasis,
+    cubemap: Cubemap,
     visibility_resolution: u32,
-    local: LocalBasis,
+    grid: HemisphereGrid,
 }
 
 impl Default for TransferSettings {
@@ -53,8 +53,8 @@ impl TransferSettings {
     /// Light cubemap resolution `R` (N = 6 R^2), visibility cubemap resolution (a multiple of
     /// `R`: the box filter's `s = visibility / R`), local bin grid `m` (M = m^2).
     pub fn new(cubemap_resolution: u32, visibility_resolution: u32, local_grid: u32) -> Result<Self> {
-        let light = LightBasis::cubemap(cubemap_resolution)?;
-        let local = LocalBasis::bins(local_grid)?;
+        let cubemap = LightBasis::cubemap(cubemap_resolution)?.cubemap_layout().expect("a cubemap basis");
+        let grid = LocalBasis::bins(local_grid)?.grid().expect("a bin basis");
         let r = cubemap_resolution;
         if visibility_resolution == 0 || !visibility_resolution.is_multiple_of(r) {
             return Err(CoreError::Invalid(format!(
@@ -67,7 +67,7 @@ impl TransferSettings {
                 "supersampling {s} (visibility_resolution / cubemap_resolution) gives more than 65535 children per texel"
             )));
         }
-        Ok(Self { light, visibility_resolution, local })
+        Ok(Self { cubemap, visibility_resolution, grid })
     }
 
     /// These settings with another local grid `m`.
@@ -75,28 +75,24 @@ impl TransferSettings {
         Self::new(self.cubemap().resolution, self.visibility_resolution, m)
     }
 
-    /// The basis of `L` and of `T`'s columns.
+    /// The basis of `L` and of `T`'s columns: the light cubemap.
     pub fn light_basis(&self) -> LightBasis {
-        self.light
+        LightBasis::Cubemap(self.cubemap)
     }
 
-    /// The basis of `L*` and of each vertex's rows of `T`.
+    /// The basis of `L*` and of each vertex's rows of `T`: the local bins.
     pub fn local_basis(&self) -> LocalBasis {
-        self.local
+        LocalBasis::Bins(self.grid)
     }
 
     /// The light cubemap (R x R per face).
     pub fn cubemap(&self) -> Cubemap {
-        match self.light {
-            LightBasis::Cubemap(c) => c,
-        }
+        self.cubemap
     }
 
     /// The local bin grid (m x m).
     pub fn local_grid(&self) -> HemisphereGrid {
-        match self.local {
-            LocalBasis::Bins(g) => g,
-        }
+        self.grid
     }
 
     /// Resolution of the visibility cubemap.
@@ -111,7 +107,7 @@ impl TransferSettings {
 
     /// The shape of `T` for `vertices` vertices.
     pub fn shape(&self, vertices: usize) -> TransferShape {
-        TransferShape::new(vertices, self.local, self.light)
+        TransferShape::new(vertices, self.local_basis(), self.light_basis())
     }
 }
 

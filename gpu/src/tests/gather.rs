@@ -369,7 +369,7 @@ fn bicluster_matches_f64_reference() {
 
 /// The light transform with every sign made +: bounds |W L| and its rounding error.
 fn abs_transform(light: &LightVector) -> Vec<[f64; 3]> {
-    let r = light.cubemap().resolution as usize;
+    let r = light.cubemap().unwrap().resolution as usize;
     let mut out: Vec<[f64; 3]> = light.power.iter().map(|p| p.map(|x| (x as f64).abs())).collect();
     for face in out.chunks_mut(r * r) {
         let mut s = r;
