@@ -264,10 +264,16 @@ mod tests {
             assert_eq!(LightBasis::parse(&b.tag()).unwrap(), b);
             assert_eq!(b.len(), 6 * (r * r) as usize);
         }
-        for bad in ["bins:0", "bins:65", "bins:x", "sh:5", "bins", ""] {
+        for n in 1..=crate::sh::MAX_SH_ORDER {
+            let (l, w) = (LocalBasis::sh(n).unwrap(), LightBasis::sh(n).unwrap());
+            assert_eq!((LocalBasis::parse(&l.tag()).unwrap(), LightBasis::parse(&w.tag()).unwrap()), (l, w));
+            assert_eq!((l.len(), w.len()), ((n * n) as usize, (n * n) as usize));
+            assert_eq!((l.grid(), w.cubemap_layout(), l.sh_order().unwrap().n()), (None, None, n));
+        }
+        for bad in ["bins:0", "bins:65", "bins:x", "sh:0", "sh:9", "cubemap:8", "bins", ""] {
             assert!(LocalBasis::parse(bad).is_err(), "{bad}");
         }
-        for bad in ["cubemap:0", "cubemap:105", "bins:8"] {
+        for bad in ["cubemap:0", "cubemap:105", "bins:8", "sh:0", "sh:9"] {
             assert!(LightBasis::parse(bad).is_err(), "{bad}");
         }
     }
