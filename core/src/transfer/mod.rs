@@ -15,10 +15,13 @@
 //! * [`build`] / [`build_range`]: `T` for a mesh, or for a range of its vertices (a shard).
 //! * [`TransferMatrix`]: the stacked result, carrying its bases; `save` / `load` keep it as
 //!   a file of its own (the stage cache).
+//! * [`sh`]: the low-frequency method's SH transfer `M` (local SH x world SH), ray traced on
+//!   the same [`TransferScene`] or projected from `T`.
 
 mod build;
 mod sampler;
 mod scene;
+pub mod sh;
 
 pub use build::{
     build, build_range, worst_case_bytes, TransferBuild, TransferStats, BYTES_PER_NONZERO, MAX_TRANSFER_BYTES,
@@ -111,8 +114,10 @@ impl TransferSettings {
     }
 }
 
-/// The stacked transfer matrix: row `v * M + j`, column = light coefficient `k`. Values are
-/// visibility fractions in (0, 1], multiples of `1 / s^2` for supersampling `s`.
+/// The stacked transfer matrix: row `v * M + j`, column = light coefficient `k`. In the bins x
+/// cubemap bases (`build`) the values are visibility fractions in (0, 1], multiples of `1 / s^2`
+/// for supersampling `s`; in the SH bases ([`sh`]) they are the projections `M_p[i][j]`, of
+/// either sign.
 ///
 /// The bases are part of the value: `rows == vertices * local_basis.len()` and
 /// `cols == light_basis.len()` hold by construction ([`TransferMatrix::new`]).

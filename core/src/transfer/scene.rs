@@ -95,6 +95,18 @@ impl TransferScene {
         (p - self.centre) * self.scale + n * self.origin_offset
     }
 
+    /// The normalised-space ray origin of vertex `v` (offset along its normal).
+    pub(crate) fn vertex_origin(&self, v: usize) -> Vec3 {
+        self.positions[v] + self.frames[v].normal * self.origin_offset
+    }
+
+    /// True when the distant light is blocked along unit direction `dir` from the
+    /// normalised-space `origin` (from [`Self::vertex_origin`]), with the transfer stage's ray
+    /// start `RAY_TMIN`.
+    pub(crate) fn occluded_from(&self, origin: Vec3, dir: Vec3) -> bool {
+        self.bvh.occluded(origin, dir, crate::geometry::bvh::RAY_TMIN, f32::INFINITY)
+    }
+
     /// Unoccluded-children counts of vertex `v` (see [`VisibilitySampler::point_counts`]):
     /// `emit(j, k, count)` for every non-zero, in increasing `k`; returns the rays traced.
     pub(crate) fn vertex_counts(
