@@ -19,11 +19,13 @@
 //! associated-Legendre recurrence on `P_l^m / sin^m theta` times `Re/Im (x + i y)^m` (no
 //! trigonometry, stable in f64 for the orders here). [`quadrature`] holds the exact rules the
 //! tests (and exact hemisphere integrals) use; [`rotation`] rotates coefficient vectors;
-//! [`light`] projects the cubemap light onto SH.
+//! [`light`] projects the cubemap light onto SH; [`rtt`] projects a BTF's light axis (the
+//! radiance transfer texture).
 
 pub mod light;
 pub mod quadrature;
 pub mod rotation;
+pub mod rtt;
 #[cfg(test)]
 mod tests;
 

@@ -286,3 +286,72 @@ fn rotating_a_projected_light_matches_projecting_the_rotated_environment() {
     assert!(diff(&rotated_env, &rotated_sh) < 1e-3 * scale, "{} vs scale {scale}", diff(&rotated_env, &rotated_sh));
     assert!(diff(&rotated_env, &unrotated) > 0.1 * scale, "the rotation must matter for the test to mean anything");
 }
+
+#[test]
+fn bin_integrals_sum_to_the_hemisphere_integral_and_converge() {
+    use crate::sampling::HemisphereGrid;
+    let o = order(5);
+    let grid = HemisphereGrid::new(8);
+    let mut exact = vec![0.0; o.len()];
+    for (d, w) in sphere_rule(8, true) {
+        for (e, y) in exact.iter_mut().zip(eval(o, d)) {
+            *e += w * y;
+        }
+    }
+    let sums = |s: u32| {
+        let y = rtt::bin_integrals(grid, o, s);
+        (0..o.len()).map(|i| (0..grid.len()).map(|j| y[j * o.len() + i]).sum::<f64>()).collect::<Vec<f64>>()
+    };
+    let err = |s: u32| sums(s).iter().zip(&exact).map(|(a, b)| (a - b).powi(2)).sum::<f64>().sqrt();
+    let (e2, e4, e8) = (err(2), err(4), err(8));
+    // Midpoint rule: second order, but the concentric map is only piecewise smooth (its
+    // diagonals), which can cost a little of the order: require a factor 2.5 per doubling.
+    assert!(e4 < e2 / 2.5 && e8 < e4 / 2.5, "{e2:e} {e4:e} {e8:e}");
+    // The constant band is exact: every cell has the same solid angle.
+    let y = rtt::bin_integrals(grid, o, 3);
+    let y0 = 0.5 / std::f64::consts::PI.sqrt();
+    for j in 0..grid.len() {
+        assert!((y[j * o.len()] - y0 * grid.bin_solid_angle()).abs() < EPS);
+    }
+}
+
+#[test]
+fn the_rtt_shades_band_limited_light_exactly_as_the_bins_do() {
+    use crate::basis::LocalBasis;
+    use crate::scene::Btf;
+    let o = order(4);
+    let bins = LocalBasis::bins(8).unwrap();
+    let btf = Btf::phong([0.4, 0.3, 0.2], [0.3, 0.3, 0.3], 20.0, bins, 4).unwrap();
+    let (rtt, report) = rtt::radiance_transfer_texture(&btf, o).unwrap();
+    assert_eq!(
+        (rtt.local_basis(), rtt.view_grid(), rtt.spatial()),
+        (LocalBasis::Sh(o), btf.view_grid(), btf.spatial())
+    );
+    // Local light l (SH), its bin powers L*_j = sum_i l_i Y_ji: the two shadings agree to f32
+    // rounding of the tables (each entry 2^-24 relative; sums of 64 or 16 terms).
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+    let l: Vec<f64> = (0..o.len()).map(|_| rng.gen_range(-1.0..1.0)).collect();
+    let y = rtt::bin_integrals(bins.grid().unwrap(), o, rtt::BIN_CELLS);
+    let lstar: Vec<f64> = (0..64).map(|j| (0..o.len()).map(|i| l[i] * y[j * o.len() + i]).sum()).collect();
+    for v in 0..btf.view_count() {
+        let b = &btf.data()[v * 64..(v + 1) * 64];
+        let r = &rtt.data()[v * o.len()..(v + 1) * o.len()];
+        for c in 0..3 {
+            let binned: f64 = b.iter().zip(&lstar).map(|(b, l)| b[c] as f64 * l).sum();
+            let sh: f64 = r.iter().zip(&l).map(|(r, l)| r[c] as f64 * l).sum();
+            let scale: f64 = b.iter().zip(&lstar).map(|(b, l)| (b[c] as f64 * l).abs()).sum();
+            assert!((binned - sh).abs() <= 1e-6 * scale, "view {v} channel {c}: {binned} vs {sh}");
+        }
+    }
+    assert!(report.quadrature_error < 1e-2, "{report:?}");
+    // A Lambertian table keeps nearly all of its light dependence (the cosine is smooth); a
+    // glossy lobe loses much of it at low order, less as the order grows.
+    let lam = Btf::lambertian([0.5; 3], bins).unwrap();
+    let e_lam = rtt::radiance_transfer_texture(&lam, order(4)).unwrap().1.projection_error;
+    let e = |n: u32| rtt::radiance_transfer_texture(&btf, order(n)).unwrap().1.projection_error;
+    assert!(e_lam < 0.2 && e(2) > e(4) && e(4) > e(8) && e(2) > e_lam, "{e_lam} {} {} {}", e(2), e(4), e(8));
+    // The constant band of a Lambertian RTT is exact: albedo * y_0 (sum_j cosbar_j omega = pi).
+    let lam_rtt = rtt::radiance_transfer_texture(&lam, o).unwrap().0;
+    assert!((lam_rtt.data()[0][0] as f64 - 0.5 * 0.5 / std::f64::consts::PI.sqrt()).abs() < 1e-6);
+    assert!(rtt::radiance_transfer_texture(&lam_rtt, o).is_err(), "an RTT is not projected again");
+}
