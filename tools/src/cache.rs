@@ -11,6 +11,8 @@
 //!   and the identity of this biscale build (its executable's size and modification time):
 //!   compressor code changes more often than the transfer stage's, so a form is only reused by
 //!   the build that made it.
+//! * `sh-<key>-n<order>.bsf`: the low-frequency method's SH transfer `M` ([`sh_transfer_key`]:
+//!   the mesh, the order, the rays, the seed, the bounces).
 //! * `btf-<key>-<encoding>.btf`: a synthesized BTF (its key is `materials::synth_key`).
 //!
 //! A file that is present but unusable (corrupt, another version, a different shape) is
@@ -21,6 +23,7 @@ use crate::pipeline::RunOptions;
 use biscale_core::compress::Compressor;
 use biscale_core::geometry::Mesh;
 use biscale_core::io::ContentHash;
+use biscale_core::transfer::sh::ShTransferSettings;
 use biscale_core::transfer::TransferSettings;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -29,6 +32,8 @@ use std::sync::OnceLock;
 pub const TRANSFER_VERSION: u32 = 2;
 /// Bump when the meaning of a compressed form's file changes.
 pub const FORM_VERSION: u32 = 1;
+/// Bump when the SH transfer's semantics change.
+pub const SH_TRANSFER_VERSION: u32 = 1;
 
 /// The cache folder of a run.
 #[derive(Clone, Debug)]
@@ -66,6 +71,11 @@ impl StageCache {
         let label: String =
             label.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' }).collect();
         self.dir.join(format!("form-{key:016x}-{label}.bsf"))
+    }
+
+    /// The file of an SH transfer `M` of order `n`.
+    pub fn sh_transfer_path(&self, key: u64, n: u32) -> PathBuf {
+        self.dir.join(format!("sh-{key:016x}-n{n}.bsf"))
     }
 
     pub fn btf_path(&self, key: u64, encoding: &str) -> PathBuf {
@@ -110,6 +120,23 @@ pub fn transfer_key(mesh: &Mesh, s: &TransferSettings) -> u64 {
     h.write_str(&s.light_basis().tag())
         .write(&s.visibility_resolution().to_le_bytes())
         .write_str(&s.local_basis().tag());
+    hash_mesh(&mut h, mesh);
+    h.finish()
+}
+
+/// Content hash of the inputs of the SH transfer `M` (the low-frequency method): the mesh,
+/// the order, the rays, the seed and the bounces (and their albedos, which the caller hashes
+/// into `bounce_key`).
+pub fn sh_transfer_key(mesh: &Mesh, s: &ShTransferSettings, bounces: u32, bounce_key: u64) -> u64 {
+    let mut h = ContentHash::default();
+    h.write(&SH_TRANSFER_VERSION.to_le_bytes()).write(&biscale_core::artifact::CONTAINER_VERSION.to_le_bytes());
+    h.write(&s.order().n().to_le_bytes()).write(&s.rays().to_le_bytes()).write(&s.seed().to_le_bytes());
+    h.write(&bounces.to_le_bytes()).write(&bounce_key.to_le_bytes());
+    hash_mesh(&mut h, mesh);
+    h.finish()
+}
+
+fn hash_mesh(h: &mut ContentHash, mesh: &Mesh) {
     h.write(&(mesh.positions.len() as u64).to_le_bytes());
     for p in &mesh.positions {
         for c in p.to_array() {
@@ -128,7 +155,6 @@ pub fn transfer_key(mesh: &Mesh, s: &TransferSettings) -> u64 {
             }
         }
     }
-    h.finish()
 }
 
 /// Content hash of one setting's compressed form (see the module docs), or `None` when this

@@ -199,7 +199,8 @@ pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &Run
     let mut forms = vec![];
     for setting in &plan.compressors {
         let c = pipeline::build_compressor(setting)?;
-        let (form, _) = pipeline::compressed_form(setting, c.as_ref(), &t, exp.file.seed, cache.as_ref())?;
+        let (form, _) =
+            pipeline::compressed_form(setting, c.as_ref(), &t.matrix, t.key, exp.file.seed, cache.as_ref())?;
         let kernels =
             c.kernels(&form).map_err(|source| PipelineError::Compress { name: setting.label.clone(), source })?;
         forms.push(ViewerForm { label: setting.label.clone(), form, kernels });

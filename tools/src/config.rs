@@ -70,6 +70,10 @@ pub struct ExperimentFile {
     /// [`CompressorTable`]).
     #[serde(default)]
     pub compressors: Vec<Spanned<CompressorTable>>,
+    /// `[[methods]]` entries: rendering methods beside the all-frequency one (`kind = "sh"`
+    /// plus the method's keys, swept like a compressor's; see `crate::methods`).
+    #[serde(default)]
+    pub methods: Vec<Spanned<CompressorTable>>,
     #[serde(default)]
     pub runtime: RuntimeConfig,
     #[serde(default)]
@@ -355,34 +359,47 @@ impl Default for TransferConfig {
 /// order, the first varying slowest).
 pub type CompressorTable = BTreeMap<Spanned<String>, Spanned<toml::Value>>;
 
-/// One compressor setting after sweep expansion.
+/// One compressor or method setting after sweep expansion.
 #[derive(Clone, Debug, PartialEq)]
-pub struct CompressorSetting {
-    /// Label used for file names and report rows, e.g. `cpca-k32-c8`.
+pub struct Setting {
+    /// Label used for file names and report rows, e.g. `cpca-k32-c8`, `sh-n5`.
     pub label: String,
-    /// The registry kind (`sparse`, `bicluster`, `cpca`, `haar`, `plugin`).
+    /// The registry kind (`sparse`, `bicluster`, `cpca`, `haar`, `plugin`; `sh`).
     pub kind: String,
-    /// The compressor's parameters for this setting, as JSON (paths resolved).
+    /// The parameters of this setting, as JSON (paths resolved).
     pub params: serde_json::Value,
 }
 
-/// The settings of one `[[compressors]]` entry (see [`CompressorTable`]); errors are located
-/// at the key (or value) they concern.
-fn compressor_settings(
+/// A `[[compressors]]` setting.
+pub type CompressorSetting = Setting;
+/// A `[[methods]]` setting.
+pub type MethodSetting = Setting;
+
+/// What the expansion needs of a kind: its name, its cheap check and its label.
+struct KindRef {
+    name: &'static str,
+    check: fn(&serde_json::Value) -> Result<(), String>,
+    label: fn(&serde_json::Value) -> Result<String, String>,
+}
+
+/// The settings of one `[[compressors]]` or `[[methods]]` entry (see [`CompressorTable`]);
+/// `what` names the table in messages. Errors are located at the key (or value) they
+/// concern.
+fn expand_settings(
     entry: &Spanned<CompressorTable>,
     dir: &Path,
     err: &dyn Fn(Range<usize>, String) -> ConfigError,
-) -> Result<Vec<CompressorSetting>, ConfigError> {
-    use biscale_compressors::registry;
-    let names = registry::names().join("`, `");
-    let Some((kind_key, kind_value)) = entry.get_ref().iter().find(|(k, _)| k.get_ref() == "kind") else {
-        return Err(err(entry.span(), format!("a compressor needs kind = one of `{names}`")));
+    what: &str,
+    kinds: &[KindRef],
+) -> Result<Vec<Setting>, ConfigError> {
+    let names = kinds.iter().map(|k| k.name).collect::<Vec<_>>().join("`, `");
+    let Some((_, kind_value)) = entry.get_ref().iter().find(|(k, _)| k.get_ref() == "kind") else {
+        return Err(err(entry.span(), format!("a {what} needs kind = one of `{names}`")));
     };
-    let Some(kind) = kind_value.get_ref().as_str().and_then(registry::find) else {
+    let Some(kind) = kind_value.get_ref().as_str().and_then(|n| kinds.iter().find(|k| k.name == n)) else {
         let got = kind_value.get_ref().to_string();
-        return Err(err(kind_value.span(), format!("unknown compressor kind {got}, expected one of `{names}`")));
+        return Err(err(kind_value.span(), format!("unknown {what} kind {got}, expected one of `{names}`")));
     };
-    let _ = kind_key;
     // Every key but `kind`, each value a list of sweep values (one for a plain value).
     let mut keys: Vec<(&Spanned<String>, Range<usize>, Vec<serde_json::Value>)> = vec![];
     for (k, v) in entry.get_ref().iter().filter(|(k, _)| k.get_ref() != "kind") {
@@ -393,7 +410,7 @@ fn compressor_settings(
             toml::Value::Array(a) => a.clone(),
             one => vec![one.clone()],
         };
-        if kind.name == "plugin" && k.get_ref() == "path" {
+        if what == "compressor" && kind.name == "plugin" && k.get_ref() == "path" {
             // Resolved against the config's folder and made absolute, so the loader opens
             // exactly this file (a bare file name would be searched for on the library path).
             for p in &mut values {
@@ -441,11 +458,24 @@ fn compressor_settings(
                 Some((_, value_span, _)) => value_span.clone(),
                 None => entry.span(),
             };
-            err(span, format!("{} compressor: {message}", kind.name))
+            err(span, format!("{} {what}: {message}", kind.name))
         })?;
-        settings.push(CompressorSetting { label, kind: kind.name.to_string(), params });
+        settings.push(Setting { label, kind: kind.name.to_string(), params });
     }
     Ok(settings)
+}
+
+/// The compressor kinds as the expansion sees them.
+fn compressor_kinds() -> Vec<KindRef> {
+    biscale_compressors::registry::KINDS
+        .iter()
+        .map(|k| KindRef { name: k.name, check: k.check, label: k.label })
+        .collect()
+}
+
+/// The method kinds as the expansion sees them.
+fn method_kinds() -> Vec<KindRef> {
+    crate::methods::KINDS.iter().map(|k| KindRef { name: k.name, check: k.check, label: k.label }).collect()
 }
 
 #[derive(Debug, Deserialize)]
@@ -586,6 +616,8 @@ pub struct Experiment {
     transfer: biscale_core::transfer::TransferSettings,
     /// Every compressor setting, sweeps expanded (checked at parse).
     compressors: Vec<CompressorSetting>,
+    /// Every method setting, sweeps expanded (checked at parse).
+    methods: Vec<MethodSetting>,
 }
 
 impl Experiment {
@@ -678,16 +710,27 @@ impl Experiment {
             return Err(ConfigError::whole_file(path, "runtime.repeats must be at least 1"));
         }
         let mut file = file;
-        let mut compressors: Vec<CompressorSetting> = vec![];
-        for c in &file.compressors {
-            for setting in compressor_settings(c, &dir, &err)? {
-                if compressors.iter().any(|s| s.label == setting.label) {
-                    return Err(err(
-                        c.span(),
-                        format!("setting {} appears twice (its images and report rows would collide)", setting.label),
-                    ));
+        // Compressor and method settings share one label space (file names, report rows).
+        let (mut compressors, mut methods): (Vec<Setting>, Vec<Setting>) = (vec![], vec![]);
+        let mut labels: Vec<String> = vec![];
+        for (entries, what, kinds, out) in [
+            (&file.compressors, "compressor", compressor_kinds(), &mut compressors),
+            (&file.methods, "method", method_kinds(), &mut methods),
+        ] {
+            for c in entries {
+                for setting in expand_settings(c, &dir, &err, what, &kinds)? {
+                    if labels.contains(&setting.label) {
+                        return Err(err(
+                            c.span(),
+                            format!(
+                                "setting {} appears twice (its images and report rows would collide)",
+                                setting.label
+                            ),
+                        ));
+                    }
+                    labels.push(setting.label.clone());
+                    out.push(setting);
                 }
-                compressors.push(setting);
             }
         }
         if let (Some(_), Some(first)) = (&file.scene.material, file.scene.materials.first()) {
@@ -723,7 +766,7 @@ impl Experiment {
                 }
             }
         }
-        Ok(Self { config_path: path.to_path_buf(), source, file, mesh_path, env_path, transfer, compressors })
+        Ok(Self { config_path: path.to_path_buf(), source, file, mesh_path, env_path, transfer, compressors, methods })
     }
 
     pub fn name(&self) -> &str {
@@ -744,6 +787,11 @@ impl Experiment {
     /// Every compressor setting, in config order with sweeps expanded.
     pub fn compressor_settings(&self) -> &[CompressorSetting] {
         &self.compressors
+    }
+
+    /// Every method setting (`[[methods]]`), in config order with sweeps expanded.
+    pub fn method_settings(&self) -> &[MethodSetting] {
+        &self.methods
     }
 
     /// The transfer settings: the light basis of `L` and `T`, the local basis of `T`, `L*` and

@@ -30,6 +30,12 @@ impl GpuBackend {
         Ok(Self { ctx, shader, adapter })
     }
 
+    /// The same device with a shader for another scene (a method's materials on its basis).
+    pub fn for_scene(&self, scene: &ShadeScene, camera: &Camera) -> Result<Self> {
+        let shader = GpuShader::new(&self.ctx, scene, camera)?;
+        Ok(Self { ctx: self.ctx.clone(), shader, adapter: self.adapter.clone() })
+    }
+
     /// Gather `form` with its program `kernels` and shade it on the GPU; errors are measured
     /// against the f64 product (`exact`) and the CPU render of the same form (`cpu`, over the
     /// CPU's coverage).

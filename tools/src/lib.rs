@@ -18,6 +18,7 @@ pub mod config;
 pub mod gpu_backend;
 pub mod html;
 pub mod materials;
+pub mod methods;
 pub mod metrics;
 pub mod pipeline;
 pub mod plan;

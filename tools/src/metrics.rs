@@ -17,8 +17,68 @@ pub struct Metrics {
     /// Present when the reference image was traced.
     pub reference: Option<ReferenceMetrics>,
     pub compressors: Vec<CompressorRecord>,
+    /// One record per `[[methods]]` setting (the low-frequency method, ...).
+    pub methods: Vec<MethodRecord>,
     /// Error target of the equal-quality comparison (`report.target_error`).
     pub target_error: f64,
+}
+
+/// One method setting: the fields of a compressor record (its `kind` and `params` are the
+/// method's; storage, flops and build time are those of its transfer's compressed form;
+/// `image.vs_uncompressed` is against the all-frequency uncompressed image) plus the method's
+/// own record.
+#[derive(Debug, Serialize)]
+pub struct MethodRecord {
+    #[serde(flatten)]
+    pub record: CompressorRecord,
+    /// The SH method's own numbers (present for `kind = "sh"`).
+    pub sh: Option<ShRecord>,
+}
+
+/// What the SH method measured beyond a compressor record.
+#[derive(Debug, Serialize)]
+pub struct ShRecord {
+    pub order: u32,
+    pub rays: u32,
+    pub bounces: u32,
+    /// The compressor of the `M_p` set (`sparse`: the raw matrices).
+    pub compressor: String,
+    /// How much of the cubemap light lies above the order: relative L2 of the light against
+    /// the reconstruction of its projection.
+    pub light_projection_error: f64,
+    /// The SH transfer `M`: build, storage and agreement with `T`.
+    pub transfer: ShTransferRecord,
+    /// The radiance transfer textures (every material's BTF on local SH).
+    pub rtt: RttRecord,
+    /// Fraction of covered pixels with a negative channel: SH ringing under a sharp light.
+    /// Not clamped (the EXR keeps them; the PNG shows them as black).
+    pub negative_pixels: f64,
+    /// True when every material is Lambertian, so the method ran as shadowed diffuse PRT (a
+    /// transfer vector per vertex instead of a matrix, no per-pixel BTF lookup).
+    pub diffuse: bool,
+}
+
+#[derive(Debug, Serialize)]
+pub struct ShTransferRecord {
+    /// Seconds to build `M` (0 when it came from the cache).
+    pub seconds: f64,
+    pub rays_traced: u64,
+    pub cached: bool,
+    pub nnz: usize,
+    /// Relative Frobenius difference between `M` projected from `T` and the ray-traced `M`,
+    /// over every `from_t_stride`-th vertex (the bridge between the methods).
+    pub from_t_difference: f64,
+    pub from_t_stride: usize,
+}
+
+#[derive(Debug, Serialize)]
+pub struct RttRecord {
+    /// Stored bytes of all RTT tables at f32 (the SH analogue of the BTF tables).
+    pub bytes: u64,
+    /// Largest relative L2 error of a material's BTF light dependence lost to the order.
+    pub projection_error: f64,
+    /// Largest relative error of the bin integrals of the projection.
+    pub quadrature_error: f64,
 }
 
 #[derive(Debug, Serialize)]

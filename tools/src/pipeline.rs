@@ -174,26 +174,27 @@ pub fn transfer_matrix(exp: &Experiment, geometry: &Geometry, cache: Option<&Sta
     Ok(Transfer { matrix: build.matrix, metrics, key })
 }
 
-/// One setting's compressed form, built or loaded from the cache (`true` when loaded). A form
-/// from the cache keeps the build time it was measured with.
+/// One setting's compressed form of `t` (whose cache key is `t_key`), built or loaded from the
+/// cache (`true` when loaded). A form from the cache keeps the build time it was measured with.
 pub fn compressed_form(
     setting: &CompressorSetting,
     compressor: &dyn Compressor,
-    t: &Transfer,
+    t: &TransferMatrix,
+    t_key: u64,
     seed: u64,
     cache: Option<&StageCache>,
 ) -> Result<(CompressedForm, bool)> {
     let name = &setting.label;
-    let cached = cache.zip(crate::cache::form_key(t.key, compressor, seed)).map(|(c, key)| (c, c.form_path(key, name)));
+    let cached = cache.zip(crate::cache::form_key(t_key, compressor, seed)).map(|(c, key)| (c, c.form_path(key, name)));
     if let Some((c, path)) = &cached {
-        let accept = |f: &CompressedForm| match f.kind == compressor.kind() && f.shape() == t.matrix.shape() {
+        let accept = |f: &CompressedForm| match f.kind == compressor.kind() && f.shape() == t.shape() {
             true => Ok(()),
             false => Err(format!(
                 "{}: holds a {} form of {}, this run needs {}",
                 path.display(),
                 f.kind,
                 f.shape(),
-                t.matrix.shape()
+                t.shape()
             )),
         };
         if let Some(form) = c.get(path, CompressedForm::load, accept) {
@@ -204,9 +205,7 @@ pub fn compressed_form(
     let pb = progress_bar(1000, name);
     let progress = |f: f64| pb.set_position((f.clamp(0.0, 1.0) * 1000.0) as u64);
     let ctx = CompressContext { seed, progress: Some(&progress) };
-    let form = compressor
-        .compress(&t.matrix, &ctx)
-        .map_err(|source| PipelineError::Compress { name: name.clone(), source })?;
+    let form = compressor.compress(t, &ctx).map_err(|source| PipelineError::Compress { name: name.clone(), source })?;
     pb.finish_and_clear();
     if let Some((c, path)) = &cached {
         c.put(path, |p| form.save(p));
@@ -299,10 +298,10 @@ fn baseline(t: &TransferMatrix, lighting: &Lighting, view: &View<'_>, repeats: u
 }
 
 /// What every render of the run shares: the scene, the camera and the background.
-struct View<'a> {
-    scene: &'a ShadeScene,
-    camera: Camera,
-    background: Background<'a>,
+pub(crate) struct View<'a> {
+    pub scene: &'a ShadeScene,
+    pub camera: Camera,
+    pub background: Background<'a>,
 }
 
 impl View<'_> {
@@ -318,7 +317,7 @@ impl View<'_> {
 }
 
 /// Run `f` `repeats` times (at least once): its last result and the median wall time (ms).
-fn timed<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(T, f64)> {
+pub(crate) fn timed<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(T, f64)> {
     let mut samples = vec![];
     let mut last = None;
     for _ in 0..repeats.max(1) {
@@ -367,12 +366,12 @@ fn reference(
 }
 
 #[cfg(feature = "gpu")]
-use crate::gpu_backend::GpuBackend;
+pub(crate) use crate::gpu_backend::GpuBackend;
 
 /// Without the `gpu` feature there is no wgpu backend: this type has no values, so the
 /// pipeline's code is the same with and without it.
 #[cfg(not(feature = "gpu"))]
-enum GpuBackend {}
+pub(crate) enum GpuBackend {}
 
 #[cfg(not(feature = "gpu"))]
 impl GpuBackend {
@@ -380,7 +379,11 @@ impl GpuBackend {
         Err(no_gpu_feature())
     }
 
-    fn run(
+    pub(crate) fn for_scene(&self, _: &ShadeScene, _: &Camera) -> Result<Self> {
+        match *self {}
+    }
+
+    pub(crate) fn run(
         &mut self,
         _: &CompressedForm,
         _: &biscale_kernels::KernelDesc,
@@ -397,35 +400,38 @@ fn no_gpu_feature() -> PipelineError {
     PipelineError::Feature { what: "runtime.backend = \"gpu\"".into(), feature: "gpu" }
 }
 
-/// What every compressed form is measured against: the baseline, the reference and the view.
-struct Evaluation<'a> {
-    t: &'a TransferMatrix,
-    lighting: &'a Lighting,
-    base: &'a Baseline,
-    view: &'a View<'a>,
-    reference: Option<&'a Reference>,
-    repeats: usize,
-    exposure: f32,
-    out_dir: &'a Path,
+/// What every compressed form is measured against: the matrix it compresses and the light it
+/// is gathered with, the f64 product `T L` (the reference for `L*`), the uncompressed
+/// all-frequency image (the baseline), the reference and the view it is shaded in.
+pub(crate) struct Evaluation<'a> {
+    pub t: &'a TransferMatrix,
+    pub light: &'a LightVector,
+    pub exact: &'a [[f64; 3]],
+    pub baseline: &'a Render,
+    pub view: &'a View<'a>,
+    pub reference: Option<&'a Reference>,
+    pub repeats: usize,
+    pub exposure: f32,
+    pub out_dir: &'a Path,
 }
 
 impl Evaluation<'_> {
     /// Gather and shade `form` (and on the GPU backend when given), compare it with the
     /// baseline and the reference, write its images: its record.
-    fn record(
+    pub(crate) fn record(
         &self,
         setting: &CompressorSetting,
         compressor: &dyn Compressor,
         form: &CompressedForm,
         cached: bool,
         gpu: Option<&mut GpuBackend>,
-    ) -> Result<CompressorRecord> {
-        let (base, view, repeats) = (self.base, self.view, self.repeats);
+    ) -> Result<(CompressorRecord, Render)> {
+        let (view, repeats) = (self.view, self.repeats);
         let cerr = |source| PipelineError::Compress { name: setting.label.clone(), source };
-        let (lstar, gather_ms) = timed(repeats, || compressor.gather(form, &self.lighting.light).map_err(cerr))?;
-        let rel_error_lstar = relative_l2_error(lstar.values(), &base.exact);
+        let (lstar, gather_ms) = timed(repeats, || compressor.gather(form, self.light).map_err(cerr))?;
+        let rel_error_lstar = relative_l2_error(lstar.values(), self.exact);
         let (render, shade_ms) = view.timed_render(&lstar, repeats)?;
-        let vs_uncompressed = errors(&compare(&render.image, &base.render.image, Some(&base.render.mask))?);
+        let vs_uncompressed = errors(&compare(&render.image, &self.baseline.image, Some(&self.baseline.mask))?);
         let vs_reference = match self.reference {
             Some(r) => {
                 let small = view.render(&lstar, &r.camera)?;
@@ -436,7 +442,7 @@ impl Evaluation<'_> {
         let gpu = match gpu {
             Some(g) => {
                 let kernels = compressor.kernels(form).map_err(cerr)?;
-                Some(g.run(form, &kernels, &self.lighting.light, &base.exact, &render, repeats)?)
+                Some(g.run(form, &kernels, self.light, self.exact, &render, repeats)?)
             }
             None => None,
         };
@@ -453,7 +459,7 @@ impl Evaluation<'_> {
         let error_rel = format!("images/{name}_error.png");
         let error_scale = biscale_shading::image::write_error_image(
             &render.image,
-            &base.render.image,
+            &self.baseline.image,
             None,
             &self.out_dir.join(&error_rel),
         )?;
@@ -464,7 +470,7 @@ impl Evaluation<'_> {
             form.build_seconds,
             if cached { " (cached)" } else { "" },
         );
-        Ok(CompressorRecord {
+        let record = CompressorRecord {
             name: name.clone(),
             kind: compressor.kind().to_string(),
             params: compressor.params(),
@@ -488,7 +494,8 @@ impl Evaluation<'_> {
             },
             stats: compressor.stats(form, self.t),
             gpu,
-        })
+        };
+        Ok((record, render))
     }
 }
 
@@ -548,8 +555,9 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     };
     let eval = Evaluation {
         t: &t.matrix,
-        lighting: &lighting,
-        base: &base,
+        light: &lighting.light,
+        exact: &base.exact,
+        baseline: &base.render,
         view: &view,
         reference: reference.as_ref(),
         repeats,
@@ -558,12 +566,33 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     };
     let mut records = vec![];
     for (setting, compressor) in &compressors {
-        let (form, cached) = compressed_form(setting, compressor.as_ref(), &t, exp.file.seed, cache.as_ref())?;
-        let record = eval.record(setting, compressor.as_ref(), &form, cached, gpu.as_mut())?;
+        let (form, cached) =
+            compressed_form(setting, compressor.as_ref(), &t.matrix, t.key, exp.file.seed, cache.as_ref())?;
+        let (record, _) = eval.record(setting, compressor.as_ref(), &form, cached, gpu.as_mut())?;
         records.push(record);
     }
+    let inputs = crate::methods::sh::MethodInputs {
+        exp,
+        geometry: &geometry,
+        lighting: &lighting,
+        t: &t,
+        scene: &scene,
+        baseline: &base.render,
+        view: &view,
+        reference: reference.as_ref(),
+        cache: cache.as_ref(),
+        repeats,
+        exposure,
+        out_dir: &out_dir,
+    };
+    let methods = exp
+        .method_settings()
+        .iter()
+        .map(|m| crate::methods::evaluate(m, &inputs, gpu.as_ref()))
+        .collect::<Result<Vec<_>>>()?;
 
-    let metrics = Metrics::of_run(exp, &geometry, &lighting, &materials, t.metrics, &base, reference.as_ref(), records);
+    let metrics =
+        Metrics::of_run(exp, &geometry, &lighting, &materials, t.metrics, &base, reference.as_ref(), records, methods);
     write_report(&metrics, &plan, &out_dir)?;
     eprintln!("wrote {}", out_dir.display());
     Ok((out_dir, metrics))
@@ -581,6 +610,7 @@ impl Metrics {
         base: &Baseline,
         reference: Option<&Reference>,
         compressors: Vec<CompressorRecord>,
+        methods: Vec<MethodRecord>,
     ) -> Self {
         Metrics {
             experiment: exp.name().to_string(),
@@ -610,6 +640,7 @@ impl Metrics {
                 uncompressed_vs_reference: errors(&r.baseline_error),
             }),
             compressors,
+            methods,
             target_error: exp.file.report.target_error,
         }
     }

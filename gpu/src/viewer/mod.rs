@@ -30,8 +30,10 @@ use crate::shade::GpuShader;
 use crate::timing::{median, PassTimer};
 use biscale_core::basis::LightBasis;
 use biscale_core::compress::CompressedForm;
-use biscale_core::sampling::{EnvMap, LightVector};
+use biscale_core::sampling::{Cubemap, EnvMap, LightVector};
 use biscale_core::scene::{Camera, ShadeScene};
+use biscale_core::sh::light::LIGHT_SUBTEXELS;
+use biscale_core::sh::{ShProjection, ShRotation};
 use orbit::Orbit;
 use overlay::Overlay;
 use std::path::PathBuf;
@@ -103,13 +105,49 @@ struct LightReady {
     ms: f64,
 }
 
-/// `L` for `rotation`, exactly as the pipeline's lighting stage makes it.
-fn compute_light(env: &EnvMap, basis: LightBasis, rotation: f64, sun_boost: Option<f32>) -> LightVector {
-    let mut light = LightVector::from_env(env, basis, rotation);
-    if let Some(boost) = sun_boost {
-        light.boost_brightest(boost);
+/// Cubemap resolution an SH light is projected from in the viewer (the reference cubemap).
+const SH_SOURCE_RESOLUTION: u32 = 32;
+
+/// `L` for any sky rotation, in the forms' light basis. A cubemap light is integrated from the
+/// environment for every rotation, exactly as the pipeline's lighting stage makes it; an SH
+/// light is projected once (from the reference cubemap, sun boost applied there) and then
+/// rotated by the SH rotation matrix, which costs microseconds instead of a re-integration.
+enum LightSource {
+    Cubemap { env: Arc<EnvMap>, cubemap: Cubemap, sun_boost: Option<f32> },
+    Sh { base: LightVector },
+}
+
+impl LightSource {
+    fn new(env: &Arc<EnvMap>, basis: LightBasis, sun_boost: Option<f32>) -> Result<Self> {
+        match basis {
+            LightBasis::Cubemap(cubemap) => Ok(Self::Cubemap { env: env.clone(), cubemap, sun_boost }),
+            LightBasis::Sh(order) => {
+                let cubemap = Cubemap::new(SH_SOURCE_RESOLUTION);
+                let mut l = LightVector::from_env(env, cubemap, 0.0);
+                if let Some(b) = sun_boost {
+                    l.boost_brightest(b);
+                }
+                let base = ShProjection::new(cubemap, order, LIGHT_SUBTEXELS).project(&l)?;
+                Ok(Self::Sh { base })
+            }
+        }
     }
-    light
+
+    fn at(&self, rotation: f64) -> LightVector {
+        match self {
+            Self::Cubemap { env, cubemap, sun_boost } => {
+                let mut light = LightVector::from_env(env, *cubemap, rotation);
+                if let Some(boost) = sun_boost {
+                    light.boost_brightest(*boost);
+                }
+                light
+            }
+            Self::Sh { base } => {
+                let order = base.basis().sh_order().expect("an SH light");
+                base.rotated_sh(&ShRotation::about_y(order, rotation)).expect("the rotation has the light's order")
+            }
+        }
+    }
 }
 
 impl ViewerSetup {
@@ -170,9 +208,11 @@ pub fn run_viewer(setup: ViewerSetup) -> Result<()> {
         .build()
         .map_err(|e| GpuError::Window(format!("{e} (is DISPLAY or WAYLAND_DISPLAY set? try xvfb-run)")))?;
     let start = Instant::now();
-    let light = compute_light(&setup.env, setup.light_basis, setup.env_rotation, setup.sun_boost);
+    let source = Arc::new(LightSource::new(&Arc::new(setup.env.clone()), setup.light_basis, setup.sun_boost)?);
+    let light = source.at(setup.env_rotation);
     let light_ms = start.elapsed().as_secs_f64() * 1e3;
     let mut app = App {
+        source,
         proxy: event_loop.create_proxy(),
         state: State::new(&setup, light, light_ms),
         setup,
@@ -283,6 +323,8 @@ struct Gpu {
 
 struct App {
     setup: ViewerSetup,
+    /// Where every rotation's light comes from (shared with the light worker).
+    source: Arc<LightSource>,
     proxy: EventLoopProxy<LightReady>,
     state: State,
     gpu: Option<Gpu>,
@@ -361,8 +403,7 @@ impl App {
         // The light worker: coalesces requests to the newest rotation.
         let (tx, rx) = mpsc::channel::<f64>();
         let proxy = self.proxy.clone();
-        let env = Arc::new(self.setup.env.clone());
-        let (basis, boost) = (self.setup.light_basis, self.setup.sun_boost);
+        let source = self.source.clone();
         std::thread::Builder::new()
             .name("biscale-view-light".into())
             .spawn(move || {
@@ -371,7 +412,7 @@ impl App {
                         rotation = r;
                     }
                     let start = Instant::now();
-                    let light = compute_light(&env, basis, rotation, boost);
+                    let light = source.at(rotation);
                     let ms = start.elapsed().as_secs_f64() * 1e3;
                     if proxy.send_event(LightReady { rotation, light, ms }).is_err() {
                         break;

@@ -202,11 +202,26 @@ pub fn build_sh(
 /// frames `frames` (`t`'s): an error unless `t` is in a cubemap light basis with one frame per
 /// vertex.
 pub fn sh_from_transfer(t: &TransferMatrix, frames: &[VertexFrame], order: ShOrder) -> Result<TransferMatrix> {
+    let all: Vec<usize> = (0..t.vertices()).collect();
+    assemble(order, &sh_from_transfer_vertices(t, frames, order, &all)?)
+}
+
+/// [`sh_from_transfer`] for some vertices only: their dense `n^2 x n^2` blocks (f64,
+/// row-major), in the order given.
+pub fn sh_from_transfer_vertices(
+    t: &TransferMatrix,
+    frames: &[VertexFrame],
+    order: ShOrder,
+    vertices: &[usize],
+) -> Result<Vec<Vec<f64>>> {
     let cubemap = t.light_basis().cubemap_layout().ok_or_else(|| {
         CoreError::Invalid(format!("projecting T onto SH needs a cubemap light basis, T has {}", t.light_basis()))
     })?;
     if frames.len() != t.vertices() {
         return Err(CoreError::Invalid(format!("{} frames for the {} vertices of T", frames.len(), t.vertices())));
+    }
+    if let Some(v) = vertices.iter().find(|&&v| v >= t.vertices()) {
+        return Err(CoreError::Invalid(format!("vertex {v} of a T of {} vertices", t.vertices())));
     }
     let (m, n) = (t.local_dirs(), order.len());
     // World SH at every texel centre, weighted by the texel's solid angle.
@@ -218,9 +233,9 @@ pub fn sh_from_transfer(t: &TransferMatrix, frames: &[VertexFrame], order: ShOrd
         })
         .collect();
     let csr = t.csr();
-    let blocks: Vec<Vec<f64>> = (0..t.vertices())
-        .into_par_iter()
-        .map(|v| {
+    Ok(vertices
+        .par_iter()
+        .map(|&v| {
             let frame = frames[v];
             // Visible fraction of every texel the vertex's rows touch.
             let mut vis: std::collections::BTreeMap<usize, f64> = std::collections::BTreeMap::new();
@@ -243,8 +258,7 @@ pub fn sh_from_transfer(t: &TransferMatrix, frames: &[VertexFrame], order: ShOrd
             }
             out
         })
-        .collect();
-    assemble(order, &blocks)
+        .collect())
 }
 
 /// World direction `d` in `frame`'s coordinates, in f64.

@@ -1,0 +1,309 @@
+//! The low-frequency method: spherical-harmonics bi-scale radiance transfer (Sloan et al.
+//! 2003), in biscale's vocabulary.
+//!
+//! * **Light**: the run's cubemap light `L` projected onto world SH of the setting's order
+//!   (`biscale_core::sh::ShProjection`: exact for the piecewise-constant cubemap radiance up
+//!   to the sub-texel midpoint rule), so both methods see the same light.
+//! * **Transfer**: `M_p` per vertex, ray traced with the same frames, BVH and origin offset as
+//!   `T` (`biscale_core::transfer::sh`), cached like `T`; compressed by the setting's
+//!   `compressor` (raw `sparse` by default; `cpca` is Sloan's CPCA of these matrices).
+//! * **Meso scale**: each material's BTF (the same table the all-frequency path shades with)
+//!   projected onto local SH, the radiance transfer texture (`biscale_core::sh::rtt`). The
+//!   BTF's patch tiling by UV plays the role of Sloan's id map: the same `tiling` places the
+//!   patch in both methods, so an id map is not needed for the comparison.
+//! * **Runtime**: the compressor's gather `l_p = M_p L_sh` (CPU, and wgpu on the GPU backend)
+//!   and the same shaders as the all-frequency path: they take a dot product over the local
+//!   basis, bins or SH alike.
+
+use super::MethodKind;
+use biscale_compressors::registry;
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+
+/// Default rays per vertex of `M_p`.
+pub const DEFAULT_RAYS: u32 = 1024;
+
+/// The parameters of one SH setting (`[[methods]] kind = "sh"`).
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ShParams {
+    /// SH order `n`: bands `0..n`, `n^2` coefficients (Sloan's 5 gives 25), `2..=8`.
+    pub order: u32,
+    /// Rays per vertex for `M_p` (rounded up to a square stratified grid), default 1024.
+    #[serde(default = "default_rays")]
+    pub rays: u32,
+    /// Interreflection bounces folded into `M_p` (default 0: shadowed transfer only).
+    #[serde(default)]
+    pub bounces: u32,
+    /// The compressor of the `M_p` set, a compressor table (`{ kind = "cpca", clusters = 32,
+    /// components = 8 }`); default: the raw matrices (`sparse`).
+    #[serde(default)]
+    pub compressor: Option<Value>,
+}
+
+fn default_rays() -> u32 {
+    DEFAULT_RAYS
+}
+
+/// Most bounces a setting may ask for.
+pub const MAX_BOUNCES: u32 = 8;
+
+impl ShParams {
+    pub fn parse(p: &Value) -> Result<Self, String> {
+        let s: ShParams = registry::parse(p)?;
+        if !(2..=biscale_core::sh::MAX_SH_ORDER).contains(&s.order) {
+            return Err(format!("order must be 2..={}, got {}", biscale_core::sh::MAX_SH_ORDER, s.order));
+        }
+        biscale_core::transfer::sh::ShTransferSettings::new(s.order, s.rays, 0).map_err(|e| e.to_string())?;
+        if s.bounces > MAX_BOUNCES {
+            return Err(format!("bounces must be 0..={MAX_BOUNCES}, got {}", s.bounces));
+        }
+        if let Some(c) = &s.compressor {
+            let (kind, params) = compressor_parts(c)?;
+            let k = registry::find(&kind)
+                .ok_or_else(|| format!("unknown compressor kind `{kind}`, expected one of {:?}", registry::names()))?;
+            if k.name == "plugin" {
+                return Err("a plugin cannot compress the SH transfer (give sparse or cpca)".into());
+            }
+            (k.check)(&params).map_err(|e| format!("compressor: {e}"))?;
+        }
+        Ok(s)
+    }
+
+    /// The compressor's registry kind and parameters (`sparse` with none by default).
+    pub fn compressor(&self) -> (String, Value) {
+        match &self.compressor {
+            Some(c) => compressor_parts(c).expect("checked when the config was read"),
+            None => ("sparse".into(), Value::Object(Default::default())),
+        }
+    }
+}
+
+/// `kind` and the other keys of a compressor table given as JSON.
+fn compressor_parts(c: &Value) -> Result<(String, Value), String> {
+    let Value::Object(map) = c else { return Err("compressor must be a table with a kind".into()) };
+    let kind = map.get("kind").and_then(Value::as_str).ok_or("compressor needs kind = \"...\"")?.to_string();
+    let mut rest = map.clone();
+    rest.remove("kind");
+    Ok((kind, Value::Object(rest)))
+}
+
+/// The registry entry: labels like `sh-n5`, `sh-n5-b1-r4096`, `sh-n5-cpca-k32-c8`.
+pub const KIND: MethodKind = MethodKind {
+    name: "sh",
+    about: "low-frequency bi-scale rendering: SH light, per-vertex SH transfer, radiance transfer textures (Sloan et al. 2003)",
+    label: |p| {
+        let s = ShParams::parse(p)?;
+        let mut label = format!("sh-n{}", s.order);
+        if s.bounces > 0 {
+            label += &format!("-b{}", s.bounces);
+        }
+        if p.get("rays").is_some() {
+            label += &format!("-r{}", s.rays);
+        }
+        if s.compressor.is_some() {
+            let (kind, params) = s.compressor();
+            let k = registry::find(&kind).expect("checked");
+            label += &format!("-{}", (k.label)(&params)?);
+        }
+        Ok(label)
+    },
+    check: |p| ShParams::parse(p).map(drop),
+};
+
+use crate::cache::StageCache;
+use crate::config::{Experiment, MethodSetting, Setting};
+use crate::metrics::{MethodRecord, RttRecord, ShRecord, ShTransferRecord};
+use crate::pipeline::{
+    build_compressor, compressed_form, Evaluation, Geometry, GpuBackend, Lighting, PipelineError, Reference, Result,
+    Transfer, View,
+};
+use crate::util::progress_bar;
+use biscale_core::gather::reference_product;
+use biscale_core::scene::{Material, Render, ShadeScene};
+use biscale_core::sh::light::LIGHT_SUBTEXELS;
+use biscale_core::sh::rtt::radiance_transfer_texture;
+use biscale_core::sh::{ShOrder, ShProjection};
+use biscale_core::transfer::sh::{build_sh, sh_from_transfer_vertices, ShTransferSettings};
+use biscale_core::transfer::TransferMatrix;
+
+/// Every `FROM_T_STRIDE`-th vertex is projected from `T` to check the agreement of the methods.
+pub const FROM_T_STRIDE: usize = 8;
+
+/// What a method setting is measured with: the all-frequency run's scene, light, baseline
+/// image, reference and view.
+pub(crate) struct MethodInputs<'a> {
+    pub exp: &'a Experiment,
+    pub geometry: &'a Geometry,
+    pub lighting: &'a Lighting,
+    /// The all-frequency `T` (for the agreement check) and the scene on its local basis.
+    pub t: &'a Transfer,
+    pub scene: &'a ShadeScene,
+    /// The uncompressed all-frequency image.
+    pub baseline: &'a Render,
+    pub view: &'a View<'a>,
+    pub reference: Option<&'a Reference>,
+    pub cache: Option<&'a StageCache>,
+    pub repeats: usize,
+    pub exposure: f32,
+    pub out_dir: &'a std::path::Path,
+}
+
+/// `M` for `settings`, ray traced or from the cache, and its record.
+fn sh_transfer(
+    inp: &MethodInputs<'_>,
+    label: &str,
+    settings: &ShTransferSettings,
+) -> Result<(TransferMatrix, u64, ShTransferRecord)> {
+    let mesh = &inp.geometry.mesh;
+    let key = crate::cache::sh_transfer_key(mesh, settings, 0, 0);
+    let shape = biscale_core::basis::TransferShape::new(mesh.vertex_count(), settings.bases().0, settings.bases().1);
+    let record = |m: &TransferMatrix, seconds: f64, rays_traced: u64, cached: bool| ShTransferRecord {
+        seconds,
+        rays_traced,
+        cached,
+        nnz: m.nnz(),
+        from_t_difference: f64::NAN,
+        from_t_stride: FROM_T_STRIDE,
+    };
+    if let Some(c) = inp.cache {
+        let path = c.sh_transfer_path(key, settings.order().n());
+        let accept = |m: &TransferMatrix| match m.shape() == shape {
+            true => Ok(()),
+            false => Err(format!("{}: holds {}, this run needs {shape}", path.display(), m.shape())),
+        };
+        if let Some(m) = c.get(&path, TransferMatrix::load, accept) {
+            eprintln!("{label}: SH transfer loaded from cache {}", path.display());
+            let r = record(&m, 0.0, 0, true);
+            return Ok((m, key, r));
+        }
+    }
+    let vertices = mesh.vertex_count();
+    let pb = progress_bar(vertices as u64, &format!("{label} transfer"));
+    let tick = |done: usize| pb.set_position(done as u64);
+    let build = build_sh(&inp.geometry.transfer, settings, 0..vertices, Some(&tick))?;
+    pb.finish_and_clear();
+    eprintln!(
+        "{label}: SH transfer {} x {} ({} rays per vertex) in {:.2} s ({:.1} M rays/s)",
+        build.matrix.rows(),
+        build.matrix.cols(),
+        settings.rays(),
+        build.seconds,
+        build.rays_traced as f64 / build.seconds.max(1e-12) / 1e6
+    );
+    if let Some(c) = inp.cache {
+        c.put(&c.sh_transfer_path(key, settings.order().n()), |p| build.matrix.save(p));
+    }
+    let r = record(&build.matrix, build.seconds, build.rays_traced, false);
+    Ok((build.matrix, key, r))
+}
+
+/// The scene's materials with their BTFs projected onto local SH.
+fn rtt_materials(scene: &ShadeScene, order: ShOrder) -> Result<(Vec<Material>, RttRecord)> {
+    let mut out = vec![];
+    let mut rec = RttRecord { bytes: 0, projection_error: 0.0, quadrature_error: 0.0 };
+    for m in scene.materials() {
+        let (btf, report) = radiance_transfer_texture(&m.btf, order)?;
+        rec.bytes += (btf.data().len() * 12) as u64;
+        rec.projection_error = rec.projection_error.max(report.projection_error);
+        rec.quadrature_error = rec.quadrature_error.max(report.quadrature_error);
+        out.push(Material { btf, tiling: m.tiling });
+    }
+    Ok((out, rec))
+}
+
+/// Relative Frobenius difference between `M` projected from the all-frequency `T` and the
+/// traced `m`, over every `FROM_T_STRIDE`-th vertex.
+fn from_t_difference(inp: &MethodInputs<'_>, m: &TransferMatrix, order: ShOrder) -> Result<f64> {
+    let vertices: Vec<usize> = (0..m.vertices()).step_by(FROM_T_STRIDE).collect();
+    let projected = sh_from_transfer_vertices(&inp.t.matrix, inp.geometry.transfer.frames(), order, &vertices)?;
+    let n = order.len();
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for (b, &v) in projected.iter().zip(&vertices) {
+        for i in 0..n {
+            let mut traced = vec![0.0f64; n];
+            if let Some(row) = m.csr().outer_view(v * n + i) {
+                for (j, &x) in row.iter() {
+                    traced[j] = x as f64;
+                }
+            }
+            for j in 0..n {
+                num += (b[i * n + j] - traced[j]).powi(2);
+                den += traced[j].powi(2);
+            }
+        }
+    }
+    Ok(biscale_core::stats::relative_l2(num, den))
+}
+
+/// Run one SH setting against the all-frequency run's inputs: its record.
+pub(crate) fn evaluate(
+    setting: &MethodSetting,
+    inp: &MethodInputs<'_>,
+    gpu: Option<&GpuBackend>,
+) -> Result<MethodRecord> {
+    let label = &setting.label;
+    let bad =
+        |e: String| PipelineError::Mismatch { path: inp.exp.config_path.clone(), what: format!("method {label}: {e}") };
+    let p = ShParams::parse(&setting.params).map_err(bad)?;
+    let settings = ShTransferSettings::new(p.order, p.rays, inp.exp.file.seed)?;
+    let order = settings.order();
+    let (m, key, mut transfer) = sh_transfer(inp, label, &settings)?;
+    transfer.from_t_difference = from_t_difference(inp, &m, order)?;
+    let projection = ShProjection::new(inp.exp.transfer_settings().cubemap(), order, LIGHT_SUBTEXELS);
+    let light = projection.project(&inp.lighting.light)?;
+    let light_projection_error = projection.projection_error(&inp.lighting.light)?;
+    let (ckind, cparams) = p.compressor();
+    let csetting = Setting { label: label.clone(), kind: ckind.clone(), params: cparams };
+    let compressor = build_compressor(&csetting)?;
+    let (form, cached) = compressed_form(&csetting, compressor.as_ref(), &m, key, inp.exp.file.seed, inp.cache)?;
+    let (materials, rtt) = rtt_materials(inp.scene, order)?;
+    let sh_scene = ShadeScene::new(
+        inp.geometry.mesh.clone(),
+        inp.geometry.transfer.frames().to_vec(),
+        materials,
+        inp.scene.triangle_materials().map(<[u32]>::to_vec),
+    )?;
+    let view = View { scene: &sh_scene, camera: inp.view.camera, background: inp.view.background };
+    let exact = reference_product(&m, &light);
+    let mut gpu = match gpu {
+        Some(g) => Some(g.for_scene(&sh_scene, &view.camera)?),
+        None => None,
+    };
+    let eval = Evaluation {
+        t: &m,
+        light: &light,
+        exact: &exact,
+        baseline: inp.baseline,
+        view: &view,
+        reference: inp.reference,
+        repeats: inp.repeats,
+        exposure: inp.exposure,
+        out_dir: inp.out_dir,
+    };
+    let (mut record, render) = eval.record(&csetting, compressor.as_ref(), &form, cached, gpu.as_mut())?;
+    record.kind = KIND.name.to_string();
+    record.params = serde_json::to_value(&p).expect("plain struct serializes");
+    let covered = render.mask.iter().filter(|&&c| c).count();
+    let negative =
+        render.image.pixels.iter().zip(&render.mask).filter(|(px, &c)| c && px.iter().any(|&x| x < 0.0)).count();
+    let negative_pixels = negative as f64 / covered.max(1) as f64;
+    eprintln!(
+        "{label}: light projection error {light_projection_error:.2e}, RTT projection error {:.2e}, M from T vs traced {:.2e}, {:.2}% negative pixels",
+        rtt.projection_error,
+        transfer.from_t_difference,
+        100.0 * negative_pixels
+    );
+    let sh = ShRecord {
+        order: p.order,
+        rays: settings.rays(),
+        bounces: p.bounces,
+        compressor: ckind,
+        light_projection_error,
+        transfer,
+        rtt,
+        negative_pixels,
+        diffuse: false,
+    };
+    Ok(MethodRecord { record, sh: Some(sh) })
+}
