@@ -41,6 +41,10 @@ pub enum LocalBasis {
     /// Real spherical harmonics of the local frame (+Z = normal) to an order;
     /// coefficient `i` is `int L*(w) y_i(w) dw`.
     Sh(ShOrder),
+    /// One coefficient: the irradiance `int L*(w) max(cos theta, 0) dw` of the local light
+    /// truncated to an SH order (`sum_i l_i c_i`, `c` the clamped cosine's coefficients): the
+    /// shadowed diffuse PRT of Sloan et al. 2002, all a Lambertian material needs.
+    Irradiance(ShOrder),
 }
 
 impl LocalBasis {
@@ -62,6 +66,7 @@ impl LocalBasis {
         match self {
             LocalBasis::Bins(g) => g.len(),
             LocalBasis::Sh(o) => o.len(),
+            LocalBasis::Irradiance(_) => 1,
         }
     }
 
@@ -74,7 +79,7 @@ impl LocalBasis {
     pub fn grid(&self) -> Option<HemisphereGrid> {
         match self {
             LocalBasis::Bins(g) => Some(*g),
-            LocalBasis::Sh(_) => None,
+            LocalBasis::Sh(_) | LocalBasis::Irradiance(_) => None,
         }
     }
 
@@ -82,15 +87,16 @@ impl LocalBasis {
     pub fn sh_order(&self) -> Option<ShOrder> {
         match self {
             LocalBasis::Sh(o) => Some(*o),
-            LocalBasis::Bins(_) => None,
+            LocalBasis::Bins(_) | LocalBasis::Irradiance(_) => None,
         }
     }
 
-    /// The text form: `bins:<m>` or `sh:<n>`.
+    /// The text form: `bins:<m>`, `sh:<n>` or `irradiance:<n>`.
     pub fn tag(&self) -> String {
         match self {
             LocalBasis::Bins(g) => format!("bins:{}", g.m),
             LocalBasis::Sh(o) => format!("sh:{}", o.n()),
+            LocalBasis::Irradiance(o) => format!("irradiance:{}", o.n()),
         }
     }
 
@@ -99,7 +105,10 @@ impl LocalBasis {
         match s.split_once(':') {
             Some(("bins", m)) => Self::bins(parse_u32(m, s)?),
             Some(("sh", n)) => Self::sh(parse_u32(n, s)?),
-            _ => Err(CoreError::Invalid(format!("unknown local basis {s:?} (expected bins:<m> or sh:<n>)"))),
+            Some(("irradiance", n)) => Ok(LocalBasis::Irradiance(ShOrder::new(parse_u32(n, s)?)?)),
+            _ => Err(CoreError::Invalid(format!(
+                "unknown local basis {s:?} (expected bins:<m>, sh:<n> or irradiance:<n>)"
+            ))),
         }
     }
 }
@@ -109,6 +118,7 @@ impl fmt::Display for LocalBasis {
         match self {
             LocalBasis::Bins(g) => write!(f, "{m}x{m} bins", m = g.m),
             LocalBasis::Sh(o) => write!(f, "local {o}"),
+            LocalBasis::Irradiance(o) => write!(f, "irradiance of local {o}"),
         }
     }
 }
@@ -270,7 +280,9 @@ mod tests {
             assert_eq!((l.len(), w.len()), ((n * n) as usize, (n * n) as usize));
             assert_eq!((l.grid(), w.cubemap_layout(), l.sh_order().unwrap().n()), (None, None, n));
         }
-        for bad in ["bins:0", "bins:65", "bins:x", "sh:0", "sh:9", "cubemap:8", "bins", ""] {
+        let irr = LocalBasis::Irradiance(ShOrder::new(5).unwrap());
+        assert_eq!((LocalBasis::parse(&irr.tag()).unwrap(), irr.len(), irr.tag().as_str()), (irr, 1, "irradiance:5"));
+        for bad in ["bins:0", "bins:65", "bins:x", "sh:0", "sh:9", "irradiance:0", "cubemap:8", "bins", ""] {
             assert!(LocalBasis::parse(bad).is_err(), "{bad}");
         }
         for bad in ["cubemap:0", "cubemap:105", "bins:8", "sh:0", "sh:9"] {

@@ -96,9 +96,47 @@ impl Plan {
                 step("compress", kind.into(), Action::LeftOut("not named in the config".into()));
             }
         }
+        // The diffuse special case, as far as the config tells (the run checks the tables).
+        let diffuse = materials.iter().all(lambertian_config);
+        for m in exp.method_settings() {
+            let Ok(p) = crate::methods::sh::ShParams::parse(&m.params) else { continue };
+            let n2 = p.order * p.order;
+            let bounces = match p.bounces {
+                0 => String::new(),
+                b => format!(", {b} interreflection bounce(s)"),
+            };
+            step(
+                "method",
+                format!(
+                    "{}: light in order-{} SH, M_p {n2}x{n2} per vertex by {} rays{bounces} (cached by content)",
+                    m.label, p.order, p.rays
+                ),
+                Action::Run,
+            );
+            if diffuse {
+                step(
+                    "method",
+                    format!("{}: {n2}x{n2} transfer matrices and per-pixel RTT lookups", m.label),
+                    Action::LeftOut(format!(
+                        "every material is Lambertian: shadowed diffuse PRT, a {n2}-vector per vertex"
+                    )),
+                );
+            } else {
+                step(
+                    "method",
+                    format!("{}: radiance transfer texture per material (the BTFs on order-{} SH)", m.label, p.order),
+                    Action::Run,
+                );
+            }
+        }
         step(
             "gather",
-            format!("{} gather(s) on the {:?} backend", compressors.len() + 1, f.runtime.backend).to_lowercase(),
+            format!(
+                "{} gather(s) on the {:?} backend",
+                compressors.len() + 1 + exp.method_settings().len(),
+                f.runtime.backend
+            )
+            .to_lowercase(),
             Action::Run,
         );
         step("gather", "re-gathers for changing light".into(), Action::LeftOut("the light does not change".into()));
@@ -132,5 +170,17 @@ impl fmt::Display for Plan {
             }
         }
         Ok(())
+    }
+}
+
+/// True when a material entry is Lambertian in shape for certain: analytic Lambertian, or a
+/// flat synthesized patch with a Lambertian BRDF (with or without an albedo map).
+fn lambertian_config(m: &MaterialConfig) -> bool {
+    match m {
+        MaterialConfig::Lambertian { .. } => true,
+        MaterialConfig::Phong { .. } => false,
+        MaterialConfig::Synthesized(s) => {
+            s.amplitude == 0.0 && matches!(s.brdf, crate::config::BrdfConfig::Lambertian { .. })
+        }
     }
 }

@@ -111,3 +111,41 @@ pub fn radiance_transfer_texture(btf: &Btf, order: ShOrder) -> Result<(Btf, RttR
     )?;
     Ok((rtt, RttReport { projection_error, quadrature_error }))
 }
+
+/// Largest relative deviation from the Lambertian shape accepted by [`lambertian_albedo`]
+/// (f16 tables round to 2^-11 relative).
+pub const LAMBERTIAN_TOLERANCE: f64 = 2e-3;
+
+/// The albedo per texel when `btf` is Lambertian in shape: view-independent and, in every
+/// texel, `b_j = rho / pi * cosbar_j` for all bins (to [`LAMBERTIAN_TOLERANCE`] of the
+/// texel's largest value); `None` otherwise. Since `sum_j cosbar_j omega_j = pi`, the albedo is
+/// `rho = sum_j b_j omega_j`.
+pub fn lambertian_albedo(btf: &Btf) -> Option<Vec<[f32; 3]>> {
+    let grid = btf.local_basis().grid()?;
+    if btf.view_grid().is_some() {
+        return None;
+    }
+    let (m, omega) = (grid.len(), grid.bin_solid_angle());
+    let cosbar: Vec<f64> = (0..m as u32).map(|j| grid.bin_mean_cosine(j)).collect();
+    btf.data()
+        .chunks(m)
+        .map(|b| {
+            let rho: [f64; 3] = std::array::from_fn(|c| b.iter().map(|v| v[c] as f64 * omega).sum());
+            let max = b.iter().flatten().fold(0.0f32, |a, &x| a.max(x.abs())) as f64;
+            let fits = b.iter().zip(&cosbar).all(|(v, cb)| {
+                (0..3).all(|c| (v[c] as f64 - rho[c] / std::f64::consts::PI * cb).abs() <= LAMBERTIAN_TOLERANCE * max)
+            });
+            fits.then(|| rho.map(|x| x as f32))
+        })
+        .collect()
+}
+
+/// The BTF of a Lambertian-shaped table ([`lambertian_albedo`]) in the irradiance basis of
+/// `order`: one value per texel, `rho / pi`, so that `B = rho / pi * E`. `None` when the table
+/// is not Lambertian in shape.
+pub fn irradiance_btf(btf: &Btf, order: ShOrder) -> Result<Option<Btf>> {
+    let Some(albedo) = lambertian_albedo(btf) else { return Ok(None) };
+    let data = albedo.iter().map(|a| a.map(|x| x / std::f32::consts::PI)).collect();
+    let name = format!("{} (diffuse PRT, {order})", btf.name());
+    Ok(Some(Btf::new(btf.spatial(), LocalBasis::Irradiance(order), None, data, name)?))
+}

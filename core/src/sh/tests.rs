@@ -355,3 +355,30 @@ fn the_rtt_shades_band_limited_light_exactly_as_the_bins_do() {
     assert!((lam_rtt.data()[0][0] as f64 - 0.5 * 0.5 / std::f64::consts::PI.sqrt()).abs() < 1e-6);
     assert!(rtt::radiance_transfer_texture(&lam_rtt, o).is_err(), "an RTT is not projected again");
 }
+
+#[test]
+fn lambertian_tables_reduce_to_one_value_per_texel_and_others_do_not() {
+    use crate::basis::LocalBasis;
+    use crate::scene::Btf;
+    let bins = LocalBasis::bins(8).unwrap();
+    let lam = Btf::lambertian([0.8, 0.5, 0.2], bins).unwrap();
+    let albedo = rtt::lambertian_albedo(&lam).unwrap();
+    // sum_j cosbar_j omega = pi exactly, so the albedo comes back to f32 rounding.
+    for (a, b) in albedo[0].iter().zip([0.8f32, 0.5, 0.2]) {
+        assert!((a - b).abs() < 1e-5, "{albedo:?}");
+    }
+    let irr = rtt::irradiance_btf(&lam, order(5)).unwrap().unwrap();
+    assert_eq!((irr.local_basis(), irr.light_count(), irr.view_grid()), (LocalBasis::Irradiance(order(5)), 1, None));
+    assert!((irr.data()[0][0] - 0.8 / std::f32::consts::PI).abs() < 1e-6);
+    // A textured Lambertian table (two texels of different albedo) is Lambertian too.
+    let mut data = lam.data().to_vec();
+    data.extend(lam.data().iter().map(|v| v.map(|x| x * 0.5)));
+    let textured = Btf::new([2, 1], bins, None, data, "textured").unwrap();
+    assert_eq!(rtt::lambertian_albedo(&textured).unwrap().len(), 2);
+    // A glossy or a view-dependent table is not; neither is an RTT.
+    let phong = Btf::phong([0.4; 3], [0.3; 3], 20.0, bins, 3).unwrap();
+    assert!(rtt::lambertian_albedo(&phong).is_none() && rtt::irradiance_btf(&phong, order(5)).unwrap().is_none());
+    let mut bent = lam.data().to_vec();
+    bent[5][1] *= 1.5;
+    assert!(rtt::lambertian_albedo(&Btf::new([1, 1], bins, None, bent, "bent").unwrap()).is_none());
+}

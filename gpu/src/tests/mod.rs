@@ -5,6 +5,7 @@
 mod gather;
 mod layout;
 mod plugin;
+mod sh;
 mod shading;
 
 use crate::GpuContext;

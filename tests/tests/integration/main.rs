@@ -6,6 +6,7 @@
 //! * [`bad_input`]: every bad input is a typed error naming what and where, with nothing
 //!   half-written left behind.
 //! * [`materials`]: BTF materials from the config (synthesis, the cache, several materials).
+//! * [`low_frequency`]: the SH method end to end (an analytic scene, records, the GPU).
 //!
 //! Two suites stay in their own crates because they cannot share a process or a binary:
 //! `tools/tests/cli.rs` runs the `biscale` executable (only its own package's tests can), and
@@ -13,4 +14,5 @@
 
 mod bad_input;
 mod end_to_end;
+mod low_frequency;
 mod materials;

@@ -120,11 +120,12 @@ use crate::pipeline::{
 };
 use crate::util::progress_bar;
 use biscale_core::gather::reference_product;
+use biscale_core::io::ContentHash;
 use biscale_core::scene::{Material, Render, ShadeScene};
 use biscale_core::sh::light::LIGHT_SUBTEXELS;
-use biscale_core::sh::rtt::radiance_transfer_texture;
-use biscale_core::sh::{ShOrder, ShProjection};
-use biscale_core::transfer::sh::{build_sh, sh_from_transfer_vertices, ShTransferSettings};
+use biscale_core::sh::rtt::{irradiance_btf, radiance_transfer_texture};
+use biscale_core::sh::{clamped_cosine, ShOrder, ShProjection};
+use biscale_core::transfer::sh::{build_sh, irradiance_transfer, sh_from_transfer_vertices, ShTransferSettings};
 use biscale_core::transfer::TransferMatrix;
 
 /// Every `FROM_T_STRIDE`-th vertex is projected from `T` to check the agreement of the methods.
@@ -198,8 +199,23 @@ fn sh_transfer(
     Ok((build.matrix, key, r))
 }
 
-/// The scene's materials with their BTFs projected onto local SH.
-fn rtt_materials(scene: &ShadeScene, order: ShOrder) -> Result<(Vec<Material>, RttRecord)> {
+/// The scene's materials on the method's local basis, and whether the scene is diffuse: when
+/// every BTF is Lambertian in shape, each becomes one value per texel in the irradiance basis
+/// (shadowed diffuse PRT); otherwise each is projected onto local SH (its radiance transfer
+/// texture).
+fn method_materials(scene: &ShadeScene, order: ShOrder) -> Result<(Vec<Material>, RttRecord, bool)> {
+    let diffuse: Option<Vec<Material>> = scene
+        .materials()
+        .iter()
+        .map(|m| Ok(irradiance_btf(&m.btf, order)?.map(|btf| Material { btf, tiling: m.tiling })))
+        .collect::<Result<Option<Vec<_>>>>()?;
+    if let Some(materials) = diffuse {
+        // The only loss is the clamped cosine's truncation: |c - P_n c| / |c|, |c|^2 = 2 pi / 3.
+        let c2: f64 = clamped_cosine(order).iter().map(|c| c * c).sum();
+        let projection_error = (1.0 - c2 / (2.0 * std::f64::consts::PI / 3.0)).max(0.0).sqrt();
+        let bytes = materials.iter().map(|m| (m.btf.data().len() * 12) as u64).sum();
+        return Ok((materials, RttRecord { bytes, projection_error, quadrature_error: 0.0 }, true));
+    }
     let mut out = vec![];
     let mut rec = RttRecord { bytes: 0, projection_error: 0.0, quadrature_error: 0.0 };
     for m in scene.materials() {
@@ -209,7 +225,7 @@ fn rtt_materials(scene: &ShadeScene, order: ShOrder) -> Result<(Vec<Material>, R
         rec.quadrature_error = rec.quadrature_error.max(report.quadrature_error);
         out.push(Material { btf, tiling: m.tiling });
     }
-    Ok((out, rec))
+    Ok((out, rec, false))
 }
 
 /// Relative Frobenius difference between `M` projected from the all-frequency `T` and the
@@ -253,11 +269,22 @@ pub(crate) fn evaluate(
     let projection = ShProjection::new(inp.exp.transfer_settings().cubemap(), order, LIGHT_SUBTEXELS);
     let light = projection.project(&inp.lighting.light)?;
     let light_projection_error = projection.projection_error(&inp.lighting.light)?;
+    let (materials, rtt, diffuse) = method_materials(inp.scene, order)?;
+    // Diffuse: the transfer vectors t_p = c^T M_p stand in for the matrices.
+    let (m, key) = match diffuse {
+        true => (
+            irradiance_transfer(&m)?,
+            ContentHash::default().write(&key.to_le_bytes()).write_str("irradiance").finish(),
+        ),
+        false => (m, key),
+    };
+    if diffuse {
+        eprintln!("{label}: every material is Lambertian: shadowed diffuse PRT, a transfer vector per vertex");
+    }
     let (ckind, cparams) = p.compressor();
     let csetting = Setting { label: label.clone(), kind: ckind.clone(), params: cparams };
     let compressor = build_compressor(&csetting)?;
     let (form, cached) = compressed_form(&csetting, compressor.as_ref(), &m, key, inp.exp.file.seed, inp.cache)?;
-    let (materials, rtt) = rtt_materials(inp.scene, order)?;
     let sh_scene = ShadeScene::new(
         inp.geometry.mesh.clone(),
         inp.geometry.transfer.frames().to_vec(),
@@ -303,7 +330,7 @@ pub(crate) fn evaluate(
         transfer,
         rtt,
         negative_pixels,
-        diffuse: false,
+        diffuse,
     };
     Ok(MethodRecord { record, sh: Some(sh) })
 }

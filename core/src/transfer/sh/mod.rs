@@ -261,6 +261,39 @@ pub fn sh_from_transfer_vertices(
         .collect())
 }
 
+/// The shadowed diffuse PRT transfer of an SH transfer `m` (Sloan et al. 2002): per vertex
+/// the one row `t_p = c^T M_p` (`c` the clamped cosine's coefficients, [`crate::sh::clamped_cosine`]),
+/// so that `t_p . L_sh` is the vertex's irradiance at the order. Rows in
+/// `LocalBasis::Irradiance`, the same columns.
+pub fn irradiance_transfer(m: &TransferMatrix) -> Result<TransferMatrix> {
+    let order = m.local_basis().sh_order().ok_or_else(|| {
+        CoreError::Invalid(format!("the irradiance transfer reduces an SH transfer, not one on {}", m.local_basis()))
+    })?;
+    let (n, cols) = (order.len(), m.cols());
+    let c = crate::sh::clamped_cosine(order);
+    let mut indptr = vec![0usize];
+    let (mut indices, mut data) = (vec![], vec![]);
+    for v in 0..m.vertices() {
+        let mut row = vec![0.0f64; cols];
+        for (i, ci) in c.iter().enumerate().filter(|(_, c)| **c != 0.0) {
+            if let Some(r) = m.csr().outer_view(v * n + i) {
+                for (j, &x) in r.iter() {
+                    row[j] += ci * x as f64;
+                }
+            }
+        }
+        for (j, x) in row.into_iter().enumerate() {
+            if x as f32 != 0.0 {
+                indices.push(j);
+                data.push(x as f32);
+            }
+        }
+        indptr.push(indices.len());
+    }
+    let csr = sprs::CsMat::new((m.vertices(), cols), indptr, indices, data);
+    TransferMatrix::new(LocalBasis::Irradiance(order), m.light_basis(), csr)
+}
+
 /// World direction `d` in `frame`'s coordinates, in f64.
 fn to_local(frame: &VertexFrame, d: DVec3) -> DVec3 {
     let (t, b, n) = (frame.tangent.as_dvec3(), frame.bitangent.as_dvec3(), frame.normal.as_dvec3());

@@ -157,3 +157,38 @@ fn the_transfer_projected_from_t_agrees_with_the_traced_one() {
     let t = transfer::build(&mesh, &TransferSettings::new(8, 16, 4).unwrap(), None).unwrap().matrix;
     assert!(sh_from_transfer(&t, &scene.frames()[1..], order).is_err());
 }
+
+/// The diffuse reduction `t_p = c^T M_p`: for an unoccluded vertex under a constant sky of
+/// radiance 1 (`L_sh = sqrt(4 pi) e_0`) it gives the irradiance of the truncated hemisphere,
+/// `E_n = sum_l h_l c_l` with `h` the zonal coefficients of the hemisphere's indicator; here
+/// `M_p` is the exact matrix, so the match is to f32 rounding (1e-5 relative).
+#[test]
+fn the_irradiance_transfer_of_an_open_vertex_is_the_truncated_hemisphere_irradiance() {
+    let order = ShOrder::new(5).unwrap();
+    let mesh = grid_plane(2, 2.0);
+    let scene = TransferScene::new(&mesh).unwrap();
+    let blocks: Vec<Vec<f64>> = scene.frames().iter().map(|f| unoccluded(f, order)).collect();
+    let m = assemble(order, &blocks).unwrap();
+    let t = irradiance_transfer(&m).unwrap();
+    assert_eq!((t.local_basis(), t.rows(), t.cols()), (LocalBasis::Irradiance(order), mesh.vertex_count(), 25));
+    // E_n by Gauss-Legendre on the zonal profiles: h_l = 2 pi K_l int_0^1 P_l, c_l likewise with mu.
+    let (nodes, weights) = crate::sh::quadrature::gauss_legendre(8, 0.0, 1.0);
+    let e_n: f64 = (0..5)
+        .map(|l| {
+            let y = |mu: f64| eval(order, DVec3::new((1.0 - mu * mu).sqrt(), 0.0, mu))[crate::sh::index(l, 0)];
+            let h: f64 = nodes.iter().zip(&weights).map(|(&mu, w)| 2.0 * std::f64::consts::PI * w * y(mu)).sum();
+            let c: f64 = nodes.iter().zip(&weights).map(|(&mu, w)| 2.0 * std::f64::consts::PI * w * mu * y(mu)).sum();
+            h * c
+        })
+        .sum();
+    let sqrt4pi = (4.0 * std::f64::consts::PI).sqrt();
+    for v in 0..mesh.vertex_count() {
+        let e = t.csr().get(v, 0).copied().unwrap_or(0.0) as f64 * sqrt4pi;
+        assert!((e - e_n).abs() < 1e-5 * e_n, "vertex {v}: {e} vs {e_n}");
+    }
+    // In closed form E_n = pi for every n >= 2: h_l = 0 for even l >= 2 (int_0^1 P_l = 0) and
+    // c_l = 0 for odd l >= 3, so only bands 0 and 1 contribute, pi / 2 each. The clamped
+    // cosine's truncation does not show on an open vertex under a constant sky.
+    assert!((e_n - std::f64::consts::PI).abs() < 1e-12, "{e_n}");
+    assert!(irradiance_transfer(&t).is_err(), "only an SH transfer reduces");
+}

@@ -1,0 +1,107 @@
+//! The low-frequency method (`[[methods]] kind = "sh"`) end to end: an analytic scene with a
+//! derived tolerance, the records beside the compressors, and the wgpu backend against the
+//! CPU.
+
+use biscale::config::Experiment;
+use biscale::pipeline::{run, RunOptions};
+use biscale_core::geometry::shapes;
+use biscale_core::sampling::hemisphere::square_to_hemisphere;
+use biscale_core::scene::HdrImage;
+use biscale_tests::{write_config, write_obj};
+use glam::Vec3;
+
+fn run_in(config: &std::path::Path, out: &std::path::Path) -> biscale::metrics::Metrics {
+    let exp = Experiment::load(config).unwrap();
+    let opts = RunOptions { out_dir: Some(out.to_path_buf()), cache_dir: Some(out.join("cache")), no_cache: false };
+    run(&exp, &opts).unwrap().1
+}
+
+/// A white Lambertian convex sphere under a constant sky of radiance 1, by shadowed diffuse
+/// PRT (every material is Lambertian, so the method keeps one transfer vector per vertex).
+///
+/// Exact: every vertex sees its whole upper hemisphere; the order-5 irradiance of that light
+/// is exactly `pi` (only bands 0 and 1 of the hemisphere and the clamped cosine overlap, see
+/// `biscale_core::transfer::sh`'s tests), so the radiance is the albedo. Errors, bounded:
+/// * `M_p` is a jittered stratified estimate over `S = g^2` equal-area strata of the upper
+///   hemisphere; the irradiance it gives is the estimate of `int_H (P_n c)` (`P_n c` the
+///   truncated clamped cosine). Its standard deviation is at most `(2 pi / S) sqrt(S) L d / 2`
+///   with `L` the Lipschitz constant of `P_n c` on the sphere and `d` the largest stratum
+///   diameter; `L <= sum_l |c_l| sqrt(l (l + 1) (2l + 1) / (4 pi))` (the addition theorem for
+///   gradients) and `d` is measured on the grid. We allow 5 standard deviations.
+/// * The light is the projection of the run's cubemap light of the constant sky: its bands
+///   above 0 (the splatting of the map onto the cubemap, and the projection's midpoint error)
+///   add at most `|c| |L_sh[1..]|` to the irradiance (`|M_p| <= 1`: it restricts and rotates).
+#[test]
+fn a_white_lambertian_sphere_under_a_constant_sky_shades_to_its_albedo() {
+    let dir = tempfile::tempdir().unwrap();
+    write_obj(&dir.path().join("m.obj"), &shapes::uv_sphere(Vec3::ZERO, 1.0, 16, 32));
+    let albedo = 0.8f64;
+    let cfg = write_config(
+        dir.path(),
+        "diffuse",
+        &format!(
+            "name = \"diffuse\"\n[scene]\nmesh = \"m.obj\"\n[scene.material]\nkind = \"lambertian\"\nalbedo = [{albedo}, {albedo}, {albedo}]\n\
+             [lighting]\nconstant = [1, 1, 1]\n[transfer]\ncubemap_resolution = 16\nvisibility_resolution = 32\nlocal_grid = 8\n\
+             [[compressors]]\nkind = \"sparse\"\n[[methods]]\nkind = \"sh\"\norder = 5\n\
+             [runtime]\nwidth = 64\nheight = 64\nrepeats = 1\n[runtime.camera]\nazimuth_degrees = 10.0\nelevation_degrees = 35.0\n\
+             [report]\nbackground = false\n"
+        ),
+    );
+    let out = dir.path().join("out");
+    let m = run_in(&cfg, &out);
+    let sh = m.methods[0].sh.as_ref().unwrap();
+    assert!(sh.diffuse, "every material is Lambertian: the diffuse special case");
+    assert_eq!((m.methods[0].record.name.as_str(), sh.order, sh.rays), ("sh-n5", 5, 1024));
+    // The bound.
+    let order = biscale_core::sh::ShOrder::new(5).unwrap();
+    let c = biscale_core::sh::clamped_cosine(order);
+    let lipschitz: f64 = (0..5)
+        .map(|l| {
+            let cl = c[biscale_core::sh::index(l, 0)].abs();
+            cl * ((l * (l + 1) * (2 * l + 1)) as f64 / (4.0 * std::f64::consts::PI)).sqrt()
+        })
+        .sum();
+    let g = 32u32;
+    let corner = |i: u32, j: u32| square_to_hemisphere(i as f64 / g as f64, j as f64 / g as f64);
+    let mut diam = 0.0f64;
+    for i in 0..g {
+        for j in 0..g {
+            let pts = [corner(i, j), corner(i + 1, j), corner(i, j + 1), corner(i + 1, j + 1)];
+            for a in &pts {
+                for b in &pts {
+                    diam = diam.max(a.dot(*b).clamp(-1.0, 1.0).acos());
+                }
+            }
+        }
+    }
+    let s = (g * g) as f64;
+    let sigma = 2.0 * std::f64::consts::PI / s * s.sqrt() * lipschitz * diam / 2.0;
+    // The run's own light (a constant map integrated over the cubemap: each texel gathers whole
+    // sub-pixels of the map, so its power is the texel's solid angle up to that splatting).
+    let exp = Experiment::load(&cfg).unwrap();
+    let light = biscale::pipeline::load_lighting(&exp).unwrap().light;
+    let cubemap = biscale_core::sampling::Cubemap::new(16);
+    let sh_light = biscale_core::sh::ShProjection::new(cubemap, order, biscale_core::sh::light::LIGHT_SUBTEXELS)
+        .project(&light)
+        .unwrap();
+    let residual = sh_light.power[1..].iter().map(|p| (p[0] as f64).powi(2)).sum::<f64>().sqrt();
+    let c_norm = c.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let tol = albedo / std::f64::consts::PI * (5.0 * sigma + c_norm * residual) + 1e-5;
+    assert!(tol < 0.05 * albedo, "the bound must be meaningful: {tol}");
+    let img = HdrImage::read_exr(&out.join("images/sh-n5.exr")).unwrap().0;
+    let covered: Vec<f32> = img.pixels.iter().filter(|p| p[0] > 0.0).map(|p| p[1]).collect();
+    assert!(covered.len() > 500);
+    for v in covered {
+        assert!((v as f64 - albedo).abs() <= tol, "{v} vs {albedo} (tolerance {tol:e})");
+    }
+    // The agreement with T and the other records are reported, and finite.
+    assert!(
+        sh.transfer.from_t_difference.is_finite() && sh.transfer.from_t_difference < 0.1,
+        "{}",
+        sh.transfer.from_t_difference
+    );
+    // The constant sky reaches the cubemap with the splatting's texel-scale noise, which order 5
+    // cannot hold: a few percent.
+    assert!(sh.light_projection_error < 0.1, "{}", sh.light_projection_error);
+    assert_eq!(sh.negative_pixels, 0.0);
+}
