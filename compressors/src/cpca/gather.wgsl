@@ -1,15 +1,16 @@
 // Gather on the clustered-PCA form (compressor `cpca`, compressors/src/cpca/mod.rs; Sloan et
-// al. 2003). Two passes:
-//   cpca_project, one 64-invocation workgroup per basis vector v (K (C + 1) of them):
-//       P[v] = basis[v] . L   (strided partial sums, then a tree reduction in workgroup memory)
-//   row_lstar (the shared gather_rows pass), one invocation per row r with cluster k = cluster[r]:
-//       L*_r = P[k (C+1)] + sum_{c=1..C} coeffs[r C + c - 1] P[k (C+1) + c],  0 when k = K
-// meta_values = [clusters K, components C].
+// al. 2003). The clustered unit is U = unit_rows rows (1, or a vertex's M); every basis vector
+// is U segments of N values, segment (v U + j) holding row j of vector v. Two passes:
+//   cpca_project, one 64-invocation workgroup per segment s (K (C + 1) U of them):
+//       P[s] = basis[s N ..][..N] . L   (strided partial sums, then a tree reduction)
+//   row_lstar (the shared gather_rows pass), one invocation per row r = u U + j, k = cluster[u]:
+//       L*_r = P[k (C+1) U + j] + sum_{c=1..C} coeffs[u C + c - 1] P[(k (C+1) + c) U + j],  0 when k = K
+// meta_values = [clusters K, components C, unit_rows U].
 
-@group(0) @binding(4) var<storage, read> basis: array<f32>;          // K (C + 1) N
-@group(0) @binding(5) var<storage, read> cluster: array<u32>;        // u16, packed 2 per word
-@group(0) @binding(6) var<storage, read> coeffs: array<f32>;         // rows C
-@group(0) @binding(7) var<storage, read_write> proj: array<f32>;     // K (C + 1) x RGB
+@group(0) @binding(4) var<storage, read> basis: array<f32>;          // K (C + 1) U N
+@group(0) @binding(5) var<storage, read> cluster: array<u32>;        // u16 per unit, packed 2 per word
+@group(0) @binding(6) var<storage, read> coeffs: array<f32>;         // units C
+@group(0) @binding(7) var<storage, read_write> proj: array<f32>;     // K (C + 1) U x RGB
 
 var<workgroup> partial: array<vec3<f32>, 64>;
 
@@ -46,16 +47,19 @@ fn proj_at(v: u32) -> vec3<f32> {
 }
 
 fn row_lstar(r: u32) -> vec3<f32> {
-    let k = u16_at(cluster[r >> 1u], r);
+    let units = meta_values[2];
+    let u = r / units;
+    let j = r % units;
+    let k = u16_at(cluster[u >> 1u], u);
     let clusters = meta_values[0];
     let c = meta_values[1];
     if k >= clusters {
         return vec3<f32>(0.0);
     }
     let base = k * (c + 1u);
-    var acc = proj_at(base);
-    for (var j = 0u; j < c; j++) {
-        acc += coeffs[r * c + j] * proj_at(base + 1u + j);
+    var acc = proj_at(base * units + j);
+    for (var v = 0u; v < c; v++) {
+        acc += coeffs[u * c + v] * proj_at((base + 1u + v) * units + j);
     }
     return acc;
 }

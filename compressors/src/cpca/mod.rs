@@ -63,7 +63,7 @@
 
 pub mod linalg;
 mod params;
-pub use params::Cpca;
+pub use params::{Cpca, CpcaUnit};
 
 use crate::registry::{self, Kind};
 use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor, NamedArray};
@@ -76,6 +76,13 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use std::time::Instant;
 
+/// Bytes per basis value at the peak of a build: the f32 assignment table, the f64 model
+/// (mean or component) and the f32 stored basis.
+const BYTES_PER_BASIS_VALUE: u64 = 4 + 8 + 4;
+
+/// Largest model a build may hold (2 GiB); beyond, the request is refused with the estimate.
+pub const MAX_CPCA_BYTES: u64 = 2 << 30;
+
 fn build(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
     Ok(Box::new(registry::parse::<Cpca>(p)?.validated()?))
 }
@@ -86,7 +93,15 @@ pub const KIND: Kind = Kind {
     about: "clustered PCA: `clusters` clusters of `components` principal components (lossy)",
     label: |p| {
         let c: Cpca = registry::parse(p)?;
-        Ok(registry::tagged_label("cpca", &serde_json::to_value(c).unwrap(), &[("clusters", "k"), ("components", "c")]))
+        let label = registry::tagged_label(
+            "cpca",
+            &serde_json::to_value(c).unwrap(),
+            &[("clusters", "k"), ("components", "c")],
+        );
+        Ok(match c.unit {
+            CpcaUnit::Row => label,
+            CpcaUnit::Vertex => label + "-vertex",
+        })
     },
     check: |p| build(p).map(drop),
     build: |p| Ok(build(p)?),
@@ -402,26 +417,30 @@ fn members_of(assign: &[u32], nz_rows: &[u32], k: usize) -> Vec<Vec<u32>> {
 impl Compressor for Cpca {
     registry::kind_and_params!();
 
-    fn kernels(&self, _form: &CompressedForm) -> Result<KernelDesc, CompressError> {
+    fn kernels(&self, form: &CompressedForm) -> Result<KernelDesc, CompressError> {
         let (k, c) = (|| Factor::Meta("clusters".into()), || Factor::MetaPlus("components".into(), 1));
+        let u = || Factor::Meta("unit_rows".into());
+        // One cluster id per unit: a row, or a vertex.
+        let units = match form.meta("unit_rows")? {
+            1 => Factor::Rows,
+            x if x as usize == form.local_dirs() => Factor::Vertices,
+            x => return Err(CompressError::malformed("cpca", "unit_rows", format!("is {x}, neither 1 nor M"))),
+        };
         Ok(KernelDesc {
             kind: KIND.name.into(),
             wgsl: biscale_kernels::with_row_pass(include_str!("gather.wgsl")),
             passes: vec![
-                // A workgroup of 64 per basis vector (K (C + 1) of them), then a row each.
-                PassDesc { entry_point: "cpca_project".into(), threads: Count::of([k(), c(), Factor::Const(64)]) },
+                // A workgroup of 64 per N-long basis segment (K (C + 1) U of them), then a row each.
+                PassDesc { entry_point: "cpca_project".into(), threads: Count::of([k(), c(), u(), Factor::Const(64)]) },
                 PassDesc { entry_point: biscale_kernels::ROW_ENTRY.into(), threads: Count::of([Factor::Rows]) },
             ],
-            scratch: vec![ScratchDesc { name: "proj".into(), words: Count::of([k(), c(), Factor::Const(3)]) }],
-            meta_keys: vec!["clusters".into(), "components".into()],
+            scratch: vec![ScratchDesc { name: "proj".into(), words: Count::of([k(), c(), u(), Factor::Const(3)]) }],
+            meta_keys: vec!["clusters".into(), "components".into(), "unit_rows".into()],
             checks: vec![
-                FormCheck::Len { array: "basis".into(), count: Count::of([k(), c(), Factor::Cols]) },
-                FormCheck::Len { array: "cluster".into(), count: Count::of([Factor::Rows]) },
-                FormCheck::Len {
-                    array: "coeffs".into(),
-                    count: Count::of([Factor::Rows, Factor::Meta("components".into())]),
-                },
-                // Id K is the all-zero row's sentinel.
+                FormCheck::Len { array: "basis".into(), count: Count::of([k(), c(), u(), Factor::Cols]) },
+                FormCheck::Len { array: "cluster".into(), count: Count::of([units.clone()]) },
+                FormCheck::Len { array: "coeffs".into(), count: Count::of([units, Factor::Meta("components".into())]) },
+                // Id K is the all-zero unit's sentinel.
                 FormCheck::Below {
                     array: "cluster".into(),
                     bound: Count::of([Factor::MetaPlus("clusters".into(), 1)]),
@@ -439,9 +458,44 @@ impl Compressor for Cpca {
         let csr = t.csr();
         let indptr_view = csr.indptr();
         let indptr = indptr_view.to_proper();
-        let rows = Rows { indptr: &indptr, indices: csr.indices(), data: csr.data() };
-        let (n, n_rows) = (t.cols(), t.rows());
+        // The unit clustered: a row, or a vertex's M rows as one vector (row j's column k at
+        // j N + k, still sorted).
+        let unit_rows = match self.unit {
+            CpcaUnit::Row => 1,
+            CpcaUnit::Vertex => t.local_dirs(),
+        };
+        let (n, n_rows) = (t.cols() * unit_rows, t.rows() / unit_rows);
         let c = self.components.min(n);
+        let bytes = (self.clusters * (c + 1)) as u64 * n as u64 * BYTES_PER_BASIS_VALUE;
+        if bytes > MAX_CPCA_BYTES {
+            return Err(CompressError::TooLarge(format!(
+                "cpca: {} clusters x {} vectors of {n} values ({unit_rows} rows of {} per unit) need about {:.1} GiB to fit, over the {} GiB limit",
+                self.clusters,
+                c + 1,
+                t.cols(),
+                bytes as f64 / (1u64 << 30) as f64,
+                MAX_CPCA_BYTES >> 30
+            )));
+        }
+        let (unit_indices, unit_indptr): (Vec<usize>, Vec<usize>) = if unit_rows == 1 {
+            (vec![], vec![])
+        } else {
+            let mut idx = Vec::with_capacity(csr.nnz());
+            let mut ptr = Vec::with_capacity(n_rows + 1);
+            ptr.push(0);
+            for u in 0..n_rows {
+                for j in 0..unit_rows {
+                    let r = u * unit_rows + j;
+                    idx.extend(csr.indices()[indptr[r]..indptr[r + 1]].iter().map(|&k| j * t.cols() + k));
+                }
+                ptr.push(idx.len());
+            }
+            (idx, ptr)
+        };
+        let rows = match unit_rows {
+            1 => Rows { indptr: &indptr, indices: csr.indices(), data: csr.data() },
+            _ => Rows { indptr: &unit_indptr, indices: &unit_indices, data: csr.data() },
+        };
         let nz_rows: Vec<u32> =
             (0..n_rows).filter(|&r| rows.row(r).1.iter().any(|&v| v != 0.0)).map(|r| r as u32).collect();
         if n_rows > u32::MAX as usize {
@@ -560,9 +614,15 @@ impl Compressor for Cpca {
             NamedArray { name: "cluster".into(), data: ArrayData::U16(cluster) },
             NamedArray { name: "coeffs".into(), data: ArrayData::F32(coeffs) },
         ];
-        form.meta = [("clusters".to_string(), k_out as u64), ("components".into(), c as u64)].into_iter().collect();
+        form.meta = [
+            ("clusters".to_string(), k_out as u64),
+            ("components".into(), c as u64),
+            ("unit_rows".into(), unit_rows as u64),
+        ]
+        .into_iter()
+        .collect();
         form.lossless = exact;
-        form.flops_per_gather = 2 * (n * k_out * (c + 1)) as u64 + 2 * (c * nz_rows.len()) as u64;
+        form.flops_per_gather = 2 * (n * k_out * (c + 1)) as u64 + 2 * (c * nz_rows.len() * unit_rows) as u64;
         form.build_seconds = start.elapsed().as_secs_f64();
         Ok(form)
     }
@@ -570,26 +630,29 @@ impl Compressor for Cpca {
     fn gather(&self, form: &CompressedForm, light: &LightVector) -> Result<LocalRadiance, CompressError> {
         form.check_light(light)?;
         let (k, c, n) = (form.meta("clusters")? as usize, form.meta("components")? as usize, form.cols());
+        let u = unit_rows(form)?;
         let basis = form.f32s("basis")?;
         let cluster = form.u16s("cluster")?;
         let coeffs = form.f32s("coeffs")?;
-        if basis.len() != k * (c + 1) * n
-            || cluster.len() != form.rows()
-            || coeffs.len() != form.rows() * c
+        let units = form.rows() / u;
+        if basis.len() != k * (c + 1) * u * n
+            || cluster.len() != units
+            || coeffs.len() != units * c
             || cluster.iter().any(|&id| id as usize > k)
         {
             return Err(CompressError::malformed("cpca", "cluster", "lengths or ids do not match the shape"));
         }
-        // Projections of the light on every mean and component (f64: a sun may sit beside a
-        // dim sky in L, and the components have both signs). The light is laid out per
-        // channel, and each dot product keeps four partial sums per channel: one running sum
-        // would chain every f64 add on the one before (4 cycles each), and the compiler may
+        // Projections of the light on every mean and component segment (f64: a sun may sit
+        // beside a dim sky in L, and the components have both signs). The light is laid out
+        // per channel, and each dot product keeps four partial sums per channel: one running
+        // sum would chain every f64 add on the one before (4 cycles each), and the compiler may
         // not reorder float sums itself. Each projection is stored as RGB padded to four f64
         // lanes, so the per-row combination below is two packed multiply-adds per term.
+        // Segment `(v (C + 1) + c) U + j` is row j of cluster v's vector c.
         let channels: [Vec<f64>; 3] = std::array::from_fn(|ch| light.power.iter().map(|l| l[ch] as f64).collect());
         let proj: Vec<[f64; 4]> = basis
             .par_chunks(n.max(1))
-            .take(k * (c + 1))
+            .take(k * (c + 1) * u)
             .map(|b| {
                 let [x, y, z] = split_dot(b, &channels);
                 [x, y, z, 0.0]
@@ -598,13 +661,15 @@ impl Compressor for Cpca {
         let values: Vec<[f32; 3]> = (0..form.rows())
             .into_par_iter()
             .map(|r| {
-                let id = cluster[r] as usize;
+                let (unit, j) = (r / u, r % u);
+                let id = cluster[unit] as usize;
                 if id == k {
                     return [0.0; 3];
                 }
-                let p = &proj[id * (c + 1)..(id + 1) * (c + 1)];
-                let mut acc = p[0];
-                for (&w, pj) in coeffs[r * c..(r + 1) * c].iter().zip(&p[1..]) {
+                let segment = |v: usize| &proj[(id * (c + 1) + v) * u + j];
+                let mut acc = *segment(0);
+                for (v, &w) in coeffs[unit * c..(unit + 1) * c].iter().enumerate() {
+                    let pj = segment(v + 1);
                     for ch in 0..4 {
                         acc[ch] += w as f64 * pj[ch];
                     }
@@ -616,52 +681,67 @@ impl Compressor for Cpca {
     }
 }
 
+/// Rows per clustered unit of a form (1, or M for vertex units).
+fn unit_rows(form: &CompressedForm) -> Result<usize, CompressError> {
+    match form.meta("unit_rows")? as usize {
+        1 => Ok(1),
+        m if m == form.local_dirs() => Ok(m),
+        m => Err(CompressError::malformed("cpca", "unit_rows", format!("is {m}, neither 1 nor M"))),
+    }
+}
+
 /// `||T - T~||_F / ||T||_F`: the relative Frobenius error of the rows `form` stands for (the
 /// quantity CPCA minimises), without decoding dense rows: per row
-/// `||x - r||^2 = ||x||^2 - 2 x.r + ||r||^2` with `r = B_k w` (`w = (1, coeffs)`) and
-/// `||r||^2 = w^T (B_k B_k^T) w` from each cluster's (C+1) x (C+1) Gram matrix. f64 throughout;
-/// the expansion loses about `eps ||x||^2` absolute per row (fine for a diagnostic; 0 when
-/// `T` is 0).
+/// `||x - r||^2 = ||x||^2 - 2 x.r + ||r||^2` with `r = B_kj w` (`w = (1, coeffs)` of the row's
+/// unit, `B_kj` the unit's cluster's segment for the row) and `||r||^2 = w^T (B_kj B_kj^T) w`
+/// from each segment's (C+1) x (C+1) Gram matrix. f64 throughout; the expansion loses about
+/// `eps ||x||^2` absolute per row (fine for a diagnostic; 0 when `T` is 0).
 pub fn relative_frobenius_error(form: &CompressedForm, t: &TransferMatrix) -> Result<f64, CompressError> {
     let (k, c, n) = (form.meta("clusters")? as usize, form.meta("components")? as usize, form.cols());
+    let u = unit_rows(form)?;
     let (basis, cluster, coeffs) = (form.f32s("basis")?, form.u16s("cluster")?, form.f32s("coeffs")?);
+    let units = form.rows() / u;
     if form.rows() != t.rows()
         || n != t.cols()
-        || basis.len() != k * (c + 1) * n
-        || cluster.len() != form.rows()
-        || coeffs.len() != form.rows() * c
+        || basis.len() != k * (c + 1) * u * n
+        || cluster.len() != units
+        || coeffs.len() != units * c
     {
         return Err(CompressError::malformed("cpca", "basis", "does not match T"));
     }
     let w = c + 1;
-    let gram: Vec<f64> = (0..k)
+    // Segment of cluster `id`'s vector `v` for row `j` of a unit.
+    let seg = |id: usize, v: usize, j: usize| &basis[((id * w + v) * u + j) * n..((id * w + v) * u + j + 1) * n];
+    let gram: Vec<f64> = (0..k * u)
         .into_par_iter()
-        .flat_map_iter(|id| {
-            let b = move |j: usize| &basis[(id * w + j) * n..(id * w + j + 1) * n];
-            (0..w * w).map(move |ab| b(ab / w).iter().zip(b(ab % w)).map(|(&x, &y)| x as f64 * y as f64).sum::<f64>())
+        .flat_map_iter(|kj| {
+            let (id, j) = (kj / u, kj % u);
+            (0..w * w).map(move |ab| {
+                seg(id, ab / w, j).iter().zip(seg(id, ab % w, j)).map(|(&x, &y)| x as f64 * y as f64).sum::<f64>()
+            })
         })
         .collect();
-    let csr =
-        if t.csr().is_csr() { std::borrow::Cow::Borrowed(t.csr()) } else { std::borrow::Cow::Owned(t.csr().to_csr()) };
+    let csr = t.csr();
     let (num, den) = (0..form.rows())
         .into_par_iter()
         .map(|r| {
             let row = csr.outer_view(r).expect("row in range");
             let x_sq: f64 = row.data().iter().map(|&v| v as f64 * v as f64).sum();
-            let id = cluster[r] as usize;
+            let (unit, j) = (r / u, r % u);
+            let id = cluster[unit] as usize;
             if id >= k {
                 return (x_sq, x_sq);
             }
             let mut wv = vec![1.0f64; w];
-            for j in 0..c {
-                wv[j + 1] = coeffs[r * c + j] as f64;
+            for v in 0..c {
+                wv[v + 1] = coeffs[unit * c + v] as f64;
             }
             let mut x_r = 0.0;
-            for (col, &v) in row.iter() {
-                let rec: f64 = (0..w).map(|j| wv[j] * basis[(id * w + j) * n + col] as f64).sum();
-                x_r += v as f64 * rec;
+            for (col, &x) in row.iter() {
+                let rec: f64 = (0..w).map(|v| wv[v] * seg(id, v, j)[col] as f64).sum();
+                x_r += x as f64 * rec;
             }
-            let g = &gram[id * w * w..(id + 1) * w * w];
+            let g = &gram[(id * u + j) * w * w..(id * u + j + 1) * w * w];
             let r_sq: f64 = (0..w).map(|a| (0..w).map(|b| wv[a] * g[a * w + b] * wv[b]).sum::<f64>()).sum();
             ((x_sq - 2.0 * x_r + r_sq).max(0.0), x_sq)
         })

@@ -22,13 +22,26 @@ pub struct Cpca {
     pub power_iterations: usize,
     /// Extra columns of the randomised subspace beyond C (Halko et al.'s p). Default: 8.
     pub oversampling: usize,
+    /// What is clustered: `row` (default), every row of `T` on its own, or `vertex`, each
+    /// vertex's whole block of M rows as one vector of M N values (Sloan et al.'s clustering of
+    /// per-vertex transfer matrices; for the low-frequency method's 25 x 25 matrices).
+    pub unit: CpcaUnit,
+}
+
+/// The unit CPCA clusters (see [`Cpca::unit`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum CpcaUnit {
+    #[default]
+    Row,
+    Vertex,
 }
 
 impl Default for Cpca {
     /// The comparison setting of Sloan et al. and the biclustering paper: 32 clusters x 8
     /// components.
     fn default() -> Self {
-        Self { clusters: 32, components: 8, iterations: 12, power_iterations: 2, oversampling: 8 }
+        Self { clusters: 32, components: 8, iterations: 12, power_iterations: 2, oversampling: 8, unit: CpcaUnit::Row }
     }
 }
 

@@ -3,6 +3,7 @@
 //! and degenerate inputs of docs/DESIGN.md section 6.
 
 use super::*;
+use crate::cpca::CpcaUnit;
 use crate::testing::{random_light, random_transfer};
 use biscale_core::basis::{LightBasis, LocalBasis};
 use biscale_core::gather::{reference_product, relative_l2_error};
@@ -38,23 +39,26 @@ fn to_dense(t: &TransferMatrix) -> Vec<Vec<f64>> {
         .collect()
 }
 
-/// The rows the form stands for, decoded from its arrays in f64.
+/// The rows the form stands for, decoded from its arrays in f64 (any unit: row `r` is row
+/// `j = r % U` of unit `r / U`, whose vectors' segment `j` it combines).
 fn decode(form: &CompressedForm) -> Vec<Vec<f64>> {
     let (k, c, n) = (form.meta("clusters").unwrap() as usize, form.meta("components").unwrap() as usize, form.cols());
+    let u = form.meta("unit_rows").unwrap() as usize;
     let (basis, cluster, coeffs) =
         (form.f32s("basis").unwrap(), form.u16s("cluster").unwrap(), form.f32s("coeffs").unwrap());
     (0..form.rows())
         .map(|r| {
-            let id = cluster[r] as usize;
+            let (unit, j) = (r / u, r % u);
+            let id = cluster[unit] as usize;
             if id == k {
                 return vec![0.0; n];
             }
-            let b = |j: usize| &basis[(id * (c + 1) + j) * n..(id * (c + 1) + j + 1) * n];
+            let b = |v: usize| &basis[((id * (c + 1) + v) * u + j) * n..((id * (c + 1) + v) * u + j + 1) * n];
             let mut row: Vec<f64> = b(0).iter().map(|&v| v as f64).collect();
-            for j in 0..c {
-                let w = coeffs[r * c + j] as f64;
-                for (x, &u) in row.iter_mut().zip(b(j + 1)) {
-                    *x += w * u as f64;
+            for v in 0..c {
+                let w = coeffs[unit * c + v] as f64;
+                for (x, &y) in row.iter_mut().zip(b(v + 1)) {
+                    *x += w * y as f64;
                 }
             }
             row
@@ -191,7 +195,8 @@ fn one_cluster_matches_dense_eigen_decomposition() {
         assert!(diff < 1e-5, "C={c}: L* differs from the truncated SVD's by {diff}");
         // The tolerance discriminates: a random C-dimensional subspace (no power iteration,
         // no oversampling) is far from optimal on this matrix.
-        let crippled = Cpca { clusters: 1, components: c, iterations: 1, power_iterations: 0, oversampling: 0 };
+        let crippled =
+            Cpca { clusters: 1, components: c, iterations: 1, power_iterations: 0, oversampling: 0, ..Cpca::default() };
         let bad = frob2(&decode(&crippled.compress(&t, &CompressContext::default()).unwrap()), &dense);
         assert!(bad > optimum * 1.01, "C={c}: a random subspace scored {bad} against {optimum}");
     }
@@ -404,4 +409,43 @@ fn bad_inputs_are_errors_not_panics() {
     let mut broken = form.clone();
     broken.meta.insert("clusters".into(), 99);
     assert!(matches!(Cpca::default().gather(&broken, &random_light(2, 0)), Err(CompressError::Malformed { .. })));
+}
+
+/// Vertex units (Sloan et al.'s clustering of whole per-vertex matrices): one cluster id and one
+/// coefficient set per vertex; with a cluster per vertex and no components every vertex is its
+/// own mean (exact), the gather equals the decoded rows, the Frobenius error matches the dense
+/// decode, and a request too large to fit is refused with its estimate before anything is
+/// allocated.
+#[test]
+fn vertex_units_cluster_whole_blocks() {
+    let t = random_transfer(12, 2, 2, 0.4, 5);
+    let ctx = CompressContext::default();
+    let vertex = |k: usize, c: usize| Cpca { unit: CpcaUnit::Vertex, ..Cpca::new(k, c) };
+    let form = vertex(12, 0).compress(&t, &ctx).unwrap();
+    assert_eq!(form.meta("unit_rows").unwrap(), 4);
+    assert_eq!((form.u16s("cluster").unwrap().len(), form.f32s("coeffs").unwrap().len()), (12, 0));
+    let light = random_light(2, 4);
+    crate::testing::assert_lossless(&vertex(12, 0), &form, &t, &light);
+    let dense = to_dense(&t);
+    for (k, c) in [(1usize, 0usize), (2, 2), (3, 5)] {
+        let cpca = vertex(k, c);
+        let form = cpca.compress(&t, &ctx).unwrap();
+        let decoded = decode(&form);
+        let want = (frob2(&decoded, &dense) / dense.iter().flatten().map(|x| x * x).sum::<f64>()).sqrt();
+        let got = relative_frobenius_error(&form, &t).unwrap();
+        assert!((got - want).abs() <= 1e-6 * want.max(1e-3), "K={k} C={c}: {got} vs {want}");
+        let lstar = cpca.gather(&form, &light).unwrap();
+        let reference: Vec<[f64; 3]> = decoded
+            .iter()
+            .map(|row| std::array::from_fn(|ch| row.iter().zip(&light.power).map(|(x, l)| x * l[ch] as f64).sum()))
+            .collect();
+        crate::testing::assert_within(&lstar, &reference, |r, ch| {
+            let scale: f64 = decoded[r].iter().zip(&light.power).map(|(x, l)| (x * l[ch] as f64).abs()).sum();
+            EPS * reference[r][ch].abs() + 1e-12 * scale * (c as f64 + 1.0)
+        });
+    }
+    // The reference bins T as vertex units: 64 clusters x 9 vectors of 64 x 6144 values.
+    let big = random_transfer(2, 8, 32, 0.01, 1);
+    let e = vertex(64, 8).compress(&big, &ctx).unwrap_err();
+    assert!(matches!(&e, CompressError::TooLarge(m) if m.contains("GiB")), "{e}");
 }

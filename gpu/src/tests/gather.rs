@@ -458,53 +458,61 @@ fn cpca_matches_its_cpu_gather() {
     // projection P_v = basis_v . L is summed by 64 lanes of ceil(N / 64) products each, then a
     // 6-level tree: error <= (ceil(N / 64) + 7) u A_v with A_v = sum_k |basis_vk| L_k. A row
     // adds C products to P_0: (C + 1) u (|P_0| + sum |w_c P_c|) plus the propagated projection
-    // errors; the CPU's f32 rounding adds u |cpu|.
-    use biscale_compressors::cpca::Cpca;
+    // errors; the CPU's f32 rounding adds u |cpu|. Both units: rows, and whole vertices (a
+    // vertex's M rows as one vector, segment j of each basis vector for row j).
+    use biscale_compressors::cpca::{Cpca, CpcaUnit};
     let ctx = gpu_or_skip!();
     let u = f32::EPSILON as f64 / 2.0;
     let t = random_transfer(20, 8, 4, 0.05, 12);
-    let form = Cpca::new(6, 3).compress(&t, &CompressContext { seed: 3, progress: None }).unwrap();
-    let (k, c, n) = (form.meta("clusters").unwrap() as usize, form.meta("components").unwrap() as usize, form.cols());
-    let cluster = form.u16s("cluster").unwrap();
-    assert!(cluster.iter().any(|&id| id as usize == k), "want at least one all-zero row");
-    let (basis, coeffs) = (form.f32s("basis").unwrap(), form.f32s("coeffs").unwrap());
-    for seed in [30u64, 31] {
-        let light = random_light(4, seed);
-        let mut g = upload(ctx, &Cpca::new(6, 3), &form);
-        g.fill_lstar(f32::NAN).unwrap();
-        g.gather(&light).unwrap();
-        let got = g.read_lstar().unwrap();
-        let cpu = Cpca::new(6, 3).gather(&form, &light).unwrap();
-        let lane = n.div_ceil(64) as f64 + 7.0;
-        let proj: Vec<([f64; 3], [f64; 3])> = basis
-            .chunks(n)
-            .map(|b| {
-                let (mut p, mut a) = ([0.0f64; 3], [0.0f64; 3]);
-                for (x, l) in b.iter().zip(&light.power) {
-                    for ch in 0..3 {
-                        p[ch] += *x as f64 * l[ch] as f64;
-                        a[ch] += (*x as f64).abs() * l[ch] as f64;
+    for cpca in [Cpca::new(6, 3), Cpca { unit: CpcaUnit::Vertex, ..Cpca::new(4, 3) }] {
+        let form = cpca.compress(&t, &CompressContext { seed: 3, progress: None }).unwrap();
+        let (k, c, n) =
+            (form.meta("clusters").unwrap() as usize, form.meta("components").unwrap() as usize, form.cols());
+        let units = form.meta("unit_rows").unwrap() as usize;
+        let cluster = form.u16s("cluster").unwrap();
+        if units == 1 {
+            assert!(cluster.iter().any(|&id| id as usize == k), "want at least one all-zero row");
+        }
+        let (basis, coeffs) = (form.f32s("basis").unwrap(), form.f32s("coeffs").unwrap());
+        for seed in [30u64, 31] {
+            let light = random_light(4, seed);
+            let mut g = upload(ctx, &cpca, &form);
+            g.fill_lstar(f32::NAN).unwrap();
+            g.gather(&light).unwrap();
+            let got = g.read_lstar().unwrap();
+            let cpu = cpca.gather(&form, &light).unwrap();
+            let lane = n.div_ceil(64) as f64 + 7.0;
+            let proj: Vec<([f64; 3], [f64; 3])> = basis
+                .chunks(n)
+                .map(|b| {
+                    let (mut p, mut a) = ([0.0f64; 3], [0.0f64; 3]);
+                    for (x, l) in b.iter().zip(&light.power) {
+                        for ch in 0..3 {
+                            p[ch] += *x as f64 * l[ch] as f64;
+                            a[ch] += (*x as f64).abs() * l[ch] as f64;
+                        }
                     }
+                    (p, a)
+                })
+                .collect();
+            for r in 0..form.rows() {
+                let (unit, j) = (r / units, r % units);
+                let id = cluster[unit] as usize;
+                for ch in 0..3 {
+                    let v = got.values()[r][ch];
+                    assert!(v.is_finite(), "row {r} not written");
+                    let bound = if id == k {
+                        0.0
+                    } else {
+                        let seg = |v: usize| (id * (c + 1) + v) * units + j;
+                        let w = |v: usize| if v == 0 { 1.0 } else { coeffs[unit * c + v - 1] as f64 };
+                        let terms: f64 = (0..=c).map(|v| (w(v) * proj[seg(v)].0[ch]).abs()).sum();
+                        let prop: f64 = (0..=c).map(|v| w(v).abs() * lane * u * proj[seg(v)].1[ch]).sum();
+                        (c as f64 + 1.0) * u * terms + prop + u * (cpu.values()[r][ch] as f64).abs()
+                    };
+                    let err = (v as f64 - cpu.values()[r][ch] as f64).abs();
+                    assert!(err <= bound, "row {r} c{ch}: GPU {v} vs CPU {} (bound {bound:e})", cpu.values()[r][ch]);
                 }
-                (p, a)
-            })
-            .collect();
-        for r in 0..form.rows() {
-            let id = cluster[r] as usize;
-            for ch in 0..3 {
-                let v = got.values()[r][ch];
-                assert!(v.is_finite(), "row {r} not written");
-                let bound = if id == k {
-                    0.0
-                } else {
-                    let base = id * (c + 1);
-                    let w = |j: usize| if j == 0 { 1.0 } else { coeffs[r * c + j - 1] as f64 };
-                    let terms: f64 = (0..=c).map(|j| (w(j) * proj[base + j].0[ch]).abs()).sum();
-                    let prop: f64 = (0..=c).map(|j| w(j).abs() * lane * u * proj[base + j].1[ch]).sum();
-                    (c as f64 + 1.0) * u * terms + prop + u * (cpu.values()[r][ch] as f64).abs()
-                };
-                let err = (v as f64 - cpu.values()[r][ch] as f64).abs();
-                assert!(err <= bound, "row {r} c{ch}: GPU {v} vs CPU {} (bound {bound:e})", cpu.values()[r][ch]);
             }
         }
     }
