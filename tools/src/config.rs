@@ -883,6 +883,42 @@ mod tests {
     }
 
     #[test]
+    fn method_settings_sweep_and_are_checked_where_they_are_written() {
+        let e = parse(&format!("{OK}[[methods]]\nkind = \"sh\"\norder = [3, 5]\nbounces = 1\n")).unwrap();
+        let labels: Vec<&str> = e.method_settings().iter().map(|s| s.label.as_str()).collect();
+        assert_eq!(labels, ["sh-n3-b1", "sh-n5-b1"]);
+        assert_eq!(e.method_settings()[0].params, serde_json::json!({ "order": 3, "bounces": 1 }));
+        let e = parse(&format!(
+            "{OK}[[methods]]\nkind = \"sh\"\norder = 5\ncompressor = {{ kind = \"cpca\", clusters = 8, unit = \"vertex\" }}\n"
+        ))
+        .unwrap();
+        assert_eq!(e.method_settings()[0].label, "sh-n5-cpca-k8-c8-vertex");
+        let bad = |body: &str| parse(&format!("{OK}[[methods]]\n{body}")).unwrap_err();
+        let e = bad("kind = \"wavelet\"\n");
+        assert!(e.message.contains("unknown method kind \"wavelet\"") && e.message.contains("`sh`"), "{e}");
+        assert_eq!((e.line, e.column), (7, 8), "{e}");
+        let e = bad("kind = \"sh\"\norder = 9\n");
+        assert!(e.message.contains("order must be 2..=8"), "{e}");
+        assert_eq!((e.line, e.column), (8, 9), "{e}");
+        let e = bad("kind = \"sh\"\norder = 5\nrays = 0\n");
+        assert!(e.message.contains("rays per vertex"), "{e}");
+        let e = bad("kind = \"sh\"\norder = 5\nbounce = 1\n");
+        assert!(e.message.contains("unknown field `bounce`"), "{e}");
+        assert_eq!((e.line, e.column), (9, 1), "{e}");
+        let e = bad("kind = \"sh\"\norder = 5\ncompressor = { kind = \"zip\" }\n");
+        assert!(e.message.contains("unknown compressor kind `zip`"), "{e}");
+        let e = bad("kind = \"sh\"\norder = 5\ncompressor = { kind = \"plugin\" }\n");
+        assert!(e.message.contains("a plugin cannot compress"), "{e}");
+        let e = bad("kind = \"sh\"\norder = 5\ncompressor = { kind = \"cpca\", clustrs = 2 }\n");
+        assert!(e.message.contains("unknown field `clustrs`"), "{e}");
+        let e = bad("order = 5\n");
+        assert!(e.message.contains("a method needs kind"), "{e}");
+        // Method and compressor labels share one space (file names and report rows).
+        let twice = format!("{OK}[[methods]]\nkind = \"sh\"\norder = [5, 5]\n");
+        assert!(parse(&twice).unwrap_err().message.contains("sh-n5 appears twice"));
+    }
+
+    #[test]
     fn plugin_entries_resolve_their_library() {
         let e = parse(&format!(
             "{OK}[[compressors]]\nkind = \"plugin\"\npath = \"nope.so\"\nparams = {{ scale = 0.25 }}\n"

@@ -108,6 +108,25 @@ pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, Stri
             let _ = write!(s, "</div>");
         }
     }
+    if let Some(l) = crate::report::low_vs_all(m) {
+        let header: Vec<String> = l.header.iter().map(|h| h.to_string()).collect();
+        let cells =
+            |tag: &str, row: &[String]| row.iter().map(|c| format!("<{tag}>{}</{tag}>", escape(c))).collect::<String>();
+        let _ = write!(s, "<h2>Low- vs all-frequency</h2><table><tr>{}</tr>", cells("th", &header));
+        for row in &l.rows {
+            let _ = write!(s, "<tr>{}</tr>", cells("td", row));
+        }
+        let _ = write!(s, "</table><div class=\"grid\">");
+        for (png, caption) in &l.figures {
+            let _ = write!(
+                s,
+                "<figure>{}<figcaption>{}</figcaption></figure>",
+                img(out_dir, png, caption),
+                escape(caption)
+            );
+        }
+        let _ = write!(s, "</div>");
+    }
     if !plots.is_empty() {
         let _ = write!(s, "<h2>Plots</h2><div class=\"grid\">");
         for (rel, caption) in plots {

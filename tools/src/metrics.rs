@@ -91,6 +91,8 @@ pub struct SceneMetrics {
     pub material: String,
     /// What the material stage left out or repaired (one line each).
     pub material_notes: Vec<String>,
+    /// Bytes of the BTF tables at f32 (the all-frequency method's meso-scale data).
+    pub btf_bytes: u64,
 }
 
 #[derive(Debug, Serialize)]

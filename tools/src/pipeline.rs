@@ -623,6 +623,7 @@ impl Metrics {
                 repairs: geometry.repairs.clone(),
                 material: materials.summary(),
                 material_notes: materials.notes.clone(),
+                btf_bytes: materials.materials.iter().map(|m| (m.btf.data().len() * 12) as u64).sum(),
             },
             lighting: LightingMetrics {
                 source: exp.env_path.as_ref().map_or("constant".into(), |p| p.display().to_string()),
@@ -659,23 +660,51 @@ fn write_report(metrics: &Metrics, plan: &Plan, out_dir: &Path) -> Result<()> {
 
 /// The comparison plots (only when there is something to compare); returns (path, caption).
 fn write_plots(m: &Metrics, out_dir: &Path) -> Vec<(String, String)> {
-    if m.compressors.len() < 2 {
-        return vec![];
-    }
     /// A plot's file stem, title, x-axis label and x value of a record.
     type Plot = (&'static str, &'static str, &'static str, fn(&CompressorRecord) -> f64);
     let mut out = vec![];
-    let plots: [Plot; 2] = [
-        ("error_vs_time", "relative error of L* against gather time", "gather time (ms, CPU)", |r| r.gather_ms),
-        ("error_vs_storage", "relative error of L* against storage", "storage (MB)", |r| r.bytes as f64 / 1e6),
-    ];
-    for (file, title, x_label, x) in plots {
-        let series = crate::plots::series_by_kind(&m.compressors, x, |r| r.rel_error_lstar);
+    let mut plot = |file: &str, title: &str, x_label: &str, y_label: &str, series: &[crate::plots::Series]| {
         let rel = format!("{file}.png");
-        match crate::plots::log_log_plot(&out_dir.join(&rel), title, x_label, "relative L2 error of L*", &series) {
+        match crate::plots::log_log_plot(&out_dir.join(&rel), title, x_label, y_label, series) {
             Ok(()) => out.push((rel, title.to_string())),
             Err(e) => eprintln!("warning: plot {file}: {e}"),
         }
+    };
+    if m.compressors.len() >= 2 {
+        let plots: [Plot; 2] = [
+            ("error_vs_time", "relative error of L* against gather time", "gather time (ms, CPU)", |r| r.gather_ms),
+            ("error_vs_storage", "relative error of L* against storage", "storage (MB)", |r| r.bytes as f64 / 1e6),
+        ];
+        for (file, title, x_label, x) in plots {
+            let series = crate::plots::series_by_kind(&m.compressors, x, |r| r.rel_error_lstar);
+            plot(file, title, x_label, "relative L2 error of L*", &series);
+        }
+    }
+    // The image error of every compressor and method (SH through its order sweep) against the
+    // storage of its transfer: where SH saturates and all-frequency transfer is needed. Against
+    // the reference when one was traced, else against the all-frequency uncompressed image.
+    if !m.methods.is_empty() {
+        let against_reference = m.reference.is_some();
+        let y = |r: &CompressorRecord| match (against_reference, &r.image.vs_reference) {
+            (true, Some(e)) => e.rel_l2,
+            _ => r.image.vs_uncompressed.rel_l2,
+        };
+        let named = m.compressors.iter().map(|c| (c.kind.clone(), c)).chain(m.methods.iter().map(|r| {
+            let compressor = r.sh.as_ref().map_or("", |s| s.compressor.as_str());
+            let name = if compressor == "sparse" {
+                r.record.kind.clone()
+            } else {
+                format!("{} + {compressor}", r.record.kind)
+            };
+            (name, &r.record)
+        }));
+        let series = crate::plots::series_by(named, |r| r.bytes as f64 / 1e6, y);
+        let y_label = if against_reference {
+            "relative L2 image error vs reference"
+        } else {
+            "relative L2 image error vs all-frequency"
+        };
+        plot("image_error_vs_storage", "image error against transfer storage", "storage (MB)", y_label, &series);
     }
     out
 }

@@ -1,5 +1,6 @@
 //! Report plots (PNG): error against gather time and error against storage, one curve per
-//! compressor kind through its sweep points. Text is drawn with the bundled DejaVu Sans
+//! compressor kind through its sweep points, and the image error of every compressor and
+//! method against its storage. Text is drawn with the bundled DejaVu Sans
 //! (assets/fonts), so plots look the same on machines without system fonts.
 
 use crate::metrics::CompressorRecord;
@@ -30,11 +31,20 @@ pub fn series_by_kind(
     x: impl Fn(&CompressorRecord) -> f64,
     y: impl Fn(&CompressorRecord) -> f64,
 ) -> Vec<Series> {
-    let mut by_kind: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
-    for r in records {
-        by_kind.entry(r.kind.clone()).or_default().push((x(r), y(r)));
+    series_by(records.iter().map(|r| (r.kind.clone(), r)), x, y)
+}
+
+/// Group `(series name, record)` pairs into series of `(x(record), y(record))`, sorted by x.
+pub fn series_by<'a>(
+    records: impl IntoIterator<Item = (String, &'a CompressorRecord)>,
+    x: impl Fn(&CompressorRecord) -> f64,
+    y: impl Fn(&CompressorRecord) -> f64,
+) -> Vec<Series> {
+    let mut by_name: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
+    for (name, r) in records {
+        by_name.entry(name).or_default().push((x(r), y(r)));
     }
-    by_kind
+    by_name
         .into_iter()
         .map(|(name, mut points)| {
             points.sort_by(|a, b| a.0.total_cmp(&b.0));

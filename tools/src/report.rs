@@ -82,6 +82,7 @@ pub fn markdown(m: &Metrics, plan: &Plan) -> String {
         );
     }
     s.push_str(&comparisons_markdown(m));
+    s.push_str(&low_vs_all_markdown(m));
     let _ = writeln!(s, "\n## Images\n");
     let _ = writeln!(s, "![uncompressed](images/uncompressed.png)\n");
     if m.reference.is_some() {
@@ -112,6 +113,138 @@ pub fn transfer_summary(t: &TransferMetrics) -> String {
         t.nnz,
         100.0 * t.nnz as f64 / (t.rows as f64 * t.cols as f64).max(1.0),
     )
+}
+
+/// The low- vs all-frequency comparison of both reports: a table (header, rows) of storage,
+/// precompute, gather and shade time and image error per method, and the figures to show side
+/// by side (`(image, caption)`, error images against the all-frequency uncompressed render).
+/// `None` when no method setting ran.
+pub struct LowVsAll {
+    pub header: &'static [&'static str],
+    pub rows: Vec<Vec<String>>,
+    pub figures: Vec<(String, String)>,
+}
+
+pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
+    if m.methods.is_empty() {
+        return None;
+    }
+    const HEADER: &[&str] = &[
+        "method",
+        "transfer MB",
+        "meso MB",
+        "precompute s",
+        "gather ms",
+        "shade ms",
+        "rel. L2 vs reference",
+        "rel. L2 vs all-frequency",
+        "negative pixels",
+    ];
+    let mb = |b: u64| format!("{:.2}", b as f64 / 1e6);
+    let err =
+        |c: &crate::metrics::CompressorRecord| c.image.vs_reference.map_or("-".into(), |e| format!("{:.4}", e.rel_l2));
+    let mut rows = vec![];
+    let mut figures = vec![];
+    let t = &m.transfer;
+    let seconds = |s: f64, cached: bool| if cached { "cached".to_string() } else { format!("{s:.2}") };
+    // The all-frequency side: the raw matrix (or the f64 product when sparse did not run), and
+    // the paper's compressed form.
+    match m.compressors.iter().find(|c| c.kind == "sparse") {
+        Some(c) => rows.push(vec![
+            format!("all-frequency, {}", c.name),
+            mb(c.bytes),
+            mb(m.scene.btf_bytes),
+            seconds(t.build_seconds, t.cached),
+            format!("{:.2}", c.gather_ms),
+            format!("{:.1}", c.shade_ms),
+            err(c),
+            "0 (itself)".into(),
+            "-".into(),
+        ]),
+        None => rows.push(vec![
+            "all-frequency, uncompressed".into(),
+            mb(4 * (t.rows as u64 + 1) + 8 * t.nnz as u64),
+            mb(m.scene.btf_bytes),
+            seconds(t.build_seconds, t.cached),
+            format!("{:.2}", m.uncompressed.gather_ms),
+            format!("{:.1}", m.uncompressed.shade_ms),
+            m.reference.as_ref().map_or("-".into(), |r| format!("{:.4}", r.uncompressed_vs_reference.rel_l2)),
+            "0 (itself)".into(),
+            "-".into(),
+        ]),
+    }
+    for c in m.compressors.iter().filter(|c| c.kind == "bicluster") {
+        rows.push(vec![
+            format!("all-frequency, {}", c.name),
+            mb(c.bytes),
+            mb(m.scene.btf_bytes),
+            seconds(t.build_seconds + c.build_seconds, t.cached),
+            format!("{:.2}", c.gather_ms),
+            format!("{:.1}", c.shade_ms),
+            err(c),
+            format!("{:.2e}", c.image.vs_uncompressed.rel_l2),
+            "-".into(),
+        ]);
+        figures.push((c.image.png.clone(), format!("all-frequency: {}", c.name)));
+    }
+    for r in &m.methods {
+        let c = &r.record;
+        let (meso, pre, neg) = match &r.sh {
+            Some(sh) => (
+                mb(sh.rtt.bytes),
+                seconds(sh.transfer.seconds + c.build_seconds, sh.transfer.cached),
+                format!("{:.2}%", 100.0 * sh.negative_pixels),
+            ),
+            None => ("-".into(), format!("{:.2}", c.build_seconds), "-".into()),
+        };
+        rows.push(vec![
+            format!(
+                "low-frequency, {}{}",
+                c.name,
+                if r.sh.as_ref().is_some_and(|s| s.diffuse) { " (diffuse PRT)" } else { "" }
+            ),
+            mb(c.bytes),
+            meso,
+            pre,
+            format!("{:.2}", c.gather_ms),
+            format!("{:.1}", c.shade_ms),
+            err(c),
+            format!("{:.4}", c.image.vs_uncompressed.rel_l2),
+            neg,
+        ]);
+        figures.push((c.image.png.clone(), format!("low-frequency: {}", c.name)));
+        if let Some(e) = &c.image.error_png {
+            figures.push((e.clone(), format!("{}: |error| against the all-frequency uncompressed render", c.name)));
+        }
+    }
+    if m.reference.is_some() {
+        figures.push(("images/reference.png".into(), "ray-traced reference".into()));
+    }
+    Some(LowVsAll { header: HEADER, rows, figures })
+}
+
+/// The low- vs all-frequency section as Markdown (empty without method settings).
+pub fn low_vs_all_markdown(m: &Metrics) -> String {
+    let Some(l) = low_vs_all(m) else { return String::new() };
+    let mut s = String::new();
+    let _ = writeln!(s, "\n## Low- vs all-frequency\n");
+    let _ = writeln!(
+        s,
+        "The same scene, BTFs, light, camera and reference through the all-frequency method (bins T) and the \
+         low-frequency one (SH light, per-vertex SH transfer, radiance transfer textures). Transfer MB is the \
+         transfer's stored form, meso MB the BTF tables (all-frequency) or radiance transfer textures (SH), at f32; \
+         precompute is the transfer's build plus its compression (`cached` when the transfer came from the stage \
+         cache).\n"
+    );
+    let _ = writeln!(s, "| {} |\n|{}", l.header.join(" | "), "---|".repeat(l.header.len()));
+    for row in &l.rows {
+        let _ = writeln!(s, "| {} |", row.join(" | "));
+    }
+    let _ = writeln!(s);
+    for (png, caption) in &l.figures {
+        let _ = writeln!(s, "![{caption}]({png})\n");
+    }
+    s
 }
 
 /// The compressor table of both reports (Markdown and HTML): its header and one row of

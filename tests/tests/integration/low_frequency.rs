@@ -105,3 +105,62 @@ fn a_white_lambertian_sphere_under_a_constant_sky_shades_to_its_albedo() {
     assert!(sh.light_projection_error < 0.1, "{}", sh.light_projection_error);
     assert_eq!(sh.negative_pixels, 0.0);
 }
+
+/// A glossy scene with shadows: the SH settings (an order sweep and CPCA of whole vertex
+/// matrices) get records beside the compressors, the report its low- vs all-frequency section
+/// and the image-error plot, and a second run takes every SH transfer from the cache.
+#[test]
+fn sh_settings_are_recorded_reported_and_cached() {
+    let dir = tempfile::tempdir().unwrap();
+    write_obj(
+        &dir.path().join("m.obj"),
+        &shapes::merged(&[shapes::grid_plane(8, 6.0), shapes::uv_sphere(Vec3::Y, 1.0, 12, 24)]),
+    );
+    let cfg = write_config(
+        dir.path(),
+        "glossy",
+        "name = \"glossy\"\n[scene]\nmesh = \"m.obj\"\n[scene.material]\nkind = \"phong\"\nkd = [0.4, 0.35, 0.3]\nks = [0.3, 0.3, 0.3]\nexponent = 30.0\nview_grid = 4\n\
+         [lighting]\nconstant = [0.3, 0.35, 0.4]\nsun_boost = 1000.0\n[transfer]\ncubemap_resolution = 8\nvisibility_resolution = 16\nlocal_grid = 4\n\
+         [[compressors]]\nkind = \"sparse\"\n[[compressors]]\nkind = \"bicluster\"\n\
+         [[methods]]\nkind = \"sh\"\norder = [2, 4]\nrays = 256\n\
+         [[methods]]\nkind = \"sh\"\norder = 3\nrays = 256\ncompressor = { kind = \"cpca\", clusters = 4, components = 2, unit = \"vertex\" }\n\
+         [runtime]\nwidth = 48\nheight = 36\nrepeats = 1\n[report]\nreference = true\nreference_downscale = 2\n",
+    );
+    let out = dir.path().join("out");
+    let m = run_in(&cfg, &out);
+    let names: Vec<&str> = m.methods.iter().map(|r| r.record.name.as_str()).collect();
+    assert_eq!(names, ["sh-n2-r256", "sh-n4-r256", "sh-n3-r256-cpca-k4-c2-vertex"]);
+    let n2 = m.methods[0].sh.as_ref().unwrap();
+    let n4 = m.methods[1].sh.as_ref().unwrap();
+    let cpca = &m.methods[2];
+    assert!(
+        !n2.diffuse && n2.rays == 256 && n2.compressor == "sparse" && cpca.sh.as_ref().unwrap().compressor == "cpca"
+    );
+    // Storage and the BTF's projection error follow the order; every record is complete.
+    assert!(m.methods[1].record.bytes > m.methods[0].record.bytes);
+    assert!(n4.rtt.projection_error < n2.rtt.projection_error && n2.rtt.projection_error < 1.0);
+    for r in &m.methods {
+        let c = &r.record;
+        assert_eq!(c.kind, "sh");
+        assert!(c.bytes > 0 && c.gather_ms >= 0.0 && c.shade_ms > 0.0 && c.image.vs_reference.is_some(), "{}", c.name);
+        assert!(c.image.vs_uncompressed.rel_l2.is_finite() && c.image.vs_uncompressed.rel_l2 > 0.0);
+        let sh = r.sh.as_ref().unwrap();
+        assert!(sh.transfer.nnz > 0 && !sh.transfer.cached && sh.light_projection_error > 0.0);
+        assert!((0.0..=1.0).contains(&sh.negative_pixels));
+        assert!(out.join(&c.image.png).is_file() && out.join(c.image.exr.as_str()).is_file());
+    }
+    // CPCA of the vertex matrices is lossy but close to its raw matrices.
+    assert!(!cpca.record.lossless && cpca.record.rel_error_lstar > 0.0 && cpca.record.rel_error_lstar < 0.5);
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("## Low- vs all-frequency") && report.contains("low-frequency, sh-n4-r256"));
+    assert!(std::fs::read_to_string(out.join("report.html")).unwrap().contains("Low- vs all-frequency"));
+    assert!(out.join("image_error_vs_storage.png").is_file());
+    let plan = std::fs::read_to_string(out.join("plan.txt")).unwrap();
+    assert!(plan.contains("sh-n2-r256: light in order-2 SH") && plan.contains("radiance transfer texture"), "{plan}");
+    // The second run reuses every SH transfer and reproduces the records.
+    let again = run_in(&cfg, &out);
+    for (a, b) in m.methods.iter().zip(&again.methods) {
+        assert!(b.sh.as_ref().unwrap().transfer.cached, "{}", b.record.name);
+        assert_eq!((a.record.bytes, a.record.rel_error_lstar), (b.record.bytes, b.record.rel_error_lstar));
+    }
+}
