@@ -107,6 +107,12 @@ impl TransferScene {
         self.bvh.occluded(origin, dir, crate::geometry::bvh::RAY_TMIN, f32::INFINITY)
     }
 
+    /// The first surface hit along unit direction `dir` from the normalised-space `origin`
+    /// (mesh triangle and barycentrics), with the transfer stage's ray start.
+    pub(crate) fn closest_from(&self, origin: Vec3, dir: Vec3) -> Option<crate::geometry::Hit> {
+        self.bvh.closest_hit(origin, dir, crate::geometry::bvh::RAY_TMIN, f32::INFINITY)
+    }
+
     /// Unoccluded-children counts of vertex `v` (see [`VisibilitySampler::point_counts`]):
     /// `emit(j, k, count)` for every non-zero, in increasing `k`; returns the rays traced.
     pub(crate) fn vertex_counts(

@@ -124,12 +124,13 @@ fn sh_settings_are_recorded_reported_and_cached() {
          [[compressors]]\nkind = \"sparse\"\n[[compressors]]\nkind = \"bicluster\"\n\
          [[methods]]\nkind = \"sh\"\norder = [2, 4]\nrays = 256\n\
          [[methods]]\nkind = \"sh\"\norder = 3\nrays = 256\ncompressor = { kind = \"cpca\", clusters = 4, components = 2, unit = \"vertex\" }\n\
+         [[methods]]\nkind = \"sh\"\norder = 2\nrays = 256\nbounces = 1\n\
          [runtime]\nwidth = 48\nheight = 36\nrepeats = 1\n[report]\nreference = true\nreference_downscale = 2\n",
     );
     let out = dir.path().join("out");
     let m = run_in(&cfg, &out);
     let names: Vec<&str> = m.methods.iter().map(|r| r.record.name.as_str()).collect();
-    assert_eq!(names, ["sh-n2-r256", "sh-n4-r256", "sh-n3-r256-cpca-k4-c2-vertex"]);
+    assert_eq!(names, ["sh-n2-r256", "sh-n4-r256", "sh-n3-r256-cpca-k4-c2-vertex", "sh-n2-b1-r256"]);
     let n2 = m.methods[0].sh.as_ref().unwrap();
     let n4 = m.methods[1].sh.as_ref().unwrap();
     let cpca = &m.methods[2];
@@ -149,6 +150,13 @@ fn sh_settings_are_recorded_reported_and_cached() {
         assert!((0.0..=1.0).contains(&sh.negative_pixels));
         assert!(out.join(&c.image.png).is_file() && out.join(c.image.exr.as_str()).is_file());
     }
+    // A bounce off the plane and the sphere adds light: the image's mean grows.
+    let mean = |name: &str| {
+        let img = HdrImage::read_exr(&out.join(format!("images/{name}.exr"))).unwrap().0;
+        img.pixels.iter().map(|p| (p[0] + p[1] + p[2]) as f64).sum::<f64>()
+    };
+    assert_eq!(m.methods[3].sh.as_ref().unwrap().bounces, 1);
+    assert!(mean("sh-n2-b1-r256") > mean("sh-n2-r256") * 1.001, "the bounce must add light");
     // CPCA of the vertex matrices is lossy but close to its raw matrices.
     assert!(!cpca.record.lossless && cpca.record.rel_error_lstar > 0.0 && cpca.record.rel_error_lstar < 0.5);
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();

@@ -125,7 +125,9 @@ use biscale_core::scene::{Material, Render, ShadeScene};
 use biscale_core::sh::light::LIGHT_SUBTEXELS;
 use biscale_core::sh::rtt::{irradiance_btf, radiance_transfer_texture};
 use biscale_core::sh::{clamped_cosine, ShOrder, ShProjection};
-use biscale_core::transfer::sh::{build_sh, irradiance_transfer, sh_from_transfer_vertices, ShTransferSettings};
+use biscale_core::transfer::sh::{
+    add_bounces, build_sh, irradiance_transfer, sh_from_transfer_vertices, ShTransferSettings,
+};
 use biscale_core::transfer::TransferMatrix;
 
 /// Every `FROM_T_STRIDE`-th vertex is projected from `T` to check the agreement of the methods.
@@ -150,7 +152,8 @@ pub(crate) struct MethodInputs<'a> {
     pub out_dir: &'a std::path::Path,
 }
 
-/// `M` for `settings`, ray traced or from the cache, and its record.
+/// The direct (shadowed) `M` for `settings`, ray traced or from the cache, its cache key and
+/// its record.
 fn sh_transfer(
     inp: &MethodInputs<'_>,
     label: &str,
@@ -158,7 +161,6 @@ fn sh_transfer(
 ) -> Result<(TransferMatrix, u64, ShTransferRecord)> {
     let mesh = &inp.geometry.mesh;
     let key = crate::cache::sh_transfer_key(mesh, settings, 0, 0);
-    let shape = biscale_core::basis::TransferShape::new(mesh.vertex_count(), settings.bases().0, settings.bases().1);
     let record = |m: &TransferMatrix, seconds: f64, rays_traced: u64, cached: bool| ShTransferRecord {
         seconds,
         rays_traced,
@@ -167,17 +169,9 @@ fn sh_transfer(
         from_t_difference: f64::NAN,
         from_t_stride: FROM_T_STRIDE,
     };
-    if let Some(c) = inp.cache {
-        let path = c.sh_transfer_path(key, settings.order().n());
-        let accept = |m: &TransferMatrix| match m.shape() == shape {
-            true => Ok(()),
-            false => Err(format!("{}: holds {}, this run needs {shape}", path.display(), m.shape())),
-        };
-        if let Some(m) = c.get(&path, TransferMatrix::load, accept) {
-            eprintln!("{label}: SH transfer loaded from cache {}", path.display());
-            let r = record(&m, 0.0, 0, true);
-            return Ok((m, key, r));
-        }
+    if let Some(m) = cached_sh(inp, label, settings, key) {
+        let r = record(&m, 0.0, 0, true);
+        return Ok((m, key, r));
     }
     let vertices = mesh.vertex_count();
     let pb = progress_bar(vertices as u64, &format!("{label} transfer"));
@@ -197,6 +191,73 @@ fn sh_transfer(
     }
     let r = record(&build.matrix, build.seconds, build.rays_traced, false);
     Ok((build.matrix, key, r))
+}
+
+/// The SH transfer cached under `key`, if the cache has a usable one.
+fn cached_sh(inp: &MethodInputs<'_>, label: &str, settings: &ShTransferSettings, key: u64) -> Option<TransferMatrix> {
+    let c = inp.cache?;
+    let (local, light) = settings.bases();
+    let shape = biscale_core::basis::TransferShape::new(inp.geometry.mesh.vertex_count(), local, light);
+    let path = c.sh_transfer_path(key, settings.order().n());
+    let accept = |m: &TransferMatrix| match m.shape() == shape {
+        true => Ok(()),
+        false => Err(format!("{}: holds {}, this run needs {shape}", path.display(), m.shape())),
+    };
+    let m = c.get(&path, TransferMatrix::load, accept)?;
+    eprintln!("{label}: SH transfer loaded from cache {}", path.display());
+    Some(m)
+}
+
+/// The bounce albedo of every triangle: its material's mean reflectance under uniform light
+/// (`sum_j b_j omega_j` averaged over texels, views and RGB), at most 1.
+fn bounce_albedo(scene: &ShadeScene) -> Vec<f32> {
+    let per_material: Vec<f32> = scene
+        .materials()
+        .iter()
+        .map(|m| {
+            let btf = &m.btf;
+            let omega = btf.local_basis().grid().map_or(0.0, |g| g.bin_solid_angle());
+            let groups = (btf.data().len() / btf.light_count().max(1)).max(1);
+            let total: f64 = btf.data().iter().flatten().map(|&x| x as f64 * omega).sum();
+            (total / (3 * groups) as f64).clamp(0.0, 1.0) as f32
+        })
+        .collect();
+    let triangles = scene.mesh().triangle_count();
+    match scene.triangle_materials() {
+        Some(ids) => ids.iter().map(|&i| per_material[i as usize]).collect(),
+        None => vec![per_material[0]; triangles],
+    }
+}
+
+/// `direct` with `bounces` bounces of interreflection (cached under its own key).
+fn bounced(
+    inp: &MethodInputs<'_>,
+    label: &str,
+    settings: &ShTransferSettings,
+    direct: TransferMatrix,
+    bounces: u32,
+    record: &mut ShTransferRecord,
+) -> Result<(TransferMatrix, u64)> {
+    let albedo = bounce_albedo(inp.scene);
+    let mut h = ContentHash::default();
+    for a in &albedo {
+        h.write(&a.to_le_bytes());
+    }
+    let key = crate::cache::sh_transfer_key(&inp.geometry.mesh, settings, bounces, h.finish());
+    if let Some(m) = cached_sh(inp, label, settings, key) {
+        return Ok((m, key));
+    }
+    let start = std::time::Instant::now();
+    let m = add_bounces(&inp.geometry.transfer, &inp.geometry.mesh.triangles, settings, &direct, &albedo, bounces)?;
+    let seconds = start.elapsed().as_secs_f64();
+    eprintln!("{label}: {bounces} interreflection bounce(s) in {seconds:.2} s");
+    record.seconds += seconds;
+    record.cached = false;
+    record.nnz = m.nnz();
+    if let Some(c) = inp.cache {
+        c.put(&c.sh_transfer_path(key, settings.order().n()), |p| m.save(p));
+    }
+    Ok((m, key))
 }
 
 /// The scene's materials on the method's local basis, and whether the scene is diffuse: when
@@ -265,7 +326,12 @@ pub(crate) fn evaluate(
     let settings = ShTransferSettings::new(p.order, p.rays, inp.exp.file.seed)?;
     let order = settings.order();
     let (m, key, mut transfer) = sh_transfer(inp, label, &settings)?;
+    // The bridge to T is checked on the direct transfer (T has no interreflection).
     transfer.from_t_difference = from_t_difference(inp, &m, order)?;
+    let (m, key) = match p.bounces {
+        0 => (m, key),
+        b => bounced(inp, label, &settings, m, b, &mut transfer)?,
+    };
     let projection = ShProjection::new(inp.exp.transfer_settings().cubemap(), order, LIGHT_SUBTEXELS);
     let light = projection.project(&inp.lighting.light)?;
     let light_projection_error = projection.projection_error(&inp.lighting.light)?;

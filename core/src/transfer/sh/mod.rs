@@ -14,10 +14,15 @@
 //!   `2 pi / g^2`, one ray per stratum with the jitter of a per-(seed, vertex, stratum) hash,
 //!   traced with the same frames, normalised BVH and origin offset as `T`
 //!   ([`TransferScene`]), accumulated in f64. Deterministic for a seed, for any thread count.
+//! * **Interreflection** ([`add_bounces`]): bounces off Lambertian triangles of given albedos,
+//!   on the same strata (see there).
 //! * **From `T`** ([`sh_from_transfer`]): `M_p[i][j] ~= sum_k v_pk omega_k y_i(F_p^T d_k) y_j(d_k)`
 //!   with `v_pk = sum_b T_p[b, k]` the texel's visible fraction (2 x 2 box-filtered): the
 //!   midpoint rule over the cubemap texels. The bridge that makes the two methods comparable:
 //!   both are quadratures of the same integral over the same visibility.
+
+mod bounce;
+pub use bounce::add_bounces;
 
 use super::{TransferMatrix, TransferScene};
 use crate::basis::{LightBasis, LocalBasis};
@@ -100,7 +105,7 @@ fn jitter(seed: u64, v: usize, s: u32, axis: u64) -> f64 {
 }
 
 /// World direction of local direction `l` in `frame`, in f64.
-fn to_world(frame: &VertexFrame, l: DVec3) -> DVec3 {
+pub(crate) fn to_world(frame: &VertexFrame, l: DVec3) -> DVec3 {
     frame.tangent.as_dvec3() * l.x + frame.bitangent.as_dvec3() * l.y + frame.normal.as_dvec3() * l.z
 }
 
@@ -141,7 +146,7 @@ fn vertex_matrix(scene: &TransferScene, settings: &ShTransferSettings, v: usize)
 
 /// Dense per-vertex `n x n` blocks (f64, row-major) stacked into a CSR [`TransferMatrix`] in
 /// the SH bases (exact zeros dropped: a fully occluded vertex has empty rows).
-fn assemble(order: ShOrder, blocks: &[Vec<f64>]) -> Result<TransferMatrix> {
+pub(crate) fn assemble(order: ShOrder, blocks: &[Vec<f64>]) -> Result<TransferMatrix> {
     let n = order.len();
     let mut indptr = Vec::with_capacity(blocks.len() * n + 1);
     let (mut indices, mut data) = (Vec::new(), Vec::new());
