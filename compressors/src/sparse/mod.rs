@@ -18,6 +18,9 @@ use biscale_kernels::{Count, Factor, FormCheck, KernelDesc, PassDesc};
 use rayon::prelude::*;
 use std::time::Instant;
 
+/// Rows per rayon task of the CPU gather.
+const ROWS_PER_TASK: usize = 256;
+
 fn build(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
     Ok(Box::new(Sparse::new(registry::parse(p)?)))
 }
@@ -104,24 +107,61 @@ impl Compressor for Sparse {
         let malformed = |r: usize| {
             CompressError::malformed("sparse", "row_ptr", format!("row {r} has an out-of-range offset or column"))
         };
-        let values_out: Vec<[f32; 3]> = (0..form.rows())
-            .into_par_iter()
-            .map(|r| {
-                let (start, end) = (row_ptr[r] as usize, row_ptr[r + 1] as usize);
-                let (cols, vals) = match (col_idx.get(start..end), values.get(start..end)) {
-                    (Some(c), Some(v)) => (c, v),
-                    _ => return Err(malformed(r)),
-                };
-                let mut acc = [0.0f32; 3];
-                for (&k, &v) in cols.iter().zip(vals) {
-                    let l = light.power.get(k as usize).ok_or_else(|| malformed(r))?;
-                    for c in 0..3 {
-                        acc[c] += v * l[c];
+        // Rows in chunks written in place, four rows interleaved over their common length: each
+        // row's sum is a chain of dependent adds (its f32 order is the GPU kernel's, kept), so
+        // four independent chains hide the add latency that bounds one row alone.
+        let row = |r: usize| -> Result<(&[u32], &[f32]), CompressError> {
+            let (start, end) = (row_ptr[r] as usize, row_ptr[r + 1] as usize);
+            match (col_idx.get(start..end), values.get(start..end)) {
+                (Some(c), Some(v)) => Ok((c, v)),
+                _ => Err(malformed(r)),
+            }
+        };
+        // The light padded to four lanes, so each term is one 4-wide multiply-add.
+        let power: Vec<[f32; 4]> = light.power.iter().map(|p| [p[0], p[1], p[2], 0.0]).collect();
+        let power = &power;
+        // One row's dot product, `acc` starting at the sum of its first `from` terms.
+        let dot = |r: usize, from: usize, mut acc: [f32; 4]| -> Result<[f32; 4], CompressError> {
+            let (cols, vals) = row(r)?;
+            for (&k, &v) in cols[from..].iter().zip(&vals[from..]) {
+                let l = power.get(k as usize).ok_or_else(|| malformed(r))?;
+                for c in 0..4 {
+                    acc[c] += v * l[c];
+                }
+            }
+            Ok(acc)
+        };
+        let mut values_out = vec![[0.0f32; 3]; form.rows()];
+        values_out.par_chunks_mut(ROWS_PER_TASK).enumerate().try_for_each(|(chunk, out)| {
+            let first = chunk * ROWS_PER_TASK;
+            let rest = first + out.len() / 4 * 4;
+            let mut quads = out.chunks_exact_mut(4);
+            for (q, quad) in (&mut quads).enumerate() {
+                let r0 = first + 4 * q;
+                let rows = [row(r0)?, row(r0 + 1)?, row(r0 + 2)?, row(r0 + 3)?];
+                let common = rows.iter().map(|(c, _)| c.len()).min().unwrap_or(0);
+                let cols = rows.map(|(c, _)| &c[..common]);
+                let vals = rows.map(|(_, v)| &v[..common]);
+                let mut acc = [[0.0f32; 4]; 4];
+                for j in 0..common {
+                    for i in 0..4 {
+                        let l = power.get(cols[i][j] as usize).ok_or_else(|| malformed(r0 + i))?;
+                        for c in 0..4 {
+                            acc[i][c] += vals[i][j] * l[c];
+                        }
                     }
                 }
-                Ok(acc)
-            })
-            .collect::<Result<_, _>>()?;
+                for (i, o) in quad.iter_mut().enumerate() {
+                    let a = dot(r0 + i, common, acc[i])?;
+                    *o = [a[0], a[1], a[2]];
+                }
+            }
+            for (i, o) in quads.into_remainder().iter_mut().enumerate() {
+                let a = dot(rest + i, 0, [0.0; 4])?;
+                *o = [a[0], a[1], a[2]];
+            }
+            Ok::<(), CompressError>(())
+        })?;
         form.lstar(values_out)
     }
 }

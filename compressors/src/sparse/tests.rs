@@ -42,3 +42,44 @@ fn corrupt_offsets_and_columns_are_errors_not_panics() {
     }
     assert!(Sparse.gather(&corrupt("col_idx", 0, 1_000_000), &light).is_err());
 }
+
+/// The CPU gather interleaves four rows; each row must still be summed in column order from
+/// zero, the order `gather.wgsl` uses, so the result equals a plain per-row f32 loop bit for
+/// bit. An SH-shaped matrix (9 rows per vertex, 37 vertices: 333 rows, one full 256-row task
+/// and a last one ending in a partial quad) with rows of random length, empty ones included,
+/// and a light with negative coefficients.
+#[test]
+fn interleaved_rows_keep_each_rows_f32_order() {
+    use biscale_core::basis::{LightBasis, LocalBasis};
+    use biscale_core::sh::ShOrder;
+    use rand::{Rng, SeedableRng};
+    let order = ShOrder::new(3).unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let (rows, cols) = (37 * order.len(), order.len());
+    let (mut indptr, mut indices, mut data) = (vec![0usize], vec![], vec![]);
+    for _ in 0..rows {
+        let density = rng.gen_range(0.0..1.0);
+        for c in 0..cols {
+            if rng.gen::<f64>() < density {
+                indices.push(c);
+                data.push(rng.gen_range(-1.0..1.0f32));
+            }
+        }
+        indptr.push(indices.len());
+    }
+    let csr = sprs::CsMat::new((rows, cols), indptr, indices, data);
+    let t = TransferMatrix::new(LocalBasis::Sh(order), LightBasis::Sh(order), csr).unwrap();
+    let power: Vec<[f32; 3]> = (0..cols).map(|_| [(); 3].map(|_| rng.gen_range(-2.0..2.0f32))).collect();
+    let light = LightVector::new(LightBasis::Sh(order), power).unwrap();
+    let form = Sparse.compress(&t, &CompressContext::default()).unwrap();
+    let got = Sparse.gather(&form, &light).unwrap();
+    for (r, row) in t.csr().outer_iterator().enumerate() {
+        let mut want = [0.0f32; 3];
+        for (k, &v) in row.iter() {
+            for c in 0..3 {
+                want[c] += v * light.power[k][c];
+            }
+        }
+        assert_eq!(got.values()[r], want, "row {r}");
+    }
+}
