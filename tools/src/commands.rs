@@ -185,11 +185,32 @@ pub fn viz(
 }
 
 /// `biscale view`: open the interactive viewer on a config's scene with every compressor it
-/// names (feature `viewer`). `screenshot` renders a few frames into a PNG and exits.
+/// names (feature `viewer`), or with the `[[methods]]` setting labelled `method` (the
+/// low-frequency method: the sky is rotated in SH). `screenshot` renders a few frames into a
+/// PNG and exits.
 #[cfg(feature = "viewer")]
-pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &RunOptions) -> Result<()> {
+pub fn view(
+    exp: &Experiment,
+    method: Option<&str>,
+    screenshot: Option<std::path::PathBuf>,
+    opts: &RunOptions,
+) -> Result<()> {
     use biscale_gpu::{Screenshot, ViewerForm, ViewerSetup};
     let plan = crate::plan::Plan::new(exp);
+    let method = match method {
+        Some(label) => {
+            let settings = exp.method_settings();
+            let Some(setting) = settings.iter().find(|m| m.label == label) else {
+                let names: Vec<&str> = settings.iter().map(|m| m.label.as_str()).collect();
+                return Err(PipelineError::Mismatch {
+                    path: exp.config_path.clone(),
+                    what: format!("no [[methods]] setting is labelled {label}; this config has {names:?}"),
+                });
+            };
+            Some(setting)
+        }
+        None => None,
+    };
     let out = opts.out_dir.clone().unwrap_or_else(|| Path::new("out").join(exp.name()));
     let geometry = pipeline::load_geometry(exp)?;
     let lighting = pipeline::load_lighting(exp)?;
@@ -197,7 +218,22 @@ pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &Run
     let t = pipeline::transfer_matrix(exp, &geometry, cache.as_ref())?;
     let (scene, _) = pipeline::shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
     let mut forms = vec![];
-    for setting in &plan.compressors {
+    let (scene, light_basis) = match method {
+        Some(setting) => {
+            let src =
+                crate::methods::sh::MethodScene { exp, geometry: &geometry, scene: &scene, cache: cache.as_ref() };
+            let p = crate::methods::sh::prepare(setting, &src, None)?;
+            let kernels = p
+                .compressor
+                .kernels(&p.form)
+                .map_err(|source| PipelineError::Compress { name: setting.label.clone(), source })?;
+            let basis = p.matrix.light_basis();
+            forms.push(ViewerForm { label: setting.label.clone(), form: p.form, kernels });
+            (p.scene, basis)
+        }
+        None => (scene, t.matrix.light_basis()),
+    };
+    for setting in plan.compressors.iter().filter(|_| method.is_none()) {
         let c = pipeline::build_compressor(setting)?;
         let (form, _) =
             pipeline::compressed_form(setting, c.as_ref(), &t.matrix, t.key, exp.file.seed, cache.as_ref())?;
@@ -212,7 +248,7 @@ pub fn view(exp: &Experiment, screenshot: Option<std::path::PathBuf>, opts: &Run
         forms,
         initial_form: 0,
         env: lighting.env,
-        light_basis: t.matrix.light_basis(),
+        light_basis,
         env_rotation: lighting.rotation,
         sun_boost: exp.file.lighting.sun_boost.as_ref().map(|b| *b.get_ref()),
         exposure: exp.file.report.exposure,

@@ -67,6 +67,10 @@ enum Command {
     #[cfg(feature = "viewer")]
     View {
         config: PathBuf,
+        /// Show the `[[methods]]` setting with this label (e.g. sh-n5) instead of the
+        /// compressors: the low-frequency method, its sky rotated in SH.
+        #[arg(long)]
+        method: Option<String>,
         /// Render a few frames into this PNG and exit (works under Xvfb).
         #[arg(long)]
         screenshot: Option<PathBuf>,
@@ -167,9 +171,9 @@ fn main() -> anyhow::Result<()> {
             }
         }
         #[cfg(feature = "viewer")]
-        Command::View { config, screenshot } => {
+        Command::View { config, method, screenshot } => {
             let exp = load(&config)?;
-            biscale::commands::view(&exp, screenshot, &RunOptions::default())?;
+            biscale::commands::view(&exp, method.as_deref(), screenshot, &RunOptions::default())?;
         }
         Command::Generate { what } => {
             let (mesh, out) = match what {

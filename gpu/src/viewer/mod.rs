@@ -489,10 +489,13 @@ fn overlay_lines(setup: &ViewerSetup, s: &State, gpu: &Gpu) -> Vec<String> {
         None => lines.push("shade -".into()),
     }
     let pending = if (s.requested_rotation - s.light_rotation).abs() > 1e-12 { "  (recomputing...)" } else { "" };
+    let source = match s.light.basis() {
+        LightBasis::Sh(_) => format!("L ({} SH coefficients) rotated in SH", s.light.len()),
+        LightBasis::Cubemap(_) => format!("L ({} texels) from the map", s.light.len()),
+    };
     lines.push(format!(
-        "light: env rotation {:.0} deg, L ({} texels) from the map in {:.0} ms{pending}, exposure {:+.1}",
+        "light: env rotation {:.0} deg, {source} in {:.1} ms{pending}, exposure {:+.1}",
         s.light_rotation.to_degrees(),
-        s.light.len(),
         s.light_ms,
         s.exposure
     ));

@@ -155,7 +155,7 @@ impl Overlay {
                 fragment: "overlay_fs",
                 primitive: Default::default(),
                 depth: None,
-                format: format,
+                format,
                 blend: Some(wgpu::BlendState { color: blend, alpha: blend }),
             });
             (texture, pipeline)

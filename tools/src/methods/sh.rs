@@ -152,10 +152,103 @@ pub(crate) struct MethodInputs<'a> {
     pub out_dir: &'a std::path::Path,
 }
 
+/// What the method is built from: the all-frequency run's mesh, transfer scene and materials.
+pub(crate) struct MethodScene<'a> {
+    pub exp: &'a Experiment,
+    pub geometry: &'a Geometry,
+    /// The materials on `T`'s local basis (the method projects their BTFs).
+    pub scene: &'a ShadeScene,
+    pub cache: Option<&'a StageCache>,
+}
+
+impl<'a> MethodInputs<'a> {
+    fn method_scene(&self) -> MethodScene<'a> {
+        MethodScene { exp: self.exp, geometry: self.geometry, scene: self.scene, cache: self.cache }
+    }
+}
+
+/// One SH setting built and ready to gather and shade: the compressed `M` (or the transfer
+/// vectors of the diffuse case), the scene on the method's local basis and the records of the
+/// build.
+pub(crate) struct Prepared {
+    pub params: ShParams,
+    pub settings: ShTransferSettings,
+    /// The transfer the form compresses (`M`, or `c^T M_p` per vertex when diffuse).
+    pub matrix: TransferMatrix,
+    pub transfer: ShTransferRecord,
+    pub rtt: RttRecord,
+    pub diffuse: bool,
+    /// The setting as a compressor setting (label, kind, parameters) and its compressor.
+    pub compressor_setting: Setting,
+    pub compressor: Box<dyn biscale_core::compress::Compressor>,
+    pub form: biscale_core::compress::CompressedForm,
+    /// The form came from the cache.
+    pub cached: bool,
+    /// The mesh with the method's materials (radiance transfer textures or irradiance BTFs).
+    pub scene: ShadeScene,
+}
+
+/// Build one SH setting: `M` (traced or cached, with its bounces), the method's materials and
+/// the compressed form. With `t`, the direct `M` is also compared with `M` projected from `T`
+/// (`transfer.from_t_difference`; NaN without).
+pub(crate) fn prepare(setting: &MethodSetting, src: &MethodScene<'_>, t: Option<&Transfer>) -> Result<Prepared> {
+    let label = &setting.label;
+    let bad =
+        |e: String| PipelineError::Mismatch { path: src.exp.config_path.clone(), what: format!("method {label}: {e}") };
+    let params = ShParams::parse(&setting.params).map_err(bad)?;
+    let settings = ShTransferSettings::new(params.order, params.rays, src.exp.file.seed)?;
+    let order = settings.order();
+    let (m, key, mut transfer) = sh_transfer(src, label, &settings)?;
+    // The bridge to T is checked on the direct transfer (T has no interreflection).
+    if let Some(t) = t {
+        transfer.from_t_difference = from_t_difference(src, t, &m, order)?;
+    }
+    let (m, key) = match params.bounces {
+        0 => (m, key),
+        b => bounced(src, label, &settings, m, b, &mut transfer)?,
+    };
+    let (materials, rtt, diffuse) = method_materials(src.scene, order)?;
+    // Diffuse: the transfer vectors t_p = c^T M_p stand in for the matrices.
+    let (matrix, key) = match diffuse {
+        true => (
+            irradiance_transfer(&m)?,
+            ContentHash::default().write(&key.to_le_bytes()).write_str("irradiance").finish(),
+        ),
+        false => (m, key),
+    };
+    if diffuse {
+        eprintln!("{label}: every material is Lambertian: shadowed diffuse PRT, a transfer vector per vertex");
+    }
+    let (ckind, cparams) = params.compressor();
+    let compressor_setting = Setting { label: label.clone(), kind: ckind, params: cparams };
+    let compressor = build_compressor(&compressor_setting)?;
+    let (form, cached) =
+        compressed_form(&compressor_setting, compressor.as_ref(), &matrix, key, src.exp.file.seed, src.cache)?;
+    let scene = ShadeScene::new(
+        src.geometry.mesh.clone(),
+        src.geometry.transfer.frames().to_vec(),
+        materials,
+        src.scene.triangle_materials().map(<[u32]>::to_vec),
+    )?;
+    Ok(Prepared {
+        params,
+        settings,
+        matrix,
+        transfer,
+        rtt,
+        diffuse,
+        compressor_setting,
+        compressor,
+        form,
+        cached,
+        scene,
+    })
+}
+
 /// The direct (shadowed) `M` for `settings`, ray traced or from the cache, its cache key and
 /// its record.
 fn sh_transfer(
-    inp: &MethodInputs<'_>,
+    inp: &MethodScene<'_>,
     label: &str,
     settings: &ShTransferSettings,
 ) -> Result<(TransferMatrix, u64, ShTransferRecord)> {
@@ -194,7 +287,7 @@ fn sh_transfer(
 }
 
 /// The SH transfer cached under `key`, if the cache has a usable one.
-fn cached_sh(inp: &MethodInputs<'_>, label: &str, settings: &ShTransferSettings, key: u64) -> Option<TransferMatrix> {
+fn cached_sh(inp: &MethodScene<'_>, label: &str, settings: &ShTransferSettings, key: u64) -> Option<TransferMatrix> {
     let c = inp.cache?;
     let (local, light) = settings.bases();
     let shape = biscale_core::basis::TransferShape::new(inp.geometry.mesh.vertex_count(), local, light);
@@ -231,7 +324,7 @@ fn bounce_albedo(scene: &ShadeScene) -> Vec<f32> {
 
 /// `direct` with `bounces` bounces of interreflection (cached under its own key).
 fn bounced(
-    inp: &MethodInputs<'_>,
+    inp: &MethodScene<'_>,
     label: &str,
     settings: &ShTransferSettings,
     direct: TransferMatrix,
@@ -291,9 +384,9 @@ fn method_materials(scene: &ShadeScene, order: ShOrder) -> Result<(Vec<Material>
 
 /// Relative Frobenius difference between `M` projected from the all-frequency `T` and the
 /// traced `m`, over every `FROM_T_STRIDE`-th vertex.
-fn from_t_difference(inp: &MethodInputs<'_>, m: &TransferMatrix, order: ShOrder) -> Result<f64> {
+fn from_t_difference(inp: &MethodScene<'_>, t: &Transfer, m: &TransferMatrix, order: ShOrder) -> Result<f64> {
     let vertices: Vec<usize> = (0..m.vertices()).step_by(FROM_T_STRIDE).collect();
-    let projected = sh_from_transfer_vertices(&inp.t.matrix, inp.geometry.transfer.frames(), order, &vertices)?;
+    let projected = sh_from_transfer_vertices(&t.matrix, inp.geometry.transfer.frames(), order, &vertices)?;
     let n = order.len();
     let (mut num, mut den) = (0.0f64, 0.0f64);
     for (b, &v) in projected.iter().zip(&vertices) {
@@ -320,43 +413,23 @@ pub(crate) fn evaluate(
     gpu: Option<&GpuBackend>,
 ) -> Result<MethodRecord> {
     let label = &setting.label;
-    let bad =
-        |e: String| PipelineError::Mismatch { path: inp.exp.config_path.clone(), what: format!("method {label}: {e}") };
-    let p = ShParams::parse(&setting.params).map_err(bad)?;
-    let settings = ShTransferSettings::new(p.order, p.rays, inp.exp.file.seed)?;
+    let Prepared {
+        params: p,
+        settings,
+        matrix: m,
+        transfer,
+        rtt,
+        diffuse,
+        compressor_setting: csetting,
+        compressor,
+        form,
+        cached,
+        scene: sh_scene,
+    } = prepare(setting, &inp.method_scene(), Some(inp.t))?;
     let order = settings.order();
-    let (m, key, mut transfer) = sh_transfer(inp, label, &settings)?;
-    // The bridge to T is checked on the direct transfer (T has no interreflection).
-    transfer.from_t_difference = from_t_difference(inp, &m, order)?;
-    let (m, key) = match p.bounces {
-        0 => (m, key),
-        b => bounced(inp, label, &settings, m, b, &mut transfer)?,
-    };
     let projection = ShProjection::new(inp.exp.transfer_settings().cubemap(), order, LIGHT_SUBTEXELS);
     let light = projection.project(&inp.lighting.light)?;
     let light_projection_error = projection.projection_error(&inp.lighting.light)?;
-    let (materials, rtt, diffuse) = method_materials(inp.scene, order)?;
-    // Diffuse: the transfer vectors t_p = c^T M_p stand in for the matrices.
-    let (m, key) = match diffuse {
-        true => (
-            irradiance_transfer(&m)?,
-            ContentHash::default().write(&key.to_le_bytes()).write_str("irradiance").finish(),
-        ),
-        false => (m, key),
-    };
-    if diffuse {
-        eprintln!("{label}: every material is Lambertian: shadowed diffuse PRT, a transfer vector per vertex");
-    }
-    let (ckind, cparams) = p.compressor();
-    let csetting = Setting { label: label.clone(), kind: ckind.clone(), params: cparams };
-    let compressor = build_compressor(&csetting)?;
-    let (form, cached) = compressed_form(&csetting, compressor.as_ref(), &m, key, inp.exp.file.seed, inp.cache)?;
-    let sh_scene = ShadeScene::new(
-        inp.geometry.mesh.clone(),
-        inp.geometry.transfer.frames().to_vec(),
-        materials,
-        inp.scene.triangle_materials().map(<[u32]>::to_vec),
-    )?;
     let view = View { scene: &sh_scene, camera: inp.view.camera, background: inp.view.background };
     let exact = reference_product(&m, &light);
     let mut gpu = match gpu {
@@ -391,7 +464,7 @@ pub(crate) fn evaluate(
         order: p.order,
         rays: settings.rays(),
         bounces: p.bounces,
-        compressor: ckind,
+        compressor: csetting.kind.clone(),
         light_projection_error,
         transfer,
         rtt,
