@@ -39,6 +39,7 @@ pub mod error;
 pub mod gather;
 pub mod geometry;
 pub mod io;
+pub mod linalg;
 pub mod sampling;
 pub mod scene;
 pub mod sh;

@@ -8,6 +8,8 @@ use crate::testing::{random_light, random_transfer};
 use biscale_core::basis::{LightBasis, LocalBasis};
 use biscale_core::gather::{reference_product, relative_l2_error};
 use biscale_core::sampling::Cubemap;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 
 const EPS: f64 = f32::EPSILON as f64;
 
@@ -151,7 +153,7 @@ fn centred_spectrum(rows: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
             }
         }
     }
-    let (values, vectors) = linalg::sym_eigen(&s, n);
+    let (values, vectors) = biscale_core::linalg::eigen::sym_eigen(&s, n);
     (values, vectors, mean)
 }
 

@@ -1,4 +1,4 @@
-//! The small dense linear algebra CPCA needs, in f64: a cyclic Jacobi eigen solver for the
+//! The small dense linear algebra clustered PCA needs, in f64: a cyclic Jacobi eigen solver for the
 //! (C + p) x (C + p) Rayleigh-Ritz matrices and Gram-Schmidt orthonormalisation of tall
 //! N x l bases. Both are textbook (Golub & Van Loan, sections 8.5 and 5.2) and small enough
 //! to own rather than pull a dense linear algebra crate into a 2-core build.
