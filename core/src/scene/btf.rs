@@ -80,6 +80,47 @@ fn light_bins(basis: LocalBasis) -> Result<HemisphereGrid> {
     basis.grid().ok_or_else(|| CoreError::Invalid(format!("a tabulated BTF needs a bin basis, not {basis}")))
 }
 
+/// Nearest texel of patch coordinates `uv` on a `spatial` patch, wrapping around (the patch
+/// tiles the surface). Every BTF representation looks texels up through this.
+/// Non-finite coordinates give texel 0.
+pub fn texel_of(spatial: [u32; 2], uv: Vec2) -> usize {
+    let wrap = |x: f32, n: u32| -> usize {
+        if !x.is_finite() {
+            return 0;
+        }
+        ((x as f64 * n as f64).floor() as i64).rem_euclid(n as i64) as usize
+    };
+    wrap(uv.y, spatial[1]) * spatial[0] as usize + wrap(uv.x, spatial[0])
+}
+
+/// The (up to) four view samples of `view_grid` and bilinear weights for local view direction
+/// `view_local` (+Z = normal): bilinear in the concentric-square coordinates of
+/// [`HemisphereGrid::continuous_coords`], whose integer values are bin centres; directions
+/// outside the centres' hull clamp to the border samples, directions below the horizon are
+/// clamped onto it, and a non-finite or zero direction is treated as the normal.
+/// Weights sum to 1. A view-independent BTF returns sample 0 with weight 1.
+pub fn view_weights(view_grid: Option<HemisphereGrid>, view_local: Vec3) -> [(usize, f32); 4] {
+    let Some(g) = view_grid else { return [(0, 1.0), (0, 0.0), (0, 0.0), (0, 0.0)] };
+    let e = if view_local.is_finite() && view_local.length_squared() > 0.0 { view_local } else { Vec3::Z };
+    let (x, y) = g.continuous_coords(e);
+    let m = g.m as usize;
+    if m == 1 {
+        return [(0, 1.0), (0, 0.0), (0, 0.0), (0, 0.0)];
+    }
+    let split = |c: f32| {
+        let i = (c.floor() as usize).min(m - 2);
+        (i, (c - i as f32).clamp(0.0, 1.0))
+    };
+    let ((x0, fx), (y0, fy)) = (split(x), split(y));
+    let at = |xi: usize, yi: usize| yi * m + xi;
+    [
+        (at(x0, y0), (1.0 - fx) * (1.0 - fy)),
+        (at(x0 + 1, y0), fx * (1.0 - fy)),
+        (at(x0, y0 + 1), (1.0 - fx) * fy),
+        (at(x0 + 1, y0 + 1), fx * fy),
+    ]
+}
+
 impl Btf {
     /// A table from its parts: `spatial` texels, light directions in `local_basis`, view
     /// samples on `view_grid` (`None`: no view axis), `data[(texel * V + view) * M + light]`.
@@ -205,44 +246,14 @@ impl Btf {
         Ok(())
     }
 
-    /// Nearest texel of patch coordinates `uv`, wrapping around (the patch tiles the surface).
-    /// Non-finite coordinates give texel 0.
+    /// Nearest texel of patch coordinates `uv`, wrapping around ([`texel_of`]).
     pub fn texel_of(&self, uv: Vec2) -> usize {
-        let wrap = |x: f32, n: u32| -> usize {
-            if !x.is_finite() {
-                return 0;
-            }
-            ((x as f64 * n as f64).floor() as i64).rem_euclid(n as i64) as usize
-        };
-        wrap(uv.y, self.spatial[1]) * self.spatial[0] as usize + wrap(uv.x, self.spatial[0])
+        texel_of(self.spatial, uv)
     }
 
-    /// The (up to) four view samples and bilinear weights for local view direction `view_local`
-    /// (+Z = normal): bilinear in the concentric-square coordinates of
-    /// [`HemisphereGrid::continuous_coords`], whose integer values are bin centres; directions
-    /// outside the centres' hull clamp to the border samples, directions below the horizon are
-    /// clamped onto it, and a non-finite or zero direction is treated as the normal.
-    /// Weights sum to 1. A view-independent BTF returns sample 0 with weight 1.
+    /// The (up to) four view samples and bilinear weights for `view_local` ([`view_weights`]).
     pub fn view_weights(&self, view_local: Vec3) -> [(usize, f32); 4] {
-        let Some(g) = self.view_grid else { return [(0, 1.0), (0, 0.0), (0, 0.0), (0, 0.0)] };
-        let e = if view_local.is_finite() && view_local.length_squared() > 0.0 { view_local } else { Vec3::Z };
-        let (x, y) = g.continuous_coords(e);
-        let m = g.m as usize;
-        if m == 1 {
-            return [(0, 1.0), (0, 0.0), (0, 0.0), (0, 0.0)];
-        }
-        let split = |c: f32| {
-            let i = (c.floor() as usize).min(m - 2);
-            (i, (c - i as f32).clamp(0.0, 1.0))
-        };
-        let ((x0, fx), (y0, fy)) = (split(x), split(y));
-        let at = |xi: usize, yi: usize| yi * m + xi;
-        [
-            (at(x0, y0), (1.0 - fx) * (1.0 - fy)),
-            (at(x0 + 1, y0), fx * (1.0 - fy)),
-            (at(x0, y0 + 1), (1.0 - fx) * fy),
-            (at(x0 + 1, y0 + 1), fx * fy),
-        ]
+        view_weights(self.view_grid, view_local)
     }
 
     /// The `M` light values `b(u, e, d_j)` for one texel and view: nearest texel (wrapping),

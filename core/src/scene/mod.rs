@@ -13,10 +13,12 @@
 pub mod btf;
 pub mod camera;
 pub mod image;
+pub mod lpca;
 
 pub use btf::Btf;
 pub use camera::Camera;
 pub use image::{Background, HdrImage, Render};
+pub use lpca::{LpcaBtf, LpcaReport, LpcaSettings, LpcaUnit};
 
 use crate::basis::LocalBasis;
 use crate::error::{CoreError, Result};

@@ -9,6 +9,7 @@ use biscale_core::compress::ArrayData;
 use biscale_core::sampling::HemisphereGrid;
 use biscale_core::scene::Btf;
 use half::f16;
+use rand::{Rng, SeedableRng};
 use std::f64::consts::PI;
 
 fn spec(hf: HeightField, brdf: Brdf, res: u32, m: u32, v: Option<u32>) -> BtfSpec {
@@ -527,6 +528,112 @@ fn benchmark() {
                     (num / den).sqrt(),
                     max_rel_texel
                 );
+            }
+        }
+    }
+}
+
+/// A synthesized BTF with every component its clusters can hold: the LPCA reconstruction is
+/// exact to rounding (the rank test of `core::scene::lpca` on a real table).
+#[test]
+fn lpca_of_a_synthesized_btf_with_full_components_is_exact() {
+    use biscale_core::scene::{LpcaBtf, LpcaSettings};
+    let hf = HeightField::procedural(&Recipe::new(Pattern::Bumps, 0.06, 2, 1), 16).unwrap();
+    let btf = synthesize(&spec(hf, PHONG, 4, 4, Some(3)), None).unwrap();
+    // 16 texels in 2 clusters: at most 15 centred directions per cluster.
+    let (lpca, r) = LpcaBtf::compress(&btf, &LpcaSettings::new(2, 15), 5).unwrap();
+    assert!(r.relative_rms_error < 1e-5, "{r:?}");
+    let d = lpca.decode().unwrap();
+    let err =
+        btf.data().iter().flatten().zip(d.data().iter().flatten()).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+    let max = btf.data().iter().flatten().copied().fold(0.0, f32::max);
+    assert!(err <= 1e-5 * max, "{err} of {max}");
+    // And fewer components do lose something on this table.
+    let (_, r) = LpcaBtf::compress(&btf, &LpcaSettings::new(1, 2), 5).unwrap();
+    assert!(r.relative_rms_error > 1e-3, "{r:?}");
+}
+
+/// `cargo test -p biscale-shading --release synth::tests::lpca_benchmark -- --ignored --nocapture`:
+/// local-PCA compression of the bundled bunny's BTF (bumps, Phong, 32x32 texels x 12x12 views
+/// x 8x8 lights) and of a 64x64-texel one: ratio, error and build time per setting, and the
+/// cost of one evaluation (a texel's 64 light values at a view) dense against LPCA.
+#[test]
+#[ignore]
+fn lpca_benchmark() {
+    use biscale_core::scene::{LpcaBtf, LpcaSettings};
+    use std::time::Instant;
+    let bunny = Brdf::Phong { kd: [0.55, 0.50, 0.45], ks: [0.25, 0.25, 0.25], exponent: 24.0 };
+    for (res, samples) in [(32, 64), (64, 128)] {
+        let hf = HeightField::procedural(&Recipe::new(Pattern::Bumps, 0.06, 4, 1), samples).unwrap();
+        let btf = synthesize(&spec(hf, bunny, res, 8, Some(12)), None).unwrap();
+        let values = btf.data().len() * 3;
+        println!(
+            "{res}x{res} texels x 144 views x 64 lights: dense {:.1} MB f32, {:.1} MB f16",
+            values as f64 * 4e-6,
+            values as f64 * 2e-6
+        );
+        // Per view, a setting has 144x as many units: only small ones are timed.
+        let settings: &[(usize, usize, bool)] = match res {
+            32 => &[
+                (1, 4, false),
+                (8, 4, false),
+                (16, 4, false),
+                (32, 8, false),
+                (16, 4, true),
+                (32, 4, true),
+                (64, 4, true),
+            ],
+            _ => &[(8, 4, false), (16, 4, false), (16, 4, true)],
+        };
+        for &(k, c, per_view) in settings {
+            let t = Instant::now();
+            let s = if per_view { LpcaSettings::new(k, c).per_view() } else { LpcaSettings::new(k, c) };
+            let (lpca, r) = LpcaBtf::compress(&btf, &s, 1).unwrap();
+            let s = t.elapsed().as_secs_f64();
+            println!(
+                "  k{k} c{c}{}: {:.2} MB, ratio 1:{:.0} (f32) 1:{:.0} (f16), rel. RMS {:.2}%, max abs {:.3e}, build {s:.2} s",
+                if per_view { " per view" } else { "" },
+                lpca.bytes() as f64 * 1e-6,
+                values as f64 * 4.0 / lpca.bytes() as f64,
+                values as f64 * 2.0 / lpca.bytes() as f64,
+                100.0 * r.relative_rms_error,
+                r.max_abs_error
+            );
+            if (k, c) == (16, 4) {
+                let label = if per_view { "lpca k16 c4 per view" } else { "lpca k16 c4" };
+                let mut out = vec![[0.0f32; 3]; 64];
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+                let q: Vec<(glam::Vec2, glam::Vec3)> = (0..100_000)
+                    .map(|_| {
+                        let uv = glam::Vec2::new(rng.gen(), rng.gen());
+                        let e = glam::Vec3::new(
+                            rng.gen_range(-1.0..1.0),
+                            rng.gen_range(-1.0..1.0),
+                            rng.gen_range(0.1..1.0),
+                        );
+                        (uv, e.normalize())
+                    })
+                    .collect();
+                let time = |f: &mut dyn FnMut(glam::Vec2, glam::Vec3)| {
+                    let mut runs: Vec<f64> = (0..5)
+                        .map(|_| {
+                            let t = Instant::now();
+                            q.iter().for_each(|&(uv, e)| f(uv, e));
+                            t.elapsed().as_secs_f64() * 1e9 / q.len() as f64
+                        })
+                        .collect();
+                    runs.sort_by(f64::total_cmp);
+                    runs[2]
+                };
+                let dense_ns = time(&mut |uv, e| {
+                    btf.eval_into(uv, e, &mut out);
+                    std::hint::black_box(&out);
+                });
+                let lpca_ns = time(&mut |uv, e| {
+                    lpca.eval_into(uv, e, &mut out);
+                    std::hint::black_box(&out);
+                });
+                println!("    one lookup (64 lights, bilinear views), median of 5 x 100k: dense {dense_ns:.0} ns, {label} {lpca_ns:.0} ns");
             }
         }
     }

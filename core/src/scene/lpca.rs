@@ -1,0 +1,290 @@
+//! Local-PCA compressed BTFs (Müller, Meseth, Klein 2004, "Compression and real-time rendering
+//! of measured BTFs using local PCA"): the texels' apparent BRDFs clustered, each cluster kept
+//! as a mean and a few principal components ("eigen-BRDFs"), each texel as its cluster and its
+//! weights.
+//!
+//! The vector compressed per texel is the texel's whole table `b(u, e_v, d_j)` over views `v`
+//! and light bins `j`, RGB interleaved: `D = 3 V M` values, exactly the dense layout
+//! (`data[(texel V + v) M + j]`), so the clustering reads the dense table in place. The build is
+//! the shared clustered PCA ([`crate::linalg::cpca`]), the one the CPCA transfer compressor
+//! uses; it minimises the squared error of the table, so the reported error is the relative
+//! RMS of the table, `||B - B~||_F / ||B||_F`.
+//!
+//! Evaluation ([`LpcaBtf::eval_into`]) uses the dense path's texel lookup and view weights
+//! ([`super::btf::texel_of`], [`super::btf::view_weights`]), so a setting that keeps every component
+//! reproduces the dense values to rounding.
+//!
+//! | array | type | length | meaning |
+//! |---|---|---|---|
+//! | `basis` | f32 | `K (C + 1) D` | cluster k's mean at `[(k (C+1)) D..][..D]`, component c at `[(k (C+1) + c) D..][..D]` |
+//! | `cluster` | u16 | units | a unit's cluster; `K` marks an all-zero unit (evaluates to 0) |
+//! | `weights` | f32 | units `C` | a unit's weight of component c at `[u C + c - 1]` |
+//!
+//! The unit ([`LpcaUnit`]) is a texel (`D = 3 V M`, Müller et al.), or a (texel, view) pair
+//! (`D = 3 M`, unit `t V + v`): a per-view decomposition with more, shorter vectors. Either is
+//! a contiguous run of the dense table.
+
+use super::btf::{texel_of, view_weights};
+use super::Btf;
+use crate::basis::LocalBasis;
+use crate::error::{CoreError, Result};
+use crate::linalg::{clustered_pca, CpcaSettings, DenseRows};
+use crate::sampling::HemisphereGrid;
+use crate::Rgb;
+use glam::{Vec2, Vec3};
+
+/// Largest build model (2 GiB); beyond, a request is refused with its estimate.
+pub const MAX_LPCA_BYTES: u64 = 2 << 30;
+
+/// Bytes per basis value at the peak of a build (f32 assignment table, f64 model, f32 basis).
+const BUILD_BYTES_PER_BASIS_VALUE: u64 = 16;
+
+/// What one clustered vector is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum LpcaUnit {
+    /// A texel's whole apparent BRDF over views and lights, `3 V M` values (Müller et al.).
+    #[default]
+    Texel,
+    /// One (texel, view) pair's values over the lights, `3 M` values: a per-view
+    /// decomposition, more rows of fewer values.
+    View,
+}
+
+/// The settings of a local-PCA BTF.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LpcaSettings {
+    /// Clusters `k_B` of texels (1..=texels, at most 65534).
+    pub clusters: usize,
+    /// Principal components `c_B` per cluster besides the mean (1..=D).
+    pub components: usize,
+    /// Assignment/refit rounds of the clustered PCA.
+    pub iterations: usize,
+    pub unit: LpcaUnit,
+}
+
+impl LpcaSettings {
+    pub fn new(clusters: usize, components: usize) -> Self {
+        Self { clusters, components, iterations: 12, unit: LpcaUnit::Texel }
+    }
+
+    pub fn per_view(self) -> Self {
+        Self { unit: LpcaUnit::View, ..self }
+    }
+}
+
+/// A BTF compressed by local PCA (module docs).
+#[derive(Clone, Debug, PartialEq)]
+pub struct LpcaBtf {
+    spatial: [u32; 2],
+    local_basis: LocalBasis,
+    view_grid: Option<HemisphereGrid>,
+    name: String,
+    unit: LpcaUnit,
+    clusters: usize,
+    components: usize,
+    basis: Vec<f32>,
+    cluster: Vec<u16>,
+    weights: Vec<f32>,
+}
+
+/// What a compression achieved.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LpcaReport {
+    /// Relative RMS error of the table, `||B - B~||_F / ||B||_F` (0 for an all-zero table).
+    pub relative_rms_error: f64,
+    /// Largest absolute error of one value.
+    pub max_abs_error: f64,
+    /// Clusters kept (empty ones are dropped).
+    pub clusters: usize,
+    pub seconds: f64,
+}
+
+impl LpcaBtf {
+    /// Compress `btf` (module docs). Errors name the BTF and the setting that does not fit.
+    pub fn compress(btf: &Btf, settings: &LpcaSettings, seed: u64) -> Result<(Self, LpcaReport)> {
+        let start = std::time::Instant::now();
+        let texels = btf.texel_count();
+        let (units, d) = match settings.unit {
+            LpcaUnit::Texel => (texels, 3 * btf.view_count() * btf.light_count()),
+            LpcaUnit::View => (texels * btf.view_count(), 3 * btf.light_count()),
+        };
+        let bad = |m: String| Err(CoreError::Invalid(format!("BTF '{}': lpca {m}", btf.name())));
+        let what = match settings.unit {
+            LpcaUnit::Texel => format!("the patch has {texels} texels"),
+            LpcaUnit::View => format!("the patch has {texels} texels x {} views", btf.view_count()),
+        };
+        if settings.clusters == 0 || settings.clusters > units.min(u16::MAX as usize - 1) {
+            return bad(format!(
+                "clusters = {} must be in 1..={} ({what})",
+                settings.clusters,
+                units.min(u16::MAX as usize - 1)
+            ));
+        }
+        if settings.components == 0 || settings.components > d {
+            let per = match settings.unit {
+                LpcaUnit::Texel => {
+                    format!("a texel's table has {} views x {} lights x RGB", btf.view_count(), btf.light_count())
+                }
+                LpcaUnit::View => format!("a view's table has {} lights x RGB", btf.light_count()),
+            };
+            return bad(format!("components = {} must be in 1..={d} ({per} = {d} values)", settings.components));
+        }
+        if settings.iterations == 0 {
+            return bad("iterations must be at least 1".into());
+        }
+        let need = (settings.clusters * (settings.components + 1)) as u64 * d as u64 * BUILD_BYTES_PER_BASIS_VALUE;
+        if need > MAX_LPCA_BYTES {
+            return bad(format!(
+                "{} clusters x {} vectors of {d} values need about {:.1} GiB to build, over the {} GiB limit",
+                settings.clusters,
+                settings.components + 1,
+                need as f64 / (1u64 << 30) as f64,
+                MAX_LPCA_BYTES >> 30
+            ));
+        }
+        let values: &[f32] = bytemuck::cast_slice(btf.data());
+        let rows = DenseRows { dim: d, data: values };
+        let cpca = CpcaSettings {
+            clusters: settings.clusters,
+            components: settings.components,
+            iterations: settings.iterations,
+            power_iterations: 2,
+            oversampling: 8,
+        };
+        let fit = clustered_pca(&rows, &cpca, seed, &|_| {});
+        let out = Self {
+            spatial: btf.spatial(),
+            local_basis: btf.local_basis(),
+            view_grid: btf.view_grid(),
+            name: btf.name().to_string(),
+            unit: settings.unit,
+            clusters: fit.clusters,
+            components: fit.components,
+            basis: fit.basis,
+            cluster: fit.cluster.iter().map(|&k| k as u16).collect(),
+            weights: fit.coeffs,
+        };
+        let (mut num, mut den, mut max) = (0.0f64, 0.0f64, 0.0f64);
+        let mut row = vec![0.0f32; d];
+        for t in 0..units {
+            out.decode_row(t, &mut row);
+            for (&a, &b) in values[t * d..(t + 1) * d].iter().zip(&row) {
+                let e = a as f64 - b as f64;
+                num += e * e;
+                den += a as f64 * a as f64;
+                max = max.max(e.abs());
+            }
+        }
+        let relative_rms_error = crate::stats::relative_l2(num, den);
+        let report = LpcaReport {
+            relative_rms_error,
+            max_abs_error: max,
+            clusters: out.clusters,
+            seconds: start.elapsed().as_secs_f64(),
+        };
+        Ok((out, report))
+    }
+
+    /// The values of one unit (a texel's table, or a texel's view), RGB interleaved,
+    /// reconstructed in f64 and rounded once.
+    fn decode_row(&self, t: usize, out: &mut [f32]) {
+        let (d, c) = (out.len(), self.components);
+        let k = self.cluster[t] as usize;
+        if k >= self.clusters {
+            out.fill(0.0);
+            return;
+        }
+        let vector = |j: usize| &self.basis[(k * (c + 1) + j) * d..(k * (c + 1) + j + 1) * d];
+        let w = &self.weights[t * c..(t + 1) * c];
+        for (i, o) in out.iter_mut().enumerate() {
+            let mut acc = vector(0)[i] as f64;
+            for (j, &wj) in w.iter().enumerate() {
+                acc += wj as f64 * vector(j + 1)[i] as f64;
+            }
+            *o = acc as f32;
+        }
+    }
+
+    /// The dense table this represents (for the shaders that take dense BTFs).
+    pub fn decode(&self) -> Result<Btf> {
+        let d = self.unit_values();
+        let units = self.cluster.len();
+        let mut values = vec![0.0f32; units * d];
+        for (t, row) in values.chunks_mut(d.max(1)).enumerate().take(units) {
+            self.decode_row(t, row);
+        }
+        let data: Vec<Rgb> = values.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+        Btf::new(self.spatial, self.local_basis, self.view_grid, data, format!("{} (lpca)", self.name))
+    }
+
+    /// Values per clustered unit.
+    fn unit_values(&self) -> usize {
+        match self.unit {
+            LpcaUnit::Texel => 3 * self.view_count() * self.light_count(),
+            LpcaUnit::View => 3 * self.light_count(),
+        }
+    }
+
+    fn view_count(&self) -> usize {
+        self.view_grid.map_or(1, |g| g.len())
+    }
+
+    fn light_count(&self) -> usize {
+        self.local_basis.len()
+    }
+
+    pub fn clusters(&self) -> usize {
+        self.clusters
+    }
+
+    pub fn components(&self) -> usize {
+        self.components
+    }
+
+    /// Stored bytes: the f32 basis, u16 cluster ids and f32 weights.
+    pub fn bytes(&self) -> u64 {
+        (self.basis.len() * 4 + self.cluster.len() * 2 + self.weights.len() * 4) as u64
+    }
+
+    /// `b(u, e, d_j)` for every light bin `j` at patch coordinates `texel_uv` and local view
+    /// `view_local`: the dense path's nearest texel and bilinear view weights, each view sample
+    /// reconstructed from the texel's cluster (`sum_c a_c E_kc(e_v)`, `a = (1, weights)`), in
+    /// f32.
+    ///
+    /// # Panics
+    /// If `out.len()` is not the light count (a caller bug).
+    pub fn eval_into(&self, texel_uv: Vec2, view_local: Vec3, out: &mut [Rgb]) {
+        let m = self.light_count();
+        assert_eq!(out.len(), m, "eval_into: output must hold one value per light bin");
+        out.fill([0.0; 3]);
+        let t = texel_of(self.spatial, texel_uv);
+        let (c, d) = (self.components, self.unit_values());
+        for (v, wv) in view_weights(self.view_grid, view_local) {
+            if wv == 0.0 {
+                continue;
+            }
+            // The unit holding (t, v) and where view v starts in its vector.
+            let (u, offset) = match self.unit {
+                LpcaUnit::Texel => (t, v * 3 * m),
+                LpcaUnit::View => (t * self.view_count() + v, 0),
+            };
+            let k = self.cluster[u] as usize;
+            if k >= self.clusters {
+                continue;
+            }
+            let w = &self.weights[u * c..(u + 1) * c];
+            for j in 0..=c {
+                let a = wv * if j == 0 { 1.0 } else { w[j - 1] };
+                let seg = &self.basis[(k * (c + 1) + j) * d + offset..][..3 * m];
+                for (o, e) in out.iter_mut().zip(seg.chunks_exact(3)) {
+                    o[0] += a * e[0];
+                    o[1] += a * e[1];
+                    o[2] += a * e[2];
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;
