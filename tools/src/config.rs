@@ -17,7 +17,7 @@
 //! kind = "sparse"
 //! ```
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -108,6 +108,8 @@ pub enum MaterialConfig {
         albedo: [f32; 3],
         #[serde(default = "default_tiling")]
         tiling: f32,
+        #[serde(default)]
+        representation: BtfRepresentation,
     },
     /// Normalized modified Phong, view-dependent (`view_grid` x `view_grid` view samples).
     Phong {
@@ -120,6 +122,8 @@ pub enum MaterialConfig {
         view_grid: u32,
         #[serde(default = "default_tiling")]
         tiling: f32,
+        #[serde(default)]
+        representation: BtfRepresentation,
     },
     /// A BTF ray traced from a tileable height-field patch (`biscale_shading::synth`),
     /// generated on demand and cached by content.
@@ -169,6 +173,61 @@ pub struct SynthesizedConfig {
     pub encoding: String,
     /// The meso-scale BRDF.
     pub brdf: BrdfConfig,
+    /// How the table is held for shading: `dense` (default) or `lpca`.
+    #[serde(default)]
+    pub representation: BtfRepresentation,
+}
+
+/// How a material's BTF is represented for shading (`representation = { kind = "lpca", ... }`).
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq, Default)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum BtfRepresentation {
+    /// The table as tabulated, `[texel][view][light]`.
+    #[default]
+    Dense,
+    /// Local PCA (Müller et al. 2004): `clusters` texel clusters of a mean and `components`
+    /// eigen-BRDFs each (`biscale_core::scene::lpca`).
+    Lpca {
+        #[serde(default = "default_lpca_clusters")]
+        clusters: usize,
+        #[serde(default = "default_lpca_components")]
+        components: usize,
+        /// `texel` (default: a texel's table over views and lights is one vector) or `view`
+        /// (each texel's view is one vector over the lights).
+        #[serde(default)]
+        unit: LpcaUnitConfig,
+    },
+}
+
+/// The config form of `biscale_core::scene::LpcaUnit`.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum LpcaUnitConfig {
+    #[default]
+    Texel,
+    View,
+}
+
+fn default_lpca_clusters() -> usize {
+    16
+}
+fn default_lpca_components() -> usize {
+    4
+}
+
+impl BtfRepresentation {
+    /// The label in messages and metrics: `dense`, `lpca-k16-c4`.
+    pub fn label(&self) -> String {
+        match self {
+            Self::Dense => "dense".into(),
+            Self::Lpca { clusters, components, unit: LpcaUnitConfig::Texel } => {
+                format!("lpca-k{clusters}-c{components}")
+            }
+            Self::Lpca { clusters, components, unit: LpcaUnitConfig::View } => {
+                format!("lpca-k{clusters}-c{components}-view")
+            }
+        }
+    }
 }
 
 /// A meso-scale BRDF of a synthesized material.
@@ -216,7 +275,12 @@ fn default_encoding() -> String {
 
 impl Default for MaterialConfig {
     fn default() -> Self {
-        MaterialConfig::Lambertian { name: None, albedo: [0.8, 0.8, 0.8], tiling: 1.0 }
+        MaterialConfig::Lambertian {
+            name: None,
+            albedo: [0.8, 0.8, 0.8],
+            tiling: 1.0,
+            representation: BtfRepresentation::Dense,
+        }
     }
 }
 
@@ -230,6 +294,16 @@ impl MaterialConfig {
     }
 
     /// Patch repetitions per unit of texture coordinate.
+    /// How the entry's BTF is represented for shading.
+    pub fn representation(&self) -> BtfRepresentation {
+        match self {
+            MaterialConfig::Lambertian { representation, .. } | MaterialConfig::Phong { representation, .. } => {
+                *representation
+            }
+            MaterialConfig::Synthesized(s) => s.representation,
+        }
+    }
+
     pub fn tiling(&self) -> f32 {
         match self {
             MaterialConfig::Lambertian { tiling, .. } | MaterialConfig::Phong { tiling, .. } => *tiling,
@@ -262,6 +336,14 @@ fn check_material(m: &MaterialConfig) -> Result<(), String> {
     if let Some(n) = m.name() {
         if n.trim().is_empty() {
             return Err("name must not be empty".into());
+        }
+    }
+    if let BtfRepresentation::Lpca { clusters, components, .. } = m.representation() {
+        if clusters == 0 || clusters > u16::MAX as usize - 1 {
+            return Err(format!("lpca clusters = {clusters} must be in 1..=65534"));
+        }
+        if components == 0 {
+            return Err("lpca components must be at least 1".into());
         }
     }
     match m {

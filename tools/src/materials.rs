@@ -19,14 +19,14 @@
 //!   decision is a line in [`SceneMaterials::notes`], printed with the plan.
 
 use crate::cache::StageCache;
-use crate::config::{BrdfConfig, Experiment, MaterialConfig, SynthesizedConfig};
+use crate::config::{BrdfConfig, BtfRepresentation, Experiment, LpcaUnitConfig, MaterialConfig, SynthesizedConfig};
 use crate::pipeline::{PipelineError, Result};
 use crate::util::progress_bar;
 use biscale_core::artifact::Artifact;
 use biscale_core::basis::LocalBasis;
 use biscale_core::geometry::Mesh;
 use biscale_core::io::ContentHash;
-use biscale_core::scene::{Btf, Material};
+use biscale_core::scene::{Btf, LpcaBtf, LpcaSettings, Material};
 use biscale_shading::synth::{
     btf_artifact, btf_from_artifact, load_btf, synthesize, AlbedoMap, Brdf, BtfEncoding, BtfSpec, HeightField, Pattern,
     Recipe,
@@ -47,6 +47,8 @@ pub struct SceneMaterials {
     pub labels: Vec<String>,
     /// What was left out or repaired, one line each (printed with the plan, kept in the report).
     pub notes: Vec<String>,
+    /// How each material's BTF is represented, with its storage and error.
+    pub btfs: Vec<crate::metrics::BtfRecord>,
 }
 
 impl SceneMaterials {
@@ -270,7 +272,7 @@ pub fn load_materials(
         _ => (0..configs.len()).map(|c| c == 0).collect(),
     };
     let mut compact = vec![u32::MAX; configs.len()];
-    let (mut materials, mut labels) = (vec![], vec![]);
+    let (mut materials, mut labels, mut btfs) = (vec![], vec![], vec![]);
     for (c, cfg) in configs.iter().enumerate() {
         let label = cfg.label();
         if !used[c] {
@@ -302,6 +304,8 @@ pub fn load_materials(
                 "material {label}: the mesh has no texture coordinates, so every point shows texel 0 of the patch"
             ));
         }
+        let (btf, record) = represent(btf, cfg.representation(), exp.file.seed, &label)?;
+        btfs.push(record);
         compact[c] = materials.len() as u32;
         materials.push(Material { btf, tiling: cfg.tiling() });
         labels.push(label);
@@ -315,5 +319,42 @@ pub fn load_materials(
             None
         }
     };
-    Ok(SceneMaterials { materials, triangle_materials, labels, notes })
+    Ok(SceneMaterials { materials, triangle_materials, labels, notes, btfs })
+}
+
+/// `btf` in the representation `repr`: dense as it is, or compressed by local PCA and shaded
+/// from its reconstruction (both shaders take dense tables; the reconstruction is exactly what
+/// the LPCA evaluation gives, up to f32 rounding). The record says what it costs and loses.
+fn represent(btf: Btf, repr: BtfRepresentation, seed: u64, label: &str) -> Result<(Btf, crate::metrics::BtfRecord)> {
+    let dense_bytes = (btf.data().len() * 12) as u64;
+    let mut record = crate::metrics::BtfRecord {
+        material: label.to_string(),
+        representation: repr.label(),
+        dense_bytes,
+        bytes: dense_bytes,
+        compression_ratio: 1.0,
+        relative_rms_error: 0.0,
+        build_seconds: 0.0,
+    };
+    let BtfRepresentation::Lpca { clusters, components, unit } = repr else { return Ok((btf, record)) };
+    let err = shading_err(label);
+    let settings = match unit {
+        LpcaUnitConfig::Texel => LpcaSettings::new(clusters, components),
+        LpcaUnitConfig::View => LpcaSettings::new(clusters, components).per_view(),
+    };
+    let (lpca, report) = LpcaBtf::compress(&btf, &settings, seed).map_err(|e| err(e.into()))?;
+    record.bytes = lpca.bytes();
+    record.compression_ratio = dense_bytes as f64 / lpca.bytes().max(1) as f64;
+    record.relative_rms_error = report.relative_rms_error;
+    record.build_seconds = report.seconds;
+    eprintln!(
+        "btf {label}: {} in {:.1} s: {:.2} MB of {:.2} MB (1:{:.0}), relative RMS error {:.2}%",
+        record.representation,
+        report.seconds,
+        record.bytes as f64 * 1e-6,
+        dense_bytes as f64 * 1e-6,
+        record.compression_ratio,
+        100.0 * report.relative_rms_error
+    );
+    Ok((lpca.decode().map_err(|e| err(e.into()))?, record))
 }

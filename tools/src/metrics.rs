@@ -93,6 +93,25 @@ pub struct SceneMetrics {
     pub material_notes: Vec<String>,
     /// Bytes of the BTF tables at f32 (the all-frequency method's meso-scale data).
     pub btf_bytes: u64,
+    /// Each material's BTF representation, its storage and error.
+    pub btfs: Vec<BtfRecord>,
+}
+
+/// One material's BTF representation (`representation` in its config entry).
+#[derive(Clone, Debug, Serialize)]
+pub struct BtfRecord {
+    pub material: String,
+    /// `dense` or `lpca-k<clusters>-c<components>`.
+    pub representation: String,
+    /// The dense table at f32.
+    pub dense_bytes: u64,
+    /// What the representation stores.
+    pub bytes: u64,
+    /// `dense_bytes / bytes`.
+    pub compression_ratio: f64,
+    /// `||B - B~||_F / ||B||_F` of the table (0 for dense).
+    pub relative_rms_error: f64,
+    pub build_seconds: f64,
 }
 
 #[derive(Debug, Serialize)]

@@ -624,6 +624,7 @@ impl Metrics {
                 material: materials.summary(),
                 material_notes: materials.notes.clone(),
                 btf_bytes: materials.materials.iter().map(|m| (m.btf.data().len() * 12) as u64).sum(),
+                btfs: materials.btfs.clone(),
             },
             lighting: LightingMetrics {
                 source: exp.env_path.as_ref().map_or("constant".into(), |p| p.display().to_string()),

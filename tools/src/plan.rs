@@ -81,6 +81,15 @@ impl Plan {
                     )
                 }
             }
+            if let crate::config::BtfRepresentation::Lpca { clusters, components, .. } = m.representation() {
+                step(
+                    "btf",
+                    format!(
+                        "{label}: local-PCA compression ({clusters} clusters x {components} eigen-BRDFs, cached by content); shaded from its reconstruction"
+                    ),
+                    Action::Run,
+                );
+            }
         }
         if materials.len() == 1 {
             step("btf", "material-id buffer".into(), Action::LeftOut("the scene has one material".into()));

@@ -161,3 +161,66 @@ fn btf_command_writes_tables_and_contact_sheets() {
     let biscale::pipeline::PipelineError::Mismatch { path, what } = &e else { panic!("{e}") };
     assert!(path == &exp.config_path && what.contains("no material named \"c\"") && what.contains("a, b"), "{e}");
 }
+
+/// `representation = { kind = "lpca", ... }` end to end: with every component its clusters can
+/// hold, the render equals the dense one to f32 rounding (the reconstruction is exact; 1e-5 is
+/// a few hundred f32 ulps of the summed BTF-times-light terms); with one component it costs
+/// less and loses something, and the record says how much. A setting the patch cannot hold is
+/// an error naming the material.
+#[test]
+fn lpca_btfs_render_like_the_dense_table_at_full_rank_and_report_their_cost() {
+    let dir = tempfile::tempdir().unwrap();
+    write_obj(&dir.path().join("m.obj"), &shapes::grid_plane(8, 2.0));
+    let config = |name: &str, repr: &str| {
+        write_config(
+            dir.path(),
+            name,
+            &format!(
+                "name = \"{name}\"\n[scene]\nmesh = \"m.obj\"\n\
+                 [scene.material]\nkind = \"synthesized\"\npattern = \"bumps\"\namplitude = 0.08\nfrequency = 2\n\
+                 resolution = 4\nview_grid = 3\ntiling = 3.0\n\
+                 brdf = {{ kind = \"phong\", kd = [0.5, 0.4, 0.3], ks = [0.3, 0.3, 0.3], exponent = 12.0 }}\n{repr}\n\
+                 [lighting]\nenv_map = \"{}\"\n[transfer]\ncubemap_resolution = 8\nvisibility_resolution = 16\nlocal_grid = 4\n\
+                 [[compressors]]\nkind = \"sparse\"\n[runtime]\nwidth = 48\nheight = 48\nrepeats = 1\n{TOP_VIEW}\n\
+                 [report]\nbackground = false\n",
+                workspace_root().join("assets/envmaps/pmndrs_apartment.exr").display()
+            ),
+        )
+    };
+    let image = |out: &std::path::Path| HdrImage::read_exr(&out.join("images/uncompressed.exr")).unwrap().0;
+    let rel = |a: &HdrImage, b: &HdrImage| {
+        let (mut num, mut den) = (0.0f64, 0.0f64);
+        for (x, y) in a.pixels.iter().flatten().zip(b.pixels.iter().flatten()) {
+            num += (*x as f64 - *y as f64).powi(2);
+            den += (*y as f64).powi(2);
+        }
+        (num / den).sqrt()
+    };
+    let dense_out = dir.path().join("dense");
+    let m = run_in(&config("dense", ""), &dense_out);
+    assert_eq!(m.scene.btfs[0].representation, "dense");
+    let dense = image(&dense_out);
+
+    // 16 texels in 2 clusters: at most 15 centred directions each.
+    let full_out = dir.path().join("full");
+    let m = run_in(&config("full", "representation = { kind = \"lpca\", clusters = 2, components = 15 }"), &full_out);
+    let r = &m.scene.btfs[0];
+    assert_eq!(r.representation, "lpca-k2-c15");
+    assert!(r.relative_rms_error < 1e-5, "{r:?}");
+    let e = rel(&image(&full_out), &dense);
+    assert!(e < 1e-5, "full-rank LPCA image differs from dense by {e:e}");
+
+    let low_out = dir.path().join("low");
+    let m = run_in(&config("low", "representation = { kind = \"lpca\", clusters = 1, components = 1 }"), &low_out);
+    let r = &m.scene.btfs[0];
+    assert!(r.compression_ratio > 5.0 && r.bytes < r.dense_bytes, "{r:?}");
+    assert!(r.relative_rms_error > 1e-3, "one component of a bumpy Phong patch must lose something: {r:?}");
+    let e = rel(&image(&low_out), &dense);
+    assert!(e > 1e-4, "{e:e}");
+
+    let bad = config("bad", "representation = { kind = \"lpca\", clusters = 20, components = 2 }");
+    let exp = Experiment::load(&bad).unwrap();
+    let opts = RunOptions { out_dir: Some(dir.path().join("bad")), cache_dir: None, no_cache: true };
+    let msg = run(&exp, &opts).unwrap_err().to_string();
+    assert!(msg.contains("clusters = 20") && msg.contains("16 texels"), "{msg}");
+}
