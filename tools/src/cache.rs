@@ -14,6 +14,8 @@
 //! * `sh-<key>-n<order>.bsf`: the low-frequency method's SH transfer `M` ([`sh_transfer_key`]:
 //!   the mesh, the order, the rays, the seed, the bounces).
 //! * `btf-<key>-<encoding>.btf`: a synthesized BTF (its key is `materials::synth_key`).
+//! * `lpca-<key>-<setting>.btf`: a local-PCA BTF (`materials::lpca_key`: the dense table's
+//!   content, the setting and the seed).
 //!
 //! A file that is present but unusable (corrupt, another version, a different shape) is
 //! reported as a warning and rebuilt; failing to write the cache is a warning too, since the
@@ -76,6 +78,11 @@ impl StageCache {
     /// The file of an SH transfer `M` of order `n`.
     pub fn sh_transfer_path(&self, key: u64, n: u32) -> PathBuf {
         self.dir.join(format!("sh-{key:016x}-n{n}.bsf"))
+    }
+
+    /// The file of a local-PCA BTF (its key is `materials::lpca_key`).
+    pub fn lpca_path(&self, key: u64, label: &str) -> PathBuf {
+        self.dir.join(format!("lpca-{key:016x}-{label}.btf"))
     }
 
     pub fn btf_path(&self, key: u64, encoding: &str) -> PathBuf {

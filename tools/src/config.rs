@@ -896,6 +896,36 @@ mod tests {
     const OK: &str = "name = \"t\"\n[scene]\nmesh = \"../assets/meshes/bunny.obj\"\n[lighting]\nconstant = [1, 1, 1]\n";
 
     #[test]
+    fn every_bundled_config_loads() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
+        let mut n = 0;
+        for e in std::fs::read_dir(&dir).unwrap().flatten() {
+            if e.path().extension().is_some_and(|x| x == "toml") {
+                Experiment::load(&e.path()).unwrap_or_else(|err| panic!("{}: {err}", e.path().display()));
+                n += 1;
+            }
+        }
+        assert!(n >= 9, "{n} configs");
+    }
+
+    #[test]
+    fn lpca_representation_keys_are_read_and_checked() {
+        let body = |r: &str| {
+            format!(
+                "{OK}[scene.material]\nkind = \"phong\"\nkd = [0.5, 0.5, 0.5]\nks = [0.1, 0.1, 0.1]\nexponent = 10.0\nrepresentation = {r}\n"
+            )
+        };
+        let e = parse(&body("{ kind = \"lpca\", clusters = 8, unit = \"view\" }")).unwrap();
+        let r = e.materials()[0].representation();
+        assert_eq!(r, BtfRepresentation::Lpca { clusters: 8, components: 4, unit: LpcaUnitConfig::View });
+        assert_eq!(r.label(), "lpca-k8-c4-view");
+        let e = parse(&body("{ kind = \"lpca\", components = 0 }")).unwrap_err();
+        assert!(e.message.contains("components must be at least 1"), "{e}");
+        let e = parse(&body("{ kind = \"lpca\", cluster = 3 }")).unwrap_err();
+        assert!(e.message.contains("unknown field `cluster`"), "{e}");
+    }
+
+    #[test]
     fn minimal_config_parses_with_defaults() {
         let e = parse(OK).unwrap();
         assert_eq!(e.transfer_settings(), biscale_core::transfer::TransferSettings::default());

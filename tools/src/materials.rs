@@ -139,8 +139,10 @@ pub fn synth_key(cfg: &SynthesizedConfig, local_basis: LocalBasis) -> Result<u64
     h.write(&SYNTH_VERSION.to_le_bytes());
     h.write(&biscale_core::artifact::CONTAINER_VERSION.to_le_bytes());
     h.write_str(&local_basis.tag());
-    // The label is not part of the table's meaning: hash the entry without its name.
-    let unnamed = SynthesizedConfig { name: None, tiling: 1.0, ..cfg.clone() };
+    // The label, tiling and representation are not part of the table's meaning: hash the
+    // entry without them.
+    let unnamed =
+        SynthesizedConfig { name: None, tiling: 1.0, representation: BtfRepresentation::Dense, ..cfg.clone() };
     h.write(format!("{unnamed:?}").as_bytes());
     for p in [&cfg.height_map, &cfg.albedo_map].into_iter().flatten() {
         let bytes = std::fs::read(p).map_err(|source| PipelineError::Io { path: p.clone(), source })?;
@@ -304,7 +306,7 @@ pub fn load_materials(
                 "material {label}: the mesh has no texture coordinates, so every point shows texel 0 of the patch"
             ));
         }
-        let (btf, record) = represent(btf, cfg.representation(), exp.file.seed, &label)?;
+        let (btf, record) = represent(btf, cfg.representation(), exp.file.seed, cache, &label)?;
         btfs.push(record);
         compact[c] = materials.len() as u32;
         materials.push(Material { btf, tiling: cfg.tiling() });
@@ -325,7 +327,13 @@ pub fn load_materials(
 /// `btf` in the representation `repr`: dense as it is, or compressed by local PCA and shaded
 /// from its reconstruction (both shaders take dense tables; the reconstruction is exactly what
 /// the LPCA evaluation gives, up to f32 rounding). The record says what it costs and loses.
-fn represent(btf: Btf, repr: BtfRepresentation, seed: u64, label: &str) -> Result<(Btf, crate::metrics::BtfRecord)> {
+fn represent(
+    btf: Btf,
+    repr: BtfRepresentation,
+    seed: u64,
+    cache: Option<&StageCache>,
+    label: &str,
+) -> Result<(Btf, crate::metrics::BtfRecord)> {
     let dense_bytes = (btf.data().len() * 12) as u64;
     let mut record = crate::metrics::BtfRecord {
         material: label.to_string(),
@@ -342,19 +350,84 @@ fn represent(btf: Btf, repr: BtfRepresentation, seed: u64, label: &str) -> Resul
         LpcaUnitConfig::Texel => LpcaSettings::new(clusters, components),
         LpcaUnitConfig::View => LpcaSettings::new(clusters, components).per_view(),
     };
-    let (lpca, report) = LpcaBtf::compress(&btf, &settings, seed).map_err(|e| err(e.into()))?;
+    let path = cache.map(|c| c.lpca_path(lpca_key(&btf, &settings, seed), &repr.label()));
+    let cached = match (cache, &path) {
+        (Some(c), Some(p)) => c.get(p, |p| LpcaBtf::from_artifact(Artifact::load(p)?), |_| Ok(())),
+        _ => None,
+    };
+    let (lpca, seconds, how) = match cached {
+        Some(l) => (l, 0.0, "loaded from cache".to_string()),
+        None => {
+            let (l, report) = LpcaBtf::compress(&btf, &settings, seed).map_err(|e| err(e.into()))?;
+            if let (Some(c), Some(p)) = (cache, &path) {
+                c.put(p, |p| l.to_artifact().save(p));
+            }
+            (l, report.seconds, format!("in {:.1} s", report.seconds))
+        }
+    };
+    let decoded = lpca.decode().map_err(|e| err(e.into()))?;
     record.bytes = lpca.bytes();
     record.compression_ratio = dense_bytes as f64 / lpca.bytes().max(1) as f64;
-    record.relative_rms_error = report.relative_rms_error;
-    record.build_seconds = report.seconds;
+    record.relative_rms_error = table_error(&btf, &decoded);
+    record.build_seconds = seconds;
     eprintln!(
-        "btf {label}: {} in {:.1} s: {:.2} MB of {:.2} MB (1:{:.0}), relative RMS error {:.2}%",
+        "btf {label}: {} {how}: {:.2} MB of {:.2} MB (1:{:.0}), relative RMS error {:.2}%",
         record.representation,
-        report.seconds,
         record.bytes as f64 * 1e-6,
         dense_bytes as f64 * 1e-6,
         record.compression_ratio,
-        100.0 * report.relative_rms_error
+        100.0 * record.relative_rms_error
     );
-    Ok((lpca.decode().map_err(|e| err(e.into()))?, record))
+    Ok((decoded, record))
+}
+
+/// `||a - b||_F / ||a||_F` over two tables of the same shape.
+fn table_error(a: &Btf, b: &Btf) -> f64 {
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for (x, y) in a.data().iter().flatten().zip(b.data().iter().flatten()) {
+        num += (*x as f64 - *y as f64).powi(2);
+        den += (*x as f64).powi(2);
+    }
+    biscale_core::stats::relative_l2(num, den)
+}
+
+/// Bump when the meaning of a stored LPCA BTF changes.
+const LPCA_VERSION: u32 = 1;
+
+/// Cache key of a local-PCA BTF: the dense table's content and shape, the setting and the
+/// seed (the build is deterministic for them on any number of threads).
+pub fn lpca_key(btf: &Btf, settings: &LpcaSettings, seed: u64) -> u64 {
+    let mut h = ContentHash::default();
+    h.write(&LPCA_VERSION.to_le_bytes())
+        .write(&biscale_core::artifact::CONTAINER_VERSION.to_le_bytes())
+        .write_str(&btf.local_basis().tag())
+        .write_str(&format!("{:?} {:?} {settings:?} {seed}", btf.spatial(), btf.view_grid().map(|g| g.m)));
+    for v in btf.data() {
+        for x in v {
+            h.write(&x.to_le_bytes());
+        }
+    }
+    h.finish()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The cache key of a synthesized table depends on what makes the table, not on how it is
+    /// named, tiled or represented for shading (a new representation must not re-trace it).
+    #[test]
+    fn synth_key_ignores_name_tiling_and_representation() {
+        let toml = |extra: &str| -> SynthesizedConfig {
+            toml::from_str(&format!(
+                "pattern = \"bumps\"\namplitude = 0.05\nbrdf = {{ kind = \"lambertian\", albedo = [0.5, 0.5, 0.5] }}\n{extra}"
+            ))
+            .unwrap()
+        };
+        let basis = LocalBasis::bins(4).unwrap();
+        let base = synth_key(&toml(""), basis).unwrap();
+        let same = toml("name = \"x\"\ntiling = 3.0\nrepresentation = { kind = \"lpca\", clusters = 2 }");
+        assert_eq!(synth_key(&same, basis).unwrap(), base);
+        assert_ne!(synth_key(&toml("resolution = 16"), basis).unwrap(), base);
+    }
 }

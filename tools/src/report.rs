@@ -22,6 +22,33 @@ pub fn markdown(m: &Metrics, plan: &Plan) -> String {
     for n in &m.scene.material_notes {
         let _ = writeln!(s, "- materials: {n}");
     }
+    if m.scene.btfs.iter().any(|b| b.representation != "dense") {
+        let _ = writeln!(s, "\n| material | BTF | dense MB (f32) | stored MB | ratio | table rel. RMS | build s |");
+        let _ = writeln!(s, "|---|---|---|---|---|---|---|");
+        for b in &m.scene.btfs {
+            let _ = writeln!(
+                s,
+                "| {} | {} | {:.2} | {:.2} | 1:{:.0} | {:.2}% | {:.1} |",
+                b.material,
+                b.representation,
+                b.dense_bytes as f64 * 1e-6,
+                b.bytes as f64 * 1e-6,
+                b.compression_ratio,
+                100.0 * b.relative_rms_error,
+                b.build_seconds
+            );
+        }
+        let (dense, stored): (u64, u64) =
+            m.scene.btfs.iter().fold((0, 0), |(d, b), r| (d + r.dense_bytes, b + r.bytes));
+        let _ = writeln!(
+            s,
+            "\nAll BTFs: {:.2} MB dense, {:.2} MB as stored (1:{:.0}). The images are shaded from the \
+             reconstructed tables.\n",
+            dense as f64 * 1e-6,
+            stored as f64 * 1e-6,
+            dense as f64 / stored.max(1) as f64
+        );
+    }
     let _ = writeln!(
         s,
         "- light: {} at 6x{r}x{r}, rotated {}°, total power (RGB) {:.4} {:.4} {:.4}",

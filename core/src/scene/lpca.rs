@@ -26,12 +26,17 @@
 
 use super::btf::{texel_of, view_weights};
 use super::Btf;
+use crate::artifact::{Artifact, ArtifactError, Field};
 use crate::basis::LocalBasis;
+use crate::compress::ArrayData;
 use crate::error::{CoreError, Result};
 use crate::linalg::{clustered_pca, CpcaSettings, DenseRows};
 use crate::sampling::HemisphereGrid;
 use crate::Rgb;
 use glam::{Vec2, Vec3};
+
+/// The artifact kind of a stored LPCA BTF.
+pub const LPCA_ARTIFACT: &str = "lpca-btf";
 
 /// Largest build model (2 GiB); beyond, a request is refused with its estimate.
 pub const MAX_LPCA_BYTES: u64 = 2 << 30;
@@ -239,6 +244,89 @@ impl LpcaBtf {
 
     pub fn components(&self) -> usize {
         self.components
+    }
+
+    /// The compressed BTF as a biscale artifact (kind [`LPCA_ARTIFACT`]).
+    pub fn to_artifact(&self) -> Artifact {
+        Artifact::new(LPCA_ARTIFACT)
+            .with("name", Field::Str(self.name.clone()))
+            .with("width", Field::U64(self.spatial[0] as u64))
+            .with("height", Field::U64(self.spatial[1] as u64))
+            .with("local_basis", Field::Str(self.local_basis.tag()))
+            .with("view_grid", Field::U64(self.view_grid.map_or(0, |g| g.m as u64)))
+            .with("unit", Field::Str(self.unit_name().into()))
+            .with("clusters", Field::U64(self.clusters as u64))
+            .with("components", Field::U64(self.components as u64))
+            .with_array("basis", ArrayData::F32(self.basis.clone()))
+            .with_array("cluster", ArrayData::U16(self.cluster.clone()))
+            .with_array("weights", ArrayData::F32(self.weights.clone()))
+    }
+
+    fn unit_name(&self) -> &'static str {
+        match self.unit {
+            LpcaUnit::Texel => "texel",
+            LpcaUnit::View => "view",
+        }
+    }
+
+    /// Read an artifact written by [`Self::to_artifact`]; every size, id and value is checked
+    /// before it is used, so a corrupt file is an error that names it.
+    pub fn from_artifact(mut a: Artifact) -> std::result::Result<Self, ArtifactError> {
+        a.expect_kind(LPCA_ARTIFACT)?;
+        let name = a.str("name")?.to_string();
+        let (w, h, view_m) = (a.u64("width")?, a.u64("height")?, a.u64("view_grid")?);
+        if !(1..=4096).contains(&w) || !(1..=4096).contains(&h) || view_m > 64 {
+            return Err(a.corrupt(format!("size {w}x{h} texels, view grid {view_m}")));
+        }
+        let local_basis = LocalBasis::parse(a.str("local_basis")?).map_err(|e| a.corrupt(e.to_string()))?;
+        let view_grid = (view_m > 0).then(|| HemisphereGrid::new(view_m as u32));
+        let unit = match a.str("unit")? {
+            "texel" => LpcaUnit::Texel,
+            "view" => LpcaUnit::View,
+            other => return Err(a.corrupt(format!("unit '{other}'"))),
+        };
+        let (clusters, components) = (a.usize("clusters")?, a.usize("components")?);
+        let views = view_grid.map_or(1, |g| g.len());
+        let texels = (w * h) as usize;
+        let (units, d) = match unit {
+            LpcaUnit::Texel => (texels, 3 * views * local_basis.len()),
+            LpcaUnit::View => (texels * views, 3 * local_basis.len()),
+        };
+        if clusters > units || components > d {
+            return Err(a.corrupt(format!("{clusters} clusters x {components} components for {units} units of {d}")));
+        }
+        let want = [("basis", clusters * (components + 1) * d), ("cluster", units), ("weights", units * components)];
+        let mut arrays = vec![];
+        for (n, len) in want {
+            let data = a.take_array(n)?;
+            if data.len() != len {
+                return Err(a.corrupt(format!("array '{n}' has {} elements, expected {len}", data.len())));
+            }
+            arrays.push(data);
+        }
+        let (ArrayData::F32(basis), ArrayData::U16(cluster), ArrayData::F32(weights)) =
+            (arrays.remove(0), arrays.remove(0), arrays.remove(0))
+        else {
+            return Err(a.corrupt("array types (basis f32, cluster u16, weights f32)"));
+        };
+        if cluster.iter().any(|&k| k as usize > clusters) {
+            return Err(a.corrupt(format!("a cluster id above {clusters}")));
+        }
+        if !basis.iter().chain(&weights).all(|x| x.is_finite()) {
+            return Err(a.corrupt("non-finite basis or weight"));
+        }
+        Ok(Self {
+            spatial: [w as u32, h as u32],
+            local_basis,
+            view_grid,
+            name,
+            unit,
+            clusters,
+            components,
+            basis,
+            cluster,
+            weights,
+        })
     }
 
     /// Stored bytes: the f32 basis, u16 cluster ids and f32 weights.

@@ -151,3 +151,26 @@ fn bad_settings_are_errors_that_say_what() {
     assert!(msg(LpcaSettings::new(17, 1).per_view()).contains("4 texels x 4 views"));
     assert!(msg(LpcaSettings::new(1, 49).per_view()).contains("16 lights x RGB = 48 values"));
 }
+
+#[test]
+fn artifacts_round_trip_and_refuse_bad_arrays() {
+    let btf = mixture_btf(3, 3, 3, 2, 5);
+    for s in [LpcaSettings::new(2, 2), LpcaSettings::new(3, 2).per_view()] {
+        let (lpca, _) = LpcaBtf::compress(&btf, &s, 1).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("l.btf");
+        lpca.to_artifact().save(&p).unwrap();
+        let back = LpcaBtf::from_artifact(Artifact::load(&p).unwrap()).unwrap();
+        assert_eq!(back, lpca);
+    }
+    let (lpca, _) = LpcaBtf::compress(&btf, &LpcaSettings::new(2, 2), 1).unwrap();
+    let mut a = lpca.to_artifact();
+    a.take_array("weights").unwrap();
+    let a = a.with_array("weights", ArrayData::F32(vec![0.0; 3]));
+    let e = LpcaBtf::from_artifact(a).unwrap_err().to_string();
+    assert!(e.contains("array 'weights' has 3 elements"), "{e}");
+    let mut a = lpca.to_artifact();
+    a.take_array("cluster").unwrap();
+    let a = a.with_array("cluster", ArrayData::U16(vec![9; 9]));
+    assert!(LpcaBtf::from_artifact(a).unwrap_err().to_string().contains("cluster id above"));
+}
