@@ -196,7 +196,21 @@ pub enum BtfRepresentation {
         /// (each texel's view is one vector over the lights).
         #[serde(default)]
         unit: LpcaUnitConfig,
+        /// Storage of the eigen-BRDFs and weights: `f32` (default), `f16` or `u8` (8-bit codes
+        /// with four category scales).
+        #[serde(default)]
+        quantize: LpcaQuantizeConfig,
     },
+}
+
+/// The config form of `biscale_core::scene::LpcaQuantize`.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum LpcaQuantizeConfig {
+    #[default]
+    F32,
+    F16,
+    U8,
 }
 
 /// The config form of `biscale_core::scene::LpcaUnit`.
@@ -220,11 +234,17 @@ impl BtfRepresentation {
     pub fn label(&self) -> String {
         match self {
             Self::Dense => "dense".into(),
-            Self::Lpca { clusters, components, unit: LpcaUnitConfig::Texel } => {
-                format!("lpca-k{clusters}-c{components}")
-            }
-            Self::Lpca { clusters, components, unit: LpcaUnitConfig::View } => {
-                format!("lpca-k{clusters}-c{components}-view")
+            Self::Lpca { clusters, components, unit, quantize } => {
+                let mut label = format!("lpca-k{clusters}-c{components}");
+                if *unit == LpcaUnitConfig::View {
+                    label += "-view";
+                }
+                match quantize {
+                    LpcaQuantizeConfig::F32 => {}
+                    LpcaQuantizeConfig::F16 => label += "-f16",
+                    LpcaQuantizeConfig::U8 => label += "-u8",
+                }
+                label
             }
         }
     }
@@ -917,7 +937,17 @@ mod tests {
         };
         let e = parse(&body("{ kind = \"lpca\", clusters = 8, unit = \"view\" }")).unwrap();
         let r = e.materials()[0].representation();
-        assert_eq!(r, BtfRepresentation::Lpca { clusters: 8, components: 4, unit: LpcaUnitConfig::View });
+        assert_eq!(
+            r,
+            BtfRepresentation::Lpca {
+                clusters: 8,
+                components: 4,
+                unit: LpcaUnitConfig::View,
+                quantize: LpcaQuantizeConfig::F32
+            }
+        );
+        let e = parse(&body("{ kind = \"lpca\", quantize = \"u8\" }")).unwrap();
+        assert_eq!(e.materials()[0].representation().label(), "lpca-k16-c4-u8");
         assert_eq!(r.label(), "lpca-k8-c4-view");
         let e = parse(&body("{ kind = \"lpca\", components = 0 }")).unwrap_err();
         assert!(e.message.contains("components must be at least 1"), "{e}");

@@ -19,14 +19,16 @@
 //!   decision is a line in [`SceneMaterials::notes`], printed with the plan.
 
 use crate::cache::StageCache;
-use crate::config::{BrdfConfig, BtfRepresentation, Experiment, LpcaUnitConfig, MaterialConfig, SynthesizedConfig};
+use crate::config::{
+    BrdfConfig, BtfRepresentation, Experiment, LpcaQuantizeConfig, LpcaUnitConfig, MaterialConfig, SynthesizedConfig,
+};
 use crate::pipeline::{PipelineError, Result};
 use crate::util::progress_bar;
 use biscale_core::artifact::Artifact;
 use biscale_core::basis::LocalBasis;
 use biscale_core::geometry::Mesh;
 use biscale_core::io::ContentHash;
-use biscale_core::scene::{Btf, LpcaBtf, LpcaSettings, Material};
+use biscale_core::scene::{Btf, LpcaBtf, LpcaQuantize, LpcaSettings, Material};
 use biscale_shading::synth::{
     btf_artifact, btf_from_artifact, load_btf, synthesize, AlbedoMap, Brdf, BtfEncoding, BtfSpec, HeightField, Pattern,
     Recipe,
@@ -344,12 +346,17 @@ fn represent(
         relative_rms_error: 0.0,
         build_seconds: 0.0,
     };
-    let BtfRepresentation::Lpca { clusters, components, unit } = repr else { return Ok((btf, record)) };
+    let BtfRepresentation::Lpca { clusters, components, unit, quantize } = repr else { return Ok((btf, record)) };
     let err = shading_err(label);
     let settings = match unit {
         LpcaUnitConfig::Texel => LpcaSettings::new(clusters, components),
         LpcaUnitConfig::View => LpcaSettings::new(clusters, components).per_view(),
     };
+    let settings = settings.quantized(match quantize {
+        LpcaQuantizeConfig::F32 => LpcaQuantize::F32,
+        LpcaQuantizeConfig::F16 => LpcaQuantize::F16,
+        LpcaQuantizeConfig::U8 => LpcaQuantize::U8,
+    });
     let path = cache.map(|c| c.lpca_path(lpca_key(&btf, &settings, seed), &repr.label()));
     let cached = match (cache, &path) {
         (Some(c), Some(p)) => c.get(p, |p| LpcaBtf::from_artifact(Artifact::load(p)?), |_| Ok(())),

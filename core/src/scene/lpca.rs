@@ -55,6 +55,38 @@ pub enum LpcaUnit {
     View,
 }
 
+/// How the eigen-BRDFs and weights are stored.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum LpcaQuantize {
+    #[default]
+    F32,
+    /// IEEE half floats (11-bit significand).
+    F16,
+    /// 8-bit codes with one scale per category (four: cluster means, eigen-BRDFs, the first
+    /// component's weights, the other weights; Müller et al. also scale per category). Means
+    /// are non-negative and coded `0..=255` with `s = max / 255`; the others are signed,
+    /// `-127..=127` with `s = max |x| / 127`. Each value is off by at most `s / 2`.
+    U8,
+}
+
+impl LpcaQuantize {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::F32 => "f32",
+            Self::F16 => "f16",
+            Self::U8 => "u8",
+        }
+    }
+
+    fn bytes_per_value(&self) -> usize {
+        match self {
+            Self::F32 => 4,
+            Self::F16 => 2,
+            Self::U8 => 1,
+        }
+    }
+}
+
 /// The settings of a local-PCA BTF.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct LpcaSettings {
@@ -65,11 +97,16 @@ pub struct LpcaSettings {
     /// Assignment/refit rounds of the clustered PCA.
     pub iterations: usize,
     pub unit: LpcaUnit,
+    pub quantize: LpcaQuantize,
 }
 
 impl LpcaSettings {
     pub fn new(clusters: usize, components: usize) -> Self {
-        Self { clusters, components, iterations: 12, unit: LpcaUnit::Texel }
+        Self { clusters, components, iterations: 12, unit: LpcaUnit::Texel, quantize: LpcaQuantize::F32 }
+    }
+
+    pub fn quantized(self, quantize: LpcaQuantize) -> Self {
+        Self { quantize, ..self }
     }
 
     pub fn per_view(self) -> Self {
@@ -87,9 +124,13 @@ pub struct LpcaBtf {
     unit: LpcaUnit,
     clusters: usize,
     components: usize,
+    /// The stored values, dequantized (what an evaluation computes with).
     basis: Vec<f32>,
     cluster: Vec<u16>,
     weights: Vec<f32>,
+    quantize: LpcaQuantize,
+    /// The four category scales of [`LpcaQuantize::U8`] (zeros otherwise).
+    scales: [f32; 4],
 }
 
 /// What a compression achieved.
@@ -157,7 +198,7 @@ impl LpcaBtf {
             oversampling: 8,
         };
         let fit = clustered_pca(&rows, &cpca, seed, &|_| {});
-        let out = Self {
+        let mut out = Self {
             spatial: btf.spatial(),
             local_basis: btf.local_basis(),
             view_grid: btf.view_grid(),
@@ -168,7 +209,10 @@ impl LpcaBtf {
             basis: fit.basis,
             cluster: fit.cluster.iter().map(|&k| k as u16).collect(),
             weights: fit.coeffs,
+            quantize: LpcaQuantize::F32,
+            scales: [0.0; 4],
         };
+        out.quantize(settings.quantize, d);
         let (mut num, mut den, mut max) = (0.0f64, 0.0f64, 0.0f64);
         let mut row = vec![0.0f32; d];
         for t in 0..units {
@@ -188,6 +232,47 @@ impl LpcaBtf {
             seconds: start.elapsed().as_secs_f64(),
         };
         Ok((out, report))
+    }
+
+    /// Round the basis and weights to `q` (module docs of [`LpcaQuantize`]); `d` values per
+    /// vector.
+    fn quantize(&mut self, q: LpcaQuantize, d: usize) {
+        self.quantize = q;
+        match q {
+            LpcaQuantize::F32 => {}
+            LpcaQuantize::F16 => {
+                for x in self.basis.iter_mut().chain(self.weights.iter_mut()) {
+                    *x = half::f16::from_f32(*x).to_f32();
+                }
+            }
+            LpcaQuantize::U8 => {
+                let c = self.components;
+                let is_mean = |i: usize| (i / d.max(1)).is_multiple_of(c + 1);
+                let max_abs = |it: &mut dyn Iterator<Item = f32>| it.fold(0.0f32, |m, x| m.max(x.abs()));
+                let means = max_abs(&mut self.basis.iter().enumerate().filter(|(i, _)| is_mean(*i)).map(|(_, &x)| x));
+                let comps = max_abs(&mut self.basis.iter().enumerate().filter(|(i, _)| !is_mean(*i)).map(|(_, &x)| x));
+                let first = max_abs(
+                    &mut self.weights.iter().enumerate().filter(|(i, _)| i.is_multiple_of(c.max(1))).map(|(_, &x)| x),
+                );
+                let rest = max_abs(
+                    &mut self.weights.iter().enumerate().filter(|(i, _)| !i.is_multiple_of(c.max(1))).map(|(_, &x)| x),
+                );
+                self.scales = [means / 255.0, comps / 127.0, first / 127.0, rest / 127.0];
+                let code =
+                    |x: f32, s: f32, lo: f32, hi: f32| if s > 0.0 { (x / s).round().clamp(lo, hi) * s } else { 0.0 };
+                let [sm, sc, sf, sr] = self.scales;
+                for (i, x) in self.basis.iter_mut().enumerate() {
+                    *x = if is_mean(i) { code(*x, sm, 0.0, 255.0) } else { code(*x, sc, -127.0, 127.0) };
+                }
+                for (i, x) in self.weights.iter_mut().enumerate() {
+                    *x = if i.is_multiple_of(c.max(1)) {
+                        code(*x, sf, -127.0, 127.0)
+                    } else {
+                        code(*x, sr, -127.0, 127.0)
+                    };
+                }
+            }
+        }
     }
 
     /// The values of one unit (a texel's table, or a texel's view), RGB interleaved,
@@ -257,6 +342,8 @@ impl LpcaBtf {
             .with("unit", Field::Str(self.unit_name().into()))
             .with("clusters", Field::U64(self.clusters as u64))
             .with("components", Field::U64(self.components as u64))
+            .with("quantize", Field::Str(self.quantize.name().into()))
+            .with("scales", Field::Str(self.scales.map(|x| x.to_bits().to_string()).join(",")))
             .with_array("basis", ArrayData::F32(self.basis.clone()))
             .with_array("cluster", ArrayData::U16(self.cluster.clone()))
             .with_array("weights", ArrayData::F32(self.weights.clone()))
@@ -286,6 +373,15 @@ impl LpcaBtf {
             other => return Err(a.corrupt(format!("unit '{other}'"))),
         };
         let (clusters, components) = (a.usize("clusters")?, a.usize("components")?);
+        let quantize = match a.str("quantize")? {
+            "f32" => LpcaQuantize::F32,
+            "f16" => LpcaQuantize::F16,
+            "u8" => LpcaQuantize::U8,
+            other => return Err(a.corrupt(format!("quantize '{other}'"))),
+        };
+        let scales: Vec<f32> =
+            a.str("scales")?.split(',').filter_map(|x| x.parse::<u32>().ok()).map(f32::from_bits).collect();
+        let Ok(scales) = <[f32; 4]>::try_from(scales) else { return Err(a.corrupt("scales")) };
         let views = view_grid.map_or(1, |g| g.len());
         let texels = (w * h) as usize;
         let (units, d) = match unit {
@@ -326,12 +422,21 @@ impl LpcaBtf {
             basis,
             cluster,
             weights,
+            quantize,
+            scales,
         })
     }
 
-    /// Stored bytes: the f32 basis, u16 cluster ids and f32 weights.
+    /// Stored bytes: the basis and weights at the quantization's width (plus the four scales
+    /// of u8) and the u16 cluster ids.
     pub fn bytes(&self) -> u64 {
-        (self.basis.len() * 4 + self.cluster.len() * 2 + self.weights.len() * 4) as u64
+        let scales = if self.quantize == LpcaQuantize::U8 { 16 } else { 0 };
+        ((self.basis.len() + self.weights.len()) * self.quantize.bytes_per_value() + self.cluster.len() * 2 + scales)
+            as u64
+    }
+
+    pub fn quantization(&self) -> LpcaQuantize {
+        self.quantize
     }
 
     /// `b(u, e, d_j)` for every light bin `j` at patch coordinates `texel_uv` and local view

@@ -18,7 +18,7 @@ pub mod lpca;
 pub use btf::Btf;
 pub use camera::Camera;
 pub use image::{Background, HdrImage, Render};
-pub use lpca::{LpcaBtf, LpcaReport, LpcaSettings, LpcaUnit};
+pub use lpca::{LpcaBtf, LpcaQuantize, LpcaReport, LpcaSettings, LpcaUnit};
 
 use crate::basis::LocalBasis;
 use crate::error::{CoreError, Result};

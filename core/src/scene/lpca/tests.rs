@@ -174,3 +174,38 @@ fn artifacts_round_trip_and_refuse_bad_arrays() {
     let a = a.with_array("cluster", ArrayData::U16(vec![9; 9]));
     assert!(LpcaBtf::from_artifact(a).unwrap_err().to_string().contains("cluster id above"));
 }
+
+#[test]
+fn quantization_errors_are_bounded_by_their_scales() {
+    let btf = mixture_btf(6, 6, 6, 3, 6);
+    let s = LpcaSettings::new(3, 3);
+    let (exact, r32) = LpcaBtf::compress(&btf, &s, 2).unwrap();
+    let (q8, r8) = LpcaBtf::compress(&btf, &s.quantized(LpcaQuantize::U8), 2).unwrap();
+    let (q16, r16) = LpcaBtf::compress(&btf, &s.quantized(LpcaQuantize::F16), 2).unwrap();
+    // The same build (deterministic for a seed), then rounded.
+    assert_eq!(q8.cluster, exact.cluster);
+    let d = 3 * btf.view_count() * btf.light_count();
+    let c = exact.components;
+    let [sm, sc, sf, sr] = q8.scales;
+    assert!(sm > 0.0 && sc > 0.0 && sf > 0.0 && sr > 0.0, "{:?}", q8.scales);
+    for (i, (&a, &b)) in exact.basis.iter().zip(&q8.basis).enumerate() {
+        let s = if (i / d).is_multiple_of(c + 1) { sm } else { sc };
+        assert!((a - b).abs() <= 0.5 * s * (1.0 + 1e-5), "basis {i}: {a} -> {b}, scale {s}");
+    }
+    for (i, (&a, &b)) in exact.weights.iter().zip(&q8.weights).enumerate() {
+        let s = if i.is_multiple_of(c) { sf } else { sr };
+        assert!((a - b).abs() <= 0.5 * s * (1.0 + 1e-5), "weight {i}: {a} -> {b}, scale {s}");
+    }
+    for (&a, &b) in exact.basis.iter().chain(&exact.weights).zip(q16.basis.iter().chain(&q16.weights)) {
+        // f16 keeps 11 significant bits (values here are far above its subnormal range).
+        assert!((a - b).abs() <= a.abs() * 2f32.powi(-11) + 1e-7, "{a} -> {b}");
+    }
+    // Storage: one byte or two per value instead of four, errors ordered.
+    let values = (exact.basis.len() + exact.weights.len()) as u64;
+    assert_eq!(exact.bytes() - q8.bytes(), 3 * values - 16);
+    assert_eq!(exact.bytes() - q16.bytes(), 2 * values);
+    assert!(r32.relative_rms_error <= r16.relative_rms_error + 1e-6 && r16.relative_rms_error < r8.relative_rms_error);
+    // And the stored form keeps the quantization.
+    let back = LpcaBtf::from_artifact(q8.to_artifact()).unwrap();
+    assert_eq!(back, q8);
+}
