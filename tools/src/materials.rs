@@ -359,7 +359,14 @@ fn represent(
     });
     let path = cache.map(|c| c.lpca_path(lpca_key(&btf, &settings, seed), &repr.label()));
     let cached = match (cache, &path) {
-        (Some(c), Some(p)) => c.get(p, |p| LpcaBtf::from_artifact(Artifact::load(p)?), |_| Ok(())),
+        (Some(c), Some(p)) => c.get(
+            p,
+            |p| LpcaBtf::from_artifact(Artifact::load(p)?),
+            |l| match l.fits(&btf) {
+                true => Ok(()),
+                false => Err(format!("{}: an LPCA BTF of another shape than {}", p.display(), btf.name())),
+            },
+        ),
         _ => None,
     };
     let (lpca, seconds, how) = match cached {
@@ -375,7 +382,7 @@ fn represent(
     let decoded = lpca.decode().map_err(|e| err(e.into()))?;
     record.bytes = lpca.bytes();
     record.compression_ratio = dense_bytes as f64 / lpca.bytes().max(1) as f64;
-    record.relative_rms_error = table_error(&btf, &decoded);
+    record.relative_rms_error = lpca.table_error(&btf).0;
     record.build_seconds = seconds;
     eprintln!(
         "btf {label}: {} {how}: {:.2} MB of {:.2} MB (1:{:.0}), relative RMS error {:.2}%",
@@ -386,16 +393,6 @@ fn represent(
         100.0 * record.relative_rms_error
     );
     Ok((decoded, record))
-}
-
-/// `||a - b||_F / ||a||_F` over two tables of the same shape.
-fn table_error(a: &Btf, b: &Btf) -> f64 {
-    let (mut num, mut den) = (0.0f64, 0.0f64);
-    for (x, y) in a.data().iter().flatten().zip(b.data().iter().flatten()) {
-        num += (*x as f64 - *y as f64).powi(2);
-        den += (*x as f64).powi(2);
-    }
-    biscale_core::stats::relative_l2(num, den)
 }
 
 /// Bump when the meaning of a stored LPCA BTF changes.

@@ -623,7 +623,7 @@ impl Metrics {
                 repairs: geometry.repairs.clone(),
                 material: materials.summary(),
                 material_notes: materials.notes.clone(),
-                btf_bytes: materials.materials.iter().map(|m| (m.btf.data().len() * 12) as u64).sum(),
+                btf_bytes: materials.btfs.iter().map(|b| b.dense_bytes).sum(),
                 btfs: materials.btfs.clone(),
             },
             lighting: LightingMetrics {

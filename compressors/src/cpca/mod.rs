@@ -47,12 +47,9 @@ use biscale_kernels::{Count, Factor, FormCheck, KernelDesc, PassDesc, ScratchDes
 use rayon::prelude::*;
 use std::time::Instant;
 
-/// Bytes per basis value at the peak of a build: the f32 assignment table, the f64 model
-/// (mean or component) and the f32 stored basis.
-const BYTES_PER_BASIS_VALUE: u64 = 4 + 8 + 4;
-
-/// Largest model a build may hold (2 GiB); beyond, the request is refused with the estimate.
-pub const MAX_CPCA_BYTES: u64 = 2 << 30;
+/// Largest model a build may hold (2 GiB, the shared clustered PCA's limit); beyond, the
+/// request is refused with the estimate.
+pub const MAX_CPCA_BYTES: u64 = biscale_core::linalg::cpca::MAX_BUILD_BYTES;
 
 fn build(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
     Ok(Box::new(registry::parse::<Cpca>(p)?.validated()?))
@@ -130,7 +127,7 @@ impl Compressor for Cpca {
         };
         let (n, n_rows) = (t.cols() * unit_rows, t.rows() / unit_rows);
         let c = self.components.min(n);
-        let bytes = (self.clusters * (c + 1)) as u64 * n as u64 * BYTES_PER_BASIS_VALUE;
+        let bytes = biscale_core::linalg::cpca::build_bytes(self.clusters, c, n);
         if bytes > MAX_CPCA_BYTES {
             return Err(CompressError::TooLarge(format!(
                 "cpca: {} clusters x {} vectors of {n} values ({unit_rows} rows of {} per unit) need about {:.1} GiB to fit, over the {} GiB limit",

@@ -104,6 +104,20 @@ impl RowSet for DenseRows<'_> {
 /// Rows per block of the dense assignment.
 const DENSE_BLOCK: usize = 8;
 
+/// Bytes per basis value at the peak of a build: the f32 assignment table, the f64 model (mean
+/// or component) and the f32 stored basis.
+pub const BUILD_BYTES_PER_BASIS_VALUE: u64 = 4 + 8 + 4;
+
+/// Largest model a build may hold (2 GiB); callers refuse larger requests up front with the
+/// estimate of [`build_bytes`].
+pub const MAX_BUILD_BYTES: u64 = 2 << 30;
+
+/// Peak bytes of the model of a build of `clusters` clusters with `components` components (capped
+/// at `dim`, as the build does) over vectors of `dim` values.
+pub fn build_bytes(clusters: usize, components: usize, dim: usize) -> u64 {
+    (clusters * (components.min(dim) + 1)) as u64 * dim as u64 * BUILD_BYTES_PER_BASIS_VALUE
+}
+
 /// The build's settings (the CPCA compressor's keys; see there for their defaults).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct CpcaSettings {

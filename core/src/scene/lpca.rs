@@ -38,11 +38,9 @@ use glam::{Vec2, Vec3};
 /// The artifact kind of a stored LPCA BTF.
 pub const LPCA_ARTIFACT: &str = "lpca-btf";
 
-/// Largest build model (2 GiB); beyond, a request is refused with its estimate.
-pub const MAX_LPCA_BYTES: u64 = 2 << 30;
-
-/// Bytes per basis value at the peak of a build (f32 assignment table, f64 model, f32 basis).
-const BUILD_BYTES_PER_BASIS_VALUE: u64 = 16;
+/// Largest build model (2 GiB, the shared clustered PCA's limit); beyond, a request is refused
+/// with its estimate.
+pub const MAX_LPCA_BYTES: u64 = crate::linalg::cpca::MAX_BUILD_BYTES;
 
 /// What one clustered vector is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -178,7 +176,7 @@ impl LpcaBtf {
         if settings.iterations == 0 {
             return bad("iterations must be at least 1".into());
         }
-        let need = (settings.clusters * (settings.components + 1)) as u64 * d as u64 * BUILD_BYTES_PER_BASIS_VALUE;
+        let need = crate::linalg::cpca::build_bytes(settings.clusters, settings.components, d);
         if need > MAX_LPCA_BYTES {
             return bad(format!(
                 "{} clusters x {} vectors of {d} values need about {:.1} GiB to build, over the {} GiB limit",
@@ -213,18 +211,7 @@ impl LpcaBtf {
             scales: [0.0; 4],
         };
         out.quantize(settings.quantize, d);
-        let (mut num, mut den, mut max) = (0.0f64, 0.0f64, 0.0f64);
-        let mut row = vec![0.0f32; d];
-        for t in 0..units {
-            out.decode_row(t, &mut row);
-            for (&a, &b) in values[t * d..(t + 1) * d].iter().zip(&row) {
-                let e = a as f64 - b as f64;
-                num += e * e;
-                den += a as f64 * a as f64;
-                max = max.max(e.abs());
-            }
-        }
-        let relative_rms_error = crate::stats::relative_l2(num, den);
+        let (relative_rms_error, max) = out.table_error(btf);
         let report = LpcaReport {
             relative_rms_error,
             max_abs_error: max,
@@ -273,6 +260,34 @@ impl LpcaBtf {
                 }
             }
         }
+    }
+
+    /// Whether `btf` has this BTF's patch size, light basis and view grid.
+    pub fn fits(&self, btf: &Btf) -> bool {
+        self.spatial == btf.spatial() && self.local_basis == btf.local_basis() && self.view_grid == btf.view_grid()
+    }
+
+    /// How far this is from `btf` (the dense table it was built from): the relative RMS error
+    /// of the table, `||B - B~||_F / ||B||_F`, and the largest absolute error of one value.
+    ///
+    /// # Panics
+    /// If `btf` does not [`Self::fits`] (a caller bug).
+    pub fn table_error(&self, btf: &Btf) -> (f64, f64) {
+        let values: &[f32] = bytemuck::cast_slice(btf.data());
+        let d = self.unit_values();
+        assert!(self.fits(btf), "table_error: the BTF has another shape");
+        let (mut num, mut den, mut max) = (0.0f64, 0.0f64, 0.0f64);
+        let mut row = vec![0.0f32; d];
+        for (t, x) in values.chunks_exact(d.max(1)).enumerate() {
+            self.decode_row(t, &mut row);
+            for (&a, &b) in x.iter().zip(&row) {
+                let e = a as f64 - b as f64;
+                num += e * e;
+                den += a as f64 * a as f64;
+                max = max.max(e.abs());
+            }
+        }
+        (crate::stats::relative_l2(num, den), max)
     }
 
     /// The values of one unit (a texel's table, or a texel's view), RGB interleaved,
