@@ -66,9 +66,17 @@ pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, Stri
         m.lighting.total_power[2],
         escape(&crate::report::transfer_summary(&m.transfer)),
     );
-    let (header, rows) = crate::report::compressor_table(m);
     let cells =
         |tag: &str, row: &[String]| row.iter().map(|c| format!("<{tag}>{}</{tag}>", escape(c))).collect::<String>();
+    if let Some(b) = crate::report::btf_table(m) {
+        let header: Vec<String> = b.header.iter().map(|h| h.to_string()).collect();
+        let _ = write!(s, "<h3>BTFs</h3><table><tr>{}</tr>", cells("th", &header));
+        for row in &b.rows {
+            let _ = write!(s, "<tr>{}</tr>", cells("td", row));
+        }
+        let _ = write!(s, "</table><p>{}</p>", escape(&b.total));
+    }
+    let (header, rows) = crate::report::compressor_table(m);
     let header: Vec<String> = header.iter().map(|h| h.to_string()).collect();
     let _ = write!(s, "<h2>Compressors</h2><table><tr>{}</tr>", cells("th", &header));
     for row in rows {
@@ -110,8 +118,6 @@ pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, Stri
     }
     if let Some(l) = crate::report::low_vs_all(m) {
         let header: Vec<String> = l.header.iter().map(|h| h.to_string()).collect();
-        let cells =
-            |tag: &str, row: &[String]| row.iter().map(|c| format!("<{tag}>{}</{tag}>", escape(c))).collect::<String>();
         let _ = write!(s, "<h2>Low- vs all-frequency</h2><table><tr>{}</tr>", cells("th", &header));
         for row in &l.rows {
             let _ = write!(s, "<tr>{}</tr>", cells("td", row));

@@ -22,33 +22,6 @@ pub fn markdown(m: &Metrics, plan: &Plan) -> String {
     for n in &m.scene.material_notes {
         let _ = writeln!(s, "- materials: {n}");
     }
-    if m.scene.btfs.iter().any(|b| b.representation != "dense") {
-        let _ = writeln!(s, "\n| material | BTF | dense MB (f32) | stored MB | ratio | table rel. RMS | build s |");
-        let _ = writeln!(s, "|---|---|---|---|---|---|---|");
-        for b in &m.scene.btfs {
-            let _ = writeln!(
-                s,
-                "| {} | {} | {:.2} | {:.2} | 1:{:.0} | {:.2}% | {:.1} |",
-                b.material,
-                b.representation,
-                b.dense_bytes as f64 * 1e-6,
-                b.bytes as f64 * 1e-6,
-                b.compression_ratio,
-                100.0 * b.relative_rms_error,
-                b.build_seconds
-            );
-        }
-        let (dense, stored): (u64, u64) =
-            m.scene.btfs.iter().fold((0, 0), |(d, b), r| (d + r.dense_bytes, b + r.bytes));
-        let _ = writeln!(
-            s,
-            "\nAll BTFs: {:.2} MB dense, {:.2} MB as stored (1:{:.0}). The images are shaded from the \
-             reconstructed tables.\n",
-            dense as f64 * 1e-6,
-            stored as f64 * 1e-6,
-            dense as f64 / stored.max(1) as f64
-        );
-    }
     let _ = writeln!(
         s,
         "- light: {} at 6x{r}x{r}, rotated {}°, total power (RGB) {:.4} {:.4} {:.4}",
@@ -59,6 +32,13 @@ pub fn markdown(m: &Metrics, plan: &Plan) -> String {
         m.lighting.total_power[2],
         r = m.lighting.cubemap_resolution
     );
+    if let Some(b) = btf_table(m) {
+        let _ = writeln!(s, "\n| {} |\n|{}", b.header.join(" | "), "---|".repeat(b.header.len()));
+        for row in &b.rows {
+            let _ = writeln!(s, "| {} |", row.join(" | "));
+        }
+        let _ = writeln!(s, "\n{}", b.total);
+    }
     let t = &m.transfer;
     let _ = writeln!(s, "\n## Transfer matrix\n");
     let _ = writeln!(s, "{}\n", transfer_summary(t));
@@ -150,6 +130,49 @@ pub struct LowVsAll {
     pub header: &'static [&'static str],
     pub rows: Vec<Vec<String>>,
     pub figures: Vec<(String, String)>,
+}
+
+/// The materials' BTF representations as a table, when any is not dense.
+pub struct BtfTable {
+    pub header: [&'static str; 7],
+    pub rows: Vec<Vec<String>>,
+    /// One sentence: every BTF's dense and stored bytes.
+    pub total: String,
+}
+
+/// [`BtfTable`] of a run, `None` when every BTF is dense.
+pub fn btf_table(m: &Metrics) -> Option<BtfTable> {
+    if m.scene.btfs.iter().all(|b| b.representation == "dense") {
+        return None;
+    }
+    let rows = m
+        .scene
+        .btfs
+        .iter()
+        .map(|b| {
+            vec![
+                b.material.clone(),
+                b.representation.clone(),
+                format!("{:.2}", b.dense_bytes as f64 * 1e-6),
+                format!("{:.2}", b.bytes as f64 * 1e-6),
+                format!("1:{:.0}", b.compression_ratio),
+                format!("{:.2}%", 100.0 * b.relative_rms_error),
+                format!("{:.1}", b.build_seconds),
+            ]
+        })
+        .collect();
+    let (dense, stored): (u64, u64) = m.scene.btfs.iter().fold((0, 0), |(d, b), r| (d + r.dense_bytes, b + r.bytes));
+    let total = format!(
+        "All BTFs: {:.2} MB dense, {:.2} MB as stored (1:{:.0}). The images are shaded from the reconstructed tables.",
+        dense as f64 * 1e-6,
+        stored as f64 * 1e-6,
+        dense as f64 / stored.max(1) as f64
+    );
+    Some(BtfTable {
+        header: ["material", "BTF", "dense MB (f32)", "stored MB", "ratio", "table rel. RMS", "build s"],
+        rows,
+        total,
+    })
 }
 
 pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {

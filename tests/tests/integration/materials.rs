@@ -217,6 +217,14 @@ fn lpca_btfs_render_like_the_dense_table_at_full_rank_and_report_their_cost() {
     assert!(r.relative_rms_error > 1e-3, "one component of a bumpy Phong patch must lose something: {r:?}");
     let e = rel(&image(&low_out), &dense);
     assert!(e > 1e-4, "{e:e}");
+    // Both reports list the BTF's storage.
+    let md = std::fs::read_to_string(low_out.join("report.md")).unwrap();
+    let html = std::fs::read_to_string(low_out.join("report.html")).unwrap();
+    assert!(md.contains("| synthesized | lpca-k1-c1 |") && md.contains("All BTFs:"), "{md}");
+    assert!(
+        html.contains("<h3>BTFs</h3>") && html.contains("<td>lpca-k1-c1</td>"),
+        "BTF table missing from report.html"
+    );
 
     let bad = config("bad", "representation = { kind = \"lpca\", clusters = 20, components = 2 }");
     let exp = Experiment::load(&bad).unwrap();
