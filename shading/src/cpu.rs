@@ -82,15 +82,10 @@ pub fn primary_hit(scene: &ShadeScene, origin: Vec3, dir: Vec3) -> Option<Surfac
 
 /// `sum_j b(u, e, d_j) L*_j` in f64 for one shading point; `scratch` holds `M` values.
 /// `uv` is the mesh's texture coordinate; the BTF is looked up at `uv * material.tiling`.
+/// The BTF is evaluated in its own representation (an LPCA BTF from its eigen-BRDFs,
+/// [`BtfRepresentation::shade`](biscale_core::scene::BtfRepresentation::shade)).
 pub fn shade_point(material: &Material, uv: Vec2, view_local: Vec3, lstar: &[[f64; 3]], scratch: &mut [Rgb]) -> Rgb {
-    material.btf.eval_into(uv * material.tiling, view_local, scratch);
-    let mut acc = [0.0f64; 3];
-    for (b, l) in scratch.iter().zip(lstar) {
-        for c in 0..3 {
-            acc[c] += b[c] as f64 * l[c];
-        }
-    }
-    acc.map(|x| x as f32)
+    material.btf.shade(uv * material.tiling, view_local, lstar, scratch)
 }
 
 /// Radiance of one hit given scratch space for `L*` (M, f64) and the BTF values (M).
@@ -131,20 +126,26 @@ pub(crate) fn render_rows(
 pub fn shade(scene: &ShadeScene, lstar: &LocalRadiance, camera: &Camera) -> Result<Render> {
     camera.validate()?;
     scene.check_lstar(lstar)?;
-    let m = lstar.local_dirs();
-    let values = lstar.values();
     Ok(render_rows(scene, camera, &|| {}, &|p, acc, scratch| {
-        acc.fill([0.0; 3]);
-        for (&v, &w) in p.vertices.iter().zip(&p.weights) {
-            let w = w as f64;
-            for (a, l) in acc.iter_mut().zip(&values[v as usize * m..(v as usize + 1) * m]) {
-                for c in 0..3 {
-                    a[c] += w * l[c] as f64;
-                }
-            }
-        }
+        interpolate_lstar(p, lstar, acc);
         shade_point(scene.material(p.triangle), p.uv, p.view_local, acc, scratch)
     }))
+}
+
+/// `L*` at `p`: its triangle's vertices' `L*` blended by the barycentric weights, in f64
+/// (`acc` holds `M` values).
+pub fn interpolate_lstar(p: &SurfacePoint, lstar: &LocalRadiance, acc: &mut [[f64; 3]]) {
+    let m = lstar.local_dirs();
+    let values = lstar.values();
+    acc.fill([0.0; 3]);
+    for (&v, &w) in p.vertices.iter().zip(&p.weights) {
+        let w = w as f64;
+        for (a, l) in acc.iter_mut().zip(&values[v as usize * m..(v as usize + 1) * m]) {
+            for c in 0..3 {
+                a[c] += w * l[c] as f64;
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -396,7 +397,7 @@ pub(crate) mod tests {
         let white = Btf::lambertian([1.0; 3], bins(8)).unwrap();
         let halves = white.data().iter().copied().chain(white.data().iter().map(|v| v.map(|x| 0.5 * x))).collect();
         let patch = Btf::new([2, 1], bins(8), None, halves, "patch").unwrap();
-        let materials = vec![Material::new(red.clone()), Material { btf: patch.clone(), tiling: 3.0 }];
+        let materials = vec![Material::new(red.clone()), Material { btf: patch.clone().into(), tiling: 3.0 }];
         let ids: Vec<u32> = mesh
             .triangles
             .iter()

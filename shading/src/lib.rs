@@ -8,6 +8,8 @@
 //! * [`reference`](mod@reference): the ray-traced reference image (`L*` from exact per-pixel visibility).
 //! * [`synth`]: BTFs synthesized by ray tracing tileable height-field patches, their files and
 //!   contact sheets.
+//! * [`precomputed`]: LPCA BTFs under a fixed light from per-vertex dot products, the fast path
+//!   of the CPU shader (checked against it).
 //! * [`image`]: error metrics of images against a reference, false-colour error images.
 //!
 //! Shortest use, from per-vertex `L*` to an image file:
@@ -31,6 +33,7 @@
 pub mod cpu;
 pub mod error;
 pub mod image;
+pub mod precomputed;
 pub mod reference;
 pub mod synth;
 

@@ -308,7 +308,7 @@ pub fn load_materials(
                 "material {label}: the mesh has no texture coordinates, so every point shows texel 0 of the patch"
             ));
         }
-        let (btf, record) = represent(btf, cfg.representation(), exp.file.seed, cache, &label)?;
+        let (btf, record) = represent(&btf, cfg.representation(), exp.file.seed, cache, &label)?;
         btfs.push(record);
         compact[c] = materials.len() as u32;
         materials.push(Material { btf, tiling: cfg.tiling() });
@@ -326,16 +326,16 @@ pub fn load_materials(
     Ok(SceneMaterials { materials, triangle_materials, labels, notes, btfs })
 }
 
-/// `btf` in the representation `repr`: dense as it is, or compressed by local PCA and shaded
-/// from its reconstruction (both shaders take dense tables; the reconstruction is exactly what
-/// the LPCA evaluation gives, up to f32 rounding). The record says what it costs and loses.
+/// `btf` in the representation `repr`: dense as it is, or compressed by local PCA (cached by
+/// content), which every shader then evaluates from its eigen-BRDFs. The record says what it
+/// costs and loses.
 fn represent(
-    btf: Btf,
+    btf: &Btf,
     repr: BtfRepresentation,
     seed: u64,
     cache: Option<&StageCache>,
     label: &str,
-) -> Result<(Btf, crate::metrics::BtfRecord)> {
+) -> Result<(biscale_core::scene::BtfRepresentation, crate::metrics::BtfRecord)> {
     let dense_bytes = (btf.data().len() * 12) as u64;
     let mut record = crate::metrics::BtfRecord {
         material: label.to_string(),
@@ -346,7 +346,9 @@ fn represent(
         relative_rms_error: 0.0,
         build_seconds: 0.0,
     };
-    let BtfRepresentation::Lpca { clusters, components, unit, quantize } = repr else { return Ok((btf, record)) };
+    let BtfRepresentation::Lpca { clusters, components, unit, quantize } = repr else {
+        return Ok((btf.clone().into(), record));
+    };
     let err = shading_err(label);
     let settings = match unit {
         LpcaUnitConfig::Texel => LpcaSettings::new(clusters, components),
@@ -357,12 +359,12 @@ fn represent(
         LpcaQuantizeConfig::F16 => LpcaQuantize::F16,
         LpcaQuantizeConfig::U8 => LpcaQuantize::U8,
     });
-    let path = cache.map(|c| c.lpca_path(lpca_key(&btf, &settings, seed), &repr.label()));
+    let path = cache.map(|c| c.lpca_path(lpca_key(btf, &settings, seed), &repr.label()));
     let cached = match (cache, &path) {
         (Some(c), Some(p)) => c.get(
             p,
             |p| LpcaBtf::from_artifact(Artifact::load(p)?),
-            |l| match l.fits(&btf) {
+            |l| match l.fits(btf) {
                 true => Ok(()),
                 false => Err(format!("{}: an LPCA BTF of another shape than {}", p.display(), btf.name())),
             },
@@ -372,17 +374,16 @@ fn represent(
     let (lpca, seconds, how) = match cached {
         Some(l) => (l, 0.0, "loaded from cache".to_string()),
         None => {
-            let (l, report) = LpcaBtf::compress(&btf, &settings, seed).map_err(|e| err(e.into()))?;
+            let (l, report) = LpcaBtf::compress(btf, &settings, seed).map_err(|e| err(e.into()))?;
             if let (Some(c), Some(p)) = (cache, &path) {
                 c.put(p, |p| l.to_artifact().save(p));
             }
             (l, report.seconds, format!("in {:.1} s", report.seconds))
         }
     };
-    let decoded = lpca.decode().map_err(|e| err(e.into()))?;
     record.bytes = lpca.bytes();
     record.compression_ratio = dense_bytes as f64 / lpca.bytes().max(1) as f64;
-    record.relative_rms_error = lpca.table_error(&btf).0;
+    record.relative_rms_error = lpca.table_error(btf).0;
     record.build_seconds = seconds;
     eprintln!(
         "btf {label}: {} {how}: {:.2} MB of {:.2} MB (1:{:.0}), relative RMS error {:.2}%",
@@ -392,7 +393,7 @@ fn represent(
         record.compression_ratio,
         100.0 * record.relative_rms_error
     );
-    Ok((decoded, record))
+    Ok((lpca.into(), record))
 }
 
 /// Bump when the meaning of a stored LPCA BTF changes.

@@ -338,6 +338,135 @@ impl LpcaBtf {
         self.local_basis.len()
     }
 
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Patch size in texels.
+    pub fn spatial(&self) -> [u32; 2] {
+        self.spatial
+    }
+
+    /// The light directions of every segment (the basis of the `L*` it is dotted with).
+    pub fn local_basis(&self) -> LocalBasis {
+        self.local_basis
+    }
+
+    /// View samples (`None`: view-independent).
+    pub fn view_grid(&self) -> Option<HemisphereGrid> {
+        self.view_grid
+    }
+
+    pub fn unit(&self) -> LpcaUnit {
+        self.unit
+    }
+
+    /// Light segments (`3 M` values each, one per view sample) in one clustered vector:
+    /// `V` per texel, 1 per view.
+    pub fn segments_per_unit(&self) -> usize {
+        match self.unit {
+            LpcaUnit::Texel => self.view_count(),
+            LpcaUnit::View => 1,
+        }
+    }
+
+    /// The unit holding view sample `view` of `texel`, and the segment of its vector that
+    /// holds that view.
+    pub fn unit_of(&self, texel: usize, view: usize) -> (usize, usize) {
+        match self.unit {
+            LpcaUnit::Texel => (texel, view),
+            LpcaUnit::View => (texel * self.view_count() + view, 0),
+        }
+    }
+
+    /// The cluster of `unit`; `None` for an all-zero unit.
+    pub fn cluster_of(&self, unit: usize) -> Option<usize> {
+        let k = self.cluster[unit] as usize;
+        (k < self.clusters).then_some(k)
+    }
+
+    /// The weights of `unit` (`components` values; component 0, the mean, has weight 1).
+    pub fn unit_weights(&self, unit: usize) -> &[f32] {
+        &self.weights[unit * self.components..(unit + 1) * self.components]
+    }
+
+    /// Segment `segment` (`3 M` values, RGB interleaved) of cluster `k`'s vector `c`: its mean
+    /// for `c = 0`, eigen-BRDF `c` otherwise.
+    pub fn segment(&self, k: usize, c: usize, segment: usize) -> &[f32] {
+        let (d, m3) = (self.unit_values(), 3 * self.light_count());
+        &self.basis[(k * (self.components + 1) + c) * d + segment * m3..][..m3]
+    }
+
+    /// This BTF with every light segment of every mean and eigen-BRDF mapped by `f` (from
+    /// `3 M` values to `3 M'` values of `local_basis`, RGB interleaved). The weights and
+    /// clusters are kept, so for a linear `f` the result is exactly the LPCA of the mapped
+    /// table: the radiance transfer texture of an LPCA BTF is an LPCA BTF whose eigen-BRDFs
+    /// are projected (Müller et al. project theirs into SH the same way). The mapped values
+    /// are stored as f32.
+    pub fn map_lights(
+        &self,
+        local_basis: LocalBasis,
+        name: impl Into<String>,
+        f: impl Fn(&[f32], &mut [f32]) + Sync,
+    ) -> Self {
+        use rayon::prelude::*;
+        let (m3, n3) = (3 * self.light_count(), 3 * local_basis.len());
+        let basis: Vec<f32> = self
+            .basis
+            .par_chunks(m3.max(1))
+            .flat_map_iter(|seg| {
+                let mut out = vec![0.0f32; n3];
+                f(seg, &mut out);
+                out
+            })
+            .collect();
+        Self {
+            spatial: self.spatial,
+            local_basis,
+            view_grid: self.view_grid,
+            name: name.into(),
+            unit: self.unit,
+            clusters: self.clusters,
+            components: self.components,
+            basis,
+            cluster: self.cluster.clone(),
+            weights: self.weights.clone(),
+            quantize: LpcaQuantize::F32,
+            scales: [0.0; 4],
+        }
+    }
+
+    /// The values of `unit` (a texel's table or a texel's view, RGB interleaved), reconstructed
+    /// in f64 and rounded once.
+    ///
+    /// # Panics
+    /// If `out` does not hold one unit (a caller bug).
+    pub fn decode_unit(&self, unit: usize, out: &mut [f32]) {
+        assert_eq!(out.len(), self.unit_values(), "decode_unit: one unit's values");
+        self.decode_row(unit, out);
+    }
+
+    /// The stored means and eigen-BRDFs, dequantized: cluster `k`'s vector `c` (0 = mean) is
+    /// `[(k (C + 1) + c) D..][..D]`, `D` values per unit.
+    pub fn basis_values(&self) -> &[f32] {
+        &self.basis
+    }
+
+    /// Every unit's weights, `C` per unit, dequantized.
+    pub fn weight_values(&self) -> &[f32] {
+        &self.weights
+    }
+
+    /// Every unit's cluster id (`clusters()` marks an all-zero unit).
+    pub fn cluster_ids(&self) -> &[u16] {
+        &self.cluster
+    }
+
+    /// Number of units (texels, or texel-views).
+    pub fn units(&self) -> usize {
+        self.cluster.len()
+    }
+
     pub fn clusters(&self) -> usize {
         self.clusters
     }

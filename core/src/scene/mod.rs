@@ -7,18 +7,21 @@
 //!   material id per triangle. Validated once at construction, so no shader checks it again;
 //!   the check that `L*` fits the scene (its local basis is the materials' light basis, one
 //!   block per vertex) is [`ShadeScene::check_lstar`], the one place it is made.
-//! * [`Btf`], [`Material`]: the tabulated BTF `b(u, e, d_j)` and how often it tiles.
+//! * [`Btf`], [`Material`]: the tabulated BTF `b(u, e, d_j)` and how often it tiles;
+//!   [`BtfRepresentation`]: how a material stores it (dense, or local PCA, [`LpcaBtf`]).
 //! * [`Camera`]: the pinhole camera; [`image`]: the RGB image type and its files.
 
 pub mod btf;
 pub mod camera;
 pub mod image;
 pub mod lpca;
+pub mod representation;
 
 pub use btf::Btf;
 pub use camera::Camera;
 pub use image::{Background, HdrImage, Render};
 pub use lpca::{LpcaBtf, LpcaQuantize, LpcaReport, LpcaSettings, LpcaUnit};
+pub use representation::BtfRepresentation;
 
 use crate::basis::LocalBasis;
 use crate::error::{CoreError, Result};
@@ -26,18 +29,18 @@ use crate::gather::LocalRadiance;
 use crate::geometry::{Mesh, SceneBvh, VertexFrame};
 use std::sync::OnceLock;
 
-/// A BTF and how often its patch repeats per unit of texture coordinate.
+/// A BTF (dense or compressed) and how often its patch repeats per unit of texture coordinate.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Material {
-    pub btf: Btf,
+    pub btf: BtfRepresentation,
     /// Patch repetitions per unit of uv: the BTF is looked up at `uv * tiling`.
     pub tiling: f32,
 }
 
 impl Material {
     /// A material with the patch tiled once per unit of uv.
-    pub fn new(btf: Btf) -> Self {
-        Self { btf, tiling: 1.0 }
+    pub fn new(btf: impl Into<BtfRepresentation>) -> Self {
+        Self { btf: btf.into(), tiling: 1.0 }
     }
 }
 

@@ -24,7 +24,7 @@ use crate::basis::LocalBasis;
 use crate::error::{CoreError, Result};
 use crate::sampling::hemisphere::square_to_hemisphere;
 use crate::sampling::HemisphereGrid;
-use crate::scene::Btf;
+use crate::scene::{Btf, BtfRepresentation};
 use rayon::prelude::*;
 
 /// Cells per side of each bin for the bin integrals of the RTT.
@@ -80,23 +80,13 @@ pub fn radiance_transfer_texture(btf: &Btf, order: ShOrder) -> Result<(Btf, RttR
     let ymax = y.iter().fold(0.0f64, |a, b| a.max(b.abs()));
     let quadrature_error = y.iter().zip(&fine).fold(0.0f64, |a, (p, q)| a.max((p - q).abs())) / ymax.max(1e-300);
     let omega = grid.bin_solid_angle();
-    let groups: Vec<(Vec<[f32; 3]>, f64, f64)> = btf
-        .data()
-        .par_chunks(m)
+    let values: &[f32] = bytemuck::cast_slice(btf.data());
+    let groups: Vec<(Vec<[f32; 3]>, f64, f64)> = values
+        .par_chunks(3 * m)
         .map(|b| {
-            let mut out = vec![[0.0f64; 3]; n];
-            let mut beta2 = 0.0f64;
-            for (j, bj) in b.iter().enumerate() {
-                for c in 0..3 {
-                    let v = bj[c] as f64;
-                    beta2 += v * v / omega;
-                    for i in 0..n {
-                        out[i][c] += v * y[j * n + i];
-                    }
-                }
-            }
-            let proj2: f64 = out.iter().flatten().map(|r| (r / omega).powi(2)).sum();
-            (out.iter().map(|r| r.map(|x| x as f32)).collect(), beta2, proj2)
+            let mut out = vec![0.0f32; 3 * n];
+            let (beta2, proj2) = project_segment(b, &y, n, omega, &mut out);
+            (out.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(), beta2, proj2)
         })
         .collect();
     let (beta2, proj2) = groups.iter().fold((0.0, 0.0), |(a, b), g| (a + g.1, b + g.2));
@@ -110,6 +100,76 @@ pub fn radiance_transfer_texture(btf: &Btf, order: ShOrder) -> Result<(Btf, RttR
         format!("{} (RTT, {order})", btf.name()),
     )?;
     Ok((rtt, RttReport { projection_error, quadrature_error }))
+}
+
+/// Project one light segment `b` (`M` bins, RGB interleaved) onto the `n` SH coefficients
+/// (`out`, RGB interleaved): `out_i = sum_j b_j Y_ji`, in f64, rounded once. Returns the
+/// segment's `|beta|^2` and `|P_n beta|^2` (module docs).
+fn project_segment(b: &[f32], y: &[f64], n: usize, omega: f64, out: &mut [f32]) -> (f64, f64) {
+    let mut acc = vec![[0.0f64; 3]; n];
+    let mut beta2 = 0.0f64;
+    for (j, bj) in b.chunks_exact(3).enumerate() {
+        for c in 0..3 {
+            let v = bj[c] as f64;
+            beta2 += v * v / omega;
+            for i in 0..n {
+                acc[i][c] += v * y[j * n + i];
+            }
+        }
+    }
+    let proj2: f64 = acc.iter().flatten().map(|r| (r / omega).powi(2)).sum();
+    for (o, a) in out.chunks_exact_mut(3).zip(&acc) {
+        for c in 0..3 {
+            o[c] = a[c] as f32;
+        }
+    }
+    (beta2, proj2)
+}
+
+/// The RTT of a BTF in either representation: a dense table's is [`radiance_transfer_texture`];
+/// an LPCA BTF's is the LPCA BTF whose means and eigen-BRDFs are projected segment by segment
+/// ([`LpcaBtf::map_lights`]: the projection is linear, so this is exactly the RTT of the LPCA's
+/// table, and the weights and clusters are unchanged; Müller et al. 2004 project their
+/// eigen-BRDFs into SH the same way). The projection error is measured on the LPCA's own
+/// table, unit by unit, without decoding it whole.
+pub fn radiance_transfer(btf: &BtfRepresentation, order: ShOrder) -> Result<(BtfRepresentation, RttReport)> {
+    let lpca = match btf {
+        BtfRepresentation::Dense(b) => {
+            let (rtt, report) = radiance_transfer_texture(b, order)?;
+            return Ok((rtt.into(), report));
+        }
+        BtfRepresentation::Lpca(l) => l,
+    };
+    let grid = lpca.local_basis().grid().ok_or_else(|| {
+        CoreError::Invalid(format!(
+            "an RTT is projected from a BTF on bins, '{}' is on {}",
+            lpca.name(),
+            lpca.local_basis()
+        ))
+    })?;
+    let (m, n) = (grid.len(), order.len());
+    let y = bin_integrals(grid, order, BIN_CELLS);
+    let fine = bin_integrals(grid, order, 2 * BIN_CELLS);
+    let ymax = y.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+    let quadrature_error = y.iter().zip(&fine).fold(0.0f64, |a, (p, q)| a.max((p - q).abs())) / ymax.max(1e-300);
+    let omega = grid.bin_solid_angle();
+    let d = 3 * m * lpca.segments_per_unit();
+    let (beta2, proj2) = (0..lpca.units())
+        .into_par_iter()
+        .map(|u| {
+            let (mut row, mut out) = (vec![0.0f32; d], vec![0.0f32; 3 * n]);
+            lpca.decode_unit(u, &mut row);
+            row.chunks_exact(3 * m).fold((0.0, 0.0), |(a, b), seg| {
+                let (x, y) = project_segment(seg, &y, n, omega, &mut out);
+                (a + x, b + y)
+            })
+        })
+        .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+    let projection_error = if beta2 > 0.0 { (1.0 - proj2 / beta2).max(0.0).sqrt() } else { 0.0 };
+    let rtt = lpca.map_lights(LocalBasis::Sh(order), format!("{} (RTT, {order})", lpca.name()), |seg, out| {
+        project_segment(seg, &y, n, omega, out);
+    });
+    Ok((rtt.into(), RttReport { projection_error, quadrature_error }))
 }
 
 /// Largest relative deviation from the Lambertian shape accepted by [`lambertian_albedo`]

@@ -382,3 +382,42 @@ fn lambertian_tables_reduce_to_one_value_per_texel_and_others_do_not() {
     bent[5][1] *= 1.5;
     assert!(rtt::lambertian_albedo(&Btf::new([1, 1], bins, None, bent, "bent").unwrap()).is_none());
 }
+
+#[test]
+fn the_rtt_of_an_lpca_btf_is_the_rtt_of_its_table() {
+    use crate::basis::LocalBasis;
+    use crate::scene::{Btf, BtfRepresentation, LpcaBtf, LpcaSettings};
+    // A textured Phong patch: 6 texels, each the Phong table times a random factor plus
+    // random noise, so the LPCA below is lossy and has signed eigen-BRDFs.
+    let bins = LocalBasis::bins(4).unwrap();
+    let base = Btf::phong([0.4, 0.3, 0.2], [0.3, 0.3, 0.3], 20.0, bins, 3).unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let data = (0..6)
+        .flat_map(|_| {
+            let s: f32 = rng.gen_range(0.3..1.0);
+            base.data().iter().map(|v| v.map(|x| x * s + 0.05 * rng.gen_range(0.0..1.0f32))).collect::<Vec<_>>()
+        })
+        .collect();
+    let btf = Btf::new([3, 2], bins, base.view_grid(), data, "patch").unwrap();
+    let o = order(4);
+    for settings in [LpcaSettings::new(2, 2), LpcaSettings::new(3, 2).per_view()] {
+        let (l, _) = LpcaBtf::compress(&btf, &settings, 1).unwrap();
+        let (rtt, report) = rtt::radiance_transfer(&BtfRepresentation::Lpca(l.clone()), o).unwrap();
+        let BtfRepresentation::Lpca(rl) = &rtt else { panic!("the RTT of an LPCA BTF is an LPCA BTF") };
+        assert_eq!(
+            (rl.clusters(), rl.components(), rl.local_basis()),
+            (l.clusters(), l.components(), LocalBasis::Sh(o))
+        );
+        // Projection is linear: projecting the eigen-BRDFs and reconstructing equals
+        // reconstructing and projecting, up to f32 rounding of both orders (each value a sum of
+        // C + 1 reconstructed terms and 16 projected ones: ~20 u of the absolute terms, which
+        // are within a few times the value here).
+        let (want, want_report) = rtt::radiance_transfer_texture(&l.decode().unwrap(), o).unwrap();
+        let got = rtt.to_dense().unwrap();
+        let scale = want.data().iter().flatten().fold(0.0f32, |a, &b| a.max(b.abs())) as f64;
+        for (a, b) in got.data().iter().flatten().zip(want.data().iter().flatten()) {
+            assert!((*a as f64 - *b as f64).abs() <= 1e-5 * scale, "{a} vs {b}");
+        }
+        assert!((report.projection_error - want_report.projection_error).abs() < 1e-6, "{report:?} {want_report:?}");
+    }
+}

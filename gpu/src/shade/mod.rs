@@ -11,15 +11,19 @@
 //! product over the M light directions. Output: linear HDR RGB (rgba32float) and a coverage
 //! mask, row 0 at the top, pixel centres at +0.5.
 //!
-//! Several materials per scene (as `biscale_core::scene::ShadeScene`): every material's BTF table
-//! is appended to one storage buffer, a small storage buffer holds one [`GpuMaterialHeader`]
-//! per material (where its table starts, its patch size, its view grid, its tiling), and a
-//! per-triangle buffer holds material ids. Per pixel: the triangle's material, its header,
-//! the nearest texel of `uv * tiling` (wrapping, as `Btf::texel_of`), that material's own
-//! view weights (none for a view-independent one), dot with `L*`. All materials share the
-//! light grid (`L*` has one set of bins). A one-material scene may pass no ids: the id
-//! binding then holds a 4-byte placeholder and `ShadeParams::has_material_ids = 0`, so the
-//! shader never reads it and uses material 0.
+//! Several materials per scene (as `biscale_core::scene::ShadeScene`): every material's BTF
+//! floats (a dense table, or an LPCA BTF's means, eigen-BRDFs and weights) are appended to one
+//! storage buffer and the LPCA cluster ids to another; a small storage buffer holds one
+//! [`GpuMaterialHeader`] per material (its representation, where its data start, its patch
+//! size, its view grid, its tiling), and a per-triangle buffer holds material ids. Per pixel:
+//! the triangle's material, its header, the nearest texel of `uv * tiling` (wrapping, as
+//! `biscale_core::scene::btf::texel_of`), that material's own view weights (none for a
+//! view-independent one), each view sample resolved once (`btf_sample`) and evaluated per
+//! light bin (`btf_value`: the table entry, or the LPCA mean plus weighted eigen-BRDFs), dot
+//! with `L*`. LPCA values are uploaded dequantized (f32) whatever their stored quantization. All
+//! materials share the light grid (`L*` has one set of bins). A one-material scene may pass no
+//! ids: the id binding then holds a 4-byte placeholder and `ShadeParams::has_material_ids = 0`,
+//! so the shader never reads it and uses material 0.
 //!
 //! Inputs are core's shading vocabulary, as for the CPU shader
 //! (`biscale_shading::cpu::shade`): the [`ShadeScene`] (validated when it was built, so only
@@ -31,7 +35,7 @@ use crate::error::{GpuError, Result};
 use crate::gather::GpuGather;
 use crate::timing::{measure, PassTimer, Timing};
 use biscale_core::gather::LocalRadiance;
-use biscale_core::scene::{Camera, HdrImage, Render, ShadeScene};
+use biscale_core::scene::{BtfRepresentation, Camera, HdrImage, Render, ShadeScene};
 use glam::{DMat4, DVec3, DVec4, Vec3};
 use wgpu::util::DeviceExt;
 
@@ -137,12 +141,14 @@ pub struct GpuVertex {
 }
 const _: () = assert!(std::mem::size_of::<GpuVertex>() == 48);
 
-/// Where one material's table lies in the concatenated BTF buffer and how to index it
-/// (mirrors WGSL `MaterialHeader`, 32 bytes; checked by the layout test).
+/// Where one material's BTF lies in the concatenated buffers and how to evaluate it (mirrors
+/// WGSL `MaterialHeader`, 48 bytes; checked by the layout test). The representation
+/// (`kind`) selects the WGSL evaluation: a dense table, or a local-PCA form (means and
+/// eigen-BRDFs, per-unit weights and cluster ids).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct GpuMaterialHeader {
-    /// First RGB entry of the material's table in the concatenated buffer.
+    /// First float of the material's table (dense) or basis (LPCA) in the `btf` buffer.
     pub data_offset: u32,
     /// Patch width in texels.
     pub width: u32,
@@ -152,30 +158,91 @@ pub struct GpuMaterialHeader {
     pub view_m: u32,
     /// Patch repetitions per unit of uv.
     pub tiling: f32,
-    pub _pad: [u32; 3],
+    /// [`KIND_DENSE`] or [`KIND_LPCA`].
+    pub kind: u32,
+    /// LPCA: clusters `K` (an id `>= K` marks an all-zero unit).
+    pub clusters: u32,
+    /// LPCA: components `C` besides the mean.
+    pub components: u32,
+    /// LPCA: 1 when a unit is one (texel, view), 0 when it is a whole texel.
+    pub per_view: u32,
+    /// LPCA: first float of the weights (`C` per unit) in the `btf` buffer.
+    pub weights_offset: u32,
+    /// LPCA: first cluster id of the material in the `btf_ids` buffer.
+    pub ids_offset: u32,
+    pub _pad: u32,
 }
-const _: () = assert!(std::mem::size_of::<GpuMaterialHeader>() == 32);
+const _: () = assert!(std::mem::size_of::<GpuMaterialHeader>() == 48);
 
-/// The materials' headers (in scene order, tables back to back) and the total number of RGB
-/// entries.
-pub(crate) fn material_headers(scene: &ShadeScene) -> (Vec<GpuMaterialHeader>, u64) {
+/// `GpuMaterialHeader::kind` of a dense table.
+pub const KIND_DENSE: u32 = 0;
+/// `GpuMaterialHeader::kind` of a local-PCA BTF.
+pub const KIND_LPCA: u32 = 1;
+
+/// Every material's BTF as the shader reads it: the headers (in scene order), the floats of
+/// all tables and LPCA bases and weights back to back, and the LPCA cluster ids back to back.
+pub(crate) struct MaterialBuffers {
+    pub headers: Vec<GpuMaterialHeader>,
+    /// Floats the concatenation holds (it is built only after the size is checked).
+    pub floats: u64,
+    pub ids: u64,
+}
+
+/// The headers and sizes of the concatenated buffers ([`MaterialBuffers`]).
+pub(crate) fn material_headers(scene: &ShadeScene) -> MaterialBuffers {
     let mut headers = Vec::with_capacity(scene.materials().len());
-    let mut offset = 0u64;
+    let (mut floats, mut ids) = (0u64, 0u64);
+    // Offsets past 32 bits are refused by the caller with the total size; saturate until then.
+    let at = |x: u64| x.min(u32::MAX as u64) as u32;
     for mat in scene.materials() {
         let btf = &mat.btf;
         let [width, height] = btf.spatial();
-        // Offsets past 32 bits are refused by the caller with the total size; saturate until then.
-        headers.push(GpuMaterialHeader {
-            data_offset: offset.min(u32::MAX as u64) as u32,
+        let mut h = GpuMaterialHeader {
+            data_offset: at(floats),
             width,
             height,
             view_m: btf.view_grid().map_or(0, |g| g.m),
             tiling: mat.tiling,
-            _pad: [0; 3],
-        });
-        offset += btf.data().len() as u64;
+            ..Default::default()
+        };
+        match btf {
+            BtfRepresentation::Dense(b) => floats += b.data().len() as u64 * 3,
+            BtfRepresentation::Lpca(l) => {
+                floats += l.basis_values().len() as u64;
+                h.kind = KIND_LPCA;
+                h.clusters = l.clusters() as u32;
+                h.components = l.components() as u32;
+                h.per_view = u32::from(l.unit() == biscale_core::scene::LpcaUnit::View);
+                h.weights_offset = at(floats);
+                floats += l.weight_values().len() as u64;
+                h.ids_offset = at(ids);
+                ids += l.cluster_ids().len() as u64;
+            }
+        }
+        headers.push(h);
     }
-    (headers, offset)
+    MaterialBuffers { headers, floats, ids }
+}
+
+/// The concatenated floats and cluster ids of every material ([`MaterialBuffers`]); a
+/// placeholder id when no material is compressed (wgpu cannot bind an empty buffer).
+fn material_data(scene: &ShadeScene, sizes: &MaterialBuffers) -> (Vec<f32>, Vec<u32>) {
+    let mut floats = Vec::with_capacity(sizes.floats as usize);
+    let mut ids = Vec::with_capacity(sizes.ids.max(1) as usize);
+    for mat in scene.materials() {
+        match &mat.btf {
+            BtfRepresentation::Dense(b) => floats.extend_from_slice(bytemuck::cast_slice(b.data())),
+            BtfRepresentation::Lpca(l) => {
+                floats.extend_from_slice(l.basis_values());
+                floats.extend_from_slice(l.weight_values());
+                ids.extend(l.cluster_ids().iter().map(|&k| k as u32));
+            }
+        }
+    }
+    if ids.is_empty() {
+        ids.push(0);
+    }
+    (floats, ids)
 }
 
 /// The GPU shader for one mesh, its materials and an image size.
@@ -186,6 +253,7 @@ pub struct GpuShader {
     vertex_buf: wgpu::Buffer,
     index_buf: wgpu::Buffer,
     btf_buf: wgpu::Buffer,
+    btf_id_buf: wgpu::Buffer,
     material_buf: wgpu::Buffer,
     material_id_buf: wgpu::Buffer,
     vis_view: wgpu::TextureView,
@@ -216,16 +284,17 @@ impl GpuShader {
         let nv = mesh.vertex_count();
         let tri_count = mesh.triangle_count();
         let local_dirs = scene.local_basis().len() as u64;
-        let (headers, total_entries) = material_headers(scene);
+        let sizes = material_headers(scene);
         let materials = scene.materials();
         // The concatenated tables are one binding: refuse before building it.
-        let btf_bytes = total_entries.saturating_mul(std::mem::size_of::<[f32; 3]>() as u64);
-        let btf_label = format!("BTF tables of {} material(s), concatenated", materials.len());
+        let btf_bytes = sizes.floats.saturating_mul(4);
+        let btf_label = format!("BTF data of {} material(s), concatenated", materials.len());
         ctx.check_storage_size(&btf_label, btf_bytes)?;
-        if total_entries.saturating_mul(3) > u32::MAX as u64 {
+        ctx.check_storage_size("LPCA cluster ids, concatenated", sizes.ids.saturating_mul(4))?;
+        if sizes.floats > u32::MAX as u64 || sizes.ids > u32::MAX as u64 {
             return Err(GpuError::Input(format!(
-                "the concatenated BTF tables hold {} floats; the shader indexes them with 32 bits",
-                total_entries * 3
+                "the concatenated BTF data hold {} floats and {} cluster ids; the shader indexes them with 32 bits",
+                sizes.floats, sizes.ids
             )));
         }
         camera.validate().map_err(|e| GpuError::Input(e.to_string()))?;
@@ -282,17 +351,17 @@ impl GpuShader {
         )?;
         let index_buf =
             ctx.storage_buffer("triangle indices", bytemuck::cast_slice(&mesh.triangles), wgpu::BufferUsages::empty())?;
-        let btf_buf = if let [only] = materials {
-            ctx.storage_buffer(&btf_label, bytemuck::cast_slice(only.btf.data()), wgpu::BufferUsages::empty())?
-        } else {
-            let mut all = Vec::with_capacity(total_entries as usize);
-            for mat in materials {
-                all.extend_from_slice(mat.btf.data());
-            }
-            ctx.storage_buffer(&btf_label, bytemuck::cast_slice(&all), wgpu::BufferUsages::empty())?
-        };
+        let (floats, ids) = material_data(scene, &sizes);
+        let btf_buf = ctx.storage_buffer(&btf_label, bytemuck::cast_slice(&floats), wgpu::BufferUsages::empty())?;
+        let btf_id_buf = ctx.storage_buffer(
+            "LPCA cluster ids, concatenated",
+            bytemuck::cast_slice(&ids),
+            wgpu::BufferUsages::empty(),
+        )?;
+        drop((floats, ids));
+        let headers = sizes.headers;
         let material_buf = ctx.storage_buffer(
-            "material headers (32 bytes each)",
+            "material headers (48 bytes each)",
             bytemuck::cast_slice(&headers),
             wgpu::BufferUsages::empty(),
         )?;
@@ -419,6 +488,7 @@ impl GpuShader {
             vertex_buf,
             index_buf,
             btf_buf,
+            btf_id_buf,
             material_buf,
             material_id_buf,
             vis_view,
@@ -504,6 +574,7 @@ impl GpuShader {
                     wgpu::BindGroupEntry { binding: 6, resource: wgpu::BindingResource::TextureView(&self.image_view) },
                     wgpu::BindGroupEntry { binding: 7, resource: self.material_buf.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: 8, resource: self.material_id_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 9, resource: self.btf_id_buf.as_entire_binding() },
                 ],
             })
         })

@@ -10,14 +10,18 @@
 //
 // Materials: b is the BTF of the triangle's material (material_ids[tri], or material 0 when
 // params.has_material_ids = 0 and that binding is a placeholder), looked up at the nearest
-// texel of uv * tiling with its own view grid; every table lives in the one `btf` buffer at
-// its header's data_offset.
+// texel of uv * tiling with its own view grid. A material's header says how its BTF is
+// represented (biscale_core::scene::BtfRepresentation): a dense table, or local PCA (cluster
+// means and eigen-BRDFs, per-unit weights, per-unit cluster ids). Both are evaluated through
+// one interface: `btf_sample` resolves one view sample of a texel once per pixel, `btf_value`
+// gives its value for light bin j. All floats live in the one `btf` buffer, the LPCA ids in
+// `btf_ids`.
 
 // ShadeParams: see shade_params.wgsl, prepended by the host.
 
-// Mirror of the Rust `GpuMaterialHeader` (32 bytes; checked by the layout test).
+// Mirror of the Rust `GpuMaterialHeader` (48 bytes; checked by the layout test).
 struct MaterialHeader {
-    // First RGB entry of this material's table in `btf`.
+    // First float of this material's table (dense) or basis (LPCA) in `btf`.
     data_offset: u32,
     width: u32,
     height: u32,
@@ -25,9 +29,17 @@ struct MaterialHeader {
     view_m: u32,
     // Patch repetitions per unit of uv.
     tiling: f32,
+    // 0: dense table, 1: local PCA.
+    kind: u32,
+    // LPCA: clusters K (an id >= K is an all-zero unit) and components C besides the mean.
+    clusters: u32,
+    components: u32,
+    // LPCA: 1 when a unit is one (texel, view), 0 when it is a whole texel.
+    per_view: u32,
+    // LPCA: first float of the weights (C per unit) in `btf`, first id in `btf_ids`.
+    weights_offset: u32,
+    ids_offset: u32,
     pad0: u32,
-    pad1: u32,
-    pad2: u32,
 }
 
 // Mirror of the Rust `GpuVertex` (48 bytes).
@@ -45,14 +57,19 @@ struct Vertex {
 @group(0) @binding(2) var<storage, read> indices: array<u32>;
 // L*: (vertex * M + j) * 3 + channel (the gather's output buffer).
 @group(0) @binding(3) var<storage, read> lstar: array<f32>;
-// All materials' BTF tables back to back; one material's value is at
-// (data_offset + (texel * views + view) * M + j) * 3 + channel.
+// All materials' BTF floats back to back. Dense: value at
+// data_offset + ((texel * views + view) * M + j) * 3 + channel. LPCA: cluster k's vector c
+// (0 = mean) at data_offset + (k * (C + 1) + c) * D, D = 3 M (per view) or 3 views M (per
+// texel, view v's segment at v * 3 M); unit u's weights at weights_offset + u * C.
 @group(0) @binding(4) var<storage, read> btf: array<f32>;
 @group(0) @binding(5) var visibility: texture_2d<u32>;
 @group(0) @binding(6) var image: texture_storage_2d<rgba32float, write>;
 @group(0) @binding(7) var<storage, read> materials: array<MaterialHeader>;
 // One material id per triangle (validated on the host), or a 4-byte placeholder.
 @group(0) @binding(8) var<storage, read> material_ids: array<u32>;
+// LPCA cluster ids of every compressed material back to back (unit u at ids_offset + u), or
+// a 4-byte placeholder.
+@group(0) @binding(9) var<storage, read> btf_ids: array<u32>;
 
 // ---- pass 1: visibility ----
 
@@ -155,9 +172,58 @@ fn lstar_at(vertex: u32, j: u32) -> vec3<f32> {
     return vec3<f32>(lstar[k], lstar[k + 1u], lstar[k + 2u]);
 }
 
-fn btf_at(offset: u32, texel: u32, view: u32, views: u32, j: u32) -> vec3<f32> {
-    let k = (offset + (texel * views + view) * params.local_dirs + j) * 3u;
-    return vec3<f32>(btf[k], btf[k + 1u], btf[k + 2u]);
+// One view sample of one texel of a material, resolved once per pixel: where its values
+// start (`base`, a float index), where its LPCA weights start, and its bilinear weight (0 for
+// an all-zero LPCA unit).
+struct BtfSample {
+    base: u32,
+    weights: u32,
+    weight: f32,
+}
+
+fn btf_sample(mat: MaterialHeader, texel: u32, view: u32, views: u32, weight: f32) -> BtfSample {
+    var s: BtfSample;
+    s.weight = weight;
+    let m3 = params.local_dirs * 3u;
+    if mat.kind == 0u {
+        s.base = mat.data_offset + (texel * views + view) * m3;
+        s.weights = 0u;
+        return s;
+    }
+    // LpcaBtf::unit_of: the unit holding (texel, view) and the segment of its vector.
+    var unit = texel;
+    var segment = view;
+    var d = m3 * views;
+    if mat.per_view != 0u {
+        unit = texel * views + view;
+        segment = 0u;
+        d = m3;
+    }
+    let k = btf_ids[mat.ids_offset + unit];
+    if k >= mat.clusters {
+        s.weight = 0.0;
+        s.base = mat.data_offset;
+        s.weights = mat.weights_offset;
+        return s;
+    }
+    s.base = mat.data_offset + k * (mat.components + 1u) * d + segment * m3;
+    s.weights = mat.weights_offset + unit * mat.components;
+    return s;
+}
+
+// b(u, e_v, d_j) of one resolved sample: the table entry, or mean + sum_c w_c E_c (in f32,
+// as LpcaBtf::eval_into). `stride` is the LPCA vector length D.
+fn btf_value(mat: MaterialHeader, s: BtfSample, stride: u32, j: u32) -> vec3<f32> {
+    var k = s.base + j * 3u;
+    var b = vec3<f32>(btf[k], btf[k + 1u], btf[k + 2u]);
+    if mat.kind == 0u {
+        return b;
+    }
+    for (var c = 0u; c < mat.components; c++) {
+        k += stride;
+        b += btf[s.weights + c] * vec3<f32>(btf[k], btf[k + 1u], btf[k + 2u]);
+    }
+    return b;
 }
 
 // ---- pass 2: shading ----
@@ -263,12 +329,23 @@ fn shade_pixels(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
     }
 
+    var sample: array<BtfSample, 4>;
+    for (var s = 0u; s < samples; s++) {
+        sample[s] = btf_sample(mat, texel, view_idx[s], views, view_w[s]);
+    }
+    var stride = params.local_dirs * 3u * views;
+    if mat.per_view != 0u {
+        stride = params.local_dirs * 3u;
+    }
+
     var acc = vec3<f32>(0.0);
     for (var j = 0u; j < params.local_dirs; j++) {
         let l = b.x * lstar_at(i0, j) + b.y * lstar_at(i1, j) + b.z * lstar_at(i2, j);
         var bj = vec3<f32>(0.0);
         for (var s = 0u; s < samples; s++) {
-            bj += view_w[s] * btf_at(mat.data_offset, texel, view_idx[s], views, j);
+            if sample[s].weight != 0.0 {
+                bj += sample[s].weight * btf_value(mat, sample[s], stride, j);
+            }
         }
         acc += bj * l;
     }

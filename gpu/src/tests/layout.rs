@@ -71,9 +71,13 @@ fn material_header_layout_matches_wgsl() {
             ("height", offset_of!(H, height)),
             ("view_m", offset_of!(H, view_m)),
             ("tiling", offset_of!(H, tiling)),
+            ("kind", offset_of!(H, kind)),
+            ("clusters", offset_of!(H, clusters)),
+            ("components", offset_of!(H, components)),
+            ("per_view", offset_of!(H, per_view)),
+            ("weights_offset", offset_of!(H, weights_offset)),
+            ("ids_offset", offset_of!(H, ids_offset)),
             ("pad0", offset_of!(H, _pad)),
-            ("pad1", offset_of!(H, _pad) + 4),
-            ("pad2", offset_of!(H, _pad) + 8),
         ],
     );
 }

@@ -348,7 +348,12 @@ fn four_materials() -> Vec<Material> {
     let patch = Btf::new([3, 2], bins(8), base.view_grid(), texels, "patch").unwrap();
     let phong6 = Btf::phong([0.2, 0.3, 0.4], [0.5, 0.4, 0.3], 15.0, bins(8), 6).unwrap();
     let phong12 = Btf::phong([0.5, 0.3, 0.2], [0.3, 0.3, 0.3], 30.0, bins(8), 12).unwrap();
-    vec![Material::new(lambert), Material { btf: patch, tiling: 2.5 }, Material::new(phong6), Material::new(phong12)]
+    vec![
+        Material::new(lambert),
+        Material { btf: patch.into(), tiling: 2.5 },
+        Material::new(phong6),
+        Material::new(phong12),
+    ]
 }
 
 #[test]
@@ -486,7 +491,8 @@ fn one_material_with_or_without_ids_is_the_same_image() {
     // it is read. Same data, same kernel otherwise: bit-identical images.
     let ctx = gpu_or_skip!();
     let (mesh, frames) = plane();
-    let materials = [Material { btf: Btf::phong([0.4, 0.5, 0.6], [0.3; 3], 12.0, bins(4), 5).unwrap(), tiling: 1.5 }];
+    let materials =
+        [Material { btf: Btf::phong([0.4, 0.5, 0.6], [0.3; 3], 12.0, bins(4), 5).unwrap().into(), tiling: 1.5 }];
     let m = 16;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
     let values = (0..mesh.positions.len() * m).map(|_| [rng.gen(), rng.gen(), rng.gen()]).collect();
@@ -554,4 +560,47 @@ fn forced_timestamps_time_both_shading_passes() {
     let names: Vec<&str> = timing.passes.iter().map(|p| p.name.as_str()).collect();
     assert_eq!(names, ["visibility", "shade"]);
     assert!(timing.passes.iter().all(|p| p.median_ms.is_finite() && p.median_ms >= 0.0), "{timing:?}");
+}
+
+/// A `w x h` BTF of random values in [0.2, 1) (16 lights, `view_m^2` views).
+fn random_btf(w: u32, h: u32, view_m: u32, seed: u64) -> Btf {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let grid = HemisphereGrid::new(view_m);
+    let n = (w * h) as usize * grid.len() * 16;
+    let data = (0..n).map(|_| std::array::from_fn(|_| rng.gen_range(0.2..1.0f32))).collect();
+    Btf::new([w, h], bins(4), Some(grid), data, "random").unwrap()
+}
+
+#[test]
+fn lpca_btfs_match_the_cpu_lpca_evaluation() {
+    // The WGSL LPCA path (btf_sample / btf_value) against the CPU's direct evaluation
+    // (LpcaBtf::eval_into, f64 dot), per texel and per view, alone and next to a dense
+    // material. Differences: the f32 sums of the GPU, (M + 4 (C + 1)) u = 4e-6 of the absolute
+    // terms for M = 16, C <= 3, and f32 view coordinates, ~1e-5 of a view cell, against a
+    // random table that changes by up to its own size per cell. The reconstructed values
+    // stay near the table's (0.2..1), so the absolute terms are within a few times the pixel:
+    // 5e-5 of the pixel's largest channel covers both (measured on lavapipe: 5.1e-6); a wrong
+    // cluster, segment or weight is an O(1) error.
+    use biscale_core::scene::{LpcaBtf, LpcaSettings};
+    let ctx = gpu_or_skip!();
+    let mesh = shapes::cylindrical_uvs(&shapes::uv_sphere(Vec3::ZERO, 1.0, 12, 24));
+    let (frames, _) = vertex_frames(&mesh);
+    let btf = random_btf(4, 3, 3, 9);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(10);
+    let values = (0..mesh.positions.len() * 16).map(|_| [rng.gen(), rng.gen(), rng.gen()]).collect();
+    let lstar = lstar_of(bins(4), mesh.positions.len(), values);
+    let cam = camera(Vec3::new(0.5, 0.8, 3.2), 64, 48);
+    let phong = Btf::phong([0.3, 0.25, 0.2], [0.4, 0.5, 0.6], 20.0, bins(4), 5).unwrap();
+    let ids: Vec<u32> = (0..mesh.triangle_count() as u32).map(|t| (t / 7) % 2).collect();
+    for settings in [LpcaSettings::new(3, 2), LpcaSettings::new(4, 3).per_view()] {
+        let (l, _) = LpcaBtf::compress(&btf, &settings, 11).unwrap();
+        let one = [Material { btf: l.clone().into(), tiling: 2.0 }];
+        let mixed = [Material::new(phong.clone()), one[0].clone()];
+        for (materials, ids) in [(&one[..], None), (&mixed[..], Some(&ids[..]))] {
+            let cpu = shade(&scene(&mesh, &frames, materials, ids), &lstar, &cam).unwrap();
+            let gpu = gpu_shader(ctx, &mesh, &frames, materials, ids, cam).unwrap().shade_lstar(&lstar).unwrap();
+            let (mismatched, worst) = compare_with_cpu(&gpu, &cpu, 5e-5);
+            eprintln!("{settings:?}, {} material(s): {mismatched} mismatches, worst {worst:e}", materials.len());
+        }
+    }
 }

@@ -123,7 +123,7 @@ use biscale_core::gather::reference_product;
 use biscale_core::io::ContentHash;
 use biscale_core::scene::{Material, Render, ShadeScene};
 use biscale_core::sh::light::LIGHT_SUBTEXELS;
-use biscale_core::sh::rtt::{irradiance_btf, radiance_transfer_texture};
+use biscale_core::sh::rtt::{irradiance_btf, radiance_transfer};
 use biscale_core::sh::{clamped_cosine, ShOrder, ShProjection};
 use biscale_core::transfer::sh::{
     add_bounces, build_sh, irradiance_transfer, sh_from_transfer_vertices, ShTransferSettings,
@@ -308,7 +308,7 @@ fn bounce_albedo(scene: &ShadeScene) -> Vec<f32> {
         .materials()
         .iter()
         .map(|m| {
-            let btf = &m.btf;
+            let Ok(btf) = m.btf.to_dense() else { return 0.0 };
             let omega = btf.local_basis().grid().map_or(0.0, |g| g.bin_solid_angle());
             let groups = (btf.data().len() / btf.light_count().max(1)).max(1);
             let total: f64 = btf.data().iter().flatten().map(|&x| x as f64 * omega).sum();
@@ -361,20 +361,22 @@ fn method_materials(scene: &ShadeScene, order: ShOrder) -> Result<(Vec<Material>
     let diffuse: Option<Vec<Material>> = scene
         .materials()
         .iter()
-        .map(|m| Ok(irradiance_btf(&m.btf, order)?.map(|btf| Material { btf, tiling: m.tiling })))
+        .map(|m| {
+            Ok(irradiance_btf(&*m.btf.to_dense()?, order)?.map(|btf| Material { btf: btf.into(), tiling: m.tiling }))
+        })
         .collect::<Result<Option<Vec<_>>>>()?;
     if let Some(materials) = diffuse {
         // The only loss is the clamped cosine's truncation: |c - P_n c| / |c|, |c|^2 = 2 pi / 3.
         let c2: f64 = clamped_cosine(order).iter().map(|c| c * c).sum();
         let projection_error = (1.0 - c2 / (2.0 * std::f64::consts::PI / 3.0)).max(0.0).sqrt();
-        let bytes = materials.iter().map(|m| (m.btf.data().len() * 12) as u64).sum();
+        let bytes = materials.iter().map(|m| m.btf.bytes()).sum();
         return Ok((materials, RttRecord { bytes, projection_error, quadrature_error: 0.0 }, true));
     }
     let mut out = vec![];
     let mut rec = RttRecord { bytes: 0, projection_error: 0.0, quadrature_error: 0.0 };
     for m in scene.materials() {
-        let (btf, report) = radiance_transfer_texture(&m.btf, order)?;
-        rec.bytes += (btf.data().len() * 12) as u64;
+        let (btf, report) = radiance_transfer(&m.btf, order)?;
+        rec.bytes += btf.bytes();
         rec.projection_error = rec.projection_error.max(report.projection_error);
         rec.quadrature_error = rec.quadrature_error.max(report.quadrature_error);
         out.push(Material { btf, tiling: m.tiling });
