@@ -119,6 +119,14 @@ pub(crate) fn render_rows(
     Render { image, mask }
 }
 
+/// Only the primary rays and the interpolation of the hit points (every covered pixel white):
+/// the floor every CPU shade of `camera`'s view pays before any BTF is looked up, so timings
+/// can say what the BTF evaluation itself costs.
+pub fn trace_only(scene: &ShadeScene, camera: &Camera) -> Result<Render> {
+    camera.validate()?;
+    Ok(render_rows(scene, camera, &|| {}, &|_, _, _| [1.0; 3]))
+}
+
 /// Shade the mesh from per-vertex `L*` (rows `v * M + j`, see [`LocalRadiance`]).
 ///
 /// Errors when `L*` does not fit the scene ([`ShadeScene::check_lstar`]) or the camera cannot

@@ -266,13 +266,29 @@ pub struct BtfWritten {
     pub preview: Option<std::path::PathBuf>,
     pub origin: crate::materials::Origin,
     pub bytes: u64,
+    /// With `preview`, one sheet per compressed representation of the material: dense,
+    /// compressed and |error| side by side.
+    pub comparisons: Vec<Comparison>,
+}
+
+/// A written comparison sheet ([`biscale_shading::synth::comparison_sheet`]).
+pub struct Comparison {
+    pub path: std::path::PathBuf,
+    /// The representation's label.
+    pub representation: String,
+    /// How much brighter the error panel is drawn than the others.
+    pub error_gain: f32,
+    /// Relative RMS error of the whole table.
+    pub relative_rms_error: f64,
 }
 
 /// `biscale btf`: build the BTF of each material of `exp` (or only the one named `only`):
 /// synthesized ones are ray traced or taken from the cache; write each as `<out>/<label>.btf`
 /// (its configured encoding; f32 for analytic ones) and, with `preview`, a contact sheet
 /// `<out>/<label>_preview.png` (rows: views from overhead to grazing; columns: lights from
-/// overhead to grazing, from the +X side).
+/// overhead to grazing, from the +X side) and, for every compressed representation the entry
+/// lists, `<out>/<label>_<representation>_compare.png`: dense, compressed and |error| sheets
+/// side by side.
 pub fn btf(
     exp: &Experiment,
     out: &Path,
@@ -306,17 +322,34 @@ pub fn btf(
             label.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' }).collect();
         let path = out.join(format!("{stem}.btf"));
         save_btf(&btf, &path, encoding)?;
+        let lights = btf.local_basis().grid().map_or(vec![0], |g| sweep_bins(&g));
+        let views = btf.view_grid().as_ref().map_or(vec![0], sweep_bins);
+        let mut comparisons = vec![];
         let preview_path = if preview {
             let p = out.join(format!("{stem}_preview.png"));
-            let lights = btf.local_basis().grid().map_or(vec![0], |g| sweep_bins(&g));
-            let views = btf.view_grid().as_ref().map_or(vec![0], sweep_bins);
             save_contact_sheet(&btf, &lights, &views, &p)?;
+            for &repr in cfg.representations().all() {
+                if repr == crate::config::BtfRepresentation::Dense {
+                    continue;
+                }
+                let (r, record) = crate::materials::represent(&btf, repr, exp.file.seed, cache.as_ref(), &label)?;
+                let decoded = r.to_dense()?;
+                let (img, error_gain) = biscale_shading::synth::comparison_sheet(&btf, &decoded, &lights, &views)?;
+                let path = out.join(format!("{stem}_{}_compare.png", record.representation));
+                biscale_core::scene::image::write_rgb8_png(&img, &path)?;
+                comparisons.push(Comparison {
+                    path,
+                    representation: record.representation,
+                    error_gain,
+                    relative_rms_error: record.relative_rms_error,
+                });
+            }
             Some(p)
         } else {
             None
         };
         let bytes = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
-        written.push(BtfWritten { label, path, preview: preview_path, origin, bytes });
+        written.push(BtfWritten { label, path, preview: preview_path, origin, bytes, comparisons });
     }
     Ok(written)
 }

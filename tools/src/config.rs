@@ -109,7 +109,7 @@ pub enum MaterialConfig {
         #[serde(default = "default_tiling")]
         tiling: f32,
         #[serde(default)]
-        representation: BtfRepresentation,
+        representation: Representations,
     },
     /// Normalized modified Phong, view-dependent (`view_grid` x `view_grid` view samples).
     Phong {
@@ -123,7 +123,7 @@ pub enum MaterialConfig {
         #[serde(default = "default_tiling")]
         tiling: f32,
         #[serde(default)]
-        representation: BtfRepresentation,
+        representation: Representations,
     },
     /// A BTF ray traced from a tileable height-field patch (`biscale_shading::synth`),
     /// generated on demand and cached by content.
@@ -173,9 +173,10 @@ pub struct SynthesizedConfig {
     pub encoding: String,
     /// The meso-scale BRDF.
     pub brdf: BrdfConfig,
-    /// How the table is held for shading: `dense` (default) or `lpca`.
+    /// How the table is held for shading: `dense` (default) or `lpca`; a list compares
+    /// several (the first is the one every compressor is shaded with).
     #[serde(default)]
-    pub representation: BtfRepresentation,
+    pub representation: Representations,
 }
 
 /// How a material's BTF is represented for shading (`representation = { kind = "lpca", ... }`).
@@ -201,6 +202,63 @@ pub enum BtfRepresentation {
         #[serde(default)]
         quantize: LpcaQuantizeConfig,
     },
+}
+
+/// One representation or a list of them (`representation = { .. }` or `[{ .. }, { .. }]`):
+/// the first is the material's own (every compressor and method is shaded with it), the others
+/// are compared with it in the BTF study of the run. Never empty.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct Representations(Vec<BtfRepresentation>);
+
+impl Default for Representations {
+    fn default() -> Self {
+        Self(vec![BtfRepresentation::Dense])
+    }
+}
+
+impl From<BtfRepresentation> for Representations {
+    fn from(r: BtfRepresentation) -> Self {
+        Self(vec![r])
+    }
+}
+
+impl Representations {
+    /// The material's own representation (the first).
+    pub fn primary(&self) -> BtfRepresentation {
+        self.0[0]
+    }
+
+    pub fn all(&self) -> &[BtfRepresentation] {
+        &self.0
+    }
+}
+
+impl<'de> Deserialize<'de> for Representations {
+    /// A table or an array of tables; each keeps serde's own messages (unknown keys, bad
+    /// kinds) with their position.
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl<'de> serde::de::Visitor<'de> for Visitor {
+            type Value = Representations;
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("a representation table or a non-empty array of them")
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(self, map: A) -> Result<Self::Value, A::Error> {
+                BtfRepresentation::deserialize(serde::de::value::MapAccessDeserializer::new(map)).map(Into::into)
+            }
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
+                let mut all = vec![];
+                while let Some(r) = seq.next_element::<BtfRepresentation>()? {
+                    all.push(r);
+                }
+                if all.is_empty() {
+                    return Err(serde::de::Error::invalid_length(0, &self));
+                }
+                Ok(Representations(all))
+            }
+        }
+        d.deserialize_any(Visitor)
+    }
 }
 
 /// The config form of `biscale_core::scene::LpcaQuantize`.
@@ -299,7 +357,7 @@ impl Default for MaterialConfig {
             name: None,
             albedo: [0.8, 0.8, 0.8],
             tiling: 1.0,
-            representation: BtfRepresentation::Dense,
+            representation: Representations::default(),
         }
     }
 }
@@ -313,14 +371,18 @@ impl MaterialConfig {
         }
     }
 
-    /// Patch repetitions per unit of texture coordinate.
-    /// How the entry's BTF is represented for shading.
+    /// How the entry's BTF is represented for shading (the first of its list).
     pub fn representation(&self) -> BtfRepresentation {
+        self.representations().primary()
+    }
+
+    /// Every representation the entry lists (the first is its own).
+    pub fn representations(&self) -> &Representations {
         match self {
             MaterialConfig::Lambertian { representation, .. } | MaterialConfig::Phong { representation, .. } => {
-                *representation
+                representation
             }
-            MaterialConfig::Synthesized(s) => s.representation,
+            MaterialConfig::Synthesized(s) => &s.representation,
         }
     }
 
@@ -358,12 +420,18 @@ fn check_material(m: &MaterialConfig) -> Result<(), String> {
             return Err("name must not be empty".into());
         }
     }
-    if let BtfRepresentation::Lpca { clusters, components, .. } = m.representation() {
-        if clusters == 0 || clusters > u16::MAX as usize - 1 {
-            return Err(format!("lpca clusters = {clusters} must be in 1..=65534"));
+    let all = m.representations().all();
+    for (i, r) in all.iter().enumerate() {
+        if let BtfRepresentation::Lpca { clusters, components, .. } = *r {
+            if clusters == 0 || clusters > u16::MAX as usize - 1 {
+                return Err(format!("lpca clusters = {clusters} must be in 1..=65534"));
+            }
+            if components == 0 {
+                return Err("lpca components must be at least 1".into());
+            }
         }
-        if components == 0 {
-            return Err("lpca components must be at least 1".into());
+        if all[..i].contains(r) {
+            return Err(format!("representation {} is listed twice", r.label()));
         }
     }
     match m {
@@ -952,6 +1020,25 @@ mod tests {
         let e = parse(&body("{ kind = \"lpca\", components = 0 }")).unwrap_err();
         assert!(e.message.contains("components must be at least 1"), "{e}");
         let e = parse(&body("{ kind = \"lpca\", cluster = 3 }")).unwrap_err();
+        assert!(e.message.contains("unknown field `cluster`"), "{e}");
+    }
+
+    #[test]
+    fn a_representation_list_sweeps_and_its_first_is_the_materials_own() {
+        let body = |r: &str| {
+            format!("{OK}[scene.material]\nkind = \"lambertian\"\nalbedo = [0.5, 0.5, 0.5]\nrepresentation = {r}\n")
+        };
+        let e = parse(&body("[{ kind = \"lpca\", clusters = 2 }, { kind = \"dense\" }]")).unwrap();
+        let m = &e.materials()[0];
+        let labels: Vec<String> = m.representations().all().iter().map(|r| r.label()).collect();
+        assert_eq!(labels, ["lpca-k2-c4", "dense"]);
+        assert_eq!(m.representation().label(), "lpca-k2-c4");
+        let e = parse(&body("[]")).unwrap_err();
+        assert!(e.message.contains("non-empty array"), "{e}");
+        let e = parse(&body("[{ kind = \"dense\" }, { kind = \"dense\" }]")).unwrap_err();
+        assert!(e.message.contains("representation dense is listed twice"), "{e}");
+        // An entry of the list keeps serde's own message.
+        let e = parse(&body("[{ kind = \"lpca\", cluster = 3 }]")).unwrap_err();
         assert!(e.message.contains("unknown field `cluster`"), "{e}");
     }
 

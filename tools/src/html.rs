@@ -74,7 +74,16 @@ pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, Stri
         for row in &b.rows {
             let _ = write!(s, "<tr>{}</tr>", cells("td", row));
         }
-        let _ = write!(s, "</table><p>{}</p>", escape(&b.total));
+        let _ = write!(s, "</table><p>{}</p><div class=\"grid\">", escape(&b.total));
+        for (png, caption) in &b.figures {
+            let _ = write!(
+                s,
+                "<figure>{}<figcaption>{}</figcaption></figure>",
+                img(out_dir, png, caption),
+                escape(caption)
+            );
+        }
+        let _ = write!(s, "</div>");
     }
     let (header, rows) = crate::report::compressor_table(m);
     let header: Vec<String> = header.iter().map(|h| h.to_string()).collect();

@@ -10,6 +10,7 @@
 //! let (out_dir, metrics) = biscale::pipeline::run(&exp, &Default::default()).unwrap();
 //! ```
 
+pub mod btf_study;
 pub mod cache;
 pub mod commands;
 pub mod compare;

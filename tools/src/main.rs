@@ -90,7 +90,8 @@ enum Command {
         /// Folder for the .btf files (and previews).
         #[arg(long, default_value = "out/btf")]
         out: PathBuf,
-        /// Also write a contact sheet PNG per material (the patch under several lights and views).
+        /// Also write a contact sheet PNG per material (the patch under several lights and views)
+        /// and, per compressed representation, dense | compressed | |error| sheets side by side.
         #[arg(long)]
         preview: bool,
         /// Do not read or write the BTF cache.
@@ -195,6 +196,16 @@ fn main() -> anyhow::Result<()> {
                 println!("{}: wrote {} ({:.2} MB, {how})", w.label, w.path.display(), w.bytes as f64 / 1e6);
                 if let Some(p) = &w.preview {
                     println!("{}: wrote {}", w.label, p.display());
+                }
+                for c in &w.comparisons {
+                    println!(
+                        "{}: wrote {} (dense | {} | |error| x{:.1}; table rel. RMS error {:.2}%)",
+                        w.label,
+                        c.path.display(),
+                        c.representation,
+                        c.error_gain,
+                        100.0 * c.relative_rms_error
+                    );
                 }
             }
         }

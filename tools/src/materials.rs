@@ -49,8 +49,51 @@ pub struct SceneMaterials {
     pub labels: Vec<String>,
     /// What was left out or repaired, one line each (printed with the plan, kept in the report).
     pub notes: Vec<String>,
-    /// How each material's BTF is represented, with its storage and error.
+    /// Every representation of every material, with its storage and error: each material's own
+    /// first, then the other settings its entry lists (`variants` says which is which).
     pub btfs: Vec<crate::metrics::BtfRecord>,
+    /// One per record of `btfs`: its material and, for a setting other than the material's
+    /// own, the representation.
+    pub variants: Vec<BtfVariant>,
+    /// The dense table of each material whose own representation is compressed (the BTF
+    /// study's all-dense image needs it); `None` where the material is dense.
+    pub dense: Vec<Option<Btf>>,
+}
+
+/// One representation of one material (a record of [`SceneMaterials::btfs`]).
+pub struct BtfVariant {
+    /// Index into [`SceneMaterials::materials`].
+    pub material: usize,
+    /// `None`: the material's own (in `materials`); else another setting of its entry.
+    pub representation: Option<biscale_core::scene::BtfRepresentation>,
+}
+
+impl SceneMaterials {
+    /// Whether any material has a setting other than dense (then the run makes a BTF study).
+    pub fn has_compressed(&self) -> bool {
+        self.btfs.iter().any(|b| b.representation != "dense")
+    }
+
+    /// The materials with every BTF dense.
+    pub fn all_dense(&self) -> Vec<Material> {
+        self.materials
+            .iter()
+            .zip(&self.dense)
+            .map(|(m, d)| match d {
+                Some(btf) => Material { btf: btf.clone().into(), tiling: m.tiling },
+                None => m.clone(),
+            })
+            .collect()
+    }
+
+    /// The materials with every BTF dense except material `variant.material`, which has the
+    /// variant's representation.
+    pub fn with_variant(&self, variant: &BtfVariant) -> Vec<Material> {
+        let mut all = self.all_dense();
+        let i = variant.material;
+        all[i].btf = variant.representation.clone().unwrap_or_else(|| self.materials[i].btf.clone());
+        all
+    }
 }
 
 impl SceneMaterials {
@@ -143,8 +186,7 @@ pub fn synth_key(cfg: &SynthesizedConfig, local_basis: LocalBasis) -> Result<u64
     h.write_str(&local_basis.tag());
     // The label, tiling and representation are not part of the table's meaning: hash the
     // entry without them.
-    let unnamed =
-        SynthesizedConfig { name: None, tiling: 1.0, representation: BtfRepresentation::Dense, ..cfg.clone() };
+    let unnamed = SynthesizedConfig { name: None, tiling: 1.0, representation: Default::default(), ..cfg.clone() };
     h.write(format!("{unnamed:?}").as_bytes());
     for p in [&cfg.height_map, &cfg.albedo_map].into_iter().flatten() {
         let bytes = std::fs::read(p).map_err(|source| PipelineError::Io { path: p.clone(), source })?;
@@ -276,7 +318,7 @@ pub fn load_materials(
         _ => (0..configs.len()).map(|c| c == 0).collect(),
     };
     let mut compact = vec![u32::MAX; configs.len()];
-    let (mut materials, mut labels, mut btfs) = (vec![], vec![], vec![]);
+    let (mut materials, mut labels, mut btfs, mut variants, mut dense) = (vec![], vec![], vec![], vec![], vec![]);
     for (c, cfg) in configs.iter().enumerate() {
         let label = cfg.label();
         if !used[c] {
@@ -308,10 +350,27 @@ pub fn load_materials(
                 "material {label}: the mesh has no texture coordinates, so every point shows texel 0 of the patch"
             ));
         }
-        let (btf, record) = represent(&btf, cfg.representation(), exp.file.seed, cache, &label)?;
-        btfs.push(record);
-        compact[c] = materials.len() as u32;
-        materials.push(Material { btf, tiling: cfg.tiling() });
+        let index = materials.len();
+        let mut own = None;
+        for (i, &repr) in cfg.representations().all().iter().enumerate() {
+            let (r, mut record) = represent(&btf, repr, exp.file.seed, cache, &label)?;
+            record.primary = i == 0;
+            btfs.push(record);
+            match i {
+                0 => {
+                    variants.push(BtfVariant { material: index, representation: None });
+                    own = Some(r);
+                }
+                _ => variants.push(BtfVariant { material: index, representation: Some(r) }),
+            }
+        }
+        let own = own.expect("a representation list is never empty");
+        compact[c] = index as u32;
+        dense.push(match own {
+            biscale_core::scene::BtfRepresentation::Dense(_) => None,
+            _ => Some(btf),
+        });
+        materials.push(Material { btf: own, tiling: cfg.tiling() });
         labels.push(label);
     }
     let triangle_materials = match (&of_name, &mesh.materials) {
@@ -323,13 +382,13 @@ pub fn load_materials(
             None
         }
     };
-    Ok(SceneMaterials { materials, triangle_materials, labels, notes, btfs })
+    Ok(SceneMaterials { materials, triangle_materials, labels, notes, btfs, variants, dense })
 }
 
 /// `btf` in the representation `repr`: dense as it is, or compressed by local PCA (cached by
 /// content), which every shader then evaluates from its eigen-BRDFs. The record says what it
 /// costs and loses.
-fn represent(
+pub(crate) fn represent(
     btf: &Btf,
     repr: BtfRepresentation,
     seed: u64,
@@ -345,6 +404,8 @@ fn represent(
         compression_ratio: 1.0,
         relative_rms_error: 0.0,
         build_seconds: 0.0,
+        primary: false,
+        study: None,
     };
     let BtfRepresentation::Lpca { clusters, components, unit, quantize } = repr else {
         return Ok((btf.clone().into(), record));

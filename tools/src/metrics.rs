@@ -91,18 +91,24 @@ pub struct SceneMetrics {
     pub material: String,
     /// What the material stage left out or repaired (one line each).
     pub material_notes: Vec<String>,
-    /// Bytes of the BTF tables at f32 (the all-frequency method's meso-scale data).
+    /// Bytes of the materials' dense BTF tables at f32 (the all-frequency method's meso-scale
+    /// data before any BTF compression).
     pub btf_bytes: u64,
-    /// Each material's BTF representation, its storage and error.
+    /// Every representation of every material: its storage and error (and its BTF study).
     pub btfs: Vec<BtfRecord>,
 }
 
-/// One material's BTF representation (`representation` in its config entry).
+/// One representation of one material's BTF (`representation` in its config entry): what it
+/// stores and loses, and (in the BTF study, when any setting is compressed) what it changes in
+/// the image and costs to shade.
 #[derive(Clone, Debug, Serialize)]
 pub struct BtfRecord {
     pub material: String,
-    /// `dense` or `lpca-k<clusters>-c<components>`.
+    /// `dense` or `lpca-k<clusters>-c<components>[-view][-f16|-u8]`.
     pub representation: String,
+    /// The material's own representation (the first listed; every compressor and method is
+    /// shaded with it), else another setting compared in the BTF study.
+    pub primary: bool,
     /// The dense table at f32.
     pub dense_bytes: u64,
     /// What the representation stores.
@@ -112,6 +118,45 @@ pub struct BtfRecord {
     /// `||B - B~||_F / ||B||_F` of the table (0 for dense).
     pub relative_rms_error: f64,
     pub build_seconds: f64,
+    /// The BTF study (absent when every setting of the run is dense).
+    pub study: Option<BtfStudyRecord>,
+}
+
+/// One BTF setting shaded with the uncompressed `L*` (every other material dense).
+#[derive(Clone, Debug, Serialize)]
+pub struct BtfStudyRecord {
+    /// Against the same scene with every BTF dense: the BTF part of the error.
+    pub vs_dense: ImageErrors,
+    /// Against the ray-traced reference, when it was traced.
+    pub vs_reference: Option<ImageErrors>,
+    /// Median CPU shade time (ms) of the image, and of the all-dense image in the same run.
+    pub shade_ms: f64,
+    pub dense_shade_ms: f64,
+    /// Median time of the primary rays and the background alone (the floor of every CPU shade
+    /// of the view): the BTF evaluation costs `shade_ms - rays_ms`.
+    pub rays_ms: f64,
+    /// Precomputed per-vertex dot products for the fixed light, when the setting is
+    /// compressed and the table fits ([`biscale_shading::precomputed`]).
+    pub precomputed: Option<PrecomputedRecord>,
+    /// Why the precomputed path was not measured, if it was not.
+    pub precomputed_note: Option<String>,
+    pub png: String,
+    /// False-colour error against the all-dense image, and its full scale.
+    pub error_png: String,
+    pub error_scale: f32,
+}
+
+/// The fixed-light fast path of an LPCA setting.
+#[derive(Clone, Debug, Serialize)]
+pub struct PrecomputedRecord {
+    /// The dot-product tables.
+    pub bytes: u64,
+    /// Computing them once for the light (ms).
+    pub precompute_ms: f64,
+    /// Median shade time from them (ms), per frame while the light stays.
+    pub shade_ms: f64,
+    /// Relative L2 difference from the direct evaluation's image (rounding only).
+    pub vs_direct: f64,
 }
 
 #[derive(Debug, Serialize)]

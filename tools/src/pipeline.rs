@@ -531,7 +531,7 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
         eprintln!("warning: {w}");
     }
     let t = transfer_matrix(exp, &geometry, cache.as_ref())?;
-    let (scene, materials) = shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
+    let (scene, mut materials) = shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
     for n in &materials.notes {
         eprintln!("materials: {n}");
     }
@@ -548,6 +548,16 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
         }
         false => None,
     };
+
+    let study = crate::btf_study::StudyInputs {
+        view: &view,
+        lstar: &base.lstar,
+        reference: reference.as_ref(),
+        repeats,
+        exposure,
+        out_dir: &out_dir,
+    };
+    materials.btfs = crate::btf_study::run(&materials, &study)?;
 
     let mut gpu = match exp.file.runtime.backend {
         Backend::Gpu => Some(GpuBackend::new(&scene, &view.camera)?),
@@ -623,7 +633,7 @@ impl Metrics {
                 repairs: geometry.repairs.clone(),
                 material: materials.summary(),
                 material_notes: materials.notes.clone(),
-                btf_bytes: materials.btfs.iter().map(|b| b.dense_bytes).sum(),
+                btf_bytes: materials.btfs.iter().filter(|b| b.primary).map(|b| b.dense_bytes).sum(),
                 btfs: materials.btfs.clone(),
             },
             lighting: LightingMetrics {
@@ -706,6 +716,30 @@ fn write_plots(m: &Metrics, out_dir: &Path) -> Vec<(String, String)> {
             "relative L2 image error vs all-frequency"
         };
         plot("image_error_vs_storage", "image error against transfer storage", "storage (MB)", y_label, &series);
+    }
+    // BTF storage against the image error it adds (vs the all-dense image), one series per
+    // material; dense settings sit at error 0 (drawn at the plot's floor).
+    let mut by_material: std::collections::BTreeMap<&str, Vec<(f64, f64)>> = Default::default();
+    for b in &m.scene.btfs {
+        if let Some(st) = &b.study {
+            by_material.entry(&b.material).or_default().push((b.bytes as f64 / 1e6, st.vs_dense.rel_l2));
+        }
+    }
+    if by_material.values().map(Vec::len).sum::<usize>() >= 2 {
+        let series: Vec<crate::plots::Series> = by_material
+            .into_iter()
+            .map(|(name, mut points)| {
+                points.sort_by(|a, b| a.0.total_cmp(&b.0));
+                crate::plots::Series { name: name.to_string(), points }
+            })
+            .collect();
+        plot(
+            "btf_error_vs_storage",
+            "image error against BTF storage",
+            "BTF storage (MB)",
+            "relative L2 image error vs dense BTFs",
+            &series,
+        );
     }
     out
 }

@@ -81,11 +81,26 @@ impl Plan {
                     )
                 }
             }
-            if let crate::config::BtfRepresentation::Lpca { clusters, components, .. } = m.representation() {
+            let all = m.representations().all();
+            for (i, r) in all.iter().enumerate() {
+                if let crate::config::BtfRepresentation::Lpca { clusters, components, .. } = *r {
+                    let role = if i == 0 { "evaluated directly by every shader" } else { "compared in the BTF study" };
+                    step(
+                        "btf",
+                        format!(
+                            "{label}: local-PCA compression {} ({clusters} clusters x {components} eigen-BRDFs, cached by content); {role}",
+                            r.label()
+                        ),
+                        Action::Run,
+                    );
+                }
+            }
+            if all.iter().any(|r| *r != crate::config::BtfRepresentation::Dense) {
                 step(
                     "btf",
                     format!(
-                        "{label}: local-PCA compression ({clusters} clusters x {components} eigen-BRDFs, cached by content); shaded from its reconstruction"
+                        "{label}: BTF study of {} setting(s): image error against dense BTFs and the reference, shade time, precomputed dot products",
+                        all.len()
                     ),
                     Action::Run,
                 );

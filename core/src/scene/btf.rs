@@ -273,15 +273,15 @@ impl Btf {
             return;
         }
         out.fill([0.0; 3]);
+        // Flat f32 runs (RGB interleaved on both sides), so the loop vectorizes.
+        let flat: &mut [f32] = bytemuck::cast_slice_mut(out);
         for (v, w) in weights {
             if w == 0.0 {
                 continue;
             }
-            let row = &self.data[(base + v) * m..(base + v + 1) * m];
-            for (o, b) in out.iter_mut().zip(row) {
-                for c in 0..3 {
-                    o[c] += w * b[c];
-                }
+            let row: &[f32] = bytemuck::cast_slice(&self.data[(base + v) * m..(base + v + 1) * m]);
+            for (o, b) in flat.iter_mut().zip(row) {
+                *o += w * b;
             }
         }
     }

@@ -610,13 +610,13 @@ impl LpcaBtf {
                 continue;
             }
             let w = &self.weights[u * c..(u + 1) * c];
+            // Flat f32 runs (RGB interleaved on both sides), so the loop vectorizes.
+            let flat: &mut [f32] = bytemuck::cast_slice_mut(out);
             for j in 0..=c {
                 let a = wv * if j == 0 { 1.0 } else { w[j - 1] };
                 let seg = &self.basis[(k * (c + 1) + j) * d + offset..][..3 * m];
-                for (o, e) in out.iter_mut().zip(seg.chunks_exact(3)) {
-                    o[0] += a * e[0];
-                    o[1] += a * e[1];
-                    o[2] += a * e[2];
+                for (o, e) in flat.iter_mut().zip(seg) {
+                    *o += a * e;
                 }
             }
         }

@@ -74,7 +74,7 @@ pub use file::{
 };
 pub use generate::{synthesize, BtfSpec};
 pub use heightfield::{AlbedoMap, HeightField, Pattern, Recipe};
-pub use preview::{contact_sheet, save_contact_sheet};
+pub use preview::{comparison_sheet, contact_sheet, save_contact_sheet};
 
 #[cfg(test)]
 mod tests;

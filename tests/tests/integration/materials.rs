@@ -220,11 +220,38 @@ fn lpca_btfs_render_like_the_dense_table_at_full_rank_and_report_their_cost() {
     // Both reports list the BTF's storage.
     let md = std::fs::read_to_string(low_out.join("report.md")).unwrap();
     let html = std::fs::read_to_string(low_out.join("report.html")).unwrap();
-    assert!(md.contains("| synthesized | lpca-k1-c1 |") && md.contains("All BTFs:"), "{md}");
+    assert!(md.contains("| synthesized | lpca-k1-c1 | yes |") && md.contains("The materials' own BTFs:"), "{md}");
     assert!(
         html.contains("<h3>BTFs</h3>") && html.contains("<td>lpca-k1-c1</td>"),
         "BTF table missing from report.html"
     );
+
+    // A list sweeps: the first setting is the material's own (its images are those of the
+    // `low` run above), every setting gets a study row. The study compares each setting's
+    // image with the all-dense one: the same numbers as the separate runs above.
+    let sweep_out = dir.path().join("sweep");
+    let sweep = "representation = [{ kind = \"lpca\", clusters = 1, components = 1 }, \
+                 { kind = \"lpca\", clusters = 2, components = 15 }, { kind = \"dense\" }]";
+    let m = run_in(&config("sweep", sweep), &sweep_out);
+    let labels: Vec<(&str, bool)> = m.scene.btfs.iter().map(|b| (b.representation.as_str(), b.primary)).collect();
+    assert_eq!(labels, [("lpca-k1-c1", true), ("lpca-k2-c15", false), ("dense", false)]);
+    let e_sweep = rel(&image(&sweep_out), &dense);
+    assert!((e_sweep - e).abs() <= 1e-9 + 1e-6 * e, "the own setting shades every image: {e_sweep} vs {e}");
+    let study: Vec<_> = m.scene.btfs.iter().map(|b| b.study.clone().unwrap()).collect();
+    // Masked (covered pixels) against all pixels of a black background: the same sums.
+    assert!((study[0].vs_dense.rel_l2 - e).abs() <= 1e-6 * e, "{} vs {e}", study[0].vs_dense.rel_l2);
+    assert!(study[1].vs_dense.rel_l2 < 1e-5 && study[2].vs_dense.rel_l2 == 0.0, "{study:?}");
+    // The fixed-light fast path gives the direct image up to f32 rounding of its dot products.
+    for st in &study[..2] {
+        let p = st.precomputed.as_ref().expect("a small table is measured");
+        assert!(p.vs_direct < 1e-5 && p.bytes > 0, "{p:?}");
+    }
+    assert!(study[2].precomputed.is_none() && study[2].precomputed_note.is_some());
+    assert!(sweep_out.join("btf_error_vs_storage.png").exists() && sweep_out.join(&study[1].error_png).exists());
+    let md = std::fs::read_to_string(sweep_out.join("report.md")).unwrap();
+    assert!(md.contains("| synthesized | lpca-k2-c15 | study |"), "{md}");
+    // Total bytes count the material's own setting only.
+    assert_eq!(m.scene.btf_bytes, m.scene.btfs[0].dense_bytes);
 
     let bad = config("bad", "representation = { kind = \"lpca\", clusters = 20, components = 2 }");
     let exp = Experiment::load(&bad).unwrap();

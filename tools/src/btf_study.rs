@@ -1,0 +1,174 @@
+//! The BTF study of a run: every BTF setting of every material shaded with the uncompressed
+//! `L*`, against the same scene with every BTF dense (the part of the error the BTF
+//! representation adds) and against the ray-traced reference, with its CPU shade time and,
+//! for compressed settings, the fixed-light fast path of precomputed per-vertex dot products
+//! (`biscale_shading::precomputed`). It runs when any material lists a compressed setting;
+//! each setting changes one material and leaves the others dense, so a row is that material's
+//! own effect.
+
+use crate::materials::SceneMaterials;
+use crate::metrics::{BtfRecord, BtfStudyRecord, ImageErrors, PrecomputedRecord};
+use crate::pipeline::{timed, Reference, Result, View};
+use biscale_core::gather::LocalRadiance;
+use biscale_core::scene::{BtfRepresentation, Render, ShadeScene};
+use biscale_shading::image::compare;
+use biscale_shading::precomputed::{shade_precomputed, LightDots};
+use std::path::Path;
+
+/// Largest precomputed dot-product table the study builds (1 GiB); a larger one is recorded
+/// as not measured, with its size.
+pub const MAX_PRECOMPUTED_BYTES: u64 = 1 << 30;
+
+fn errors(m: &biscale_shading::image::ImageMetrics) -> ImageErrors {
+    ImageErrors { rmse: m.rmse, psnr: m.psnr, rel_l2: m.rel_l2 }
+}
+
+/// What the study shades with: the run's view (camera, background), the uncompressed `L*`,
+/// the reference, where images go.
+pub(crate) struct StudyInputs<'a> {
+    pub view: &'a View<'a>,
+    pub lstar: &'a LocalRadiance,
+    pub reference: Option<&'a Reference>,
+    pub repeats: usize,
+    pub exposure: f32,
+    pub out_dir: &'a Path,
+}
+
+/// Fill in the `study` of every record of `materials.btfs` (none when every setting is dense).
+pub(crate) fn run(materials: &SceneMaterials, inp: &StudyInputs<'_>) -> Result<Vec<BtfRecord>> {
+    let mut records = materials.btfs.clone();
+    if !materials.has_compressed() {
+        return Ok(records);
+    }
+    let base = inp.view.scene;
+    let scene_of = |m| {
+        ShadeScene::new(base.mesh().clone(), base.frames().to_vec(), m, base.triangle_materials().map(<[u32]>::to_vec))
+    };
+    let background = |r: Render, camera| r.with_background(camera, &inp.view.background);
+    let shade = |scene: &ShadeScene, camera| -> Result<Render> {
+        Ok(background(biscale_shading::cpu::shade(scene, inp.lstar, camera)?, camera))
+    };
+    let camera = &inp.view.camera;
+    let dense_scene = scene_of(materials.all_dense())?;
+    let scenes: Vec<ShadeScene> = materials
+        .variants
+        .iter()
+        .map(|v| scene_of(materials.with_variant(v)))
+        .collect::<std::result::Result<_, _>>()?;
+    // The precomputed dot products of every compressed setting whose table fits.
+    let mut dots = vec![];
+    let mut notes = vec![];
+    for (scene, variant) in scenes.iter().zip(&materials.variants) {
+        let compressed = !matches!(scene.materials()[variant.material].btf, BtfRepresentation::Dense(_));
+        let need = LightDots::bytes_needed(scene);
+        let (d, note) = match (compressed, need <= MAX_PRECOMPUTED_BYTES) {
+            (false, _) => (None, Some("dense: nothing to precompute".to_string())),
+            (true, false) => (
+                None,
+                Some(format!(
+                    "not measured: the dot products would take {:.0} MB (limit {:.0} MB); per-view units need V times less",
+                    need as f64 * 1e-6,
+                    MAX_PRECOMPUTED_BYTES as f64 * 1e-6
+                )),
+            ),
+            (true, true) => {
+                let (d, ms) = timed(1, || Ok(LightDots::new(scene, inp.lstar, MAX_PRECOMPUTED_BYTES)?))?;
+                (Some((d, ms)), None)
+            }
+        };
+        dots.push(d);
+        notes.push(note);
+    }
+    // Every image of the study, timed in interleaved rounds (so that load changes during the
+    // run touch every setting alike): the primary rays and background alone, the all-dense
+    // scene, each setting directly, and each precomputed setting.
+    let mut jobs: Vec<Box<dyn Fn() -> Result<Render> + '_>> = vec![
+        Box::new(|| Ok(background(biscale_shading::cpu::trace_only(&dense_scene, camera)?, camera))),
+        Box::new(|| shade(&dense_scene, camera)),
+    ];
+    for scene in &scenes {
+        jobs.push(Box::new(move || shade(scene, camera)));
+    }
+    for (scene, d) in scenes.iter().zip(&dots) {
+        if let Some((d, _)) = d {
+            jobs.push(Box::new(move || Ok(background(shade_precomputed(scene, d, inp.lstar, camera)?, camera))));
+        }
+    }
+    let rounds = inp.repeats.max(1);
+    let mut samples = vec![vec![]; jobs.len()];
+    let mut last: Vec<Option<Render>> = (0..jobs.len()).map(|_| None).collect();
+    for _ in 0..rounds {
+        for (i, job) in jobs.iter().enumerate() {
+            let start = std::time::Instant::now();
+            last[i] = Some(job()?);
+            samples[i].push(start.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    let ms: Vec<f64> = samples.iter().map(|s| biscale_core::stats::median(s)).collect();
+    let mut renders = last.into_iter().map(|r| r.expect("every job ran"));
+    let (_, dense) = (renders.next(), renders.next().expect("the dense job"));
+    let (rays_ms, dense_ms) = (ms[0], ms[1]);
+    eprintln!(
+        "btf study ({rounds} interleaved rounds): all-dense image {dense_ms:.1} ms, of which {rays_ms:.1} ms primary rays and background"
+    );
+    let direct: Vec<Render> = renders.by_ref().take(scenes.len()).collect();
+    let mut pre_ms = ms[2 + scenes.len()..].iter();
+    let mut pre_renders = renders;
+    let images = inp.out_dir.join("images");
+    for (i, record) in records.iter_mut().enumerate() {
+        let (scene, render, shade_ms) = (&scenes[i], &direct[i], ms[2 + i]);
+        let vs_dense = errors(&compare(&render.image, &dense.image, Some(&dense.mask))?);
+        let vs_reference = match inp.reference {
+            Some(r) => {
+                let small = shade(scene, &r.camera)?;
+                Some(errors(&compare(&small.image, &r.render.image, Some(&r.render.mask))?))
+            }
+            None => None,
+        };
+        let precomputed = match &dots[i] {
+            Some((d, precompute_ms)) => {
+                let img = pre_renders.next().expect("a precomputed render per table");
+                let vs_direct = compare(&img.image, &render.image, Some(&render.mask))?.rel_l2;
+                let shade_ms = *pre_ms.next().expect("a time per precomputed render");
+                Some(PrecomputedRecord { bytes: d.bytes(), precompute_ms: *precompute_ms, shade_ms, vs_direct })
+            }
+            None => None,
+        };
+        let stem = format!("btf-{}-{}", record.material, record.representation).replace([':', ' ', '/'], "-");
+        let png = format!("images/{stem}.png");
+        render.image.write_png(&images.join(format!("{stem}.png")), inp.exposure)?;
+        let error_png = format!("images/{stem}_error.png");
+        let error_scale = biscale_shading::image::write_error_image(
+            &render.image,
+            &dense.image,
+            None,
+            &inp.out_dir.join(&error_png),
+        )?;
+        eprintln!(
+            "btf study: {} {}: image vs dense rel. L2 {:.2e}{}, shade {shade_ms:.1} ms (dense {dense_ms:.1} ms){}",
+            record.material,
+            record.representation,
+            vs_dense.rel_l2,
+            vs_reference.as_ref().map_or(String::new(), |e| format!(", vs reference {:.2e}", e.rel_l2)),
+            precomputed.as_ref().map_or(String::new(), |p| format!(
+                ", precomputed {:.1} ms per frame after {:.0} ms ({:.1} MB)",
+                p.shade_ms,
+                p.precompute_ms,
+                p.bytes as f64 * 1e-6
+            )),
+        );
+        record.study = Some(BtfStudyRecord {
+            vs_dense,
+            vs_reference,
+            shade_ms,
+            dense_shade_ms: dense_ms,
+            rays_ms,
+            precomputed,
+            precomputed_note: notes[i].take(),
+            png,
+            error_png,
+            error_scale,
+        });
+    }
+    Ok(records)
+}
