@@ -56,6 +56,31 @@ pub struct ShRecord {
     /// True when every material is Lambertian, so the method ran as shadowed diffuse PRT (a
     /// transfer vector per vertex instead of a matrix, no per-pixel BTF lookup).
     pub diffuse: bool,
+    /// With LPCA materials (Müller et al. 2004): the runtime of precomputed dot products and
+    /// of fewer components while the light moves.
+    pub lpca: Option<ShLpcaRecord>,
+}
+
+/// An SH setting with LPCA BTFs: `B = sum_v w_v sum_c a_c (E_kc(e_v) . M_p l)`, the dot
+/// products recomputed per vertex whenever the light changes.
+#[derive(Debug, Serialize)]
+pub struct ShLpcaRecord {
+    /// What a light change costs: the gather `M_p l` and the dot products (median ms).
+    pub relight_ms: f64,
+    /// Per frame from the dot products, and how far that is from the direct evaluation.
+    pub precomputed: PrecomputedRecord,
+    /// Each number of components per cluster from 1 up: relight and shade time, and the image
+    /// error against all components (what dropping components during rotation costs).
+    pub adaptive: Vec<AdaptiveRecord>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct AdaptiveRecord {
+    pub components: usize,
+    pub relight_ms: f64,
+    pub shade_ms: f64,
+    /// Relative L2 against the image with every component.
+    pub vs_all_components: f64,
 }
 
 #[derive(Debug, Serialize)]

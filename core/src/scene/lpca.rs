@@ -436,6 +436,40 @@ impl LpcaBtf {
         }
     }
 
+    /// This BTF with only its first `components` eigen-BRDFs per cluster (the largest: each
+    /// cluster's components are in decreasing order of variance), the cheaper evaluation the
+    /// runtime can switch to while the light moves (Müller et al. 2004 drop components during
+    /// rotation). Errors unless `1 <= components <= self.components()`.
+    pub fn truncated(&self, components: usize) -> Result<Self> {
+        let c = self.components;
+        if components == 0 || components > c {
+            return Err(CoreError::Invalid(format!(
+                "BTF '{}': keep 1..={c} of its lpca components, not {components}",
+                self.name
+            )));
+        }
+        let d = self.unit_values();
+        let mut basis = Vec::with_capacity(self.clusters * (components + 1) * d);
+        for k in 0..self.clusters {
+            basis.extend_from_slice(&self.basis[k * (c + 1) * d..(k * (c + 1) + components + 1) * d]);
+        }
+        let weights = self.weights.chunks_exact(c.max(1)).flat_map(|w| w[..components].iter().copied()).collect();
+        Ok(Self {
+            spatial: self.spatial,
+            local_basis: self.local_basis,
+            view_grid: self.view_grid,
+            name: format!("{} (first {components} of {c} components)", self.name),
+            unit: self.unit,
+            clusters: self.clusters,
+            components,
+            basis,
+            cluster: self.cluster.clone(),
+            weights,
+            quantize: self.quantize,
+            scales: self.scales,
+        })
+    }
+
     /// The values of `unit` (a texel's table or a texel's view, RGB interleaved), reconstructed
     /// in f64 and rounded once.
     ///

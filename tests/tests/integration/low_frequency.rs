@@ -172,3 +172,51 @@ fn sh_settings_are_recorded_reported_and_cached() {
         assert_eq!((a.record.bytes, a.record.rel_error_lstar), (b.record.bytes, b.record.rel_error_lstar));
     }
 }
+
+/// Müller et al.'s system: an LPCA BTF lit by SH. Its radiance transfer texture is the LPCA
+/// with projected eigen-BRDFs (`biscale_core::sh::rtt::radiance_transfer`), so at full rank
+/// (16 units of one cluster span 15 centred directions) the SH image is the dense BTF's to
+/// f32 rounding (1e-5: the reconstruction's own error, see the all-frequency LPCA test). The
+/// run also shades from per-vertex dot products (the same image to rounding) and with fewer
+/// components, whose error vanishes at all of them and grows as they are dropped.
+#[test]
+fn an_lpca_btf_lit_by_sh_matches_the_dense_one_at_full_rank() {
+    let dir = tempfile::tempdir().unwrap();
+    write_obj(
+        &dir.path().join("m.obj"),
+        &shapes::merged(&[shapes::grid_plane(6, 6.0), shapes::uv_sphere(Vec3::Y, 1.0, 10, 20)]),
+    );
+    let cfg = |name: &str, repr: &str| {
+        write_config(
+            dir.path(),
+            name,
+            &format!(
+                "name = \"{name}\"\n[scene]\nmesh = \"m.obj\"\n[scene.material]\nkind = \"phong\"\nkd = [0.4, 0.35, 0.3]\nks = [0.3, 0.3, 0.3]\nexponent = 30.0\nview_grid = 4\n{repr}\n\
+                 [lighting]\nconstant = [0.3, 0.35, 0.4]\nsun_boost = 1000.0\n[transfer]\ncubemap_resolution = 8\nvisibility_resolution = 16\nlocal_grid = 4\n\
+                 [[compressors]]\nkind = \"sparse\"\n[[methods]]\nkind = \"sh\"\norder = 3\nrays = 256\n\
+                 [runtime]\nwidth = 48\nheight = 36\nrepeats = 1\n[report]\nbackground = false\n"
+            ),
+        )
+    };
+    let dense_out = dir.path().join("dense");
+    let dense = run_in(&cfg("dense", ""), &dense_out);
+    assert!(dense.methods[0].sh.as_ref().unwrap().lpca.is_none(), "no LPCA material, no LPCA runtime");
+    let lpca_out = dir.path().join("lpca");
+    let repr = "representation = { kind = \"lpca\", clusters = 1, components = 15, unit = \"view\" }";
+    let m = run_in(&cfg("lpca", repr), &lpca_out);
+    let image = |out: &std::path::Path| HdrImage::read_exr(&out.join("images/sh-n3-r256.exr")).unwrap().0;
+    let (a, b) = (image(&lpca_out), image(&dense_out));
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for (x, y) in a.pixels.iter().flatten().zip(b.pixels.iter().flatten()) {
+        num += (*x as f64 - *y as f64).powi(2);
+        den += (*y as f64).powi(2);
+    }
+    assert!(den > 0.0 && (num / den).sqrt() < 1e-5, "SH with full-rank LPCA vs dense: {:e}", (num / den).sqrt());
+    let sh = m.methods[0].sh.as_ref().unwrap();
+    let l = sh.lpca.as_ref().expect("an LPCA material gets the LPCA runtime");
+    assert!(l.precomputed.vs_direct < 1e-5 && l.relight_ms >= 0.0, "{:?}", l.precomputed);
+    let counts: Vec<usize> = l.adaptive.iter().map(|a| a.components).collect();
+    assert_eq!(counts, (1..=15).collect::<Vec<_>>());
+    assert_eq!(l.adaptive[14].vs_all_components, 0.0);
+    assert!(l.adaptive[0].vs_all_components > 1e-3, "one of 15 components must lose something: {:?}", l.adaptive[0]);
+}

@@ -115,8 +115,8 @@ use crate::cache::StageCache;
 use crate::config::{Experiment, MethodSetting, Setting};
 use crate::metrics::{MethodRecord, RttRecord, ShRecord, ShTransferRecord};
 use crate::pipeline::{
-    build_compressor, compressed_form, Evaluation, Geometry, GpuBackend, Lighting, PipelineError, Reference, Result,
-    Transfer, View,
+    build_compressor, compressed_form, timed, Evaluation, Geometry, GpuBackend, Lighting, PipelineError, Reference,
+    Result, Transfer, View,
 };
 use crate::util::progress_bar;
 use biscale_core::gather::reference_product;
@@ -129,6 +129,7 @@ use biscale_core::transfer::sh::{
     add_bounces, build_sh, irradiance_transfer, sh_from_transfer_vertices, ShTransferSettings,
 };
 use biscale_core::transfer::TransferMatrix;
+use biscale_shading::image::compare;
 
 /// Every `FROM_T_STRIDE`-th vertex is projected from `T` to check the agreement of the methods.
 pub const FROM_T_STRIDE: usize = 8;
@@ -462,6 +463,7 @@ pub(crate) fn evaluate(
         transfer.from_t_difference,
         100.0 * negative_pixels
     );
+    let lpca = lpca_runtime(&sh_scene, compressor.as_ref(), &form, &light, &view, &render, inp.repeats, label)?;
     let sh = ShRecord {
         order: p.order,
         rays: settings.rays(),
@@ -472,6 +474,101 @@ pub(crate) fn evaluate(
         rtt,
         negative_pixels,
         diffuse,
+        lpca,
     };
     Ok(MethodRecord { record, sh: Some(sh) })
+}
+
+/// Müller et al.'s runtime for a scene with LPCA BTFs lit by SH: per light, gather `M_p l` and
+/// take its dot products with every eigen-BRDF's SH projection per vertex
+/// (`biscale_shading::precomputed`; this equals the paper's eq. 3 table of
+/// `lambda(view, BTF cluster, matrix cluster, component)` contracted with each vertex's CPCA
+/// weights, and is smaller here because a vertex needs only its own matrix), then shade from
+/// them; and the same with fewer components per cluster (the paper drops components while the
+/// light rotates). `None` without LPCA materials or when the tables do not fit.
+#[allow(clippy::too_many_arguments)]
+fn lpca_runtime(
+    scene: &ShadeScene,
+    compressor: &dyn biscale_core::compress::Compressor,
+    form: &biscale_core::compress::CompressedForm,
+    light: &biscale_core::sampling::LightVector,
+    view: &View<'_>,
+    direct: &biscale_core::scene::Render,
+    repeats: usize,
+    label: &str,
+) -> Result<Option<crate::metrics::ShLpcaRecord>> {
+    use biscale_core::scene::BtfRepresentation;
+    use biscale_shading::precomputed::{shade_precomputed, LightDots};
+    let most = scene
+        .materials()
+        .iter()
+        .filter_map(|m| match &m.btf {
+            BtfRepresentation::Lpca(l) => Some(l.components()),
+            BtfRepresentation::Dense(_) => None,
+        })
+        .max();
+    let Some(most) = most else { return Ok(None) };
+    let limit = crate::btf_study::MAX_PRECOMPUTED_BYTES;
+    if LightDots::bytes_needed(scene) > limit {
+        eprintln!("{label}: LPCA dot products over {} MB, not measured", limit >> 20);
+        return Ok(None);
+    }
+    let cerr = |source| PipelineError::Compress { name: label.to_string(), source };
+    let camera = &view.camera;
+    // One scene per component count (1..most; `most` is the scene itself).
+    let truncated = |n: usize| -> Result<ShadeScene> {
+        let materials = scene
+            .materials()
+            .iter()
+            .map(|m| match &m.btf {
+                BtfRepresentation::Lpca(l) if l.components() > n => {
+                    Ok(biscale_core::scene::Material { btf: l.truncated(n)?.into(), tiling: m.tiling })
+                }
+                _ => Ok(m.clone()),
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(ShadeScene::new(
+            scene.mesh().clone(),
+            scene.frames().to_vec(),
+            materials,
+            scene.triangle_materials().map(<[u32]>::to_vec),
+        )?)
+    };
+    let mut runs = vec![];
+    for n in (1..=most).rev() {
+        let s = if n == most { None } else { Some(truncated(n)?) };
+        let s = s.as_ref().unwrap_or(scene);
+        let ((lstar, dots), relight_ms) = timed(repeats, || {
+            let lstar = compressor.gather(form, light).map_err(cerr)?;
+            let dots = LightDots::new(s, &lstar, limit)?;
+            Ok((lstar, dots))
+        })?;
+        let (render, shade_ms) = timed(repeats, || {
+            Ok(shade_precomputed(s, &dots, &lstar, camera)?.with_background(camera, &view.background))
+        })?;
+        runs.push((n, relight_ms, shade_ms, render, dots.bytes()));
+    }
+    let (_, relight_ms, shade_ms, full, bytes) = &runs[0];
+    let vs_direct = compare(&full.image, &direct.image, Some(&direct.mask))?.rel_l2;
+    let precomputed =
+        crate::metrics::PrecomputedRecord { bytes: *bytes, precompute_ms: *relight_ms, shade_ms: *shade_ms, vs_direct };
+    let mut adaptive = vec![];
+    for (n, relight_ms, shade_ms, render, _) in runs.iter().rev() {
+        let vs_all_components = compare(&render.image, &full.image, Some(&full.mask))?.rel_l2;
+        adaptive.push(crate::metrics::AdaptiveRecord {
+            components: *n,
+            relight_ms: *relight_ms,
+            shade_ms: *shade_ms,
+            vs_all_components,
+        });
+    }
+    eprintln!(
+        "{label}: LPCA lit by SH from precomputed dot products: relight {relight_ms:.1} ms, shade {shade_ms:.1} ms, vs direct {vs_direct:.1e}; fewer components: {}",
+        adaptive
+            .iter()
+            .map(|a| format!("{} ({:.1} + {:.1} ms, {:.2}%)", a.components, a.relight_ms, a.shade_ms, 100.0 * a.vs_all_components))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    Ok(Some(crate::metrics::ShLpcaRecord { relight_ms: *relight_ms, precomputed, adaptive }))
 }

@@ -209,3 +209,24 @@ fn quantization_errors_are_bounded_by_their_scales() {
     let back = LpcaBtf::from_artifact(q8.to_artifact()).unwrap();
     assert_eq!(back, q8);
 }
+
+#[test]
+fn truncation_keeps_the_leading_components_and_their_error_grows_as_they_go() {
+    let btf = mixture_btf(6, 5, 5, 3, 2);
+    let (l, _) = LpcaBtf::compress(&btf, &LpcaSettings::new(2, 5), 3).unwrap();
+    // All components: the same BTF.
+    let all = l.truncated(5).unwrap();
+    assert_eq!(all.decode().unwrap().data(), l.decode().unwrap().data());
+    // Fewer: an error that does not shrink as components go (they are in decreasing order of
+    // variance, so the first c span the best c-dimensional fit the clustering found).
+    let errors: Vec<f64> = (1..=5).map(|c| l.truncated(c).unwrap().table_error(&btf).0).collect();
+    assert!(errors.windows(2).all(|w| w[0] >= w[1] - 1e-9), "{errors:?}");
+    assert!(errors[0] > 10.0 * errors[4].max(1e-7), "{errors:?}");
+    // Exactly the first c: weights and vectors are the leading ones.
+    let t = l.truncated(2).unwrap();
+    for u in 0..l.units() {
+        assert_eq!(t.unit_weights(u), &l.unit_weights(u)[..2]);
+    }
+    assert_eq!(t.segment(1, 2, 0), l.segment(1, 2, 0));
+    assert!(l.truncated(0).is_err() && l.truncated(6).is_err());
+}
