@@ -442,6 +442,47 @@ fn files_round_trip_and_corruption_is_an_error_naming_the_file() {
 }
 
 #[test]
+fn comparison_sheets_put_dense_compressed_and_error_side_by_side() {
+    use crate::synth::comparison_sheet;
+    let hf = HeightField::procedural(&Recipe::new(Pattern::Bricks, 0.05, 4, 1), 32).unwrap();
+    let btf = synthesize(&spec(hf, LAMBERT, 8, 4, Some(3)), None).unwrap();
+    let (lights, views) = ([0usize, 5, 15], [4usize, 0]);
+    let dense = contact_sheet(&btf, &lights, &views).unwrap();
+    // A compressed table off by a known amount in one texel: the left panel is the dense sheet,
+    // the middle one differs only there, the error panel is black elsewhere and white at the
+    // largest error; the gain is the dense peak over that error.
+    let mut data = btf.data().to_vec();
+    let (texel, bump) = (9usize, 0.01f32);
+    for v in 0..9 {
+        for j in 0..16 {
+            data[(texel * 9 + v) * 16 + j][1] += bump;
+        }
+    }
+    let other = Btf::new(btf.spatial(), btf.local_basis(), btf.view_grid(), data, "off").unwrap();
+    let (img, gain) = comparison_sheet(&btf, &other, &lights, &views).unwrap();
+    let (w, h) = dense.dimensions();
+    assert_eq!(img.dimensions(), (3 * w + 16, h));
+    for y in 0..h {
+        for x in 0..w {
+            assert_eq!(img.get_pixel(x, y), dense.get_pixel(x, y));
+        }
+    }
+    let peak = btf.data().iter().enumerate().filter(|(i, _)| {
+        let (v, j) = ((i / 16) % 9, i % 16);
+        views.contains(&v) && lights.contains(&j)
+    });
+    let peak = peak.flat_map(|(_, p)| *p).fold(0.0f32, f32::max);
+    assert!((gain - peak / bump).abs() <= 1e-3 * gain, "{gain} vs {}", peak / bump);
+    // Texel 9 is (1, 1): at 4x, pixel (5, 5) of each tile; texel 0 at (1, 1).
+    let err_x0 = 2 * (w + 8);
+    assert_eq!(img.get_pixel(err_x0 + 5, 5).0, [0, 255, 0], "the bumped texel's green error is the panel's white");
+    assert_eq!(img.get_pixel(err_x0 + 1, 1).0, [0, 0, 0], "no error elsewhere");
+    assert_ne!(img.get_pixel(w + 8 + 5, 5), dense.get_pixel(5, 5), "the middle panel shows the compressed table");
+    let small = Btf::lambertian([0.5; 3], btf.local_basis()).unwrap();
+    assert!(comparison_sheet(&btf, &small, &lights, &views).is_err(), "different shapes");
+}
+
+#[test]
 fn contact_sheets_lay_tiles_out_with_gaps() {
     let hf = HeightField::procedural(&Recipe::new(Pattern::Bricks, 0.05, 4, 1), 32).unwrap();
     let btf = synthesize(&spec(hf, LAMBERT, 8, 4, Some(3)), None).unwrap();

@@ -252,6 +252,16 @@ fn lpca_btfs_render_like_the_dense_table_at_full_rank_and_report_their_cost() {
     assert!(md.contains("| synthesized | lpca-k2-c15 | study |"), "{md}");
     // Total bytes count the material's own setting only.
     assert_eq!(m.scene.btf_bytes, m.scene.btfs[0].dense_bytes);
+    // `biscale btf --preview` writes a dense | compressed | error sheet per compressed setting.
+    let exp = Experiment::load(&sweep_out.parent().unwrap().join("sweep.toml")).unwrap();
+    let opts = RunOptions { out_dir: None, cache_dir: Some(sweep_out.join("cache")), no_cache: false };
+    let written = biscale::commands::btf(&exp, &dir.path().join("btf"), None, true, &opts).unwrap();
+    let sheets: Vec<&str> = written[0].comparisons.iter().map(|c| c.representation.as_str()).collect();
+    assert_eq!(sheets, ["lpca-k1-c1", "lpca-k2-c15"]);
+    for c in &written[0].comparisons {
+        assert!(c.path.is_file() && c.error_gain > 0.0, "{}", c.path.display());
+    }
+    assert!((written[0].comparisons[0].relative_rms_error - m.scene.btfs[0].relative_rms_error).abs() < 1e-12);
 
     let bad = config("bad", "representation = { kind = \"lpca\", clusters = 20, components = 2 }");
     let exp = Experiment::load(&bad).unwrap();
