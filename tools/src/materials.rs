@@ -415,12 +415,15 @@ pub(crate) fn represent(
         LpcaUnitConfig::Texel => LpcaSettings::new(clusters, components),
         LpcaUnitConfig::View => LpcaSettings::new(clusters, components).per_view(),
     };
-    let settings = settings.quantized(match quantize {
+    let q = match quantize {
         LpcaQuantizeConfig::F32 => LpcaQuantize::F32,
         LpcaQuantizeConfig::F16 => LpcaQuantize::F16,
         LpcaQuantizeConfig::U8 => LpcaQuantize::U8,
-    });
-    let path = cache.map(|c| c.lpca_path(lpca_key(btf, &settings, seed), &repr.label()));
+    };
+    // One f32 fit per setting serves every storage width (cached under the f32 label);
+    // quantizing it is cheap.
+    let f32_label = BtfRepresentation::Lpca { clusters, components, unit, quantize: LpcaQuantizeConfig::F32 }.label();
+    let path = cache.map(|c| c.lpca_path(lpca_key(btf, &settings, seed), &f32_label));
     let cached = match (cache, &path) {
         (Some(c), Some(p)) => c.get(
             p,
@@ -442,6 +445,7 @@ pub(crate) fn represent(
             (l, report.seconds, format!("in {:.1} s", report.seconds))
         }
     };
+    let lpca = if q == LpcaQuantize::F32 { lpca } else { lpca.quantized(q).map_err(|e| err(e.into()))? };
     record.bytes = lpca.bytes();
     record.compression_ratio = dense_bytes as f64 / lpca.bytes().max(1) as f64;
     record.relative_rms_error = lpca.table_error(btf).0;

@@ -262,6 +262,22 @@ impl LpcaBtf {
         }
     }
 
+    /// This f32 BTF with its basis and weights stored as `q` (the same rounding as
+    /// [`Self::compress`] with that quantization: one fit serves every storage width). Errors
+    /// when it is already quantized (rounding twice would compound).
+    pub fn quantized(&self, q: LpcaQuantize) -> Result<Self> {
+        if self.quantize != LpcaQuantize::F32 {
+            return Err(CoreError::Invalid(format!(
+                "BTF '{}' is stored as {}; quantize its f32 form",
+                self.name,
+                self.quantize.name()
+            )));
+        }
+        let mut out = self.clone();
+        out.quantize(q, self.unit_values());
+        Ok(out)
+    }
+
     /// Whether `btf` has this BTF's patch size, light basis and view grid.
     pub fn fits(&self, btf: &Btf) -> bool {
         self.spatial == btf.spatial() && self.local_basis == btf.local_basis() && self.view_grid == btf.view_grid()

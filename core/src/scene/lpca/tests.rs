@@ -182,8 +182,12 @@ fn quantization_errors_are_bounded_by_their_scales() {
     let (exact, r32) = LpcaBtf::compress(&btf, &s, 2).unwrap();
     let (q8, r8) = LpcaBtf::compress(&btf, &s.quantized(LpcaQuantize::U8), 2).unwrap();
     let (q16, r16) = LpcaBtf::compress(&btf, &s.quantized(LpcaQuantize::F16), 2).unwrap();
-    // The same build (deterministic for a seed), then rounded.
+    // The same build (deterministic for a seed), then rounded: what quantizing the f32 fit
+    // afterwards gives, bit for bit (the pipeline caches one fit for every width).
     assert_eq!(q8.cluster, exact.cluster);
+    assert_eq!(exact.quantized(LpcaQuantize::U8).unwrap(), q8);
+    assert_eq!(exact.quantized(LpcaQuantize::F16).unwrap(), q16);
+    assert!(q8.quantized(LpcaQuantize::F16).is_err(), "no second rounding");
     let d = 3 * btf.view_count() * btf.light_count();
     let c = exact.components;
     let [sm, sc, sf, sr] = q8.scales;
