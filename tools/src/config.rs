@@ -201,6 +201,10 @@ pub enum BtfRepresentation {
         /// with four category scales).
         #[serde(default)]
         quantize: LpcaQuantizeConfig,
+        /// Assignment/refit rounds of the build, at most (default 6; more rounds lower the
+        /// error a little and cost proportionally more).
+        #[serde(default = "default_lpca_iterations")]
+        iterations: usize,
     },
 }
 
@@ -286,14 +290,20 @@ fn default_lpca_clusters() -> usize {
 fn default_lpca_components() -> usize {
     4
 }
+fn default_lpca_iterations() -> usize {
+    biscale_core::scene::DEFAULT_LPCA_ITERATIONS
+}
 
 impl BtfRepresentation {
     /// The label in messages and metrics: `dense`, `lpca-k16-c4`.
     pub fn label(&self) -> String {
         match self {
             Self::Dense => "dense".into(),
-            Self::Lpca { clusters, components, unit, quantize } => {
+            Self::Lpca { clusters, components, unit, quantize, iterations } => {
                 let mut label = format!("lpca-k{clusters}-c{components}");
+                if *iterations != default_lpca_iterations() {
+                    label += &format!("-i{iterations}");
+                }
                 if *unit == LpcaUnitConfig::View {
                     label += "-view";
                 }
@@ -422,9 +432,12 @@ fn check_material(m: &MaterialConfig) -> Result<(), String> {
     }
     let all = m.representations().all();
     for (i, r) in all.iter().enumerate() {
-        if let BtfRepresentation::Lpca { clusters, components, .. } = *r {
+        if let BtfRepresentation::Lpca { clusters, components, iterations, .. } = *r {
             if clusters == 0 || clusters > u16::MAX as usize - 1 {
                 return Err(format!("lpca clusters = {clusters} must be in 1..=65534"));
+            }
+            if !(1..=1000).contains(&iterations) {
+                return Err(format!("lpca iterations = {iterations} must be in 1..=1000"));
             }
             if components == 0 {
                 return Err("lpca components must be at least 1".into());
@@ -1011,7 +1024,8 @@ mod tests {
                 clusters: 8,
                 components: 4,
                 unit: LpcaUnitConfig::View,
-                quantize: LpcaQuantizeConfig::F32
+                quantize: LpcaQuantizeConfig::F32,
+                iterations: 6
             }
         );
         let e = parse(&body("{ kind = \"lpca\", quantize = \"u8\" }")).unwrap();

@@ -407,7 +407,7 @@ pub(crate) fn represent(
         primary: false,
         study: None,
     };
-    let BtfRepresentation::Lpca { clusters, components, unit, quantize } = repr else {
+    let BtfRepresentation::Lpca { clusters, components, unit, quantize, iterations } = repr else {
         return Ok((btf.clone().into(), record));
     };
     let err = shading_err(label);
@@ -415,6 +415,7 @@ pub(crate) fn represent(
         LpcaUnitConfig::Texel => LpcaSettings::new(clusters, components),
         LpcaUnitConfig::View => LpcaSettings::new(clusters, components).per_view(),
     };
+    let settings = LpcaSettings { iterations, ..settings };
     let q = match quantize {
         LpcaQuantizeConfig::F32 => LpcaQuantize::F32,
         LpcaQuantizeConfig::F16 => LpcaQuantize::F16,
@@ -422,7 +423,8 @@ pub(crate) fn represent(
     };
     // One f32 fit per setting serves every storage width (cached under the f32 label);
     // quantizing it is cheap.
-    let f32_label = BtfRepresentation::Lpca { clusters, components, unit, quantize: LpcaQuantizeConfig::F32 }.label();
+    let f32_label =
+        BtfRepresentation::Lpca { clusters, components, unit, quantize: LpcaQuantizeConfig::F32, iterations }.label();
     let path = cache.map(|c| c.lpca_path(lpca_key(btf, &settings, seed), &f32_label));
     let cached = match (cache, &path) {
         (Some(c), Some(p)) => c.get(
@@ -462,7 +464,7 @@ pub(crate) fn represent(
 }
 
 /// Bump when the meaning of a stored LPCA BTF changes.
-const LPCA_VERSION: u32 = 1;
+const LPCA_VERSION: u32 = 2; // 2: one power iteration, oversampling 4
 
 /// Cache key of a local-PCA BTF: the dense table's content and shape, the setting and the
 /// seed (the build is deterministic for them on any number of threads).

@@ -20,7 +20,7 @@ pub mod representation;
 pub use btf::Btf;
 pub use camera::Camera;
 pub use image::{Background, HdrImage, Render};
-pub use lpca::{LpcaBtf, LpcaQuantize, LpcaReport, LpcaSettings, LpcaUnit};
+pub use lpca::{LpcaBtf, LpcaQuantize, LpcaReport, LpcaSettings, LpcaUnit, DEFAULT_LPCA_ITERATIONS};
 pub use representation::BtfRepresentation;
 
 use crate::basis::LocalBasis;

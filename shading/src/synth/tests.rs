@@ -604,7 +604,12 @@ fn lpca_benchmark() {
     use biscale_core::scene::{LpcaBtf, LpcaSettings};
     use std::time::Instant;
     let bunny = Brdf::Phong { kd: [0.55, 0.50, 0.45], ks: [0.25, 0.25, 0.25], exponent: 24.0 };
+    // BISCALE_LPCA_BENCH_RES=64 runs one patch size only (for profiling).
+    let only: Option<u32> = std::env::var("BISCALE_LPCA_BENCH_RES").ok().and_then(|v| v.parse().ok());
     for (res, samples) in [(32, 64), (64, 128)] {
+        if only.is_some_and(|r| r != res) {
+            continue;
+        }
         let hf = HeightField::procedural(&Recipe::new(Pattern::Bumps, 0.06, 4, 1), samples).unwrap();
         let btf = synthesize(&spec(hf, bunny, res, 8, Some(12)), None).unwrap();
         let values = btf.data().len() * 3;

@@ -58,11 +58,9 @@ fn as_many_components_as_the_rank_reconstruct_to_rounding() {
     assert!(r.relative_rms_error > 1e-3, "{r:?}");
 }
 
-#[test]
-fn one_cluster_is_plain_pca_at_the_eckart_young_optimum() {
-    // 12 texels and c = 3: the subspace (3 + 8 oversampling) covers the centred rows, so the
-    // build's PCA is exact and its error is the Eckart-Young one, the centred spectrum's tail.
-    let btf = mixture_btf(4, 3, 8, 2, 2);
+/// `||B - B_c||_F / ||B||_F` of the best rank-`c` affine fit of `btf`'s texel vectors (the
+/// Eckart-Young optimum: the centred spectrum's tail), by Jacobi on the texels' Gram matrix.
+fn eckart_young(btf: &Btf, c: usize) -> f64 {
     let d = 3 * btf.view_count() * btf.light_count();
     let x: Vec<Vec<f64>> = btf.data().chunks(d / 3).map(|t| t.iter().flatten().map(|&v| v as f64).collect()).collect();
     let n = x.len();
@@ -75,12 +73,31 @@ fn one_cluster_is_plain_pca_at_the_eckart_young_optimum() {
     }
     let (values, _) = sym_eigen(&gram, n);
     let total: f64 = x.iter().flatten().map(|v| v * v).sum();
+    let tail: f64 = values[c..].iter().map(|v| v.max(0.0)).sum();
+    (tail / total).sqrt()
+}
+
+#[test]
+fn one_cluster_is_plain_pca_at_the_eckart_young_optimum() {
+    // 6 texels and c <= 3: a cluster of at most c + 4 oversampling + 1 rows is fit on its own
+    // centred rows, so the build's PCA is exact and its error is the Eckart-Young one.
+    let btf = mixture_btf(3, 2, 8, 2, 2);
     for c in [1, 2, 3] {
-        let tail: f64 = values[c..].iter().map(|v| v.max(0.0)).sum();
-        let expect = (tail / total).sqrt();
+        let expect = eckart_young(&btf, c);
         let (_, r) = LpcaBtf::compress(&btf, &LpcaSettings::new(1, c), 3).unwrap();
         // f32 storage adds ~1e-7 relative; the optimum is strictly positive here.
         assert!((r.relative_rms_error - expect).abs() <= 1e-5 * expect.max(1e-3), "c = {c}: {r:?} vs {expect:e}");
+    }
+    // 12 texels: the randomized subspace (c + 4 columns, one power iteration per round, and
+    // one cluster converges after two rounds) is near the optimum, never below it: a quality
+    // check of the randomized refit, not a derived bound. Measured 1.8e-4 (c = 1) and 1.4e-3
+    // (c = 2) relative above it; we allow 5e-3.
+    let btf = mixture_btf(4, 3, 8, 2, 2);
+    for c in [1, 2, 3] {
+        let expect = eckart_young(&btf, c);
+        let (_, r) = LpcaBtf::compress(&btf, &LpcaSettings::new(1, c), 3).unwrap();
+        let excess = r.relative_rms_error / expect - 1.0;
+        assert!((-1e-5..5e-3).contains(&excess), "c = {c}: {r:?} vs {expect:e} ({excess:e} above)");
     }
 }
 
