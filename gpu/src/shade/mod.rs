@@ -74,7 +74,11 @@ pub struct ShadeParams {
     pub has_material_ids: u32,
     pub vertex_count: u32,
     pub triangle_count: u32,
-    pub _pad: [u32; 4],
+    /// LPCA BTFs use at most this many components per cluster (their leading ones, the
+    /// evaluation of `LpcaBtf::truncated`); `u32::MAX`: all. The viewer lowers it while the
+    /// light moves.
+    pub max_components: u32,
+    pub _pad: [u32; 3],
 }
 const _: () = assert!(std::mem::size_of::<ShadeParams>() == 160);
 
@@ -326,7 +330,8 @@ impl GpuShader {
             has_material_ids: u32::from(scene.triangle_materials().is_some()),
             vertex_count: nv as u32,
             triangle_count: tri_count as u32,
-            _pad: [0; 4],
+            max_components: u32::MAX,
+            _pad: [0; 3],
         };
         let (near, far) = depth_range(&mesh.positions, camera.position);
         write_camera(camera, &mut params, near, far);
@@ -519,6 +524,20 @@ impl GpuShader {
         let (near, far) = depth_range(&self.positions, camera.position);
         write_camera(camera, &mut self.params, near, far);
         self.ctx.scoped("updating the camera", || {
+            self.ctx.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
+        })
+    }
+
+    /// Evaluate LPCA BTFs with at most `n` components per cluster (their leading ones: what
+    /// `LpcaBtf::truncated(n)` evaluates), or all of them with `None`; dense BTFs are unchanged.
+    /// Müller et al. drop components while the light rotates.
+    pub fn set_max_components(&mut self, n: Option<u32>) -> Result<()> {
+        let n = n.unwrap_or(u32::MAX);
+        if n == self.params.max_components {
+            return Ok(());
+        }
+        self.params.max_components = n;
+        self.ctx.scoped("updating the component cap", || {
             self.ctx.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
         })
     }

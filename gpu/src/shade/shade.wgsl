@@ -211,15 +211,17 @@ fn btf_sample(mat: MaterialHeader, texel: u32, view: u32, views: u32, weight: f3
     return s;
 }
 
-// b(u, e_v, d_j) of one resolved sample: the table entry, or mean + sum_c w_c E_c (in f32,
-// as LpcaBtf::eval_into). `stride` is the LPCA vector length D.
+// b(u, e_v, d_j) of one resolved sample: the table entry, or mean + sum_c w_c E_c over the
+// first min(C, params.max_components) components (in f32, as LpcaBtf::eval_into of
+// LpcaBtf::truncated). `stride` is the LPCA vector length D.
 fn btf_value(mat: MaterialHeader, s: BtfSample, stride: u32, j: u32) -> vec3<f32> {
     var k = s.base + j * 3u;
     var b = vec3<f32>(btf[k], btf[k + 1u], btf[k + 2u]);
     if mat.kind == 0u {
         return b;
     }
-    for (var c = 0u; c < mat.components; c++) {
+    let used = min(mat.components, params.max_components);
+    for (var c = 0u; c < used; c++) {
         k += stride;
         b += btf[s.weights + c] * vec3<f32>(btf[k], btf[k + 1u], btf[k + 2u]);
     }

@@ -22,7 +22,8 @@ struct ShadeParams {
     has_material_ids: u32,
     vertex_count: u32,
     triangle_count: u32,
-    pad0: u32,
+    // LPCA BTFs use at most this many (leading) components per cluster; 0xffffffff: all.
+    max_components: u32,
     pad1: u32,
     pad2: u32,
     pad3: u32,

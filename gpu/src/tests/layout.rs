@@ -47,10 +47,10 @@ fn shade_params_layout_matches_wgsl() {
         ("has_material_ids", offset_of!(P, has_material_ids)),
         ("vertex_count", offset_of!(P, vertex_count)),
         ("triangle_count", offset_of!(P, triangle_count)),
-        ("pad0", offset_of!(P, _pad)),
-        ("pad1", offset_of!(P, _pad) + 4),
-        ("pad2", offset_of!(P, _pad) + 8),
-        ("pad3", offset_of!(P, _pad) + 12),
+        ("max_components", offset_of!(P, max_components)),
+        ("pad1", offset_of!(P, _pad)),
+        ("pad2", offset_of!(P, _pad) + 4),
+        ("pad3", offset_of!(P, _pad) + 8),
     ];
     // The shading passes and the tone-mapping pass (camera rays for the background) both
     // bind the same uniform buffer.

@@ -602,5 +602,19 @@ fn lpca_btfs_match_the_cpu_lpca_evaluation() {
             let (mismatched, worst) = compare_with_cpu(&gpu, &cpu, 5e-5);
             eprintln!("{settings:?}, {} material(s): {mismatched} mismatches, worst {worst:e}", materials.len());
         }
+        // A component cap evaluates the leading components: the CPU image of the truncated
+        // BTF, within the same bound; lifting it restores the full image exactly.
+        let mut shader = gpu_shader(ctx, &mesh, &frames, &one, None, cam).unwrap();
+        let full = shader.shade_lstar(&lstar).unwrap();
+        for n in 1..l.components() {
+            shader.set_max_components(Some(n as u32)).unwrap();
+            let gpu = shader.shade_lstar(&lstar).unwrap();
+            let truncated = [Material { btf: l.truncated(n).unwrap().into(), tiling: 2.0 }];
+            let cpu = shade(&scene(&mesh, &frames, &truncated, None), &lstar, &cam).unwrap();
+            compare_with_cpu(&gpu, &cpu, 5e-5);
+            assert_ne!(gpu, full, "{n} of {} components must change the image", l.components());
+        }
+        shader.set_max_components(None).unwrap();
+        assert_eq!(shader.shade_lstar(&lstar).unwrap(), full);
     }
 }

@@ -13,7 +13,9 @@
 //! Controls: left drag orbits, wheel zooms, right drag or Left/Right turn the environment
 //! (15 degrees a key press), Tab / Shift+Tab / 1-9 pick the compressed form, +/- change the
 //! exposure, Space toggles continuous redraw (which re-runs the gather every frame, to time
-//! the full light-change path), B toggles the background, R resets the camera, Esc or Q quit.
+//! the full light-change path), B toggles the background, C cycles how many components LPCA
+//! BTFs keep while the light moves (1, 2, all: Müller et al. drop components during rotation),
+//! R resets the camera, Esc or Q quit.
 //!
 //! Runtime libraries (X11 client libraries or libwayland, Vulkan loader + driver):
 //! `scripts/setup-viewer.sh`. winit allows one event loop per process, so [`run_viewer`] can
@@ -185,6 +187,12 @@ impl ViewerSetup {
         Ok(())
     }
 
+    /// Whether any material is an LPCA BTF (then key C picks its components while the light
+    /// moves).
+    fn has_lpca(&self) -> bool {
+        self.scene.materials().iter().any(|m| matches!(m.btf, biscale_core::scene::BtfRepresentation::Lpca(_)))
+    }
+
     /// A shader for this scene seen by `camera` (whose size is the image's).
     fn shader(&self, ctx: &GpuContext, camera: Camera) -> Result<GpuShader> {
         GpuShader::new(ctx, &self.scene, &camera)
@@ -256,6 +264,9 @@ struct State {
     /// Per form: its `L*` on the GPU is from an older light.
     stale: Vec<bool>,
     continuous: bool,
+    /// Components per cluster of LPCA BTFs while the light moves (a rotation pending or
+    /// continuous mode; Müller et al. 2004); `None`: always all. Key C cycles 1, 2, all.
+    moving_components: Option<u32>,
     left: bool,
     right: bool,
     cursor: Option<(f64, f64)>,
@@ -287,6 +298,7 @@ impl State {
             light_ms,
             stale: vec![true; setup.forms.len()],
             continuous: setup.continuous,
+            moving_components: None,
             left: false,
             right: false,
             cursor: None,
@@ -454,6 +466,13 @@ impl App {
     }
 }
 
+impl State {
+    /// A light change is under way: a rotation is being recomputed, or every frame re-gathers.
+    fn light_moving(&self) -> bool {
+        self.continuous || (self.requested_rotation - self.light_rotation).abs() > 1e-12
+    }
+}
+
 /// The overlay's text for the current state.
 fn overlay_lines(setup: &ViewerSetup, s: &State, gpu: &Gpu) -> Vec<String> {
     let f = &setup.forms[s.form];
@@ -489,6 +508,13 @@ fn overlay_lines(setup: &ViewerSetup, s: &State, gpu: &Gpu) -> Vec<String> {
         None => lines.push("shade -".into()),
     }
     let pending = if (s.requested_rotation - s.light_rotation).abs() > 1e-12 { "  (recomputing...)" } else { "" };
+    if setup.has_lpca() {
+        lines.push(match (s.moving_components, s.light_moving()) {
+            (None, _) => "LPCA BTFs: every component (C: fewer while the light moves)".into(),
+            (Some(n), true) => format!("LPCA BTFs: {n} component(s) per cluster while the light moves"),
+            (Some(n), false) => format!("LPCA BTFs: every component, {n} while the light moves"),
+        });
+    }
     let source = match s.light.basis() {
         LightBasis::Sh(_) => format!("L ({} SH coefficients) rotated in SH", s.light.len()),
         LightBasis::Cubemap(_) => format!("L ({} texels) from the map", s.light.len()),
@@ -500,7 +526,7 @@ fn overlay_lines(setup: &ViewerSetup, s: &State, gpu: &Gpu) -> Vec<String> {
         s.exposure
     ));
     lines.push("drag: orbit  wheel: zoom  right-drag, Left/Right: rotate env  Tab, 1-9: form".into());
-    lines.push("+/-: exposure  Space: continuous  B: background  R: reset camera  Esc, Q: quit".into());
+    lines.push("+/-: exposure  Space: continuous  B: background  C: LPCA components  R: reset  Esc, Q: quit".into());
     lines
 }
 
@@ -534,6 +560,7 @@ impl App {
         }
         let i = s.form;
         gpu.shader.set_camera(&s.orbit.camera(w, h))?;
+        gpu.shader.set_max_components(if s.light_moving() { s.moving_components } else { None })?;
         let gather = s.stale[i] || s.continuous;
         // The gather goes alone and is waited for, so that its wall-clock time is known too
         // (lavapipe's timestamps around short compute passes are unreliable).
@@ -658,6 +685,14 @@ impl App {
                 }
                 "b" | "B" => {
                     self.state.background = !self.state.background;
+                    self.redraw();
+                }
+                "c" | "C" => {
+                    self.state.moving_components = match self.state.moving_components {
+                        None => Some(1),
+                        Some(1) => Some(2),
+                        Some(_) => None,
+                    };
                     self.redraw();
                 }
                 "r" | "R" => {
