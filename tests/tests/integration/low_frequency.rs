@@ -194,6 +194,7 @@ fn an_lpca_btf_lit_by_sh_matches_the_dense_one_at_full_rank() {
                 "name = \"{name}\"\n[scene]\nmesh = \"m.obj\"\n[scene.material]\nkind = \"phong\"\nkd = [0.4, 0.35, 0.3]\nks = [0.3, 0.3, 0.3]\nexponent = 30.0\nview_grid = 4\n{repr}\n\
                  [lighting]\nconstant = [0.3, 0.35, 0.4]\nsun_boost = 1000.0\n[transfer]\ncubemap_resolution = 8\nvisibility_resolution = 16\nlocal_grid = 4\n\
                  [[compressors]]\nkind = \"sparse\"\n[[methods]]\nkind = \"sh\"\norder = 3\nrays = 256\n\
+                 [[methods]]\nkind = \"sh\"\norder = 3\nrays = 256\ncompressor = {{ kind = \"cpca\", clusters = 4, components = 2, unit = \"vertex\" }}\n\
                  [runtime]\nwidth = 48\nheight = 36\nrepeats = 1\n[report]\nbackground = false\n"
             ),
         )
@@ -219,4 +220,10 @@ fn an_lpca_btf_lit_by_sh_matches_the_dense_one_at_full_rank() {
     assert_eq!(counts, (1..=15).collect::<Vec<_>>());
     assert_eq!(l.adaptive[14].vs_all_components, 0.0);
     assert!(l.adaptive[0].vs_all_components > 1e-3, "one of 15 components must lose something: {:?}", l.adaptive[0]);
+    // Müller's full system: CPCA-compressed SH transfer matrices (the gather of the clustered
+    // M_p l) and LPCA BTFs; the dot products are taken with what that gather gives.
+    let cpca = m.methods[1].sh.as_ref().unwrap();
+    assert_eq!(cpca.compressor, "cpca");
+    let l = cpca.lpca.as_ref().expect("the CPCA setting gets the LPCA runtime too");
+    assert!(l.precomputed.vs_direct < 1e-5 && l.adaptive.len() == 15, "{:?}", l.precomputed);
 }
