@@ -67,19 +67,7 @@ pub struct RttReport {
 /// The RTT of `btf` (a BTF on a bin basis) at `order`: the same patch and view samples, its
 /// light axis in `LocalBasis::Sh(order)`.
 pub fn radiance_transfer_texture(btf: &Btf, order: ShOrder) -> Result<(Btf, RttReport)> {
-    let grid = btf.local_basis().grid().ok_or_else(|| {
-        CoreError::Invalid(format!(
-            "an RTT is projected from a BTF on bins, '{}' is on {}",
-            btf.name(),
-            btf.local_basis()
-        ))
-    })?;
-    let (m, n) = (grid.len(), order.len());
-    let y = bin_integrals(grid, order, BIN_CELLS);
-    let fine = bin_integrals(grid, order, 2 * BIN_CELLS);
-    let ymax = y.iter().fold(0.0f64, |a, b| a.max(b.abs()));
-    let quadrature_error = y.iter().zip(&fine).fold(0.0f64, |a, (p, q)| a.max((p - q).abs())) / ymax.max(1e-300);
-    let omega = grid.bin_solid_angle();
+    let Projection { m, n, y, quadrature_error, omega } = Projection::new(btf.local_basis(), btf.name(), order)?;
     let values: &[f32] = bytemuck::cast_slice(btf.data());
     let groups: Vec<(Vec<[f32; 3]>, f64, f64)> = values
         .par_chunks(3 * m)
@@ -100,6 +88,30 @@ pub fn radiance_transfer_texture(btf: &Btf, order: ShOrder) -> Result<(Btf, RttR
         format!("{} (RTT, {order})", btf.name()),
     )?;
     Ok((rtt, RttReport { projection_error, quadrature_error }))
+}
+
+/// What projecting a BTF's light axis onto SH needs: `M` bins, `n` coefficients, the bin
+/// integrals `Y` and their quadrature error, the bins' solid angle.
+struct Projection {
+    m: usize,
+    n: usize,
+    y: Vec<f64>,
+    quadrature_error: f64,
+    omega: f64,
+}
+
+impl Projection {
+    /// For a BTF named `name` whose light directions are `basis` (bins, else an error).
+    fn new(basis: LocalBasis, name: &str, order: ShOrder) -> Result<Self> {
+        let grid = basis.grid().ok_or_else(|| {
+            CoreError::Invalid(format!("an RTT is projected from a BTF on bins, '{name}' is on {basis}"))
+        })?;
+        let y = bin_integrals(grid, order, BIN_CELLS);
+        let fine = bin_integrals(grid, order, 2 * BIN_CELLS);
+        let ymax = y.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+        let quadrature_error = y.iter().zip(&fine).fold(0.0f64, |a, (p, q)| a.max((p - q).abs())) / ymax.max(1e-300);
+        Ok(Self { m: grid.len(), n: order.len(), y, quadrature_error, omega: grid.bin_solid_angle() })
+    }
 }
 
 /// Project one light segment `b` (`M` bins, RGB interleaved) onto the `n` SH coefficients
@@ -140,19 +152,7 @@ pub fn radiance_transfer(btf: &BtfRepresentation, order: ShOrder) -> Result<(Btf
         }
         BtfRepresentation::Lpca(l) => l,
     };
-    let grid = lpca.local_basis().grid().ok_or_else(|| {
-        CoreError::Invalid(format!(
-            "an RTT is projected from a BTF on bins, '{}' is on {}",
-            lpca.name(),
-            lpca.local_basis()
-        ))
-    })?;
-    let (m, n) = (grid.len(), order.len());
-    let y = bin_integrals(grid, order, BIN_CELLS);
-    let fine = bin_integrals(grid, order, 2 * BIN_CELLS);
-    let ymax = y.iter().fold(0.0f64, |a, b| a.max(b.abs()));
-    let quadrature_error = y.iter().zip(&fine).fold(0.0f64, |a, (p, q)| a.max((p - q).abs())) / ymax.max(1e-300);
-    let omega = grid.bin_solid_angle();
+    let Projection { m, n, y, quadrature_error, omega } = Projection::new(lpca.local_basis(), lpca.name(), order)?;
     let d = 3 * m * lpca.segments_per_unit();
     let (beta2, proj2) = (0..lpca.units())
         .into_par_iter()
