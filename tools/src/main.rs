@@ -138,7 +138,20 @@ fn load(config: &Path) -> anyhow::Result<Experiment> {
     Ok(Experiment::load(config)?)
 }
 
-fn main() -> anyhow::Result<()> {
+/// An error prints as one line of causes (`error: running x.toml: ...: ...`) and exits 1, with
+/// no backtrace even under `RUST_BACKTRACE=1`: that variable is for panics, and a config typo
+/// is not one.
+fn main() -> std::process::ExitCode {
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Run { config, out, no_cache, cache_dir } => {

@@ -114,3 +114,20 @@ fn viz_writes_the_structure_pictures() {
         assert!(out.join(f).is_file(), "{f}: {stdout}");
     }
 }
+
+#[test]
+fn errors_are_one_line_of_causes_without_a_backtrace() {
+    // Issue 16: with RUST_BACKTRACE=1 set, a config typo printed anyhow's 40-line backtrace.
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("typo.toml");
+    std::fs::write(&cfg, "name = \"t\"\n[scene]\nmesh = \"m.obj\"\n[transfer]\nlocal_grd = 8\n").unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_biscale"))
+        .args(["plan", cfg.to_str().unwrap()])
+        .env("RUST_BACKTRACE", "1")
+        .output()
+        .expect("run biscale");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.starts_with("error: ") && err.contains("typo.toml:5:1") && err.contains("local_grd"), "{err}");
+    assert!(!err.contains("Stack backtrace") && !err.contains("backtrace") && err.lines().count() <= 3, "{err}");
+}
