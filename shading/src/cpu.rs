@@ -464,6 +464,13 @@ pub(crate) mod tests {
         assert!(build(materials.clone(), None).is_err(), "2 materials need ids");
         let coarse =
             vec![Material::new(red), Material::new(Btf::lambertian([1.0; 3], LocalBasis::bins(4).unwrap()).unwrap())];
-        assert!(build(coarse, Some(ids)).is_err(), "light grids differ");
+        assert!(build(coarse.clone(), Some(ids)).is_err(), "light grids differ");
+        // Other materials on the same mesh: the same checks, one BVH.
+        let bvh = scene.bvh() as *const _;
+        let swapped = scene.with_materials(vec![materials[1].clone(), materials[0].clone()]).unwrap();
+        assert!(std::ptr::eq(swapped.bvh(), bvh), "the BVH is shared, not rebuilt");
+        assert_eq!(swapped.triangle_materials(), scene.triangle_materials());
+        assert!(scene.with_materials(coarse).is_err(), "light grids differ");
+        assert!(scene.with_materials(materials[..1].to_vec()).is_err(), "one material per material of the scene");
     }
 }

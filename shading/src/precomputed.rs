@@ -57,7 +57,7 @@ fn material_vertices(scene: &ShadeScene) -> Vec<Vec<bool>> {
     let n = scene.mesh().vertex_count();
     let mut used = vec![vec![false; n]; scene.materials().len()];
     for (t, tri) in scene.mesh().triangles.iter().enumerate() {
-        let i = scene.triangle_materials().map_or(0, |ids| ids[t] as usize);
+        let i = scene.material_index(t as u32);
         for &v in tri {
             used[i][v as usize] = true;
         }
@@ -168,7 +168,7 @@ impl LightDots {
         let dots = self.materials[material].as_ref()?;
         let mat = &scene.materials()[material];
         let BtfRepresentation::Lpca(l) = &mat.btf else { return None };
-        let texel = biscale_core::scene::btf::texel_of(l.spatial(), p.uv * mat.tiling);
+        let texel = mat.btf.texel_of(p.uv * mat.tiling);
         let (c1, s) = (dots.components + 1, dots.segments);
         let mut acc = [0.0f64; 3];
         for (view, wv) in biscale_core::scene::btf::view_weights(l.view_grid(), p.view_local) {
@@ -217,7 +217,7 @@ pub fn shade_precomputed(
         )));
     }
     Ok(render_rows(scene, camera, &|| {}, &|p, acc, scratch| {
-        let material = scene.triangle_materials().map_or(0, |ids| ids[p.triangle as usize] as usize);
+        let material = scene.material_index(p.triangle);
         if let Some(b) = dots.shade_point(scene, material, p) {
             return b;
         }

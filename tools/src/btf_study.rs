@@ -7,8 +7,8 @@
 //! own effect.
 
 use crate::materials::SceneMaterials;
-use crate::metrics::{BtfRecord, BtfStudyRecord, ImageErrors, PrecomputedRecord};
-use crate::pipeline::{timed, Reference, Result, View};
+use crate::metrics::{BtfRecord, BtfStudyRecord, PrecomputedRecord};
+use crate::pipeline::{errors, timed, Reference, Result, View};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::scene::{BtfRepresentation, Render, ShadeScene};
 use biscale_shading::image::compare;
@@ -18,10 +18,6 @@ use std::path::Path;
 /// Largest precomputed dot-product table the study builds (1 GiB); a larger one is recorded
 /// as not measured, with its size.
 pub const MAX_PRECOMPUTED_BYTES: u64 = 1 << 30;
-
-fn errors(m: &biscale_shading::image::ImageMetrics) -> ImageErrors {
-    ImageErrors { rmse: m.rmse, psnr: m.psnr, rel_l2: m.rel_l2 }
-}
 
 /// What the study shades with: the run's view (camera, background), the uncompressed `L*`,
 /// the reference, where images go.
@@ -40,10 +36,7 @@ pub(crate) fn run(materials: &SceneMaterials, inp: &StudyInputs<'_>) -> Result<V
     if !materials.has_compressed() {
         return Ok(records);
     }
-    let base = inp.view.scene;
-    let scene_of = |m| {
-        ShadeScene::new(base.mesh().clone(), base.frames().to_vec(), m, base.triangle_materials().map(<[u32]>::to_vec))
-    };
+    let scene_of = |m| inp.view.scene.with_materials(m);
     let background = |r: Render, camera| r.with_background(camera, &inp.view.background);
     let shade = |scene: &ShadeScene, camera| -> Result<Render> {
         Ok(background(biscale_shading::cpu::shade(scene, inp.lstar, camera)?, camera))

@@ -276,7 +276,7 @@ pub fn camera(exp: &Experiment, mesh: &Mesh, downscale: u32) -> Camera {
     cam
 }
 
-fn errors(m: &ImageMetrics) -> ImageErrors {
+pub(crate) fn errors(m: &ImageMetrics) -> ImageErrors {
     ImageErrors { rmse: m.rmse, psnr: m.psnr, rel_l2: m.rel_l2 }
 }
 

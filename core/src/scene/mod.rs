@@ -27,7 +27,7 @@ use crate::basis::LocalBasis;
 use crate::error::{CoreError, Result};
 use crate::gather::LocalRadiance;
 use crate::geometry::{Mesh, SceneBvh, VertexFrame};
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
 /// A BTF (dense or compressed) and how often its patch repeats per unit of texture coordinate.
 #[derive(Clone, Debug, PartialEq)]
@@ -53,8 +53,8 @@ pub struct ShadeScene {
     triangle_materials: Option<Vec<u32>>,
     local_basis: LocalBasis,
     /// The CPU shaders' BVH over the mesh in world space, built on first use (the GPU shader
-    /// never needs it).
-    bvh: OnceLock<SceneBvh>,
+    /// never needs it) and shared by every scene of the same mesh ([`Self::with_materials`]).
+    bvh: Arc<OnceLock<SceneBvh>>,
 }
 
 impl Clone for ShadeScene {
@@ -65,7 +65,7 @@ impl Clone for ShadeScene {
             materials: self.materials.clone(),
             triangle_materials: self.triangle_materials.clone(),
             local_basis: self.local_basis,
-            bvh: OnceLock::new(),
+            bvh: Arc::clone(&self.bvh),
         }
     }
 }
@@ -104,38 +104,30 @@ impl ShadeScene {
         if let Some(t) = mesh.triangles.iter().position(|t| t.iter().any(|&i| i as usize >= n)) {
             return bad(format!("triangle {t} indexes a vertex out of range (n = {n})"));
         }
-        let Some(first) = materials.first() else {
-            return bad("the scene has no material".into());
-        };
-        let local_basis = first.btf.local_basis();
-        for (i, m) in materials.iter().enumerate() {
-            if m.btf.local_basis() != local_basis {
-                return bad(format!(
-                    "material {i} ({}) has light directions in {}, material 0 ({}) in {local_basis}: all must share the local basis",
-                    m.btf.name(),
-                    m.btf.local_basis(),
-                    first.btf.name(),
-                ));
-            }
-            if !(m.tiling.is_finite() && m.tiling > 0.0) {
-                return bad(format!("material {i} ({}) has tiling {}, must be finite and > 0", m.btf.name(), m.tiling));
-            }
+        let local_basis = check_materials(mesh.triangles.len(), &materials, triangle_materials.as_deref())?;
+        Ok(Self { mesh, frames, materials, triangle_materials, local_basis, bvh: Arc::default() })
+    }
+
+    /// The same mesh, frames and per-triangle material ids with other `materials` (one per
+    /// material of this scene, checked as [`Self::new`] checks them), sharing this scene's BVH:
+    /// the BTF study and the SH method shade one mesh with many material sets.
+    pub fn with_materials(&self, materials: Vec<Material>) -> Result<Self> {
+        if materials.len() != self.materials.len() {
+            return Err(CoreError::Invalid(format!(
+                "{} materials for a scene of {}",
+                materials.len(),
+                self.materials.len()
+            )));
         }
-        match &triangle_materials {
-            None if materials.len() > 1 => {
-                return bad(format!("{} materials but no per-triangle material ids", materials.len()));
-            }
-            Some(ids) if ids.len() != mesh.triangles.len() => {
-                return bad(format!("{} material ids for {} triangles", ids.len(), mesh.triangles.len()));
-            }
-            Some(ids) => {
-                if let Some(t) = ids.iter().position(|&i| i as usize >= materials.len()) {
-                    return bad(format!("triangle {t} uses material {} of {}", ids[t], materials.len()));
-                }
-            }
-            None => {}
-        }
-        Ok(Self { mesh, frames, materials, triangle_materials, local_basis, bvh: OnceLock::new() })
+        let local_basis = check_materials(self.mesh.triangles.len(), &materials, self.triangle_materials.as_deref())?;
+        Ok(Self {
+            mesh: self.mesh.clone(),
+            frames: self.frames.clone(),
+            materials,
+            triangle_materials: self.triangle_materials.clone(),
+            local_basis,
+            bvh: Arc::clone(&self.bvh),
+        })
     }
 
     pub fn mesh(&self) -> &Mesh {
@@ -164,8 +156,12 @@ impl ShadeScene {
 
     /// The material of triangle `t`.
     pub fn material(&self, triangle: u32) -> &Material {
-        let i = self.triangle_materials.as_ref().map_or(0, |ids| ids[triangle as usize] as usize);
-        &self.materials[i]
+        &self.materials[self.material_index(triangle)]
+    }
+
+    /// The index into [`Self::materials`] of triangle `t`'s material.
+    pub fn material_index(&self, triangle: u32) -> usize {
+        self.triangle_materials.as_ref().map_or(0, |ids| ids[triangle as usize] as usize)
     }
 
     /// The BVH over the mesh in world space (built on first use).
@@ -206,4 +202,42 @@ pub fn check_lstar_shape(
         )));
     }
     Ok(())
+}
+
+/// The checks of [`ShadeScene::new`] on the materials and per-triangle ids of a mesh of
+/// `triangles` triangles; returns the materials' shared local basis.
+fn check_materials(triangles: usize, materials: &[Material], triangle_materials: Option<&[u32]>) -> Result<LocalBasis> {
+    let bad = |m: String| Err(CoreError::Invalid(m));
+    let Some(first) = materials.first() else {
+        return bad("the scene has no material".into());
+    };
+    let local_basis = first.btf.local_basis();
+    for (i, m) in materials.iter().enumerate() {
+        if m.btf.local_basis() != local_basis {
+            return bad(format!(
+                "material {i} ({}) has light directions in {}, material 0 ({}) in {local_basis}: all must share the local basis",
+                m.btf.name(),
+                m.btf.local_basis(),
+                first.btf.name(),
+            ));
+        }
+        if !(m.tiling.is_finite() && m.tiling > 0.0) {
+            return bad(format!("material {i} ({}) has tiling {}, must be finite and > 0", m.btf.name(), m.tiling));
+        }
+    }
+    match triangle_materials {
+        None if materials.len() > 1 => {
+            return bad(format!("{} materials but no per-triangle material ids", materials.len()));
+        }
+        Some(ids) if ids.len() != triangles => {
+            return bad(format!("{} material ids for {triangles} triangles", ids.len()));
+        }
+        Some(ids) => {
+            if let Some(t) = ids.iter().position(|&i| i as usize >= materials.len()) {
+                return bad(format!("triangle {t} uses material {} of {}", ids[t], materials.len()));
+            }
+        }
+        None => {}
+    }
+    Ok(local_basis)
 }

@@ -225,12 +225,7 @@ pub(crate) fn prepare(setting: &MethodSetting, src: &MethodScene<'_>, t: Option<
     let compressor = build_compressor(&compressor_setting)?;
     let (form, cached) =
         compressed_form(&compressor_setting, compressor.as_ref(), &matrix, key, src.exp.file.seed, src.cache)?;
-    let scene = ShadeScene::new(
-        src.geometry.mesh.clone(),
-        src.geometry.transfer.frames().to_vec(),
-        materials,
-        src.scene.triangle_materials().map(<[u32]>::to_vec),
-    )?;
+    let scene = src.scene.with_materials(materials)?;
     Ok(Prepared {
         params,
         settings,
@@ -527,12 +522,7 @@ fn lpca_runtime(
                 _ => Ok(m.clone()),
             })
             .collect::<Result<Vec<_>>>()?;
-        Ok(ShadeScene::new(
-            scene.mesh().clone(),
-            scene.frames().to_vec(),
-            materials,
-            scene.triangle_materials().map(<[u32]>::to_vec),
-        )?)
+        Ok(scene.with_materials(materials)?)
     };
     let mut runs = vec![];
     for n in (1..=most).rev() {
