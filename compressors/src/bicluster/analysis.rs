@@ -87,6 +87,60 @@ pub struct BiclusterStats {
     pub row_list_mean: f64,
     pub row_list_max: u64,
     pub build_seconds: f64,
+    /// The error the form achieves against `t` (0 for the lossless build).
+    pub error: AchievedError,
+}
+
+/// How far a bicluster form is from the `T` it was built from, recomputed from the arrays
+/// (independently of the pruning's own bookkeeping).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct AchievedError {
+    /// `||T - T'||_F / ||T||_F`: what `error_budget` bounds.
+    pub frobenius: f64,
+    /// Relative L2 error of `L*` over all rows under the uniform white sky (each texel's
+    /// power its solid angle); `None` outside the cubemap basis.
+    pub sky: Option<f64>,
+}
+
+/// The error of `form` against `t`, from the form's decompressed integer codes and `t`'s
+/// codes at the form's `value_scale`, accumulated in f64 (exact for the Frobenius sums).
+pub fn achieved_error(form: &CompressedForm, t: &TransferMatrix) -> Result<AchievedError, CompressError> {
+    let kept = super::decompress_codes(form)?;
+    let full = super::codes::quantize(t, kept.scale)?;
+    if (kept.rows, kept.cols) != (full.rows, full.cols) {
+        return Err(CompressError::malformed("bicluster", "shape", "does not match T"));
+    }
+    let omega = match t.light_basis() {
+        biscale_core::basis::LightBasis::Cubemap(c) => Some(c.solid_angles()),
+        _ => None,
+    };
+    let (mut e2, mut t2, mut se2, mut st2) = (0f64, 0f64, 0f64, 0f64);
+    let mut diff: HashMap<u16, i32> = HashMap::new();
+    for i in 0..full.rows {
+        diff.clear();
+        let mut sky_t = 0.0;
+        for (k, c) in full.row(i) {
+            *diff.entry(k).or_insert(0) += c as i32;
+            t2 += (c as f64).powi(2);
+            if let Some(w) = &omega {
+                sky_t += c as f64 * w[k as usize];
+            }
+        }
+        for (k, c) in kept.row(i) {
+            *diff.entry(k).or_insert(0) -= c as i32;
+        }
+        let mut sky_e = 0.0;
+        for (&k, &d) in &diff {
+            e2 += (d as f64).powi(2);
+            if let Some(w) = &omega {
+                sky_e += d as f64 * w[k as usize];
+            }
+        }
+        se2 += sky_e * sky_e;
+        st2 += sky_t * sky_t;
+    }
+    let rel = |a: f64, b: f64| if b == 0.0 { 0.0 } else { (a / b).sqrt() };
+    Ok(AchievedError { frobenius: rel(e2, t2), sky: omega.map(|_| rel(se2, st2)) })
 }
 
 /// Table I stats of `form` (a bicluster form of `t`).
@@ -129,6 +183,12 @@ pub fn table_stats(form: &CompressedForm, t: &TransferMatrix) -> Result<Bicluste
         row_list_mean: div(list.iter().sum::<u64>() as f64, list.len() as f64),
         row_list_max: list.iter().copied().max().unwrap_or(0),
         build_seconds: form.build_seconds,
+        error: if form.lossless {
+            let cubemap = matches!(t.light_basis(), biscale_core::basis::LightBasis::Cubemap(_));
+            AchievedError { frobenius: 0.0, sky: cubemap.then_some(0.0) }
+        } else {
+            achieved_error(form, t)?
+        },
     })
 }
 

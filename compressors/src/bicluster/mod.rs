@@ -1,4 +1,4 @@
-//! Lossless greedy constant-column **biclustering** of `T` (Sun et al., "Radiance Transfer
+//! Greedy constant-column **biclustering** of `T` (Sun et al., "Radiance Transfer
 //! Biclustering for Real-time All-frequency Bi-scale Rendering", section 4, Algorithms 1 and 2).
 //!
 //! A constant-column bicluster `B = [rows j_1..j_r; cols k_1..k_l; values t_1..t_l]` stands for
@@ -34,7 +34,11 @@
 //! | `block_bc_base` | u32 | blocks + 1 | first bicluster id of each block |
 //!
 //! Meta: `value_scale` (q), `block_rows` (rows per block = block_vertices * M, the last block
-//! may be shorter), `blocks`, `biclusters` (B), `row_bc_local`.
+//! may be shorter), `blocks`, `biclusters` (B), `row_bc_local`. Lossy forms (`error_budget >
+//! 0`, [`prune`]) also carry `dropped_biclusters`, and `error2_codes` / `energy2_codes`, the
+//! exact `||T - T'||_F^2` and `||T||_F^2` in squared codes (the achieved relative error is the
+//! square root of their ratio). A lossy form is an ordinary form of `T' = T - E`: the gathers
+//! (CPU and GPU) read it unchanged.
 //!
 //! Gather (Algorithm 2), per colour channel: `L'_k = L_k / q` (N multiplies); pass 1, one
 //! thread per bicluster: `a_b = sum_{e in b} bc_vals[e] * L'[bc_cols[e]]`; pass 2, one thread
@@ -44,10 +48,11 @@ pub mod analysis;
 pub mod codes;
 pub mod greedy;
 mod params;
+pub mod prune;
 #[cfg(test)]
 mod tests;
 
-pub use analysis::{table_stats, BiclusterStats, Distribution};
+pub use analysis::{achieved_error, table_stats, AchievedError, BiclusterStats, Distribution};
 pub use params::Bicluster;
 
 use crate::registry::{self, Kind};
@@ -60,16 +65,19 @@ use codes::CodeMatrix;
 use rayon::prelude::*;
 
 fn build(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
-    Ok(Box::new(registry::parse::<Bicluster>(p)?))
+    let c = registry::parse::<Bicluster>(p)?;
+    c.validate()?;
+    Ok(Box::new(c))
 }
 
-/// The registry entry. The label names `block_vertices` only when the config gives it
-/// (`bicluster-b1024`).
+/// The registry entry. The label names `block_vertices` and `error_budget` only when the
+/// config gives them (`bicluster-b1024`, `bicluster-e0.05`).
 pub const KIND: Kind = Kind {
     name: "bicluster",
-    about: "lossless greedy constant-column biclustering (Sun et al.), block-parallel",
+    about: "greedy constant-column biclustering (Sun et al.), block-parallel; lossless, or lossy within error_budget",
     label: |p| {
-        registry::parse::<Bicluster>(p).map(|_| registry::tagged_label("bicluster", p, &[("block_vertices", "b")]))
+        registry::parse::<Bicluster>(p)
+            .map(|_| registry::tagged_label("bicluster", p, &[("block_vertices", "b"), ("error_budget", "e")]))
     },
     check: |p| build(p).map(drop),
     build: |p| Ok(build(p)?),
@@ -306,14 +314,19 @@ impl Compressor for Bicluster {
         let nblocks = if rows == 0 { 0 } else { rows.div_ceil(block_rows) };
         let max_code = codes.codes.iter().map(|&c| (c as i32).abs()).max().unwrap_or(1);
         let done = AtomicUsize::new(0);
-        let blocks: Vec<Vec<greedy::Bc>> = (0..nblocks)
+        let blocks: Vec<(Vec<greedy::Bc>, prune::Pruned)> = (0..nblocks)
             .into_par_iter()
             .with_max_len(1)
             .map_init(
                 || greedy::Workspace::new(cols, max_code),
                 |ws, b| {
                     let range = b * block_rows..((b + 1) * block_rows).min(rows);
-                    let mut out = greedy::bicluster_block(&codes, range, ctx.seed, b as u64, ws);
+                    let out = greedy::bicluster_block(&codes, range.clone(), ctx.seed, b as u64, ws);
+                    let energy2: u64 = codes.codes[codes.indptr[range.start]..codes.indptr[range.end]]
+                        .iter()
+                        .map(|&c| (c as i64 * c as i64) as u64)
+                        .sum();
+                    let (mut out, pruned) = prune::prune(out, range.len(), energy2, self.error_budget);
                     // Number the block's biclusters by their first row (stable, so ties keep
                     // the greedy order): pass 2 of the gather walks rows in order, and a
                     // bicluster's scalar then sits near those of the other biclusters that
@@ -321,12 +334,20 @@ impl Compressor for Bicluster {
                     out.sort_by_key(|bc| bc.rows.iter().min().copied());
                     let d = done.fetch_add(1, Ordering::Relaxed) + 1;
                     ctx.report(d as f64 / nblocks as f64);
-                    out
+                    (out, pruned)
                 },
             )
             .collect();
-        let form = assemble(t, &codes, block_rows, &blocks)?;
-        let mut form = form;
+        let (blocks, pruned): (Vec<_>, Vec<_>) = blocks.into_iter().unzip();
+        let mut form = assemble(t, &codes, block_rows, &blocks)?;
+        let error2: u64 = pruned.iter().map(|p| p.error2).sum();
+        form.lossless = error2 == 0;
+        if self.error_budget > 0.0 {
+            let energy2: u64 = pruned.iter().map(|p| p.energy2).sum();
+            form.meta.insert("dropped_biclusters".into(), pruned.iter().map(|p| p.dropped as u64).sum());
+            form.meta.insert("error2_codes".into(), error2);
+            form.meta.insert("energy2_codes".into(), energy2);
+        }
         form.build_seconds = start.elapsed().as_secs_f64();
         Ok(form)
     }
@@ -510,6 +531,21 @@ fn assemble(
     form.lossless = true;
     form.flops_per_gather = flops;
     Ok(form)
+}
+
+/// The matrix a form stands for, `sum_i B_i` as f32 values `code / value_scale`: `T` itself
+/// for a lossless form, `T' = T - E` for a lossy one (what its gathers compute exactly).
+pub fn decompress(form: &CompressedForm) -> Result<TransferMatrix, CompressError> {
+    let c = decompress_codes(form)?;
+    let q = c.scale as f32;
+    let csr = sprs::CsMat::new(
+        (c.rows, c.cols),
+        c.indptr,
+        c.col_idx.iter().map(|&k| k as usize).collect(),
+        c.codes.iter().map(|&x| x as f32 / q).collect(),
+    );
+    TransferMatrix::new(form.local_basis(), form.light_basis(), csr)
+        .map_err(|e| CompressError::malformed("bicluster", "T'", e.to_string()))
 }
 
 /// Rebuild `T` in integer codes from a form's biclusters (`sum_i B_i`, exact).

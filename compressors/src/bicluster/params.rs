@@ -1,5 +1,5 @@
 //! The parameters of the biclustering compressor (config keys, `metrics.json` params, label
-//! `bicluster[-b<block_vertices>]`).
+//! `bicluster[-b<block_vertices>][-e<error_budget>]`).
 
 use serde::{Deserialize, Serialize};
 
@@ -18,11 +18,21 @@ pub struct Bicluster {
     /// Denominator `q` of the integer value codes (values are `code / q`); 0 = detect the
     /// smallest one that represents `T` exactly (4 for the 2x2 box-filtered reference).
     pub value_scale: u32,
+    /// Lossy mode: the largest relative Frobenius error `||T - T'||_F / ||T||_F` the form may
+    /// have, in `[0, 1]` (see `prune.rs` for why this norm). 0 = lossless (the paper's
+    /// biclustering). The achieved error, and the relative `L*` error under the uniform sky,
+    /// are in the form's stats.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub error_budget: f64,
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 impl Default for Bicluster {
     fn default() -> Self {
-        Self { block_vertices: 1024, value_scale: 0 }
+        Self { block_vertices: 1024, value_scale: 0, error_budget: 0.0 }
     }
 }
 
@@ -30,5 +40,16 @@ impl Bicluster {
     /// The paper's setting: one global greedy over all rows (single-threaded, slowest).
     pub fn global() -> Self {
         Self { block_vertices: 0, ..Self::default() }
+    }
+
+    /// Refuse a budget outside `[0, 1]` (or not a number), naming the key.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(0.0..=1.0).contains(&self.error_budget) {
+            return Err(format!(
+                "bicluster: error_budget = {} must be a relative error in [0, 1] (0 = lossless)",
+                self.error_budget
+            ));
+        }
+        Ok(())
     }
 }

@@ -124,7 +124,7 @@ fn random_matrices_are_lossless_over_many_seeds() {
         let local_grid = [1, 2, 4][rng.gen_range(0..3)];
         let density = [0.02, 0.1, 0.4][rng.gen_range(0..3)];
         let t = random_transfer(vertices, local_grid, 3, density, seed);
-        let c = Bicluster { block_vertices: [0, 1, 4, 7][rng.gen_range(0..4)], value_scale: 0 };
+        let c = Bicluster { block_vertices: [0, 1, 4, 7][rng.gen_range(0..4)], value_scale: 0, ..Bicluster::default() };
         let form = c.compress(&t, &CompressContext { seed, progress: None }).unwrap();
         assert_codes_exact(&form, &t);
         assert_flops(&form, &t);
@@ -153,7 +153,7 @@ fn flat_scene_gives_huge_biclusters() {
         }
     }
     let t = matrix(vertices, m, cols, &rows);
-    for c in [Bicluster::global(), Bicluster { block_vertices: 50, value_scale: 0 }] {
+    for c in [Bicluster::global(), Bicluster { block_vertices: 50, value_scale: 0, ..Bicluster::default() }] {
         let form = check_all(&c, &t, &[1, 2]);
         let s = table_stats(&form, &t).unwrap();
         // Ideal: one bicluster per bin and block spanning all its rows, W ~ r + 2l per bin
@@ -165,7 +165,7 @@ fn flat_scene_gives_huge_biclusters() {
 
 #[test]
 fn edge_cases() {
-    let c = Bicluster { block_vertices: 2, value_scale: 0 };
+    let c = Bicluster { block_vertices: 2, value_scale: 0, ..Bicluster::default() };
     // All zero (value scale cannot be detected from nothing: 1 is the smallest).
     let t = matrix(6, 1, 24, &vec![vec![]; 6]);
     let form = check_all(&c, &t, &[1]);
@@ -199,7 +199,7 @@ fn edge_cases() {
 #[test]
 fn same_seed_same_bytes_for_any_thread_count() {
     let t = random_transfer(80, 2, 3, 0.15, 3);
-    let c = Bicluster { block_vertices: 5, value_scale: 0 };
+    let c = Bicluster { block_vertices: 5, value_scale: 0, ..Bicluster::default() };
     let run = |threads: usize, seed: u64| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         let f = pool.install(|| c.compress(&t, &CompressContext { seed, progress: None }).unwrap());
@@ -296,7 +296,7 @@ fn real_mesh_transfer_is_lossless() {
     let settings = TransferSettings::new(8, 16, 4).unwrap();
     let t = build(&mesh, &settings, None).unwrap().matrix;
     assert!(t.nnz() > 10_000);
-    for c in [Bicluster::default(), Bicluster { block_vertices: 64, value_scale: 0 }] {
+    for c in [Bicluster::default(), Bicluster { block_vertices: 64, value_scale: 0, ..Bicluster::default() }] {
         let form = c.compress(&t, &CompressContext { seed: 3, progress: None }).unwrap();
         assert_eq!(form.meta["value_scale"], 4);
         assert_codes_exact(&form, &t);
@@ -431,7 +431,9 @@ fn corrupt_forms_fail_exactly_when_full_validation_fails() {
 #[test]
 fn gather_cost_per_vertex_splits_w_over_the_vertices() {
     let t = random_transfer(10, 2, 4, 0.1, 9);
-    let form = Bicluster { block_vertices: 4, value_scale: 0 }.compress(&t, &CompressContext::default()).unwrap();
+    let form = Bicluster { block_vertices: 4, value_scale: 0, ..Bicluster::default() }
+        .compress(&t, &CompressContext::default())
+        .unwrap();
     let cost = analysis::gather_cost_per_vertex(&form).unwrap();
     assert_eq!(cost.len(), 10);
     // The split is exact in f64; per-vertex sums of < 1e4 are stored in f32 (2^-24 relative
@@ -456,7 +458,9 @@ fn gather_cost_per_vertex_splits_w_over_the_vertices() {
 #[test]
 fn most_shared_window_is_the_best_window() {
     let t = random_transfer(12, 2, 4, 0.2, 5);
-    let form = Bicluster { block_vertices: 6, value_scale: 0 }.compress(&t, &CompressContext::default()).unwrap();
+    let form = Bicluster { block_vertices: 6, value_scale: 0, ..Bicluster::default() }
+        .compress(&t, &CompressContext::default())
+        .unwrap();
     let bv = BiclusterView::new(&form).unwrap();
     let score = |s: usize, count: usize| -> u64 {
         let mut n = std::collections::BTreeMap::<usize, u64>::new();
@@ -506,4 +510,106 @@ fn row_cover_reproduces_t_and_refuses_a_foreign_form() {
     let e = analysis::row_cover(&form, &other, 0..other.rows()).unwrap_err();
     assert!(matches!(&e, CompressError::Malformed { what, .. } if what.contains("not of this T")), "{e}");
     assert!(matches!(analysis::row_cover(&form, &t, 0..t.rows() + 1), Err(CompressError::Params(_))));
+}
+
+/// Lossy forms: the achieved error, recomputed from the arrays, is at most the budget and
+/// equals the build's own integer bookkeeping; the gather computes the product of the matrix
+/// the form stands for to f32 rounding; bigger budgets never cost more bytes or flops.
+fn check_lossy(t: &TransferMatrix, block_vertices: usize, seed: u64) {
+    let lossless = Bicluster { block_vertices, ..Bicluster::default() };
+    let base = lossless.compress(t, &CompressContext { seed, progress: None }).unwrap();
+    let zero = Bicluster { error_budget: 0.0, ..lossless.clone() };
+    let same = zero.compress(t, &CompressContext { seed, progress: None }).unwrap();
+    assert!(same.arrays == base.arrays && same.meta == base.meta && same.lossless, "budget 0 is the lossless form");
+    let (mut bytes, mut flops) = (base.bytes(), base.flops_per_gather);
+    for budget in [0.01, 0.05, 0.2, 0.5, 1.0] {
+        let c = Bicluster { error_budget: budget, ..lossless.clone() };
+        let form = c.compress(t, &CompressContext { seed, progress: None }).unwrap();
+        let got = achieved_error(&form, t).unwrap();
+        // The bound is on integers (||E||^2 <= floor(beta^2 ||T||^2)); the f64 square root
+        // adds at most a few ulps.
+        assert!(got.frobenius <= budget * (1.0 + 1e-12), "budget {budget}: achieved {}", got.frobenius);
+        let (e2, t2) = (form.meta["error2_codes"] as f64, form.meta["energy2_codes"] as f64);
+        assert!(((e2 / t2).sqrt() - got.frobenius).abs() <= 1e-12, "bookkeeping {e2}/{t2} vs {}", got.frobenius);
+        assert_eq!(form.lossless, e2 == 0.0);
+        assert!(form.bytes() <= bytes && form.flops_per_gather <= flops, "budget {budget} grew the form");
+        (bytes, flops) = (form.bytes(), form.flops_per_gather);
+        assert_flops(&form, t);
+        let kept = decompress(&form).unwrap();
+        for s in [seed * 2, seed * 2 + 1] {
+            assert_gather_exact(&form, &kept, &light_of(t.cols(), s));
+        }
+    }
+}
+
+#[test]
+fn lossy_forms_meet_their_budget_on_random_matrices() {
+    for seed in 0..12u64 {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed + 100);
+        let vertices = rng.gen_range(2..24);
+        let local_grid = [1, 2, 4][rng.gen_range(0..3)];
+        let density = [0.05, 0.2, 0.5][rng.gen_range(0..3)];
+        let t = random_transfer(vertices, local_grid, 3, density, seed);
+        check_lossy(&t, [0, 1, 3, 8][rng.gen_range(0..4)], seed);
+    }
+}
+
+#[test]
+fn lossy_error_is_the_mean_error_under_a_sun_in_any_texel() {
+    // prune.rs's reason for the Frobenius norm: over suns of equal power in each texel k in
+    // turn, sum_k ||T' e_k - T e_k||^2 / sum_k ||T e_k||^2 = ||T - T'||_F^2 / ||T||_F^2.
+    // Checked through the gather itself (f32, so to 1e-5 relative).
+    let t = random_transfer(12, 2, 3, 0.3, 7);
+    let form = Bicluster { block_vertices: 4, error_budget: 0.3, ..Bicluster::default() }
+        .compress(&t, &CompressContext { seed: 7, progress: None })
+        .unwrap();
+    let frob = achieved_error(&form, &t).unwrap().frobenius;
+    assert!(frob > 0.05, "the test needs a form that dropped something ({frob})");
+    let (mut e2, mut t2) = (0.0f64, 0.0f64);
+    for k in 0..t.cols() {
+        let mut power = vec![[0.0f32; 3]; t.cols()];
+        power[k] = [1e6; 3];
+        let sun = LightVector::new(cubemap_of(t.cols()), power).unwrap();
+        let got = Bicluster::default().gather(&form, &sun).unwrap();
+        for (g, r) in got.values().iter().zip(reference_product(&t, &sun)) {
+            e2 += (g[0] as f64 - r[0]).powi(2);
+            t2 += r[0] * r[0];
+        }
+    }
+    let mean = (e2 / t2).sqrt();
+    assert!((mean - frob).abs() <= 1e-5 * frob, "mean over suns {mean} vs Frobenius {frob}");
+}
+
+#[test]
+fn lossy_budget_holds_on_the_bunny() {
+    // Real transfer (the bunny at 6x8x8 light, 2x2 visibility, 4x4 bins): the budget holds,
+    // and dropping saves bytes and flops while the uniform-sky L* error stays below the
+    // Frobenius one (boundary texels carry little of a row's light).
+    use biscale_core::geometry::Mesh;
+    use biscale_core::transfer::{build, TransferSettings};
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/meshes/bunny.obj");
+    let mesh = Mesh::load_obj(&path).unwrap().mesh;
+    let t = build(&mesh, &TransferSettings::new(8, 16, 4).unwrap(), None).unwrap().matrix;
+    let lossless = Bicluster::default().compress(&t, &CompressContext { seed: 3, progress: None }).unwrap();
+    for budget in [0.02, 0.1] {
+        let form = Bicluster { error_budget: budget, ..Bicluster::default() }
+            .compress(&t, &CompressContext { seed: 3, progress: None })
+            .unwrap();
+        let got = achieved_error(&form, &t).unwrap();
+        assert!(got.frobenius <= budget * (1.0 + 1e-12) && got.frobenius > 0.5 * budget, "{budget}: {got:?}");
+        assert!(got.sky.unwrap() < got.frobenius, "{budget}: {got:?}");
+        assert!(form.bytes() < lossless.bytes() && form.flops_per_gather < lossless.flops_per_gather);
+        let s = table_stats(&form, &t).unwrap();
+        assert_eq!(s.error, got);
+    }
+}
+
+#[test]
+fn error_budget_outside_zero_to_one_is_refused_by_name() {
+    for bad in [-0.1, 1.5] {
+        let e = (KIND.build)(&serde_json::json!({ "error_budget": bad })).err().expect("accepted").to_string();
+        assert!(e.contains("error_budget") && e.contains("[0, 1]"), "{e}");
+    }
+    let label = (KIND.label)(&serde_json::json!({ "error_budget": 0.05 })).unwrap();
+    assert_eq!(label, "bicluster-e0.05");
 }

@@ -316,17 +316,21 @@ fn f16_to_f32(b: u16) -> f32 {
 
 #[test]
 fn bicluster_matches_f64_reference() {
-    // Lossless, so the f64 reference is the exact T L. Pass 1 sums l_b signed products
+    // The f64 reference is the exact product of the matrix the form stands for. Pass 1 sums l_b signed products
     // code * (L_k / q) in f32: error <= (l_b + 2) u A_b with A_b = sum |code| L_k / q. Pass 2
     // sums the row's r_i scalars: error <= r_i u sum |a_b| plus the pass-1 errors. We allow
     // u (r_i sum_b |a_b| + sum_b (l_b + 3) A_b), computed per row and channel in f64.
-    use biscale_compressors::bicluster::{Bicluster, BiclusterView};
+    // The lossy form (budget 0.3) is an ordinary form of T' = T - E: the same kernels must
+    // compute T' L, so its reference is the f64 product with the decompressed T'.
+    use biscale_compressors::bicluster::{decompress, Bicluster, BiclusterView};
     let ctx = gpu_or_skip!();
     let u = f32::EPSILON as f64 / 2.0;
-    for (seed, block_vertices) in [(1u64, 4usize), (2, 0)] {
+    for (seed, block_vertices, error_budget) in [(1u64, 4usize, 0.0), (2, 0, 0.0), (3, 4, 0.3)] {
         let t = random_transfer(24, 8, 4, 0.2, seed);
-        let bicluster = Bicluster { block_vertices, value_scale: 0 };
+        let bicluster = Bicluster { block_vertices, error_budget, ..Bicluster::default() };
         let form = bicluster.compress(&t, &CompressContext { seed, progress: None }).unwrap();
+        assert_eq!(form.lossless, error_budget == 0.0);
+        let t = decompress(&form).unwrap();
         let view = BiclusterView::new(&form).unwrap();
         for light in [random_light(4, seed + 20), random_light(4, seed + 21)] {
             let mut g = upload(ctx, &bicluster, &form);

@@ -191,7 +191,9 @@ fn hand_form(rows: usize, cols: usize, m: usize, q: u32, bcs: &[(Vec<u32>, Vec<u
 #[test]
 fn bicluster_patch_of_a_random_t_colours_every_entry_by_a_covering_bicluster() {
     let t = random_transfer(6, 2, 4, 0.2, 3);
-    let form = Bicluster { block_vertices: 3, value_scale: 0 }.compress(&t, &CompressContext::default()).unwrap();
+    let form = Bicluster { block_vertices: 3, value_scale: 0, ..Bicluster::default() }
+        .compress(&t, &CompressContext::default())
+        .unwrap();
     let bv = BiclusterView::new(&form).unwrap();
     let dir = tmp();
     let cell = 5;
