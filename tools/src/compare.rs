@@ -58,6 +58,15 @@ pub fn storage_for_error(records: &[&CompressorRecord], target_error: f64) -> Op
     Some(StorageForError::NotReached { best_error: best.rel_error_lstar, setting: best.name.clone() })
 }
 
+/// The error targets of the equal-quality table: 0.1%, 1%, 10% and the run's own target,
+/// in increasing order without repeats.
+pub fn equal_quality_targets(target_error: f64) -> Vec<f64> {
+    let mut t = vec![1e-3, 1e-2, 1e-1, target_error];
+    t.sort_by(f64::total_cmp);
+    t.dedup_by(|a, b| (*a / *b - 1.0).abs() < 1e-9);
+    t
+}
+
 /// Records grouped by kind, in the order kinds first appear.
 pub fn by_kind(records: &[CompressorRecord]) -> Vec<(String, Vec<&CompressorRecord>)> {
     let mut out: Vec<(String, Vec<&CompressorRecord>)> = vec![];
@@ -137,5 +146,11 @@ mod tests {
             StorageForError::NotReached { best_error: 0.1, setting: "b".into() }
         );
         assert!(storage_for_error(&[], 0.1).is_none());
+    }
+
+    #[test]
+    fn equal_quality_targets_are_sorted_without_repeats() {
+        assert_eq!(equal_quality_targets(0.05), vec![1e-3, 1e-2, 0.05, 1e-1]);
+        assert_eq!(equal_quality_targets(0.01), vec![1e-3, 1e-2, 1e-1]);
     }
 }

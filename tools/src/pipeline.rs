@@ -674,9 +674,14 @@ fn write_plots(m: &Metrics, out_dir: &Path) -> Vec<(String, String)> {
     /// A plot's file stem, title, x-axis label and x value of a record.
     type Plot = (&'static str, &'static str, &'static str, fn(&CompressorRecord) -> f64);
     let mut out = vec![];
-    let mut plot = |file: &str, title: &str, x_label: &str, y_label: &str, series: &[crate::plots::Series]| {
+    let mut plot_with = |file: &str,
+                         title: &str,
+                         x_label: &str,
+                         y_label: &str,
+                         series: &[crate::plots::Series],
+                         guide: Option<&crate::plots::Guide>| {
         let rel = format!("{file}.png");
-        match crate::plots::log_log_plot(&out_dir.join(&rel), title, x_label, y_label, series) {
+        match crate::plots::log_log_plot_with(&out_dir.join(&rel), title, x_label, y_label, series, guide) {
             Ok(()) => out.push((rel, title.to_string())),
             Err(e) => eprintln!("warning: plot {file}: {e}"),
         }
@@ -686,9 +691,23 @@ fn write_plots(m: &Metrics, out_dir: &Path) -> Vec<(String, String)> {
             ("error_vs_time", "relative error of L* against gather time", "gather time (ms, CPU)", |r| r.gather_ms),
             ("error_vs_storage", "relative error of L* against storage", "storage (MB)", |r| r.bytes as f64 / 1e6),
         ];
+        // On the storage plot, the equal-quality storage of each kind at the report's target.
+        let guide = crate::plots::Guide {
+            y: m.target_error,
+            label: format!("target {:.1e}", m.target_error),
+            marks: crate::compare::by_kind(&m.compressors)
+                .into_iter()
+                .filter_map(|(kind, recs)| match crate::compare::storage_for_error(&recs, m.target_error)? {
+                    crate::compare::StorageForError::AtMost { bytes, .. } => Some((kind, bytes as f64 / 1e6)),
+                    crate::compare::StorageForError::Between { bytes, .. } => Some((kind, bytes / 1e6)),
+                    crate::compare::StorageForError::NotReached { .. } => None,
+                })
+                .collect(),
+        };
         for (file, title, x_label, x) in plots {
             let series = crate::plots::series_by_kind(&m.compressors, x, |r| r.rel_error_lstar);
-            plot(file, title, x_label, "relative L2 error of L*", &series);
+            let guide = (file == "error_vs_storage").then_some(&guide);
+            plot_with(file, title, x_label, "relative L2 error of L*", &series, guide);
         }
     }
     // The image error of every compressor and method (SH through its order sweep) against the
@@ -715,7 +734,14 @@ fn write_plots(m: &Metrics, out_dir: &Path) -> Vec<(String, String)> {
         } else {
             "relative L2 image error vs all-frequency"
         };
-        plot("image_error_vs_storage", "image error against transfer storage", "storage (MB)", y_label, &series);
+        plot_with(
+            "image_error_vs_storage",
+            "image error against transfer storage",
+            "storage (MB)",
+            y_label,
+            &series,
+            None,
+        );
     }
     // BTF storage against the image error it adds (vs the all-dense image), one series per
     // material; dense settings sit at error 0 (drawn at the plot's floor).
@@ -733,12 +759,13 @@ fn write_plots(m: &Metrics, out_dir: &Path) -> Vec<(String, String)> {
                 crate::plots::Series { name: name.to_string(), points }
             })
             .collect();
-        plot(
+        plot_with(
             "btf_error_vs_storage",
             "image error against BTF storage",
             "BTF storage (MB)",
             "relative L2 image error vs dense BTFs",
             &series,
+            None,
         );
     }
     out

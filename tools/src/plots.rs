@@ -56,8 +56,44 @@ pub fn series_by<'a>(
 /// Smallest error drawn on a log axis (lossless compressors sit at f32 rounding, ~1e-7).
 pub const ERROR_FLOOR: f64 = 1e-9;
 
+/// A level drawn across a plot (dashed) with, on it, where named series cross it: the
+/// equal-quality storage read off the error-against-storage curves.
+pub struct Guide {
+    pub y: f64,
+    pub label: String,
+    /// `(series name, x)`: a cross in that series' colour at `(x, y)`.
+    pub marks: Vec<(String, f64)>,
+}
+
+/// A tick label a reader can take in at a glance: `2`, `40`, `0.5`, `3e-4`, `2e5`.
+pub fn tick_label(v: f64) -> String {
+    let a = v.abs();
+    if a == 0.0 {
+        "0".into()
+    } else if !(1e-2..1e4).contains(&a) {
+        format!("{v:.0e}")
+    } else if (v - v.round()).abs() < 1e-6 * a.max(1.0) {
+        format!("{v:.0}")
+    } else {
+        let s = format!("{v:.3}");
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    }
+}
+
 /// A log-log plot of `series` written to `path` (PNG, 800 x 560).
 pub fn log_log_plot(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series]) -> Result<(), String> {
+    log_log_plot_with(path, title, x_label, y_label, series, None)
+}
+
+/// [`log_log_plot`] with an optional [`Guide`].
+pub fn log_log_plot_with(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[Series],
+    guide: Option<&Guide>,
+) -> Result<(), String> {
     register_font();
     let pts: Vec<(f64, f64)> = series
         .iter()
@@ -90,8 +126,10 @@ pub fn log_log_plot(path: &Path, title: &str, x_label: &str, y_label: &str, seri
             .x_desc(x_label)
             .y_desc(y_label)
             .label_style(("sans-serif", 14))
-            .x_label_formatter(&|v| format!("{v:.3}"))
-            .y_label_formatter(&|v| format!("{v:.0e}"))
+            .x_labels(8)
+            .y_labels(8)
+            .x_label_formatter(&|v| tick_label(*v))
+            .y_label_formatter(&|v| tick_label(*v))
             .draw()
             .map_err(|e| e.to_string())?;
         for (i, s) in series.iter().enumerate() {
@@ -109,6 +147,26 @@ pub fn log_log_plot(path: &Path, title: &str, x_label: &str, y_label: &str, seri
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
             chart.draw_series(points.iter().map(|&p| Circle::new(p, 4, colour.filled()))).map_err(|e| e.to_string())?;
         }
+        if let Some(g) = guide.filter(|g| g.y > y0 && g.y < y1) {
+            let dashes: Vec<PathElement<(f64, f64)>> = (0..40)
+                .map(|i| {
+                    let at = |f: f64| x0 * (x1 / x0).powf(f);
+                    PathElement::new(vec![(at(i as f64 / 40.0), g.y), (at((i as f64 + 0.5) / 40.0), g.y)], BLACK)
+                })
+                .collect();
+            chart
+                .draw_series(dashes)
+                .map_err(|e| e.to_string())?
+                .label(g.label.clone())
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 8, y), (x + 12, y), (x + 20, y)], BLACK));
+            for (name, x) in &g.marks {
+                let Some(i) = series.iter().position(|s| &s.name == name) else { continue };
+                if *x > x0 && *x < x1 {
+                    let colour = Palette99::pick(i).to_rgba();
+                    chart.draw_series([Cross::new((*x, g.y), 7, colour.stroke_width(3))]).map_err(|e| e.to_string())?;
+                }
+            }
+        }
         chart
             .configure_series_labels()
             .background_style(WHITE.mix(0.8))
@@ -123,6 +181,13 @@ pub fn log_log_plot(path: &Path, title: &str, x_label: &str, y_label: &str, seri
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn tick_labels_are_short() {
+        use super::tick_label;
+        let got: Vec<String> = [40.0, 2.5, 0.05, 0.125, 3e-4, 2e5, 1.0].iter().map(|&v| tick_label(v)).collect();
+        assert_eq!(got, ["40", "2.5", "0.05", "0.125", "3e-4", "2e5", "1"]);
+    }
+
     use super::*;
 
     #[test]
@@ -135,6 +200,8 @@ mod tests {
             Series { name: "bicluster".into(), points: vec![(3.0, 0.0)] },
         ];
         log_log_plot(&p, "error against storage", "MB", "rel. error", &series).unwrap();
+        let guide = Guide { y: 0.05, label: "target".into(), marks: vec![("haar".into(), 2.0)] };
+        log_log_plot_with(&p, "with a guide", "MB", "rel. error", &series, Some(&guide)).unwrap();
         let img = image::open(&p).unwrap();
         assert_eq!((img.width(), img.height()), (800, 560));
         assert!(log_log_plot(&p, "t", "x", "y", &[]).is_err());

@@ -389,7 +389,9 @@ pub fn compressor_table(m: &Metrics) -> (&'static [&'static str], Vec<Vec<String
 /// The storage budget of the equal-storage comparison: the lossless biclustering's storage
 /// when it ran (the paper compares at the size biclustering needs), else the median.
 pub fn storage_budget(m: &Metrics) -> Option<(u64, String)> {
-    if let Some(b) = m.compressors.iter().find(|c| c.kind == "bicluster") {
+    // The lossless biclustering when it ran (the paper's storage), else the first bicluster.
+    let bicluster = |lossless: bool| m.compressors.iter().find(|c| c.kind == "bicluster" && (c.lossless || !lossless));
+    if let Some(b) = bicluster(true).or_else(|| bicluster(false)) {
         return Some((b.bytes, format!("the storage of {}", b.name)));
     }
     let mut bytes: Vec<u64> = m.compressors.iter().map(|c| c.bytes).collect();
@@ -449,6 +451,30 @@ pub fn comparisons_markdown(m: &Metrics) -> String {
             None => "-".into(),
         };
         let _ = writeln!(s, "| {kind} | {text} |");
+    }
+    // The same read-off at the field's usual targets, one column each: where each
+    // compressor's curve crosses them (interpolated between two measured settings, never
+    // extrapolated).
+    let targets = crate::compare::equal_quality_targets(m.target_error);
+    let _ = writeln!(
+        s,
+        "\nAt other targets (MB; `<=`: the cheapest setting already meets it; `>`: not reached, so it needs more than the largest setting measured):\n"
+    );
+    let head: Vec<String> = targets.iter().map(|t| format!("{t:.1e}")).collect();
+    let _ = writeln!(s, "| compressor | {} |\n|---|{}", head.join(" | "), "---|".repeat(targets.len()));
+    for (kind, recs) in &kinds {
+        let cells: Vec<String> = targets
+            .iter()
+            .map(|&t| match storage_for_error(recs, t) {
+                Some(StorageForError::AtMost { bytes, .. }) => format!("<= {:.2}", bytes as f64 / 1e6),
+                Some(StorageForError::Between { bytes, .. }) => format!("{:.2}", bytes / 1e6),
+                Some(StorageForError::NotReached { .. }) => {
+                    format!("> {:.2}", recs.iter().map(|r| r.bytes).max().unwrap_or(0) as f64 / 1e6)
+                }
+                None => "-".into(),
+            })
+            .collect();
+        let _ = writeln!(s, "| {kind} | {} |", cells.join(" | "));
     }
     s
 }
