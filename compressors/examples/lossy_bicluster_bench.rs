@@ -1,7 +1,8 @@
 //! Lossy biclustering on a real transfer matrix: storage, flops, build time and errors for a
-//! list of error budgets, beside the lossless form and one alternative mechanism measured
-//! against it (coarser value codes: `T` rounded to multiples of 1/2, then biclustered
-//! losslessly).
+//! list of error budgets, beside the lossless form and the alternative mechanisms measured
+//! against it: coarser value codes (`T` rounded to multiples of 1/2, then biclustered
+//! losslessly), biclustering the pruned matrix again, and an estimate of merging each
+//! bicluster into the one that shares most of its rows.
 //!
 //! ```text
 //! cargo run --release -p biscale-compressors --example lossy_bicluster_bench -- \
@@ -118,6 +119,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let achieved = achieved_error(&form, &t)?.frobenius;
         assert!(achieved <= b, "budget {b}: achieved {achieved}");
         row(&format!("prune e{b}"), &c, &form, &t)?;
+    }
+    // Tried and not kept: biclustering the pruned matrix T' again from scratch (lossless).
+    {
+        let pruned = Bicluster { error_budget: 0.1, ..lossless_c.clone() }.compress(&t, &ctx)?;
+        let t_prime = biscale_compressors::bicluster::decompress(&pruned)?;
+        let again = lossless_c.compress(&t_prime, &ctx)?;
+        println!(
+            "re-biclustering T' of e0.1: {} bytes ({:.1}% of lossless) against the pruned form's {} ({:.1}%)",
+            again.bytes(),
+            100.0 * again.bytes() as f64 / lossless.bytes() as f64,
+            pruned.bytes(),
+            100.0 * pruned.bytes() as f64 / lossless.bytes() as f64
+        );
     }
     // The alternative mechanism: coarser value codes (halves, rounding 1/4 and 3/4 up).
     let halves = map_values(&t, |v| (v * 2.0 + 0.01).round() / 2.0)?;
