@@ -803,6 +803,76 @@ pub struct Experiment {
     methods: Vec<MethodSetting>,
 }
 
+/// Most timed gathers per setting (`runtime.repeats`): medians settle long before this, and
+/// a typo like `10^18` must not run until killed.
+pub const MAX_REPEATS: usize = 10_000;
+
+/// Most pixels of one image (`runtime.width x height`): 8192 x 8192, 0.8 GB of f32 RGB.
+pub const MAX_PIXELS: u64 = 8192 * 8192;
+
+/// Refuse a config that holds a non-finite number anywhere (`nan`, `inf`, or a literal too big
+/// for f64): such a value would flow into the light, the camera or the tone map and give NaN
+/// or black images with exit 0. Names the key and, where the literal can be found, its
+/// line and column.
+fn check_finite(path: &Path, source: &str) -> Result<(), ConfigError> {
+    fn walk(v: &toml::Value, at: &str, out: &mut Option<(String, f64)>) {
+        if out.is_some() {
+            return;
+        }
+        match v {
+            toml::Value::Float(x) if !x.is_finite() => *out = Some((at.to_string(), *x)),
+            toml::Value::Array(a) => a.iter().enumerate().for_each(|(i, x)| walk(x, &format!("{at}[{i}]"), out)),
+            toml::Value::Table(t) => {
+                t.iter().for_each(|(k, x)| walk(x, &if at.is_empty() { k.clone() } else { format!("{at}.{k}") }, out))
+            }
+            _ => {}
+        }
+    }
+    let Ok(value) = source.parse::<toml::Value>() else { return Ok(()) };
+    let mut found = None;
+    walk(&value, "", &mut found);
+    let Some((key, x)) = found else { return Ok(()) };
+    let message = format!("{key} = {x}: every number in a config must be finite");
+    Err(match non_finite_literal(source) {
+        Some(span) => ConfigError::at(path, source, span, message),
+        None => ConfigError::whole_file(path, message),
+    })
+}
+
+/// The byte range of the first `nan` / `inf` literal (optionally signed) of a TOML text,
+/// outside strings and comments.
+fn non_finite_literal(source: &str) -> Option<Range<usize>> {
+    let b = source.as_bytes();
+    let mut i = 0;
+    while i < b.len() {
+        match b[i] {
+            b'#' => i = source[i..].find('\n').map_or(b.len(), |n| i + n),
+            q @ (b'"' | b'\'') => {
+                let triple = b.len() >= i + 3 && b[i + 1] == q && b[i + 2] == q;
+                let close = if triple { &source[i..i + 3] } else { &source[i..i + 1] };
+                let mut j = i + close.len();
+                while j < b.len() && !source[j..].starts_with(close) {
+                    j += if q == b'"' && b[j] == b'\\' { 2 } else { 1 };
+                }
+                i = (j + close.len()).min(b.len());
+            }
+            c if c.is_ascii_alphanumeric() || c == b'+' || c == b'-' || c == b'_' || c == b'.' => {
+                let start = i;
+                while i < b.len() && (b[i].is_ascii_alphanumeric() || matches!(b[i], b'+' | b'-' | b'_' | b'.')) {
+                    i += 1;
+                }
+                let word = source[start..i].trim_start_matches(['+', '-']);
+                let is_key = source[i..].trim_start_matches([' ', '\t']).starts_with('=');
+                if (word == "nan" || word == "inf") && !is_key {
+                    return Some(start..i);
+                }
+            }
+            _ => i += 1,
+        }
+    }
+    None
+}
+
 impl Experiment {
     /// Read, parse and validate a config file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
@@ -817,6 +887,7 @@ impl Experiment {
             let span = e.span().unwrap_or(0..0);
             ConfigError::at(path, &source, span, e.message().to_string())
         })?;
+        check_finite(path, &source)?;
         let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
         let err = |span: Range<usize>, msg: String| ConfigError::at(path, &source, span, msg);
 
@@ -832,6 +903,19 @@ impl Experiment {
             || file.name.get_ref().starts_with('.')
         {
             return Err(err(file.name.span(), "name must be a plain folder name (no slashes, not empty)".into()));
+        }
+        // File kinds are checked here, before `run` traces anything (`plan` checks them too).
+        let kind_of = |p: &Spanned<PathBuf>, what: &str, allowed: &[&str]| -> Result<(), ConfigError> {
+            let ext = p.get_ref().extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+            if allowed.contains(&ext.as_str()) {
+                return Ok(());
+            }
+            let want: Vec<String> = allowed.iter().map(|a| format!(".{a}")).collect();
+            Err(err(p.span(), format!("{what} must be a {} file, got '{}'", want.join(" or "), p.get_ref().display())))
+        };
+        kind_of(&file.scene.mesh, "scene.mesh", &["obj"])?;
+        if let Some(p) = &file.lighting.env_map {
+            kind_of(p, "lighting.env_map", &["exr", "hdr"])?;
         }
         let mesh_path = resolve(&file.scene.mesh, "mesh")?;
         let env_path = match (&file.lighting.env_map, &file.lighting.constant) {
@@ -889,8 +973,49 @@ impl Experiment {
         if !(file.report.target_error > 0.0 && file.report.target_error.is_finite()) {
             return Err(ConfigError::whole_file(path, "report.target_error must be a positive number"));
         }
-        if file.runtime.repeats == 0 {
-            return Err(ConfigError::whole_file(path, "runtime.repeats must be at least 1"));
+        if file.runtime.repeats == 0 || file.runtime.repeats > MAX_REPEATS {
+            return Err(ConfigError::whole_file(
+                path,
+                format!(
+                    "runtime.repeats must be in 1..={MAX_REPEATS} (timed gathers per setting), got {}",
+                    file.runtime.repeats
+                ),
+            ));
+        }
+        let cam = &file.runtime.camera;
+        if !(cam.fov_y_degrees > 0.0 && cam.fov_y_degrees < 180.0) {
+            return Err(ConfigError::whole_file(
+                path,
+                format!("runtime.camera.fov_y_degrees must be in (0, 180), got {}", cam.fov_y_degrees),
+            ));
+        }
+        if !(cam.elevation_degrees > -90.0 && cam.elevation_degrees < 90.0) {
+            return Err(ConfigError::whole_file(
+                path,
+                format!(
+                    "runtime.camera.elevation_degrees must be in (-90, 90) (at the poles the view has no up), got {}",
+                    cam.elevation_degrees
+                ),
+            ));
+        }
+        if let (Some(p), Some(t)) = (cam.position, cam.target) {
+            if p == t {
+                return Err(ConfigError::whole_file(
+                    path,
+                    format!("runtime.camera.position and target are the same point {p:?}: the camera looks nowhere"),
+                ));
+            }
+        }
+        let pixels = *file.runtime.width.get_ref() as u64 * *file.runtime.height.get_ref() as u64;
+        if pixels > MAX_PIXELS {
+            return Err(err(
+                file.runtime.width.span(),
+                format!(
+                    "runtime.width x height = {pixels} pixels is over the limit of {MAX_PIXELS} ({:.1} GB of f32 RGB per \
+                     image, one per setting plus the uncompressed one); make the image smaller",
+                    pixels as f64 * 12.0 / 1e9
+                ),
+            ));
         }
         let mut file = file;
         // Compressor and method settings share one label space (file names, report rows).
@@ -1054,6 +1179,59 @@ mod tests {
         // An entry of the list keeps serde's own message.
         let e = parse(&body("[{ kind = \"lpca\", cluster = 3 }]")).unwrap_err();
         assert!(e.message.contains("unknown field `cluster`"), "{e}");
+    }
+
+    #[test]
+    fn nan_or_inf_anywhere_is_refused_at_its_literal() {
+        // Regression (hostile input): `rotation_degrees = nan` gave NaN images with exit 0,
+        // `exposure = inf` an all-white PNG.
+        for (text, key, line) in [
+            (format!("{OK}[transfer]\nlocal_grid = 8\n"), "", 0),
+            (OK.replace("[lighting]", "[lighting]\nrotation_degrees = nan"), "lighting.rotation_degrees = NaN", 5),
+            (OK.replace("[lighting]", "[lighting] # inf in a comment\nrotation_degrees = -inf"), "= -inf", 5),
+            (format!("{OK}[report]\nexposure = +inf\n"), "report.exposure = inf", 7),
+            (format!("{OK}[runtime.camera]\ntarget = [0.0, nan, 0.0]\n"), "runtime.camera.target[1]", 7),
+        ] {
+            match parse(&text) {
+                Ok(_) => assert!(key.is_empty(), "accepted: {text}"),
+                Err(e) => {
+                    assert!(!key.is_empty(), "{e}");
+                    assert!(e.message.contains(key) && e.message.contains("finite"), "{e}");
+                    assert_eq!(e.line, line, "{e}");
+                }
+            }
+        }
+        // A string that says nan is not a number.
+        assert!(non_finite_literal("name = \"nan\" # inf\nx = 'inf'\n").is_none());
+        assert_eq!(non_finite_literal("a = [1.0, -nan]"), Some(10..14));
+    }
+
+    #[test]
+    fn camera_and_file_kinds_that_run_would_reject_fail_at_load() {
+        // Regression (late validation): `plan` accepted these and `run` failed minutes in.
+        for (extra, want) in [
+            ("[runtime.camera]\nfov_y_degrees = 0.0\n", "fov_y_degrees must be in (0, 180)"),
+            ("[runtime.camera]\nfov_y_degrees = 180.0\n", "fov_y_degrees must be in (0, 180)"),
+            ("[runtime.camera]\nelevation_degrees = 90.0\n", "elevation_degrees must be in (-90, 90)"),
+            ("[runtime.camera]\nposition = [1.0, 2.0, 3.0]\ntarget = [1.0, 2.0, 3.0]\n", "the same point"),
+        ] {
+            let e = parse(&format!("{OK}{extra}")).unwrap_err();
+            assert!(e.message.contains(want), "{extra}: {e}");
+        }
+        let e = parse(&OK.replace("bunny.obj", "bunny.ply")).unwrap_err();
+        assert!(e.message.contains("scene.mesh must be a .obj file") && e.line == 3, "{e}");
+        let e = parse(&OK.replace("constant = [1, 1, 1]", "env_map = \"sky.png\"")).unwrap_err();
+        assert!(e.message.contains("lighting.env_map must be a .exr or .hdr file"), "{e}");
+    }
+
+    #[test]
+    fn unbounded_repeats_and_images_are_refused_with_the_limit() {
+        let e = parse(&format!("{OK}[runtime]\nrepeats = 1000000000000000000\n")).unwrap_err();
+        assert!(e.message.contains("runtime.repeats") && e.message.contains("10000"), "{e}");
+        let e = parse(&format!("{OK}[runtime]\nwidth = 16384\nheight = 16384\n")).unwrap_err();
+        assert!(e.message.contains("pixels") && e.message.contains("GB"), "{e}");
+        assert_eq!(e.line, 7, "{e}");
+        parse(&format!("{OK}[runtime]\nwidth = 8192\nheight = 8192\nrepeats = 10000\n")).unwrap();
     }
 
     #[test]
