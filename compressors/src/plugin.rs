@@ -277,10 +277,12 @@ impl PluginCompressor {
     /// them and should reject what it does not know). Runs the handshake, fetches and checks
     /// the kernels (the plugin sees `params` here first, so parameter errors surface at load).
     pub fn load(path: &Path, params: Value) -> Result<Self, PluginError> {
-        let path = path.to_path_buf();
-        if !path.is_file() {
-            return Err(PluginError::Load { path, message: "no such file".into() });
-        }
+        // Absolute before dlopen: a bare file name ("libq.so") would otherwise be searched for
+        // on LD_LIBRARY_PATH and the system folders, loading another library of that name.
+        let path = match path.canonicalize() {
+            Ok(p) if p.is_file() => p,
+            _ => return Err(PluginError::Load { path: path.to_path_buf(), message: "no such file".into() }),
+        };
         let bytes =
             std::fs::read(&path).map_err(|e| PluginError::Load { path: path.clone(), message: e.to_string() })?;
         let library_hash = biscale_core::io::ContentHash::default().write(&bytes).finish();
@@ -359,7 +361,7 @@ impl PluginCompressor {
         })
     }
 
-    /// The library file.
+    /// The library file as loaded: absolute, with symlinks and `..` resolved.
     pub fn path(&self) -> &Path {
         &self.path
     }

@@ -223,6 +223,20 @@ fn bad_parameters_fail_at_load() {
 }
 
 #[test]
+fn a_relative_plugin_path_is_loaded_as_that_absolute_file() {
+    // Regression (hostile input): a path without a folder went to dlopen as it was, which
+    // searches LD_LIBRARY_PATH and the system folders for a library of that name.
+    let lib = quantized_lib().canonicalize().unwrap();
+    let cwd = std::env::current_dir().unwrap().canonicalize().unwrap();
+    let common = cwd.ancestors().find(|a| lib.starts_with(a)).unwrap();
+    let up = cwd.strip_prefix(common).unwrap().components().count();
+    let rel = PathBuf::from("../".repeat(up)).join(lib.strip_prefix(common).unwrap());
+    assert!(rel.is_relative());
+    let plugin = PluginCompressor::load(&rel, json!({})).unwrap();
+    assert_eq!(plugin.path(), lib);
+}
+
+#[test]
 fn missing_or_non_library_files_are_load_errors() {
     let missing = scratch_dir().join("no-such-plugin.so");
     let e = PluginCompressor::load(&missing, json!({})).unwrap_err();
