@@ -213,6 +213,9 @@ pub struct TransferMetrics {
     pub rays_traced: u64,
     pub rays_per_second: f64,
     pub cached: bool,
+    /// Vertices all of whose rows of T are zero: they see no sky at all (closed rooms, or an
+    /// inside-out mesh whose normals point into the solid).
+    pub vertices_without_sky: usize,
 }
 
 #[derive(Debug, Serialize)]

@@ -239,7 +239,30 @@ fn transfer_metrics(
         rays_traced: rays,
         rays_per_second,
         cached,
+        vertices_without_sky: vertices_without_sky(t),
     }
+}
+
+/// Vertices whose M rows of `t` are all zero.
+pub fn vertices_without_sky(t: &TransferMatrix) -> usize {
+    let ip = t.csr().indptr();
+    let ip = ip.raw_storage();
+    let m = t.local_dirs().max(1);
+    (0..t.vertices()).filter(|&v| ip[v * m] == ip[(v + 1) * m]).count()
+}
+
+/// A warning when at least half of the vertices see no sky: the likely causes, so a black
+/// image with exit 0 does not go unexplained.
+pub fn sky_warning(t: &TransferMetrics, vertices: usize) -> Option<String> {
+    let n = t.vertices_without_sky;
+    (vertices > 0 && 2 * n >= vertices).then(|| {
+        format!(
+            "{:.0}% of the vertices ({n} of {vertices}) see no sky: every row of T is zero there, so they render \
+             black. Is the mesh inside out (faces wound clockwise, normals pointing into the solid) or closed \
+             around the camera?",
+            100.0 * n as f64 / vertices as f64
+        )
+    })
 }
 
 /// The shade scene: the mesh, the transfer scene's frames and the materials, whose BTFs are
@@ -531,6 +554,9 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
         eprintln!("warning: {w}");
     }
     let t = transfer_matrix(exp, &geometry, cache.as_ref())?;
+    if let Some(w) = sky_warning(&t.metrics, t.matrix.vertices()) {
+        eprintln!("warning: {w}");
+    }
     let (scene, mut materials) = shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
     for n in &materials.notes {
         eprintln!("materials: {n}");
@@ -778,4 +804,35 @@ fn save_images(img: &HdrImage, dir: &Path, name: &str, exposure: f32) -> Result<
     img.write_png(&png, exposure)?;
     img.write_exr(&exr)?;
     Ok((format!("images/{name}.png"), format!("images/{name}.exr")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use biscale_core::geometry::shapes::uv_sphere;
+
+    fn transfer_of(mesh: &biscale_core::geometry::Mesh) -> TransferMetrics {
+        let settings = TransferSettings::new(8, 16, 4).unwrap();
+        let t = transfer::build(mesh, &settings, None).unwrap().matrix;
+        transfer_metrics(&t, 0.0, 0, 0.0, false, &settings)
+    }
+
+    #[test]
+    fn an_inside_out_mesh_is_warned_about() {
+        // Regression (hostile input): a closed sphere with every face flipped traced T with
+        // no non-zeros and rendered black with exit 0 and no word.
+        let sphere = uv_sphere(glam::Vec3::ZERO, 1.0, 8, 12);
+        let vertices = sphere.vertex_count();
+        let ok = transfer_of(&sphere);
+        assert_eq!(ok.vertices_without_sky, 0);
+        assert!(sky_warning(&ok, vertices).is_none());
+        let mut flipped = sphere.clone();
+        for t in &mut flipped.triangles {
+            t.swap(1, 2);
+        }
+        let bad = transfer_of(&flipped);
+        assert_eq!((bad.nnz, bad.vertices_without_sky), (0, vertices));
+        let w = sky_warning(&bad, vertices).expect("a warning");
+        assert!(w.starts_with("100% of the vertices") && w.contains("inside out"), "{w}");
+    }
 }
