@@ -23,6 +23,7 @@
 //! noise to the area-weighted vertex normals and dead weight to the BVH; duplicated vertices
 //! split the smooth normal of a surface into several frames (visible seams in `T`).
 
+use super::polygon;
 use crate::error::{CoreError, Result};
 use glam::{DVec3, Vec2, Vec3};
 use std::collections::HashMap;
@@ -125,7 +126,8 @@ impl Issue {
 
 impl Mesh {
     /// Load a Wavefront OBJ file: all models merged into one mesh, faces triangulated
-    /// (fans), one index per vertex (a vertex is a position/uv pair). UVs are kept when every
+    /// (convex polygons as fans from their first corner, non-convex ones by ear clipping in
+    /// their plane, with a line in `repairs`), one index per vertex (a vertex is a position/uv pair). UVs are kept when every
     /// vertex has them (otherwise dropped, with a line in `repairs`); normals and materials
     /// are ignored. Then validated and repaired as in [`Mesh::from_parts`].
     pub fn load_obj(path: &Path) -> Result<MeshLoad> {
@@ -137,7 +139,7 @@ impl Mesh {
             })
         })?;
         let options =
-            tobj::LoadOptions { triangulate: true, single_index: true, ignore_points: true, ignore_lines: true };
+            tobj::LoadOptions { triangulate: false, single_index: true, ignore_points: true, ignore_lines: true };
         // Material names, not material libraries: tobj only resolves `usemtl` names that a
         // loaded `.mtl` defines, so every `mtllib` (and one injected in front of the file)
         // is answered with a synthesized library holding exactly the names the file uses.
@@ -165,6 +167,7 @@ impl Mesh {
         let mut material_ids = MaterialIds::default();
         let mut vertices_with_uv = 0usize;
         let mut all_uvs = true;
+        let mut nonconvex_faces = 0usize;
         for model in &models {
             let m = &model.mesh;
             let base = positions.len() as u64;
@@ -178,13 +181,25 @@ impl Mesh {
                 all_uvs = false;
                 vertices_with_uv += m.texcoords.len() / 2;
             }
-            for t in m.indices.chunks_exact(3) {
-                let idx = [t[0], t[1], t[2]].map(|i| base + i as u64);
-                if idx.iter().any(|&i| i > u32::MAX as u64) {
-                    return Err(input_err("more than 2^32 vertices".into()));
-                }
-                triangles.push(idx.map(|i| i as u32));
+            if base + count as u64 > u32::MAX as u64 + 1 {
+                return Err(input_err("more than 2^32 vertices".into()));
             }
+            let first_triangle = triangles.len();
+            let (mut at, mut arities) = (0usize, m.face_arities.iter().map(|&a| a as usize));
+            while at < m.indices.len() {
+                // tobj leaves `face_arities` empty when every face is a triangle.
+                let n = if m.face_arities.is_empty() { 3 } else { arities.next().unwrap_or(0) };
+                let Some(face) = m.indices.get(at..at + n).filter(|_| n >= 3) else {
+                    return Err(input_err(format!("a face with {n} vertices")));
+                };
+                at += n;
+                let face: Vec<u32> = face.iter().map(|&i| (base + i as u64) as u32).collect();
+                let corners: Vec<Vec3> = face.iter().map(|&i| positions[i as usize]).collect();
+                if polygon::triangulate(&corners, |[a, b, c]| triangles.push([face[a], face[b], face[c]])) {
+                    nonconvex_faces += 1;
+                }
+            }
+            let model_triangles = triangles.len() - first_triangle;
             // This model's material name: its `usemtl`, else (in a file without any) its group.
             let name = if !used_names.is_empty() {
                 match m.material_id.and_then(|i| materials.get(i)) {
@@ -199,10 +214,15 @@ impl Mesh {
             let Some(id) = material_ids.intern(&name) else {
                 return Err(input_err(format!("more than {} distinct materials", u16::MAX as usize + 1)));
             };
-            material_ids.per_triangle.extend(std::iter::repeat_n(id, m.indices.len() / 3));
+            material_ids.per_triangle.extend(std::iter::repeat_n(id, model_triangles));
         }
         let material_ids = (!used_names.is_empty() || has_groups).then_some(material_ids);
         let mut repairs = Vec::new();
+        if nonconvex_faces > 0 {
+            repairs.push(format!(
+                "triangulated {nonconvex_faces} non-convex polygon(s) by ear clipping (a fan would leave the polygon)"
+            ));
+        }
         let uvs = if all_uvs && !positions.is_empty() {
             Some(uvs)
         } else {
@@ -722,6 +742,24 @@ mod tests {
         assert_eq!(load.mesh.vertex_count(), 7);
         assert!(load.repairs.is_empty());
         assert!(load.mesh.triangles.iter().flatten().all(|&i| i < 7));
+    }
+
+    #[test]
+    fn a_non_convex_polygon_loads_as_triangles_inside_it() {
+        // Regression (hostile input): the fan of this chevron from its first corner made a
+        // triangle outside the polygon with reversed winding, silently.
+        let text = "v 0 0 0\nv 4 0 0\nv 4 3 0\nv 2 1 0\nv 0 3 0\nf 1 2 3 4 5\n";
+        let load = Mesh::load_obj(&write_obj("chevron", text)).unwrap();
+        assert_eq!(load.mesh.triangle_count(), 3);
+        assert!(load.repairs.iter().any(|r| r.contains("1 non-convex polygon")), "{:?}", load.repairs);
+        let mut area = 0.0;
+        for t in &load.mesh.triangles {
+            let [a, b, c] = t.map(|i| load.mesh.positions[i as usize]);
+            let z = (b - a).cross(c - a).z;
+            assert!(z > 0.0, "triangle {t:?} wound against the face");
+            area += z / 2.0;
+        }
+        assert!((area - 8.0).abs() < 1e-5, "covered {area} of the polygon's 8");
     }
 
     fn asset(name: &str) -> PathBuf {

@@ -1,9 +1,10 @@
-//! Geometry: triangle meshes (loading and repair), per-vertex frames, and the BVH behind
+//! Geometry: triangle meshes (loading, polygon triangulation and repair), per-vertex frames, and the BVH behind
 //! every ray query.
 
 pub mod bvh;
 pub mod frames;
 pub mod mesh;
+pub mod polygon;
 pub mod shapes;
 
 pub use bvh::{Hit, SceneBvh};
