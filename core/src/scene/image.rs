@@ -35,6 +35,10 @@ pub fn linear_to_srgb(x: f32) -> f32 {
     }
 }
 
+/// Most pixels an image file may hold (2^28, 3.2 GB as f32 RGB): far beyond any env map or
+/// render, and small enough that a header claiming more is refused before allocating.
+pub const MAX_IMAGE_PIXELS: u64 = 1 << 28;
+
 impl HdrImage {
     /// A black image.
     pub fn new(width: u32, height: u32) -> Self {
@@ -85,6 +89,26 @@ impl HdrImage {
     /// the first position), so a caller decides; [`compare`] rejects them.
     pub fn read_exr(path: &Path) -> Result<(Self, Vec<String>)> {
         use exr::prelude::*;
+        let exr_err = |e: exr::error::Error| match e {
+            exr::error::Error::Io(source) => CoreError::Io { path: path.into(), source },
+            e => CoreError::Input { path: path.into(), message: format!("cannot read OpenEXR: {e}") },
+        };
+        // The header first: its data window sizes the pixel buffer, and a crafted one (a 2 KB
+        // file claiming 10^6 x 10^6 pixels) would otherwise abort the process on allocation.
+        let meta = exr::meta::MetaData::read_from_file(path, false).map_err(exr_err)?;
+        for header in &meta.headers {
+            let (w, h) = (header.layer_size.width() as u64, header.layer_size.height() as u64);
+            if w.saturating_mul(h) > MAX_IMAGE_PIXELS {
+                return Err(CoreError::Input {
+                    path: path.into(),
+                    message: format!(
+                        "the header says {w} x {h} pixels ({:.1} GB as f32 RGB), over the limit of {MAX_IMAGE_PIXELS} \
+                         pixels: a damaged or crafted file?",
+                        w as f64 * h as f64 * 12.0 / 1e9
+                    ),
+                });
+            }
+        }
         let image = read_first_rgba_layer_from_file(
             path,
             |resolution, _| {
@@ -95,10 +119,7 @@ impl HdrImage {
                 px[pos.y() * *w + pos.x()] = [r, g, b];
             },
         )
-        .map_err(|e| match e {
-            exr::error::Error::Io(source) => CoreError::Io { path: path.into(), source },
-            e => CoreError::Input { path: path.into(), message: format!("cannot read OpenEXR: {e}") },
-        })?;
+        .map_err(exr_err)?;
         let size = image.layer_data.size;
         let (_, pixels) = image.layer_data.channel_data.pixels;
         let (width, height) = (size.width(), size.height());
@@ -248,6 +269,25 @@ mod tests {
         assert!(e.contains("garbage.exr") && e.contains("OpenEXR"), "{e}");
         let e = HdrImage::read_exr(&dir.path().join("missing.exr")).unwrap_err().to_string();
         assert!(e.contains("missing.exr"), "{e}");
+    }
+
+    #[test]
+    fn an_exr_header_claiming_a_huge_image_is_refused_before_allocating() {
+        // Regression (hostile input): a small EXR whose data window says 1,048,576 x 524,288
+        // aborted the process (`memory allocation of 6597069766656 bytes failed`).
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("crafted.exr");
+        HdrImage { width: 2, height: 2, pixels: vec![[1.0; 3]; 4] }.write_exr(&path).unwrap();
+        let mut bytes = std::fs::read(&path).unwrap();
+        for name in [&b"dataWindow\0box2i\0"[..], &b"displayWindow\0box2i\0"[..]] {
+            let at = bytes.windows(name.len()).position(|w| w == name).expect("the attribute") + name.len();
+            // size (4 bytes), then xMin, yMin, xMax, yMax as little-endian i32.
+            bytes[at + 12..at + 16].copy_from_slice(&1_048_575i32.to_le_bytes());
+            bytes[at + 16..at + 20].copy_from_slice(&524_287i32.to_le_bytes());
+        }
+        std::fs::write(&path, &bytes).unwrap();
+        let e = HdrImage::read_exr(&path).unwrap_err().to_string();
+        assert!(e.contains("crafted.exr") && e.contains("1048576 x 524288") && e.contains("limit"), "{e}");
     }
 
     #[test]
