@@ -26,7 +26,7 @@
 //! | `cluster` | u16  | rows             | cluster id of each row; `K` (one past the last) marks an all-zero row |
 //! | `coeffs`  | f32  | rows C           | row r's coefficient of component c at `coeffs[r C + c - 1]` (zeros for all-zero rows) |
 //!
-//! meta: `clusters` (K, after dropping empty clusters), `components` (C, capped at N).
+//! meta: `clusters` (K, after dropping empty clusters), `components` (C, at most N).
 //!
 //! Gather: `P[k][c] = basis[k][c] . L` for all K (C + 1) vectors (RGB), then
 //! `L*_r = P[k][0] + sum_c coeffs[r][c] P[k][c]` with `k = cluster[r]` (0 when `k = K`).
@@ -126,7 +126,16 @@ impl Compressor for Cpca {
             CpcaUnit::Vertex => t.local_dirs(),
         };
         let (n, n_rows) = (t.cols() * unit_rows, t.rows() / unit_rows);
-        let c = self.components.min(n);
+        if self.components > n {
+            // Clamping silently left metrics naming a count the form does not have.
+            return Err(CompressError::Params(format!(
+                "cpca: components = {} is more than the {n} values of a unit (N = {} x {unit_rows} rows): at most {n} \
+                 components exist",
+                self.components,
+                t.cols()
+            )));
+        }
+        let c = self.components;
         let bytes = biscale_core::linalg::cpca::build_bytes(self.clusters, c, n);
         if bytes > MAX_CPCA_BYTES {
             return Err(CompressError::TooLarge(format!(

@@ -11,7 +11,7 @@ pub struct Cpca {
     /// Number of clusters K (at most 65534: ids are u16 with one sentinel). Fewer are made when
     /// the matrix has fewer distinct non-zero rows. Default (the reference): 32.
     pub clusters: usize,
-    /// Principal components per cluster C, besides the mean (capped at N; 0 keeps the cluster
+    /// Principal components per cluster C, besides the mean (at most N, an error above; 0 keeps the cluster
     /// means only). Default: 8.
     pub components: usize,
     /// Most assignment/refit rounds (Sloan et al.'s iterative CPCA); stops earlier when no row

@@ -240,11 +240,20 @@ fn error_falls_as_clusters_and_components_grow() {
 }
 
 #[test]
+fn more_components_than_values_is_an_error_naming_both() {
+    // Regression (hostile input): components = 6145 with N = 384 was clamped inside while
+    // metrics reported 6145.
+    let t = random_transfer(6, 2, 2, 0.4, 3);
+    let e = Cpca::new(2, 25).compress(&t, &CompressContext::default()).unwrap_err().to_string();
+    assert!(e.contains("components = 25") && e.contains("24 values"), "{e}");
+}
+
+#[test]
 fn full_rank_components_are_exact_including_hdr_sun() {
     // 24 rows x 24 columns: C = 24 (= N) spans everything.
     let t = random_transfer(6, 2, 2, 0.4, 3);
     for k in [1usize, 3] {
-        let cpca = Cpca::new(k, 100); // capped at N = 24
+        let cpca = Cpca::new(k, 24); // C = N
         let form = cpca.compress(&t, &CompressContext::default()).unwrap();
         assert_eq!(form.meta("components").unwrap(), 24);
         for light_seed in [6, 7] {
@@ -327,8 +336,8 @@ fn degenerate_tiny_matrices() {
     let light = LightVector::new(cubemap, power).unwrap();
     for vals in [vec![0.5f32], vec![0.25, 1.0, 0.75, 0.25]] {
         let t = one(vals.clone());
-        // One cluster with C = 1 (C = 7 is capped at N = 6), or a cluster per distinct value.
-        for (k, c) in [(1, 1), (1, 7), (3, 0)] {
+        // One cluster with C = 1 or C = N = 6, or a cluster per distinct value.
+        for (k, c) in [(1, 1), (1, 6), (3, 0)] {
             let cpca = Cpca::new(k, c);
             let form = cpca.compress(&t, &CompressContext::default()).unwrap();
             assert!(form.meta("components").unwrap() <= 6);
