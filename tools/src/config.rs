@@ -959,6 +959,18 @@ impl Experiment {
                 ),
             ));
         }
+        let s = t.visibility_resolution.get_ref() / t.cubemap_resolution.get_ref();
+        if s as u64 * s as u64 > u16::MAX as u64 {
+            return Err(err(
+                t.visibility_resolution.span(),
+                format!(
+                    "transfer.visibility_resolution / cubemap_resolution = {s} gives {} visibility samples per texel, \
+                     over {} (counts are 16-bit)",
+                    s as u64 * s as u64,
+                    u16::MAX
+                ),
+            ));
+        }
         // The one place the transfer keys become bases: everything downstream (the light
         // vector, T, the BTFs) takes them from these settings.
         let transfer = biscale_core::transfer::TransferSettings::new(
@@ -1222,6 +1234,13 @@ mod tests {
         assert!(e.message.contains("scene.mesh must be a .obj file") && e.line == 3, "{e}");
         let e = parse(&OK.replace("constant = [1, 1, 1]", "env_map = \"sky.png\"")).unwrap_err();
         assert!(e.message.contains("lighting.env_map must be a .exr or .hdr file"), "{e}");
+    }
+
+    #[test]
+    fn too_much_supersampling_points_at_visibility_resolution() {
+        let e = parse(&format!("{OK}[transfer]\ncubemap_resolution = 4\nvisibility_resolution = 1024\n")).unwrap_err();
+        assert!(e.message.contains("= 256") && e.message.contains("65536"), "{e}");
+        assert_eq!(e.line, 8, "{e}");
     }
 
     #[test]
