@@ -71,7 +71,8 @@ impl HdrImage {
         Some((1 + bad.count(), ((first % w) as u32, (first / w) as u32)))
     }
 
-    /// Write a 32-bit float RGB OpenEXR file (lossless), atomically.
+    /// Write a 32-bit float RGB OpenEXR file (lossless, RLE in 64x64 tiles), atomically and
+    /// byte-reproducibly.
     pub fn write_exr(&self, path: &Path) -> Result<()> {
         use exr::prelude::*;
         self.check_size(&path.display().to_string())?;
@@ -80,7 +81,10 @@ impl HdrImage {
             let p = self.pixels[y * w + x];
             (p[0], p[1], p[2])
         });
-        let image = Image::from_channels((w, self.height as usize), channels);
+        // Chunks in increasing order (the default lets parallel compression write them as they
+        // finish), so the same image always gives the same bytes.
+        let encoding = Encoding { line_order: LineOrder::Increasing, ..Encoding::FAST_LOSSLESS };
+        let image = Image::from_encoded_channels((w, self.height as usize), encoding, channels);
         write_atomic(path, |out| image.write().to_buffered(out).map_err(|e| format!("cannot write OpenEXR: {e}")))
     }
 
@@ -269,6 +273,26 @@ mod tests {
         assert!(e.contains("garbage.exr") && e.contains("OpenEXR"), "{e}");
         let e = HdrImage::read_exr(&dir.path().join("missing.exr")).unwrap_err().to_string();
         assert!(e.contains("missing.exr"), "{e}");
+    }
+
+    #[test]
+    fn the_same_image_always_writes_the_same_exr_bytes() {
+        // Regression (hostile input): identical runs gave EXRs whose pixels matched but whose
+        // chunks (written as parallel compression finished) did not. Big enough for many
+        // tiles, varied enough that RLE chunk sizes differ.
+        let dir = tempfile::tempdir().unwrap();
+        let (w, h) = (640u32, 480u32);
+        let pixels = (0..w * h).map(|i| [(i % 7) as f32, (i % 13) as f32 * 0.5, ((i / w) % 3) as f32]).collect();
+        let img = HdrImage { width: w, height: h, pixels };
+        let bytes: Vec<Vec<u8>> = (0..4)
+            .map(|i| {
+                let p = dir.path().join(format!("{i}.exr"));
+                img.write_exr(&p).unwrap();
+                std::fs::read(&p).unwrap()
+            })
+            .collect();
+        assert!(bytes.windows(2).all(|b| b[0] == b[1]), "EXR bytes differ between writes");
+        assert_eq!(HdrImage::read_exr(&dir.path().join("0.exr")).unwrap().0, img);
     }
 
     #[test]
