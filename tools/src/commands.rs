@@ -107,10 +107,25 @@ pub fn generate_scene(kind: GeneratedScene, out: &Path) -> Result<biscale_core::
     Ok(mesh)
 }
 
+/// Most triangles `generate subdivide` makes: 2^25 (about 1.2 GB in memory, counting the
+/// triangles, the half as many vertices and the edge map of the last level).
+pub const MAX_GENERATED_TRIANGLES: u64 = 1 << 25;
+
 /// Write `levels` of midpoint subdivision of the OBJ `input` to `out` (the scaling study's
 /// denser meshes: same shape, about 4x the vertices per level).
 pub fn subdivide(input: &Path, levels: u32, out: &Path) -> Result<biscale_core::geometry::Mesh> {
     let mut mesh = biscale_core::geometry::Mesh::load_obj(input)?.mesh;
+    // Each level quadruples the triangles: refuse up front what would not fit, with the
+    // estimate (a level too many took 15 GB before failing).
+    let triangles = (mesh.triangle_count() as u128) << (2 * levels.min(40));
+    if triangles > MAX_GENERATED_TRIANGLES as u128 {
+        return Err(PipelineError::Core(biscale_core::CoreError::TooLarge(format!(
+            "{}: {levels} levels of subdivision make {triangles} triangles (about {:.1} GB in memory), over the limit \
+             of {MAX_GENERATED_TRIANGLES}; use fewer levels",
+            input.display(),
+            triangles as f64 * 36.0 / 1e9
+        ))));
+    }
     for _ in 0..levels {
         mesh = biscale_core::geometry::shapes::subdivide_midpoint(&mesh);
     }
@@ -369,4 +384,23 @@ fn sweep_bins(grid: &biscale_core::sampling::HemisphereGrid) -> Vec<usize> {
         }
     }
     bins
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn subdividing_past_the_triangle_limit_is_refused_up_front() {
+        // Regression (hostile input): `generate subdivide --levels 9` ran to 15 GB.
+        let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/meshes/bunny.obj");
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("dense.obj");
+        let e = super::subdivide(&bunny, 9, &out).unwrap_err().to_string();
+        // 3,674 triangles x 4^9.
+        assert!(e.contains("963117056 triangles") && e.contains("fewer levels"), "{e}");
+        assert!(!out.exists());
+        let mesh = super::subdivide(&bunny, 1, &out).unwrap();
+        assert_eq!(mesh.triangle_count(), 4 * 3674);
+    }
+
+    use std::path::Path;
 }
