@@ -609,6 +609,18 @@ fn expand_settings(
         let json = values.iter().map(|x| serde_json::to_value(x).expect("a TOML value is JSON")).collect();
         keys.push((k, v.span(), json));
     }
+    // Refused before expanding: a sweep is the product of its lists (a typo gave 9 million
+    // settings, and `plan` alone 2.5 GB).
+    let count = keys.iter().fold(1u128, |n, (_, _, v)| n.saturating_mul(v.len() as u128));
+    if count > MAX_SWEEP_SETTINGS as u128 {
+        return Err(err(
+            entry.span(),
+            format!(
+                "this {what} entry sweeps {count} settings (the product of its lists), over the limit of \
+                 {MAX_SWEEP_SETTINGS}; split it or shorten the lists"
+            ),
+        ));
+    }
     let mut combos = vec![serde_json::Map::new()];
     for (k, _, values) in &keys {
         combos = combos
@@ -802,6 +814,10 @@ pub struct Experiment {
     /// Every method setting, sweeps expanded (checked at parse).
     methods: Vec<MethodSetting>,
 }
+
+/// Most settings one `[[compressors]]` or `[[methods]]` entry may sweep: each is a
+/// compression, a gather and an image.
+pub const MAX_SWEEP_SETTINGS: usize = 1000;
 
 /// Most timed gathers per setting (`runtime.repeats`): medians settle long before this, and
 /// a typo like `10^18` must not run until killed.
@@ -1234,6 +1250,16 @@ mod tests {
         assert!(e.message.contains("scene.mesh must be a .obj file") && e.line == 3, "{e}");
         let e = parse(&OK.replace("constant = [1, 1, 1]", "env_map = \"sky.png\"")).unwrap_err();
         assert!(e.message.contains("lighting.env_map must be a .exr or .hdr file"), "{e}");
+    }
+
+    #[test]
+    fn a_sweep_of_too_many_settings_is_refused_before_expanding() {
+        let list = |n: usize| format!("[{}]", (1..=n).map(|i| i.to_string()).collect::<Vec<_>>().join(", "));
+        let big =
+            format!("{OK}[[compressors]]\nkind = \"cpca\"\nclusters = {}\ncomponents = {}\n", list(3000), list(3000));
+        let e = parse(&big).unwrap_err();
+        assert!(e.message.contains("9000000 settings") && e.message.contains("1000"), "{e}");
+        assert_eq!(e.line, 6, "{e}");
     }
 
     #[test]
