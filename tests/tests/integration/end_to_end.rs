@@ -222,6 +222,25 @@ fn plugin_compressor_runs_through_the_same_report() {
     assert!(p.image.vs_uncompressed.rel_l2 < 1e-5);
 }
 
+#[test]
+fn a_false_lossless_claim_is_reported_as_lossy() {
+    // Regression (hostile input): a plugin claiming `lossless = true` with a wrong product was
+    // reported as lossless. The faulty plugin doubles every value and claims lossless.
+    let lib = biscale_compressors::plugin::testing::build_plugin("biscale-plugin-faulty", &[], None).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let smoke = std::fs::read_to_string(workspace_root().join("configs/smoke.toml")).unwrap();
+    let cfg = smoke.replace("../assets", &workspace_root().join("assets").display().to_string()).replace(
+        "[[compressors]]\nkind = \"sparse\"\n",
+        &format!("[[compressors]]\nkind = \"sparse\"\n\n[[compressors]]\nkind = \"plugin\"\npath = \"{}\"\nparams = {{ fail = \"false_lossless\" }}\n", lib.display()),
+    );
+    let cfg = write_config(dir.path(), "liar", &cfg);
+    let m = run_in(&cfg, &dir.path().join("out"));
+    let p = m.compressors.iter().find(|c| c.kind == "plugin:faulty").expect("plugin record");
+    assert!((p.rel_error_lstar - 1.0).abs() < 1e-5, "{}", p.rel_error_lstar);
+    assert!(!p.lossless, "a doubled T reported as lossless");
+    assert!(m.compressors.iter().find(|c| c.kind == "sparse").unwrap().lossless);
+}
+
 /// `runtime.backend = "gpu"`: every compressor's form is also gathered and shaded by the
 /// wgpu runtime (lavapipe without a GPU) and checked against the CPU in the same run. Without
 /// an adapter this prints why and passes, unless `BISCALE_REQUIRE_GPU=1` (CI sets it).

@@ -14,6 +14,7 @@
 //! | `bad_wgsl` | `kernels` returns WGSL that does not compile |
 //! | `kernels_panic` | `kernels` panics (the host calls it at load) |
 //! | `gather_error` / `gather_panic` / `gather_nan` | the CPU gather errs / panics / writes NaN |
+//! | `false_lossless` | every value doubled while the form claims `lossless` |
 //!
 //! Built with the `wrong_abi` feature it claims ABI 2.0 and aborts the process if anything
 //! beyond the handshake is called, which proves the host stops at the version check.
@@ -86,6 +87,7 @@ impl PluginCompressor for Faulty {
     fn compress(t: &CsrView<'_>, params: &Value) -> Result<PluginForm, String> {
         let mode = mode(params)?;
         let mut row_ptr = t.row_ptr.to_vec();
+        let mut values = t.values.to_vec();
         let mut gather = GATHER_OK;
         let mut values_name = "values";
         match mode.as_str() {
@@ -98,13 +100,15 @@ impl PluginCompressor for Faulty {
             "gather_error" => gather = GATHER_ERROR,
             "gather_panic" => gather = GATHER_PANIC,
             "gather_nan" => gather = GATHER_NAN,
+            // Claims lossless while every value is doubled (the host must catch the lie).
+            "false_lossless" => values.iter_mut().for_each(|v| *v *= 2.0),
             _ => {}
         }
         Ok(PluginForm {
             arrays: vec![
                 ("row_ptr".into(), Array::U32(row_ptr)),
                 ("col_idx".into(), Array::U32(t.col_idx.to_vec())),
-                (values_name.into(), Array::F32(t.values.to_vec())),
+                (values_name.into(), Array::F32(values)),
             ],
             meta: vec![("gather_fault".into(), gather)],
             lossless: true,
