@@ -744,7 +744,7 @@ fn write_plots(m: &Metrics, out_dir: &Path) -> Vec<(String, String)> {
                 .collect(),
         };
         for (file, title, x_label, x) in plots {
-            let series = crate::plots::series_by_kind(&m.compressors, x, |r| r.rel_error_lstar);
+            let series = crate::plots::series_by_kind_in_storage_order(&m.compressors, x, |r| r.rel_error_lstar);
             let guide = (file == "error_vs_storage").then_some(&guide);
             plot_with(file, title, x_label, "relative L2 error of L*", &series, guide);
         }

@@ -34,6 +34,26 @@ pub fn series_by_kind(
     series_by(records.iter().map(|r| (r.kind.clone(), r)), x, y)
 }
 
+/// [`series_by_kind`] with each curve drawn through its settings in order of storage (the
+/// sweep's order), for an x, like gather time, that need not grow with it.
+pub fn series_by_kind_in_storage_order(
+    records: &[CompressorRecord],
+    x: impl Fn(&CompressorRecord) -> f64,
+    y: impl Fn(&CompressorRecord) -> f64,
+) -> Vec<Series> {
+    let mut by_name: BTreeMap<String, Vec<&CompressorRecord>> = BTreeMap::new();
+    for r in records {
+        by_name.entry(r.kind.clone()).or_default().push(r);
+    }
+    by_name
+        .into_iter()
+        .map(|(name, mut rs)| {
+            rs.sort_by_key(|r| r.bytes);
+            Series { name, points: rs.iter().map(|r| (x(r), y(r))).collect() }
+        })
+        .collect()
+}
+
 /// Group `(series name, record)` pairs into series of `(x(record), y(record))`, sorted by x.
 pub fn series_by<'a>(
     records: impl IntoIterator<Item = (String, &'a CompressorRecord)>,
@@ -80,6 +100,25 @@ pub fn tick_label(v: f64) -> String {
     }
 }
 
+/// Tick values for a log axis over `[lo, hi]`: 1, 2 and 5 per decade when it spans at most
+/// three decades (so a range of 2 to 6 ms is not left with one tick), else the decades.
+pub fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
+    if !(lo > 0.0 && hi > lo && lo.is_finite() && hi.is_finite()) {
+        return vec![];
+    }
+    let steps: &[f64] = if hi / lo <= 1e3 { &[1.0, 2.0, 5.0] } else { &[1.0] };
+    let mut out = vec![];
+    for e in lo.log10().floor() as i32..=hi.log10().ceil() as i32 {
+        for &m in steps {
+            let v = m * 10f64.powi(e);
+            if v >= lo && v <= hi {
+                out.push(v);
+            }
+        }
+    }
+    out
+}
+
 /// A log-log plot of `series` written to `path` (PNG, 800 x 560).
 pub fn log_log_plot(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series]) -> Result<(), String> {
     log_log_plot_with(path, title, x_label, y_label, series, None)
@@ -119,7 +158,7 @@ pub fn log_log_plot_with(
             .margin(12)
             .x_label_area_size(48)
             .y_label_area_size(72)
-            .build_cartesian_2d((x0..x1).log_scale(), (y0..y1).log_scale())
+            .build_cartesian_2d((x0..x1).log_scale().with_key_points(log_ticks(x0, x1)), (y0..y1).log_scale())
             .map_err(|e| e.to_string())?;
         chart
             .configure_mesh()
@@ -181,6 +220,17 @@ pub fn log_log_plot_with(
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn log_ticks_are_one_two_five_on_short_ranges() {
+        use super::log_ticks;
+        assert_eq!(log_ticks(1.5, 7.0), vec![2.0, 5.0]);
+        let t = log_ticks(0.6, 35.0);
+        assert_eq!(t.len(), 5, "{t:?}"); // 1 2 5 10 20
+        assert!((t[4] - 20.0).abs() < 1e-9 && (t[0] - 1.0).abs() < 1e-12, "{t:?}");
+        assert_eq!(log_ticks(1e-9, 1.0).len(), 10); // decades only
+        assert!(log_ticks(0.0, 1.0).is_empty());
+    }
+
     #[test]
     fn tick_labels_are_short() {
         use super::tick_label;
