@@ -36,6 +36,89 @@ fn img(out_dir: &Path, rel: &str, alt: &str) -> String {
     }
 }
 
+/// The small Markdown the report's comparison sections use, as HTML: `##`/`###` headings,
+/// pipe tables (first row the header, the `|---|` row dropped), paragraphs, and inline
+/// `` `code` `` and images, which become links to the file (the page shows them embedded
+/// below the tables). Everything else is escaped text.
+pub fn markdown_to_html(md: &str) -> String {
+    fn inline(text: &str) -> String {
+        let mut out = String::new();
+        let mut rest = text;
+        while !rest.is_empty() {
+            if let Some(r) = rest.strip_prefix("![") {
+                if let Some((alt, after)) = r.split_once("](") {
+                    if let Some((path, tail)) = after.split_once(')') {
+                        let _ = write!(out, "<a href=\"{}\">{}</a>", escape(path), escape(alt));
+                        rest = tail;
+                        continue;
+                    }
+                }
+            }
+            if let Some(r) = rest.strip_prefix('`') {
+                if let Some((code, tail)) = r.split_once('`') {
+                    let _ = write!(out, "<code>{}</code>", escape(code));
+                    rest = tail;
+                    continue;
+                }
+            }
+            // Past the first character (which may be several bytes), up to the next marker.
+            let first = rest.chars().next().map_or(1, char::len_utf8);
+            let next = rest[first..].find(['!', '`']).map_or(rest.len(), |i| i + first);
+            out.push_str(&escape(&rest[..next]));
+            rest = &rest[next..];
+        }
+        out
+    }
+    let row = |line: &str| -> Vec<String> {
+        let t = line.trim().trim_start_matches('|').trim_end_matches('|');
+        t.split('|').map(|c| inline(c.trim())).collect()
+    };
+    let mut out = String::new();
+    let mut para: Vec<&str> = vec![];
+    let flush = |para: &mut Vec<&str>, out: &mut String| {
+        if !para.is_empty() {
+            let _ = write!(out, "<p>{}</p>", inline(&para.join(" ")));
+            para.clear();
+        }
+    };
+    let lines: Vec<&str> = md.lines().collect();
+    let mut i = 0;
+    while i < lines.len() {
+        let line = lines[i].trim_end();
+        if let Some(h) = line.strip_prefix("### ") {
+            flush(&mut para, &mut out);
+            let _ = write!(out, "<h3>{}</h3>", inline(h));
+        } else if let Some(h) = line.strip_prefix("## ") {
+            flush(&mut para, &mut out);
+            let _ = write!(out, "<h2>{}</h2>", inline(h));
+        } else if line.starts_with('|') {
+            flush(&mut para, &mut out);
+            let _ = write!(out, "<table>");
+            let mut first = true;
+            while i < lines.len() && lines[i].trim_start().starts_with('|') {
+                let l = lines[i];
+                let is_rule = l.chars().all(|c| matches!(c, '|' | '-' | ':' | ' '));
+                if !is_rule {
+                    let tag = if first { "th" } else { "td" };
+                    let cells: String = row(l).iter().map(|c| format!("<{tag}>{c}</{tag}>")).collect();
+                    let _ = write!(out, "<tr>{cells}</tr>");
+                    first = false;
+                }
+                i += 1;
+            }
+            let _ = write!(out, "</table>");
+            continue;
+        } else if line.trim().is_empty() {
+            flush(&mut para, &mut out);
+        } else {
+            para.push(line.trim());
+        }
+        i += 1;
+    }
+    flush(&mut para, &mut out);
+    out
+}
+
 /// The report page. `markdown_tables` is reused from the Markdown report as preformatted text
 /// where a table would add nothing.
 pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, String)]) -> String {
@@ -101,8 +184,8 @@ pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, Stri
     }
     let comparisons = crate::report::comparisons_markdown(m);
     if !comparisons.is_empty() {
-        // The comparison tables as preformatted Markdown, with the equal-storage images below.
-        let _ = write!(s, "<h2>Comparisons</h2><pre>{}</pre>", escape(&comparisons));
+        // The comparison sections as HTML tables, with the equal-storage images below.
+        let _ = write!(s, "{}", markdown_to_html(&comparisons));
         if let Some((budget, _)) = crate::report::storage_budget(m) {
             let _ = write!(s, "<div class=\"grid\">");
             for r in crate::compare::equal_storage(&m.compressors, budget) {
@@ -191,6 +274,23 @@ pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, Stri
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn comparison_markdown_becomes_tables_headings_and_links() {
+        // Regression (issue 16): report.html printed these sections as raw Markdown in <pre>.
+        let md = "\n## Equal quality\n\nStorage for `5%` (log-log):\n\n| compressor | MB |\n|---|---|\n\
+                  | haar | <= 4.2 |\n| bicluster | ![b](images/b.png) & more |\n\nAfter.\n";
+        let h = markdown_to_html(md);
+        assert_eq!(
+            h,
+            "<h2>Equal quality</h2><p>Storage for <code>5%</code> (log-log):</p>\
+             <table><tr><th>compressor</th><th>MB</th></tr><tr><td>haar</td><td>&lt;= 4.2</td></tr>\
+             <tr><td>bicluster</td><td><a href=\"images/b.png\">b</a> &amp; more</td></tr></table><p>After.</p>"
+        );
+        assert!(!h.contains("|---|") && !h.contains("!["));
+        // Multi-byte text, a lone `!` and an unclosed backtick pass through as text.
+        assert_eq!(markdown_to_html("≤ 5 µs! a `b"), "<p>≤ 5 µs! a `b</p>");
+    }
 
     #[test]
     fn base64_matches_rfc4648_vectors() {
