@@ -31,6 +31,18 @@ pub enum StorageForError {
     NotReached { best_error: f64, setting: String },
 }
 
+impl StorageForError {
+    /// The storage read off, in bytes: exact for `AtMost` (an upper bound), interpolated for
+    /// `Between`, none when the sweep never reaches the target.
+    pub fn bytes(&self) -> Option<f64> {
+        match self {
+            Self::AtMost { bytes, .. } => Some(*bytes as f64),
+            Self::Between { bytes, .. } => Some(*bytes),
+            Self::NotReached { .. } => None,
+        }
+    }
+}
+
 /// Where along `records` (one kind's sweep) the relative L* error first reaches
 /// `target_error`, as storage. Points are taken in order of storage; the error is assumed
 /// to fall with storage between neighbouring points (log-log interpolation).

@@ -736,15 +736,14 @@ fn write_plots(m: &Metrics, out_dir: &Path) -> Vec<(String, String)> {
             label: format!("target {:.1e}", m.target_error),
             marks: crate::compare::by_kind(&m.compressors)
                 .into_iter()
-                .filter_map(|(kind, recs)| match crate::compare::storage_for_error(&recs, m.target_error)? {
-                    crate::compare::StorageForError::AtMost { bytes, .. } => Some((kind, bytes as f64 / 1e6)),
-                    crate::compare::StorageForError::Between { bytes, .. } => Some((kind, bytes / 1e6)),
-                    crate::compare::StorageForError::NotReached { .. } => None,
+                .filter_map(|(kind, recs)| {
+                    let bytes = crate::compare::storage_for_error(&recs, m.target_error)?.bytes()?;
+                    Some((kind, bytes / 1e6))
                 })
                 .collect(),
         };
         for (file, title, x_label, x) in plots {
-            let series = crate::plots::series_by_kind_in_storage_order(&m.compressors, x, |r| r.rel_error_lstar);
+            let series = crate::plots::series_by_kind(&m.compressors, x, |r| r.rel_error_lstar);
             let guide = (file == "error_vs_storage").then_some(&guide);
             plot_with(file, title, x_label, "relative L2 error of L*", &series, guide);
         }

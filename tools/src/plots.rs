@@ -25,7 +25,9 @@ pub struct Series {
     pub points: Vec<(f64, f64)>,
 }
 
-/// Group records by compressor kind into series of `(x(record), y(record))`, sorted by x.
+/// Group records by compressor kind into series of `(x(record), y(record))`, each curve
+/// running through its settings in order of storage (the sweep's order), so an x that need
+/// not grow with storage, like gather time, does not zigzag the curve.
 pub fn series_by_kind(
     records: &[CompressorRecord],
     x: impl Fn(&CompressorRecord) -> f64,
@@ -34,41 +36,22 @@ pub fn series_by_kind(
     series_by(records.iter().map(|r| (r.kind.clone(), r)), x, y)
 }
 
-/// [`series_by_kind`] with each curve drawn through its settings in order of storage (the
-/// sweep's order), for an x, like gather time, that need not grow with it.
-pub fn series_by_kind_in_storage_order(
-    records: &[CompressorRecord],
+/// Group `(series name, record)` pairs into series of `(x(record), y(record))`, each in order
+/// of the records' storage.
+pub fn series_by<'a>(
+    records: impl IntoIterator<Item = (String, &'a CompressorRecord)>,
     x: impl Fn(&CompressorRecord) -> f64,
     y: impl Fn(&CompressorRecord) -> f64,
 ) -> Vec<Series> {
     let mut by_name: BTreeMap<String, Vec<&CompressorRecord>> = BTreeMap::new();
-    for r in records {
-        by_name.entry(r.kind.clone()).or_default().push(r);
+    for (name, r) in records {
+        by_name.entry(name).or_default().push(r);
     }
     by_name
         .into_iter()
         .map(|(name, mut rs)| {
             rs.sort_by_key(|r| r.bytes);
             Series { name, points: rs.iter().map(|r| (x(r), y(r))).collect() }
-        })
-        .collect()
-}
-
-/// Group `(series name, record)` pairs into series of `(x(record), y(record))`, sorted by x.
-pub fn series_by<'a>(
-    records: impl IntoIterator<Item = (String, &'a CompressorRecord)>,
-    x: impl Fn(&CompressorRecord) -> f64,
-    y: impl Fn(&CompressorRecord) -> f64,
-) -> Vec<Series> {
-    let mut by_name: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
-    for (name, r) in records {
-        by_name.entry(name).or_default().push((x(r), y(r)));
-    }
-    by_name
-        .into_iter()
-        .map(|(name, mut points)| {
-            points.sort_by(|a, b| a.0.total_cmp(&b.0));
-            Series { name, points }
         })
         .collect()
 }
