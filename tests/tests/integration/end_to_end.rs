@@ -202,18 +202,27 @@ fn convex_sphere_under_constant_sky_is_albedo_everywhere() {
     }
 }
 
-#[test]
-fn plugin_compressor_runs_through_the_same_report() {
-    // The example plugin, built as the cdylib a researcher would ship, named in a config.
-    let lib = biscale_compressors::plugin::testing::build_plugin("biscale-plugin-quantized", &[], None).unwrap();
-    let dir = tempfile::tempdir().unwrap();
+/// `configs/smoke.toml` in `dir` with the workspace plugin `package` (built as its cdylib)
+/// added after `sparse` with `params`, run: its metrics.
+fn run_smoke_with_plugin(dir: &std::path::Path, package: &str, params: &str) -> biscale::metrics::Metrics {
+    let lib = biscale_compressors::plugin::testing::build_plugin(package, &[], None).unwrap();
     let smoke = std::fs::read_to_string(workspace_root().join("configs/smoke.toml")).unwrap();
     let cfg = smoke.replace("../assets", &workspace_root().join("assets").display().to_string()).replace(
         "[[compressors]]\nkind = \"sparse\"\n",
-        &format!("[[compressors]]\nkind = \"sparse\"\n\n[[compressors]]\nkind = \"plugin\"\npath = \"{}\"\nparams = {{ scale = 0.25 }}\n", lib.display()),
+        &format!(
+            "[[compressors]]\nkind = \"sparse\"\n\n[[compressors]]\nkind = \"plugin\"\npath = \"{}\"\nparams = {params}\n",
+            lib.display()
+        ),
     );
-    let cfg = write_config(dir.path(), "plugin", &cfg);
-    let m = run_in(&cfg, &dir.path().join("out"));
+    let cfg = write_config(dir, "plugin", &cfg);
+    run_in(&cfg, &dir.join("out"))
+}
+
+#[test]
+fn plugin_compressor_runs_through_the_same_report() {
+    // The example plugin, built as the cdylib a researcher would ship, named in a config.
+    let dir = tempfile::tempdir().unwrap();
+    let m = run_smoke_with_plugin(dir.path(), "biscale-plugin-quantized", "{ scale = 0.25 }");
     let p = m.compressors.iter().find(|c| c.kind == "plugin:quantized").expect("plugin record");
     let sparse = m.compressors.iter().find(|c| c.kind == "sparse").unwrap();
     // Codes of 1/4 represent the box-filtered values exactly: lossless up to f32 sums.
@@ -226,15 +235,8 @@ fn plugin_compressor_runs_through_the_same_report() {
 fn a_false_lossless_claim_is_reported_as_lossy() {
     // Regression (hostile input): a plugin claiming `lossless = true` with a wrong product was
     // reported as lossless. The faulty plugin doubles every value and claims lossless.
-    let lib = biscale_compressors::plugin::testing::build_plugin("biscale-plugin-faulty", &[], None).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let smoke = std::fs::read_to_string(workspace_root().join("configs/smoke.toml")).unwrap();
-    let cfg = smoke.replace("../assets", &workspace_root().join("assets").display().to_string()).replace(
-        "[[compressors]]\nkind = \"sparse\"\n",
-        &format!("[[compressors]]\nkind = \"sparse\"\n\n[[compressors]]\nkind = \"plugin\"\npath = \"{}\"\nparams = {{ fail = \"false_lossless\" }}\n", lib.display()),
-    );
-    let cfg = write_config(dir.path(), "liar", &cfg);
-    let m = run_in(&cfg, &dir.path().join("out"));
+    let m = run_smoke_with_plugin(dir.path(), "biscale-plugin-faulty", "{ fail = \"false_lossless\" }");
     let p = m.compressors.iter().find(|c| c.kind == "plugin:faulty").expect("plugin record");
     assert!((p.rel_error_lstar - 1.0).abs() < 1e-5, "{}", p.rel_error_lstar);
     assert!(!p.lossless, "a doubled T reported as lossless");
