@@ -127,9 +127,10 @@ impl Issue {
 impl Mesh {
     /// Load a Wavefront OBJ file: all models merged into one mesh, faces triangulated
     /// (convex polygons as fans from their first corner, non-convex ones by ear clipping in
-    /// their plane, with a line in `repairs`), one index per vertex (a vertex is a position/uv pair). UVs are kept when every
-    /// vertex has them (otherwise dropped, with a line in `repairs`); normals and materials
-    /// are ignored. Then validated and repaired as in [`Mesh::from_parts`].
+    /// their plane, with a line in `repairs`), one index per vertex (a vertex is a
+    /// position/uv pair). UVs are kept when every vertex has them (otherwise dropped, with a
+    /// line in `repairs`); normals and materials are ignored. Then validated and repaired as
+    /// in [`Mesh::from_parts`].
     pub fn load_obj(path: &Path) -> Result<MeshLoad> {
         let input_err = |message: String| CoreError::Input { path: path.to_path_buf(), message };
         let bytes = std::fs::read(path).map_err(|e| {
@@ -168,6 +169,8 @@ impl Mesh {
         let mut vertices_with_uv = 0usize;
         let mut all_uvs = true;
         let mut nonconvex_faces = 0usize;
+        // One face's global vertex ids and corners, reused from face to face.
+        let (mut ids, mut corners): (Vec<u32>, Vec<Vec3>) = (vec![], vec![]);
         for model in &models {
             let m = &model.mesh;
             let base = positions.len() as u64;
@@ -193,9 +196,11 @@ impl Mesh {
                     return Err(input_err(format!("a face with {n} vertices")));
                 };
                 at += n;
-                let face: Vec<u32> = face.iter().map(|&i| (base + i as u64) as u32).collect();
-                let corners: Vec<Vec3> = face.iter().map(|&i| positions[i as usize]).collect();
-                if polygon::triangulate(&corners, |[a, b, c]| triangles.push([face[a], face[b], face[c]])) {
+                ids.clear();
+                ids.extend(face.iter().map(|&i| (base + i as u64) as u32));
+                corners.clear();
+                corners.extend(ids.iter().map(|&i| positions[i as usize]));
+                if polygon::triangulate(&corners, |[a, b, c]| triangles.push([ids[a], ids[b], ids[c]])) {
                     nonconvex_faces += 1;
                 }
             }
