@@ -124,14 +124,23 @@ impl Artifact {
 
     /// The file's bytes.
     pub fn encode(&self) -> Vec<u8> {
+        self.encode_with(&BTreeMap::new())
+    }
+
+    /// The file's bytes with `extra` fields besides the artifact's own (an extra field of the
+    /// same name wins): how the stage cache stores its key inside a file without copying the
+    /// arrays.
+    pub fn encode_with(&self, extra: &BTreeMap<String, Field>) -> Vec<u8> {
+        let mut fields: BTreeMap<&str, &Field> = self.fields.iter().map(|(k, v)| (k.as_str(), v)).collect();
+        fields.extend(extra.iter().map(|(k, v)| (k.as_str(), v)));
         let payload: u64 = self.arrays.iter().map(|a| a.data.bytes()).sum();
         let mut out = Vec::with_capacity(PREAMBLE + 256 + payload as usize + CRC_BYTES);
         out.extend_from_slice(&MAGIC);
         out.extend_from_slice(&CONTAINER_VERSION.to_le_bytes());
         out.extend_from_slice(&0u64.to_le_bytes()); // total_len, patched below
         put_str(&mut out, &self.kind);
-        out.extend_from_slice(&(self.fields.len() as u32).to_le_bytes());
-        for (name, value) in &self.fields {
+        out.extend_from_slice(&(fields.len() as u32).to_le_bytes());
+        for (name, value) in fields {
             put_str(&mut out, name);
             match value {
                 Field::U64(v) => {
@@ -174,6 +183,11 @@ impl Artifact {
     /// Write the artifact to `path` atomically.
     pub fn save(&self, path: &Path) -> Result<(), crate::CoreError> {
         crate::io::write_atomic_bytes(path, &self.encode())
+    }
+
+    /// Write the artifact with `extra` fields ([`Self::encode_with`]) to `path` atomically.
+    pub fn save_with(&self, path: &Path, extra: &BTreeMap<String, Field>) -> Result<(), crate::CoreError> {
+        crate::io::write_atomic_bytes(path, &self.encode_with(extra))
     }
 
     /// Read the artifact at `path`.
@@ -431,6 +445,22 @@ mod tests {
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
         Artifact::new("other").save(&path).unwrap();
         assert_eq!(Artifact::load(&path).unwrap().kind, "other");
+    }
+
+    #[test]
+    fn extra_fields_are_stored_beside_the_artifacts_own() {
+        let a = sample();
+        let mut extra = BTreeMap::new();
+        extra.insert("cache.key".to_string(), Field::Str("00ff".into()));
+        extra.insert("count".to_string(), Field::U64(7));
+        let back = Artifact::decode(&a.encode_with(&extra), Path::new("x")).unwrap();
+        assert_eq!(back.str("cache.key").unwrap(), "00ff");
+        // An extra field of the same name wins; every other field and array is unchanged.
+        assert_eq!(back.u64("count").unwrap(), 7);
+        assert_eq!(back.arrays, a.arrays);
+        assert_eq!(back.fields.len(), a.fields.len() + 1);
+        // No extras: exactly the plain encoding.
+        assert_eq!(a.encode_with(&BTreeMap::new()), a.encode());
     }
 
     #[test]

@@ -48,24 +48,30 @@ pub fn write_atomic_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomic(path, |f| f.write_all(bytes).map_err(|e| e.to_string()))
 }
 
-/// 64-bit FNV-1a: the small, stable hash behind every cache key (not for security). A stage
-/// output's key hashes everything that determines it, plus a version the stage bumps when its
-/// meaning changes.
-#[derive(Clone, Copy, Debug)]
-pub struct ContentHash(u64);
+/// The content hash behind every cache key: XXH3-128 (`xxhash-rust`), fast and stable across
+/// versions and platforms, with 128 bits so that two different inputs sharing a key is not a
+/// practical concern (64-bit FNV-1a, used before, was weak on long, similar inputs such as
+/// meshes). Not a cryptographic hash: a cache is a local folder, not a trust boundary, and
+/// every file read from it is still checked by its loader. A stage output's key hashes
+/// everything that determines it, plus a version the stage bumps when its meaning changes.
+#[derive(Clone)]
+pub struct ContentHash(xxhash_rust::xxh3::Xxh3);
 
 impl Default for ContentHash {
     fn default() -> Self {
-        Self(0xcbf2_9ce4_8422_2325)
+        Self(xxhash_rust::xxh3::Xxh3::new())
+    }
+}
+
+impl std::fmt::Debug for ContentHash {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "ContentHash({:032x})", self.finish128())
     }
 }
 
 impl ContentHash {
     pub fn write(&mut self, bytes: &[u8]) -> &mut Self {
-        for b in bytes {
-            self.0 ^= *b as u64;
-            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
-        }
+        self.0.update(bytes);
         self
     }
 
@@ -74,8 +80,15 @@ impl ContentHash {
         self.write(&(s.len() as u64).to_le_bytes()).write(s.as_bytes())
     }
 
+    /// The 128-bit hash: what cache keys use.
+    pub fn finish128(&self) -> u128 {
+        self.0.digest128()
+    }
+
+    /// The low 64 bits of [`Self::finish128`]: for identities that are themselves hashed into
+    /// a 128-bit key (a plugin library's code identity, say).
     pub fn finish(&self) -> u64 {
-        self.0
+        self.finish128() as u64
     }
 }
 
@@ -84,8 +97,21 @@ mod tests {
     use super::*;
 
     #[test]
-    fn fnv_is_stable() {
-        // Reference value of FNV-1a 64 for "a".
-        assert_eq!(ContentHash::default().write(b"a").finish(), 0xaf63dc4c8601ec8c);
+    fn content_hash_is_xxh3_128() {
+        // Published XXH3-128 reference values (seed 0): the empty input, and "a" fed whole and
+        // in pieces (the streaming state must not depend on how the input is split).
+        assert_eq!(ContentHash::default().finish128(), 0x99aa06d3014798d86001c324468d497f);
+        let whole = ContentHash::default().write(b"abc").finish128();
+        let parts = ContentHash::default().write(b"a").write(b"bc").finish128();
+        assert_eq!(whole, parts);
+        assert_eq!(whole, 0x06b05ab6733a618578af5f94892f3950);
+        assert_eq!(ContentHash::default().write(b"abc").finish(), 0x78af5f94892f3950);
+    }
+
+    #[test]
+    fn length_prefixed_strings_do_not_run_together() {
+        let ab_c = ContentHash::default().write_str("ab").write_str("c").finish128();
+        let a_bc = ContentHash::default().write_str("a").write_str("bc").finish128();
+        assert_ne!(ab_c, a_bc);
     }
 }

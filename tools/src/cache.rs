@@ -17,25 +17,96 @@
 //! * `lpca-<key>-<setting>.btf`: a local-PCA BTF (`materials::lpca_key`: the dense table's
 //!   content, the setting and the seed).
 //!
-//! A file that is present but unusable (corrupt, another version, a different shape) is
-//! reported as a warning and rebuilt; failing to write the cache is a warning too, since the
-//! run has its result. Nothing read from the cache is trusted beyond what its loader checks.
+//! Keys are 128-bit content hashes ([`ContentHash`], XXH3-128), written as 32 hex digits in
+//! the file name. A file also carries its key inside ([`CacheKey`]: the hash and a readable
+//! account of the inputs it was built from, such as the mesh's own hash and vertex count and
+//! the bases), and a file whose key is missing or differs from the one the run asks for (a
+//! file copied or renamed over another, or written by an earlier biscale) is never trusted:
+//! a warning names it, says what it holds and what the run needs, and the output is rebuilt.
+//!
+//! A file that is present but unusable (corrupt, another version, a different shape, a
+//! foreign key) is reported as a warning and rebuilt; failing to write the cache is a warning
+//! too, since the run has its result. Nothing read from the cache is trusted beyond what its
+//! loader checks.
 
 use crate::pipeline::RunOptions;
+use biscale_core::artifact::{Artifact, Field};
 use biscale_core::compress::Compressor;
 use biscale_core::geometry::Mesh;
 use biscale_core::io::ContentHash;
 use biscale_core::transfer::sh::ShTransferSettings;
 use biscale_core::transfer::TransferSettings;
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 /// Bump when the transfer semantics change, so old cache files are never reused.
-pub const TRANSFER_VERSION: u32 = 2;
+pub const TRANSFER_VERSION: u32 = 3; // 3: 128-bit keys stored inside the file
 /// Bump when the meaning of a compressed form's file changes.
-pub const FORM_VERSION: u32 = 1;
+pub const FORM_VERSION: u32 = 2;
 /// Bump when the SH transfer's semantics change.
-pub const SH_TRANSFER_VERSION: u32 = 1;
+pub const SH_TRANSFER_VERSION: u32 = 2;
+
+/// Names of the fields that carry a cache file's key inside it.
+const KEY_FIELD: &str = "cache.key";
+const INPUTS_FIELD: &str = "cache.inputs";
+
+/// The identity of a cached output: the content hash of everything that determines it, and
+/// a readable account of those inputs (for messages; the hash alone decides). Both are
+/// written into the file and checked when it is read back.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct CacheKey {
+    pub hash: u128,
+    pub inputs: String,
+}
+
+impl CacheKey {
+    pub fn new(hash: u128, inputs: impl Into<String>) -> Self {
+        Self { hash, inputs: inputs.into() }
+    }
+
+    /// The hash as written in file names and inside files: 32 hex digits.
+    pub fn hex(&self) -> String {
+        format!("{:032x}", self.hash)
+    }
+
+    /// A key derived from this one for an output computed from it (`what` says how).
+    pub fn derived(&self, what: &str) -> Self {
+        let hash = ContentHash::default().write(&self.hash.to_le_bytes()).write_str(what).finish128();
+        Self { hash, inputs: format!("{}; {what}", self.inputs) }
+    }
+
+    fn fields(&self) -> BTreeMap<String, Field> {
+        BTreeMap::from([
+            (KEY_FIELD.to_string(), Field::Str(self.hex())),
+            (INPUTS_FIELD.to_string(), Field::Str(self.inputs.clone())),
+        ])
+    }
+
+    /// Check that `a` (read from `path`) was written under this key, and take the key fields
+    /// out of it.
+    fn check(&self, a: &mut Artifact, path: &Path) -> Result<(), String> {
+        let found = a.fields.remove(KEY_FIELD);
+        let inputs = a.fields.remove(INPUTS_FIELD);
+        match found {
+            Some(Field::Str(k)) if k == self.hex() => Ok(()),
+            Some(Field::Str(k)) => Err(format!(
+                "{}: a foreign cache file: it was built for {} (key {k}); this run needs {} (key {})",
+                path.display(),
+                match inputs {
+                    Some(Field::Str(i)) => i,
+                    _ => "unknown inputs".into(),
+                },
+                self.inputs,
+                self.hex()
+            )),
+            _ => Err(format!(
+                "{}: the file carries no cache key (written by an earlier biscale, or not written by the cache)",
+                path.display()
+            )),
+        }
+    }
+}
 
 /// The cache folder of a run.
 #[derive(Clone, Debug)]
@@ -64,43 +135,50 @@ impl StageCache {
         &self.dir
     }
 
-    pub fn transfer_path(&self, key: u64) -> PathBuf {
-        self.dir.join(format!("transfer-{key:016x}.bsf"))
+    pub fn transfer_path(&self, key: &CacheKey) -> PathBuf {
+        self.dir.join(format!("transfer-{}.bsf", key.hex()))
     }
 
     /// The file of a compressed form; the setting's label makes the folder readable.
-    pub fn form_path(&self, key: u64, label: &str) -> PathBuf {
+    pub fn form_path(&self, key: &CacheKey, label: &str) -> PathBuf {
         let label: String =
             label.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' }).collect();
-        self.dir.join(format!("form-{key:016x}-{label}.bsf"))
+        self.dir.join(format!("form-{}-{label}.bsf", key.hex()))
     }
 
     /// The file of an SH transfer `M` of order `n`.
-    pub fn sh_transfer_path(&self, key: u64, n: u32) -> PathBuf {
-        self.dir.join(format!("sh-{key:016x}-n{n}.bsf"))
+    pub fn sh_transfer_path(&self, key: &CacheKey, n: u32) -> PathBuf {
+        self.dir.join(format!("sh-{}-n{n}.bsf", key.hex()))
     }
 
     /// The file of a local-PCA BTF (its key is `materials::lpca_key`).
-    pub fn lpca_path(&self, key: u64, label: &str) -> PathBuf {
-        self.dir.join(format!("lpca-{key:016x}-{label}.btf"))
+    pub fn lpca_path(&self, key: &CacheKey, label: &str) -> PathBuf {
+        self.dir.join(format!("lpca-{}-{label}.btf", key.hex()))
     }
 
-    pub fn btf_path(&self, key: u64, encoding: &str) -> PathBuf {
-        self.dir.join(format!("btf-{key:016x}-{encoding}.btf"))
+    pub fn btf_path(&self, key: &CacheKey, encoding: &str) -> PathBuf {
+        self.dir.join(format!("btf-{}-{encoding}.btf", key.hex()))
     }
 
-    /// The output cached at `path`, checked by `accept`: `None` when absent or unusable (then
-    /// a warning names the file and says why).
+    /// The output cached at `path` under `key`, decoded by `decode` and checked by `accept`:
+    /// `None` when absent or unusable (then a warning names the file and says why: corrupt,
+    /// foreign key, wrong shape).
     pub fn get<T, E: std::fmt::Display>(
         &self,
         path: &Path,
-        load: impl FnOnce(&Path) -> Result<T, E>,
+        key: &CacheKey,
+        decode: impl FnOnce(Artifact) -> Result<T, E>,
         accept: impl FnOnce(&T) -> Result<(), String>,
     ) -> Option<T> {
         if !path.exists() {
             return None;
         }
-        match load(path).map_err(|e| e.to_string()).and_then(|v| accept(&v).map(|()| v)) {
+        let read = Artifact::load(path).map_err(|e| e.to_string()).and_then(|mut a| {
+            key.check(&mut a, path)?;
+            let v = decode(a).map_err(|e| e.to_string())?;
+            accept(&v).map(|()| v)
+        });
+        match read {
             Ok(v) => Some(v),
             Err(e) => {
                 eprintln!("warning: ignoring unusable cache file (it is rebuilt): {e}");
@@ -109,38 +187,81 @@ impl StageCache {
         }
     }
 
-    /// Store an output at `path` with `save` (atomic); a failure is a warning.
-    pub fn put<E: std::fmt::Display>(&self, path: &Path, save: impl FnOnce(&Path) -> Result<(), E>) {
+    /// Store `artifact` at `path` with `key` inside it (atomic); a failure is a warning.
+    pub fn put(&self, path: &Path, key: &CacheKey, artifact: &Artifact) {
         let stored = std::fs::create_dir_all(&self.dir)
             .map_err(|e| format!("{}: {e}", self.dir.display()))
-            .and_then(|()| save(path).map_err(|e| e.to_string()));
+            .and_then(|()| artifact.save_with(path, &key.fields()).map_err(|e| e.to_string()));
         if let Err(e) = stored {
             eprintln!("warning: could not write the cache file {}: {e}", path.display());
         }
     }
+
+    /// [`Self::put`] of an artifact that may fail to build (a warning too).
+    pub fn put_with<E: std::fmt::Display>(
+        &self,
+        path: &Path,
+        key: &CacheKey,
+        artifact: impl FnOnce() -> Result<Artifact, E>,
+    ) {
+        match artifact() {
+            Ok(a) => self.put(path, key, &a),
+            Err(e) => eprintln!("warning: could not write the cache file {}: {e}", path.display()),
+        }
+    }
 }
 
-/// Content hash of the inputs of the transfer stage.
-pub fn transfer_key(mesh: &Mesh, s: &TransferSettings) -> u64 {
+/// The key of the transfer stage: the mesh, the transfer settings (both bases and the
+/// visibility resolution) and the versions.
+pub fn transfer_key(mesh: &Mesh, s: &TransferSettings) -> CacheKey {
     let mut h = ContentHash::default();
     h.write(&TRANSFER_VERSION.to_le_bytes()).write(&biscale_core::artifact::CONTAINER_VERSION.to_le_bytes());
     h.write_str(&s.light_basis().tag())
         .write(&s.visibility_resolution().to_le_bytes())
         .write_str(&s.local_basis().tag());
     hash_mesh(&mut h, mesh);
-    h.finish()
+    CacheKey::new(
+        h.finish128(),
+        format!(
+            "T of {}, light {}, local {}, visibility {}",
+            describe_mesh(mesh),
+            s.light_basis(),
+            s.local_basis(),
+            s.visibility_resolution()
+        ),
+    )
 }
 
-/// Content hash of the inputs of the SH transfer `M` (the low-frequency method): the mesh,
-/// the order, the rays, the seed and the bounces (and their albedos, which the caller hashes
-/// into `bounce_key`).
-pub fn sh_transfer_key(mesh: &Mesh, s: &ShTransferSettings, bounces: u32, bounce_key: u64) -> u64 {
+/// The key of the SH transfer `M` (the low-frequency method): the mesh, the order, the rays,
+/// the seed and the bounces (and their albedos, which the caller hashes into `bounce_key`).
+pub fn sh_transfer_key(mesh: &Mesh, s: &ShTransferSettings, bounces: u32, bounce_key: u128) -> CacheKey {
     let mut h = ContentHash::default();
     h.write(&SH_TRANSFER_VERSION.to_le_bytes()).write(&biscale_core::artifact::CONTAINER_VERSION.to_le_bytes());
     h.write(&s.order().n().to_le_bytes()).write(&s.rays().to_le_bytes()).write(&s.seed().to_le_bytes());
     h.write(&bounces.to_le_bytes()).write(&bounce_key.to_le_bytes());
     hash_mesh(&mut h, mesh);
-    h.finish()
+    CacheKey::new(
+        h.finish128(),
+        format!(
+            "SH transfer of {}, order {}, {} rays, seed {}, {bounces} bounce(s) (albedos {bounce_key:032x})",
+            describe_mesh(mesh),
+            s.order().n(),
+            s.rays(),
+            s.seed()
+        ),
+    )
+}
+
+/// A mesh in a key's account: its vertex and triangle counts and its own content hash.
+fn describe_mesh(mesh: &Mesh) -> String {
+    let mut h = ContentHash::default();
+    hash_mesh(&mut h, mesh);
+    format!(
+        "the mesh of {} vertices and {} triangles (mesh hash {:032x})",
+        mesh.vertex_count(),
+        mesh.triangle_count(),
+        h.finish128()
+    )
 }
 
 fn hash_mesh(h: &mut ContentHash, mesh: &Mesh) {
@@ -150,6 +271,7 @@ fn hash_mesh(h: &mut ContentHash, mesh: &Mesh) {
             h.write(&c.to_le_bytes());
         }
     }
+    h.write(&(mesh.triangles.len() as u64).to_le_bytes());
     for t in &mesh.triangles {
         for i in t {
             h.write(&i.to_le_bytes());
@@ -164,31 +286,97 @@ fn hash_mesh(h: &mut ContentHash, mesh: &Mesh) {
     }
 }
 
-/// Content hash of one setting's compressed form (see the module docs), or `None` when this
-/// build cannot identify itself (then forms are not cached).
-pub fn form_key(transfer_key: u64, compressor: &dyn Compressor, seed: u64) -> Option<u64> {
+/// The key of one setting's compressed form of the `T` keyed `transfer` (see the module
+/// docs), or `None` when this build cannot identify itself (then forms are not cached).
+pub fn form_key(transfer: &CacheKey, compressor: &dyn Compressor, seed: u64) -> Option<CacheKey> {
     let build = build_identity()?;
     let mut h = ContentHash::default();
     h.write(&FORM_VERSION.to_le_bytes())
         .write(&biscale_core::artifact::CONTAINER_VERSION.to_le_bytes())
         .write(&build.to_le_bytes())
-        .write(&transfer_key.to_le_bytes())
+        .write(&transfer.hash.to_le_bytes())
         .write_str(compressor.kind())
         .write_str(&compressor.params().to_string())
         .write(&seed.to_le_bytes())
         .write(&compressor.code_identity().unwrap_or(0).to_le_bytes());
-    Some(h.finish())
+    Some(CacheKey::new(
+        h.finish128(),
+        format!(
+            "a {} form ({}, seed {seed}, this biscale build) of {}",
+            compressor.kind(),
+            compressor.params(),
+            transfer.inputs
+        ),
+    ))
 }
 
 /// The running executable's path, size and modification time, hashed once.
-fn build_identity() -> Option<u64> {
-    static ID: OnceLock<Option<u64>> = OnceLock::new();
+fn build_identity() -> Option<u128> {
+    static ID: OnceLock<Option<u128>> = OnceLock::new();
     *ID.get_or_init(|| {
         let exe = std::env::current_exe().ok()?;
         let meta = std::fs::metadata(&exe).ok()?;
         let modified = meta.modified().ok()?.duration_since(std::time::UNIX_EPOCH).ok()?;
         let mut h = ContentHash::default();
         h.write_str(&exe.to_string_lossy()).write(&meta.len().to_le_bytes()).write(&modified.as_nanos().to_le_bytes());
-        Some(h.finish())
+        Some(h.finish128())
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use biscale_core::compress::ArrayData;
+
+    fn artifact() -> Artifact {
+        Artifact::new("probe").with("n", Field::U64(3)).with_array("v", ArrayData::F32(vec![1.0, 2.0]))
+    }
+
+    fn decode(a: Artifact) -> Result<Artifact, String> {
+        Ok(a)
+    }
+
+    /// Every kind of cache file (T, forms, SH transfers, BTFs, LPCA BTFs) goes through `put`
+    /// and `get`: a file of another key at this key's path, or one without a key, is not
+    /// taken; the right one is, without the key fields.
+    #[test]
+    fn foreign_and_keyless_cache_files_are_not_taken() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = StageCache::in_dir(dir.path());
+        let mine = CacheKey::new(1 << 100 | 7, "mine");
+        let theirs = CacheKey::new(1 << 100 | 8, "theirs");
+        let path = cache.btf_path(&mine, "f16");
+        assert!(path.to_string_lossy().contains(&format!("{:032x}", mine.hash)));
+        cache.put(&path, &theirs, &artifact());
+        assert!(cache.get(&path, &mine, decode, |_| Ok(())).is_none(), "a foreign file is rebuilt");
+        artifact().save(&path).unwrap();
+        assert!(cache.get(&path, &mine, decode, |_| Ok(())).is_none(), "a file without a key is rebuilt");
+        cache.put(&path, &mine, &artifact());
+        let back = cache.get(&path, &mine, decode, |_| Ok(())).expect("its own file is taken");
+        assert_eq!(Artifact { source: Default::default(), ..back }, artifact());
+        // `accept` still has the last word.
+        assert!(cache.get(&path, &mine, decode, |_| Err("no".into())).is_none());
+    }
+
+    #[test]
+    fn a_foreign_file_is_named_with_what_it_holds_and_what_the_run_needs() {
+        let mine = CacheKey::new(1, "T of the bunny");
+        let theirs = CacheKey::new(2, "T of the teapot");
+        let mut a = Artifact::decode(&artifact().encode_with(&theirs.fields()), Path::new("c/x.bsf")).unwrap();
+        let e = mine.check(&mut a, Path::new("c/x.bsf")).unwrap_err();
+        assert!(e.contains("c/x.bsf") && e.contains("teapot") && e.contains("bunny") && e.contains("foreign"), "{e}");
+    }
+
+    #[test]
+    fn keys_change_with_the_mesh_and_settings() {
+        use biscale_core::geometry::shapes;
+        let s = TransferSettings::new(8, 16, 4).unwrap();
+        let mesh = shapes::uv_sphere(glam::Vec3::ZERO, 1.0, 6, 8);
+        let mut moved = mesh.clone();
+        moved.positions[0].x += 1e-3;
+        assert_eq!(transfer_key(&mesh, &s), transfer_key(&mesh, &s));
+        assert_ne!(transfer_key(&mesh, &s).hash, transfer_key(&moved, &s).hash);
+        assert_ne!(transfer_key(&mesh, &s).hash, transfer_key(&mesh, &TransferSettings::new(8, 16, 2).unwrap()).hash);
+        assert!(transfer_key(&mesh, &s).inputs.contains("mesh hash"));
+    }
 }

@@ -176,7 +176,7 @@ pub fn viz(
         viz::write_bicluster_size_histograms(&form, &out.join("bicluster_sizes.png"))?,
         viz::write_value_histograms(&t, Some(&form), &out.join("values.png"))?,
     ];
-    let camera = pipeline::camera(exp, &geometry.mesh, 1);
+    let camera = geometry.camera(exp, 1);
     let heat = HeatmapOptions::default();
     let cost = analysis::gather_cost_per_vertex(&form).map_err(cerr)?;
     let nnz = viz::nnz_per_vertex(&t);
@@ -251,14 +251,14 @@ pub fn view(
     for setting in plan.compressors.iter().filter(|_| method.is_none()) {
         let c = pipeline::build_compressor(setting)?;
         let (form, _) =
-            pipeline::compressed_form(setting, c.as_ref(), &t.matrix, t.key, exp.file.seed, cache.as_ref())?;
+            pipeline::compressed_form(setting, c.as_ref(), &t.matrix, &t.key, exp.file.seed, cache.as_ref())?;
         let kernels =
             c.kernels(&form).map_err(|source| PipelineError::Compress { name: setting.label.clone(), source })?;
         forms.push(ViewerForm { label: setting.label.clone(), form, kernels });
     }
     let setup = ViewerSetup {
         title: format!("biscale: {}", exp.name()),
-        camera: pipeline::camera(exp, &geometry.mesh, 1),
+        camera: geometry.camera(exp, 1),
         scene,
         forms,
         initial_form: 0,

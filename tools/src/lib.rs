@@ -25,6 +25,7 @@ pub mod pipeline;
 pub mod plan;
 pub mod plots;
 pub mod report;
+pub mod staging;
 pub mod temple;
 pub mod util;
 pub mod viz;

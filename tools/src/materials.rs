@@ -18,7 +18,7 @@
 //!   axis; a flat patch with an analytic BRDF is tabulated without ray tracing. Each such
 //!   decision is a line in [`SceneMaterials::notes`], printed with the plan.
 
-use crate::cache::StageCache;
+use crate::cache::{CacheKey, StageCache};
 use crate::config::{
     BrdfConfig, BtfRepresentation, Experiment, LpcaQuantizeConfig, LpcaUnitConfig, MaterialConfig, SynthesizedConfig,
 };
@@ -30,8 +30,7 @@ use biscale_core::geometry::Mesh;
 use biscale_core::io::ContentHash;
 use biscale_core::scene::{Btf, LpcaBtf, LpcaQuantize, LpcaSettings, Material};
 use biscale_shading::synth::{
-    btf_artifact, btf_from_artifact, load_btf, synthesize, AlbedoMap, Brdf, BtfEncoding, BtfSpec, HeightField, Pattern,
-    Recipe,
+    btf_artifact, btf_from_artifact, synthesize, AlbedoMap, Brdf, BtfEncoding, BtfSpec, HeightField, Pattern, Recipe,
 };
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -179,7 +178,7 @@ fn describe(cfg: &SynthesizedConfig) -> String {
 
 /// Cache key of a synthesized entry: the entry (paths resolved), the bytes of the files it
 /// names, the local basis and the versions of the generator and the file container.
-pub fn synth_key(cfg: &SynthesizedConfig, local_basis: LocalBasis) -> Result<u64> {
+pub fn synth_key(cfg: &SynthesizedConfig, local_basis: LocalBasis) -> Result<CacheKey> {
     let mut h = ContentHash::default();
     h.write(&SYNTH_VERSION.to_le_bytes());
     h.write(&biscale_core::artifact::CONTAINER_VERSION.to_le_bytes());
@@ -192,7 +191,7 @@ pub fn synth_key(cfg: &SynthesizedConfig, local_basis: LocalBasis) -> Result<u64
         let bytes = std::fs::read(p).map_err(|source| PipelineError::Io { path: p.clone(), source })?;
         h.write(&bytes);
     }
-    Ok(h.finish())
+    Ok(CacheKey::new(h.finish128(), format!("synthesized BTF ({}) on {local_basis}", describe(cfg))))
 }
 
 /// Where a material's table came from.
@@ -226,7 +225,7 @@ pub fn material_btf(
         MaterialConfig::Synthesized(s) => {
             let encoding = BtfEncoding::from_name(&s.encoding).map_err(&err)?;
             let key = synth_key(s, local_basis)?;
-            let path = cache.map(|c| c.btf_path(key, &s.encoding));
+            let path = cache.map(|c| c.btf_path(&key, &s.encoding));
             if let (Some(c), Some(p)) = (cache, &path) {
                 let accept = |b: &Btf| match b.local_basis() == local_basis {
                     true => Ok(()),
@@ -234,7 +233,7 @@ pub fn material_btf(
                         Err(format!("{}: a BTF on {}, this run needs {local_basis}", p.display(), b.local_basis()))
                     }
                 };
-                if let Some(btf) = c.get(p, load_btf, accept) {
+                if let Some(btf) = c.get(p, &key, btf_from_artifact, accept) {
                     return Ok((btf, Origin::Cached(p.clone())));
                 }
             }
@@ -254,7 +253,7 @@ pub fn material_btf(
             let stored = btf_artifact(&btf, encoding).map_err(&err)?;
             let source = path.clone().unwrap_or_else(|| PathBuf::from(format!("<{label} in memory>")));
             if let (Some(c), Some(p)) = (cache, &path) {
-                c.put(p, |p| stored.save(p));
+                c.put(p, &key, &stored);
             }
             let btf = btf_from_artifact(Artifact { source, ..stored }).map_err(&err)?;
             Ok((btf, Origin::Synthesized { seconds }))
@@ -425,16 +424,13 @@ pub(crate) fn represent(
     // quantizing it is cheap.
     let f32_label =
         BtfRepresentation::Lpca { clusters, components, unit, quantize: LpcaQuantizeConfig::F32, iterations }.label();
-    let path = cache.map(|c| c.lpca_path(lpca_key(btf, &settings, seed), &f32_label));
+    let key = lpca_key(btf, &settings, seed);
+    let path = cache.map(|c| c.lpca_path(&key, &f32_label));
     let cached = match (cache, &path) {
-        (Some(c), Some(p)) => c.get(
-            p,
-            |p| LpcaBtf::from_artifact(Artifact::load(p)?),
-            |l| match l.fits(btf) {
-                true => Ok(()),
-                false => Err(format!("{}: an LPCA BTF of another shape than {}", p.display(), btf.name())),
-            },
-        ),
+        (Some(c), Some(p)) => c.get(p, &key, LpcaBtf::from_artifact, |l| match l.fits(btf) {
+            true => Ok(()),
+            false => Err(format!("{}: an LPCA BTF of another shape than {}", p.display(), btf.name())),
+        }),
         _ => None,
     };
     let (lpca, seconds, how) = match cached {
@@ -442,7 +438,7 @@ pub(crate) fn represent(
         None => {
             let (l, report) = LpcaBtf::compress(btf, &settings, seed).map_err(|e| err(e.into()))?;
             if let (Some(c), Some(p)) = (cache, &path) {
-                c.put(p, |p| l.to_artifact().save(p));
+                c.put(p, &key, &l.to_artifact());
             }
             (l, report.seconds, format!("in {:.1} s", report.seconds))
         }
@@ -468,7 +464,7 @@ const LPCA_VERSION: u32 = 2; // 2: one power iteration, oversampling 4
 
 /// Cache key of a local-PCA BTF: the dense table's content and shape, the setting and the
 /// seed (the build is deterministic for them on any number of threads).
-pub fn lpca_key(btf: &Btf, settings: &LpcaSettings, seed: u64) -> u64 {
+pub fn lpca_key(btf: &Btf, settings: &LpcaSettings, seed: u64) -> CacheKey {
     let mut h = ContentHash::default();
     h.write(&LPCA_VERSION.to_le_bytes())
         .write(&biscale_core::artifact::CONTAINER_VERSION.to_le_bytes())
@@ -479,7 +475,7 @@ pub fn lpca_key(btf: &Btf, settings: &LpcaSettings, seed: u64) -> u64 {
             h.write(&x.to_le_bytes());
         }
     }
-    h.finish()
+    CacheKey::new(h.finish128(), format!("local PCA ({settings:?}, seed {seed}) of the BTF '{}'", btf.name()))
 }
 
 #[cfg(test)]
@@ -499,7 +495,7 @@ mod tests {
         let basis = LocalBasis::bins(4).unwrap();
         let base = synth_key(&toml(""), basis).unwrap();
         let same = toml("name = \"x\"\ntiling = 3.0\nrepresentation = { kind = \"lpca\", clusters = 2 }");
-        assert_eq!(synth_key(&same, basis).unwrap(), base);
-        assert_ne!(synth_key(&toml("resolution = 16"), basis).unwrap(), base);
+        assert_eq!(synth_key(&same, basis).unwrap().hash, base.hash);
+        assert_ne!(synth_key(&toml("resolution = 16"), basis).unwrap().hash, base.hash);
     }
 }

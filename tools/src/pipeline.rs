@@ -6,7 +6,8 @@
 //! setting, then the report. Each step is a function below that takes plain data and returns
 //! a plain record; stages never reach into each other.
 
-use crate::cache::StageCache;
+use crate::cache::{CacheKey, StageCache};
+use crate::staging::{fault_point, StagedDir};
 use crate::config::{Backend, CompressorSetting, Experiment};
 use crate::materials::{load_materials, SceneMaterials};
 use crate::metrics::*;
@@ -15,7 +16,7 @@ use crate::util::progress_bar;
 use biscale_compressors::registry::{self, BuildError};
 use biscale_core::compress::{CompressContext, CompressedForm, Compressor};
 use biscale_core::gather::{reference_product, relative_l2_error, LocalRadiance};
-use biscale_core::geometry::Mesh;
+use biscale_core::geometry::{Mesh, Placement};
 use biscale_core::io::write_atomic_bytes;
 use biscale_core::sampling::{EnvMap, LightVector};
 use biscale_core::scene::{Background, Camera, HdrImage, Render, ShadeScene};
@@ -53,6 +54,8 @@ pub enum PipelineError {
     Mismatch { path: PathBuf, what: String },
     #[error(transparent)]
     Viz(#[from] crate::viz::VizError),
+    #[error(transparent)]
+    Staging(#[from] crate::staging::StagingError),
     /// The config asks for something this build was compiled without.
     #[error("{what} needs biscale built with the `{feature}` cargo feature")]
     Feature { what: String, feature: &'static str },
@@ -81,18 +84,40 @@ pub struct Geometry {
     /// What the loader repaired, and vertices whose normal fell back (one line each).
     pub repairs: Vec<String>,
     pub transfer: TransferScene,
+    /// How the mesh was moved and scaled from its file's coordinates
+    /// ([`biscale_core::geometry::placement`]); config values in world units go through it.
+    pub placement: Placement,
 }
 
-/// Load the mesh and build its transfer scene (frames and the normalised BVH), once.
+impl Geometry {
+    /// The experiment's camera for this geometry at `downscale` ([`camera_placed`]).
+    pub fn camera(&self, exp: &Experiment, downscale: u32) -> Camera {
+        camera_placed(exp, &self.mesh, &self.placement, downscale)
+    }
+}
+
+/// Load the mesh, condition its coordinates for f32 (one similarity for every stage) and
+/// build its transfer scene (frames and the normalised BVH), once.
 pub fn load_geometry(exp: &Experiment) -> Result<Geometry> {
-    let load = Mesh::load_obj(&exp.mesh_path)?;
+    let mut load = Mesh::load_obj(&exp.mesh_path)?;
+    let placement = biscale_core::geometry::placement::condition(&mut load.mesh);
+    if !placement.is_identity() {
+        load.repairs.push(format!(
+            "coordinates out of f32's comfortable range: the mesh (and any camera position or target) \
+             is moved by -({:.3e}, {:.3e}, {:.3e}) and scaled by 2^{}; images and transfer are unchanged by this similarity",
+            placement.centre.x,
+            placement.centre.y,
+            placement.centre.z,
+            placement.scale.log2().round()
+        ));
+    }
     let transfer = TransferScene::new(&load.mesh)?;
     let mut repairs = load.repairs;
     if transfer.frame_fallbacks() > 0 {
         repairs
             .push(format!("{} vertices had no usable normal (cancelling faces); used +Y", transfer.frame_fallbacks()));
     }
-    Ok(Geometry { mesh: load.mesh, repairs, transfer })
+    Ok(Geometry { mesh: load.mesh, repairs, transfer, placement })
 }
 
 /// The lighting: `L` and the map it came from (for backgrounds).
@@ -136,7 +161,7 @@ pub fn load_lighting(exp: &Experiment) -> Result<Lighting> {
 pub struct Transfer {
     pub matrix: TransferMatrix,
     pub metrics: TransferMetrics,
-    pub key: u64,
+    pub key: CacheKey,
 }
 
 /// Build (or load from the cache) the transfer matrix with a progress bar.
@@ -145,12 +170,12 @@ pub fn transfer_matrix(exp: &Experiment, geometry: &Geometry, cache: Option<&Sta
     let key = crate::cache::transfer_key(&geometry.mesh, &settings);
     let shape = settings.shape(geometry.mesh.vertex_count());
     if let Some(c) = cache {
-        let path = c.transfer_path(key);
+        let path = c.transfer_path(&key);
         let accept = |t: &TransferMatrix| match t.shape() == shape {
             true => Ok(()),
             false => Err(format!("{}: holds {}, this run needs {shape}", path.display(), t.shape())),
         };
-        if let Some(matrix) = c.get(&path, TransferMatrix::load, accept) {
+        if let Some(matrix) = c.get(&path, &key, TransferMatrix::from_artifact, accept) {
             eprintln!("transfer: loaded from cache {}", path.display());
             let metrics = transfer_metrics(&matrix, 0.0, 0, 0.0, true, &settings);
             return Ok(Transfer { matrix, metrics, key });
@@ -167,7 +192,7 @@ pub fn transfer_matrix(exp: &Experiment, geometry: &Geometry, cache: Option<&Sta
     pb.finish_and_clear();
     eprintln!("transfer: {build}");
     if let Some(c) = cache {
-        c.put(&c.transfer_path(key), |p| build.matrix.save(p));
+        c.put_with(&c.transfer_path(&key), &key, || build.matrix.to_artifact());
     }
     let s = &build.stats;
     let metrics = transfer_metrics(&build.matrix, s.seconds, s.rays_traced, s.rays_per_second, false, &settings);
@@ -180,13 +205,14 @@ pub fn compressed_form(
     setting: &CompressorSetting,
     compressor: &dyn Compressor,
     t: &TransferMatrix,
-    t_key: u64,
+    t_key: &CacheKey,
     seed: u64,
     cache: Option<&StageCache>,
 ) -> Result<(CompressedForm, bool)> {
     let name = &setting.label;
-    let cached = cache.zip(crate::cache::form_key(t_key, compressor, seed)).map(|(c, key)| (c, c.form_path(key, name)));
-    if let Some((c, path)) = &cached {
+    let cached =
+        cache.zip(crate::cache::form_key(t_key, compressor, seed)).map(|(c, key)| (c, c.form_path(&key, name), key));
+    if let Some((c, path, key)) = &cached {
         let accept = |f: &CompressedForm| match f.kind == compressor.kind() && f.shape() == t.shape() {
             true => Ok(()),
             false => Err(format!(
@@ -197,7 +223,7 @@ pub fn compressed_form(
                 t.shape()
             )),
         };
-        if let Some(form) = c.get(path, CompressedForm::load, accept) {
+        if let Some(form) = c.get(path, key, CompressedForm::from_artifact, accept) {
             eprintln!("{name}: loaded from cache {}", path.display());
             return Ok((form, true));
         }
@@ -207,8 +233,8 @@ pub fn compressed_form(
     let ctx = CompressContext { seed, progress: Some(&progress) };
     let form = compressor.compress(t, &ctx).map_err(|source| PipelineError::Compress { name: name.clone(), source })?;
     pb.finish_and_clear();
-    if let Some((c, path)) = &cached {
-        c.put(path, |p| form.save(p));
+    if let Some((c, path, key)) = &cached {
+        c.put(path, key, &form.to_artifact());
     }
     Ok((form, false))
 }
@@ -283,18 +309,24 @@ pub fn shade_scene(
     Ok((scene, materials))
 }
 
-/// The camera of the experiment at `downscale`.
+/// The camera of the experiment at `downscale`, for a mesh in its file's coordinates.
 pub fn camera(exp: &Experiment, mesh: &Mesh, downscale: u32) -> Camera {
+    camera_placed(exp, mesh, &Placement::IDENTITY, downscale)
+}
+
+/// The camera of the experiment at `downscale` for `mesh` placed by `placement`: the
+/// config's position and target (file coordinates) go through the same similarity.
+pub fn camera_placed(exp: &Experiment, mesh: &Mesh, placement: &Placement, downscale: u32) -> Camera {
     let rt = &exp.file.runtime;
     let (w, h) = ((rt.width.get_ref() / downscale).max(1), (rt.height.get_ref() / downscale).max(1));
     let c = &rt.camera;
     let (min, max) = mesh.bounds();
     let mut cam = Camera::frame_bounds(min, max, w, h, c.azimuth_degrees, c.elevation_degrees, c.fov_y_degrees);
     if let Some(p) = c.position {
-        cam.position = p.into();
+        cam.position = placement.apply(p.into());
     }
     if let Some(t) = c.target {
-        cam.target = t.into();
+        cam.target = placement.apply(t.into());
     }
     cam
 }
@@ -366,7 +398,7 @@ fn reference(
     lighting: &Lighting,
     baseline: &Baseline,
 ) -> Result<Reference> {
-    let camera = self::camera(exp, &geometry.mesh, *exp.file.report.reference_downscale.get_ref());
+    let camera = geometry.camera(exp, *exp.file.report.reference_downscale.get_ref());
     let sampler = VisibilitySampler::new(&exp.transfer_settings());
     let pb = progress_bar(camera.height as u64, "reference");
     let tick = |rows: usize| pb.set_position(rows as u64);
@@ -548,11 +580,27 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     if exp.file.runtime.backend == Backend::Gpu && !cfg!(feature = "gpu") {
         return Err(no_gpu_feature());
     }
-    let out_dir = opts.out_dir.clone().unwrap_or_else(|| Path::new("out").join(exp.name()));
+    let target = opts.out_dir.clone().unwrap_or_else(|| Path::new("out").join(exp.name()));
+    let cache = StageCache::new(opts, &target);
+    if let Some(c) = &cache {
+        let inside = |d: &Path| std::path::absolute(d).unwrap_or_else(|_| d.to_path_buf());
+        if inside(c.dir()).starts_with(inside(&target)) {
+            return Err(PipelineError::Mismatch {
+                path: c.dir().to_path_buf(),
+                what: format!(
+                    "the cache folder lies inside the output folder {}, which each run replaces whole; put it elsewhere",
+                    target.display()
+                ),
+            });
+        }
+    }
+    // Everything is written into a staging folder that replaces the output folder whole
+    // when the run is complete (crate::staging).
+    let staged = StagedDir::begin(&target, &format!("biscale run {}", exp.config_path.display()))?;
+    let out_dir = staged.path().to_path_buf();
     let images_dir = out_dir.join("images");
     std::fs::create_dir_all(&images_dir).map_err(io_err(&images_dir))?;
     write_atomic_bytes(&out_dir.join("plan.txt"), plan.to_string().as_bytes())?;
-    let cache = StageCache::new(opts, &out_dir);
 
     // Compressors are constructed first so a bad setting fails before any heavy work.
     let compressors: Vec<(CompressorSetting, Box<dyn Compressor>)> =
@@ -567,6 +615,7 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
         eprintln!("warning: {w}");
     }
     let t = transfer_matrix(exp, &geometry, cache.as_ref())?;
+    fault_point("transfer");
     if let Some(w) = sky_warning(&t.metrics, t.matrix.vertices()) {
         eprintln!("warning: {w}");
     }
@@ -575,10 +624,23 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
         eprintln!("materials: {n}");
     }
     let repeats = exp.file.runtime.repeats;
-    let view = View { scene: &scene, camera: camera(exp, &geometry.mesh, 1), background: lighting.background(exp) };
+    let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
     let base = baseline(&t.matrix, &lighting, &view, repeats)?;
+    if !base.render.mask.iter().any(|&hit| hit) {
+        return Err(PipelineError::Mismatch {
+            path: exp.config_path.clone(),
+            what: format!(
+                "the camera sees none of the mesh (no pixel of the {}x{} image hits it): check [runtime.camera] \
+                 (position, target, azimuth, elevation, fov) against the mesh's bounds {:?}",
+                view.camera.width,
+                view.camera.height,
+                geometry.mesh.bounds()
+            ),
+        });
+    }
     let exposure = exp.file.report.exposure;
     save_images(&base.render.image, &images_dir, "uncompressed", exposure)?;
+    fault_point("images");
     let reference = match plan.reference {
         true => {
             let r = reference(exp, &geometry, &view, &lighting, &base)?;
@@ -616,9 +678,10 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     let mut records = vec![];
     for (setting, compressor) in &compressors {
         let (form, cached) =
-            compressed_form(setting, compressor.as_ref(), &t.matrix, t.key, exp.file.seed, cache.as_ref())?;
+            compressed_form(setting, compressor.as_ref(), &t.matrix, &t.key, exp.file.seed, cache.as_ref())?;
         let (record, _) = eval.record(setting, compressor.as_ref(), &form, cached, gpu.as_mut())?;
         records.push(record);
+        fault_point("compression");
     }
     let inputs = crate::methods::sh::MethodInputs {
         exp,
@@ -643,6 +706,8 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     let metrics =
         Metrics::of_run(exp, &geometry, &lighting, &materials, t.metrics, &base, reference.as_ref(), records, methods);
     write_report(&metrics, &plan, &out_dir)?;
+    fault_point("report");
+    let out_dir = staged.commit()?;
     eprintln!("wrote {}", out_dir.display());
     Ok((out_dir, metrics))
 }
@@ -701,6 +766,7 @@ impl Metrics {
 fn write_report(metrics: &Metrics, plan: &Plan, out_dir: &Path) -> Result<()> {
     let json = serde_json::to_string_pretty(metrics).expect("metrics serialize");
     write_atomic_bytes(&out_dir.join("metrics.json"), json.as_bytes())?;
+    fault_point("metrics");
     let plots = write_plots(metrics, out_dir);
     let html = crate::html::html(metrics, &plan.to_string(), out_dir, &plots);
     write_atomic_bytes(&out_dir.join("report.html"), html.as_bytes())?;

@@ -4,9 +4,11 @@
 pub mod bvh;
 pub mod frames;
 pub mod mesh;
+pub mod placement;
 pub mod polygon;
 pub mod shapes;
 
 pub use bvh::{Hit, SceneBvh};
 pub use frames::{vertex_frames, VertexFrame};
 pub use mesh::{MaterialIds, Mesh, MeshLoad};
+pub use placement::Placement;

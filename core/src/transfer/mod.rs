@@ -24,7 +24,8 @@ mod scene;
 pub mod sh;
 
 pub use build::{
-    build, build_range, worst_case_bytes, TransferBuild, TransferStats, BYTES_PER_NONZERO, MAX_TRANSFER_BYTES,
+    build, build_range, sample_nnz, worst_case_bytes, NnzEstimate, TransferBuild, TransferMemory, TransferStats,
+    BYTES_PER_NONZERO, MAX_TRANSFER_BYTES, NNZ_MARGIN_SIGMAS, NNZ_SAMPLE_VERTICES,
 };
 pub use sampler::{VisibilitySampler, VisibilityScratch};
 pub use scene::{TransferScene, BVH_DIAGONAL, ORIGIN_OFFSET};
@@ -190,29 +191,40 @@ impl TransferMatrix {
     /// The artifact kind of a transfer matrix.
     pub const ARTIFACT: &'static str = "transfer";
 
-    /// Write `T` to `path` atomically. More than 2^32 non-zeros are refused.
-    pub fn save(&self, path: &Path) -> Result<()> {
+    /// `T` as an artifact. More than 2^32 non-zeros are refused.
+    pub fn to_artifact(&self) -> Result<Artifact> {
         if self.nnz() > u32::MAX as usize || self.cols() > u16::MAX as usize + 1 {
             return Err(CoreError::TooLarge(format!(
-                "{}: {} non-zeros in {} columns do not fit the transfer file's u32 offsets and u16 columns",
-                path.display(),
+                "{} non-zeros in {} columns do not fit the transfer file's u32 offsets and u16 columns",
                 self.nnz(),
                 self.cols()
             )));
         }
         let csr = &self.csr;
-        Artifact::new(Self::ARTIFACT)
+        Ok(Artifact::new(Self::ARTIFACT)
             .with_shape(self.shape)
             .with_array("row_ptr", ArrayData::U32(csr.indptr().raw_storage().iter().map(|&p| p as u32).collect()))
             .with_array("col", ArrayData::U16(csr.indices().iter().map(|&c| c as u16).collect()))
-            .with_array("values", ArrayData::F32(csr.data().to_vec()))
-            .save(path)
+            .with_array("values", ArrayData::F32(csr.data().to_vec())))
+    }
+
+    /// Write `T` to `path` atomically ([`Self::to_artifact`]).
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let a = self.to_artifact().map_err(|e| match e {
+            CoreError::TooLarge(msg) => CoreError::TooLarge(format!("{}: {msg}", path.display())),
+            e => e,
+        })?;
+        a.save(path)
     }
 
     /// Read a matrix written by [`Self::save`]; a file whose arrays are not a valid CSR
     /// matrix of its shape is an error naming it.
     pub fn load(path: &Path) -> std::result::Result<Self, ArtifactError> {
-        let mut a = Artifact::load(path)?;
+        Self::from_artifact(Artifact::load(path)?)
+    }
+
+    /// The matrix an artifact holds (see [`Self::load`]).
+    pub fn from_artifact(mut a: Artifact) -> std::result::Result<Self, ArtifactError> {
         a.expect_kind(Self::ARTIFACT)?;
         let shape = a.shape()?;
         let (row_ptr, col, values) = match (a.take_array("row_ptr")?, a.take_array("col")?, a.take_array("values")?) {

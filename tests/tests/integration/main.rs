@@ -5,6 +5,8 @@
 //!   stage cache, and the wgpu backend checked against the CPU.
 //! * [`bad_input`]: every bad input is a typed error naming what and where, with nothing
 //!   half-written left behind.
+//! * [`hostile`]: careless and hostile input that used to give wrong results silently (extreme
+//!   mesh scales, a camera that sees nothing, foreign cache files).
 //! * [`materials`]: BTF materials from the config (synthesis, the cache, several materials).
 //! * [`low_frequency`]: the SH method end to end (an analytic scene, records, the GPU).
 //!
@@ -14,5 +16,6 @@
 
 mod bad_input;
 mod end_to_end;
+mod hostile;
 mod low_frequency;
 mod materials;

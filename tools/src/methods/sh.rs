@@ -111,7 +111,7 @@ pub const KIND: MethodKind = MethodKind {
     check: |p| ShParams::parse(p).map(drop),
 };
 
-use crate::cache::StageCache;
+use crate::cache::{CacheKey, StageCache};
 use crate::config::{Experiment, MethodSetting, Setting};
 use crate::metrics::{MethodRecord, RttRecord, ShRecord, ShTransferRecord};
 use crate::pipeline::{
@@ -211,10 +211,7 @@ pub(crate) fn prepare(setting: &MethodSetting, src: &MethodScene<'_>, t: Option<
     let (materials, rtt, diffuse) = method_materials(src.scene, order)?;
     // Diffuse: the transfer vectors t_p = c^T M_p stand in for the matrices.
     let (matrix, key) = match diffuse {
-        true => (
-            irradiance_transfer(&m)?,
-            ContentHash::default().write(&key.to_le_bytes()).write_str("irradiance").finish(),
-        ),
+        true => (irradiance_transfer(&m)?, key.derived("irradiance transfer vectors c^T M_p")),
         false => (m, key),
     };
     if diffuse {
@@ -224,7 +221,7 @@ pub(crate) fn prepare(setting: &MethodSetting, src: &MethodScene<'_>, t: Option<
     let compressor_setting = Setting { label: label.clone(), kind: ckind, params: cparams };
     let compressor = build_compressor(&compressor_setting)?;
     let (form, cached) =
-        compressed_form(&compressor_setting, compressor.as_ref(), &matrix, key, src.exp.file.seed, src.cache)?;
+        compressed_form(&compressor_setting, compressor.as_ref(), &matrix, &key, src.exp.file.seed, src.cache)?;
     let scene = src.scene.with_materials(materials)?;
     Ok(Prepared {
         params,
@@ -247,7 +244,7 @@ fn sh_transfer(
     inp: &MethodScene<'_>,
     label: &str,
     settings: &ShTransferSettings,
-) -> Result<(TransferMatrix, u64, ShTransferRecord)> {
+) -> Result<(TransferMatrix, CacheKey, ShTransferRecord)> {
     let mesh = &inp.geometry.mesh;
     let key = crate::cache::sh_transfer_key(mesh, settings, 0, 0);
     let record = |m: &TransferMatrix, seconds: f64, rays_traced: u64, cached: bool| ShTransferRecord {
@@ -258,7 +255,7 @@ fn sh_transfer(
         from_t_difference: f64::NAN,
         from_t_stride: FROM_T_STRIDE,
     };
-    if let Some(m) = cached_sh(inp, label, settings, key) {
+    if let Some(m) = cached_sh(inp, label, settings, &key) {
         let r = record(&m, 0.0, 0, true);
         return Ok((m, key, r));
     }
@@ -276,14 +273,19 @@ fn sh_transfer(
         build.rays_traced as f64 / build.seconds.max(1e-12) / 1e6
     );
     if let Some(c) = inp.cache {
-        c.put(&c.sh_transfer_path(key, settings.order().n()), |p| build.matrix.save(p));
+        c.put_with(&c.sh_transfer_path(&key, settings.order().n()), &key, || build.matrix.to_artifact());
     }
     let r = record(&build.matrix, build.seconds, build.rays_traced, false);
     Ok((build.matrix, key, r))
 }
 
 /// The SH transfer cached under `key`, if the cache has a usable one.
-fn cached_sh(inp: &MethodScene<'_>, label: &str, settings: &ShTransferSettings, key: u64) -> Option<TransferMatrix> {
+fn cached_sh(
+    inp: &MethodScene<'_>,
+    label: &str,
+    settings: &ShTransferSettings,
+    key: &CacheKey,
+) -> Option<TransferMatrix> {
     let c = inp.cache?;
     let (local, light) = settings.bases();
     let shape = biscale_core::basis::TransferShape::new(inp.geometry.mesh.vertex_count(), local, light);
@@ -292,7 +294,7 @@ fn cached_sh(inp: &MethodScene<'_>, label: &str, settings: &ShTransferSettings, 
         true => Ok(()),
         false => Err(format!("{}: holds {}, this run needs {shape}", path.display(), m.shape())),
     };
-    let m = c.get(&path, TransferMatrix::load, accept)?;
+    let m = c.get(&path, key, TransferMatrix::from_artifact, accept)?;
     eprintln!("{label}: SH transfer loaded from cache {}", path.display());
     Some(m)
 }
@@ -326,14 +328,14 @@ fn bounced(
     direct: TransferMatrix,
     bounces: u32,
     record: &mut ShTransferRecord,
-) -> Result<(TransferMatrix, u64)> {
+) -> Result<(TransferMatrix, CacheKey)> {
     let albedo = bounce_albedo(inp.scene);
     let mut h = ContentHash::default();
     for a in &albedo {
         h.write(&a.to_le_bytes());
     }
-    let key = crate::cache::sh_transfer_key(&inp.geometry.mesh, settings, bounces, h.finish());
-    if let Some(m) = cached_sh(inp, label, settings, key) {
+    let key = crate::cache::sh_transfer_key(&inp.geometry.mesh, settings, bounces, h.finish128());
+    if let Some(m) = cached_sh(inp, label, settings, &key) {
         return Ok((m, key));
     }
     let start = std::time::Instant::now();
@@ -344,7 +346,7 @@ fn bounced(
     record.cached = false;
     record.nnz = m.nnz();
     if let Some(c) = inp.cache {
-        c.put(&c.sh_transfer_path(key, settings.order().n()), |p| m.save(p));
+        c.put_with(&c.sh_transfer_path(&key, settings.order().n()), &key, || m.to_artifact());
     }
     Ok((m, key))
 }
