@@ -42,15 +42,97 @@ impl ConfigError {
         let line = source[..start].matches('\n').count() + 1;
         let column = source[line_start..start].chars().count() + 1;
         let line_end = source[start..].find('\n').map_or(source.len(), |i| start + i);
-        let text = &source[line_start..line_end];
+        let text: Vec<char> = source[line_start..line_end].chars().collect();
         let width = source[start..span.end.min(line_end).max(start)].chars().count().max(1);
-        let snippet = format!("{line:>4} | {text}\n     | {}{}", " ".repeat(column - 1), "^".repeat(width));
-        Self { file: file.display().to_string(), line, column, message: message.into(), snippet }
+        // A long line is shown as a window around the error, so a 50 MB line does not make a
+        // 50 MB message.
+        let (from, to) = match text.len() > SNIPPET_CHARS {
+            false => (0, text.len()),
+            true => {
+                let from = (column - 1).saturating_sub(SNIPPET_CHARS / 3).min(text.len() - SNIPPET_CHARS);
+                (from, from + SNIPPET_CHARS)
+            }
+        };
+        let lead = if from > 0 { "..." } else { "" };
+        let tail = if to < text.len() { "..." } else { "" };
+        let shown: String = text[from..to].iter().collect();
+        let caret_at = lead.len() + (column - 1).saturating_sub(from);
+        let carets = width.min(to.saturating_sub(column - 1).max(1));
+        let snippet = format!("{line:>4} | {lead}{shown}{tail}\n     | {}{}", " ".repeat(caret_at), "^".repeat(carets));
+        Self { file: file.display().to_string(), line, column, message: cut_message(message.into()), snippet }
     }
 
     fn whole_file(file: &Path, message: impl Into<String>) -> Self {
-        Self { file: file.display().to_string(), line: 1, column: 1, message: message.into(), snippet: String::new() }
+        Self {
+            file: file.display().to_string(),
+            line: 1,
+            column: 1,
+            message: cut_message(message.into()),
+            snippet: String::new(),
+        }
     }
+}
+
+/// Settings that only make sense for some transfer shapes, checked at load (so `plan` reports
+/// them, not the compressor after the transfer is traced): CPCA cannot have more components
+/// than a clustered unit has values, and Haar cannot keep more coefficients per row than a
+/// row has (a count above that was accepted and reported while the form held fewer).
+fn check_against_transfer(
+    setting: &Setting,
+    transfer: &biscale_core::transfer::TransferSettings,
+) -> std::result::Result<(), String> {
+    let n = transfer.light_basis().len();
+    match setting.kind.as_str() {
+        "cpca" => {
+            let p: biscale_compressors::cpca::Cpca =
+                serde_json::from_value(setting.params.clone()).map_err(|e| format!("{}: {e}", setting.label))?;
+            let unit_rows = match p.unit {
+                biscale_compressors::cpca::CpcaUnit::Row => 1,
+                biscale_compressors::cpca::CpcaUnit::Vertex => transfer.local_basis().len(),
+            };
+            if p.components > n * unit_rows {
+                return Err(format!(
+                    "{}: components = {} is more than the {} values of a clustered unit ({} light directions x {unit_rows}                      rows at {}): at most {} components exist",
+                    setting.label,
+                    p.components,
+                    n * unit_rows,
+                    n,
+                    transfer.light_basis(),
+                    n * unit_rows
+                ));
+            }
+        }
+        "haar" => {
+            let p: biscale_compressors::haar::Haar =
+                serde_json::from_value(setting.params.clone()).map_err(|e| format!("{}: {e}", setting.label))?;
+            if p.terms > n {
+                return Err(format!(
+                    "{}: terms = {} is more than the {n} coefficients of a row at {}; terms = {n} keeps every row exactly",
+                    setting.label,
+                    p.terms,
+                    transfer.light_basis()
+                ));
+            }
+        }
+        _ => {}
+    }
+    Ok(())
+}
+
+/// Most characters of a config line an error shows.
+const SNIPPET_CHARS: usize = 120;
+/// Most characters of an error message (a parser's message can quote a whole value).
+const MESSAGE_CHARS: usize = 400;
+
+/// `message`, with its middle cut out when it is longer than [`MESSAGE_CHARS`].
+fn cut_message(message: String) -> String {
+    let n = message.chars().count();
+    if n <= MESSAGE_CHARS {
+        return message;
+    }
+    let head: String = message.chars().take(MESSAGE_CHARS / 2).collect();
+    let tail: String = message.chars().skip(n - MESSAGE_CHARS / 4).collect();
+    format!("{head} ... ({} characters cut) ... {tail}", n - MESSAGE_CHARS / 2 - MESSAGE_CHARS / 4)
 }
 
 /// The whole experiment file.
@@ -1064,6 +1146,9 @@ impl Experiment {
                             ),
                         ));
                     }
+                    if what == "compressor" {
+                        check_against_transfer(&setting, &transfer).map_err(|m| err(c.span(), m))?;
+                    }
                     labels.push(setting.label.clone());
                     out.push(setting);
                 }
@@ -1148,6 +1233,47 @@ mod tests {
     }
 
     const OK: &str = "name = \"t\"\n[scene]\nmesh = \"../assets/meshes/bunny.obj\"\n[lighting]\nconstant = [1, 1, 1]\n";
+
+    /// A 50 MB line made a 50 MB error message: the snippet is a window around the error and
+    /// the message is cut in the middle, while short lines are shown whole.
+    #[test]
+    fn late_validation_snippets_are_cut_to_a_sane_width() {
+        let long = "x".repeat(5_000_000);
+        let e = parse(&format!("{OK}bogus = \"{long}\"\n")).unwrap_err().to_string();
+        assert!(e.len() < 2_000, "{} bytes", e.len());
+        assert!(e.contains("test.toml:6:1") && e.contains("unknown field `bogus`") && e.contains("..."), "{e}");
+        // The caret still points at the key.
+        assert!(e.lines().any(|l| l.trim_start().starts_with("| ^^^^^")), "{e}");
+        // A value far into a long line: the window follows it, the caret under it.
+        let e = parse(&format!("{OK}[runtime]\nwidth = {{ {} = 1, w = \"x\" }}\n", "a".repeat(300))).unwrap_err();
+        let text = e.to_string();
+        assert!(text.len() < 2_000, "{text}");
+        let lines: Vec<&str> = text.lines().collect();
+        let (code, marks) = (lines[lines.len() - 2], lines[lines.len() - 1]);
+        let caret = marks.find('^').unwrap();
+        assert!(caret < code.len(), "{text}");
+        // Long messages lose their middle, short ones nothing.
+        let m = cut_message("y".repeat(10_000));
+        assert!(m.len() < 500 && m.contains("characters cut"), "{m}");
+        assert_eq!(cut_message("short".into()), "short");
+    }
+
+    /// `components = 6145` with N = 384 was clamped while metrics reported 6145; Haar terms
+    /// above N were accepted. Both are errors at load now, located at their entry.
+    #[test]
+    fn unbounded_requests_above_the_transfer_shape_are_errors_at_load() {
+        let t = "[transfer]\ncubemap_resolution = 8\nvisibility_resolution = 16\nlocal_grid = 4\n";
+        let e =
+            parse(&format!("{OK}{t}[[compressors]]\nkind = \"cpca\"\nclusters = 4\ncomponents = 385\n")).unwrap_err();
+        assert!(e.to_string().contains("components = 385") && e.to_string().contains("384"), "{e}");
+        assert_eq!(e.line, 10, "{e}");
+        parse(&format!("{OK}{t}[[compressors]]\nkind = \"cpca\"\nclusters = 4\ncomponents = 384\n")).unwrap();
+        // A vertex unit holds M N values.
+        parse(&format!("{OK}{t}[[compressors]]\nkind = \"cpca\"\nunit = \"vertex\"\ncomponents = 385\n")).unwrap();
+        let e = parse(&format!("{OK}{t}[[compressors]]\nkind = \"haar\"\nterms = [12, 385]\n")).unwrap_err();
+        assert!(e.to_string().contains("haar-t385") && e.to_string().contains("384 coefficients"), "{e}");
+        parse(&format!("{OK}{t}[[compressors]]\nkind = \"haar\"\nterms = 384\n")).unwrap();
+    }
 
     #[test]
     fn every_bundled_config_loads() {
