@@ -372,3 +372,296 @@ fn an_all_zero_transfer_and_a_black_light_give_zeros() {
     let got = plugin.gather(&form, &LightVector::constant(LightBasis::cubemap(2).unwrap(), [0.0; 3])).unwrap();
     assert!(got.values().iter().all(|v| *v == [0.0; 3]));
 }
+
+/// Plugins in a child process (`isolate = true`): the same forms, `L*` and errors as in
+/// process, and what no boundary in one process survives (a segfault, an abort, an `exit`, a
+/// hang) as errors naming the library, the call and the cause, with the child reaped.
+#[cfg(unix)]
+mod isolated {
+    use super::*;
+    use biscale_compressors::plugin::{wire, IsolateOptions, IsolatedPlugin, CHILD_ENV};
+    use std::io::Read;
+    use std::process::{Command, Stdio};
+    use std::time::{Duration, Instant};
+
+    /// The child executable of these tests (the `biscale` binary is its own).
+    const HOST: &str = env!("CARGO_BIN_EXE_biscale-plugin-host");
+
+    fn options(timeout_seconds: f64) -> IsolateOptions {
+        IsolateOptions { host: Some(HOST.into()), timeout: Duration::from_secs_f64(timeout_seconds) }
+    }
+
+    fn isolated(lib: &Path, params: serde_json::Value) -> Result<IsolatedPlugin, PluginError> {
+        IsolatedPlugin::spawn(lib, params, &options(60.0))
+    }
+
+    /// The process is gone and reaped: `kill(pid, 0)` still succeeds on a zombie, and fails
+    /// with ESRCH only once the parent has waited for it.
+    fn assert_reaped(pid: u32) {
+        // SAFETY: signal 0 only asks whether the process exists.
+        let r = unsafe { libc::kill(pid as libc::pid_t, 0) };
+        let errno = std::io::Error::last_os_error().raw_os_error();
+        assert!(r == -1 && errno == Some(libc::ESRCH), "child {pid} is still there (kill: {r}, errno {errno:?})");
+    }
+
+    /// Every field of two forms but the build time (the parent's includes the pipes).
+    fn assert_same_form(a: &CompressedForm, b: &CompressedForm) {
+        assert_eq!(
+            (&a.kind, a.shape(), a.lossless, a.flops_per_gather),
+            (&b.kind, b.shape(), b.lossless, b.flops_per_gather)
+        );
+        assert_eq!(a.meta, b.meta);
+        assert_eq!(a.arrays.len(), b.arrays.len());
+        for (x, y) in a.arrays.iter().zip(&b.arrays) {
+            assert_eq!(x.name, y.name);
+            let same = match (&x.data, &y.data) {
+                (ArrayData::F32(p), ArrayData::F32(q)) => {
+                    p.iter().map(|v| v.to_bits()).eq(q.iter().map(|v| v.to_bits()))
+                }
+                (p, q) => p == q,
+            };
+            assert!(same, "array '{}' differs", x.name);
+        }
+    }
+
+    fn assert_same_lstar(a: &biscale_core::gather::LocalRadiance, b: &biscale_core::gather::LocalRadiance) {
+        assert_eq!(a.values().len(), b.values().len());
+        for (r, (x, y)) in a.values().iter().zip(b.values()).enumerate() {
+            assert_eq!(x.map(f32::to_bits), y.map(f32::to_bits), "row {r}: {x:?} vs {y:?}");
+        }
+    }
+
+    #[test]
+    fn an_isolated_plugin_gives_the_in_process_forms_and_lstar_bit_for_bit() {
+        let lib = quantized_lib();
+        for params in [json!({}), json!({ "scale": 0.25 })] {
+            let local = PluginCompressor::load(&lib, params.clone()).unwrap();
+            let child = isolated(&lib, params.clone()).unwrap();
+            assert_eq!((child.kind(), child.name(), child.path()), (local.kind(), local.name(), local.path()));
+            assert_eq!(child.gpu_kernels(), local.gpu_kernels(), "the kernels crossed the pipe unchanged");
+            assert_eq!(child.code_identity(), local.code_identity());
+            assert_eq!(child.params()["isolate"], json!(true));
+            assert_eq!(
+                child
+                    .stats(
+                        &CompressedForm::new("x", random_transfer(1, 1, 1, 0.0, 0).shape()),
+                        &random_transfer(1, 1, 1, 0.0, 0)
+                    )
+                    .unwrap()["isolated"],
+                json!(true)
+            );
+            for (seed, (vertices, dirs, res, density)) in
+                [(20, 4, 4, 0.2), (3, 8, 8, 0.05), (4, 2, 2, 0.0)].into_iter().enumerate()
+            {
+                let t = random_transfer(vertices, dirs, res, density, seed as u64);
+                let ctx = CompressContext { seed: 5, progress: None };
+                let (a, b) = (child.compress(&t, &ctx).unwrap(), local.compress(&t, &ctx).unwrap());
+                assert_same_form(&a, &b);
+                for light_seed in [seed as u64 + 10, seed as u64 + 11] {
+                    let light = random_light(res, light_seed);
+                    let want = local.gather(&b, &light).unwrap();
+                    // The form the child holds (its own), then one it is sent (the in-process
+                    // form, equal but not resident after the other compress below).
+                    assert_same_lstar(&child.gather(&a, &light).unwrap(), &want);
+                    assert_same_lstar(&child.gather(&b, &light).unwrap(), &want);
+                }
+            }
+            // A form the child never made (gathered first with another form resident).
+            let t = random_transfer(5, 4, 4, 0.3, 9);
+            let f1 = local.compress(&t, &CompressContext::default()).unwrap();
+            let f2 = local.compress(&random_transfer(5, 4, 4, 0.3, 10), &CompressContext::default()).unwrap();
+            let light = random_light(4, 3);
+            for f in [&f1, &f2, &f1] {
+                assert_same_lstar(&child.gather(f, &light).unwrap(), &local.gather(f, &light).unwrap());
+            }
+        }
+    }
+
+    #[test]
+    fn an_isolated_plugin_checks_forms_in_the_parent_before_any_gather() {
+        let child = isolated(&quantized_lib(), json!({})).unwrap();
+        let t = random_transfer(4, 2, 2, 0.5, 1);
+        let mut bad = child.compress(&t, &CompressContext::default()).unwrap();
+        if let Some(ArrayData::U16(v)) = bad.arrays.iter_mut().find(|a| a.name == "col_idx").map(|a| &mut a.data) {
+            v[0] = 24;
+        }
+        let e = child.gather_plugin(&bad, &random_light(2, 1)).unwrap_err();
+        assert!(matches!(e, PluginError::Invalid { call: "form check", .. }), "{e}");
+        assert!(e.to_string().contains("'col_idx' element 0 is 24"), "{e}");
+        assert_names_file(&e, child.path());
+        // A refused form is no failure of the child: it serves on.
+        let good = child.compress(&t, &CompressContext::default()).unwrap();
+        child.gather(&good, &random_light(2, 1)).unwrap();
+    }
+
+    #[test]
+    fn an_isolated_plugins_own_errors_are_the_in_process_errors_and_the_child_serves_on() {
+        let lib = faulty_lib();
+        let t = random_transfer(6, 2, 2, 0.4, 3);
+        let light = random_light(2, 3);
+        let ctx = CompressContext::default();
+        for mode in ["error", "panic", "bad_arrays", "bad_name", "kernels_panic", "bad_wgsl"] {
+            let local = faulty(mode).and_then(|p| p.compress_plugin(&t, &ctx)).unwrap_err();
+            let child = isolated(&lib, json!({ "fail": mode })).and_then(|p| p.compress_plugin(&t, &ctx)).unwrap_err();
+            assert_eq!(child.to_string(), local.to_string(), "{mode}");
+            assert_eq!(format!("{child:?}"), format!("{local:?}"), "{mode}");
+        }
+        for mode in ["gather_error", "gather_panic", "gather_nan"] {
+            let local = faulty(mode).unwrap();
+            let form = local.compress(&t, &ctx).unwrap();
+            let want = local.gather_plugin(&form, &light).unwrap_err().to_string();
+            let child = isolated(&lib, json!({ "fail": mode })).unwrap();
+            let form = child.compress(&t, &ctx).unwrap();
+            // Twice: the plugin's error leaves the child serving.
+            for _ in 0..2 {
+                assert_eq!(child.gather_plugin(&form, &light).unwrap_err().to_string(), want, "{mode}");
+            }
+        }
+        // The version handshake, in the child: refused before any other call there too.
+        let dir = lib.parent().unwrap().parent().unwrap().join("plugin-wrong-abi");
+        let wrong = build_plugin("biscale-plugin-faulty", &["wrong_abi"], Some(&dir)).unwrap();
+        let e = isolated(&wrong, json!({ "fail": "none" })).unwrap_err();
+        assert!(matches!(e, PluginError::AbiVersion { found, .. } if found == 2 << 16), "{e}");
+        assert_names_file(&e, &wrong);
+    }
+
+    /// What one fatal fault (in the gather for `gather_*` modes, else in compress) must give:
+    /// the error names the library and says `call` and `cause`; the child is reaped; later
+    /// calls say the child is gone.
+    fn assert_fatal(mode: &str, timeout_seconds: f64, call: &str, cause: &str) {
+        let lib = faulty_lib().canonicalize().unwrap();
+        let t = random_transfer(6, 2, 2, 0.4, 3);
+        let light = random_light(2, 3);
+        let ctx = CompressContext::default();
+        let p = IsolatedPlugin::spawn(&lib, json!({ "fail": mode }), &options(timeout_seconds)).unwrap();
+        let pid = p.child_id();
+        let start = Instant::now();
+        let e = match mode.starts_with("gather_") {
+            false => p.compress_plugin(&t, &ctx).unwrap_err(),
+            true => {
+                let form = p.compress(&t, &ctx).unwrap();
+                p.gather_plugin(&form, &light).unwrap_err()
+            }
+        };
+        let seconds = start.elapsed().as_secs_f64();
+        let s = e.to_string();
+        assert!(s.starts_with(&format!("plugin {} ", lib.display())), "{mode}: {s}");
+        assert!(s.contains(call) && s.contains(cause), "{mode}: {s} lacks '{call}' or '{cause}'");
+        assert!(seconds < timeout_seconds + 5.0, "{mode}: the error took {seconds:.1} s");
+        assert_reaped(pid);
+        let again = p.compress_plugin(&t, &ctx).unwrap_err();
+        assert!(matches!(again, PluginError::Gone { .. }), "{mode}: {again}");
+        assert!(again.to_string().contains(cause), "{mode}: {again}");
+        assert_names_file(&again, &lib);
+    }
+
+    #[test]
+    fn crashes_and_exits_in_compress_or_gather_are_errors_naming_library_call_and_cause() {
+        assert_fatal("segfault", 60.0, "crashed in compress", "killed by signal 11 (SIGSEGV)");
+        assert_fatal("abort", 60.0, "crashed in compress", "(SIGABRT)");
+        assert_fatal("exit", 60.0, "exited with status 0 during compress without answering", "status 0");
+        assert_fatal("gather_segfault", 60.0, "crashed in gather", "(SIGSEGV)");
+        assert_fatal("gather_abort", 60.0, "crashed in gather", "(SIGABRT)");
+        assert_fatal("gather_exit", 60.0, "exited with status 0 during gather without answering", "status 0");
+        let e = IsolatedPlugin::spawn(&faulty_lib(), json!({ "fail": "kernels_abort" }), &options(60.0)).unwrap_err();
+        assert!(matches!(&e, PluginError::Crashed { call: "load", .. }), "{e}");
+        assert!(e.to_string().contains("crashed in load: killed by signal 6 (SIGABRT)"), "{e}");
+    }
+
+    #[test]
+    fn a_hang_in_compress_is_killed_after_its_timeout() {
+        let start = Instant::now();
+        assert_fatal("hang", 2.0, "compress", "did not answer compress within 2 s; killed");
+        assert!(start.elapsed() >= Duration::from_secs(2), "killed before the timeout");
+    }
+
+    #[test]
+    fn a_hang_in_gather_is_killed_after_its_timeout() {
+        assert_fatal("gather_hang", 2.0, "gather", "did not answer gather within 2 s; killed");
+    }
+
+    #[test]
+    fn what_a_plugin_prints_does_not_disturb_the_protocol() {
+        let t = random_transfer(6, 2, 2, 0.4, 3);
+        let light = random_light(2, 3);
+        let ctx = CompressContext::default();
+        let noisy = isolated(&faulty_lib(), json!({ "fail": "noisy" })).unwrap();
+        let quiet = faulty("none").unwrap();
+        let form = noisy.compress(&t, &ctx).unwrap();
+        assert_same_lstar(
+            &noisy.gather(&form, &light).unwrap(),
+            &quiet.gather(&quiet.compress(&t, &ctx).unwrap(), &light).unwrap(),
+        );
+    }
+
+    #[test]
+    fn dropping_an_isolated_plugin_reaps_its_child() {
+        let p = isolated(&quantized_lib(), json!({})).unwrap();
+        let pid = p.child_id();
+        // SAFETY: signal 0 only asks whether the process exists.
+        assert_eq!(unsafe { libc::kill(pid as libc::pid_t, 0) }, 0, "the child runs while the plugin is held");
+        drop(p);
+        assert_reaped(pid);
+    }
+
+    #[test]
+    fn a_child_whose_requests_close_exits_even_while_its_plugin_hangs() {
+        // The parent dying closes the child's stdin; played here by hand, mid-compress.
+        let mut child = Command::new(HOST)
+            .env(CHILD_ENV, wire::PROTOCOL)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let (mut stdin, mut stdout) = (child.stdin.take().unwrap(), child.stdout.take().unwrap());
+        let mut greeting = [0u8; 8];
+        stdout.read_exact(&mut greeting).unwrap();
+        assert_eq!(&greeting, wire::GREETING);
+        let lib = faulty_lib().canonicalize().unwrap();
+        wire::write_frame_bytes(&mut stdin, &wire::load_request(&lib, &json!({ "fail": "hang" })).encode()).unwrap();
+        let loaded = wire::read_frame(&mut stdout, 1 << 26).unwrap().unwrap();
+        assert_eq!(biscale_core::artifact::Artifact::decode(&loaded, Path::new("x")).unwrap().kind, "plugin-loaded");
+        let t = random_transfer(3, 2, 2, 0.5, 1);
+        wire::write_frame_bytes(&mut stdin, &wire::compress_request(&t, 0).unwrap().encode()).unwrap();
+        std::thread::sleep(Duration::from_millis(300));
+        assert!(child.try_wait().unwrap().is_none(), "the plugin hangs in compress");
+        drop(stdin);
+        let start = Instant::now();
+        let status = loop {
+            if let Some(s) = child.try_wait().unwrap() {
+                break s;
+            }
+            if start.elapsed() > Duration::from_secs(10) {
+                let _ = child.kill();
+                panic!("the child outlived its requests by 10 s");
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        };
+        assert!(status.success(), "{status}");
+    }
+
+    #[test]
+    fn an_executable_that_does_not_serve_the_protocol_is_refused() {
+        let lib = quantized_lib();
+        let with = |host: &str| {
+            IsolatedPlugin::spawn(
+                &lib,
+                json!({}),
+                &IsolateOptions { host: Some(host.into()), timeout: Duration::from_secs(20) },
+            )
+        };
+        // Exits at once without a word.
+        let e = with("true").unwrap_err();
+        assert!(matches!(&e, PluginError::Host { call: "load", .. }), "{e}");
+        assert!(e.to_string().contains("before greeting") && e.to_string().contains("serve_if_child"), "{e}");
+        // Writes something else to its stdout, forever.
+        let e = with("yes").unwrap_err();
+        assert!(
+            e.to_string().contains("does not serve the plugin protocol") && e.to_string().contains("killed"),
+            "{e}"
+        );
+        let e = with("/no/such/host").unwrap_err();
+        assert!(e.to_string().contains("cannot start it") && e.to_string().contains("/no/such/host"), "{e}");
+        assert_names_file(&e, &lib.canonicalize().unwrap());
+    }
+}

@@ -142,6 +142,8 @@ fn load(config: &Path) -> anyhow::Result<Experiment> {
 /// no backtrace even under `RUST_BACKTRACE=1`: that variable is for panics, and a config typo
 /// is not one.
 fn main() -> std::process::ExitCode {
+    // As the child process of an isolated plugin (`isolate = true`), serve it and exit here.
+    biscale_compressors::plugin::serve_if_child();
     match run() {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
@@ -161,7 +163,7 @@ fn run() -> anyhow::Result<()> {
         }
         Command::Plan { config } => {
             let exp = load(&config)?;
-            print!("{}", biscale::plan::Plan::new(&exp));
+            print!("{}", biscale::plan::Plan::new(&exp).with_memory(&exp)?);
         }
         Command::ExportMatrix { config, out, no_cache } => {
             let exp = load(&config)?;

@@ -131,3 +131,33 @@ fn errors_are_one_line_of_causes_without_a_backtrace() {
     assert!(err.starts_with("error: ") && err.contains("typo.toml:5:1") && err.contains("local_grd"), "{err}");
     assert!(!err.contains("Stack backtrace") && !err.contains("backtrace") && err.lines().count() <= 3, "{err}");
 }
+
+#[test]
+fn an_isolated_plugin_that_crashes_fails_the_run_with_its_cause() {
+    // A plugin that segfaults in compress, run in a child process (`isolate = true`): biscale
+    // (its own child host) reports the library, the call and the signal, and exits non-zero.
+    let lib = biscale_compressors::plugin::testing::build_plugin("biscale-plugin-faulty", &[], None).unwrap();
+    let lib = lib.canonicalize().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("isolated.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "name = \"isolated\"\n[scene]\nmesh = \"{}\"\n[scene.material]\nkind = \"lambertian\"\nalbedo = [0.8, 0.8, 0.8]\n\
+             [lighting]\nconstant = [1, 1, 1]\n[transfer]\ncubemap_resolution = 4\nvisibility_resolution = 8\n\
+             local_grid = 2\n[[compressors]]\nkind = \"plugin\"\npath = \"{}\"\nparams = {{ fail = \"segfault\" }}\n\
+             isolate = true\ntimeout_seconds = 60\n[runtime]\nwidth = 32\nheight = 24\nrepeats = 1\n",
+            root().join("assets/meshes/bunny.obj").display(),
+            lib.display()
+        ),
+    )
+    .unwrap();
+    let out = dir.path().join("out");
+    let (ok, _, err) = biscale(&["run", cfg.to_str().unwrap(), "--out", out.to_str().unwrap(), "--no-cache"]);
+    assert!(!ok, "a run whose plugin crashed exited 0:\n{err}");
+    let want = format!("plugin {} crashed in compress: killed by signal 11 (SIGSEGV)", lib.display());
+    assert!(err.contains(&want), "stderr lacks '{want}':\n{err}");
+    assert!(err.contains("compressor plugin-biscale_plugin_faulty-isolated: "), "the setting is named:\n{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(!out.join("metrics.json").exists(), "a failed run wrote metrics");
+}

@@ -16,6 +16,17 @@
 //! | `gather_error` / `gather_panic` / `gather_nan` | the CPU gather errs / panics / writes NaN |
 //! | `false_lossless` | every value doubled while the form claims `lossless` |
 //!
+//! The faults no boundary can catch end or stall the whole process, so the host's tests use
+//! them only with `isolate = true` (the plugin in a child process):
+//!
+//! | `fail` | fault |
+//! |---|---|
+//! | `segfault` / `gather_segfault` | `compress` / the CPU gather writes to an unmapped address |
+//! | `abort` / `gather_abort` / `kernels_abort` | `compress` / the gather / `kernels` aborts |
+//! | `exit` / `gather_exit` | `compress` / the gather calls `std::process::exit(0)` |
+//! | `hang` / `gather_hang` | `compress` / the gather sleeps for an hour |
+//! | `noisy` | prints to stdout in `kernels`, `compress` and the gather, otherwise correct |
+//!
 //! Built with the `wrong_abi` feature it claims ABI 2.0 and aborts the process if anything
 //! beyond the handshake is called, which proves the host stops at the version check.
 
@@ -45,6 +56,25 @@ const GATHER_OK: u64 = 0;
 const GATHER_ERROR: u64 = 1;
 const GATHER_PANIC: u64 = 2;
 const GATHER_NAN: u64 = 3;
+const GATHER_SEGFAULT: u64 = 4;
+const GATHER_ABORT: u64 = 5;
+const GATHER_EXIT: u64 = 6;
+const GATHER_HANG: u64 = 7;
+const GATHER_NOISY: u64 = 8;
+
+/// A process-ending or process-stalling fault (see the module docs).
+fn fatal(fault: &str) {
+    match fault {
+        // Page zero is never mapped. Not the null pointer itself: in a debug build std checks
+        // `write_volatile`'s pointer first and aborts, which is not the fault wanted here.
+        "segfault" => unsafe { std::ptr::write_volatile(std::ptr::without_provenance_mut::<u32>(8), 1) },
+        "abort" => std::process::abort(),
+        "exit" => std::process::exit(0),
+        "hang" => std::thread::sleep(std::time::Duration::from_secs(3600)),
+        "noisy" => println!("faulty plugin: this line on stdout must not disturb the host"),
+        _ => {}
+    }
+}
 
 fn mode(params: &Value) -> Result<String, String> {
     if cfg!(feature = "wrong_abi") {
@@ -66,6 +96,11 @@ impl PluginCompressor for Faulty {
             "bad_wgsl" => WGSL.replace("acc += values[i]", "acc += undeclared_thing[i]"),
             "bad_binding" => format!("{WGSL}\n@group(0) @binding(9) var<storage, read> not_in_form: array<u32>;\n"),
             "kernels_panic" => panic!("faulty plugin: kernels panicked on purpose"),
+            "kernels_abort" => std::process::abort(),
+            "noisy" => {
+                fatal("noisy");
+                WGSL.to_string()
+            }
             _ => WGSL.to_string(),
         };
         let wgsl = biscale_plugin::with_row_pass(&wgsl);
@@ -100,6 +135,15 @@ impl PluginCompressor for Faulty {
             "gather_error" => gather = GATHER_ERROR,
             "gather_panic" => gather = GATHER_PANIC,
             "gather_nan" => gather = GATHER_NAN,
+            "gather_segfault" => gather = GATHER_SEGFAULT,
+            "gather_abort" => gather = GATHER_ABORT,
+            "gather_exit" => gather = GATHER_EXIT,
+            "gather_hang" => gather = GATHER_HANG,
+            "noisy" => {
+                fatal("noisy");
+                gather = GATHER_NOISY;
+            }
+            "segfault" | "abort" | "exit" | "hang" => fatal(&mode),
             // Claims lossless while every value is doubled (the host must catch the lie).
             "false_lossless" => values.iter_mut().for_each(|v| *v *= 2.0),
             _ => {}
@@ -120,6 +164,11 @@ impl PluginCompressor for Faulty {
         match form.meta("gather_fault")? {
             GATHER_ERROR => return Err("faulty plugin: gather failed on purpose".into()),
             GATHER_PANIC => panic!("faulty plugin: gather panicked on purpose"),
+            GATHER_SEGFAULT => fatal("segfault"),
+            GATHER_ABORT => fatal("abort"),
+            GATHER_EXIT => fatal("exit"),
+            GATHER_HANG => fatal("hang"),
+            GATHER_NOISY => fatal("noisy"),
             _ => {}
         }
         let (row_ptr, col_idx, values) = (form.u32s("row_ptr")?, form.u32s("col_idx")?, form.f32s("values")?);

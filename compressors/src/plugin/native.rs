@@ -1,106 +1,24 @@
-//! Compressors loaded from shared libraries (docs/DESIGN.md section 4; issue 7): a researcher
-//! builds a transfer compressor as a `cdylib` against `biscale-plugin-api` and names it in the
-//! experiment (`kind = "plugin"`, `path = ...`, `params = { ... }`); biscale needs no rebuild.
-//!
-//! [`PluginCompressor::load`] opens the library and speaks the versioned C ABI documented in
-//! `biscale_plugin` (the `biscale-plugin-api` crate): the version handshake first (another
-//! major is refused before any other symbol is called), then the struct-layout fingerprint,
-//! the plugin's name, and its GPU kernels for the given parameters. The result implements
-//! [`Compressor`] (kind `plugin:<name>`) and hands its kernels to the GPU runtime as plain data
-//! (`Compressor::kernels`, a [`KernelDesc`]), exactly as a built-in compressor does.
-//!
-//! Nothing a plugin returns is trusted. The host copies every string and array out of plugin
-//! memory (then returns it to the plugin's own `free`) after checking: UTF-8; null and
-//! misaligned pointers; element tags; array and meta names (WGSL identifiers, unique, not
-//! reserved by the GPU prelude); the WGSL, parsed and validated at load by
-//! `biscale_kernels::reflect` (with the `wgsl-check` feature: entry points exist, scratch
-//! buffers are read-write, and every form array the WGSL binds exists in each form with a
-//! compatible element type); and every structural check the plugin declares
-//! ([`biscale_kernels::FormCheck`]: lengths, pointer arrays, index bounds, finiteness), run by
-//! the host on every form before a CPU or GPU gather. What no check
-//! states is not verified: an index array without a `Below` check can make a GPU kernel read
-//! wrong (clamped) elements, and a plugin's CPU gather is the plugin's own code, trusted to
-//! stay within the arrays it is given (a Rust plugin that indexes out of range panics, which
-//! the boundary turns into an error). Every error names the library file.
+//! A plugin in biscale's own process: [`PluginCompressor::load`] opens the library and speaks
+//! the versioned C ABI documented in `biscale_plugin` (the `biscale-plugin-api` crate): the
+//! version handshake first (another major is refused before any other symbol is called), then
+//! the struct-layout fingerprint, the plugin's name, and its GPU kernels for the given
+//! parameters. Everything the library returns is copied out of its memory and checked here
+//! (pointers, UTF-8, tags) and by the shared [`Guard`] (names, kernels, forms, `L*`); a Rust
+//! panic is caught at the boundary. A crash, `exit` or hang of the library is not: that is
+//! what an isolated plugin (`isolate.rs`, which runs this same type in a child process) is
+//! for. Every error names the library file.
 
-use crate::registry::{self, Kind};
+use super::{resolve_library, Guard, PluginError, MAX_ITEMS, MAX_STR_BYTES};
 use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor, NamedArray};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::sampling::LightVector;
 use biscale_core::transfer::TransferMatrix;
-use biscale_kernels::{Count, Factor, FormCheck, KernelDesc, PassDesc, ScratchDesc, RESERVED_NAMES};
+use biscale_kernels::{Count, Factor, FormCheck, KernelDesc, PassDesc, ScratchDesc};
 use biscale_plugin as abi;
-use serde::{Deserialize, Serialize};
 use serde_json::Value;
-use std::collections::BTreeSet;
 use std::ffi::c_void;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
-
-/// The parameters of a `kind = "plugin"` setting.
-#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct PluginParams {
-    /// The library (the config resolves it against its own folder).
-    pub path: PathBuf,
-    /// Free-form parameters handed to the plugin as JSON (default: none).
-    #[serde(default = "empty_object")]
-    pub params: Value,
-}
-
-fn empty_object() -> Value {
-    Value::Object(Default::default())
-}
-
-/// The registry entry: the label is `plugin-<library stem>` (`libquantized.so` gives
-/// `plugin-quantized`); building loads the library.
-pub const KIND: Kind = Kind {
-    name: "plugin",
-    about: "a compressor loaded from a shared library through biscale's plugin C ABI (`path`, `params`)",
-    label: |p| {
-        let stem = registry::parse::<PluginParams>(p)?.path.file_stem().map(|s| s.to_string_lossy().into_owned());
-        Ok(format!("plugin-{}", stem.unwrap_or_default().trim_start_matches("lib")))
-    },
-    check: |p| registry::parse::<PluginParams>(p).map(drop),
-    build: |p| {
-        let p: PluginParams = registry::parse(p)?;
-        Ok(Box::new(PluginCompressor::load(&p.path, p.params)?))
-    },
-};
-
-/// Upper bounds on what a plugin may return (far above any real use; they keep a garbage
-/// count from turning into a huge allocation or read).
-const MAX_ITEMS: u64 = 4096;
-const MAX_STR_BYTES: u64 = 64 << 20;
-
-/// Why a plugin could not be loaded or used. Every variant names the library file.
-#[derive(Debug, thiserror::Error)]
-pub enum PluginError {
-    #[error("plugin {}: cannot load the library: {message}", path.display())]
-    Load { path: PathBuf, message: String },
-    #[error("plugin {}: missing symbol '{symbol}' (is it a biscale plugin? build it with biscale_plugin::export_plugin!): {message}", path.display())]
-    MissingSymbol { path: PathBuf, symbol: String, message: String },
-    #[error("plugin {}: built for plugin ABI {}.{}, this biscale speaks {}.{} (the major version must match; rebuild the plugin against this biscale's biscale-plugin-api)", path.display(), abi::abi_major(*found), abi::abi_minor(*found), abi::ABI_MAJOR, abi::ABI_MINOR)]
-    AbiVersion { path: PathBuf, found: u32 },
-    #[error("plugin {}: its ABI structs differ from this biscale's (layout fingerprint {found:#018x}, expected {:#018x}); rebuild it against this biscale's biscale-plugin-api", path.display(), abi::ABI_LAYOUT)]
-    AbiLayout { path: PathBuf, found: u64 },
-    #[error("plugin {}: {call} failed: {message}", path.display())]
-    Plugin { path: PathBuf, call: &'static str, message: String },
-    #[error("plugin {}: {call} panicked (caught at the plugin boundary): {message}", path.display())]
-    Panic { path: PathBuf, call: &'static str, message: String },
-    #[error("plugin {}: {call}: invalid data: {message}", path.display())]
-    Invalid { path: PathBuf, call: &'static str, message: String },
-    #[error("plugin {}: its WGSL kernels do not compile or break the gather conventions:\n{message}", path.display())]
-    Wgsl { path: PathBuf, message: String },
-}
-
-impl From<PluginError> for CompressError {
-    /// Kept whole (it names the library file): `CompressError::External`, which a caller can
-    /// downcast back to the [`PluginError`].
-    fn from(e: PluginError) -> Self {
-        CompressError::External(Box::new(e))
-    }
-}
 
 /// The entry points after the handshake (valid while `_lib` is loaded).
 struct Api {
@@ -109,19 +27,13 @@ struct Api {
     free: abi::sig::Free,
 }
 
-/// A compressor loaded from a shared library (see the module docs).
+/// A compressor loaded from a shared library into this process (see the module docs).
 pub struct PluginCompressor {
-    path: PathBuf,
+    guard: Guard,
     /// Content hash of the library file, read at load ([`Compressor::code_identity`]).
     library_hash: u64,
-    name: String,
-    kind: String,
     params: Value,
     params_json: String,
-    kernels: KernelDesc,
-    /// The kernels' reflection (which globals bind form arrays), from the load-time check.
-    #[cfg(feature = "wgsl-check")]
-    reflected: biscale_kernels::reflect::Reflected,
     api: Api,
     // Last: dropped (unloaded) after everything that points into it.
     _lib: libloading::Library,
@@ -129,7 +41,10 @@ pub struct PluginCompressor {
 
 impl std::fmt::Debug for PluginCompressor {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("PluginCompressor").field("path", &self.path).field("kind", &self.kind).finish_non_exhaustive()
+        f.debug_struct("PluginCompressor")
+            .field("path", &self.guard.path)
+            .field("kind", &self.guard.kind)
+            .finish_non_exhaustive()
     }
 }
 
@@ -146,14 +61,6 @@ impl Drop for Owned {
             unsafe { (self.free)(self.owner) };
         }
     }
-}
-
-/// Is `s` a WGSL-style identifier (so an array can be bound by name)?
-fn is_ident(s: &str) -> bool {
-    let mut chars = s.chars();
-    matches!(chars.next(), Some(c) if c.is_ascii_alphabetic() || c == '_')
-        && chars.all(|c| c.is_ascii_alphanumeric() || c == '_')
-        && s.len() <= 128
 }
 
 /// A string from plugin memory.
@@ -177,9 +84,7 @@ unsafe fn read_str(s: abi::BpStr, what: &str) -> Result<String, String> {
 /// A name from plugin memory that must be an identifier.
 unsafe fn read_ident(s: abi::BpStr, what: &str) -> Result<String, String> {
     let name = unsafe { read_str(s, what) }?;
-    if !is_ident(&name) {
-        return Err(format!("{what} '{name}' is not an identifier ([A-Za-z_][A-Za-z0-9_]*, at most 128 bytes)"));
-    }
+    super::ident(&name, what)?;
     Ok(name)
 }
 
@@ -222,8 +127,8 @@ unsafe fn read_count(c: &abi::BpCount, what: &str) -> Result<Count, String> {
     Ok(Count(factors))
 }
 
-/// Copy and check the kernels a plugin returned.
-unsafe fn read_kernels(k: &abi::BpKernels, kind: &str) -> Result<KernelDesc, String> {
+/// Copy the kernels a plugin returned out of its memory (the [`Guard`] checks them).
+unsafe fn read_kernels(k: &abi::BpKernels) -> Result<KernelDesc, String> {
     let wgsl = unsafe { read_str(k.wgsl, "wgsl") }?;
     let mut passes = Vec::new();
     for (i, p) in unsafe { read_slice(k.passes, k.pass_count, MAX_ITEMS, "passes") }?.iter().enumerate() {
@@ -231,9 +136,6 @@ unsafe fn read_kernels(k: &abi::BpKernels, kind: &str) -> Result<KernelDesc, Str
             entry_point: unsafe { read_ident(p.entry_point, &format!("pass {i} entry point")) }?,
             threads: unsafe { read_count(&p.threads, &format!("pass {i} threads")) }?,
         });
-    }
-    if passes.is_empty() {
-        return Err("no passes: a gather needs at least one".into());
     }
     let mut scratch = Vec::new();
     for (i, s) in unsafe { read_slice(k.scratch, k.scratch_count, MAX_ITEMS, "scratch") }?.iter().enumerate() {
@@ -263,13 +165,8 @@ unsafe fn read_kernels(k: &abi::BpKernels, kind: &str) -> Result<KernelDesc, Str
             t => return Err(format!("{what}: unknown check tag {t}")),
         });
     }
-    let mut seen = BTreeSet::new();
-    for n in scratch.iter().map(|s| &s.name) {
-        if RESERVED_NAMES.contains(&n.as_str()) || !seen.insert(n) {
-            return Err(format!("scratch buffer '{n}' is reserved or declared twice"));
-        }
-    }
-    Ok(KernelDesc { kind: kind.to_string(), wgsl, passes, scratch, meta_keys, checks })
+    // The kind is the guard's to set, from the checked name.
+    Ok(KernelDesc { kind: String::new(), wgsl, passes, scratch, meta_keys, checks })
 }
 
 impl PluginCompressor {
@@ -279,14 +176,7 @@ impl PluginCompressor {
     pub fn load(path: &Path, params: Value) -> Result<Self, PluginError> {
         // Absolute before dlopen: a bare file name ("libq.so") would otherwise be searched for
         // on LD_LIBRARY_PATH and the system folders, loading another library of that name.
-        let path = match path.canonicalize() {
-            Ok(p) if p.is_file() => p,
-            _ => return Err(PluginError::Load { path: path.to_path_buf(), message: "no such file".into() }),
-        };
-        let bytes =
-            std::fs::read(&path).map_err(|e| PluginError::Load { path: path.clone(), message: e.to_string() })?;
-        let library_hash = biscale_core::io::ContentHash::default().write(&bytes).finish();
-        drop(bytes);
+        let (path, library_hash) = resolve_library(path)?;
         // SAFETY: loading runs the library's initialisers; a biscale plugin is a Rust cdylib
         // (or C library) whose initialisers do nothing unusual. This is the trust the user
         // extends by naming the file.
@@ -323,13 +213,7 @@ impl PluginCompressor {
         let invalid = |call, message| PluginError::Invalid { path: path.clone(), call, message };
         // The name is static data in the library (not freed).
         let name = unsafe { read_str(name_fn(), "name") }.map_err(|m| invalid("biscale_plugin_name", m))?;
-        if name.is_empty()
-            || name.len() > 64
-            || !name.bytes().all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_')
-        {
-            return Err(invalid("biscale_plugin_name", format!("name '{name}' must be 1-64 characters of [a-z0-9_]")));
-        }
-        let kind = format!("plugin:{name}");
+        super::check_name(&name).map_err(|m| invalid("biscale_plugin_name", m))?;
         let params_json = serde_json::to_string(&params).expect("a serde_json::Value always serializes");
 
         // SAFETY: zeroed out-structs are valid (integers and null pointers).
@@ -339,62 +223,32 @@ impl PluginCompressor {
         let kernels = match status {
             abi::STATUS_OK => {
                 let _owned = Owned { free: api.free, owner: out.owner };
-                unsafe { read_kernels(&out, &kind) }.map_err(|m| invalid(call, m))?
+                unsafe { read_kernels(&out) }.map_err(|m| invalid(call, m))?
             }
             s => return Err(status_error(&path, call, s, &err, api.free)),
         };
-        #[cfg(feature = "wgsl-check")]
-        let reflected = biscale_kernels::reflect::reflect(&kernels)
-            .map_err(|e| PluginError::Wgsl { path: path.clone(), message: e.message })?;
-        Ok(Self {
-            path,
-            library_hash,
-            name,
-            kind,
-            params,
-            params_json,
-            kernels,
-            #[cfg(feature = "wgsl-check")]
-            reflected,
-            api,
-            _lib: lib,
-        })
+        let guard = Guard::new(path, name, kernels)?;
+        Ok(Self { guard, library_hash, params, params_json, api, _lib: lib })
     }
 
     /// The library file as loaded: absolute, with symlinks and `..` resolved.
     pub fn path(&self) -> &Path {
-        &self.path
+        &self.guard.path
     }
 
     /// The name the plugin reports (its kind is `plugin:<name>`).
     pub fn name(&self) -> &str {
-        &self.name
+        &self.guard.name
     }
 
     /// The GPU gather program as plain data (what `Compressor::kernels` returns).
     pub fn gpu_kernels(&self) -> &KernelDesc {
-        &self.kernels
+        &self.guard.kernels
     }
 
     /// Everything the host can check on a form of this plugin (see the module docs).
     pub fn check_form(&self, form: &CompressedForm) -> Result<(), PluginError> {
-        let invalid = |message: String| PluginError::Invalid { path: self.path.clone(), call: "form check", message };
-        let mut names = BTreeSet::new();
-        for a in &form.arrays {
-            if !is_ident(&a.name) || RESERVED_NAMES.contains(&a.name.as_str()) || !names.insert(a.name.as_str()) {
-                return Err(invalid(format!(
-                    "array name '{}' is not an identifier, is reserved ({RESERVED_NAMES:?}) or is repeated",
-                    a.name
-                )));
-            }
-        }
-        if let Some(k) = form.meta.keys().find(|k| !is_ident(k)) {
-            return Err(invalid(format!("meta key '{k}' is not an identifier")));
-        }
-        self.kernels.check_form(form).map_err(|e| invalid(format!("'{}' {}", e.array, e.what)))?;
-        #[cfg(feature = "wgsl-check")]
-        self.reflected.check_arrays(form).map_err(|e| invalid(format!("'{}' {}", e.array, e.what)))?;
-        Ok(())
+        self.guard.check_form(form)
     }
 
     /// [`Compressor::compress`] with the typed error.
@@ -405,11 +259,12 @@ impl PluginCompressor {
     ) -> Result<CompressedForm, PluginError> {
         let start = Instant::now();
         let call = "biscale_plugin_compress";
-        let invalid = |message: String| PluginError::Invalid { path: self.path.clone(), call, message };
+        let path = &self.guard.path;
+        let invalid = |message: String| PluginError::Invalid { path: path.clone(), call, message };
         let csr = t.csr();
         if !csr.is_csr() || csr.nnz() > u32::MAX as usize {
             return Err(PluginError::Plugin {
-                path: self.path.clone(),
+                path: path.clone(),
                 call,
                 message: format!("T must be CSR with at most 2^32 - 1 non-zeros (has {})", csr.nnz()),
             });
@@ -433,7 +288,7 @@ impl PluginCompressor {
         let (mut out, mut err): (abi::BpForm, abi::BpError) = unsafe { (std::mem::zeroed(), std::mem::zeroed()) };
         let status = unsafe { (self.api.compress)(&input, abi::BpStr::of(&self.params_json), &mut out, &mut err) };
         if status != abi::STATUS_OK {
-            return Err(status_error(&self.path, call, status, &err, self.api.free));
+            return Err(status_error(path, call, status, &err, self.api.free));
         }
         let _owned = Owned { free: self.api.free, owner: out.owner };
         let (arrays, meta) = unsafe { read_form(&out) }.map_err(invalid)?;
@@ -442,16 +297,13 @@ impl PluginCompressor {
             1 => true,
             v => return Err(invalid(format!("lossless flag is {v}, not 0 or 1"))),
         };
-        let mut form = CompressedForm::new(self.kind.clone(), t.shape());
+        let mut form = CompressedForm::new(self.guard.kind.clone(), t.shape());
         form.arrays = arrays;
         form.meta = meta;
         form.lossless = lossless;
         form.flops_per_gather = out.flops_per_gather;
         form.build_seconds = start.elapsed().as_secs_f64();
-        self.check_form(&form).map_err(|e| match e {
-            PluginError::Invalid { message, .. } => invalid(message),
-            e => e,
-        })?;
+        self.guard.check_compressed(&form, t.shape(), call)?;
         ctx.report(1.0);
         Ok(form)
     }
@@ -459,12 +311,7 @@ impl PluginCompressor {
     /// [`Compressor::gather`] with the typed error (the form is checked first).
     pub fn gather_plugin(&self, form: &CompressedForm, light: &LightVector) -> Result<LocalRadiance, PluginError> {
         let call = "biscale_plugin_gather";
-        let fail = |message: String| PluginError::Plugin { path: self.path.clone(), call, message };
-        if form.kind != self.kind {
-            return Err(fail(format!("given a '{}' form, this plugin's kind is '{}'", form.kind, self.kind)));
-        }
-        form.check_light(light).map_err(|e| fail(e.to_string()))?;
-        self.check_form(form)?;
+        self.guard.check_gather(form, light, call)?;
         let arrays: Vec<abi::BpArray> = form
             .arrays
             .iter()
@@ -491,7 +338,7 @@ impl PluginCompressor {
             meta: meta.as_ptr(),
             meta_count: meta.len() as u64,
         };
-        // Poisoned, so an element the plugin does not write is caught below like a NaN.
+        // Poisoned, so an element the plugin does not write is caught like a NaN.
         let mut lstar = vec![[f32::NAN; 3]; form.rows()];
         // SAFETY: zeroed error struct is valid; every pointer borrows a live host vector of the
         // stated length for the duration of the call.
@@ -507,16 +354,9 @@ impl PluginCompressor {
             )
         };
         if status != abi::STATUS_OK {
-            return Err(status_error(&self.path, call, status, &err, self.api.free));
+            return Err(status_error(&self.guard.path, call, status, &err, self.api.free));
         }
-        if let Some(r) = lstar.iter().position(|v| v.iter().any(|x| x.is_nan())) {
-            return Err(PluginError::Invalid {
-                path: self.path.clone(),
-                call,
-                message: format!("L* row {r} is NaN or was not written: {:?}", lstar[r]),
-            });
-        }
-        form.lstar(lstar).map_err(|e| fail(e.to_string()))
+        self.guard.lstar(form, lstar, call)
     }
 }
 
@@ -563,11 +403,11 @@ fn status_error(path: &Path, call: &'static str, status: i32, err: &abi::BpError
 
 impl Compressor for PluginCompressor {
     fn kind(&self) -> &str {
-        &self.kind
+        &self.guard.kind
     }
 
     fn params(&self) -> Value {
-        serde_json::json!({ "path": self.path.display().to_string(), "params": self.params })
+        serde_json::json!({ "path": self.guard.path.display().to_string(), "params": self.params })
     }
 
     fn compress(&self, t: &TransferMatrix, ctx: &CompressContext<'_>) -> Result<CompressedForm, CompressError> {
@@ -579,72 +419,10 @@ impl Compressor for PluginCompressor {
     }
 
     fn kernels(&self, form: &CompressedForm) -> Result<KernelDesc, CompressError> {
-        // Every form this plugin's compress returns was checked; a form from elsewhere (a
-        // cache) is checked here before the runtime sees it.
-        self.check_form(form)?;
-        Ok(self.kernels.clone())
+        Ok(self.guard.kernels_for(form)?)
     }
 
     fn code_identity(&self) -> Option<u64> {
         Some(self.library_hash)
-    }
-}
-
-/// Test support: find (building it first) a plugin crate of this workspace, next to the
-/// running test executable (`target/<profile>/`).
-pub mod testing {
-    use std::path::{Path, PathBuf};
-    use std::process::Command;
-    use std::sync::Mutex;
-
-    /// `target/<profile>` of the running executable (`target/<profile>/deps/<test>`).
-    fn profile_dir() -> Result<PathBuf, String> {
-        let exe = std::env::current_exe().map_err(|e| format!("current_exe: {e}"))?;
-        let mut dir = exe.parent().ok_or("executable has no directory")?.to_path_buf();
-        if dir.file_name().is_some_and(|n| n == "deps" || n == "examples") {
-            dir.pop();
-        }
-        Ok(dir)
-    }
-
-    /// Build the cdylib of workspace package `package` with `features` into `target_dir`
-    /// (default: the running executable's target directory, same profile) and return the
-    /// library's path. Builds are serialised within the process; cargo's lock does the rest.
-    pub fn build_plugin(package: &str, features: &[&str], target_dir: Option<&Path>) -> Result<PathBuf, String> {
-        static LOCK: Mutex<()> = Mutex::new(());
-        let _guard = LOCK.lock().unwrap_or_else(|p| p.into_inner());
-        let profile_dir = profile_dir()?;
-        let profile = profile_dir.file_name().and_then(|n| n.to_str()).ok_or("no profile directory")?.to_string();
-        let target_dir = match target_dir {
-            Some(t) => t.to_path_buf(),
-            None => profile_dir.parent().ok_or("no target directory")?.to_path_buf(),
-        };
-        let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("../Cargo.toml");
-        let mut cmd = Command::new(env!("CARGO"));
-        cmd.args(["build", "--quiet", "-p", package, "--manifest-path"]).arg(&manifest);
-        cmd.env("CARGO_TARGET_DIR", &target_dir);
-        match profile.as_str() {
-            "debug" => {}
-            "release" => {
-                cmd.arg("--release");
-            }
-            p => {
-                cmd.args(["--profile", p]);
-            }
-        }
-        if !features.is_empty() {
-            cmd.args(["--features", &features.join(",")]);
-        }
-        let out = cmd.output().map_err(|e| format!("running cargo: {e}"))?;
-        if !out.status.success() {
-            return Err(format!("cargo build -p {package} failed:\n{}", String::from_utf8_lossy(&out.stderr)));
-        }
-        let file =
-            format!("{}{}{}", std::env::consts::DLL_PREFIX, package.replace('-', "_"), std::env::consts::DLL_SUFFIX);
-        let path = target_dir.join(&profile).join(file);
-        if !path.is_file() {
-            return Err(format!("built {package} but {} does not exist", path.display()));
-        }
-        Ok(path)
     }
 }
