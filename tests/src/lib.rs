@@ -20,3 +20,10 @@ pub fn write_config(dir: &Path, name: &str, body: &str) -> PathBuf {
     std::fs::write(&p, body).expect("write config");
     p
 }
+
+/// The cache folder the tests give a run whose output folder is `out`: beside it, since a run
+/// replaces its output folder whole (and refuses a cache inside it).
+pub fn cache_beside(out: &Path) -> PathBuf {
+    let name = out.file_name().map_or("out".into(), |n| n.to_string_lossy().into_owned());
+    out.with_file_name(format!("{name}.cache"))
+}

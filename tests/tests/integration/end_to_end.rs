@@ -10,7 +10,11 @@ use glam::Vec3;
 
 fn run_in(config: &std::path::Path, out: &std::path::Path) -> biscale::metrics::Metrics {
     let exp = Experiment::load(config).unwrap();
-    let opts = RunOptions { out_dir: Some(out.to_path_buf()), cache_dir: Some(out.join("cache")), no_cache: false };
+    let opts = RunOptions {
+        out_dir: Some(out.to_path_buf()),
+        cache_dir: Some(biscale_tests::cache_beside(out)),
+        no_cache: false,
+    };
     run(&exp, &opts).unwrap().1
 }
 
@@ -101,7 +105,7 @@ fn stage_outputs_are_cached_and_unusable_cache_files_are_rebuilt() {
         )
     };
     let out = dir.path().join("out");
-    let cache = out.join("cache");
+    let cache = biscale_tests::cache_beside(&out);
     let files = |prefix: &str| -> Vec<std::path::PathBuf> {
         let mut v: Vec<_> = std::fs::read_dir(&cache)
             .unwrap()

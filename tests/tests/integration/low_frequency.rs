@@ -12,7 +12,11 @@ use glam::Vec3;
 
 fn run_in(config: &std::path::Path, out: &std::path::Path) -> biscale::metrics::Metrics {
     let exp = Experiment::load(config).unwrap();
-    let opts = RunOptions { out_dir: Some(out.to_path_buf()), cache_dir: Some(out.join("cache")), no_cache: false };
+    let opts = RunOptions {
+        out_dir: Some(out.to_path_buf()),
+        cache_dir: Some(biscale_tests::cache_beside(out)),
+        no_cache: false,
+    };
     run(&exp, &opts).unwrap().1
 }
 

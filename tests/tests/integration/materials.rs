@@ -9,7 +9,11 @@ use biscale_tests::{workspace_root, write_config, write_obj};
 
 fn run_in(config: &std::path::Path, out: &std::path::Path) -> biscale::metrics::Metrics {
     let exp = Experiment::load(config).unwrap();
-    let opts = RunOptions { out_dir: Some(out.to_path_buf()), cache_dir: Some(out.join("cache")), no_cache: false };
+    let opts = RunOptions {
+        out_dir: Some(out.to_path_buf()),
+        cache_dir: Some(biscale_tests::cache_beside(out)),
+        no_cache: false,
+    };
     run(&exp, &opts).unwrap().1
 }
 
@@ -95,7 +99,7 @@ fn a_synthesized_btf_is_generated_once_then_read_from_the_cache() {
     );
     let out = dir.path().join("out");
     run_in(&cfg, &out);
-    let cached: Vec<_> = std::fs::read_dir(out.join("cache"))
+    let cached: Vec<_> = std::fs::read_dir(biscale_tests::cache_beside(&out))
         .unwrap()
         .flatten()
         .filter(|e| e.file_name().to_string_lossy().starts_with("btf-"))
@@ -254,7 +258,7 @@ fn lpca_btfs_render_like_the_dense_table_at_full_rank_and_report_their_cost() {
     assert_eq!(m.scene.btf_bytes, m.scene.btfs[0].dense_bytes);
     // `biscale btf --preview` writes a dense | compressed | error sheet per compressed setting.
     let exp = Experiment::load(&sweep_out.parent().unwrap().join("sweep.toml")).unwrap();
-    let opts = RunOptions { out_dir: None, cache_dir: Some(sweep_out.join("cache")), no_cache: false };
+    let opts = RunOptions { out_dir: None, cache_dir: Some(biscale_tests::cache_beside(&sweep_out)), no_cache: false };
     let written = biscale::commands::btf(&exp, &dir.path().join("btf"), None, true, &opts).unwrap();
     let sheets: Vec<&str> = written[0].comparisons.iter().map(|c| c.representation.as_str()).collect();
     assert_eq!(sheets, ["lpca-k1-c1", "lpca-k2-c15"]);
