@@ -112,8 +112,20 @@ pub fn generate_scene(kind: GeneratedScene, out: &Path) -> Result<biscale_core::
 pub const MAX_GENERATED_TRIANGLES: u64 = 1 << 25;
 
 /// Write `levels` of midpoint subdivision of the OBJ `input` to `out` (the scaling study's
-/// denser meshes: same shape, about 4x the vertices per level).
+/// denser meshes: same shape, about 4x the vertices per level). Refused up front beyond
+/// [`MAX_GENERATED_TRIANGLES`] or when its memory estimate exceeds the available memory.
 pub fn subdivide(input: &Path, levels: u32, out: &Path) -> Result<biscale_core::geometry::Mesh> {
+    subdivide_within(input, levels, out, &crate::memory::available()?)
+}
+
+/// [`subdivide`] with `available` bytes of memory: refused when
+/// [`crate::memory::subdivide_bytes`] is more.
+pub fn subdivide_within(
+    input: &Path,
+    levels: u32,
+    out: &Path,
+    available: &crate::memory::Available,
+) -> Result<biscale_core::geometry::Mesh> {
     let mut mesh = biscale_core::geometry::Mesh::load_obj(input)?.mesh;
     // Each level quadruples the triangles: refuse up front what would not fit, with the
     // estimate (a level too many took 15 GB before failing).
@@ -126,6 +138,19 @@ pub fn subdivide(input: &Path, levels: u32, out: &Path) -> Result<biscale_core::
             triangles as f64 * 36.0 / 1e9
         ))));
     }
+    let estimate = crate::memory::subdivide_bytes(
+        mesh.triangle_count() as u64,
+        mesh.vertex_count() as u64,
+        mesh.uvs.is_some(),
+        levels,
+    );
+    crate::memory::refuse(
+        &format!("{}: {levels} levels of subdivision", input.display()),
+        estimate,
+        &format!(" ({triangles} triangles and their OBJ text)"),
+        available,
+        "use fewer levels",
+    )?;
     for _ in 0..levels {
         mesh = biscale_core::geometry::shapes::subdivide_midpoint(&mesh);
     }
@@ -400,6 +425,26 @@ mod tests {
         assert!(!out.exists());
         let mesh = super::subdivide(&bunny, 1, &out).unwrap();
         assert_eq!(mesh.triangle_count(), 4 * 3674);
+    }
+
+    #[test]
+    fn subdividing_past_the_available_memory_is_refused_up_front() {
+        use crate::memory::{subdivide_bytes, Available};
+        let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/meshes/bunny.obj");
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("dense.obj");
+        // Three levels (235,136 triangles) are well under the triangle limit; with less memory
+        // than their estimate they are refused, naming the estimate and what to change.
+        let needed = subdivide_bytes(3674, 1839, false, 3);
+        let short = Available { bytes: needed - 1, source: "test" };
+        let e = super::subdivide_within(&bunny, 3, &out, &short).unwrap_err().to_string();
+        assert!(e.contains("3 levels of subdivision needs about") && e.contains("235136 triangles"), "{e}");
+        assert!(e.contains("available (test); use fewer levels"), "{e}");
+        assert!(!out.exists());
+        let enough = Available { bytes: needed, source: "test" };
+        assert_eq!(super::subdivide_within(&bunny, 3, &out, &enough).unwrap().triangle_count(), 64 * 3674);
+        // The written file is within the estimate's text and mesh allowance.
+        assert!(std::fs::metadata(&out).unwrap().len() < needed);
     }
 
     use std::path::Path;

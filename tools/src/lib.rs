@@ -19,6 +19,7 @@ pub mod config;
 pub mod gpu_backend;
 pub mod html;
 pub mod materials;
+pub mod memory;
 pub mod methods;
 pub mod metrics;
 pub mod pipeline;

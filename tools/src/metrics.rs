@@ -21,6 +21,37 @@ pub struct Metrics {
     pub methods: Vec<MethodRecord>,
     /// Error target of the equal-quality comparison (`report.target_error`).
     pub target_error: f64,
+    /// The run's memory: the estimate it was admitted with and the peak it measured.
+    pub memory: Option<MemoryMetrics>,
+}
+
+/// The memory record of a run (`crate::memory`): the estimate made before tracing, beside
+/// the peak resident memory the run measured at its end.
+#[derive(Debug, Serialize)]
+pub struct MemoryMetrics {
+    /// Estimated peak bytes: the largest phase (`phases`), made before tracing.
+    pub estimate_bytes: u64,
+    /// The phase the estimate peaks in.
+    pub estimate_phase: String,
+    /// The estimate with every vertex at its worst case (`N / 2` non-zeros).
+    pub worst_case_bytes: u64,
+    /// Memory available when the run started, and where the figure came from.
+    pub available_bytes: u64,
+    pub available_source: String,
+    /// Measured: the process's peak resident memory (VmHWM) when `metrics.json` was written;
+    /// null where /proc cannot be read.
+    pub peak_rss_bytes: Option<u64>,
+    /// Non-zeros of `T`: vertices traced for the estimate, the sampled total, its upper bound
+    /// (what the estimate uses), the worst case, and the sampling's seconds.
+    pub nnz_sampled_vertices: usize,
+    pub nnz_expected: u64,
+    pub nnz_upper: u64,
+    pub nnz_worst_case: u64,
+    pub sample_seconds: f64,
+    /// What is alive at once in each phase of the run.
+    pub phases: Vec<crate::memory::Part>,
+    /// Every buffer the estimate counts.
+    pub parts: Vec<crate::memory::Part>,
 }
 
 /// One method setting: the fields of a compressor record (its `kind` and `params` are the

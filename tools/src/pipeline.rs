@@ -614,6 +614,7 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     for w in &lighting.warnings {
         eprintln!("warning: {w}");
     }
+    let (memory, available) = crate::memory::check_run(exp, &geometry, &lighting, cache.is_some())?;
     let t = transfer_matrix(exp, &geometry, cache.as_ref())?;
     fault_point("transfer");
     if let Some(w) = sky_warning(&t.metrics, t.matrix.vertices()) {
@@ -703,8 +704,9 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
         .map(|m| crate::methods::evaluate(m, &inputs, gpu.as_ref()))
         .collect::<Result<Vec<_>>>()?;
 
-    let metrics =
+    let mut metrics =
         Metrics::of_run(exp, &geometry, &lighting, &materials, t.metrics, &base, reference.as_ref(), records, methods);
+    metrics.memory = Some(memory.metrics(&available));
     write_report(&metrics, &plan, &out_dir)?;
     fault_point("report");
     let out_dir = staged.commit()?;
@@ -758,6 +760,7 @@ impl Metrics {
             compressors,
             methods,
             target_error: exp.file.report.target_error,
+            memory: None,
         }
     }
 }

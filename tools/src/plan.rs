@@ -1,5 +1,6 @@
 //! The planner (docs/DESIGN.md section 5): from the experiment, decide which stages and data
-//! dimensions are needed, and say what is left out and why. Printed before every run.
+//! dimensions are needed, and say what is left out and why. Printed before every run;
+//! `biscale plan` adds the run's estimated peak memory ([`Plan::with_memory`]).
 
 use crate::config::{CompressorSetting, Experiment, MaterialConfig};
 use std::fmt;
@@ -22,6 +23,8 @@ pub struct Plan {
     pub steps: Vec<Step>,
     pub compressors: Vec<CompressorSetting>,
     pub reference: bool,
+    /// The estimated memory of the run and the memory available, when asked for.
+    pub memory: Option<(crate::memory::RunMemory, crate::memory::Available)>,
 }
 
 impl Plan {
@@ -180,7 +183,18 @@ impl Plan {
             if reference { Action::Run } else { Action::LeftOut("report.reference = false".into()) },
         );
         step("report", "metrics.json, report.md, images".into(), Action::Run);
-        Plan { steps, compressors, reference }
+        Plan { steps, compressors, reference, memory: None }
+    }
+
+    /// This plan with the run's memory estimate (`crate::memory`): loads the mesh and the
+    /// light and traces the sample of vertices, as `biscale run` does before it starts (with
+    /// the stage cache on, its default).
+    pub fn with_memory(mut self, exp: &Experiment) -> crate::pipeline::Result<Plan> {
+        let geometry = crate::pipeline::load_geometry(exp)?;
+        let lighting = crate::pipeline::load_lighting(exp)?;
+        let memory = crate::memory::estimate(exp, &geometry, &lighting, true);
+        self.memory = Some((memory, crate::memory::available()?));
+        Ok(self)
     }
 }
 
@@ -191,6 +205,12 @@ impl fmt::Display for Plan {
             match &s.action {
                 Action::Run => writeln!(f, "  run   {:<10} {}", s.stage, s.what)?,
                 Action::LeftOut(why) => writeln!(f, "  skip  {:<10} {} ({why})", s.stage, s.what)?,
+            }
+        }
+        if let Some((memory, available)) = &self.memory {
+            write!(f, "{}", memory.summary(available))?;
+            if memory.peak().bytes > available.bytes {
+                writeln!(f, "  biscale run refuses this run: {}", memory.advice())?;
             }
         }
         Ok(())

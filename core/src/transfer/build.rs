@@ -11,6 +11,11 @@
 //!   (the cubemap's texel centres are antipodally symmetric and `d . n > 0` excludes `-d`),
 //!   so a vertex has at most `N / 2` non-zeros. Requests whose worst case exceeds
 //!   [`MAX_TRANSFER_BYTES`] are refused before anything is allocated.
+//! * **Memory estimate.** The worst case is far above what real meshes need (a vertex in a
+//!   crease sees a fraction of its hemisphere), so a run estimates its memory from the
+//!   non-zeros of a sample of vertices traced first ([`sample_nnz`]: a few hundred ms) and
+//!   counts every buffer `T` lives in ([`TransferMemory`]): the build's staging, the CSR, the
+//!   cache file's arrays and its encoded bytes.
 
 use super::{TransferMatrix, TransferScene, TransferSettings, VisibilitySampler, VisibilityScratch};
 use crate::error::{CoreError, Result};
@@ -77,6 +82,173 @@ pub fn worst_case_bytes(vertices: usize, settings: &TransferSettings) -> u64 {
     let nnz = vertices as u64 * (n / 2);
     nnz.saturating_mul(BYTES_PER_NONZERO)
         .saturating_add((vertices as u64 * m + 1).saturating_mul(std::mem::size_of::<usize>() as u64))
+}
+
+/// Vertices [`sample_nnz`] traces for a run's estimate: the standard error of the mean falls
+/// as `1 / sqrt(samples)` (a few percent on real meshes at this count), and this many take
+/// well under a second even at the largest cubemap.
+pub const NNZ_SAMPLE_VERTICES: usize = 192;
+
+/// Standard errors of the sampled total that [`NnzEstimate::upper`] adds to the point
+/// estimate: about 99.9% one-sided confidence if the sample mean is near normal.
+pub const NNZ_MARGIN_SIGMAS: f64 = 3.0;
+
+/// How many non-zeros `T` will have, estimated before the build from a sample of its vertices
+/// ([`sample_nnz`]), beside the worst case no mesh can exceed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NnzEstimate {
+    /// Vertices of the mesh.
+    pub vertices: usize,
+    /// Vertices traced (spread evenly over the vertex order; all of them on small meshes).
+    pub sampled: usize,
+    /// Mean and standard deviation (n - 1) of the sample's non-zeros per vertex.
+    pub mean_per_vertex: f64,
+    pub std_dev_per_vertex: f64,
+    /// `vertices * mean`: the point estimate.
+    pub expected: u64,
+    /// [`NNZ_MARGIN_SIGMAS`] standard errors of the total (with the finite-population
+    /// correction, so 0 when every vertex was traced).
+    pub margin: u64,
+    /// `expected + margin`, at most `worst_case`: what memory estimates use.
+    pub upper: u64,
+    /// `vertices * N / 2` (module docs).
+    pub worst_case: u64,
+    /// Wall-clock seconds of the sampling.
+    pub seconds: f64,
+}
+
+impl NnzEstimate {
+    /// A known count (`T` in hand): no margin.
+    pub fn exact(vertices: usize, nnz: u64, settings: &TransferSettings) -> Self {
+        let worst_case = vertices as u64 * (settings.light_basis().len() as u64 / 2);
+        Self {
+            vertices,
+            sampled: vertices,
+            mean_per_vertex: nnz as f64 / vertices.max(1) as f64,
+            std_dev_per_vertex: 0.0,
+            expected: nnz,
+            margin: 0,
+            upper: nnz,
+            worst_case,
+            seconds: 0.0,
+        }
+    }
+}
+
+/// Estimate the non-zeros of `T` for every vertex of `scene` by tracing `samples` vertices
+/// spread evenly over the vertex order (`floor((2i + 1) n / 2k)`, deterministic) exactly as
+/// the build would, in parallel. With `samples >= n` every vertex is traced and the count is
+/// exact. The margin treats the sample as a simple random one; a mesh whose vertex order
+/// alternates in step with the stride could fool it, which is why the worst case is kept beside.
+pub fn sample_nnz(scene: &TransferScene, settings: &TransferSettings, samples: usize) -> NnzEstimate {
+    let start = Instant::now();
+    let n = scene.vertex_count();
+    let k = samples.clamp(1, n.max(1)).min(n);
+    let sampler = VisibilitySampler::new(settings);
+    let counts: Vec<u64> = (0..k)
+        .into_par_iter()
+        .map_init(VisibilityScratch::default, |scratch, i| {
+            let v = ((2 * i + 1) * n) / (2 * k);
+            let mut count = 0u64;
+            scene.vertex_counts(&sampler, v, scratch, |_, _, _| count += 1);
+            count
+        })
+        .collect();
+    let worst_case = n as u64 * (settings.light_basis().len() as u64 / 2);
+    let mean = counts.iter().sum::<u64>() as f64 / k.max(1) as f64;
+    let var = match k {
+        0 | 1 => 0.0,
+        _ => counts.iter().map(|&c| (c as f64 - mean).powi(2)).sum::<f64>() / (k - 1) as f64,
+    };
+    // Standard error of the total `n * mean` of a sample of k out of n without replacement.
+    let fpc = if n > 1 { (n - k) as f64 / (n - 1) as f64 } else { 0.0 };
+    let se_total = n as f64 * (var / k.max(1) as f64 * fpc).sqrt();
+    let expected = (n as f64 * mean).round() as u64;
+    let margin = (NNZ_MARGIN_SIGMAS * se_total).ceil() as u64;
+    NnzEstimate {
+        vertices: n,
+        sampled: k,
+        mean_per_vertex: mean,
+        std_dev_per_vertex: var.sqrt(),
+        expected,
+        margin,
+        upper: (expected + margin).min(worst_case),
+        worst_case,
+        seconds: start.elapsed().as_secs_f64(),
+    }
+}
+
+/// Heap bookkeeping per allocation (glibc: a 16-byte header, sizes rounded up to 16).
+const ALLOCATION_OVERHEAD: u64 = 32;
+
+/// Header bytes of `T`'s file besides its arrays (magic, fields, array names, CRC): a bound.
+const FILE_HEADER_BYTES: u64 = 4096;
+
+/// The large buffers `T` lives in over a run, in bytes, for `nnz` non-zeros: each field is one
+/// buffer (or one set), so callers add those that are alive at once (`*_peak`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TransferMemory {
+    /// Rows of `T` (`vertices * M`).
+    pub rows: u64,
+    pub nnz: u64,
+    /// The build's per-vertex staging: a u16 column and a u16 count per non-zero, a u32
+    /// length per row, and per vertex its record and three allocations.
+    pub staging: u64,
+    /// The final CSR (sprs): an f32 value and a usize column per non-zero, a usize pointer per
+    /// row.
+    pub csr: u64,
+    /// The arrays of `T`'s file (`TransferMatrix::to_artifact`, copies of the CSR): u32 row
+    /// pointers, u16 columns, f32 values.
+    pub file_arrays: u64,
+    /// The whole file, encoded in one buffer before it is written (`Artifact::encode`), or
+    /// read in one buffer when `T` comes from the cache.
+    pub file_bytes: u64,
+    /// The tracing state: the sampler's ray directions (shared) and, per thread, one
+    /// vertex's unsorted entries and its per-texel counts.
+    pub scratch: u64,
+}
+
+impl TransferMemory {
+    /// The buffers of `T` for `vertices` vertices with `nnz` non-zeros, traced by `threads`
+    /// threads.
+    pub fn new(settings: &TransferSettings, vertices: usize, nnz: u64, threads: usize) -> Self {
+        let n = settings.light_basis().len() as u64;
+        let rows = vertices as u64 * settings.local_basis().len() as u64;
+        let usize_bytes = std::mem::size_of::<usize>() as u64;
+        let per_vertex = std::mem::size_of::<(VertexRows, u64)>() as u64 + 3 * ALLOCATION_OVERHEAD;
+        let fine = settings.visibility_resolution() as u64;
+        let fine_texels = 6 * fine * fine;
+        let ray = (std::mem::size_of::<glam::Vec3>() + std::mem::size_of::<crate::geometry::bvh::RayDir>()) as u64;
+        // Per thread: the entries vector (8 bytes each, up to N / 2, capacity up to double)
+        // and the u16 count per coarse texel.
+        let per_thread = n / 2 * 8 * 2 + n * 2;
+        let file_arrays = nnz * 6 + (rows + 1) * 4;
+        Self {
+            rows,
+            nnz,
+            staging: nnz * 4 + rows * 4 + vertices as u64 * per_vertex,
+            csr: nnz * (4 + usize_bytes) + (rows + 1) * usize_bytes,
+            file_arrays,
+            file_bytes: file_arrays + FILE_HEADER_BYTES,
+            scratch: fine_texels * ray + n * 16 + threads.max(1) as u64 * per_thread,
+        }
+    }
+
+    /// The build's peak: the staging, the CSR assembled from it and the tracing state.
+    pub fn build_peak(&self) -> u64 {
+        self.scratch + self.staging + self.csr
+    }
+
+    /// Writing `T` to the cache: the CSR, the file's arrays and the encoded file at once.
+    pub fn save_peak(&self) -> u64 {
+        self.csr + self.file_arrays + self.file_bytes
+    }
+
+    /// Reading `T` from the cache: the file's bytes and its decoded arrays, then the arrays
+    /// and the CSR widened from them.
+    pub fn load_peak(&self) -> u64 {
+        self.file_arrays + self.file_bytes.max(self.csr)
+    }
 }
 
 /// One vertex's entries, sorted by (row j, column k): `row_len[j]` entries per local bin.
@@ -215,4 +387,78 @@ pub fn build_range(
             frame_fallbacks: scene.frame_fallbacks(),
         },
     })
+}
+
+#[cfg(test)]
+mod memory_tests {
+    use super::*;
+    use crate::geometry::shapes::{grid_plane, merged, uv_sphere};
+    use glam::Vec3;
+
+    fn bunny() -> Mesh {
+        Mesh::load_obj(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/meshes/bunny.obj"))
+            .unwrap()
+            .mesh
+    }
+
+    #[test]
+    fn sampling_every_vertex_counts_the_non_zeros_exactly() {
+        // A sphere resting on a plane: vertices from fully open to nearly closed.
+        let mesh = merged(&[grid_plane(6, 6.0), uv_sphere(Vec3::Y, 1.0, 8, 16)]);
+        let settings = TransferSettings::new(8, 16, 4).unwrap();
+        let scene = TransferScene::new(&mesh).unwrap();
+        let nnz = build(&mesh, &settings, None).unwrap().matrix.nnz() as u64;
+        let e = sample_nnz(&scene, &settings, mesh.vertex_count() + 10);
+        assert_eq!((e.sampled, e.expected, e.margin, e.upper), (mesh.vertex_count(), nnz, 0, nnz));
+        assert!(e.std_dev_per_vertex > 0.0);
+    }
+
+    #[test]
+    fn an_open_plane_has_the_worst_case_and_no_margin() {
+        // Every vertex of a plane sees exactly the N / 2 texel centres above it (none lies on
+        // the horizon at an even resolution), so every sample is the same and the estimate is
+        // the worst case, whatever the sample.
+        let mesh = grid_plane(10, 2.0);
+        let settings = TransferSettings::new(8, 16, 4).unwrap();
+        let e = sample_nnz(&TransferScene::new(&mesh).unwrap(), &settings, 7);
+        let n = mesh.vertex_count() as u64;
+        assert_eq!((e.sampled, e.mean_per_vertex, e.std_dev_per_vertex), (7, 192.0, 0.0));
+        assert_eq!((e.expected, e.upper, e.worst_case), (n * 192, n * 192, n * 192));
+    }
+
+    #[test]
+    fn a_sample_of_the_bunny_bounds_its_non_zeros_within_a_few_percent() {
+        let mesh = bunny();
+        let settings = TransferSettings::new(8, 16, 4).unwrap();
+        let nnz = build(&mesh, &settings, None).unwrap().matrix.nnz() as u64;
+        let e = sample_nnz(&TransferScene::new(&mesh).unwrap(), &settings, NNZ_SAMPLE_VERTICES);
+        assert_eq!((e.vertices, e.sampled), (1839, NNZ_SAMPLE_VERTICES));
+        assert!(e.upper >= nnz && e.expected.abs_diff(nnz) <= e.margin, "{nnz} {e:?}");
+        assert!((e.upper as f64) < 1.1 * nnz as f64, "{nnz} {e:?}");
+        assert!(e.worst_case == 1839 * 192 && e.upper < e.worst_case);
+        assert!(e.seconds < 5.0);
+    }
+
+    #[test]
+    fn the_file_buffers_are_the_size_of_the_file() {
+        // `T`'s file holds u32 row pointers, u16 columns and f32 values plus a header: the
+        // estimate of its arrays is exact and its encoded buffer bounds the file.
+        let mesh = bunny();
+        let settings = TransferSettings::new(8, 16, 4).unwrap();
+        let t = build(&mesh, &settings, None).unwrap().matrix;
+        let mem = TransferMemory::new(&settings, mesh.vertex_count(), t.nnz() as u64, 2);
+        assert_eq!(mem.file_arrays, (t.rows() as u64 + 1) * 4 + t.nnz() as u64 * (2 + 4));
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.bsf");
+        t.save(&path).unwrap();
+        let file = std::fs::metadata(&path).unwrap().len();
+        assert!(file <= mem.file_bytes && mem.file_bytes - file < FILE_HEADER_BYTES, "{file} {mem:?}");
+        // The CSR as sprs holds it.
+        let csr = t.csr();
+        let held = csr.indptr().raw_storage().len() * 8 + csr.indices().len() * 8 + csr.data().len() * 4;
+        assert_eq!(mem.csr, held as u64);
+        // The build's peak holds the staging (4 bytes per non-zero) beside the CSR (12).
+        assert!(mem.build_peak() >= mem.csr + t.nnz() as u64 * 4);
+        assert_eq!(mem.save_peak(), mem.csr + mem.file_arrays + mem.file_bytes);
+    }
 }

@@ -1,0 +1,726 @@
+//! How much memory a run will need, estimated before it traces anything, against how much the
+//! machine has: `biscale plan` prints it, `biscale run` refuses up front a run that will not fit
+//! (instead of being killed an hour in), and `metrics.json` `memory` records the estimate beside
+//! the peak the run measured.
+//!
+//! * **What is counted.** Every large buffer: the process itself (measured), the mesh and both
+//!   BVHs, the environment map, `T` in each form it takes ([`TransferMemory`]: the build's
+//!   staging, the CSR, the cache file's arrays and encoded bytes), the BTFs, the images, the
+//!   per-row vectors (`T L` in f64, `L*`), each compressor's working set and form (and their
+//!   cache write: the form's arrays copied, then encoded whole), each SH method's matrices, and
+//!   the wgpu instance's buffers.
+//! * **Phases.** Buffers that are never alive together are not added: the estimate is the
+//!   largest of the run's phases (transfer build, cache write, baseline, each compressor, each
+//!   method), each the sum of what is alive in it.
+//! * **Non-zeros.** `T`'s size is not known before tracing; [`estimate`] traces a spread
+//!   sample of vertices first ([`sample_nnz`]) and uses its upper bound (the sampled total plus
+//!   [`biscale_core::transfer::NNZ_MARGIN_SIGMAS`] standard errors); the worst case (`N / 2`
+//!   per vertex) is reported beside it.
+//! * **Constants.** The per-triangle, per-pixel and baseline figures below were measured as
+//!   peak resident memory (VmHWM) of runs on the 2-core Linux test machine (dev profile):
+//!   BENCHMARKS.md "Memory estimate" has the runs and the estimate against the measurement.
+
+use crate::config::{Backend, Experiment, MaterialConfig, Setting};
+use crate::pipeline::{Geometry, Lighting, PipelineError};
+use biscale_core::transfer::{sample_nnz, NnzEstimate, TransferMemory, TransferSettings, NNZ_SAMPLE_VERTICES};
+use biscale_core::CoreError;
+use serde::Serialize;
+
+/// Resident memory of the `biscale` process before any stage's data: code, libraries, thread
+/// stacks, allocator arenas. Measured: 16 MiB at the peak of a run of the bunny at a 6x4x4
+/// cubemap (everything else tiny); 4 MiB of headroom for other builds and machines.
+pub const PROCESS_BASELINE_BYTES: u64 = 20 << 20;
+
+/// What `runtime.backend = "gpu"` adds besides the buffers: the wgpu instance and, on a CPU
+/// adapter (lavapipe), its compiler. Measured: 100 MiB (lavapipe, the bunny at a 6x4x4 cubemap).
+pub const GPU_BASELINE_BYTES: u64 = 112 << 20;
+
+/// Mesh, frames and both BVHs (the transfer scene's and the shader's) per triangle and per
+/// vertex, with the transients of loading and building them. Measured: 540 MiB at the peak of
+/// a run of the bunny subdivided four times (940,544 triangles, 470,274 vertices) at a 6x1x1
+/// cubemap, about 445 MiB of it the geometry (the rest the process and `T`'s per-vertex
+/// staging).
+pub const GEOMETRY_BYTES_PER_TRIANGLE: u64 = 500;
+pub const GEOMETRY_BYTES_PER_VERTEX: u64 = 64;
+
+/// Images per pixel of the run's size: the renders alive at once (baseline, a compressor's,
+/// its error image) and their PNG and EXR encodings. Measured: 44 MiB at 1280 x 960.
+pub const IMAGE_BYTES_PER_PIXEL: u64 = 40;
+/// The reference adds per pixel of its size: 20 MiB measured at 1280 x 960.
+pub const REFERENCE_BYTES_PER_PIXEL: u64 = 20;
+
+/// Per row of `T`: `T L` in f64 (24), the baseline's `L*` (12), one gather's `L*` (12).
+pub const VECTOR_BYTES_PER_ROW: u64 = 48;
+/// Per row on the GPU backend: the `L*` buffer and its read-back.
+pub const GPU_BYTES_PER_ROW: u64 = 32;
+
+/// Bytes per stored BTF value (RGB f32).
+const BTF_BYTES_PER_VALUE: u64 = 12;
+
+/// Where the available memory comes from when `/proc/meminfo` cannot be read: the fixed limit
+/// the transfer build has always had.
+pub const FALLBACK_AVAILABLE_BYTES: u64 = biscale_core::transfer::MAX_TRANSFER_BYTES;
+
+/// One named amount of memory.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct Part {
+    pub name: String,
+    pub bytes: u64,
+}
+
+impl Part {
+    fn new(name: impl Into<String>, bytes: u64) -> Self {
+        Self { name: name.into(), bytes }
+    }
+}
+
+/// A compressor setting's memory: its working set while it compresses (the form included)
+/// and its form alone (what the cache write copies and encodes).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct CompressorMemory {
+    pub label: String,
+    pub working: u64,
+    pub form: u64,
+}
+
+/// The estimated memory of a run, part by part and phase by phase (module docs).
+#[derive(Clone, Debug)]
+pub struct RunMemory {
+    /// The non-zeros of `T` the estimate assumes (`nnz.upper`) and how they were found.
+    pub nnz: NnzEstimate,
+    /// `T`'s buffers at `nnz.upper` non-zeros.
+    pub transfer: TransferMemory,
+    pub baseline: u64,
+    pub geometry: u64,
+    /// The environment map as loaded (with its decoding) and `L`.
+    pub lighting: u64,
+    /// The BTF tables: the materials' and the shade scene's copy, synthesis and local-PCA
+    /// decoding.
+    pub btfs: u64,
+    pub images: u64,
+    pub vectors: u64,
+    /// The wgpu instance (0 on the CPU backend); each compressor's upload is in its phase.
+    pub gpu: u64,
+    pub compressors: Vec<CompressorMemory>,
+    pub methods: Vec<Part>,
+    /// What is alive at once in each phase of the run, in run order.
+    pub phases: Vec<Part>,
+    /// The peak with every vertex at the worst case of `N / 2` non-zeros.
+    pub worst_case_peak: u64,
+}
+
+/// What a run estimate needs to know of the experiment besides the config.
+#[derive(Clone, Copy, Debug)]
+pub struct RunShape {
+    pub vertices: usize,
+    pub triangles: usize,
+    /// Pixels of the environment map (0 for a constant sky's small map).
+    pub env_pixels: usize,
+    /// Whether the stage cache is on (`T` and each form are written to it).
+    pub cache: bool,
+    /// Threads tracing `T` and building compressors.
+    pub threads: usize,
+}
+
+impl RunMemory {
+    /// The estimate for `exp` on a mesh and light of `shape`, with `nnz` non-zeros of `T`.
+    pub fn new(exp: &Experiment, shape: &RunShape, nnz: NnzEstimate) -> Self {
+        let settings = exp.transfer_settings();
+        let mut m = Self::at(exp, shape, &settings, nnz.upper, nnz);
+        m.worst_case_peak = Self::at(exp, shape, &settings, nnz.worst_case, nnz).peak().bytes;
+        m
+    }
+
+    fn at(exp: &Experiment, shape: &RunShape, settings: &TransferSettings, nnz: u64, estimate: NnzEstimate) -> Self {
+        let f = &exp.file;
+        let transfer = TransferMemory::new(settings, shape.vertices, nnz, shape.threads);
+        let rows = transfer.rows;
+        let n = settings.light_basis().len() as u64;
+        let m = settings.local_basis().len() as u64;
+        let geometry =
+            shape.triangles as u64 * GEOMETRY_BYTES_PER_TRIANGLE + shape.vertices as u64 * GEOMETRY_BYTES_PER_VERTEX;
+        // Decoding holds the file's channels beside the map; L is N RGB f32 values.
+        let lighting = shape.env_pixels.max(64 * 32) as u64 * 12 * 3 + n * 12;
+        let pixels = *f.runtime.width.get_ref() as u64 * *f.runtime.height.get_ref() as u64;
+        let ds = (*f.report.reference_downscale.get_ref()).max(1) as u64;
+        let reference_pixels = match f.report.reference {
+            true => (*f.runtime.width.get_ref() as u64 / ds).max(1) * (*f.runtime.height.get_ref() as u64 / ds).max(1),
+            false => 0,
+        };
+        let images = pixels * IMAGE_BYTES_PER_PIXEL + reference_pixels * REFERENCE_BYTES_PER_PIXEL;
+        let btfs = exp.materials().iter().map(|c| btf_bytes(c, m)).sum();
+        let vectors = rows * VECTOR_BYTES_PER_ROW + n * 16;
+        let gpu_on = f.runtime.backend == Backend::Gpu;
+        let gpu = if gpu_on { GPU_BASELINE_BYTES } else { 0 };
+        let threads = shape.threads.max(1) as u64;
+        let compressors: Vec<CompressorMemory> = exp
+            .compressor_settings()
+            .iter()
+            .map(|s| compressor_memory(s, settings, shape.vertices, nnz, threads))
+            .collect();
+        let methods: Vec<Part> = exp
+            .method_settings()
+            .iter()
+            .map(|s| Part::new(&s.label, method_bytes(s, shape.vertices, shape.cache)))
+            .collect();
+
+        let common = PROCESS_BASELINE_BYTES + geometry + lighting;
+        let mut phases = vec![Part::new("transfer build", common + transfer.build_peak())];
+        if shape.cache {
+            phases.push(Part::new("transfer cache write", common + transfer.save_peak()));
+        }
+        let after = common + transfer.csr + btfs + images + vectors;
+        phases.push(Part::new("materials, baseline and reference", after));
+        for c in &compressors {
+            let cache_write = if shape.cache { c.form.saturating_mul(2) } else { 0 };
+            let upload =
+                if gpu_on { c.form.saturating_mul(2).saturating_add(gpu + rows * GPU_BYTES_PER_ROW) } else { 0 };
+            let bytes = after.saturating_add(c.working).saturating_add(cache_write).saturating_add(upload);
+            phases.push(Part::new(format!("compress {}", c.label), bytes));
+        }
+        for p in &methods {
+            phases.push(Part::new(format!("method {}", p.name), after + gpu + p.bytes));
+        }
+        Self {
+            nnz: estimate,
+            transfer,
+            baseline: PROCESS_BASELINE_BYTES,
+            geometry,
+            lighting,
+            btfs,
+            images,
+            vectors,
+            gpu,
+            compressors,
+            methods,
+            phases,
+            worst_case_peak: 0,
+        }
+    }
+
+    /// The largest phase: the estimated peak of the run.
+    pub fn peak(&self) -> &Part {
+        self.phases.iter().max_by_key(|p| p.bytes).expect("a run has a transfer phase")
+    }
+
+    /// Every part by name (the transfer's buffers, each compressor's and method's), for
+    /// printing and `metrics.json`.
+    pub fn parts(&self) -> Vec<Part> {
+        let t = &self.transfer;
+        let mut parts = vec![
+            Part::new("process baseline", self.baseline),
+            Part::new("mesh, frames and BVHs", self.geometry),
+            Part::new("environment map and L", self.lighting),
+            Part::new("T: build staging (u16 columns and counts)", t.staging),
+            Part::new("T: CSR (f32 values, usize columns and row pointers)", t.csr),
+            Part::new("T: tracing scratch", t.scratch),
+            Part::new("T: cache file arrays (u32, u16, f32)", t.file_arrays),
+            Part::new("T: cache file encode buffer", t.file_bytes),
+            Part::new("BTFs", self.btfs),
+            Part::new("images", self.images),
+            Part::new("per-row vectors (T L in f64, L*)", self.vectors),
+        ];
+        if self.gpu > 0 {
+            parts.push(Part::new("wgpu instance", self.gpu));
+        }
+        for c in &self.compressors {
+            parts.push(Part::new(format!("compressor {} working set", c.label), c.working));
+            parts.push(Part::new(format!("compressor {} form", c.label), c.form));
+        }
+        for p in &self.methods {
+            parts.push(Part::new(format!("method {}", p.name), p.bytes));
+        }
+        parts
+    }
+
+    /// What to change when the run does not fit: the setting behind the largest part of the
+    /// peak phase.
+    pub fn advice(&self) -> String {
+        let peak = self.peak();
+        let transfer =
+            "lower [transfer] cubemap_resolution or visibility_resolution, or use a mesh with fewer vertices";
+        if let Some(label) = peak.name.strip_prefix("compress ") {
+            let c = self.compressors.iter().find(|c| c.label == label);
+            if c.is_some_and(|c| c.working > self.transfer.csr) {
+                return format!("use smaller settings of the compressor {label} (or leave it out), or {transfer}");
+            }
+        }
+        if let Some(label) = peak.name.strip_prefix("method ") {
+            if self.methods.iter().any(|p| p.name == label && p.bytes > self.transfer.csr) {
+                return format!("lower the order of the [[methods]] setting {label}, or {transfer}");
+            }
+        }
+        let largest = [
+            (self.geometry, "use a mesh with fewer triangles"),
+            (self.btfs, "lower the materials' BTF resolution or view_grid"),
+            (self.images, "lower [runtime] width and height (or report.reference_downscale)"),
+        ]
+        .into_iter()
+        .max_by_key(|p| p.0)
+        .expect("three candidates");
+        if largest.0 > self.transfer.csr {
+            return largest.1.to_string();
+        }
+        transfer.to_string()
+    }
+
+    /// The lines `biscale plan` prints: the peak, its phase, the non-zeros it assumes, each
+    /// phase and the available memory.
+    pub fn summary(&self, available: &Available) -> String {
+        use std::fmt::Write;
+        let peak = self.peak();
+        let e = &self.nnz;
+        let mut s = String::new();
+        let _ = writeln!(s, "memory:");
+        let _ = writeln!(
+            s,
+            "  estimated peak {} (in: {}); {} worst case; {} available ({})",
+            human(peak.bytes),
+            peak.name,
+            human(self.worst_case_peak),
+            human(available.bytes),
+            available.source
+        );
+        let how = match e.sampled == e.vertices {
+            true => format!("every one of the {} vertices traced", e.vertices),
+            false => format!(
+                "{} of {} vertices traced in {:.2} s: {:.0} +- {:.0} per vertex",
+                e.sampled, e.vertices, e.seconds, e.mean_per_vertex, e.std_dev_per_vertex
+            ),
+        };
+        let _ = writeln!(
+            s,
+            "  non-zeros of T: {} estimated, {} with a {}-sigma margin, {} worst case ({how})",
+            e.expected,
+            e.upper,
+            biscale_core::transfer::NNZ_MARGIN_SIGMAS,
+            e.worst_case
+        );
+        for p in &self.phases {
+            let _ = writeln!(s, "  phase {:<40} {:>11}", p.name, human(p.bytes));
+        }
+        for p in self.parts().iter().filter(|p| p.bytes > 0) {
+            let _ = writeln!(s, "  part  {:<52} {:>11}", p.name, human(p.bytes));
+        }
+        s
+    }
+
+    /// The record of `metrics.json` (`peak_rss_bytes` read now: the process's VmHWM).
+    pub fn metrics(&self, available: &Available) -> crate::metrics::MemoryMetrics {
+        let e = &self.nnz;
+        crate::metrics::MemoryMetrics {
+            estimate_bytes: self.peak().bytes,
+            estimate_phase: self.peak().name.clone(),
+            worst_case_bytes: self.worst_case_peak,
+            available_bytes: available.bytes,
+            available_source: available.source.to_string(),
+            peak_rss_bytes: peak_rss(),
+            nnz_sampled_vertices: e.sampled,
+            nnz_expected: e.expected,
+            nnz_upper: e.upper,
+            nnz_worst_case: e.worst_case,
+            sample_seconds: e.seconds,
+            phases: self.phases.clone(),
+            parts: self.parts(),
+        }
+    }
+}
+
+/// The BTF memory of one material entry on `m` light directions: the table held twice (the
+/// materials' and the shade scene's), a synthesized one half as much again for its synthesis
+/// and cache write (measured: 2.3 tables at the peak of a run with the bunny's 32 x 32-texel,
+/// 12 x 12-view synthesized BTF), and one dense decoding for the local-PCA settings.
+fn btf_bytes(c: &MaterialConfig, m: u64) -> u64 {
+    // Copies of the table, in halves.
+    let (values, halves) = match c {
+        MaterialConfig::Lambertian { .. } => (m, 4),
+        MaterialConfig::Phong { view_grid, .. } => (*view_grid as u64 * *view_grid as u64 * m, 4),
+        MaterialConfig::Synthesized(s) => {
+            let views = (s.view_grid as u64 * s.view_grid as u64).max(1);
+            (s.resolution as u64 * s.resolution as u64 * views * m, 5)
+        }
+    };
+    let lpca = c.representations().all().iter().any(|r| *r != crate::config::BtfRepresentation::Dense);
+    values * BTF_BYTES_PER_VALUE * (halves + 2 * lpca as u64) / 2
+}
+
+/// A compressor setting's working set and form on `T` with `nnz` non-zeros (module docs).
+/// Unknown kinds (plugins) are counted as a u32 CSR copy of `T` (what the host hands a plugin)
+/// plus a form of the same size.
+pub fn compressor_memory(
+    s: &Setting,
+    settings: &TransferSettings,
+    vertices: usize,
+    nnz: u64,
+    threads: u64,
+) -> CompressorMemory {
+    use biscale_compressors::{bicluster::Bicluster, cpca::Cpca, cpca::CpcaUnit, haar::Haar};
+    let n = settings.light_basis().len() as u64;
+    let m = settings.local_basis().len() as u64;
+    let rows = vertices as u64 * m;
+    let u32_csr = nnz * 8 + (rows + 1) * 4;
+    let (working, form) = match s.kind.as_str() {
+        "sparse" => (u32_csr, u32_csr),
+        "bicluster" => {
+            let p: Bicluster = serde_json::from_value(s.params.clone()).unwrap_or_default();
+            // The integer codes (u16 column, i8 code, usize row pointer); per block in flight
+            // its rows (8 bytes per non-zero) and column views (8, in vectors grown by
+            // doubling: 12 on average); the biclusters found (about 2% of the non-zeros, ~170
+            // bytes each: 4 per non-zero); the form (about 1 byte per non-zero lossless: 2).
+            let codes = nnz * 3 + (rows + 1) * 8;
+            let block_vertices = (if p.block_vertices == 0 { vertices } else { p.block_vertices.min(vertices) }) as u64;
+            let blocks = (vertices as u64).div_ceil(block_vertices.max(1));
+            let per_vertex = nnz / (vertices.max(1) as u64);
+            let in_flight = blocks.min(threads) * block_vertices * per_vertex * 20;
+            let form = nnz * 2 + (rows + 1) * 4;
+            (codes + in_flight + nnz * 4 + form, form)
+        }
+        "cpca" => {
+            let p: Cpca = serde_json::from_value(s.params.clone()).unwrap_or_default();
+            let (unit_rows, extra) = match p.unit {
+                CpcaUnit::Row => (1, 0),
+                CpcaUnit::Vertex => (m, nnz * 8 + (vertices as u64 + 1) * 8),
+            };
+            let (dim, units) = (n * unit_rows, rows / unit_rows.max(1));
+            let c = (p.components as u64).min(dim);
+            // Basis values of the model (as `linalg::cpca::build_bytes` counts them, 16 bytes
+            // each at the build's peak), saturating: a setting too large to build is refused
+            // by the compressor with its own message, not here.
+            let values = (p.clusters as u64).saturating_mul(c + 1).saturating_mul(dim);
+            let model = values.saturating_mul(biscale_core::linalg::cpca::BUILD_BYTES_PER_BASIS_VALUE);
+            let form = values.saturating_mul(4).saturating_add(units * (4 * c + 4));
+            // The models twice (assignment tables and refits) and f64 coefficients per unit.
+            let working = model.saturating_mul(2).saturating_add(units * (8 * c + 8) + extra).saturating_add(form);
+            (working, form)
+        }
+        "haar" => {
+            let p: Haar = serde_json::from_value(s.params.clone()).unwrap_or_default();
+            let kept = rows * (p.terms as u64).min(n);
+            // Per row its kept terms (u16 index, f32 value) in chunks, then the form again.
+            let form = kept * 6 + (rows + 1) * 4;
+            (kept * 6 + rows * 4 + form, form)
+        }
+        _ => (2 * u32_csr, u32_csr),
+    };
+    CompressorMemory { label: s.label.clone(), working, form }
+}
+
+/// An SH method setting's matrices: per vertex an `n^2 x n^2` block, dense in f64 while it is
+/// traced and assembled into a CSR (8 + 12 bytes per value), then the CSR and its raw form
+/// (12 + 8), with the cache on the form's copy and encoding as well (+ 16); one more CSR with
+/// bounces (+ 12).
+fn method_bytes(s: &Setting, vertices: usize, cache: bool) -> u64 {
+    let Ok(p) = crate::methods::sh::ShParams::parse(&s.params) else { return 0 };
+    let n2 = p.order as u64 * p.order as u64;
+    let values = vertices as u64 * n2 * n2;
+    let per_value = 20 + if cache { 16 } else { 0 } + if p.bounces > 0 { 12 } else { 0 };
+    values * per_value + vertices as u64 * n2 * VECTOR_BYTES_PER_ROW
+}
+
+/// Estimate the run of `exp` on its loaded geometry and lighting: traces the sample of
+/// vertices (well under a second), then counts every buffer.
+pub fn estimate(exp: &Experiment, geometry: &Geometry, lighting: &Lighting, cache: bool) -> RunMemory {
+    let settings = exp.transfer_settings();
+    let nnz = sample_nnz(&geometry.transfer, &settings, NNZ_SAMPLE_VERTICES);
+    let shape = RunShape {
+        vertices: geometry.mesh.vertex_count(),
+        triangles: geometry.mesh.triangle_count(),
+        env_pixels: lighting.env.width * lighting.env.height,
+        cache,
+        threads: rayon::current_num_threads(),
+    };
+    RunMemory::new(exp, &shape, nnz)
+}
+
+/// Estimate the run of `exp` and refuse it when the estimate exceeds the available memory:
+/// the one check `biscale run` makes before tracing. Prints the estimate's one-line summary.
+pub fn check_run(
+    exp: &Experiment,
+    geometry: &Geometry,
+    lighting: &Lighting,
+    cache: bool,
+) -> Result<(RunMemory, Available), PipelineError> {
+    let memory = estimate(exp, geometry, lighting, cache);
+    let available = available()?;
+    let peak = memory.peak();
+    eprintln!(
+        "memory: estimated peak {} (in: {}; T {} non-zeros from {} sampled vertices), {} available ({})",
+        human(peak.bytes),
+        peak.name,
+        memory.nnz.upper,
+        memory.nnz.sampled,
+        human(available.bytes),
+        available.source
+    );
+    refuse_over(&format!("{}: this run", exp.config_path.display()), &memory, &available)?;
+    Ok((memory, available))
+}
+
+/// Err when `memory`'s peak is over `available`: the estimate, its phase, the available
+/// memory and the setting to change.
+pub fn refuse_over(what: &str, memory: &RunMemory, available: &Available) -> Result<(), PipelineError> {
+    let peak = memory.peak();
+    refuse(what, peak.bytes, &format!(" (peak in: {})", peak.name), available, &memory.advice())
+}
+
+/// Err when `estimate` is over `available`, saying `what` needs how much, what is available and
+/// `advice`.
+pub fn refuse(
+    what: &str,
+    estimate: u64,
+    detail: &str,
+    available: &Available,
+    advice: &str,
+) -> Result<(), PipelineError> {
+    if estimate <= available.bytes {
+        return Ok(());
+    }
+    Err(PipelineError::Core(CoreError::TooLarge(format!(
+        "{what} needs about {} of memory at its peak{detail}, more than the {} available ({}); {advice}",
+        human(estimate),
+        human(available.bytes),
+        available.source
+    ))))
+}
+
+/// Memory the machine can give a new allocation without swapping.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Available {
+    pub bytes: u64,
+    /// Where the figure comes from.
+    pub source: &'static str,
+}
+
+/// The environment variable that caps the memory biscale plans for (bytes, or a number with
+/// `K`, `M`, `G` or `T` for powers of 1024): for a machine shared with other work, and for
+/// tests that need a small machine.
+pub const LIMIT_VAR: &str = "BISCALE_MEMORY_LIMIT";
+
+/// `MemAvailable` from `/proc/meminfo`, or [`FALLBACK_AVAILABLE_BYTES`] where it cannot be
+/// read (not Linux, no /proc); at most [`LIMIT_VAR`] when that is set. A value of
+/// [`LIMIT_VAR`] that is not a size is an error naming it.
+pub fn available() -> Result<Available, PipelineError> {
+    let machine = match std::fs::read_to_string("/proc/meminfo").ok().and_then(|s| kib_field(&s, "MemAvailable")) {
+        Some(bytes) => Available { bytes, source: "MemAvailable in /proc/meminfo" },
+        None => Available {
+            bytes: FALLBACK_AVAILABLE_BYTES,
+            source: "the fixed limit: MemAvailable could not be read from /proc/meminfo",
+        },
+    };
+    let Some(value) = std::env::var_os(LIMIT_VAR) else { return Ok(machine) };
+    let limit = value.to_str().and_then(parse_size).ok_or_else(|| {
+        PipelineError::Core(CoreError::Invalid(format!(
+            "{LIMIT_VAR}={}: not a size (bytes, or a number with K, M, G or T, powers of 1024)",
+            value.to_string_lossy()
+        )))
+    })?;
+    Ok(match limit < machine.bytes {
+        true => Available { bytes: limit, source: LIMIT_VAR },
+        false => machine,
+    })
+}
+
+/// A size: a whole number of bytes, or one followed by `K`, `M`, `G` or `T` (optionally
+/// `KiB` ...), powers of 1024.
+pub fn parse_size(s: &str) -> Option<u64> {
+    let s = s.trim();
+    let digits = s.find(|c: char| !c.is_ascii_digit()).unwrap_or(s.len());
+    let (number, unit) = s.split_at(digits);
+    let shift = match unit.trim().to_ascii_uppercase().trim_end_matches("IB").trim_end_matches('B') {
+        "" => 0,
+        "K" => 10,
+        "M" => 20,
+        "G" => 30,
+        "T" => 40,
+        _ => return None,
+    };
+    number.parse::<u64>().ok()?.checked_mul(1 << shift)
+}
+
+/// This process's peak resident memory so far (`VmHWM` in `/proc/self/status`), if readable.
+pub fn peak_rss() -> Option<u64> {
+    kib_field(&std::fs::read_to_string("/proc/self/status").ok()?, "VmHWM")
+}
+
+/// The value in bytes of a `Name:   1234 kB` line of `/proc/meminfo` or `/proc/*/status`.
+pub fn kib_field(text: &str, name: &str) -> Option<u64> {
+    text.lines().find_map(|l| {
+        let rest = l.strip_prefix(name)?.strip_prefix(':')?;
+        let mut it = rest.split_whitespace();
+        let value: u64 = it.next()?.parse().ok()?;
+        match it.next() {
+            Some("kB") => value.checked_mul(1024),
+            _ => None,
+        }
+    })
+}
+
+/// Peak bytes of `generate subdivide` writing `levels` levels of a mesh of `triangles`
+/// triangles and `vertices` vertices (`uvs`: with texture coordinates): the larger of the
+/// last level (its input and output meshes and the midpoint map) and the write (the output
+/// mesh and its whole OBJ text), plus the process.
+pub fn subdivide_bytes(triangles: u64, vertices: u64, uvs: bool, levels: u32) -> u64 {
+    if levels == 0 {
+        return PROCESS_BASELINE_BYTES + triangles * 12 + vertices * 20;
+    }
+    let scale = 1u64.checked_shl(2 * levels).unwrap_or(u64::MAX);
+    let t_out = triangles.saturating_mul(scale);
+    let t_in = t_out / 4;
+    // Each level adds a vertex per edge of its input, about 3/2 per triangle (a closed mesh;
+    // an open one has a few more), so `n` levels add `T (4^n - 1) / 2` vertices.
+    let added = |t: u64| t.saturating_sub(triangles) / 2;
+    let v_in = vertices.saturating_add(added(t_in));
+    let v_out = vertices.saturating_add(added(t_out));
+    let per_vertex = if uvs { 12 + 8 } else { 12 };
+    let mesh = |t: u64, v: u64| t.saturating_mul(12 + 4).saturating_add(v.saturating_mul(per_vertex));
+    // The midpoint map: a (u32, u32) -> u32 entry and a control byte per edge, at most 8/7
+    // full rounded up to a power of two (up to 2.3 slots per edge), old and new table while it
+    // grows (1.5 x).
+    let edges = t_in.saturating_mul(3) / 2;
+    let map = edges.saturating_mul(13 * 35 / 10);
+    let level = mesh(t_in, v_in).saturating_add(mesh(t_out, v_out)).saturating_add(map);
+    // The OBJ text: `v x y z` lines (a float is at most 13 characters), `vt u v`, and faces
+    // `f a b c` (or `f a/a b/b c/c`) with indices of the output's digit count.
+    let digits = (v_out.max(1) as f64).log10().floor() as u64 + 2;
+    let v_line = 3 + 3 * 13 + 1;
+    let vt_line = if uvs { 3 + 2 * 13 + 1 } else { 0 };
+    let f_line = if uvs { 2 + 3 * (2 * digits + 1) } else { 2 + 3 * digits };
+    let text = v_out.saturating_mul(v_line + vt_line).saturating_add(t_out.saturating_mul(f_line));
+    let write = mesh(t_out, v_out).saturating_add(text);
+    PROCESS_BASELINE_BYTES.saturating_add(level.max(write))
+}
+
+/// `bytes` for people: MiB below a GiB, GiB above.
+pub fn human(bytes: u64) -> String {
+    let mib = bytes as f64 / (1u64 << 20) as f64;
+    if mib < 1024.0 {
+        format!("{mib:.1} MiB")
+    } else {
+        format!("{:.2} GiB", mib / 1024.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn proc_fields_are_read_in_bytes() {
+        let meminfo = "MemTotal:       24600000 kB\nMemFree:        20000000 kB\nMemAvailable:   23978264 kB\n";
+        assert_eq!(kib_field(meminfo, "MemAvailable"), Some(23_978_264 * 1024));
+        assert_eq!(kib_field(meminfo, "MemTotal"), Some(24_600_000 * 1024));
+        // A prefix of another name is not that name; a line without its unit is not read.
+        assert_eq!(kib_field(meminfo, "Mem"), None);
+        assert_eq!(kib_field("VmHWM:\t  123 pages\n", "VmHWM"), None);
+        assert_eq!(kib_field("Name:\tbiscale\nVmHWM:\t   16384 kB\n", "VmHWM"), Some(16 << 20));
+        // This process has a peak, above its code alone.
+        assert!(peak_rss().is_some_and(|b| b > 1 << 20));
+    }
+
+    #[test]
+    fn sizes_parse_in_powers_of_1024() {
+        assert_eq!(parse_size("1234"), Some(1234));
+        assert_eq!(parse_size("64M"), Some(64 << 20));
+        assert_eq!(parse_size("2GiB"), Some(2 << 30));
+        assert_eq!(parse_size(" 3 k "), Some(3 << 10));
+        assert_eq!(parse_size("1T"), Some(1 << 40));
+        for bad in ["", "M", "1.5G", "-1", "12 apples", "99999999999999999999"] {
+            assert_eq!(parse_size(bad), None, "{bad}");
+        }
+        assert_eq!(parse_size("99999999999T"), None, "overflow");
+    }
+
+    #[test]
+    fn a_run_over_the_available_memory_is_refused_with_the_setting_to_change() {
+        let dir = tempfile::tempdir().unwrap();
+        let exp = crate::config::Experiment::load(&smoke_at(dir.path(), 32)).unwrap();
+        let shape = RunShape { vertices: 1839, triangles: 3674, env_pixels: 0, cache: true, threads: 2 };
+        let nnz = NnzEstimate::exact(1839, 5_000_000, &exp.transfer_settings());
+        let m = RunMemory::new(&exp, &shape, nnz);
+        let peak = m.peak().bytes;
+        let fits = Available { bytes: peak, source: "test" };
+        assert!(refuse_over("x", &m, &fits).is_ok());
+        let short = Available { bytes: peak - 1, source: "test" };
+        let e = refuse_over("configs/x.toml: this run", &m, &short).unwrap_err().to_string();
+        assert!(e.contains("configs/x.toml: this run needs about") && e.contains("available (test)"), "{e}");
+        assert!(e.contains("cubemap_resolution or visibility_resolution"), "{e}");
+        assert!(e.contains(&human(peak)), "{e}");
+    }
+
+    #[test]
+    fn phases_add_what_is_alive_together() {
+        // The sparse compressor with the cache on: T's CSR (12 bytes per non-zero), its u32
+        // form (8), the form's copy and its encoding for the cache (8 + 8): 36 bytes per
+        // non-zero over the rest, more than the build (4 + 12) and T's own cache write
+        // (12 + 6 + 6).
+        let dir = tempfile::tempdir().unwrap();
+        let exp = crate::config::Experiment::load(&smoke_at(dir.path(), 32)).unwrap();
+        let shape = RunShape { vertices: 1000, triangles: 2000, env_pixels: 0, cache: true, threads: 2 };
+        let settings = exp.transfer_settings();
+        let at = |nnz| RunMemory::new(&exp, &shape, NnzEstimate::exact(1000, nnz, &settings));
+        let (small, large) = (at(1_000_000), at(2_000_000));
+        assert_eq!(small.peak().name, "compress sparse");
+        assert_eq!(large.peak().bytes - small.peak().bytes, 36 * 1_000_000);
+        let build = |m: &RunMemory| m.phases.iter().find(|p| p.name == "transfer build").unwrap().bytes;
+        assert_eq!(build(&large) - build(&small), 16 * 1_000_000);
+        let no_cache =
+            RunMemory::new(&exp, &RunShape { cache: false, ..shape }, NnzEstimate::exact(1000, 1_000_000, &settings));
+        // The cache adds the sparse form's copy and encoding: (8 per non-zero, 4 per row
+        // pointer) twice.
+        assert_eq!(small.peak().bytes - no_cache.peak().bytes, 2 * (8 * 1_000_000 + 4 * (64_000 + 1)));
+        // The worst case (N / 2 = 3072 per vertex) is the same count at 3,072,000 non-zeros.
+        assert_eq!(small.worst_case_peak, at(3_072_000).peak().bytes);
+    }
+
+    #[test]
+    fn an_absurd_compressor_setting_saturates_instead_of_overflowing() {
+        // The compressor refuses it with its own message; the estimate must not panic first.
+        let settings = TransferSettings::new(104, 104, 64).unwrap();
+        let s = Setting {
+            label: "cpca-huge".into(),
+            kind: "cpca".into(),
+            params: serde_json::json!({ "clusters": 65534, "components": 1u64 << 40, "unit": "vertex" }),
+        };
+        let c = compressor_memory(&s, &settings, 1 << 20, 1 << 40, 16);
+        assert_eq!(c.working, u64::MAX);
+        // A modest one is the model: 4 clusters x (2 + 1) vectors of N = 6144 values, 16 bytes
+        // each twice while it builds, then the f32 basis and per row a cluster and 2 weights.
+        let settings = TransferSettings::new(32, 32, 8).unwrap();
+        let small = Setting { params: serde_json::json!({ "clusters": 4, "components": 2 }), ..s };
+        let c = compressor_memory(&small, &settings, 10, 1000, 2);
+        let values = 4 * 3 * 6144;
+        assert_eq!(c.form, values * 4 + 640 * 12);
+        assert_eq!(c.working, 2 * values * 16 + 640 * 24 + c.form);
+    }
+
+    /// A one-compressor (sparse) config on the bunny at cubemap `r`, written into `dir`.
+    fn smoke_at(dir: &std::path::Path, r: u32) -> std::path::PathBuf {
+        let bunny = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/meshes/bunny.obj");
+        let cfg = dir.join("x.toml");
+        std::fs::write(
+            &cfg,
+            format!(
+                "name = \"x\"\n[scene]\nmesh = \"{}\"\n[lighting]\nconstant = [1.0, 1.0, 1.0]\n[transfer]\n\
+                 cubemap_resolution = {r}\nvisibility_resolution = {r}\nlocal_grid = 8\n[[compressors]]\nkind = \"sparse\"\n\
+                 [runtime]\nwidth = 64\nheight = 48\n",
+                bunny.display()
+            ),
+        )
+        .unwrap();
+        cfg
+    }
+
+    #[test]
+    fn subdivision_estimate_bounds_the_mesh_and_its_text() {
+        // The bunny (3,674 triangles, 1,839 vertices), 4 levels: 940,544 triangles; measured
+        // 62 MiB peak writing a 36.4 MB OBJ (BENCHMARKS.md).
+        let e = subdivide_bytes(3674, 1839, false, 4);
+        assert!(e > 62 << 20 && e < 80 << 20, "{}", human(e));
+        // Each level about quadruples it.
+        let e5 = subdivide_bytes(3674, 1839, false, 5);
+        assert!(e5 > 3 * (e - PROCESS_BASELINE_BYTES) && e5 < 5 * e, "{} {}", human(e), human(e5));
+        assert!(subdivide_bytes(3674, 1839, true, 4) > e);
+        // Absurd requests saturate instead of overflowing.
+        assert_eq!(subdivide_bytes(u64::MAX / 2, 1, false, 40), u64::MAX);
+    }
+}
