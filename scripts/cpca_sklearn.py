@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Clustered PCA with scikit-learn, the peer for biscale's CPCA (issue 4's benchmark).
+"""Clustered PCA with scikit-learn, the peer for biscale's CPCA (the CPCA benchmark in BENCHMARKS.md).
 
 Reads T.mtx written by `biscale export-matrix`, clusters its rows with KMeans (K clusters,
 k-means++), fits PCA with C components per cluster, and prints the build time and the

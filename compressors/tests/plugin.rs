@@ -1,4 +1,4 @@
-//! Compressor plugins loaded through the C ABI (issue 7): the example plugin against the same
+//! Compressor plugins loaded through the C ABI: the example plugin against the same
 //! algorithm compiled in and against the f64 reference, and every way a plugin can fail,
 //! each of which must be an error that names the library file, never a crash.
 //!

@@ -1,4 +1,4 @@
-//! Every built-in gather against its memory-bandwidth floor (issue 5, "Speed": a gather should
+//! Every built-in gather against its memory-bandwidth floor (a gather should
 //! sit within 3x of the time it takes to stream its compressed bytes once at copy bandwidth).
 //!
 //! For the mesh's real transfer matrix (traced with `transfer::build` at the reference
@@ -30,7 +30,7 @@
 //!     [--sh-order 5 [--sh-rays 1024]]
 //! ```
 //!
-//! With `--sh-order n` the matrix is the low-frequency method's `M` instead (issue 12: one
+//! With `--sh-order n` the matrix is the low-frequency method's `M` instead (one
 //! n^2 x n^2 block per vertex, traced with `transfer::sh::build_sh` at `--sh-rays` rays per
 //! vertex, its build timed over `--runs` builds), the light the SH projection of the random
 //! cubemap light, and the forms the raw `sparse` one (the method's default) and CPCA of whole

@@ -277,7 +277,7 @@ mod tests {
 
     #[test]
     fn comparison_markdown_becomes_tables_headings_and_links() {
-        // Regression (issue 16): report.html printed these sections as raw Markdown in <pre>.
+        // Regression: report.html printed these sections as raw Markdown in <pre>.
         let md = "\n## Equal quality\n\nStorage for `5%` (log-log):\n\n| compressor | MB |\n|---|---|\n\
                   | haar | <= 4.2 |\n| bicluster | ![b](images/b.png) & more |\n\nAfter.\n";
         let h = markdown_to_html(md);

@@ -1,5 +1,5 @@
 //! A procedurally generated temple: flat architectural pieces with several materials, the
-//! second bundled example (`configs/temple.toml`, issue 6).
+//! second bundled example (`configs/temple.toml`).
 //!
 //! Every piece is built from flat faces, each meshed as its own grid of cells no larger than
 //! [`TempleOptions::cell`] (so per-vertex `L*` resolves the shadows of columns and roof) with

@@ -117,7 +117,7 @@ fn viz_writes_the_structure_pictures() {
 
 #[test]
 fn errors_are_one_line_of_causes_without_a_backtrace() {
-    // Issue 16: with RUST_BACKTRACE=1 set, a config typo printed anyhow's 40-line backtrace.
+    // Regression: with RUST_BACKTRACE=1 set, a config typo printed anyhow's 40-line backtrace.
     let dir = tempfile::tempdir().unwrap();
     let cfg = dir.path().join("typo.toml");
     std::fs::write(&cfg, "name = \"t\"\n[scene]\nmesh = \"m.obj\"\n[transfer]\nlocal_grd = 8\n").unwrap();

@@ -1,4 +1,4 @@
-//! The interactive viewer (cargo feature `viewer`; issue 5): a window showing the bi-scale
+//! The interactive viewer (cargo feature `viewer`): a window showing the bi-scale
 //! rendering of one scene, in which the user orbits the camera, rotates the environment (a
 //! *light change*: `L` is recomputed from the map with the new rotation on a worker thread,
 //! then the current compressed form's gather runs again on the GPU), and switches between

@@ -1,4 +1,4 @@
-//! Matrix-structure pictures (issue 3): what `T` and its biclusters look like.
+//! Matrix-structure pictures: what `T` and its biclusters look like.
 //!
 //! * [`write_sparsity`]: the sparsity pattern of `T` for a patch of consecutive vertices (as in
 //!   Sun et al., Figure 3b), one small square per entry, grey by value (1/4 light .. 1 black),
