@@ -947,9 +947,10 @@ fn non_finite_literal(source: &str) -> Option<Range<usize>> {
             b'#' => i = source[i..].find('\n').map_or(b.len(), |n| i + n),
             q @ (b'"' | b'\'') => {
                 let triple = b.len() >= i + 3 && b[i + 1] == q && b[i + 2] == q;
-                let close = if triple { &source[i..i + 3] } else { &source[i..i + 1] };
+                // Bytes, not `str` slices: the scan steps through multi-byte characters.
+                let close = if triple { &b[i..i + 3] } else { &b[i..i + 1] };
                 let mut j = i + close.len();
-                while j < b.len() && !source[j..].starts_with(close) {
+                while j < b.len() && !b[j..].starts_with(close) {
                     j += if q == b'"' && b[j] == b'\\' { 2 } else { 1 };
                 }
                 i = (j + close.len()).min(b.len());
@@ -1358,6 +1359,21 @@ mod tests {
         // A string that says nan is not a number.
         assert!(non_finite_literal("name = \"nan\" # inf\nx = 'inf'\n").is_none());
         assert_eq!(non_finite_literal("a = [1.0, -nan]"), Some(10..14));
+    }
+
+    #[test]
+    fn non_ascii_strings_before_a_nan_give_its_location_not_a_panic() {
+        // Regression (fuzzing): the scan for the literal sliced the text inside a multi-byte
+        // character of a string ("byte index is not a char boundary").
+        let text = format!("name = \"Нн\\\"ё\" # Ж\n{}", &OK[OK.find('\n').unwrap() + 1..])
+            .replace("[lighting]", "[lighting]\nrotation_degrees = nan");
+        let e = parse(&text).unwrap_err();
+        assert!(e.message.contains("lighting.rotation_degrees = NaN"), "{e}");
+        assert_eq!((e.line, e.column), (5, 20), "{e}");
+        for s in ["\"Нн\" = nan", "'''ё'''\nx = inf", "\"\\Ж\" = -inf", "x = \"ё"] {
+            let want = s.find("nan").or_else(|| s.find("-inf")).or_else(|| s.find("inf"));
+            assert_eq!(non_finite_literal(s).map(|r| r.start), want, "{s}");
+        }
     }
 
     #[test]

@@ -10,15 +10,26 @@
 //! a closed box seen from inside, whose face diagonals lie exactly on texel-centre rays).
 //! Growing every triangle by 1e-5 of its size closes those cracks at the cost of occluding
 //! a band that thin beyond open boundaries.
+//!
+//! Depth: obvhs's CWBVH traversal keeps its pending nodes on a fixed stack of
+//! [`MAX_CWBVH_DEPTH`] entries, so a tree must be shallower than that. Its PLOC builder gives a
+//! chain, one level per few triangles, on a fan of slivers from one corner (how exporters
+//! triangulate a large convex polygon: a 2,000-gon gave 78 levels), so a tree that deep is
+//! rebuilt by median splits, whose depth is at most log2 of the triangle count.
 
 use glam::{Vec2, Vec3, Vec3A};
 use obvhs::{
-    cwbvh::{builder::build_cwbvh_from_tris, CwBvh},
+    aabb::Aabb,
+    bvh2::{node::Bvh2Node, reinsertion::ReinsertionOptimizer, Bvh2},
+    cwbvh::{bvh2_to_cwbvh::bvh2_to_cwbvh, CwBvh},
+    ploc::PlocBuilder,
     ray::{Ray, RayHit},
     triangle::Triangle,
     BvhBuildParams,
 };
-use std::time::Duration;
+
+/// Levels of a CWBVH that obvhs's traversal stack (32 entries) serves.
+pub const MAX_CWBVH_DEPTH: usize = 32;
 
 /// A closest hit: mesh triangle index, ray distance, and barycentrics `(b1, b2)` so that the
 /// point is `(1 - b1 - b2) v0 + b1 v1 + b2 v2`.
@@ -61,7 +72,23 @@ impl SceneBvh {
         if soup.is_empty() {
             return Self { bvh: CwBvh::default(), tris: vec![], tri_ids: vec![], cones: ConeTree::default() };
         }
-        let bvh = build_cwbvh_from_tris(&soup, BvhBuildParams::medium_build(), &mut Duration::default());
+        // obvhs's `build_cwbvh_from_tris` without the pre-splits (off in this preset) and the
+        // debug-build validation, which panics on the deep trees replaced below.
+        let p = BvhBuildParams::medium_build();
+        let indices = (0..soup.len() as u32).collect();
+        let mut bvh2 = PlocBuilder::with_capacity(soup.len()).build(
+            p.ploc_search_distance,
+            &soup,
+            indices,
+            p.sort_precision,
+            p.search_depth_threshold,
+        );
+        ReinsertionOptimizer::default().run(&mut bvh2, p.reinsertion_batch_ratio, None);
+        let leaf = p.max_prims_per_leaf.clamp(1, 3);
+        let mut bvh = bvh2_to_cwbvh(&bvh2, leaf, true, false);
+        if cwbvh_depth(&bvh) >= MAX_CWBVH_DEPTH {
+            bvh = bvh2_to_cwbvh(&median_split_bvh2(&soup), leaf, true, false);
+        }
         let tri_ids: Vec<u32> = bvh.primitive_indices.clone();
         let tris: Vec<RtTri> = tri_ids.iter().map(|&i| RtTri::new(&soup[i as usize])).collect();
         let cones = ConeTree::build(&tris);
@@ -161,6 +188,50 @@ impl SceneBvh {
         let corners = Triangle { v0: tri.v0, v1: tri.v0 + tri.e1, v2: tri.v0 + tri.e2 };
         Some(Hit { triangle: self.tri_ids[id], t: hit.t, barycentric: barycentric(&corners, p) })
     }
+}
+
+/// Levels of `bvh` (the root alone is 1).
+fn cwbvh_depth(bvh: &CwBvh) -> usize {
+    let mut deepest = 0;
+    let mut todo = vec![(0usize, 1usize)];
+    while let Some((node, depth)) = todo.pop() {
+        deepest = deepest.max(depth);
+        let n = &bvh.nodes[node];
+        for child in (0..8).filter(|&c| !n.is_child_empty(c) && !n.is_leaf(c)) {
+            todo.push((n.child_node_index(child) as usize, depth + 1));
+        }
+    }
+    deepest
+}
+
+/// A BVH2 of one triangle per leaf, split at the median centroid along the widest axis of
+/// the centroids at every node: at most `ceil(log2 n) + 1` levels whatever the geometry.
+fn median_split_bvh2(soup: &[Triangle]) -> Bvh2 {
+    let boxes: Vec<Aabb> = soup.iter().map(|t| t.aabb()).collect();
+    let mut order: Vec<u32> = (0..soup.len() as u32).collect();
+    let mut nodes = vec![Bvh2Node::default()];
+    let mut todo = vec![(0usize, 0usize, soup.len())];
+    while let Some((node, start, end)) = todo.pop() {
+        let part = &mut order[start..end];
+        let bounds = part.iter().fold(Aabb::empty(), |b, &i| b.union(&boxes[i as usize]));
+        if part.len() == 1 {
+            nodes[node] = Bvh2Node::new(bounds, 1, start as u32);
+            continue;
+        }
+        let mut centres = Aabb::empty();
+        for &i in part.iter() {
+            centres.extend(boxes[i as usize].center());
+        }
+        let axis = centres.largest_axis();
+        let mid = part.len() / 2;
+        let key = |i: &u32| boxes[*i as usize].center_axis(axis);
+        part.select_nth_unstable_by(mid, |a, b| key(a).total_cmp(&key(b)));
+        let left = nodes.len();
+        nodes.extend([Bvh2Node::default(); 2]);
+        nodes[node] = Bvh2Node::new(bounds, 0, left as u32);
+        todo.extend([(left, start, start + mid), (left + 1, start + mid, end)]);
+    }
+    Bvh2 { nodes, primitive_indices: order, ..Bvh2::default() }
 }
 
 /// Barycentric slack of the triangle test (see the module docs): hits are accepted for
@@ -390,6 +461,52 @@ mod tests {
         let q =
             p[tri[0] as usize] * (1.0 - bary.x - bary.y) + p[tri[1] as usize] * bary.x + p[tri[2] as usize] * bary.y;
         assert!((q - Vec3::new(0.3, 0.0, 0.6)).length() < 1e-5);
+    }
+
+    /// Regression (hostile input): a convex 2,000-gon fanned from one corner, as OBJ
+    /// exporters triangulate it, made obvhs's builder a 78-level chain, past its 32-entry
+    /// traversal stack (and debug builds panicked in its validation).
+    #[test]
+    fn a_fan_of_slivers_builds_a_shallow_bvh_that_finds_every_hit() {
+        let n = 2000;
+        let p: Vec<Vec3> = (0..n)
+            .map(|i| {
+                let a = std::f32::consts::TAU * i as f32 / n as f32;
+                Vec3::new(a.cos(), 0.0, a.sin())
+            })
+            .collect();
+        let t: Vec<[u32; 3]> = (1..n as u32 - 1).map(|i| [0, i + 1, i]).collect();
+        let bvh = SceneBvh::build(&p, &t);
+        assert!(cwbvh_depth(&bvh.bvh) < MAX_CWBVH_DEPTH, "depth {}", cwbvh_depth(&bvh.bvh));
+        assert_eq!(bvh.len(), t.len());
+        // Rays up through the disc near the fan's corner, where every sliver's box overlaps,
+        // hit the disc; rays beside it do not.
+        let up = Vec3::Y;
+        for k in 0..500 {
+            let a = std::f32::consts::PI * (0.65 + 0.7 * k as f32 / 500.0);
+            let r = 0.01 + 0.5 * (k % 7) as f32 / 7.0;
+            let o = Vec3::new(1.0 + r * a.cos(), -1.0, r * a.sin());
+            assert!(bvh.occluded(o, up, 0.0, f32::INFINITY), "ray {k} from {o} slipped through");
+            let h = bvh.closest_hit(o, up, 0.0, f32::INFINITY).expect("a hit");
+            assert!((h.t - 1.0).abs() < 1e-5);
+        }
+        assert!(!bvh.occluded(Vec3::new(1.01, -1.0, 0.0), up, 0.0, f32::INFINITY));
+    }
+
+    #[test]
+    fn median_splits_are_balanced_and_keep_every_triangle() {
+        let tri = |x: f32| Triangle {
+            v0: Vec3A::new(x, 0.0, 0.0),
+            v1: Vec3A::new(x + 1.0, 0.0, 0.0),
+            v2: Vec3A::new(x, 1.0, 0.0),
+        };
+        let soup: Vec<Triangle> = (0..1000).map(|i| tri(i as f32)).collect();
+        let b = median_split_bvh2(&soup);
+        assert_eq!(b.depth(0), 11, "ceil(log2 1000) + 1 levels");
+        let mut prims = b.primitive_indices.clone();
+        prims.sort_unstable();
+        assert_eq!(prims, (0..1000).collect::<Vec<u32>>());
+        assert!(cwbvh_depth(&bvh2_to_cwbvh(&b, 3, true, false)) <= 4);
     }
 
     #[test]

@@ -132,24 +132,34 @@ impl Mesh {
     /// line in `repairs`); normals and materials are ignored. Then validated and repaired as
     /// in [`Mesh::from_parts`].
     pub fn load_obj(path: &Path) -> Result<MeshLoad> {
-        let input_err = |message: String| CoreError::Input { path: path.to_path_buf(), message };
-        let bytes = std::fs::read(path).map_err(|e| {
-            input_err(match e.kind() {
+        let bytes = std::fs::read(path).map_err(|e| CoreError::Input {
+            path: path.to_path_buf(),
+            message: match e.kind() {
                 std::io::ErrorKind::NotFound => "file not found".to_string(),
                 _ => format!("cannot read: {e}"),
-            })
+            },
         })?;
+        Self::parse_obj(&bytes, path)
+    }
+
+    /// [`Mesh::load_obj`] on the bytes of an OBJ file already in memory (`path` names it in
+    /// errors): the one parser, which the fuzzing suite drives without a file.
+    pub fn parse_obj(bytes: &[u8], path: &Path) -> Result<MeshLoad> {
+        let input_err = |message: String| CoreError::Input { path: path.to_path_buf(), message };
         let options =
             tobj::LoadOptions { triangulate: false, single_index: true, ignore_points: true, ignore_lines: true };
         // Material names, not material libraries: tobj only resolves `usemtl` names that a
         // loaded `.mtl` defines, so every `mtllib` (and one injected in front of the file)
         // is answered with a synthesized library holding exactly the names the file uses.
         // The `.mtl` files themselves are never opened.
-        let text = String::from_utf8_lossy(&bytes);
+        let text = String::from_utf8_lossy(bytes);
         let used_names = obj_usemtl_names(&text);
         let library: String = used_names.iter().map(|n| format!("newmtl {n}\n")).collect();
         let mut source = b"mtllib biscale-material-names\n".to_vec();
-        source.extend_from_slice(&bytes);
+        source.extend_from_slice(bytes);
+        if let Some((line, content, e)) = unresolvable_face_index(&text) {
+            return Err(input_err(format!("OBJ parse error: {e} at line {line}: `{content}`")));
+        }
         let (models, materials) =
             tobj::load_obj_buf(&mut source.as_slice(), &options, |_| tobj::load_mtl_buf(&mut library.as_bytes()))
                 .map_err(|e| {
@@ -326,7 +336,8 @@ impl Mesh {
     /// Length of the bounding box diagonal (the mesh's scale; 0 for an empty mesh).
     pub fn diagonal(&self) -> f32 {
         let (lo, hi) = self.bounds();
-        (hi - lo).length()
+        // In f64: the squares overflow f32 for coordinates past about 1e19.
+        (hi.as_dvec3() - lo.as_dvec3()).length() as f32
     }
 
     pub fn vertex_count(&self) -> usize {
@@ -514,6 +525,41 @@ fn first_nonfinite_obj_vertex(text: &str) -> Option<(usize, usize)> {
     None
 }
 
+/// The first face record (1-based line, its text, the error) with a texture-coordinate or
+/// normal index that names no record: counting back past the first one read so far, or
+/// beyond the last one in the file. tobj resolves such an index to a huge offset and
+/// multiplies it unchecked (an overflow panic in builds with overflow checks), so these are
+/// refused before it runs; positions it checks itself.
+fn unresolvable_face_index(text: &str) -> Option<(usize, &str, tobj::LoadError)> {
+    let count = |kind: &str| text.lines().filter(|l| l.split_whitespace().next() == Some(kind)).count() as i64;
+    let (textures, normals) = (count("vt"), count("vn"));
+    let (mut vt, mut vn) = (0i64, 0i64);
+    for (line_no, line) in text.lines().enumerate() {
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("vt") => vt += 1,
+            Some("vn") => vn += 1,
+            Some("f") => {
+                for word in words {
+                    let mut parts = word.split('/').skip(1);
+                    for (part, so_far, total, e) in [
+                        (parts.next(), vt, textures, tobj::LoadError::FaceTexCoordOutOfBounds),
+                        (parts.next(), vn, normals, tobj::LoadError::FaceNormalOutOfBounds),
+                    ] {
+                        // What does not parse is tobj's to report; 0 it reads as "none".
+                        let Some(i) = part.and_then(|p| p.parse::<i64>().ok()) else { continue };
+                        if i < -so_far || i > total {
+                            return Some((line_no + 1, line.trim(), e));
+                        }
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    None
+}
+
 /// Best-effort location (1-based line, its text) of a tobj error, which itself carries none:
 /// the first record of the kind the error names that fails the same check.
 fn locate_obj_error(text: &str, err: &tobj::LoadError) -> Option<(usize, String)> {
@@ -617,6 +663,26 @@ mod tests {
         let path = write_obj("binary", "");
         std::fs::write(&path, [0xffu8, 0xfe, 0x00, 0x9f, 0x80, 0x0a]).unwrap();
         assert!(Mesh::load_obj(&path).is_err());
+    }
+
+    #[test]
+    fn texture_and_normal_indices_that_name_no_record_are_errors_not_overflows() {
+        // Regression (fuzzing): tobj turned `-21` (counting back past the first of 3 texture
+        // coordinates) into a huge offset and overflowed multiplying it.
+        let head = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nvn 0 0 1\n";
+        for (face, what) in [
+            ("f 1/1 2/2 3/-21", "texcoord"),
+            ("f 1/-4 2/2 3/3", "texcoord"),
+            ("f 1/1 2/2 3/9223372036854775807", "texcoord"),
+            ("f 1//1 2//1 3//-2", "normal"),
+            ("f 1//1 2//1 3//6148914691236517205", "normal"),
+        ] {
+            let msg = load_err("index", &format!("{head}{face}\n"));
+            assert!(msg.contains(what) && msg.contains(&format!("line 8: `{face}`")), "{face}: {msg}");
+        }
+        // Counting back to the first record, and 0 (tobj's "no index"), still load.
+        let path = write_obj("index_ok", &format!("{head}f 1/-3/-1 2/-2/-1 3/-1/1\nf 1/0 2/0 3/0\n"));
+        assert_eq!(Mesh::load_obj(&path).unwrap().mesh.triangle_count(), 2);
     }
 
     #[test]
