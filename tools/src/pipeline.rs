@@ -7,11 +7,11 @@
 //! a plain record; stages never reach into each other.
 
 use crate::cache::{CacheKey, StageCache};
-use crate::staging::{fault_point, StagedDir};
 use crate::config::{Backend, CompressorSetting, Experiment};
 use crate::materials::{load_materials, SceneMaterials};
 use crate::metrics::*;
 use crate::plan::Plan;
+use crate::staging::{fault_point, StagedDir};
 use crate::util::progress_bar;
 use biscale_compressors::registry::{self, BuildError};
 use biscale_core::compress::{CompressContext, CompressedForm, Compressor};

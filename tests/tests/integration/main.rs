@@ -5,6 +5,7 @@
 //!   stage cache, and the wgpu backend checked against the CPU.
 //! * [`bad_input`]: every bad input is a typed error naming what and where, with nothing
 //!   half-written left behind.
+//! * [`fuzz_seeds`]: the fuzzing suite's committed seeds through its targets' bodies.
 //! * [`hostile`]: careless and hostile input that used to give wrong results silently (extreme
 //!   mesh scales, a camera that sees nothing, foreign cache files).
 //! * [`materials`]: BTF materials from the config (synthesis, the cache, several materials).
@@ -16,6 +17,7 @@
 
 mod bad_input;
 mod end_to_end;
+mod fuzz_seeds;
 mod hostile;
 mod low_frequency;
 mod materials;

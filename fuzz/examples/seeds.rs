@@ -1,0 +1,221 @@
+//! Writes the binary seeds of the fuzzing suite into `fuzz/seeds/` (the text seeds, configs,
+//! OBJ files and form-check scripts, are written by hand): small valid EXR and HDR env maps, a
+//! transfer matrix, a compressed form of each built-in compressor, dense and local-PCA BTFs,
+//! and hostile variants of each (a header claiming a huge image, lying lengths under a valid
+//! checksum, truncation). Deterministic, so re-running it leaves the committed files unchanged:
+//!
+//! ```sh
+//! cargo run --manifest-path fuzz/Cargo.toml --example seeds
+//! ```
+
+use biscale_compressors::registry;
+use biscale_core::artifact::{Artifact, Field};
+use biscale_core::basis::{LightBasis, LocalBasis};
+use biscale_core::compress::{ArrayData, CompressContext};
+use biscale_core::sampling::HemisphereGrid;
+use biscale_core::scene::{Btf, HdrImage, LpcaBtf, LpcaQuantize, LpcaSettings, LpcaUnit};
+use biscale_core::transfer::TransferMatrix;
+use biscale_shading::synth::{btf_artifact, BtfEncoding};
+use std::path::{Path, PathBuf};
+
+fn main() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("seeds");
+    envmaps(&root.join("envmap"));
+    let t = transfer(&root.join("transfer"));
+    forms(&root.join("form"), &t);
+    btfs(&root.join("btf"));
+}
+
+/// A small deterministic pseudo-random stream (seeds must not change from run to run).
+struct Lcg(u64);
+
+impl Lcg {
+    fn next(&mut self) -> f32 {
+        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (self.0 >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
+
+fn write(dir: &Path, name: &str, bytes: &[u8]) {
+    std::fs::create_dir_all(dir).expect("create the seed folder");
+    let path: PathBuf = dir.join(name);
+    std::fs::write(&path, bytes).expect("write a seed");
+    println!("{} ({} bytes)", path.display(), bytes.len());
+}
+
+/// `bytes` with its total length and CRC-32 made right again, so a lie inside passes the
+/// container's checks and reaches the reader behind them.
+fn reseal(mut bytes: Vec<u8>) -> Vec<u8> {
+    let total = bytes.len() as u64;
+    bytes[12..20].copy_from_slice(&total.to_le_bytes());
+    let n = bytes.len() - 4;
+    let crc = crc32fast::hash(&bytes[..n]);
+    bytes[n..].copy_from_slice(&crc.to_le_bytes());
+    bytes
+}
+
+/// Replace the first occurrence of `from` in `bytes` by `to` (same length).
+fn patch(bytes: &[u8], from: &[u8], to: &[u8]) -> Vec<u8> {
+    assert_eq!(from.len(), to.len());
+    let at = bytes.windows(from.len()).position(|w| w == from).expect("the pattern to patch");
+    let mut out = bytes.to_vec();
+    out[at..at + to.len()].copy_from_slice(to);
+    out
+}
+
+fn envmaps(dir: &Path) {
+    let mut rng = Lcg(1);
+    let mut img = HdrImage::new(8, 4);
+    for p in &mut img.pixels {
+        *p = [rng.next() * 4.0, rng.next(), rng.next() * 0.5];
+    }
+    let tmp = tempfile::tempdir().expect("a temporary folder");
+    let exr = tmp.path().join("a.exr");
+    img.write_exr(&exr).expect("write an EXR");
+    let bytes = std::fs::read(&exr).expect("read it back");
+    write(dir, "latlong_8x4.exr", &bytes);
+    // The data window claims 1,048,576 x 524,288 pixels (xMax, yMax = 1048575, 524287).
+    let window = |w: i32, h: i32| {
+        let mut b = b"dataWindow\0box2i\0\x10\0\0\0".to_vec();
+        for v in [0, 0, w - 1, h - 1] {
+            b.extend_from_slice(&v.to_le_bytes());
+        }
+        b
+    };
+    write(dir, "huge_data_window.exr", &patch(&bytes, &window(8, 4), &window(1 << 20, 1 << 19)));
+    write(dir, "truncated.exr", &bytes[..bytes.len() / 2]);
+    let mut bad = img.clone();
+    bad.pixels[5] = [f32::NAN, 1.0, f32::INFINITY];
+    bad.pixels[6] = [-2.0, 0.0, 1.0];
+    bad.write_exr(&exr).expect("write an EXR");
+    write(dir, "nan_inf_negative.exr", &std::fs::read(&exr).expect("read it back"));
+    HdrImage::new(4, 4).write_exr(&exr).expect("write an EXR");
+    write(dir, "square.exr", &std::fs::read(&exr).expect("read it back"));
+
+    // Radiance HDR: flat (uncompressed) scanlines of RGBE pixels.
+    let hdr = |w: usize, h: usize, header_size: &str, pixel: [u8; 4]| {
+        let mut b = format!("#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n{header_size}\n").into_bytes();
+        for _ in 0..w * h {
+            b.extend_from_slice(&pixel);
+        }
+        b
+    };
+    write(dir, "latlong_8x4.hdr", &hdr(8, 4, "-Y 4 +X 8", [128, 64, 32, 129]));
+    // The brightest value RGBE can hold (mantissa 255, exponent 127).
+    write(dir, "brightest.hdr", &hdr(8, 4, "-Y 4 +X 8", [255, 255, 255, 255]));
+    // A header claiming 10^5 x 2 10^5 pixels over 8 bytes of data.
+    write(dir, "huge_header.hdr", &hdr(2, 1, "-Y 100000 +X 200000", [1, 2, 3, 128]));
+}
+
+/// A transfer matrix of 3 vertices, 2x2 bins, cubemap 2 (12 x 24), values multiples of 1/4.
+fn transfer(dir: &Path) -> TransferMatrix {
+    let (local, light) = (LocalBasis::bins(2).expect("bins"), LightBasis::cubemap(2).expect("cubemap"));
+    let mut tri = sprs::TriMat::new((3 * local.len(), light.len()));
+    let mut rng = Lcg(2);
+    for r in 0..3 * local.len() {
+        for c in 0..light.len() {
+            if rng.next() < 0.3 {
+                tri.add_triplet(r, c, (1.0 + (rng.next() * 4.0).floor().min(3.0)) / 4.0);
+            }
+        }
+    }
+    let t = TransferMatrix::new(local, light, tri.to_csr()).expect("a valid matrix");
+    let good = t.to_artifact().expect("it fits").encode();
+    write(dir, "t_3x4x24.bsf", &good);
+    write(dir, "truncated.bsf", &good[..good.len() - 9]);
+    // The header's total length claims more than the file holds.
+    let mut long = good.clone();
+    long[12..20].copy_from_slice(&(1u64 << 40).to_le_bytes());
+    write(dir, "total_len_oversized.bsf", &long);
+    // Arrays that lie under a valid checksum.
+    let a = t.to_artifact().expect("it fits");
+    let with = |name: &str, data: ArrayData| {
+        let mut b = a.clone();
+        b.arrays.iter_mut().find(|x| x.name == name).expect("the array").data = data;
+        b.encode()
+    };
+    let ptr = a.arrays.iter().find(|x| x.name == "row_ptr").expect("row_ptr").data.clone();
+    if let ArrayData::U32(mut p) = ptr {
+        p.swap(3, 4);
+        p[4] += 1;
+        write(dir, "row_ptr_decreasing.bsf", &with("row_ptr", ArrayData::U32(p)));
+    }
+    write(dir, "vertices_huge.bsf", &a.clone().with("vertices", Field::U64(u64::MAX / 3)).encode());
+    // The first array's element count claims 2^61 elements.
+    let mut lie = good.clone();
+    let at = lie.windows(8).position(|w| w == b"row_ptr\x04").expect("row_ptr's header") + 8;
+    lie[at..at + 8].copy_from_slice(&(1u64 << 61).to_le_bytes());
+    write(dir, "array_len_lying.bsf", &reseal(lie));
+    t
+}
+
+fn forms(dir: &Path, t: &TransferMatrix) {
+    let ctx = CompressContext::default();
+    let settings = [
+        ("sparse", serde_json::json!({})),
+        ("bicluster", serde_json::json!({ "block_vertices": 2 })),
+        ("cpca", serde_json::json!({ "clusters": 2, "components": 1 })),
+        ("haar", serde_json::json!({ "terms": 4 })),
+    ];
+    for (kind, params) in settings {
+        let c = registry::build(kind, &params).expect("a built-in compressor");
+        let mut form = c.compress(t, &ctx).expect("it compresses");
+        form.build_seconds = 0.0; // a wall-clock time: the seeds must not change from run to run
+        let a = form.to_artifact();
+        write(dir, &format!("{kind}.bsf"), &a.encode());
+        // Every integer array of the form off by a lot, one at a time, under a valid checksum.
+        for (i, arr) in a.arrays.iter().enumerate() {
+            let bumped = match &arr.data {
+                ArrayData::U32(v) if !v.is_empty() => {
+                    ArrayData::U32(v.iter().map(|x| x.wrapping_add(1 << 20)).collect())
+                }
+                ArrayData::U16(v) if !v.is_empty() => ArrayData::U16(v.iter().map(|x| x.wrapping_add(999)).collect()),
+                _ => continue,
+            };
+            let mut b = a.clone();
+            b.arrays[i].data = bumped;
+            write(dir, &format!("{kind}_{}_out_of_range.bsf", arr.name), &b.encode());
+        }
+        for (key, _) in form.meta.iter().take(1) {
+            let b = a.clone().with(&format!("meta.{key}"), Field::U64(u64::MAX));
+            write(dir, &format!("{kind}_meta_{key}_max.bsf"), &b.encode());
+        }
+    }
+}
+
+fn btfs(dir: &Path) {
+    let local = LocalBasis::bins(2).expect("bins");
+    let phong = Btf::phong([0.3, 0.2, 0.1], [0.5, 0.6, 0.7], 20.0, local, 2).expect("a phong BTF");
+    for enc in [BtfEncoding::F32, BtfEncoding::F16, BtfEncoding::U8] {
+        let a = btf_artifact(&phong, enc).expect("it encodes");
+        write(dir, &format!("phong_{}.bsf", enc.name()), &a.encode());
+    }
+    // A 2x2-texel patch of varied values, for local PCA.
+    let mut rng = Lcg(3);
+    let grid = HemisphereGrid::new(2);
+    let data = (0..4 * grid.len() * local.len()).map(|_| [rng.next(), rng.next() * 0.5, rng.next() * 0.25]).collect();
+    let patch = Btf::new([2, 2], local, Some(grid), data, "patch").expect("a BTF");
+    let dense = btf_artifact(&patch, BtfEncoding::F32).expect("it encodes");
+    write(dir, "patch_2x2_f32.bsf", &dense.encode());
+    write(dir, "patch_width_0.bsf", &dense.clone().with("width", Field::U64(0)).encode());
+    write(dir, "patch_view_grid_huge.bsf", &dense.clone().with("view_grid", Field::U64(1 << 40)).encode());
+    write(dir, "patch_wrong_length.bsf", &dense.clone().with("width", Field::U64(3)).encode());
+    for (unit, q) in [(LpcaUnit::Texel, LpcaQuantize::F32), (LpcaUnit::View, LpcaQuantize::U8)] {
+        let s = LpcaSettings { unit, quantize: q, ..LpcaSettings::new(2, 1) };
+        let (lpca, _) = LpcaBtf::compress(&patch, &s, 7).expect("it compresses");
+        let a = lpca.to_artifact();
+        let unit_name = if unit == LpcaUnit::Texel { "texel" } else { "view" };
+        write(dir, &format!("lpca_{unit_name}_{}.bsf", q.name()), &a.encode());
+        if unit == LpcaUnit::Texel {
+            let b = a.clone().with("clusters", Field::U64(u64::MAX));
+            write(dir, "lpca_clusters_max.bsf", &b.encode());
+            let b = a.clone().with("components", Field::U64(1 << 40)).with("clusters", Field::U64(1 << 40));
+            write(dir, "lpca_components_huge.bsf", &b.encode());
+            let mut b: Artifact = a.clone();
+            if let Some(c) = b.arrays.iter_mut().find(|x| x.name == "cluster") {
+                c.data = ArrayData::U16(vec![2; c.data.len()]);
+            }
+            write(dir, "lpca_cluster_id_out_of_range.bsf", &b.encode());
+        }
+    }
+}

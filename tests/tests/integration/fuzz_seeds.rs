@@ -1,0 +1,118 @@
+//! The fuzzing suite's committed seeds under a plain `cargo test`: every file of
+//! `fuzz/seeds/<target>/` goes through the body of its fuzz target (`fuzz/src/lib.rs`,
+//! compiled here as a module, so the cargo-fuzz targets and this test run the same code). A
+//! body panics where its reader breaks a promise: a panic of its own, an accepted input that
+//! should have been refused, an error that does not name the file. The valid seeds must also
+//! still be valid (a format change that leaves them stale would quietly blunt the fuzzer: run
+//! `cargo run --manifest-path fuzz/Cargo.toml --example seeds` to write them again).
+
+#[path = "../../../fuzz/src/lib.rs"]
+mod bodies;
+
+use biscale::config::Experiment;
+use biscale_compressors::registry;
+use biscale_core::artifact::Artifact;
+use biscale_core::compress::CompressedForm;
+use biscale_core::geometry::Mesh;
+use biscale_core::sampling::EnvMap;
+use biscale_core::scene::LpcaBtf;
+use biscale_core::transfer::TransferMatrix;
+use biscale_tests::workspace_root;
+use std::path::{Path, PathBuf};
+
+fn seeds(target: &str) -> Vec<PathBuf> {
+    let dir = workspace_root().join("fuzz/seeds").join(target);
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .map(|e| e.unwrap().path())
+        .collect();
+    files.sort();
+    files
+}
+
+fn seed(target: &str, name: &str) -> (PathBuf, Vec<u8>) {
+    let path = workspace_root().join("fuzz/seeds").join(target).join(name);
+    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    (path, bytes)
+}
+
+#[test]
+fn every_seed_runs_through_its_fuzz_target() {
+    let mut failed = vec![];
+    for (target, body) in bodies::TARGETS {
+        let files = seeds(target);
+        assert!(files.len() >= 4, "fuzz/seeds/{target} holds {} seeds, expected a few", files.len());
+        for file in files {
+            let data = std::fs::read(&file).unwrap();
+            if std::panic::catch_unwind(|| body(&data)).is_err() {
+                failed.push(file.display().to_string());
+            }
+        }
+    }
+    assert!(failed.is_empty(), "seeds that fail their fuzz target (messages above): {failed:?}");
+}
+
+/// The valid seeds are read as valid, so the fuzzer starts from inputs that reach past the
+/// readers' first checks.
+#[test]
+fn the_valid_seeds_still_load() {
+    let configs = workspace_root().join("configs");
+    for name in ["smoke.toml", "temple_lpca.toml", "compare.toml", "low_vs_all_bunny.toml"] {
+        let (_, text) = seed("config", name);
+        Experiment::parse(&configs.join(name), String::from_utf8(text).unwrap()).unwrap();
+    }
+    for name in ["tetrahedron.obj", "quads_objects_uvs.obj", "nonconvex_polygons.obj", "star_64.obj"] {
+        let (path, bytes) = seed("obj", name);
+        Mesh::parse_obj(&bytes, &path).unwrap();
+    }
+    for name in ["latlong_8x4.exr", "latlong_8x4.hdr"] {
+        let (env, _) = EnvMap::load(&seed("envmap", name).0).unwrap();
+        assert_eq!((env.width, env.height), (8, 4), "{name}");
+    }
+    let artifact = |target: &str, name: &str| {
+        let (path, bytes) = seed(target, name);
+        Artifact::decode(&bytes, &path).unwrap()
+    };
+    let t = TransferMatrix::from_artifact(artifact("transfer", "t_3x4x24.bsf")).unwrap();
+    assert_eq!((t.rows(), t.cols()), (12, 24));
+    for kind in ["sparse", "bicluster", "cpca", "haar"] {
+        let form = CompressedForm::from_artifact(artifact("form", &format!("{kind}.bsf"))).unwrap();
+        let c = registry::build(kind, &serde_json::json!({})).unwrap();
+        c.kernels(&form).unwrap().check_form(&form).unwrap();
+    }
+    for name in ["phong_f32.bsf", "phong_f16.bsf", "phong_u8.bsf", "patch_2x2_f32.bsf"] {
+        biscale_shading::synth::btf_from_artifact(artifact("btf", name)).unwrap();
+    }
+    for name in ["lpca_texel_f32.bsf", "lpca_view_u8.bsf"] {
+        LpcaBtf::from_artifact(artifact("btf", name)).unwrap();
+    }
+}
+
+/// The hostile seeds the suite was asked for are refused, each for its own reason.
+#[test]
+fn the_hostile_seeds_are_refused_for_what_they_are() {
+    let (path, _) = seed("envmap", "huge_data_window.exr");
+    let e = EnvMap::load(&path).unwrap_err().to_string();
+    assert!(e.contains("1048576 x 524288") && e.contains("over the limit"), "{e}");
+    let (path, bytes) = seed("obj", "nan_inf_vertex.obj");
+    let e = Mesh::parse_obj(&bytes, &path).unwrap_err().to_string();
+    assert!(e.contains("OBJ vertex 4 (line 4)") && e.contains("non-finite"), "{e}");
+    let (path, text) = seed("config", "nan_inf.toml");
+    let e = Experiment::parse(&path, String::from_utf8(text).unwrap()).unwrap_err().to_string();
+    assert!(e.contains(":6:") && e.contains("nan"), "{e}");
+    for (name, needle) in [
+        ("truncated.bsf", "truncated"),
+        ("total_len_oversized.bsf", "truncated"),
+        ("array_len_lying.bsf", "the arrays declare"),
+        ("row_ptr_decreasing.bsf", "CSR"),
+        ("vertices_huge.bsf", "2^32 rows"),
+    ] {
+        let (path, bytes) = seed("transfer", name);
+        let e = Artifact::decode(&bytes, &path).and_then(TransferMatrix::from_artifact).unwrap_err().to_string();
+        assert!(e.contains(needle) && e.contains(name), "{name}: {e}");
+    }
+    let (path, bytes) = seed("form", "sparse_col_idx_out_of_range.bsf");
+    let form = CompressedForm::from_artifact(Artifact::decode(&bytes, Path::new(&path)).unwrap()).unwrap();
+    let e = registry::build("sparse", &serde_json::json!({})).unwrap().kernels(&form).unwrap().check_form(&form);
+    assert!(e.unwrap_err().to_string().contains("'col_idx' element 0"));
+}
