@@ -219,12 +219,13 @@ pub fn transfer_key(mesh: &Mesh, s: &TransferSettings) -> CacheKey {
     h.write_str(&s.light_basis().tag())
         .write(&s.visibility_resolution().to_le_bytes())
         .write_str(&s.local_basis().tag());
-    hash_mesh(&mut h, mesh);
+    let mesh_hash = mesh_hash(mesh);
+    h.write(&mesh_hash.to_le_bytes());
     CacheKey::new(
         h.finish128(),
         format!(
             "T of {}, light {}, local {}, visibility {}",
-            describe_mesh(mesh),
+            describe_mesh(mesh, mesh_hash),
             s.light_basis(),
             s.local_basis(),
             s.visibility_resolution()
@@ -239,12 +240,13 @@ pub fn sh_transfer_key(mesh: &Mesh, s: &ShTransferSettings, bounces: u32, bounce
     h.write(&SH_TRANSFER_VERSION.to_le_bytes()).write(&biscale_core::artifact::CONTAINER_VERSION.to_le_bytes());
     h.write(&s.order().n().to_le_bytes()).write(&s.rays().to_le_bytes()).write(&s.seed().to_le_bytes());
     h.write(&bounces.to_le_bytes()).write(&bounce_key.to_le_bytes());
-    hash_mesh(&mut h, mesh);
+    let mesh_hash = mesh_hash(mesh);
+    h.write(&mesh_hash.to_le_bytes());
     CacheKey::new(
         h.finish128(),
         format!(
             "SH transfer of {}, order {}, {} rays, seed {}, {bounces} bounce(s) (albedos {bounce_key:032x})",
-            describe_mesh(mesh),
+            describe_mesh(mesh, mesh_hash),
             s.order().n(),
             s.rays(),
             s.seed()
@@ -252,19 +254,18 @@ pub fn sh_transfer_key(mesh: &Mesh, s: &ShTransferSettings, bounces: u32, bounce
     )
 }
 
-/// A mesh in a key's account: its vertex and triangle counts and its own content hash.
-fn describe_mesh(mesh: &Mesh) -> String {
-    let mut h = ContentHash::default();
-    hash_mesh(&mut h, mesh);
+/// A mesh in a key's account: its vertex and triangle counts and its content hash.
+fn describe_mesh(mesh: &Mesh, mesh_hash: u128) -> String {
     format!(
-        "the mesh of {} vertices and {} triangles (mesh hash {:032x})",
+        "the mesh of {} vertices and {} triangles (mesh hash {mesh_hash:032x})",
         mesh.vertex_count(),
-        mesh.triangle_count(),
-        h.finish128()
+        mesh.triangle_count()
     )
 }
 
-fn hash_mesh(h: &mut ContentHash, mesh: &Mesh) {
+/// The content hash of a mesh (positions, triangles, UVs), hashed once into every key of it.
+fn mesh_hash(mesh: &Mesh) -> u128 {
+    let mut h = ContentHash::default();
     h.write(&(mesh.positions.len() as u64).to_le_bytes());
     for p in &mesh.positions {
         for c in p.to_array() {
@@ -284,6 +285,7 @@ fn hash_mesh(h: &mut ContentHash, mesh: &Mesh) {
             }
         }
     }
+    h.finish128()
 }
 
 /// The key of one setting's compressed form of the `T` keyed `transfer` (see the module
