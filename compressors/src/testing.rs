@@ -107,3 +107,26 @@ pub fn quantized_stored_product(form: &CompressedForm, light: &LightVector) -> V
         })
         .collect()
 }
+
+/// Assert that `compressor` builds, from the parts of `t` cut at the vertex boundaries
+/// `cuts` (increasing, inside `0..vertices`), forms that merge into exactly the form of the
+/// whole: the same arrays, meta, flops and lossless flag (build time aside), and that the
+/// vertex ranges reproduce `T` when stacked. Returns the merged form.
+pub fn assert_parts_merge_to_whole(compressor: &dyn Compressor, t: &TransferMatrix, cuts: &[usize]) -> CompressedForm {
+    use biscale_core::compress::CompressContext;
+    let ctx = CompressContext { seed: 7, progress: None };
+    let whole = compressor.compress(t, &ctx).expect("compress the whole");
+    let bounds: Vec<usize> = std::iter::once(0).chain(cuts.iter().copied()).chain([t.vertices()]).collect();
+    let ranges: Vec<_> = bounds.windows(2).map(|w| w[0]..w[1]).collect();
+    let rows: Vec<TransferMatrix> = ranges.iter().map(|r| t.vertex_rows(r.clone()).expect("a range")).collect();
+    assert_eq!(&TransferMatrix::stack(rows.clone()).expect("stack"), t, "stacked ranges are T");
+    let parts = ranges
+        .iter()
+        .zip(&rows)
+        .map(|(r, part)| compressor.compress_part(part, r.start, &ctx).expect("compress a part"))
+        .collect();
+    let mut merged = compressor.merge_parts(t.shape(), parts).expect("merge");
+    merged.build_seconds = whole.build_seconds;
+    assert_eq!(merged, whole, "{} cut at {cuts:?}", compressor.kind());
+    merged
+}

@@ -318,4 +318,118 @@ pub trait Compressor: Send + Sync {
     fn code_identity(&self) -> Option<u64> {
         None
     }
+    /// Whether a form of `T` can be built from forms of its vertex ranges (a sharded
+    /// precompute: [`Self::compress_part`] per shard, [`Self::merge_parts`] at the end).
+    /// Whole by default: a compressor says it separates only when its merge reproduces
+    /// [`Self::compress`] of the whole matrix exactly.
+    fn separability(&self, _shape: TransferShape) -> Separability {
+        Separability::Whole { why: "this compressor does not declare its work separable over vertices".into() }
+    }
+    /// The form of the rows of one vertex range of the whole `T`: `t` holds those rows alone,
+    /// and `first_vertex` is the range's first vertex in the whole matrix (a multiple of
+    /// [`Separability::Rows`]' `vertex_multiple`). Separable compressors override it; the
+    /// default compresses a range that is the whole matrix and refuses any other.
+    fn compress_part(
+        &self,
+        t: &TransferMatrix,
+        first_vertex: usize,
+        ctx: &CompressContext<'_>,
+    ) -> Result<CompressedForm, CompressError> {
+        match first_vertex {
+            0 => self.compress(t, ctx),
+            _ => Err(CompressError::Params(format!("{} does not compress vertex ranges separately", self.kind()))),
+        }
+    }
+    /// The form of the whole matrix (of `shape`) from the forms of its consecutive vertex
+    /// ranges, in order: equal, array for array, to [`Self::compress`] of the whole.
+    fn merge_parts(&self, shape: TransferShape, parts: Vec<CompressedForm>) -> Result<CompressedForm, CompressError> {
+        match <[CompressedForm; 1]>::try_from(parts) {
+            Ok([only]) if only.shape() == shape => Ok(only),
+            _ => Err(CompressError::Params(format!("{} does not merge forms of vertex ranges", self.kind()))),
+        }
+    }
+}
+
+/// How a compressor's work splits over the vertices of `T` (see
+/// [`Compressor::separability`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Separability {
+    /// Forms of consecutive vertex ranges merge into the form of the whole, when every range
+    /// but the last holds a multiple of `vertex_multiple` vertices (biclustering's blocks;
+    /// 1 for per-row compressors).
+    Rows { vertex_multiple: usize },
+    /// The form needs all of `T` at once; `why` says what is global about it.
+    Whole { why: String },
+}
+
+/// Join forms of consecutive row ranges of one matrix (of `shape`) by concatenating every
+/// array, in the parts' order. Arrays named in `pointers` are offset arrays (entry `r` of a
+/// part's own range starts at `ptr[r]`, `ptr[0] = 0`, one more entry than its count): the
+/// merged array keeps one leading 0 and shifts each part's offsets by the total of the parts
+/// before it. Stats: lossless when every part is, flops and build seconds summed (the caller
+/// corrects flops that count a per-gather cost once), meta taken from the first part (the
+/// caller sets the values that are sums).
+pub fn concat_parts(
+    kind: &str,
+    shape: TransferShape,
+    parts: &[CompressedForm],
+    pointers: &[&str],
+) -> Result<CompressedForm, CompressError> {
+    let bad = |array: &str, what: String| CompressError::malformed(kind, array, what);
+    let first = parts.first().ok_or_else(|| bad("parts", "none to merge".into()))?;
+    let vertices: usize = parts.iter().map(|p| p.vertices()).sum();
+    if vertices != shape.vertices {
+        return Err(bad("parts", format!("hold {vertices} vertices, the matrix has {}", shape.vertices)));
+    }
+    let mut out = CompressedForm::new(kind, shape);
+    out.meta = first.meta.clone();
+    out.lossless = true;
+    for (i, p) in parts.iter().enumerate() {
+        if p.kind != kind || p.local_basis() != shape.local || p.light_basis() != shape.light {
+            return Err(bad("parts", format!("part {i} is a {} form of {}, not {kind} of {shape}", p.kind, p.shape())));
+        }
+        let names = |f: &CompressedForm| f.arrays.iter().map(|a| a.name.clone()).collect::<Vec<_>>();
+        if names(p) != names(first) {
+            return Err(bad("parts", format!("part {i} has arrays {:?}, part 0 {:?}", names(p), names(first))));
+        }
+        out.lossless &= p.lossless;
+        out.flops_per_gather += p.flops_per_gather;
+        out.build_seconds += p.build_seconds;
+    }
+    for (a, template) in first.arrays.iter().enumerate() {
+        let name = template.name.as_str();
+        let merged = if pointers.contains(&name) {
+            let mut ptr = vec![0u32];
+            for (i, p) in parts.iter().enumerate() {
+                let ArrayData::U32(part) = &p.arrays[a].data else {
+                    return Err(bad(name, format!("of part {i} is not u32 offsets")));
+                };
+                if part.first() != Some(&0) {
+                    return Err(bad(name, format!("of part {i} does not start at 0")));
+                }
+                let base = *ptr.last().expect("starts with 0");
+                for &x in &part[1..] {
+                    ptr.push(
+                        base.checked_add(x).ok_or_else(|| {
+                            CompressError::TooLarge(format!("{kind}: merged '{name}' offsets pass u32"))
+                        })?,
+                    );
+                }
+            }
+            ArrayData::U32(ptr)
+        } else {
+            let mut data = template.data.clone();
+            for (i, p) in parts.iter().enumerate().skip(1) {
+                if !data.append(&p.arrays[a].data) {
+                    return Err(bad(
+                        name,
+                        format!("of part {i} is {}, part 0's {}", p.arrays[a].data.element_type(), data.element_type()),
+                    ));
+                }
+            }
+            data
+        };
+        out.arrays.push(NamedArray { name: name.to_string(), data: merged });
+    }
+    Ok(out)
 }

@@ -48,6 +48,21 @@ impl ArrayData {
         }
     }
 
+    /// Append `other`'s elements (a shard's part of the same array): `false`, and nothing
+    /// appended, when the element types differ.
+    pub fn append(&mut self, other: &ArrayData) -> bool {
+        match (self, other) {
+            (ArrayData::U8(a), ArrayData::U8(b)) => a.extend_from_slice(b),
+            (ArrayData::I8(a), ArrayData::I8(b)) => a.extend_from_slice(b),
+            (ArrayData::U16(a), ArrayData::U16(b)) => a.extend_from_slice(b),
+            (ArrayData::I16(a), ArrayData::I16(b)) => a.extend_from_slice(b),
+            (ArrayData::U32(a), ArrayData::U32(b)) => a.extend_from_slice(b),
+            (ArrayData::F32(a), ArrayData::F32(b)) => a.extend_from_slice(b),
+            _ => return false,
+        }
+        true
+    }
+
     /// Stored size in bytes.
     pub fn bytes(&self) -> u64 {
         (self.len() * self.element_bytes()) as u64

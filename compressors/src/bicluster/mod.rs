@@ -56,7 +56,10 @@ pub use analysis::{achieved_error, table_stats, AchievedError, BiclusterStats, D
 pub use params::Bicluster;
 
 use crate::registry::{self, Kind};
-use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor};
+use biscale_core::basis::TransferShape;
+use biscale_core::compress::{
+    concat_parts, ArrayData, CompressContext, CompressError, CompressedForm, Compressor, Separability,
+};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::sampling::LightVector;
 use biscale_core::transfer::TransferMatrix;
@@ -303,52 +306,67 @@ impl Compressor for Bicluster {
     }
 
     fn compress(&self, t: &TransferMatrix, ctx: &CompressContext<'_>) -> Result<CompressedForm, CompressError> {
-        let start = Instant::now();
-        let codes = codes::quantize(t, self.value_scale)?;
-        let (rows, cols) = (codes.rows, codes.cols);
-        if rows > u32::MAX as usize || codes.nnz() > u32::MAX as usize / 2 {
-            return Err(CompressError::TooLarge(format!("bicluster: {rows} rows / {} non-zeros", codes.nnz())));
+        self.compress_blocks(t, 0, ctx)
+    }
+
+    /// Blocks are independent and each one's random stream is keyed by its index in the whole
+    /// matrix, so blocks of consecutive vertex ranges are the blocks of the whole.
+    fn separability(&self, _shape: TransferShape) -> Separability {
+        match self.block_vertices {
+            0 => Separability::Whole {
+                why: "block_vertices = 0 biclusters all rows as one block (set block_vertices to shard it)".into(),
+            },
+            b => Separability::Rows { vertex_multiple: b },
         }
-        let block_rows =
-            if self.block_vertices == 0 { rows.max(1) } else { self.block_vertices * t.local_dirs().max(1) };
-        let nblocks = if rows == 0 { 0 } else { rows.div_ceil(block_rows) };
-        let max_code = codes.codes.iter().map(|&c| (c as i32).abs()).max().unwrap_or(1);
-        let done = AtomicUsize::new(0);
-        let blocks: Vec<(Vec<greedy::Bc>, prune::Pruned)> = (0..nblocks)
-            .into_par_iter()
-            .with_max_len(1)
-            .map_init(
-                || greedy::Workspace::new(cols, max_code),
-                |ws, b| {
-                    let range = b * block_rows..((b + 1) * block_rows).min(rows);
-                    let out = greedy::bicluster_block(&codes, range.clone(), ctx.seed, b as u64, ws);
-                    let energy2: u64 = codes.codes[codes.indptr[range.start]..codes.indptr[range.end]]
-                        .iter()
-                        .map(|&c| (c as i64 * c as i64) as u64)
-                        .sum();
-                    let (mut out, pruned) = prune::prune(out, range.len(), energy2, self.error_budget);
-                    // Number the block's biclusters by their first row (stable, so ties keep
-                    // the greedy order): pass 2 of the gather walks rows in order, and a
-                    // bicluster's scalar then sits near those of the other biclusters that
-                    // start nearby, instead of wherever the random greedy emitted it.
-                    out.sort_by_key(|bc| bc.rows.iter().min().copied());
-                    let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-                    ctx.report(d as f64 / nblocks as f64);
-                    (out, pruned)
-                },
-            )
-            .collect();
-        let (blocks, pruned): (Vec<_>, Vec<_>) = blocks.into_iter().unzip();
-        let mut form = assemble(t, &codes, block_rows, &blocks)?;
-        let error2: u64 = pruned.iter().map(|p| p.error2).sum();
-        form.lossless = error2 == 0;
-        if self.error_budget > 0.0 {
-            let energy2: u64 = pruned.iter().map(|p| p.energy2).sum();
-            form.meta.insert("dropped_biclusters".into(), pruned.iter().map(|p| p.dropped as u64).sum());
-            form.meta.insert("error2_codes".into(), error2);
-            form.meta.insert("energy2_codes".into(), energy2);
+    }
+
+    fn compress_part(
+        &self,
+        t: &TransferMatrix,
+        first_vertex: usize,
+        ctx: &CompressContext<'_>,
+    ) -> Result<CompressedForm, CompressError> {
+        match self.block_vertices {
+            b if b > 0 && first_vertex.is_multiple_of(b) => self.compress_blocks(t, first_vertex / b, ctx),
+            0 if first_vertex == 0 => self.compress(t, ctx),
+            b => Err(CompressError::Params(format!(
+                "bicluster: a vertex range starting at vertex {first_vertex} does not start a block of {b} vertices"
+            ))),
         }
-        form.build_seconds = start.elapsed().as_secs_f64();
+    }
+
+    /// Blocks, biclusters and rows are concatenated in order; the pointer arrays are shifted.
+    /// Block-local ids stay as they are when every part kept them (then the whole would
+    /// have: its blocks are the parts' blocks); otherwise every id becomes global, as
+    /// [`assemble`] would have made them.
+    fn merge_parts(&self, shape: TransferShape, parts: Vec<CompressedForm>) -> Result<CompressedForm, CompressError> {
+        let mut parts = parts;
+        let local = parts.iter().map(|p| p.meta("row_bc_local")).collect::<Result<Vec<_>, _>>()?;
+        if local.iter().any(|&l| l != 1) {
+            let mut offset = 0u64;
+            for p in &mut parts {
+                let biclusters = p.meta("biclusters")?;
+                if offset + biclusters >= u32::MAX as u64 {
+                    return Err(CompressError::TooLarge(format!("bicluster: {} biclusters", offset + biclusters)));
+                }
+                with_global_ids(p, offset as u32)?;
+                offset += biclusters;
+            }
+        }
+        let mut form = concat_parts(KIND.name, shape, &parts, &["bc_col_ptr", "row_ptr", "block_bc_base"])?;
+        for key in ["blocks", "biclusters", "dropped_biclusters", "error2_codes", "energy2_codes"] {
+            if form.meta.contains_key(key) {
+                let sum = parts.iter().map(|p| p.meta(key)).sum::<Result<u64, _>>()?;
+                form.meta.insert(key.into(), sum);
+            }
+        }
+        for key in ["value_scale", "block_rows"] {
+            if parts.iter().any(|p| p.meta.get(key) != form.meta.get(key)) {
+                return Err(CompressError::malformed(KIND.name, key, "differs between the parts"));
+            }
+        }
+        // Each part's flops count the light's prescale (N multiplies) once; the whole does too.
+        form.flops_per_gather -= (parts.len() as u64 - 1) * shape.cols() as u64;
         Ok(form)
     }
 
@@ -419,6 +437,83 @@ impl Compressor for Bicluster {
             .map_err(|what: String| CompressError::malformed("bicluster", "row_bc", what))?;
         form.lstar(values)
     }
+}
+
+impl Bicluster {
+    /// [`Compressor::compress`] of `t` as the rows of blocks `first_block..` of a larger
+    /// matrix: block `b` of `t` draws the random stream of block `first_block + b`.
+    fn compress_blocks(
+        &self,
+        t: &TransferMatrix,
+        first_block: usize,
+        ctx: &CompressContext<'_>,
+    ) -> Result<CompressedForm, CompressError> {
+        let start = Instant::now();
+        let codes = codes::quantize(t, self.value_scale)?;
+        let (rows, cols) = (codes.rows, codes.cols);
+        if rows > u32::MAX as usize || codes.nnz() > u32::MAX as usize / 2 {
+            return Err(CompressError::TooLarge(format!("bicluster: {rows} rows / {} non-zeros", codes.nnz())));
+        }
+        let block_rows =
+            if self.block_vertices == 0 { rows.max(1) } else { self.block_vertices * t.local_dirs().max(1) };
+        let nblocks = if rows == 0 { 0 } else { rows.div_ceil(block_rows) };
+        let max_code = codes.codes.iter().map(|&c| (c as i32).abs()).max().unwrap_or(1);
+        let done = AtomicUsize::new(0);
+        let blocks: Vec<(Vec<greedy::Bc>, prune::Pruned)> = (0..nblocks)
+            .into_par_iter()
+            .with_max_len(1)
+            .map_init(
+                || greedy::Workspace::new(cols, max_code),
+                |ws, b| {
+                    let range = b * block_rows..((b + 1) * block_rows).min(rows);
+                    let out = greedy::bicluster_block(&codes, range.clone(), ctx.seed, (first_block + b) as u64, ws);
+                    let energy2: u64 = codes.codes[codes.indptr[range.start]..codes.indptr[range.end]]
+                        .iter()
+                        .map(|&c| (c as i64 * c as i64) as u64)
+                        .sum();
+                    let (mut out, pruned) = prune::prune(out, range.len(), energy2, self.error_budget);
+                    // Number the block's biclusters by their first row (stable, so ties keep
+                    // the greedy order): pass 2 of the gather walks rows in order, and a
+                    // bicluster's scalar then sits near those of the other biclusters that
+                    // start nearby, instead of wherever the random greedy emitted it.
+                    out.sort_by_key(|bc| bc.rows.iter().min().copied());
+                    let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+                    ctx.report(d as f64 / nblocks as f64);
+                    (out, pruned)
+                },
+            )
+            .collect();
+        let (blocks, pruned): (Vec<_>, Vec<_>) = blocks.into_iter().unzip();
+        let mut form = assemble(t, &codes, block_rows, &blocks)?;
+        let error2: u64 = pruned.iter().map(|p| p.error2).sum();
+        form.lossless = error2 == 0;
+        if self.error_budget > 0.0 {
+            let energy2: u64 = pruned.iter().map(|p| p.energy2).sum();
+            form.meta.insert("dropped_biclusters".into(), pruned.iter().map(|p| p.dropped as u64).sum());
+            form.meta.insert("error2_codes".into(), error2);
+            form.meta.insert("energy2_codes".into(), energy2);
+        }
+        form.build_seconds = start.elapsed().as_secs_f64();
+        Ok(form)
+    }
+}
+
+/// Store `form`'s row lists as global bicluster ids plus `offset` (u32, `row_bc_local` = 0):
+/// what [`assemble`] writes when a block has more biclusters than u16 ids, and what a part
+/// of a larger matrix needs when another part had to.
+pub fn with_global_ids(form: &mut CompressedForm, offset: u32) -> Result<(), CompressError> {
+    let global: Vec<u32> = {
+        let v = BiclusterView::new(form)?;
+        let mut ids = Vec::with_capacity(v.row_bc.len());
+        for i in 0..v.rows {
+            ids.extend(v.row_biclusters(i).map(|b| b as u32 + offset));
+        }
+        ids
+    };
+    let a = form.arrays.iter_mut().find(|a| a.name == "row_bc").expect("BiclusterView checked it");
+    a.data = ArrayData::U32(global);
+    form.meta.insert("row_bc_local".into(), 0);
+    Ok(())
 }
 
 /// Biclusters per rayon task in pass 1 of the gather.

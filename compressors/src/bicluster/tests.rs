@@ -313,21 +313,6 @@ fn real_mesh_transfer_is_lossless() {
     }
 }
 
-/// The same form with global `u32` bicluster ids (`row_bc_local` = 0), the layout used when a
-/// block has more than 65,536 biclusters.
-fn with_global_ids(form: &CompressedForm) -> CompressedForm {
-    let v = BiclusterView::new(form).unwrap();
-    let ids: Vec<u32> = (0..v.rows).flat_map(|i| v.row_biclusters(i).map(|b| b as u32).collect::<Vec<_>>()).collect();
-    let mut g = form.clone();
-    for a in &mut g.arrays {
-        if a.name == "row_bc" {
-            a.data = ArrayData::U32(ids.clone());
-        }
-    }
-    g.meta.insert("row_bc_local".into(), 0);
-    g
-}
-
 /// The unfused gather: full validation, then the view's plain accessors, with the kernel's
 /// inner sums ([`bicluster_sum`], [`row_sum`]), so results must agree bit for bit. What this
 /// pins is the fused bounds checking; the arithmetic itself is checked against the f64
@@ -361,7 +346,8 @@ fn corrupt_forms_fail_exactly_when_full_validation_fails() {
     let c = Bicluster { block_vertices: 4, ..Bicluster::default() };
     let local = c.compress(&t, &CompressContext::default()).unwrap();
     assert!(local.meta["blocks"] > 1, "several blocks, so a row can name another block's bicluster");
-    let global = with_global_ids(&local);
+    let mut global = local.clone();
+    with_global_ids(&mut global, 0).unwrap();
     assert_eq!(Bicluster::default().gather(&global, &light).unwrap().values(), gather_via_view(&local, &light));
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     let (mut rejected, mut accepted) = (0, 0);
@@ -612,4 +598,43 @@ fn error_budget_outside_zero_to_one_is_refused_by_name() {
     }
     let label = (KIND.label)(&serde_json::json!({ "error_budget": 0.05 })).unwrap();
     assert_eq!(label, "bicluster-e0.05");
+}
+
+#[test]
+fn forms_of_block_aligned_ranges_merge_into_the_whole_form() {
+    let t = random_transfer(29, 2, 4, 0.4, 13);
+    let light = random_light(4, 3);
+    for c in [
+        Bicluster { block_vertices: 4, ..Bicluster::default() },
+        Bicluster { block_vertices: 3, error_budget: 0.2, ..Bicluster::default() },
+    ] {
+        let b = c.block_vertices;
+        assert_eq!(c.separability(t.shape()), Separability::Rows { vertex_multiple: b });
+        for cuts in [vec![], vec![b], vec![b, 3 * b, 5 * b], vec![7 * b]] {
+            let merged = crate::testing::assert_parts_merge_to_whole(&c, &t, &cuts);
+            assert!(merged.lossless || c.error_budget > 0.0);
+        }
+        // A range that does not start a block is refused, not silently re-seeded.
+        let part = t.vertex_rows(b + 1..t.vertices()).unwrap();
+        let e = c.compress_part(&part, b + 1, &CompressContext::default()).unwrap_err().to_string();
+        assert!(e.contains("does not start a block"), "{e}");
+    }
+    assert!(matches!(Bicluster::global().separability(t.shape()), Separability::Whole { .. }));
+
+    // A part whose blocks needed global ids (more than 2^16 biclusters in a block) turns every
+    // id global in the merge; the merged form is the whole form with global ids, and its
+    // gather is T L.
+    let c = Bicluster { block_vertices: 4, ..Bicluster::default() };
+    let ctx = CompressContext { seed: 7, progress: None };
+    let (a, b) = (t.vertex_rows(0..12).unwrap(), t.vertex_rows(12..29).unwrap());
+    let pa = c.compress_part(&a, 0, &ctx).unwrap();
+    let mut pb = c.compress_part(&b, 12, &ctx).unwrap();
+    with_global_ids(&mut pb, 0).unwrap();
+    let mut merged = c.merge_parts(t.shape(), vec![pa, pb]).unwrap();
+    let mut whole = c.compress(&t, &ctx).unwrap();
+    with_global_ids(&mut whole, 0).unwrap();
+    merged.build_seconds = whole.build_seconds;
+    assert_eq!(merged, whole);
+    assert_eq!(merged.meta("row_bc_local").unwrap(), 0);
+    crate::testing::assert_lossless(&c, &merged, &t, &light);
 }

@@ -203,6 +203,14 @@ impl Compressor for Cpca {
         Ok(form)
     }
 
+    /// The clusters' k-means and their bases see every unit of `T` at once.
+    fn separability(&self, _shape: biscale_core::basis::TransferShape) -> biscale_core::compress::Separability {
+        biscale_core::compress::Separability::Whole {
+            why: "k-means clusters the units of every vertex together, and each cluster's basis is fit to all its members"
+                .into(),
+        }
+    }
+
     fn gather(&self, form: &CompressedForm, light: &LightVector) -> Result<LocalRadiance, CompressError> {
         form.check_light(light)?;
         let (k, c, n) = (form.meta("clusters")? as usize, form.meta("components")? as usize, form.cols());

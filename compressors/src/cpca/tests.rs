@@ -6,6 +6,7 @@ use super::*;
 use crate::cpca::CpcaUnit;
 use crate::testing::{random_light, random_transfer};
 use biscale_core::basis::{LightBasis, LocalBasis};
+use biscale_core::compress::Separability;
 use biscale_core::gather::{reference_product, relative_l2_error};
 use biscale_core::sampling::Cubemap;
 use rand::{Rng, SeedableRng};
@@ -459,4 +460,15 @@ fn vertex_units_cluster_whole_blocks() {
     let big = random_transfer(2, 8, 32, 0.01, 1);
     let e = vertex(64, 8).compress(&big, &ctx).unwrap_err();
     assert!(matches!(&e, CompressError::TooLarge(m) if m.contains("GiB")), "{e}");
+}
+
+#[test]
+fn cpca_declares_itself_whole_and_refuses_parts() {
+    let t = random_transfer(8, 2, 4, 0.3, 14);
+    let c = Cpca::default();
+    let Separability::Whole { why } = c.separability(t.shape()) else { panic!("cpca is not separable") };
+    assert!(why.contains("k-means"), "{why}");
+    let part = t.vertex_rows(4..8).unwrap();
+    assert!(c.compress_part(&part, 4, &CompressContext::default()).is_err());
+    assert!(c.merge_parts(t.shape(), vec![]).is_err());
 }

@@ -61,7 +61,10 @@ mod params;
 pub use params::Haar;
 
 use crate::registry::{self, Kind};
-use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor, NamedArray};
+use biscale_core::basis::TransferShape;
+use biscale_core::compress::{
+    concat_parts, ArrayData, CompressContext, CompressError, CompressedForm, Compressor, NamedArray, Separability,
+};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::sampling::{Cubemap, LightVector};
 use biscale_core::transfer::TransferMatrix;
@@ -463,6 +466,31 @@ impl Compressor for Haar {
         form.lossless = !self.f16_values && !truncated.into_inner();
         form.flops_per_gather = light_transform_flops(r) + 2 * total as u64;
         form.build_seconds = start.elapsed().as_secs_f64();
+        Ok(form)
+    }
+
+    /// Each row is transformed and truncated alone: any vertex range is a part.
+    fn separability(&self, _shape: TransferShape) -> Separability {
+        Separability::Rows { vertex_multiple: 1 }
+    }
+
+    fn compress_part(
+        &self,
+        t: &TransferMatrix,
+        _first: usize,
+        ctx: &CompressContext<'_>,
+    ) -> Result<CompressedForm, CompressError> {
+        self.compress(t, ctx)
+    }
+
+    /// Each part's flops count the light's transform once; the whole does too.
+    fn merge_parts(&self, shape: TransferShape, parts: Vec<CompressedForm>) -> Result<CompressedForm, CompressError> {
+        let mut form = concat_parts(KIND.name, shape, &parts, &["row_ptr"])?;
+        if parts.iter().any(|p| p.meta != form.meta) {
+            return Err(CompressError::malformed(KIND.name, "terms", "differs between the parts"));
+        }
+        let transform = light_transform_flops(face_resolution(shape.light)?);
+        form.flops_per_gather -= (parts.len() as u64 - 1) * transform;
         Ok(form)
     }
 

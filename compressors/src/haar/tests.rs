@@ -413,3 +413,15 @@ fn same_seed_same_bytes() {
     let b = Haar::default().compress(&t, &CompressContext { seed: 2, progress: None }).unwrap();
     assert_eq!(a.arrays, b.arrays);
 }
+
+#[test]
+fn forms_of_vertex_ranges_merge_into_the_whole_form() {
+    // Truncating (4 terms) and exact (every term) settings, f32 and f16 values.
+    let t = crate::testing::random_transfer(19, 2, 4, 0.3, 12);
+    for haar in [Haar::with_terms(4), Haar { f16_values: true, ..Haar::with_terms(4) }, Haar::with_terms(96)] {
+        for cuts in [&[][..], &[3], &[1, 2, 10]] {
+            let merged = crate::testing::assert_parts_merge_to_whole(&haar, &t, cuts);
+            assert_eq!(merged.lossless, haar.terms == 96);
+        }
+    }
+}

@@ -10,7 +10,10 @@ mod params;
 pub use params::SparseParams;
 
 use crate::registry::{self, Kind};
-use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor, NamedArray};
+use biscale_core::basis::TransferShape;
+use biscale_core::compress::{
+    concat_parts, ArrayData, CompressContext, CompressError, CompressedForm, Compressor, NamedArray, Separability,
+};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::sampling::LightVector;
 use biscale_core::transfer::TransferMatrix;
@@ -92,6 +95,24 @@ impl Compressor for Sparse {
         form.flops_per_gather = 2 * csr.nnz() as u64;
         form.build_seconds = start.elapsed().as_secs_f64();
         Ok(form)
+    }
+
+    /// Rows are stored as they are: any vertex range is a part.
+    fn separability(&self, _shape: TransferShape) -> Separability {
+        Separability::Rows { vertex_multiple: 1 }
+    }
+
+    fn compress_part(
+        &self,
+        t: &TransferMatrix,
+        _first: usize,
+        ctx: &CompressContext<'_>,
+    ) -> Result<CompressedForm, CompressError> {
+        self.compress(t, ctx)
+    }
+
+    fn merge_parts(&self, shape: TransferShape, parts: Vec<CompressedForm>) -> Result<CompressedForm, CompressError> {
+        concat_parts("sparse", shape, &parts, &["row_ptr"])
     }
 
     fn gather(&self, form: &CompressedForm, light: &LightVector) -> Result<LocalRadiance, CompressError> {

@@ -83,3 +83,12 @@ fn interleaved_rows_keep_each_rows_f32_order() {
         assert_eq!(got.values()[r], want, "row {r}");
     }
 }
+
+#[test]
+fn forms_of_vertex_ranges_merge_into_the_whole_form() {
+    let t = random_transfer(23, 2, 4, 0.3, 11);
+    for cuts in [&[][..], &[1], &[5, 6, 17], &[22]] {
+        crate::testing::assert_parts_merge_to_whole(&Sparse, &t, cuts);
+    }
+    assert_eq!(Sparse.separability(t.shape()), Separability::Rows { vertex_multiple: 1 });
+}

@@ -182,6 +182,56 @@ impl TransferMatrix {
     pub fn into_csr(self) -> sprs::CsMat<f32> {
         self.csr
     }
+
+    /// The rows of the vertices in `range`, as a matrix of its own (a shard's part of `T`).
+    pub fn vertex_rows(&self, range: std::ops::Range<usize>) -> Result<Self> {
+        if range.start > range.end || range.end > self.vertices() {
+            return Err(CoreError::Invalid(format!(
+                "vertex range {range:?} is not within {} vertices",
+                self.vertices()
+            )));
+        }
+        let m = self.local_dirs();
+        let ip = self.csr.indptr();
+        let ip = ip.raw_storage();
+        let (lo, hi) = (ip[range.start * m], ip[range.end * m]);
+        let indptr = ip[range.start * m..=range.end * m].iter().map(|&p| p - lo).collect();
+        let csr = sprs::CsMat::new(
+            (range.len() * m, self.cols()),
+            indptr,
+            self.csr.indices()[lo..hi].to_vec(),
+            self.csr.data()[lo..hi].to_vec(),
+        );
+        Self::new(self.local_basis(), self.light_basis(), csr)
+    }
+
+    /// The matrix whose rows are those of `parts`, in order (the inverse of
+    /// [`Self::vertex_rows`] over consecutive ranges): every part must be in the same bases.
+    /// Parts are taken one at a time, so a caller can load them as they are needed.
+    pub fn stack(parts: impl IntoIterator<Item = Self>) -> Result<Self> {
+        let mut bases = None;
+        let (mut indptr, mut indices, mut data) = (vec![0usize], Vec::new(), Vec::new());
+        for (i, p) in parts.into_iter().enumerate() {
+            let (local, light) = *bases.get_or_insert((p.local_basis(), p.light_basis()));
+            if p.local_basis() != local || p.light_basis() != light {
+                return Err(CoreError::Invalid(format!(
+                    "part {i} is {} x {}, part 0 {local} x {light}",
+                    p.local_basis(),
+                    p.light_basis()
+                )));
+            }
+            let base = indices.len();
+            let (ip, ix, d) = p.csr.into_raw_storage();
+            indptr.extend(ip[1..].iter().map(|&x| base + x - ip[0]));
+            indices.extend_from_slice(&ix);
+            data.extend_from_slice(&d);
+        }
+        let (local, light) = bases.ok_or_else(|| CoreError::Invalid("no matrices to stack".into()))?;
+        let rows = indptr.len() - 1;
+        let csr = sprs::CsMat::try_new((rows, light.len()), indptr, indices, data)
+            .map_err(|e| CoreError::Invalid(format!("stacking transfer parts: {}", e.3)))?;
+        Self::new(local, light, csr)
+    }
 }
 
 /// `T` as a file ([`crate::artifact`], kind `transfer`): the shape, then the CSR arrays
