@@ -26,6 +26,7 @@ pub mod pipeline;
 pub mod plan;
 pub mod plots;
 pub mod report;
+pub mod shard;
 pub mod staging;
 pub mod temple;
 pub mod util;

@@ -98,6 +98,12 @@ enum Command {
         #[arg(long)]
         no_cache: bool,
     },
+    /// Split the precompute (T and the separable compressors) into shards for a Slurm job
+    /// array or local processes, and merge them into what `run` would have produced.
+    Shard {
+        #[command(subcommand)]
+        what: Shard,
+    },
     /// Compare two EXR images: prints RMSE, PSNR and relative L2 of A against B.
     Diff {
         a: PathBuf,
@@ -106,6 +112,71 @@ enum Command {
         /// Also write a false-colour error image (PNG).
         #[arg(long)]
         error_image: Option<PathBuf>,
+    },
+}
+
+#[derive(Subcommand)]
+enum Shard {
+    /// Write DIR/manifest.json: the vertex range and outputs of each shard, which compressors
+    /// run in the shards and which in the merge, and memory estimates.
+    Plan {
+        config: PathBuf,
+        /// Number of shards (ranges hold whole blocks of the separable compressors).
+        #[arg(long)]
+        shards: usize,
+        /// Folder for the manifest and the shards' outputs (a shared file system on a cluster).
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Build one shard: T's rows for its vertices and its part of every separable form.
+    Run {
+        manifest: PathBuf,
+        /// The shard (default: $SLURM_ARRAY_TASK_ID).
+        #[arg(long)]
+        index: Option<usize>,
+    },
+    /// List the shards that are complete, and the command that reruns each one that is not
+    /// (exits 1 unless all are complete).
+    Status { manifest: PathBuf },
+    /// Check every shard, stack T, merge the forms and run the rest of the pipeline (the
+    /// whole-matrix compressors, gathers, images, report) as `biscale run` would.
+    Merge {
+        manifest: PathBuf,
+        /// Output folder (default: out/<experiment name>/).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Do not read or write the cache (by default the merged T and forms go into it).
+        #[arg(long)]
+        no_cache: bool,
+        /// Cache folder (default: .cache beside the output folder).
+        #[arg(long)]
+        cache_dir: Option<PathBuf>,
+    },
+    /// Write slurm/shards.sbatch (a job array over the shards), slurm/merge.sbatch and
+    /// slurm/submit.sh (the array, then the merge with --dependency=afterok) beside the
+    /// manifest.
+    Sbatch {
+        manifest: PathBuf,
+        #[arg(long)]
+        partition: Option<String>,
+        /// Time limit per job (Slurm's format: minutes, or D-HH:MM:SS).
+        #[arg(long)]
+        time: Option<String>,
+        /// Memory per shard (Slurm's format, e.g. 4G; default: the plan's estimate + 25%).
+        #[arg(long)]
+        mem: Option<String>,
+        /// Memory of the merge job (default: the plan's estimate + 25%).
+        #[arg(long)]
+        merge_mem: Option<String>,
+        /// CPUs per shard (and of the merge); the shards' threads follow it.
+        #[arg(long, default_value_t = 1)]
+        cpus: usize,
+        /// The merge's output folder.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// The merge's cache folder.
+        #[arg(long)]
+        cache_dir: Option<PathBuf>,
     },
 }
 
@@ -224,9 +295,51 @@ fn run() -> anyhow::Result<()> {
                 }
             }
         }
+        Command::Shard { what } => shard(what)?,
         Command::Diff { a, b, error_image } => {
             let m = biscale::commands::diff(&a, &b, error_image.as_deref())?;
             println!("rmse {:.6e}\npsnr {:.3} dB\nrel_l2 {:.6e}\npixels {}", m.rmse, m.psnr, m.rel_l2, m.pixels);
+        }
+    }
+    Ok(())
+}
+
+fn shard(what: Shard) -> anyhow::Result<()> {
+    use biscale::shard;
+    match what {
+        Shard::Plan { config, shards, out } => {
+            let exp = load(&config)?;
+            let (path, m) =
+                shard::plan(&exp, shards, &out).with_context(|| format!("planning {}", config.display()))?;
+            let available = biscale::memory::available().ok();
+            print!("{}", shard::describe(&m, &path, available.as_ref()));
+        }
+        Shard::Run { manifest, index } => {
+            let index = shard::index_from(index)?;
+            shard::run(&manifest, index).with_context(|| format!("shard {index} of {}", manifest.display()))?;
+        }
+        Shard::Status { manifest } => {
+            shard::status(&manifest)?;
+        }
+        Shard::Merge { manifest, out, no_cache, cache_dir } => {
+            let opts = RunOptions { out_dir: out, cache_dir, no_cache };
+            shard::merge(&manifest, &opts).with_context(|| format!("merging {}", manifest.display()))?;
+        }
+        Shard::Sbatch { manifest, partition, time, mem, merge_mem, cpus, out, cache_dir } => {
+            let o = shard::SbatchOptions {
+                partition,
+                time,
+                mem,
+                merge_mem,
+                cpus,
+                merge_out: out,
+                merge_cache_dir: cache_dir,
+            };
+            let files = shard::sbatch(&manifest, &o)?;
+            for f in &files {
+                println!("wrote {}", f.display());
+            }
+            println!("submit with: bash {}", files[2].display());
         }
     }
     Ok(())

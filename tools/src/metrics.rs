@@ -23,6 +23,26 @@ pub struct Metrics {
     pub target_error: f64,
     /// The run's memory: the estimate it was admitted with and the peak it measured.
     pub memory: Option<MemoryMetrics>,
+    /// Present when `T` came from a sharded precompute (`biscale shard merge`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sharded: Option<ShardedMetrics>,
+}
+
+/// How a sharded precompute went (`crate::shard`).
+#[derive(Clone, Debug, Serialize)]
+pub struct ShardedMetrics {
+    pub shards: usize,
+    /// Wall seconds of the shards, summed and the slowest (the array's critical path).
+    pub shard_seconds_sum: f64,
+    pub shard_seconds_max: f64,
+    /// CPU seconds of the shards' processes, summed (when every shard could read its own).
+    pub shard_cpu_seconds_sum: Option<f64>,
+    /// The largest peak resident memory of a shard.
+    pub shard_peak_rss_max: Option<u64>,
+    /// Seconds the merge took to check, load and stack the shards' outputs.
+    pub merge_load_seconds: f64,
+    /// Seconds of the whole merge, pipeline included.
+    pub merge_seconds: f64,
 }
 
 /// The memory record of a run (`crate::memory`): the estimate made before tracing, beside

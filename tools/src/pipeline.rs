@@ -573,8 +573,51 @@ pub fn build_compressor(setting: &CompressorSetting) -> Result<Box<dyn Compresso
         .map_err(|source| PipelineError::Build { name: setting.label.clone(), source })
 }
 
+/// What a sharded precompute hands the pipeline (`crate::shard::merge`): `T` stacked from the
+/// shards, the merged forms of the separable compressors by label, and the shards' record.
+pub struct Precomputed {
+    pub matrix: TransferMatrix,
+    /// Rays and seconds summed over the shards.
+    pub rays_traced: u64,
+    pub transfer_seconds: f64,
+    pub forms: std::collections::BTreeMap<String, CompressedForm>,
+    pub sharded: ShardedMetrics,
+}
+
+/// `T` from a sharded precompute, checked against the geometry and put in the cache as a
+/// single build would have (so a later `biscale run` of the config finds it).
+fn precomputed_transfer(
+    matrix: TransferMatrix,
+    rays: u64,
+    seconds: f64,
+    exp: &Experiment,
+    geometry: &Geometry,
+    cache: Option<&StageCache>,
+) -> Result<Transfer> {
+    let settings = exp.transfer_settings();
+    let shape = settings.shape(geometry.mesh.vertex_count());
+    if matrix.shape() != shape {
+        return Err(PipelineError::Mismatch {
+            path: exp.config_path.clone(),
+            what: format!("the shards' T is {}, this config's mesh and settings need {shape}", matrix.shape()),
+        });
+    }
+    let key = crate::cache::transfer_key(&geometry.mesh, &settings);
+    if let Some(c) = cache {
+        c.put_with(&c.transfer_path(&key), &key, || matrix.to_artifact());
+    }
+    let metrics = transfer_metrics(&matrix, seconds, rays, rays as f64 / seconds.max(1e-12), false, &settings);
+    eprintln!("transfer: {} x {} from the shards, {} non-zeros", matrix.rows(), matrix.cols(), matrix.nnz());
+    Ok(Transfer { matrix, metrics, key })
+}
+
 /// Run the whole experiment; returns the metrics that were written.
 pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
+    run_with(exp, opts, None)
+}
+
+/// [`run`], with `T` and the separable forms taken from a sharded precompute when given.
+pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -> Result<(PathBuf, Metrics)> {
     let plan = Plan::new(exp);
     eprint!("{plan}");
     if exp.file.runtime.backend == Backend::Gpu && !cfg!(feature = "gpu") {
@@ -615,7 +658,13 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
         eprintln!("warning: {w}");
     }
     let (memory, available) = crate::memory::check_run(exp, &geometry, &lighting, cache.is_some())?;
-    let t = transfer_matrix(exp, &geometry, cache.as_ref())?;
+    let (t, mut pre_forms, sharded) = match pre {
+        Some(p) => {
+            let t = precomputed_transfer(p.matrix, p.rays_traced, p.transfer_seconds, exp, &geometry, cache.as_ref())?;
+            (t, p.forms, Some(p.sharded))
+        }
+        None => (transfer_matrix(exp, &geometry, cache.as_ref())?, Default::default(), None),
+    };
     fault_point("transfer");
     if let Some(w) = sky_warning(&t.metrics, t.matrix.vertices()) {
         eprintln!("warning: {w}");
@@ -678,8 +727,17 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     };
     let mut records = vec![];
     for (setting, compressor) in &compressors {
-        let (form, cached) =
-            compressed_form(setting, compressor.as_ref(), &t.matrix, &t.key, exp.file.seed, cache.as_ref())?;
+        let (form, cached) = match pre_forms.remove(&setting.label) {
+            Some(form) => {
+                if let Some((c, key)) =
+                    cache.as_ref().zip(crate::cache::form_key(&t.key, compressor.as_ref(), exp.file.seed))
+                {
+                    c.put(&c.form_path(&key, &setting.label), &key, &form.to_artifact());
+                }
+                (form, false)
+            }
+            None => compressed_form(setting, compressor.as_ref(), &t.matrix, &t.key, exp.file.seed, cache.as_ref())?,
+        };
         let (record, _) = eval.record(setting, compressor.as_ref(), &form, cached, gpu.as_mut())?;
         records.push(record);
         fault_point("compression");
@@ -707,6 +765,7 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     let mut metrics =
         Metrics::of_run(exp, &geometry, &lighting, &materials, t.metrics, &base, reference.as_ref(), records, methods);
     metrics.memory = Some(memory.metrics(&available));
+    metrics.sharded = sharded;
     write_report(&metrics, &plan, &out_dir)?;
     fault_point("report");
     let out_dir = staged.commit()?;
@@ -761,6 +820,7 @@ impl Metrics {
             methods,
             target_error: exp.file.report.target_error,
             memory: None,
+            sharded: None,
         }
     }
 }

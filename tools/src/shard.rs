@@ -1,0 +1,792 @@
+//! The sharded precompute: `biscale shard plan | run | status | merge | sbatch`.
+//!
+//! Tracing `T` and the compressors that work row by row outgrow one machine long before the
+//! runtime does, so the precompute splits over vertex ranges that a Slurm job array (or plain
+//! local processes) runs anywhere, and a merge step puts the pieces back together:
+//!
+//! * **plan** writes `manifest.json` (versioned): the config's content hash, the vertex range of
+//!   every shard and the files it writes, which compressors run in the shards and which in the
+//!   merge (and why), and memory estimates. Ranges hold whole multiples of every separable
+//!   compressor's `vertex_multiple` (biclustering's blocks), so each shard's parts are exactly
+//!   the whole matrix's.
+//! * **run** builds `T`'s rows for one range with the whole mesh's transfer scene
+//!   ([`biscale_core::transfer::build_range`]: the rows are bit for bit those of a whole
+//!   build), compresses them with every separable compressor
+//!   ([`biscale_core::compress::Compressor::compress_part`]) and writes them, each file
+//!   atomically, then `done.json` with every file's XXH3-128 last. A shard without `done.json`
+//!   is not complete, whatever else its folder holds; rerunning one starts by removing it, so
+//!   reruns are idempotent.
+//! * **merge** checks every shard (missing, stale or corrupt ones are listed with the command
+//!   that reruns them), stacks `T`, merges the parts' forms
+//!   ([`biscale_core::compress::Compressor::merge_parts`]), and runs the rest of the
+//!   pipeline ([`crate::pipeline::run_with`]): the compressors that need all of `T` (CPCA's
+//!   global k-means), gathers, shading and the report. `T`, the forms and the images are
+//!   byte-identical to `biscale run` of the same config (only timings differ).
+//! * **sbatch** writes a job-array script over the shards, a merge script and `submit.sh`,
+//!   which submits the merge with `--dependency=afterok` on the array.
+//!
+//! No scheduler, queue or protocol of our own: Slurm places and retries the shards; the
+//! shared file system carries everything.
+
+use crate::config::{CompressorSetting, Experiment};
+use crate::memory::{human, Available};
+use crate::pipeline::{build_compressor, PipelineError, Precomputed, Result, RunOptions};
+use biscale_core::compress::{CompressContext, CompressedForm, Separability};
+use biscale_core::io::{write_atomic_bytes, ContentHash};
+use biscale_core::transfer::{self, TransferMatrix};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// The manifest's `format` and current `version`.
+pub const MANIFEST_FORMAT: &str = "biscale-shard-manifest";
+pub const MANIFEST_VERSION: u32 = 1;
+/// A finished shard's record (`done.json`).
+pub const DONE_FORMAT: &str = "biscale-shard-done";
+/// Environment variable naming shard indices (comma-separated) that fail on purpose after
+/// tracing, before they are complete: how the Slurm test shows a failed shard being rerun.
+pub const FAIL_VAR: &str = "BISCALE_SHARD_FAIL";
+
+/// What `shard plan` writes: everything a shard and the merge need to agree on.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Manifest {
+    pub format: String,
+    pub version: u32,
+    /// The biscale that planned it.
+    pub created_by: String,
+    pub experiment: String,
+    /// The config, as an absolute path (shards run from any directory).
+    pub config: PathBuf,
+    /// XXH3-128 of the config's and the mesh file's bytes ([`config_hash`]).
+    pub config_hash: String,
+    pub vertices: usize,
+    /// `T`'s shape, for people.
+    pub shape: String,
+    pub seed: u64,
+    /// Every shard but the last holds a multiple of this many vertices.
+    pub vertex_multiple: usize,
+    /// Compressors that run in the shards, their parts merged.
+    pub separable: Vec<ShardedSetting>,
+    /// Compressors that run in the merge step, on all of `T`, and why.
+    pub in_merge: Vec<MergeSetting>,
+    pub estimate: ShardEstimate,
+    pub shards: Vec<ShardSpec>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ShardedSetting {
+    pub label: String,
+    pub kind: String,
+    pub vertex_multiple: usize,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct MergeSetting {
+    pub label: String,
+    pub kind: String,
+    pub why: String,
+}
+
+/// Estimates made at plan time from a sample of traced vertices (`crate::memory`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ShardEstimate {
+    /// Non-zeros of `T` per vertex (upper estimate of the sample).
+    pub nnz_per_vertex: f64,
+    /// Peak memory of the largest shard.
+    pub shard_peak_bytes: u64,
+    /// Bytes the largest shard writes.
+    pub shard_output_bytes: u64,
+    /// Peak memory of the merge (the run's estimate, `T` whole).
+    pub merge_peak_bytes: u64,
+}
+
+/// One shard: its index, vertex range and the files it writes (relative to the manifest).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ShardSpec {
+    pub index: usize,
+    pub first_vertex: usize,
+    pub end_vertex: usize,
+    pub dir: String,
+    pub outputs: Vec<String>,
+}
+
+/// A complete shard's record, written last.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ShardDone {
+    pub format: String,
+    pub index: usize,
+    pub config_hash: String,
+    pub first_vertex: usize,
+    pub end_vertex: usize,
+    pub files: Vec<FileSum>,
+    pub nnz: u64,
+    pub rays_traced: u64,
+    pub transfer_seconds: f64,
+    /// Build seconds of each separable compressor, by label.
+    pub compressor_seconds: Vec<(String, f64)>,
+    /// Wall seconds of the whole shard (loading, tracing, compressing, writing).
+    pub seconds: f64,
+    /// CPU seconds of the process (user + system), when readable.
+    pub cpu_seconds: Option<f64>,
+    pub peak_rss_bytes: Option<u64>,
+    pub threads: usize,
+    pub host: String,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FileSum {
+    pub name: String,
+    pub bytes: u64,
+    pub xxh3: String,
+}
+
+/// XXH3-128 over the config's and the mesh file's bytes: what a shard's outputs depend on
+/// (the env map and the materials only enter after the merge).
+pub fn config_hash(exp: &Experiment) -> Result<String> {
+    let mut h = ContentHash::default();
+    h.write_str("biscale shard config v1");
+    for path in [&exp.config_path, &exp.mesh_path] {
+        let bytes = std::fs::read(path).map_err(|source| PipelineError::Io { path: path.clone(), source })?;
+        h.write(&(bytes.len() as u64).to_le_bytes()).write(&bytes);
+    }
+    Ok(format!("{:032x}", h.finish128()))
+}
+
+fn file_sum(dir: &Path, name: &str) -> Result<FileSum> {
+    let path = dir.join(name);
+    let bytes = std::fs::read(&path).map_err(|source| PipelineError::Io { path: path.clone(), source })?;
+    Ok(FileSum {
+        name: name.to_string(),
+        bytes: bytes.len() as u64,
+        xxh3: format!("{:032x}", ContentHash::default().write(&bytes).finish128()),
+    })
+}
+
+fn invalid(path: &Path, what: impl Into<String>) -> PipelineError {
+    PipelineError::Mismatch { path: path.to_path_buf(), what: what.into() }
+}
+
+/// The file a separable compressor's part is written to, in its shard's folder.
+fn form_file(label: &str) -> String {
+    let safe: String = label.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' }).collect();
+    format!("form-{safe}.bsf")
+}
+const TRANSFER_FILE: &str = "transfer.bsf";
+const DONE_FILE: &str = "done.json";
+
+/// Least common multiple, `None` past `usize`.
+fn lcm(a: usize, b: usize) -> Option<usize> {
+    fn gcd(a: usize, b: usize) -> usize {
+        if b == 0 {
+            a
+        } else {
+            gcd(b, a % b)
+        }
+    }
+    (a / gcd(a, b)).checked_mul(b)
+}
+
+/// `shard plan`: the manifest of `exp` in `shards` shards (written to `out/manifest.json`).
+pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Manifest)> {
+    if shards == 0 {
+        return Err(invalid(out, "--shards must be at least 1"));
+    }
+    let geometry = crate::pipeline::load_geometry(exp)?;
+    let vertices = geometry.mesh.vertex_count();
+    let settings = exp.transfer_settings();
+    let shape = settings.shape(vertices);
+    let mut separable = vec![];
+    let mut in_merge = vec![];
+    let mut multiple = 1usize;
+    for s in &crate::plan::Plan::new(exp).compressors {
+        let c = build_compressor(s)?;
+        match c.separability(shape) {
+            Separability::Rows { vertex_multiple } => {
+                let m = vertex_multiple.max(1);
+                multiple = lcm(multiple, m).filter(|&l| l <= vertices.max(1)).unwrap_or(vertices.max(1));
+                separable.push(ShardedSetting { label: s.label.clone(), kind: s.kind.clone(), vertex_multiple: m });
+            }
+            Separability::Whole { why } => {
+                in_merge.push(MergeSetting { label: s.label.clone(), kind: s.kind.clone(), why })
+            }
+        }
+    }
+    let units = vertices.div_ceil(multiple).max(1);
+    if shards > units {
+        return Err(invalid(
+            &exp.config_path,
+            format!(
+                "{shards} shards asked for, but {vertices} vertices make only {units} ranges of whole {multiple}-vertex \
+                 blocks (the lcm of the separable compressors' blocks: {}); use --shards {units} or fewer",
+                separable.iter().map(|s| format!("{} {}", s.label, s.vertex_multiple)).collect::<Vec<_>>().join(", ")
+            ),
+        ));
+    }
+    let outputs: Vec<String> =
+        std::iter::once(TRANSFER_FILE.to_string()).chain(separable.iter().map(|s| form_file(&s.label))).collect();
+    let specs: Vec<ShardSpec> = (0..shards)
+        .map(|i| {
+            let (a, b) = (i * units / shards, (i + 1) * units / shards);
+            ShardSpec {
+                index: i,
+                first_vertex: (a * multiple).min(vertices),
+                end_vertex: (b * multiple).min(vertices),
+                dir: format!("shards/{i:04}"),
+                outputs: outputs.clone(),
+            }
+        })
+        .collect();
+
+    // Estimates: the run's model (crate::memory) at the largest shard's vertex count.
+    let lighting = crate::pipeline::load_lighting(exp)?;
+    let run = crate::memory::estimate(exp, &geometry, &lighting, true);
+    let per_vertex = run.nnz.upper as f64 / vertices.max(1) as f64;
+    let largest = specs.iter().map(|s| s.end_vertex - s.first_vertex).max().unwrap_or(0);
+    let shard_nnz = (per_vertex * largest as f64).ceil() as u64;
+    let threads = rayon::current_num_threads();
+    let t = transfer::TransferMemory::new(&settings, largest, shard_nnz, threads);
+    let common = crate::memory::PROCESS_BASELINE_BYTES
+        + geometry.mesh.triangle_count() as u64 * crate::memory::GEOMETRY_BYTES_PER_TRIANGLE
+        + vertices as u64 * crate::memory::GEOMETRY_BYTES_PER_VERTEX;
+    let plan_settings: Vec<CompressorSetting> = crate::plan::Plan::new(exp).compressors;
+    let parts: Vec<_> = plan_settings
+        .iter()
+        .filter(|s| separable.iter().any(|p| p.label == s.label))
+        .map(|s| crate::memory::compressor_memory(s, &settings, largest, shard_nnz, threads as u64))
+        .collect();
+    let compress_peak = parts.iter().map(|c| c.working + c.form).max().unwrap_or(0);
+    let estimate = ShardEstimate {
+        nnz_per_vertex: per_vertex,
+        shard_peak_bytes: common + t.build_peak().max(t.save_peak()).max(t.csr + compress_peak),
+        shard_output_bytes: t.file_bytes + parts.iter().map(|c| c.form).sum::<u64>(),
+        merge_peak_bytes: run.peak().bytes,
+    };
+
+    let manifest = Manifest {
+        format: MANIFEST_FORMAT.into(),
+        version: MANIFEST_VERSION,
+        created_by: format!("biscale {}", env!("CARGO_PKG_VERSION")),
+        experiment: exp.name().to_string(),
+        config: std::path::absolute(&exp.config_path).unwrap_or_else(|_| exp.config_path.clone()),
+        config_hash: config_hash(exp)?,
+        vertices,
+        shape: shape.to_string(),
+        seed: exp.file.seed,
+        vertex_multiple: multiple,
+        separable,
+        in_merge,
+        estimate,
+        shards: specs,
+    };
+    std::fs::create_dir_all(out).map_err(|source| PipelineError::Io { path: out.to_path_buf(), source })?;
+    let path = out.join("manifest.json");
+    let json = serde_json::to_string_pretty(&manifest).expect("manifest serializes");
+    write_atomic_bytes(&path, json.as_bytes())?;
+    Ok((path, manifest))
+}
+
+impl Manifest {
+    /// Read and check a manifest; returns it and the folder it lies in.
+    pub fn load(path: &Path) -> Result<(Self, PathBuf)> {
+        let text = std::fs::read_to_string(path).map_err(|source| PipelineError::Io { path: path.into(), source })?;
+        let m: Manifest = serde_json::from_str(&text)
+            .map_err(|e| invalid(path, format!("not a shard manifest (`biscale shard plan` writes one): {e}")))?;
+        if m.format != MANIFEST_FORMAT || m.version != MANIFEST_VERSION {
+            return Err(invalid(
+                path,
+                format!(
+                    "format {} version {}; this biscale reads {MANIFEST_FORMAT} version {MANIFEST_VERSION}: plan again",
+                    m.format, m.version
+                ),
+            ));
+        }
+        let mut at = 0;
+        for (i, s) in m.shards.iter().enumerate() {
+            if s.index != i || s.first_vertex != at || s.end_vertex < s.first_vertex || s.dir.contains("..") {
+                return Err(invalid(path, format!("shard {i}'s entry is inconsistent (index, range or folder)")));
+            }
+            at = s.end_vertex;
+        }
+        if at != m.vertices {
+            return Err(invalid(path, format!("the shards cover {at} of {} vertices", m.vertices)));
+        }
+        let dir = path.parent().map_or_else(|| PathBuf::from("."), Path::to_path_buf);
+        Ok((m, dir))
+    }
+
+    /// The experiment, checked to be the one that was planned.
+    pub fn experiment(&self, path: &Path) -> Result<Experiment> {
+        let exp = Experiment::load(&self.config)?;
+        let now = config_hash(&exp)?;
+        if now != self.config_hash {
+            return Err(invalid(
+                path,
+                format!(
+                    "the config {} or its mesh changed since the plan (content hash {now}, planned {}): plan again \
+                     with `biscale shard plan`",
+                    self.config.display(),
+                    self.config_hash
+                ),
+            ));
+        }
+        Ok(exp)
+    }
+
+    fn shard(&self, index: usize, path: &Path) -> Result<&ShardSpec> {
+        self.shards.get(index).ok_or_else(|| {
+            invalid(
+                path,
+                format!("there is no shard {index}: the manifest has {} (0..{})", self.shards.len(), self.shards.len()),
+            )
+        })
+    }
+
+    /// The command that (re)runs shard `index`.
+    pub fn rerun_command(&self, manifest: &Path, index: usize) -> String {
+        format!("biscale shard run {} --index {index}", manifest.display())
+    }
+}
+
+/// The shard index from `--index`, else from `SLURM_ARRAY_TASK_ID`.
+pub fn index_from(arg: Option<usize>) -> Result<usize> {
+    if let Some(i) = arg {
+        return Ok(i);
+    }
+    match std::env::var("SLURM_ARRAY_TASK_ID") {
+        Ok(v) => v
+            .trim()
+            .parse()
+            .map_err(|_| invalid(Path::new("SLURM_ARRAY_TASK_ID"), format!("is '{v}', not a shard index"))),
+        Err(_) => Err(invalid(
+            Path::new("--index"),
+            "no shard index: pass --index I, or run as a Slurm array task (SLURM_ARRAY_TASK_ID)",
+        )),
+    }
+}
+
+/// `shard run`: build and write shard `index` of the manifest at `path`.
+pub fn run(path: &Path, index: usize) -> Result<ShardDone> {
+    let start = Instant::now();
+    let (m, root) = Manifest::load(path)?;
+    let spec = m.shard(index, path)?.clone();
+    let exp = m.experiment(path)?;
+    let dir = root.join(&spec.dir);
+    std::fs::create_dir_all(&dir).map_err(|source| PipelineError::Io { path: dir.clone(), source })?;
+    // From here on the shard is incomplete until its new record is written.
+    match std::fs::remove_file(dir.join(DONE_FILE)) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(PipelineError::Io { path: dir.join(DONE_FILE), source: e })
+        }
+        _ => {}
+    }
+    let range = spec.first_vertex..spec.end_vertex;
+    eprintln!(
+        "shard {index} of {}: vertices {}..{} of {} ({}), {} threads",
+        m.shards.len(),
+        range.start,
+        range.end,
+        m.vertices,
+        m.experiment,
+        rayon::current_num_threads()
+    );
+    let geometry = crate::pipeline::load_geometry(&exp)?;
+    if geometry.mesh.vertex_count() != m.vertices {
+        return Err(invalid(
+            path,
+            format!("the mesh has {} vertices, the plan {}", geometry.mesh.vertex_count(), m.vertices),
+        ));
+    }
+    let settings = exp.transfer_settings();
+    let step = (range.len() / 10).max(1);
+    let t0 = Instant::now();
+    let tick = |done: usize| {
+        if done.is_multiple_of(step) {
+            eprintln!("shard {index}: transfer {done}/{} vertices ({:.1} s)", range.len(), t0.elapsed().as_secs_f64());
+        }
+    };
+    let build = transfer::build_range(&geometry.transfer, &settings, range.clone(), Some(&tick))?;
+    eprintln!("shard {index}: transfer {build}");
+    let mut compressor_seconds = vec![];
+    let mut forms: Vec<(String, CompressedForm)> = vec![];
+    for s in &m.separable {
+        let setting = crate::plan::Plan::new(&exp)
+            .compressors
+            .into_iter()
+            .find(|c| c.label == s.label)
+            .ok_or_else(|| invalid(path, format!("the config has no compressor '{}' any more", s.label)))?;
+        let c = build_compressor(&setting)?;
+        let ctx = CompressContext { seed: exp.file.seed, progress: None };
+        let form = c
+            .compress_part(&build.matrix, range.start, &ctx)
+            .map_err(|source| PipelineError::Compress { name: s.label.clone(), source })?;
+        eprintln!("shard {index}: {} {:.2} MB in {:.2} s", s.label, form.bytes() as f64 / 1e6, form.build_seconds);
+        compressor_seconds.push((s.label.clone(), form.build_seconds));
+        forms.push((form_file(&s.label), form));
+    }
+    if let Ok(list) = std::env::var(FAIL_VAR) {
+        if list.split(',').any(|x| x.trim().parse() == Ok(index)) {
+            return Err(invalid(
+                Path::new(FAIL_VAR),
+                format!("shard {index} fails on purpose ({FAIL_VAR}={list}); it is left incomplete"),
+            ));
+        }
+    }
+    build.matrix.save(&dir.join(TRANSFER_FILE))?;
+    for (file, form) in &forms {
+        form.save(&dir.join(file))?;
+    }
+    let files = spec.outputs.iter().map(|f| file_sum(&dir, f)).collect::<Result<Vec<_>>>()?;
+    let done = ShardDone {
+        format: DONE_FORMAT.into(),
+        index,
+        config_hash: m.config_hash.clone(),
+        first_vertex: range.start,
+        end_vertex: range.end,
+        files,
+        nnz: build.matrix.nnz() as u64,
+        rays_traced: build.stats.rays_traced,
+        transfer_seconds: build.stats.seconds,
+        compressor_seconds,
+        seconds: start.elapsed().as_secs_f64(),
+        cpu_seconds: cpu_seconds(),
+        peak_rss_bytes: crate::memory::peak_rss(),
+        threads: rayon::current_num_threads(),
+        host: std::fs::read_to_string("/proc/sys/kernel/hostname").map(|h| h.trim().to_string()).unwrap_or_default(),
+    };
+    let json = serde_json::to_string_pretty(&done).expect("record serializes");
+    write_atomic_bytes(&dir.join(DONE_FILE), json.as_bytes())?;
+    eprintln!(
+        "shard {index}: complete in {:.1} s, peak memory {}",
+        done.seconds,
+        done.peak_rss_bytes.map_or("unknown".into(), human)
+    );
+    Ok(done)
+}
+
+/// User plus system CPU seconds of this process (`/proc/self/stat`, fields 14 and 15).
+fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    // The kernel's USER_HZ is 100 on every Linux biscale runs on.
+    Some(ticks / 100.0)
+}
+
+/// What is wrong with a shard, if anything.
+#[derive(Clone, Debug)]
+pub enum ShardState {
+    Complete(Box<ShardDone>),
+    Missing,
+    Stale(String),
+    Corrupt(String),
+}
+
+/// The state of shard `spec` of `m` (rooted at `root`): complete only when its record exists,
+/// names this plan and range, and every file's checksum matches.
+pub fn state(m: &Manifest, root: &Path, spec: &ShardSpec) -> ShardState {
+    let dir = root.join(&spec.dir);
+    let text = match std::fs::read_to_string(dir.join(DONE_FILE)) {
+        Ok(t) => t,
+        Err(_) => return ShardState::Missing,
+    };
+    let done: ShardDone = match serde_json::from_str(&text) {
+        Ok(d) => d,
+        Err(e) => return ShardState::Corrupt(format!("{}: {e}", dir.join(DONE_FILE).display())),
+    };
+    if done.config_hash != m.config_hash || (done.first_vertex, done.end_vertex) != (spec.first_vertex, spec.end_vertex)
+    {
+        return ShardState::Stale(format!(
+            "built for config hash {} and vertices {}..{}, the plan has {} and {}..{}",
+            done.config_hash, done.first_vertex, done.end_vertex, m.config_hash, spec.first_vertex, spec.end_vertex
+        ));
+    }
+    for name in &spec.outputs {
+        let Some(expected) = done.files.iter().find(|f| &f.name == name) else {
+            return ShardState::Stale(format!("its record lists no {name}"));
+        };
+        match file_sum(&dir, name) {
+            Ok(got) if &got == expected => {}
+            Ok(got) => {
+                return ShardState::Corrupt(format!(
+                    "{}: {} bytes, XXH3-128 {}; its record says {} bytes, {}",
+                    dir.join(name).display(),
+                    got.bytes,
+                    got.xxh3,
+                    expected.bytes,
+                    expected.xxh3
+                ))
+            }
+            Err(e) => return ShardState::Corrupt(e.to_string()),
+        }
+    }
+    ShardState::Complete(Box::new(done))
+}
+
+/// `shard status`: one line per shard; `Err` listing the incomplete ones.
+pub fn status(path: &Path) -> Result<Vec<String>> {
+    let (m, root) = Manifest::load(path)?;
+    let mut lines = vec![];
+    let mut bad = vec![];
+    for s in &m.shards {
+        let head = format!("shard {} (vertices {}..{})", s.index, s.first_vertex, s.end_vertex);
+        match state(&m, &root, s) {
+            ShardState::Complete(d) => lines.push(format!(
+                "{head}: complete ({:.1} s on {}, peak memory {})",
+                d.seconds,
+                d.host,
+                d.peak_rss_bytes.map_or("unknown".into(), human)
+            )),
+            other => {
+                let why = match other {
+                    ShardState::Missing => "missing (not run, running, or failed)".to_string(),
+                    ShardState::Stale(w) => format!("stale: {w}"),
+                    ShardState::Corrupt(w) => format!("corrupt: {w}"),
+                    ShardState::Complete(_) => unreachable!(),
+                };
+                let line = format!("{head}: {why}; rerun: {}", m.rerun_command(path, s.index));
+                lines.push(line.clone());
+                bad.push(line);
+            }
+        }
+    }
+    for l in &lines {
+        println!("{l}");
+    }
+    if !bad.is_empty() {
+        return Err(invalid(path, format!("{} of {} shards are not complete", bad.len(), m.shards.len())));
+    }
+    Ok(lines)
+}
+
+/// `shard merge`: check every shard, stack `T`, merge the separable forms and run the rest of
+/// the pipeline into `opts`' output folder.
+pub fn merge(path: &Path, opts: &RunOptions) -> Result<(PathBuf, crate::metrics::Metrics)> {
+    let start = Instant::now();
+    let (m, root) = Manifest::load(path)?;
+    let exp = m.experiment(path)?;
+    let mut dones = vec![];
+    let mut problems = vec![];
+    for s in &m.shards {
+        match state(&m, &root, s) {
+            ShardState::Complete(d) => dones.push(*d),
+            ShardState::Missing => {
+                problems.push(format!("shard {} is missing; rerun: {}", s.index, m.rerun_command(path, s.index)))
+            }
+            ShardState::Stale(w) | ShardState::Corrupt(w) => problems.push(format!(
+                "shard {} is not usable ({w}); rerun: {}",
+                s.index,
+                m.rerun_command(path, s.index)
+            )),
+        }
+    }
+    if !problems.is_empty() {
+        return Err(invalid(
+            path,
+            format!("{} of {} shards are not complete:\n  {}", problems.len(), m.shards.len(), problems.join("\n  ")),
+        ));
+    }
+    let load_start = Instant::now();
+    let mut error = None;
+    let parts = m.shards.iter().map_while(|s| match TransferMatrix::load(&root.join(&s.dir).join(TRANSFER_FILE)) {
+        Ok(t) => Some(t),
+        Err(e) => {
+            error = Some(e);
+            None
+        }
+    });
+    let stacked = TransferMatrix::stack(parts);
+    if let Some(e) = error {
+        return Err(biscale_core::CoreError::from(e).into());
+    }
+    let matrix = stacked?;
+    let mut forms = std::collections::BTreeMap::new();
+    for s in &m.separable {
+        let setting = crate::plan::Plan::new(&exp)
+            .compressors
+            .into_iter()
+            .find(|c| c.label == s.label)
+            .ok_or_else(|| invalid(path, format!("the config has no compressor '{}' any more", s.label)))?;
+        let c = build_compressor(&setting)?;
+        let parts = m
+            .shards
+            .iter()
+            .map(|sh| {
+                let p = root.join(&sh.dir).join(form_file(&s.label));
+                CompressedForm::load(&p).map_err(|e| biscale_core::CoreError::from(e).into())
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let form = c
+            .merge_parts(matrix.shape(), parts)
+            .map_err(|source| PipelineError::Compress { name: s.label.clone(), source })?;
+        forms.insert(s.label.clone(), form);
+    }
+    let merge_load_seconds = load_start.elapsed().as_secs_f64();
+    eprintln!(
+        "merge: {} shards stacked into T ({} non-zeros) and {} forms in {merge_load_seconds:.2} s",
+        m.shards.len(),
+        matrix.nnz(),
+        forms.len()
+    );
+    let sharded = crate::metrics::ShardedMetrics {
+        shards: m.shards.len(),
+        shard_seconds_sum: dones.iter().map(|d| d.seconds).sum(),
+        shard_seconds_max: dones.iter().map(|d| d.seconds).fold(0.0, f64::max),
+        shard_cpu_seconds_sum: dones.iter().map(|d| d.cpu_seconds).sum(),
+        shard_peak_rss_max: dones.iter().filter_map(|d| d.peak_rss_bytes).max(),
+        merge_load_seconds,
+        merge_seconds: 0.0,
+    };
+    let pre = Precomputed {
+        matrix,
+        rays_traced: dones.iter().map(|d| d.rays_traced).sum(),
+        transfer_seconds: dones.iter().map(|d| d.transfer_seconds).sum(),
+        forms,
+        sharded,
+    };
+    let (out, mut metrics) = crate::pipeline::run_with(&exp, opts, Some(pre))?;
+    if let Some(s) = &mut metrics.sharded {
+        s.merge_seconds = start.elapsed().as_secs_f64();
+    }
+    Ok((out, metrics))
+}
+
+/// Options of `shard sbatch`: Slurm's own, passed through as `#SBATCH` lines.
+#[derive(Clone, Debug, Default)]
+pub struct SbatchOptions {
+    pub partition: Option<String>,
+    /// `--time` (minutes, or Slurm's `D-HH:MM:SS`).
+    pub time: Option<String>,
+    /// `--mem` per shard (default: the plan's estimate with a quarter more, at least 1 GiB).
+    pub mem: Option<String>,
+    /// `--mem` of the merge job (default: the plan's estimate with a quarter more).
+    pub merge_mem: Option<String>,
+    pub cpus: usize,
+    /// Arguments of the merge (`--out`, `--cache-dir`), as `biscale shard merge` takes them.
+    pub merge_out: Option<PathBuf>,
+    pub merge_cache_dir: Option<PathBuf>,
+}
+
+/// A shell word: single-quoted unless plainly safe.
+fn sh_quote(s: &str) -> String {
+    if !s.is_empty() && s.chars().all(|c| c.is_ascii_alphanumeric() || "-_./=:,+@%".contains(c)) {
+        s.to_string()
+    } else {
+        format!("'{}'", s.replace('\'', r"'\''"))
+    }
+}
+
+fn mem_default(bytes: u64) -> String {
+    let mib = (bytes + bytes / 4).div_ceil(1 << 20).max(1024);
+    format!("{mib}M")
+}
+
+/// `shard sbatch`: write `slurm/shards.sbatch`, `slurm/merge.sbatch` and `slurm/submit.sh`
+/// beside the manifest; returns their paths.
+pub fn sbatch(path: &Path, o: &SbatchOptions) -> Result<Vec<PathBuf>> {
+    let (m, root) = Manifest::load(path)?;
+    let abs = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    let manifest = abs(path);
+    let dir = abs(&root).join("slurm");
+    let logs = dir.join("logs");
+    std::fs::create_dir_all(&logs).map_err(|source| PipelineError::Io { path: logs.clone(), source })?;
+    let exe = std::env::current_exe().map_err(|source| PipelineError::Io { path: "biscale".into(), source })?;
+    let q = |p: &Path| sh_quote(&p.display().to_string());
+    let header = |name: &str, mem: &str| {
+        let mut h = format!(
+            "#!/bin/bash\n# Written by `biscale shard sbatch` for {}.\n#SBATCH --job-name=biscale-{}-{name}\n#SBATCH --cpus-per-task={}\n#SBATCH --mem={mem}\n",
+            m.experiment,
+            sh_quote(&m.experiment),
+            o.cpus.max(1),
+        );
+        if let Some(p) = &o.partition {
+            h += &format!("#SBATCH --partition={}\n", sh_quote(p));
+        }
+        if let Some(t) = &o.time {
+            h += &format!("#SBATCH --time={}\n", sh_quote(t));
+        }
+        h
+    };
+    let shard_mem = o.mem.clone().unwrap_or_else(|| mem_default(m.estimate.shard_peak_bytes));
+    let merge_mem = o.merge_mem.clone().unwrap_or_else(|| mem_default(m.estimate.merge_peak_bytes));
+    let threads = "export RAYON_NUM_THREADS=\"${SLURM_CPUS_PER_TASK:-1}\"\n";
+    let shards = format!(
+        "{}#SBATCH --array=0-{}\n#SBATCH --output={}\nset -euo pipefail\n{threads}exec {} shard run {}\n",
+        header("shards", &shard_mem),
+        m.shards.len() - 1,
+        q(&logs.join("shard-%A_%a.out")),
+        q(&exe),
+        q(&manifest),
+    );
+    let mut merge_args = String::new();
+    if let Some(out) = &o.merge_out {
+        merge_args += &format!(" --out {}", q(&abs(out)));
+    }
+    if let Some(c) = &o.merge_cache_dir {
+        merge_args += &format!(" --cache-dir {}", q(&abs(c)));
+    }
+    let merge = format!(
+        "{}#SBATCH --output={}\nset -euo pipefail\n{threads}exec {} shard merge {}{merge_args}\n",
+        header("merge", &merge_mem),
+        q(&logs.join("merge-%j.out")),
+        q(&exe),
+        q(&manifest),
+    );
+    let submit = "#!/bin/bash\n# Submit the shards as a job array, then the merge once every shard succeeded.\n\
+        # Prints `shards <job id>` and `merge <job id>`. A failed shard leaves the merge pending\n\
+        # (DependencyNeverSatisfied): scancel it, rerun the shard with\n\
+        # `sbatch --array=<i> shards.sbatch`, then `sbatch merge.sbatch`.\n\
+        set -euo pipefail\ncd \"$(dirname \"$0\")\"\n\
+        shards=$(sbatch --parsable shards.sbatch)\nshards=${shards%%;*}\n\
+        merge=$(sbatch --parsable --dependency=afterok:\"$shards\" merge.sbatch)\nmerge=${merge%%;*}\n\
+        echo \"shards $shards\"\necho \"merge $merge\"\n"
+        .to_string();
+    let mut written = vec![];
+    for (name, text) in [("shards.sbatch", shards), ("merge.sbatch", merge), ("submit.sh", submit)] {
+        let p = dir.join(name);
+        write_atomic_bytes(&p, text.as_bytes())?;
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o755))
+            .map_err(|source| PipelineError::Io { path: p.clone(), source })?;
+        written.push(p);
+    }
+    Ok(written)
+}
+
+/// The plan's summary for people: shards, what runs where, estimates, how to run it.
+pub fn describe(m: &Manifest, path: &Path, available: Option<&Available>) -> String {
+    let sizes: Vec<usize> = m.shards.iter().map(|s| s.end_vertex - s.first_vertex).collect();
+    let mut s = format!(
+        "{}: {} vertices in {} shards of {}..{} vertices (ranges of whole {}-vertex blocks), T {}\n",
+        path.display(),
+        m.vertices,
+        m.shards.len(),
+        sizes.iter().min().unwrap_or(&0),
+        sizes.iter().max().unwrap_or(&0),
+        m.vertex_multiple,
+        m.shape
+    );
+    for c in &m.separable {
+        s += &format!("  in the shards: {} ({})\n", c.label, c.kind);
+    }
+    for c in &m.in_merge {
+        s += &format!("  in the merge:  {} ({}): {}\n", c.label, c.kind, c.why);
+    }
+    let e = &m.estimate;
+    s += &format!(
+        "  estimates: {:.0} non-zeros per vertex; per shard peak {} and {} written; merge peak {}",
+        e.nnz_per_vertex,
+        human(e.shard_peak_bytes),
+        human(e.shard_output_bytes),
+        human(e.merge_peak_bytes)
+    );
+    if let Some(a) = available {
+        s += &format!(" ({} available here, {})", human(a.bytes), a.source);
+    }
+    s += &format!(
+        "\n  run: biscale shard sbatch {p} (Slurm), or locally: seq 0 {} | xargs -P 2 -I{{}} biscale shard run {p} --index {{}}\n  then: biscale shard merge {p}\n",
+        m.shards.len() - 1,
+        p = path.display()
+    );
+    s
+}
