@@ -98,6 +98,10 @@ pub struct ShardEstimate {
     pub shard_output_bytes: u64,
     /// Peak memory of the merge (the run's estimate, `T` whole).
     pub merge_peak_bytes: u64,
+    /// CPU seconds of tracing all of `T`, from the time the sample took (its wall time x
+    /// threads, per sampled vertex, x vertices): a rough guide for `--time`; the
+    /// compressors come on top.
+    pub transfer_cpu_seconds: f64,
 }
 
 /// One shard: its index, vertex range and the files it writes (relative to the manifest).
@@ -260,6 +264,7 @@ pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Man
         shard_peak_bytes: common + t.build_peak().max(t.save_peak()).max(t.csr + compress_peak),
         shard_output_bytes: t.file_bytes + parts.iter().map(|c| c.form).sum::<u64>(),
         merge_peak_bytes: run.peak().bytes,
+        transfer_cpu_seconds: run.nnz.seconds * threads as f64 * vertices as f64 / run.nnz.sampled.max(1) as f64,
     };
 
     let manifest = Manifest {
@@ -783,6 +788,13 @@ pub fn describe(m: &Manifest, path: &Path, available: Option<&Available>) -> Str
     if let Some(a) = available {
         s += &format!(" ({} available here, {})", human(a.bytes), a.source);
     }
+    let largest = sizes.iter().max().copied().unwrap_or(0) as f64 / m.vertices.max(1) as f64;
+    s += &format!(
+        "\n  tracing: about {:.1} CPU-minutes in all, {:.1} for the largest shard (from the sample's speed; \
+         compressors come on top)",
+        e.transfer_cpu_seconds / 60.0,
+        e.transfer_cpu_seconds * largest / 60.0
+    );
     s += &format!(
         "\n  run: biscale shard sbatch {p} (Slurm), or locally: seq 0 {} | xargs -P 2 -I{{}} biscale shard run {p} --index {{}}\n  then: biscale shard merge {p}\n",
         m.shards.len() - 1,
