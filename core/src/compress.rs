@@ -327,16 +327,18 @@ pub trait Compressor: Send + Sync {
     }
     /// The form of the rows of one vertex range of the whole `T`: `t` holds those rows alone,
     /// and `first_vertex` is the range's first vertex in the whole matrix (a multiple of
-    /// [`Separability::Rows`]' `vertex_multiple`). Separable compressors override it; the
-    /// default compresses a range that is the whole matrix and refuses any other.
+    /// [`Separability::Rows`]' `vertex_multiple`). By default a separable compressor's part
+    /// is [`Self::compress`] of its rows (override it when the part depends on where the range
+    /// lies, as biclustering's block seeds do); a whole one compresses a range that is the
+    /// whole matrix and refuses any other.
     fn compress_part(
         &self,
         t: &TransferMatrix,
         first_vertex: usize,
         ctx: &CompressContext<'_>,
     ) -> Result<CompressedForm, CompressError> {
-        match first_vertex {
-            0 => self.compress(t, ctx),
+        match (self.separability(t.shape()), first_vertex) {
+            (Separability::Rows { .. }, _) | (_, 0) => self.compress(t, ctx),
             _ => Err(CompressError::Params(format!("{} does not compress vertex ranges separately", self.kind()))),
         }
     }

@@ -25,15 +25,8 @@ enum Command {
     Run {
         /// The experiment's TOML file.
         config: PathBuf,
-        /// Output folder (default: out/<experiment name>/).
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Do not read or write the transfer-matrix cache.
-        #[arg(long)]
-        no_cache: bool,
-        /// Cache folder (default: .cache beside the output folder).
-        #[arg(long)]
-        cache_dir: Option<PathBuf>,
+        #[command(flatten)]
+        output: OutputArgs,
     },
     /// Print what `run` would do and what it leaves out, without running anything.
     Plan { config: PathBuf },
@@ -115,6 +108,26 @@ enum Command {
     },
 }
 
+/// Where a run writes: its output folder and the stage cache.
+#[derive(clap::Args)]
+struct OutputArgs {
+    /// Output folder (default: out/<experiment name>/).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Do not read or write the stage cache (T, compressed forms, BTFs).
+    #[arg(long)]
+    no_cache: bool,
+    /// Cache folder (default: .cache beside the output folder).
+    #[arg(long)]
+    cache_dir: Option<PathBuf>,
+}
+
+impl OutputArgs {
+    fn options(self) -> RunOptions {
+        RunOptions { out_dir: self.out, cache_dir: self.cache_dir, no_cache: self.no_cache }
+    }
+}
+
 #[derive(Subcommand)]
 enum Shard {
     /// Write DIR/manifest.json: the vertex range and outputs of each shard, which compressors
@@ -142,15 +155,8 @@ enum Shard {
     /// whole-matrix compressors, gathers, images, report) as `biscale run` would.
     Merge {
         manifest: PathBuf,
-        /// Output folder (default: out/<experiment name>/).
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Do not read or write the cache (by default the merged T and forms go into it).
-        #[arg(long)]
-        no_cache: bool,
-        /// Cache folder (default: .cache beside the output folder).
-        #[arg(long)]
-        cache_dir: Option<PathBuf>,
+        #[command(flatten)]
+        output: OutputArgs,
     },
     /// Write slurm/shards.sbatch (a job array over the shards), slurm/merge.sbatch and
     /// slurm/submit.sh (the array, then the merge with --dependency=afterok) beside the
@@ -227,10 +233,9 @@ fn main() -> std::process::ExitCode {
 fn run() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
-        Command::Run { config, out, no_cache, cache_dir } => {
+        Command::Run { config, output } => {
             let exp = load(&config)?;
-            let opts = RunOptions { out_dir: out, cache_dir, no_cache };
-            biscale::pipeline::run(&exp, &opts).with_context(|| format!("running {}", config.display()))?;
+            biscale::pipeline::run(&exp, &output.options()).with_context(|| format!("running {}", config.display()))?;
         }
         Command::Plan { config } => {
             let exp = load(&config)?;
@@ -321,9 +326,8 @@ fn shard(what: Shard) -> anyhow::Result<()> {
         Shard::Status { manifest } => {
             shard::status(&manifest)?;
         }
-        Shard::Merge { manifest, out, no_cache, cache_dir } => {
-            let opts = RunOptions { out_dir: out, cache_dir, no_cache };
-            shard::merge(&manifest, &opts).with_context(|| format!("merging {}", manifest.display()))?;
+        Shard::Merge { manifest, output } => {
+            shard::merge(&manifest, &output.options()).with_context(|| format!("merging {}", manifest.display()))?;
         }
         Shard::Sbatch { manifest, partition, time, mem, merge_mem, cpus, out, cache_dir } => {
             let o = shard::SbatchOptions {

@@ -31,7 +31,7 @@
 use crate::config::{CompressorSetting, Experiment};
 use crate::memory::{human, Available};
 use crate::pipeline::{build_compressor, PipelineError, Precomputed, Result, RunOptions};
-use biscale_core::compress::{CompressContext, CompressedForm, Separability};
+use biscale_core::compress::{CompressContext, CompressedForm, Compressor, Separability};
 use biscale_core::io::{write_atomic_bytes, ContentHash};
 use biscale_core::transfer::{self, TransferMatrix};
 use serde::{Deserialize, Serialize};
@@ -346,6 +346,16 @@ impl Manifest {
         })
     }
 
+    /// The compressor of the separable setting `label`, built from the config.
+    fn compressor(&self, exp: &Experiment, label: &str, path: &Path) -> Result<Box<dyn Compressor>> {
+        let setting = crate::plan::Plan::new(exp)
+            .compressors
+            .into_iter()
+            .find(|c| c.label == label)
+            .ok_or_else(|| invalid(path, format!("the config has no compressor '{label}' any more")))?;
+        build_compressor(&setting)
+    }
+
     /// The command that (re)runs shard `index`.
     pub fn rerun_command(&self, manifest: &Path, index: usize) -> String {
         format!("biscale shard run {} --index {index}", manifest.display())
@@ -414,12 +424,7 @@ pub fn run(path: &Path, index: usize) -> Result<ShardDone> {
     let mut compressor_seconds = vec![];
     let mut forms: Vec<(String, CompressedForm)> = vec![];
     for s in &m.separable {
-        let setting = crate::plan::Plan::new(&exp)
-            .compressors
-            .into_iter()
-            .find(|c| c.label == s.label)
-            .ok_or_else(|| invalid(path, format!("the config has no compressor '{}' any more", s.label)))?;
-        let c = build_compressor(&setting)?;
+        let c = m.compressor(&exp, &s.label, path)?;
         let ctx = CompressContext { seed: exp.file.seed, progress: None };
         let form = c
             .compress_part(&build.matrix, range.start, &ctx)
@@ -607,12 +612,7 @@ pub fn merge(path: &Path, opts: &RunOptions) -> Result<(PathBuf, crate::metrics:
     let matrix = stacked?;
     let mut forms = std::collections::BTreeMap::new();
     for s in &m.separable {
-        let setting = crate::plan::Plan::new(&exp)
-            .compressors
-            .into_iter()
-            .find(|c| c.label == s.label)
-            .ok_or_else(|| invalid(path, format!("the config has no compressor '{}' any more", s.label)))?;
-        let c = build_compressor(&setting)?;
+        let c = m.compressor(&exp, &s.label, path)?;
         let parts = m
             .shards
             .iter()

@@ -474,15 +474,6 @@ impl Compressor for Haar {
         Separability::Rows { vertex_multiple: 1 }
     }
 
-    fn compress_part(
-        &self,
-        t: &TransferMatrix,
-        _first: usize,
-        ctx: &CompressContext<'_>,
-    ) -> Result<CompressedForm, CompressError> {
-        self.compress(t, ctx)
-    }
-
     /// Each part's flops count the light's transform once; the whole does too.
     fn merge_parts(&self, shape: TransferShape, parts: Vec<CompressedForm>) -> Result<CompressedForm, CompressError> {
         let mut form = concat_parts(KIND.name, shape, &parts, &["row_ptr"])?;

@@ -102,15 +102,6 @@ impl Compressor for Sparse {
         Separability::Rows { vertex_multiple: 1 }
     }
 
-    fn compress_part(
-        &self,
-        t: &TransferMatrix,
-        _first: usize,
-        ctx: &CompressContext<'_>,
-    ) -> Result<CompressedForm, CompressError> {
-        self.compress(t, ctx)
-    }
-
     fn merge_parts(&self, shape: TransferShape, parts: Vec<CompressedForm>) -> Result<CompressedForm, CompressError> {
         concat_parts("sparse", shape, &parts, &["row_ptr"])
     }
