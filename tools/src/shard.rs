@@ -101,6 +101,7 @@ pub struct ShardEstimate {
     /// CPU seconds of tracing all of `T`, from the time the sample took (its wall time x
     /// threads, per sampled vertex, x vertices): a rough guide for `--time`; the
     /// compressors come on top.
+    #[serde(default)]
     pub transfer_cpu_seconds: f64,
 }
 

@@ -118,9 +118,19 @@ impl SceneBvh {
     /// Primitives (BVH order) that a ray from `origin` could hit if its direction `d` is within
     /// `cone` and above the plane through `origin` with normal `normal` (`d . normal > 0`),
     /// appended to `out`. Conservative: every primitive such a ray hits (with the
-    /// [`EDGE_TOLERANCE`] of the triangle test) is listed; others may be.
-    pub(crate) fn cone_candidates(&self, origin: Vec3A, normal: Vec3A, cone: &Cone, out: &mut Vec<u32>) {
-        self.cones.query(origin, normal, cone, out);
+    /// [`EDGE_TOLERANCE`] of the triangle test) is listed; others may be. The query stops as
+    /// soon as more than `limit` are found and returns false: a list that long is not used
+    /// (the caller traces through the BVH), and finishing it cost most of the transfer time on
+    /// large meshes, where a tile's cone can hold thousands of far triangles.
+    pub(crate) fn cone_candidates(
+        &self,
+        origin: Vec3A,
+        normal: Vec3A,
+        cone: &Cone,
+        out: &mut Vec<u32>,
+        limit: usize,
+    ) -> bool {
+        self.cones.query(origin, normal, cone, out, limit)
     }
 
     /// [`Self::occluded_cached`] testing only `candidates` (from [`Self::cone_candidates`]
@@ -381,7 +391,9 @@ impl ConeTree {
         w.dot(cone.axis) >= cos_ab * dist
     }
 
-    fn query(&self, o: Vec3A, n: Vec3A, cone: &Cone, out: &mut Vec<u32>) {
+    /// Append the reachable primitives to `out`; false (the list cut short) once it holds
+    /// more than `limit`.
+    fn query(&self, o: Vec3A, n: Vec3A, cone: &Cone, out: &mut Vec<u32>, limit: usize) -> bool {
         let mut i = 0usize;
         while i < self.ranges.len() {
             let (a, b, next) = self.ranges[i];
@@ -395,9 +407,13 @@ impl ConeTree {
                         out.push(p);
                     }
                 }
+                if out.len() > limit {
+                    return false;
+                }
             }
             i += 1;
         }
+        true
     }
 }
 
@@ -444,6 +460,37 @@ mod tests {
             Vec3::new(0.0, 0.0, 1.0),
         ];
         (p, vec![[0, 3, 2], [0, 2, 1]])
+    }
+
+    #[test]
+    fn a_capped_cone_query_is_the_full_list_or_a_longer_prefix_of_it() {
+        // A grid of 20 x 20 quads under a point looking down through cones of several widths.
+        let (mut p, mut t) = (vec![], vec![]);
+        for i in 0..20 {
+            for j in 0..20 {
+                let b = p.len() as u32;
+                let (x, z) = (i as f32, j as f32);
+                p.extend([Vec3::new(x, 0.0, z), Vec3::new(x + 1.0, 0.0, z), Vec3::new(x + 1.0, 0.0, z + 1.0)]);
+                t.push([b, b + 2, b + 1]);
+            }
+        }
+        let bvh = SceneBvh::build(&p, &t);
+        let (o, n) = (Vec3A::new(10.0, 3.0, 10.0), Vec3A::NEG_Y);
+        for angle in [0.05f32, 0.3, 0.8, 1.2] {
+            let cone = Cone { axis: Vec3A::NEG_Y, cos: angle.cos(), sin: angle.sin() };
+            let mut full = vec![];
+            assert!(bvh.cone_candidates(o, n, &cone, &mut full, usize::MAX));
+            for limit in [0, 1, 5, 40, 1000] {
+                let mut capped = vec![];
+                let complete = bvh.cone_candidates(o, n, &cone, &mut capped, limit);
+                assert_eq!(complete, full.len() <= limit, "angle {angle}, limit {limit}");
+                if complete {
+                    assert_eq!(capped, full);
+                } else {
+                    assert!(capped.len() > limit && full.starts_with(&capped), "angle {angle}, limit {limit}");
+                }
+            }
+        }
     }
 
     #[test]

@@ -178,8 +178,7 @@ impl VisibilitySampler {
                     }
                     if !queried {
                         candidates.clear();
-                        bvh.cone_candidates(o, n_a, cone, candidates);
-                        brute = candidates.len() <= BRUTE_FORCE_MAX;
+                        brute = bvh.cone_candidates(o, n_a, cone, candidates, BRUTE_FORCE_MAX);
                         queried = true;
                         #[cfg(test)]
                         {
