@@ -135,6 +135,18 @@ pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, Stri
         name = escape(&m.experiment)
     );
     let _ = write!(s, "<p>Config <code>{}</code>, backend {}.</p>", escape(&m.config), escape(&m.backend));
+    if let Some(r) = &m.run {
+        let _ = write!(
+            s,
+            "<p>Run: {}.</p><table><tr><th>stage</th><th>wall s</th><th>CPU s</th></tr>",
+            escape(&r.summary())
+        );
+        for t in &r.stages {
+            let cpu = t.cpu_seconds.map_or("?".into(), |c| format!("{c:.2}"));
+            let _ = write!(s, "<tr><td>{}</td><td>{:.2}</td><td>{cpu}</td></tr>", escape(&t.stage), t.wall_seconds);
+        }
+        s += "</table>";
+    }
     let _ = write!(s, "<pre>{}</pre>", escape(plan_text));
     let _ = write!(
         s,

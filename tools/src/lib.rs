@@ -25,6 +25,7 @@ pub mod metrics;
 pub mod pipeline;
 pub mod plan;
 pub mod plots;
+pub mod provenance;
 pub mod report;
 pub mod shard;
 pub mod staging;

@@ -15,6 +15,10 @@ use std::path::{Path, PathBuf};
 #[derive(Parser)]
 #[command(name = "biscale", version, about, long_about)]
 struct Cli {
+    /// Worker threads for tracing, compressing and gathering (default: RAYON_NUM_THREADS, or
+    /// one per core); recorded in metrics.json.
+    #[arg(long, global = true)]
+    threads: Option<usize>,
     #[command(subcommand)]
     command: Command,
 }
@@ -232,6 +236,10 @@ fn main() -> std::process::ExitCode {
 
 fn run() -> anyhow::Result<()> {
     let cli = Cli::parse();
+    if let Some(n) = cli.threads {
+        anyhow::ensure!(n >= 1, "--threads must be at least 1");
+        rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("--threads")?;
+    }
     match cli.command {
         Command::Run { config, output } => {
             let exp = load(&config)?;

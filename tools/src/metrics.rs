@@ -6,6 +6,8 @@ use std::collections::BTreeMap;
 
 #[derive(Debug, Serialize)]
 pub struct Metrics {
+    /// [`crate::provenance::SCHEMA_VERSION`].
+    pub schema_version: u32,
     pub experiment: String,
     pub config: String,
     pub backend: String,
@@ -26,6 +28,8 @@ pub struct Metrics {
     /// Present when `T` came from a sharded precompute (`biscale shard merge`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sharded: Option<ShardedMetrics>,
+    /// How the run was made (`crate::provenance`).
+    pub run: Option<crate::provenance::RunRecord>,
 }
 
 /// How a sharded precompute went (`crate::shard`).

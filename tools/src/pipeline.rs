@@ -618,6 +618,8 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
 
 /// [`run`], with `T` and the separable forms taken from a sharded precompute when given.
 pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -> Result<(PathBuf, Metrics)> {
+    let config_text = std::fs::read_to_string(&exp.config_path).map_err(io_err(&exp.config_path))?;
+    let mut clock = crate::provenance::StageClock::start(&config_text, exp.file.seed);
     let plan = Plan::new(exp);
     eprint!("{plan}");
     if exp.file.runtime.backend == Backend::Gpu && !cfg!(feature = "gpu") {
@@ -649,7 +651,9 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     let compressors: Vec<(CompressorSetting, Box<dyn Compressor>)> =
         plan.compressors.iter().map(|s| build_compressor(s).map(|c| (s.clone(), c))).collect::<Result<_>>()?;
 
+    clock.mark("setup");
     let geometry = load_geometry(exp)?;
+    clock.mark("geometry");
     for r in &geometry.repairs {
         eprintln!("warning: {}: {r}", exp.mesh_path.display());
     }
@@ -657,7 +661,9 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     for w in &lighting.warnings {
         eprintln!("warning: {w}");
     }
+    clock.mark("lighting");
     let (memory, available) = crate::memory::check_run(exp, &geometry, &lighting, cache.is_some())?;
+    clock.mark("memory estimate");
     let (t, mut pre_forms, sharded) = match pre {
         Some(p) => {
             let t = precomputed_transfer(p.matrix, p.rays_traced, p.transfer_seconds, exp, &geometry, cache.as_ref())?;
@@ -665,6 +671,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
         }
         None => (transfer_matrix(exp, &geometry, cache.as_ref())?, Default::default(), None),
     };
+    clock.mark(if sharded.is_some() { "transfer (stacked from the shards)" } else { "transfer" });
     fault_point("transfer");
     if let Some(w) = sky_warning(&t.metrics, t.matrix.vertices()) {
         eprintln!("warning: {w}");
@@ -673,6 +680,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     for n in &materials.notes {
         eprintln!("materials: {n}");
     }
+    clock.mark("materials");
     let repeats = exp.file.runtime.repeats;
     let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
     let base = baseline(&t.matrix, &lighting, &view, repeats)?;
@@ -690,11 +698,13 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     }
     let exposure = exp.file.report.exposure;
     save_images(&base.render.image, &images_dir, "uncompressed", exposure)?;
+    clock.mark("uncompressed baseline");
     fault_point("images");
     let reference = match plan.reference {
         true => {
             let r = reference(exp, &geometry, &view, &lighting, &base)?;
             save_images(&r.render.image, &images_dir, "reference", exposure)?;
+            clock.mark("reference");
             Some(r)
         }
         false => None,
@@ -709,11 +719,15 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
         out_dir: &out_dir,
     };
     materials.btfs = crate::btf_study::run(&materials, &study)?;
+    clock.mark("btf study");
 
     let mut gpu = match exp.file.runtime.backend {
         Backend::Gpu => Some(GpuBackend::new(&scene, &view.camera)?),
         Backend::Cpu => None,
     };
+    if gpu.is_some() {
+        clock.mark("gpu setup");
+    }
     let eval = Evaluation {
         t: &t.matrix,
         light: &lighting.light,
@@ -740,6 +754,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
         };
         let (record, _) = eval.record(setting, compressor.as_ref(), &form, cached, gpu.as_mut())?;
         records.push(record);
+        clock.mark(format!("compressor {}", setting.label));
         fault_point("compression");
     }
     let inputs = crate::methods::sh::MethodInputs {
@@ -761,11 +776,15 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
         .iter()
         .map(|m| crate::methods::evaluate(m, &inputs, gpu.as_ref()))
         .collect::<Result<Vec<_>>>()?;
+    if !methods.is_empty() {
+        clock.mark("methods");
+    }
 
     let mut metrics =
         Metrics::of_run(exp, &geometry, &lighting, &materials, t.metrics, &base, reference.as_ref(), records, methods);
     metrics.memory = Some(memory.metrics(&available));
     metrics.sharded = sharded;
+    metrics.run = Some(clock.finish());
     write_report(&metrics, &plan, &out_dir)?;
     fault_point("report");
     let out_dir = staged.commit()?;
@@ -788,6 +807,7 @@ impl Metrics {
         methods: Vec<MethodRecord>,
     ) -> Self {
         Metrics {
+            schema_version: crate::provenance::SCHEMA_VERSION,
             experiment: exp.name().to_string(),
             config: exp.config_path.display().to_string(),
             backend: format!("{:?}", exp.file.runtime.backend).to_lowercase(),
@@ -821,6 +841,7 @@ impl Metrics {
             target_error: exp.file.report.target_error,
             memory: None,
             sharded: None,
+            run: None,
         }
     }
 }

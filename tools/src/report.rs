@@ -9,6 +9,15 @@ pub fn markdown(m: &Metrics, plan: &Plan) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# biscale run: {}\n", m.experiment);
     let _ = writeln!(s, "Config `{}`, backend {}.\n", m.config, m.backend);
+    if let Some(r) = &m.run {
+        let _ = writeln!(s, "Run: {}.\n", r.summary());
+        let _ = writeln!(s, "| stage | wall s | CPU s |\n|---|---|---|");
+        for t in &r.stages {
+            let cpu = t.cpu_seconds.map_or("?".into(), |c| format!("{c:.2}"));
+            let _ = writeln!(s, "| {} | {:.2} | {cpu} |", t.stage, t.wall_seconds);
+        }
+        let _ = writeln!(s);
+    }
     let _ = writeln!(s, "```\n{plan}```\n");
     let _ = writeln!(s, "## Scene\n");
     let _ = writeln!(

@@ -459,7 +459,7 @@ pub fn run(path: &Path, index: usize) -> Result<ShardDone> {
         transfer_seconds: build.stats.seconds,
         compressor_seconds,
         seconds: start.elapsed().as_secs_f64(),
-        cpu_seconds: cpu_seconds(),
+        cpu_seconds: crate::provenance::process_cpu_seconds(),
         peak_rss_bytes: crate::memory::peak_rss(),
         threads: rayon::current_num_threads(),
         host: std::fs::read_to_string("/proc/sys/kernel/hostname").map(|h| h.trim().to_string()).unwrap_or_default(),
@@ -472,16 +472,6 @@ pub fn run(path: &Path, index: usize) -> Result<ShardDone> {
         done.peak_rss_bytes.map_or("unknown".into(), human)
     );
     Ok(done)
-}
-
-/// User plus system CPU seconds of this process (`/proc/self/stat`, fields 14 and 15).
-fn cpu_seconds() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    let rest = &stat[stat.rfind(')')? + 2..];
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
-    // The kernel's USER_HZ is 100 on every Linux biscale runs on.
-    Some(ticks / 100.0)
 }
 
 /// What is wrong with a shard, if anything.

@@ -161,3 +161,33 @@ fn an_isolated_plugin_that_crashes_fails_the_run_with_its_cause() {
     assert!(!err.contains("panicked"), "{err}");
     assert!(!out.join("metrics.json").exists(), "a failed run wrote metrics");
 }
+
+#[test]
+fn every_run_records_how_it_was_made() {
+    let dir = tempfile::tempdir().unwrap();
+    let (out, cache) = (dir.path().join("out"), dir.path().join("cache"));
+    let cfg = root().join("configs/smoke.toml");
+    let args = ["--threads", "1", "run", cfg.to_str().unwrap(), "--out", out.to_str().unwrap()];
+    let (ok, _, err) = biscale(&[&args[..], &["--cache-dir", cache.to_str().unwrap()]].concat());
+    assert!(ok, "{err}");
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
+    assert_eq!(m["schema_version"], 2);
+    let r = &m["run"];
+    assert_eq!(r["threads"], 1, "--threads");
+    assert_eq!(r["config_text"], std::fs::read_to_string(&cfg).unwrap());
+    assert_eq!(r["seed"], 7);
+    assert_eq!(r["biscale_version"], env!("CARGO_PKG_VERSION"));
+    assert!(r["command"].as_array().unwrap().iter().any(|a| a == "--threads"));
+    assert!(r["rustc"].as_str().unwrap().starts_with("rustc "), "{}", r["rustc"]);
+    let stages: Vec<&str> = r["stages"].as_array().unwrap().iter().map(|s| s["stage"].as_str().unwrap()).collect();
+    for want in ["geometry", "transfer", "uncompressed baseline", "reference", "compressor bicluster"] {
+        assert!(stages.contains(&want), "{stages:?}");
+    }
+    let sum: f64 = r["stages"].as_array().unwrap().iter().map(|s| s["wall_seconds"].as_f64().unwrap()).sum();
+    assert!(sum <= r["wall_seconds"].as_f64().unwrap(), "stages {sum} s > run {}", r["wall_seconds"]);
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("Run: biscale ") && report.contains("| compressor bicluster |"), "{report}");
+    let (ok, _, err) = biscale(&["--threads", "0", "plan", cfg.to_str().unwrap()]);
+    assert!(!ok && err.contains("--threads must be at least 1"), "{err}");
+}
