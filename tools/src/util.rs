@@ -1,15 +1,107 @@
-//! Small shared helpers of the pipeline: progress bars.
+//! Small shared helpers of the pipeline: progress reports.
+//!
+//! On a terminal, progress is an indicatif bar. When stderr is not a terminal (a batch job's
+//! log, a pipe), the bar would print nothing, so a line is printed instead at most every
+//! [`PROGRESS_SECONDS_VAR`] seconds (default 10): how far, how long, and about how long is left.
 
 use indicatif::{ProgressBar, ProgressStyle};
+use std::io::IsTerminal;
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
 
-/// A progress bar on stderr for `len` steps of `what` (hidden when stderr is not a terminal).
-pub fn progress_bar(len: u64, what: &str) -> ProgressBar {
-    let pb = ProgressBar::new(len);
-    pb.set_style(
+/// Environment variable: seconds between progress lines when stderr is not a terminal.
+pub const PROGRESS_SECONDS_VAR: &str = "BISCALE_PROGRESS_SECONDS";
+
+/// Progress of `len` steps of one stage (a bar, or lines in logs).
+pub struct Progress {
+    bar: ProgressBar,
+    lines: Option<Lines>,
+}
+
+struct Lines {
+    what: String,
+    len: u64,
+    start: Instant,
+    every: Duration,
+    /// When the last line was printed, and whether any was.
+    last: Mutex<(Instant, bool)>,
+}
+
+/// A progress report for `len` steps of `what`, on stderr.
+pub fn progress_bar(len: u64, what: &str) -> Progress {
+    let bar = ProgressBar::new(len);
+    bar.set_style(
         ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} ({elapsed} < {eta})")
             .expect("valid template")
             .progress_chars("=> "),
     );
-    pb.set_message(what.to_string());
-    pb
+    bar.set_message(what.to_string());
+    let lines = (!std::io::stderr().is_terminal()).then(|| {
+        let every = std::env::var(PROGRESS_SECONDS_VAR).ok().and_then(|s| s.parse::<f64>().ok()).unwrap_or(10.0);
+        let now = Instant::now();
+        Lines {
+            what: what.to_string(),
+            len,
+            start: now,
+            every: Duration::from_secs_f64(every.clamp(0.0, 1e6)),
+            last: Mutex::new((now, false)),
+        }
+    });
+    Progress { bar, lines }
+}
+
+impl Progress {
+    /// `pos` of the stage's steps are done (callable from any thread).
+    pub fn set_position(&self, pos: u64) {
+        self.bar.set_position(pos);
+        if let Some(l) = &self.lines {
+            let mut last = l.last.lock().unwrap_or_else(|e| e.into_inner());
+            if last.0.elapsed() >= l.every {
+                *last = (Instant::now(), true);
+                eprintln!("{}", l.line(pos));
+            }
+        }
+    }
+
+    /// The stage is over: the bar goes; in logs that saw a progress line, a last one says so.
+    pub fn finish_and_clear(&self) {
+        self.bar.finish_and_clear();
+        if let Some(l) = &self.lines {
+            let last = l.last.lock().unwrap_or_else(|e| e.into_inner());
+            if last.1 {
+                eprintln!("{}: done in {:.1} s", l.what, l.start.elapsed().as_secs_f64());
+            }
+        }
+    }
+}
+
+impl Lines {
+    fn line(&self, pos: u64) -> String {
+        let secs = self.start.elapsed().as_secs_f64();
+        let frac = pos as f64 / self.len.max(1) as f64;
+        let left = match frac > 0.0 && frac < 1.0 {
+            true => format!(", about {:.0} s left", secs * (1.0 - frac) / frac),
+            false => String::new(),
+        };
+        format!("{}: {pos}/{} ({:.0}%), {secs:.1} s{left}", self.what, self.len, 100.0 * frac)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn log_lines_say_how_far_and_how_long_is_left() {
+        let l = Lines {
+            what: "transfer".into(),
+            len: 200,
+            start: Instant::now() - Duration::from_secs(10),
+            every: Duration::ZERO,
+            last: Mutex::new((Instant::now(), false)),
+        };
+        let line = l.line(50);
+        assert!(line.starts_with("transfer: 50/200 (25%), 10.0 s, about 30 s left"), "{line}");
+        assert_eq!(l.line(200), "transfer: 200/200 (100%), 10.0 s");
+    }
 }
