@@ -64,13 +64,26 @@ pub fn write_mtx(t: &TransferMatrix, light: &LightVector, dir: &Path) -> Result<
 }
 
 /// Compare two EXR images (`b` is the reference); optionally write a false-colour error image.
-pub fn diff(a: &Path, b: &Path, error_image: Option<&Path>) -> Result<ImageMetrics> {
+pub fn diff(a: &Path, b: &Path, mask: Option<&Path>, error_image: Option<&Path>) -> Result<ImageMetrics> {
     let (ia, wa) = HdrImage::read_exr(a)?;
     let (ib, wb) = HdrImage::read_exr(b)?;
     for w in wa.iter().chain(&wb) {
         eprintln!("warning: {w}");
     }
-    let m = compare(&ia, &ib, None)?;
+    let mask = match mask {
+        Some(p) => {
+            let (m, w, h) = biscale_core::scene::image::read_mask_png(p)?;
+            if (w, h) != (ib.width, ib.height) {
+                return Err(PipelineError::Mismatch {
+                    path: p.to_path_buf(),
+                    what: format!("the mask is {w}x{h}, the images {}x{}", ib.width, ib.height),
+                });
+            }
+            Some(m)
+        }
+        None => None,
+    };
+    let m = compare(&ia, &ib, mask.as_deref())?;
     if let Some(p) = error_image {
         let (img, scale) = error_image_of(&ia, &ib, None)?;
         write_rgb8_png(&img, p)?;

@@ -106,9 +106,16 @@ enum Command {
         a: PathBuf,
         /// The reference image.
         b: PathBuf,
+        /// Only the pixels where this PNG is white (a run's images/mask.png, or
+        /// images/reference_mask.png against the reference): the report's own definitions.
+        #[arg(long)]
+        mask: Option<PathBuf>,
         /// Also write a false-colour error image (PNG).
         #[arg(long)]
         error_image: Option<PathBuf>,
+        /// Print the figures as one JSON object (psnr is null when the images are equal).
+        #[arg(long)]
+        json: bool,
     },
 }
 
@@ -309,9 +316,19 @@ fn run() -> anyhow::Result<()> {
             }
         }
         Command::Shard { what } => shard(what)?,
-        Command::Diff { a, b, error_image } => {
-            let m = biscale::commands::diff(&a, &b, error_image.as_deref())?;
-            println!("rmse {:.6e}\npsnr {:.3} dB\nrel_l2 {:.6e}\npixels {}", m.rmse, m.psnr, m.rel_l2, m.pixels);
+        Command::Diff { a, b, mask, error_image, json } => {
+            let m = biscale::commands::diff(&a, &b, mask.as_deref(), error_image.as_deref())?;
+            if json {
+                let v = serde_json::json!({
+                    "rmse": m.rmse,
+                    "psnr": m.psnr.is_finite().then_some(m.psnr),
+                    "rel_l2": m.rel_l2,
+                    "pixels": m.pixels,
+                });
+                println!("{v}");
+            } else {
+                println!("rmse {:.6e}\npsnr {:.3} dB\nrel_l2 {:.6e}\npixels {}", m.rmse, m.psnr, m.rel_l2, m.pixels);
+            }
         }
     }
     Ok(())

@@ -698,12 +698,14 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     }
     let exposure = exp.file.report.exposure;
     save_images(&base.render.image, &images_dir, "uncompressed", exposure)?;
+    base.render.write_mask_png(&images_dir.join("mask.png"))?;
     clock.mark("uncompressed baseline");
     fault_point("images");
     let reference = match plan.reference {
         true => {
             let r = reference(exp, &geometry, &view, &lighting, &base)?;
             save_images(&r.render.image, &images_dir, "reference", exposure)?;
+            r.render.write_mask_png(&images_dir.join("reference_mask.png"))?;
             clock.mark("reference");
             Some(r)
         }

@@ -188,6 +188,28 @@ fn every_run_records_how_it_was_made() {
     assert!(sum <= r["wall_seconds"].as_f64().unwrap(), "stages {sum} s > run {}", r["wall_seconds"]);
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(report.contains("Run: biscale ") && report.contains("| compressor bicluster |"), "{report}");
+
+    // `diff` with the run's mask gives the report's own numbers; without it the background
+    // counts too (the report and `diff` used to disagree on the same pair).
+    let img = |name: &str| out.join("images").join(name).to_str().unwrap().to_string();
+    let record = m["compressors"].as_array().unwrap().iter().find(|c| c["name"] == "cpca-k4-c2").unwrap();
+    let pair = [img("cpca-k4-c2.exr"), img("uncompressed.exr")];
+    let mask = img("mask.png");
+    let (ok, json, err) = biscale(&["diff", &pair[0], &pair[1], "--mask", &mask, "--json"]);
+    assert!(ok, "{err}");
+    let masked: serde_json::Value = serde_json::from_str(&json).unwrap();
+    for key in ["rmse", "psnr", "rel_l2"] {
+        let (got, want) = (masked[key].as_f64().unwrap(), record["image"]["vs_uncompressed"][key].as_f64().unwrap());
+        assert!((got - want).abs() <= 1e-12 * want.abs(), "{key}: diff {got}, report {want}");
+    }
+    let (ok, json, err) = biscale(&["diff", &pair[0], &pair[1], "--json"]);
+    assert!(ok, "{err}");
+    let all: serde_json::Value = serde_json::from_str(&json).unwrap();
+    assert_eq!(all["pixels"], 96 * 72);
+    assert!(masked["pixels"].as_u64().unwrap() < 96 * 72 && masked["pixels"].as_u64().unwrap() > 1000, "{masked}");
+    // The reference's mask is at the reference's resolution: refused for these images.
+    let (ok, _, err) = biscale(&["diff", &pair[0], &pair[1], "--mask", &img("reference_mask.png")]);
+    assert!(!ok && err.contains("the mask is 48x36, the images 96x72"), "{err}");
     let (ok, _, err) = biscale(&["--threads", "0", "plan", cfg.to_str().unwrap()]);
     assert!(!ok && err.contains("--threads must be at least 1"), "{err}");
 }

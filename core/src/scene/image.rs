@@ -177,6 +177,30 @@ pub struct Render {
     pub mask: Vec<bool>,
 }
 
+impl Render {
+    /// Write the coverage as an 8-bit grey PNG (255 where the mesh is hit, 0 elsewhere): the
+    /// pixels a run's image errors are measured over, for `biscale diff --mask`.
+    pub fn write_mask_png(&self, path: &Path) -> Result<()> {
+        let (w, h) = (self.image.width, self.image.height);
+        let grey = image::GrayImage::from_raw(w, h, self.mask.iter().map(|&m| if m { 255 } else { 0 }).collect())
+            .ok_or_else(|| {
+                CoreError::Invalid(format!("{}: mask of {} for {w}x{h}", path.display(), self.mask.len()))
+            })?;
+        write_atomic(path, |out| {
+            grey.write_to(out, image::ImageFormat::Png).map_err(|e| format!("cannot write PNG: {e}"))
+        })
+    }
+}
+
+/// A mask written by [`Render::write_mask_png`] (any PNG: a pixel is in where its luma is at
+/// least 128), with its size.
+pub fn read_mask_png(path: &Path) -> Result<(Vec<bool>, u32, u32)> {
+    let img = image::open(path)
+        .map_err(|e| CoreError::Input { path: path.into(), message: format!("not a readable mask image: {e}") })?;
+    let grey = img.to_luma8();
+    Ok((grey.pixels().map(|p| p.0[0] >= 128).collect(), grey.width(), grey.height()))
+}
+
 /// What a primary ray that misses the mesh sees.
 #[derive(Clone, Copy, Debug)]
 pub enum Background<'a> {
