@@ -40,6 +40,8 @@ const OLD_MAGICS: [(&[u8; 8], &str); 2] = [(b"BSCFORM\0", "compressed-form"), (b
 /// Magic, version and total length.
 const PREAMBLE: usize = 8 + 4 + 8;
 const CRC_BYTES: usize = 4;
+/// Bytes [`Artifact::peek`] reads: enough for any header biscale writes.
+pub const PEEK_BYTES: u64 = 1 << 20;
 
 /// A named scalar of an artifact's header.
 #[derive(Clone, Debug, PartialEq)]
@@ -227,21 +229,7 @@ impl Artifact {
             return Err(ArtifactError::Checksum { path: p(), stored, computed });
         }
         let mut r = Reader { bytes: &bytes[..body_end], at: PREAMBLE, path };
-        let kind = r.string("kind")?;
-        let nfields = r.count("field count", 4 + 1 + 4)?;
-        let mut fields = BTreeMap::new();
-        for _ in 0..nfields {
-            let name = r.string("field name")?;
-            let value = match r.u8("field type")? {
-                0 => Field::U64(r.u64("field value")?),
-                1 => Field::F64(f64::from_bits(r.u64("field value")?)),
-                2 => Field::Str(r.string("field value")?),
-                t => return Err(r.corrupt(format!("field '{name}' has unknown type {t}"))),
-            };
-            if fields.insert(name.clone(), value).is_some() {
-                return Err(r.corrupt(format!("field '{name}' appears twice")));
-            }
-        }
+        let (kind, fields) = r.kind_and_fields()?;
         let narrays = r.count("array count", 4 + 1 + 8)?;
         let mut specs = Vec::with_capacity(narrays);
         let mut payload = 0usize;
@@ -277,6 +265,29 @@ impl Artifact {
             arrays.push(NamedArray { name, data });
         }
         Ok(Self { kind, fields, arrays, source: path.to_path_buf() })
+    }
+
+    /// The kind and fields of the artifact at `path`, read from its first bytes (at most
+    /// [`PEEK_BYTES`]) without its arrays: for listing large files (a cache of transfer
+    /// matrices) without reading them. The checksum covers the whole file, so what this
+    /// returns is unverified; [`Self::load`] checks everything.
+    pub fn peek(path: &Path) -> Result<(String, BTreeMap<String, Field>), ArtifactError> {
+        use std::io::Read;
+        let io = |source| ArtifactError::Io { path: path.to_path_buf(), source };
+        let mut bytes = vec![];
+        std::fs::File::open(path).map_err(io)?.take(PEEK_BYTES).read_to_end(&mut bytes).map_err(io)?;
+        let p = || path.to_path_buf();
+        if bytes.len() < PREAMBLE || bytes[..MAGIC.len()] != MAGIC {
+            if let Some((_, what)) = OLD_MAGICS.iter().find(|(m, _)| bytes.starts_with(&m[..])) {
+                return Err(ArtifactError::OldFormat { path: p(), what });
+            }
+            return Err(ArtifactError::WrongMagic { path: p() });
+        }
+        let version = u32::from_le_bytes(bytes[8..12].try_into().unwrap());
+        if version != CONTAINER_VERSION {
+            return Err(ArtifactError::WrongVersion { path: p(), found: version, supported: CONTAINER_VERSION });
+        }
+        Reader { bytes: &bytes, at: PREAMBLE, path }.kind_and_fields()
     }
 
     /// An error naming the file unless this is an artifact of `kind`.
@@ -365,6 +376,25 @@ struct Reader<'a> {
 }
 
 impl<'a> Reader<'a> {
+    /// The kind and the fields, which follow the preamble.
+    fn kind_and_fields(&mut self) -> Result<(String, BTreeMap<String, Field>), ArtifactError> {
+        let kind = self.string("kind")?;
+        let nfields = self.count("field count", 4 + 1 + 4)?;
+        let mut fields = BTreeMap::new();
+        for _ in 0..nfields {
+            let name = self.string("field name")?;
+            let value = match self.u8("field type")? {
+                0 => Field::U64(self.u64("field value")?),
+                1 => Field::F64(f64::from_bits(self.u64("field value")?)),
+                2 => Field::Str(self.string("field value")?),
+                t => return Err(self.corrupt(format!("field '{name}' has unknown type {t}"))),
+            };
+            if fields.insert(name.clone(), value).is_some() {
+                return Err(self.corrupt(format!("field '{name}' appears twice")));
+            }
+        }
+        Ok((kind, fields))
+    }
     fn corrupt(&self, what: impl Into<String>) -> ArtifactError {
         ArtifactError::Corrupt { path: self.path.to_path_buf(), what: what.into() }
     }

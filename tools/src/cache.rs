@@ -115,15 +115,12 @@ pub struct StageCache {
 }
 
 impl StageCache {
-    /// The run's cache (`--cache-dir`, else `<out parent>/.cache`), `None` with `--no-cache`.
-    pub fn new(opts: &RunOptions, out_dir: &Path) -> Option<Self> {
+    /// The run's cache (`--cache-dir`, else [`default_dir`]), `None` with `--no-cache`.
+    pub fn new(opts: &RunOptions, _out_dir: &Path) -> Option<Self> {
         if opts.no_cache {
             return None;
         }
-        let dir = opts.cache_dir.clone().unwrap_or_else(|| {
-            out_dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).join(".cache")
-        });
-        Some(Self { dir })
+        Some(Self { dir: opts.cache_dir.clone().unwrap_or_else(default_dir) })
     }
 
     /// A cache in `dir`.
@@ -380,5 +377,147 @@ mod tests {
         assert_ne!(transfer_key(&mesh, &s).hash, transfer_key(&moved, &s).hash);
         assert_ne!(transfer_key(&mesh, &s).hash, transfer_key(&mesh, &TransferSettings::new(8, 16, 2).unwrap()).hash);
         assert!(transfer_key(&mesh, &s).inputs.contains("mesh hash"));
+    }
+}
+
+/// The cache folder every command shares unless given `--cache-dir`:
+/// `$XDG_CACHE_HOME/biscale`, else `$HOME/.cache/biscale`, else `.cache` in the working folder.
+pub fn default_dir() -> PathBuf {
+    let absolute = |var: &str| std::env::var_os(var).map(PathBuf::from).filter(|p| p.is_absolute());
+    match (absolute("XDG_CACHE_HOME"), absolute("HOME")) {
+        (Some(xdg), _) => xdg.join("biscale"),
+        (None, Some(home)) => home.join(".cache").join("biscale"),
+        (None, None) => PathBuf::from(".cache"),
+    }
+}
+
+/// One file of a cache folder (`biscale cache list`).
+#[derive(Clone, Debug)]
+pub struct Entry {
+    pub name: String,
+    /// `transfer`, `form`, `sh`, `btf`, `lpca`, `temporary` (a write that never finished) or
+    /// `other` (not biscale's).
+    pub kind: &'static str,
+    pub bytes: u64,
+    pub modified: std::time::SystemTime,
+    /// The inputs it was built from, as its key records them (read from the file's header).
+    pub inputs: Option<String>,
+}
+
+/// The kind of a cache file from its name.
+pub fn kind_of(name: &str) -> &'static str {
+    if name.starts_with('.') && name.contains(".tmp-") {
+        return "temporary";
+    }
+    let ext_ok = name.ends_with(".bsf") || name.ends_with(".btf");
+    match name.split('-').next() {
+        Some(k @ ("transfer" | "form" | "sh" | "btf" | "lpca")) if ext_ok => match k {
+            "transfer" => "transfer",
+            "form" => "form",
+            "sh" => "sh",
+            "btf" => "btf",
+            _ => "lpca",
+        },
+        _ => "other",
+    }
+}
+
+/// Every file of the cache folder `dir`, by name (an absent folder is an empty cache).
+pub fn list(dir: &Path) -> std::io::Result<Vec<Entry>> {
+    let read = match std::fs::read_dir(dir) {
+        Ok(r) => r,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(vec![]),
+        Err(e) => return Err(e),
+    };
+    let mut out = vec![];
+    for e in read {
+        let e = e?;
+        let meta = e.metadata()?;
+        if !meta.is_file() {
+            continue;
+        }
+        let name = e.file_name().to_string_lossy().into_owned();
+        let kind = kind_of(&name);
+        let inputs = match kind {
+            "other" | "temporary" => None,
+            _ => Artifact::peek(&e.path()).ok().and_then(|(_, f)| match f.get(INPUTS_FIELD) {
+                Some(Field::Str(s)) => Some(s.clone()),
+                _ => None,
+            }),
+        };
+        out.push(Entry { name, kind, bytes: meta.len(), modified: meta.modified()?, inputs });
+    }
+    out.sort_by(|a, b| a.name.cmp(&b.name));
+    Ok(out)
+}
+
+/// What `biscale cache clean` removes: biscale's files (never `other` ones) of the given
+/// kinds (all when empty) last modified at least `older_than` ago.
+#[derive(Clone, Debug, Default)]
+pub struct CleanFilter {
+    pub kinds: Vec<String>,
+    pub older_than: Option<std::time::Duration>,
+}
+
+/// Remove the files `filter` selects from `dir` (only list them with `dry_run`): the entries
+/// removed.
+pub fn clean(dir: &Path, filter: &CleanFilter, dry_run: bool) -> std::io::Result<Vec<Entry>> {
+    let now = std::time::SystemTime::now();
+    let mut removed = vec![];
+    for e in list(dir)? {
+        let kind_ok = e.kind != "other" && (filter.kinds.is_empty() || filter.kinds.iter().any(|k| k == e.kind));
+        let old_enough = filter.older_than.is_none_or(|d| now.duration_since(e.modified).unwrap_or_default() >= d);
+        if kind_ok && old_enough {
+            if !dry_run {
+                std::fs::remove_file(dir.join(&e.name))?;
+            }
+            removed.push(e);
+        }
+    }
+    Ok(removed)
+}
+
+#[cfg(test)]
+mod listing_tests {
+    use super::*;
+
+    #[test]
+    fn list_names_each_file_and_clean_removes_only_what_is_asked() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = StageCache::in_dir(dir.path());
+        let key = CacheKey::new(0xabc, "mesh abc, 3 vertices");
+        let artifact = Artifact::new("probe").with("n", Field::U64(1));
+        cache.put(&cache.transfer_path(&key), &key, &artifact);
+        cache.put(&cache.form_path(&key, "bicluster"), &key, &artifact);
+        std::fs::write(dir.path().join(".transfer-x.bsf.tmp-1-2"), b"half").unwrap();
+        std::fs::write(dir.path().join("notes.txt"), b"mine").unwrap();
+        let kinds = |entries: &[Entry]| entries.iter().map(|e| (e.name.clone(), e.kind)).collect::<Vec<_>>();
+        let all = list(dir.path()).unwrap();
+        assert_eq!(
+            kinds(&all),
+            [
+                (".transfer-x.bsf.tmp-1-2".to_string(), "temporary"),
+                (format!("form-{}-bicluster.bsf", key.hex()), "form"),
+                ("notes.txt".to_string(), "other"),
+                (format!("transfer-{}.bsf", key.hex()), "transfer"),
+            ]
+        );
+        assert_eq!(all[3].inputs.as_deref(), Some("mesh abc, 3 vertices"), "read from the header");
+        assert!(all[3].bytes > 0);
+
+        // Too young to clean; a dry run removes nothing.
+        let old = CleanFilter { kinds: vec![], older_than: Some(std::time::Duration::from_secs(3600)) };
+        assert!(clean(dir.path(), &old, false).unwrap().is_empty());
+        let temps = CleanFilter { kinds: vec!["temporary".into()], older_than: None };
+        assert_eq!(clean(dir.path(), &temps, true).unwrap().len(), 1);
+        assert_eq!(list(dir.path()).unwrap().len(), 4);
+        assert_eq!(
+            kinds(&clean(dir.path(), &temps, false).unwrap()),
+            [(".transfer-x.bsf.tmp-1-2".into(), "temporary")]
+        );
+        // Everything of biscale's goes; the user's own file stays.
+        assert_eq!(clean(dir.path(), &CleanFilter::default(), false).unwrap().len(), 2);
+        assert_eq!(kinds(&list(dir.path()).unwrap()), [("notes.txt".to_string(), "other")]);
+        assert!(list(&dir.path().join("absent")).unwrap().is_empty());
     }
 }

@@ -41,8 +41,8 @@ enum Command {
         /// Folder to write T.mtx and L.mtx into.
         #[arg(long)]
         out: PathBuf,
-        #[arg(long)]
-        no_cache: bool,
+        #[command(flatten)]
+        cache: CacheArgs,
     },
     /// Pictures of the transfer matrix's structure: sparsity and biclusters of a patch of
     /// vertices, bicluster size and value histograms, per-vertex heat maps on the mesh.
@@ -57,6 +57,8 @@ enum Command {
         /// Vertices in the patch.
         #[arg(long, default_value_t = 8)]
         count: usize,
+        #[command(flatten)]
+        cache: CacheArgs,
     },
     /// Open the interactive viewer (needs the `viewer` feature: `cargo run --release
     /// --features viewer -- view CONFIG`): drag to orbit, wheel to zoom, right-drag or
@@ -91,15 +93,19 @@ enum Command {
         /// and, per compressed representation, dense | compressed | |error| sheets side by side.
         #[arg(long)]
         preview: bool,
-        /// Do not read or write the BTF cache.
-        #[arg(long)]
-        no_cache: bool,
+        #[command(flatten)]
+        cache: CacheArgs,
     },
     /// Split the precompute (T and the separable compressors) into shards for a Slurm job
     /// array or local processes, and merge them into what `run` would have produced.
     Shard {
         #[command(subcommand)]
         what: Shard,
+    },
+    /// List or clean the stage cache.
+    Cache {
+        #[command(subcommand)]
+        what: Cache,
     },
     /// Compare two EXR images: prints RMSE, PSNR and relative L2 of A against B.
     Diff {
@@ -119,24 +125,62 @@ enum Command {
     },
 }
 
+/// The stage cache a command reads and writes.
+#[derive(clap::Args)]
+struct CacheArgs {
+    /// Do not read or write the stage cache (T, compressed forms, BTFs).
+    #[arg(long)]
+    no_cache: bool,
+    /// Cache folder (default: $XDG_CACHE_HOME/biscale, else ~/.cache/biscale; one for every
+    /// command).
+    #[arg(long)]
+    cache_dir: Option<PathBuf>,
+}
+
+impl CacheArgs {
+    fn options(self, out: Option<PathBuf>) -> RunOptions {
+        RunOptions { out_dir: out, cache_dir: self.cache_dir, no_cache: self.no_cache }
+    }
+}
+
 /// Where a run writes: its output folder and the stage cache.
 #[derive(clap::Args)]
 struct OutputArgs {
     /// Output folder (default: out/<experiment name>/).
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Do not read or write the stage cache (T, compressed forms, BTFs).
-    #[arg(long)]
-    no_cache: bool,
-    /// Cache folder (default: .cache beside the output folder).
-    #[arg(long)]
-    cache_dir: Option<PathBuf>,
+    #[command(flatten)]
+    cache: CacheArgs,
 }
 
 impl OutputArgs {
     fn options(self) -> RunOptions {
-        RunOptions { out_dir: self.out, cache_dir: self.cache_dir, no_cache: self.no_cache }
+        self.cache.options(self.out)
     }
+}
+
+#[derive(Subcommand)]
+enum Cache {
+    /// List the cache's files: kind, size, age and the inputs each was built from.
+    List {
+        /// Cache folder (default: $XDG_CACHE_HOME/biscale, else ~/.cache/biscale).
+        #[arg(long)]
+        cache_dir: Option<PathBuf>,
+    },
+    /// Remove cache files (all of biscale's by default; never files that are not biscale's).
+    Clean {
+        #[arg(long)]
+        cache_dir: Option<PathBuf>,
+        /// Only files of these kinds (transfer, form, sh, btf, lpca, temporary).
+        #[arg(long, value_delimiter = ',')]
+        kind: Vec<String>,
+        /// Only files last written at least this many days ago.
+        #[arg(long)]
+        older_than_days: Option<f64>,
+        /// List what would be removed, remove nothing.
+        #[arg(long)]
+        dry_run: bool,
+    },
 }
 
 #[derive(Subcommand)]
@@ -256,9 +300,9 @@ fn run() -> anyhow::Result<()> {
             let exp = load(&config)?;
             print!("{}", biscale::plan::Plan::new(&exp).with_memory(&exp)?);
         }
-        Command::ExportMatrix { config, out, no_cache } => {
+        Command::ExportMatrix { config, out, cache } => {
             let exp = load(&config)?;
-            let opts = RunOptions { out_dir: Some(out.clone()), cache_dir: None, no_cache };
+            let opts = cache.options(Some(out.clone()));
             let (t, l) = biscale::commands::export_matrix(&exp, &out, &opts)?;
             println!(
                 "wrote {} ({} x {}, {} non-zeros) and {} ({} x 3)",
@@ -270,9 +314,9 @@ fn run() -> anyhow::Result<()> {
                 l.len()
             );
         }
-        Command::Viz { config, out, first, count } => {
+        Command::Viz { config, out, first, count, cache } => {
             let exp = load(&config)?;
-            let opts = RunOptions { out_dir: Some(out.clone()), cache_dir: None, no_cache: false };
+            let opts = cache.options(Some(out.clone()));
             for p in biscale::commands::viz(&exp, &out, first, count, &opts)? {
                 println!("wrote {}", p.display());
             }
@@ -290,9 +334,9 @@ fn run() -> anyhow::Result<()> {
             };
             println!("wrote {} ({} vertices, {} triangles)", out.display(), mesh.positions.len(), mesh.triangles.len());
         }
-        Command::Btf { config, material, out, preview, no_cache } => {
+        Command::Btf { config, material, out, preview, cache } => {
             let exp = load(&config)?;
-            let opts = RunOptions { out_dir: Some(out.clone()), cache_dir: None, no_cache };
+            let opts = cache.options(Some(out.clone()));
             for w in biscale::commands::btf(&exp, &out, material.as_deref(), preview, &opts)? {
                 let how = match &w.origin {
                     biscale::materials::Origin::Analytic => "analytic".to_string(),
@@ -316,6 +360,7 @@ fn run() -> anyhow::Result<()> {
             }
         }
         Command::Shard { what } => shard(what)?,
+        Command::Cache { what } => cache(what)?,
         Command::Diff { a, b, mask, error_image, json } => {
             let m = biscale::commands::diff(&a, &b, mask.as_deref(), error_image.as_deref())?;
             if json {
@@ -369,6 +414,64 @@ fn shard(what: Shard) -> anyhow::Result<()> {
                 println!("wrote {}", f.display());
             }
             println!("submit with: bash {}", files[2].display());
+        }
+    }
+    Ok(())
+}
+
+fn cache(what: Cache) -> anyhow::Result<()> {
+    use biscale::cache;
+    use biscale::memory::human;
+    let age = |m: std::time::SystemTime| {
+        let s = std::time::SystemTime::now().duration_since(m).unwrap_or_default().as_secs_f64();
+        match s {
+            s if s < 3600.0 => format!("{:.0} min", s / 60.0),
+            s if s < 2.0 * 86400.0 => format!("{:.1} h", s / 3600.0),
+            s => format!("{:.0} d", s / 86400.0),
+        }
+    };
+    match what {
+        Cache::List { cache_dir } => {
+            let dir = cache_dir.unwrap_or_else(cache::default_dir);
+            let entries = cache::list(&dir).with_context(|| format!("listing {}", dir.display()))?;
+            println!("{}: {} files, {}", dir.display(), entries.len(), human(entries.iter().map(|e| e.bytes).sum()));
+            for e in &entries {
+                println!(
+                    "{:<9} {:>10} {:>7}  {}{}",
+                    e.kind,
+                    human(e.bytes),
+                    age(e.modified),
+                    e.name,
+                    e.inputs.as_ref().map_or(String::new(), |i| format!("\n{:29}{i}", ""))
+                );
+            }
+        }
+        Cache::Clean { cache_dir, kind, older_than_days, dry_run } => {
+            let known = ["transfer", "form", "sh", "btf", "lpca", "temporary"];
+            if let Some(k) = kind.iter().find(|k| !known.contains(&k.as_str())) {
+                anyhow::bail!("--kind {k}: not a kind of cache file (one of {})", known.join(", "));
+            }
+            anyhow::ensure!(
+                older_than_days.is_none_or(|d| d.is_finite() && d >= 0.0),
+                "--older-than-days must be a number of days, at least 0"
+            );
+            let dir = cache_dir.unwrap_or_else(cache::default_dir);
+            let filter = cache::CleanFilter {
+                kinds: kind,
+                older_than: older_than_days.map(|d| std::time::Duration::from_secs_f64(d * 86400.0)),
+            };
+            let removed =
+                cache::clean(&dir, &filter, dry_run).with_context(|| format!("cleaning {}", dir.display()))?;
+            for e in &removed {
+                println!("{} {}", if dry_run { "would remove" } else { "removed" }, e.name);
+            }
+            println!(
+                "{}: {} {} files, {}",
+                dir.display(),
+                if dry_run { "would remove" } else { "removed" },
+                removed.len(),
+                human(removed.iter().map(|e| e.bytes).sum())
+            );
         }
     }
     Ok(())

@@ -72,7 +72,7 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> PipelineError + '_ {
 pub struct RunOptions {
     /// Output folder (default `out/<name>/`).
     pub out_dir: Option<PathBuf>,
-    /// Cache folder for stage outputs (default `<out parent>/.cache`); `None` with
+    /// Cache folder for stage outputs (default [`crate::cache::default_dir`]); `None` with
     /// `no_cache` disables caching.
     pub cache_dir: Option<PathBuf>,
     pub no_cache: bool,

@@ -213,3 +213,34 @@ fn every_run_records_how_it_was_made() {
     let (ok, _, err) = biscale(&["--threads", "0", "plan", cfg.to_str().unwrap()]);
     assert!(!ok && err.contains("--threads must be at least 1"), "{err}");
 }
+
+#[test]
+fn every_command_shares_one_default_cache_that_cache_lists_and_cleans() {
+    let dir = tempfile::tempdir().unwrap();
+    let xdg = dir.path().join("xdg");
+    let run = |args: &[&str]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_biscale"))
+            .args(args)
+            .current_dir(root())
+            .env("XDG_CACHE_HOME", &xdg)
+            .output()
+            .unwrap();
+        let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+        assert!(out.status.success(), "{args:?}: {text}");
+        text
+    };
+    let out = dir.path().join("out");
+    run(&["run", "configs/smoke.toml", "--out", out.to_str().unwrap()]);
+    let cache = xdg.join("biscale");
+    let listed = run(&["cache", "list"]);
+    assert!(listed.starts_with(&format!("{}: 6 files", cache.display())), "{listed}");
+    assert!(listed.contains("transfer ") && listed.contains("of the mesh of 1839 vertices"), "{listed}");
+    // Another command finds T there (the cache is shared, not beside each output folder).
+    let export = run(&["export-matrix", "configs/smoke.toml", "--out", dir.path().join("mtx").to_str().unwrap()]);
+    assert!(export.contains("transfer: loaded from cache"), "{export}");
+    let cleaned = run(&["cache", "clean", "--kind", "form"]);
+    assert!(cleaned.contains("removed 5 files"), "{cleaned}");
+    assert!(run(&["cache", "list"]).starts_with(&format!("{}: 1 files", cache.display())));
+    run(&["cache", "clean"]);
+    assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 0);
+}
