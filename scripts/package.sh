@@ -22,5 +22,16 @@ args=()
 for l in "${libs[@]}"; do args+=(-p "$l"); done
 echo "package: ${libs[*]} (without building)"
 package --no-verify "${args[@]}"
+# cargo unpacks the packaged crates into $CARGO_HOME/registry/src/<hash of this checkout's path>/
+# and never unpacks a name-version pair again once that folder exists, so a second checkout at the
+# same path (CI's) would build against the sources of an earlier commit. No biscale crate comes
+# from crates.io: every such folder is one of these stale copies. The verifying build gets a target
+# folder of its own, emptied first: cargo takes a compiled registry crate of the same version to be
+# unchanged, so the workspace's target folder could hold one built from an earlier commit.
+registry_src="${CARGO_HOME:-$HOME/.cargo}/registry/src"
+for stale in "$registry_src"/*/biscale-*; do
+    [[ -d "$stale" ]] && rm -rf "$stale"
+done
+rm -rf target/package-verify
 echo "package: biscale-kernels biscale-core biscale-plugin-api (built from the packaged sources)"
-package -p biscale-kernels -p biscale-core -p biscale-plugin-api
+package --target-dir target/package-verify -p biscale-kernels -p biscale-core -p biscale-plugin-api
