@@ -3,6 +3,8 @@
 //! Every compressed gather (CPU or GPU) is checked against [`reference_product`], which
 //! accumulates each row of the uncompressed `T` in f64.
 
+pub mod moments;
+
 use crate::basis::LocalBasis;
 use crate::error::{CoreError, Result};
 use crate::sampling::LightVector;

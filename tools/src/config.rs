@@ -770,6 +770,11 @@ pub struct RuntimeConfig {
     /// Repetitions for timing the gather and shade (medians are reported).
     #[serde(default = "default_repeats")]
     pub repeats: usize,
+    /// Gather the light's three direction moments through the same `T` and weight every texel
+    /// by its own cosine instead of its bin's mean cosine (`biscale_core::gather::moments`).
+    /// `false` is the paper's shading, kept for reproduction.
+    #[serde(default)]
+    pub light_moments: bool,
 }
 
 #[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
@@ -798,6 +803,7 @@ impl Default for RuntimeConfig {
             height: default_height(),
             camera: CameraConfig::default(),
             repeats: default_repeats(),
+            light_moments: false,
         }
     }
 }

@@ -277,6 +277,12 @@ pub struct TransferMetrics {
 pub struct UncompressedMetrics {
     pub gather_ms: f64,
     pub shade_ms: f64,
+    /// `[runtime] light_moments`: every `L*` of the run weights texels by their own cosine.
+    pub light_moments: bool,
+    /// With light moments: the paper's (bin-mean-cosine) uncompressed image against the
+    /// moments' one, over the covered pixels: how much the moments change the picture.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub paper_vs_moments: Option<ImageErrors>,
 }
 
 #[derive(Debug, Serialize)]
@@ -287,6 +293,10 @@ pub struct ReferenceMetrics {
     /// Error of the per-vertex (uncompressed) render against the reference: the
     /// "per-vertex sampling" part of the error.
     pub uncompressed_vs_reference: ImageErrors,
+    /// With light moments: the paper-mode uncompressed image against the same (exact-cosine)
+    /// reference, the side-by-side figure of what the moments gain.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub uncompressed_paper_vs_reference: Option<ImageErrors>,
 }
 
 #[derive(Clone, Copy, Debug, Serialize)]

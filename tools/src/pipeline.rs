@@ -15,8 +15,9 @@ use crate::staging::{fault_point, StagedDir};
 use crate::util::progress_bar;
 use biscale_compressors::registry::{self, BuildError};
 use biscale_core::compress::{CompressContext, CompressedForm, Compressor};
+use biscale_core::gather::moments::{exact_cosine_product, gather_with_moments, LightMoments};
 use biscale_core::gather::{reference_product, relative_l2_error, LocalRadiance};
-use biscale_core::geometry::{Mesh, Placement};
+use biscale_core::geometry::{Mesh, Placement, VertexFrame};
 use biscale_core::io::write_atomic_bytes;
 use biscale_core::sampling::{EnvMap, LightVector};
 use biscale_core::scene::{Background, Camera, HdrImage, Render, ShadeScene};
@@ -336,20 +337,41 @@ pub(crate) fn errors(m: &ImageMetrics) -> ImageErrors {
 }
 
 /// The uncompressed baseline: the f64 product `T L` (the reference for `L*` errors) and,
-/// rounded to f32, the image every compressor is compared with.
+/// rounded to f32, the image every compressor is compared with. With light moments the
+/// product weights every texel by its own cosine ([`exact_cosine_product`]), and the paper's
+/// bin-mean-cosine `L*` is kept beside it so the report measures both side by side.
 pub struct Baseline {
     pub exact: Vec<[f64; 3]>,
     pub lstar: LocalRadiance,
     pub render: Render,
     pub gather_ms: f64,
     pub shade_ms: f64,
+    /// With light moments: the paper's `L*` and its image.
+    pub paper: Option<(LocalRadiance, Render)>,
 }
 
-fn baseline(t: &TransferMatrix, lighting: &Lighting, view: &View<'_>, repeats: usize) -> Result<Baseline> {
-    let (exact, gather_ms) = timed(repeats, || Ok(reference_product(t, &lighting.light)))?;
+fn baseline(
+    t: &TransferMatrix,
+    lighting: &Lighting,
+    moments: Option<&[VertexFrame]>,
+    view: &View<'_>,
+    repeats: usize,
+) -> Result<Baseline> {
+    let (exact, gather_ms) = timed(repeats, || match moments {
+        None => Ok(reference_product(t, &lighting.light)),
+        Some(frames) => Ok(exact_cosine_product(t, &lighting.light, frames)?),
+    })?;
     let lstar = LocalRadiance::from_f64(t.local_basis(), t.vertices(), &exact)?;
     let (render, shade_ms) = view.timed_render(&lstar, repeats)?;
-    Ok(Baseline { exact, lstar, render, gather_ms, shade_ms })
+    let paper = match moments {
+        None => None,
+        Some(_) => {
+            let lstar = LocalRadiance::from_f64(t.local_basis(), t.vertices(), &reference_product(t, &lighting.light))?;
+            let render = view.render(&lstar, &view.camera)?;
+            Some((lstar, render))
+        }
+    };
+    Ok(Baseline { exact, lstar, render, gather_ms, shade_ms, paper })
 }
 
 /// What every render of the run shares: the scene, the camera and the background.
@@ -389,6 +411,8 @@ pub struct Reference {
     pub camera: Camera,
     pub seconds: f64,
     pub baseline_error: ImageMetrics,
+    /// With light moments: the paper-mode baseline's error against the same reference.
+    pub paper_baseline_error: Option<ImageMetrics>,
 }
 
 fn reference(
@@ -409,6 +433,7 @@ fn reference(
         &geometry.transfer,
         &sampler,
         &camera,
+        exp.file.runtime.light_moments,
         Some(&tick),
     )?
     .with_background(&camera, &view.background);
@@ -416,8 +441,15 @@ fn reference(
     pb.finish_and_clear();
     let small = view.render(&baseline.lstar, &camera)?;
     let baseline_error = compare(&small.image, &render.image, Some(&render.mask))?;
+    let paper_baseline_error = match &baseline.paper {
+        Some((lstar, _)) => {
+            let small = view.render(lstar, &camera)?;
+            Some(compare(&small.image, &render.image, Some(&render.mask))?)
+        }
+        None => None,
+    };
     eprintln!("reference: traced {}x{} in {seconds:.1} s", camera.width, camera.height);
-    Ok(Reference { render, camera, seconds, baseline_error })
+    Ok(Reference { render, camera, seconds, baseline_error, paper_baseline_error })
 }
 
 #[cfg(feature = "gpu")]
@@ -461,6 +493,9 @@ fn no_gpu_feature() -> PipelineError {
 pub(crate) struct Evaluation<'a> {
     pub t: &'a TransferMatrix,
     pub light: &'a LightVector,
+    /// With light moments: the light's moments and the vertex frames `T` was traced with;
+    /// every form is then gathered three times and resolved ([`gather_with_moments`]).
+    pub moments: Option<(&'a LightMoments, &'a [VertexFrame])>,
     pub exact: &'a [[f64; 3]],
     pub baseline: &'a Render,
     pub view: &'a View<'a>,
@@ -488,7 +523,13 @@ impl Evaluation<'_> {
     ) -> Result<(CompressorRecord, Render)> {
         let (view, repeats) = (self.view, self.repeats);
         let cerr = |source| PipelineError::Compress { name: setting.label.clone(), source };
-        let (lstar, gather_ms) = timed(repeats, || compressor.gather(form, self.light).map_err(cerr))?;
+        let (lstar, gather_ms) = timed(repeats, || {
+            match self.moments {
+                None => compressor.gather(form, self.light),
+                Some((moments, frames)) => gather_with_moments(compressor, form, moments, frames),
+            }
+            .map_err(cerr)
+        })?;
         let rel_error_lstar = relative_l2_error(lstar.values(), self.exact);
         let (render, shade_ms) = view.timed_render(&lstar, repeats)?;
         let vs_uncompressed = errors(&compare(&render.image, &self.baseline.image, Some(&self.baseline.mask))?);
@@ -625,6 +666,14 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     if exp.file.runtime.backend == Backend::Gpu && !cfg!(feature = "gpu") {
         return Err(no_gpu_feature());
     }
+    if exp.file.runtime.backend == Backend::Gpu && exp.file.runtime.light_moments {
+        return Err(PipelineError::Mismatch {
+            path: exp.config_path.clone(),
+            what: "[runtime] light_moments = true runs on the CPU backend only: the wgpu gather of the three \
+                   moments is not built yet; set backend = \"cpu\" or light_moments = false"
+                .into(),
+        });
+    }
     let target = opts.out_dir.clone().unwrap_or_else(|| Path::new("out").join(exp.name()));
     let cache = StageCache::new(opts, &target);
     if let Some(c) = &cache {
@@ -683,7 +732,12 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     clock.mark("materials");
     let repeats = exp.file.runtime.repeats;
     let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
-    let base = baseline(&t.matrix, &lighting, &view, repeats)?;
+    let moments = match exp.file.runtime.light_moments {
+        true => Some(LightMoments::new(&lighting.light)?),
+        false => None,
+    };
+    let frames = geometry.transfer.frames();
+    let base = baseline(&t.matrix, &lighting, moments.as_ref().map(|_| frames), &view, repeats)?;
     if !base.render.mask.iter().any(|&hit| hit) {
         return Err(PipelineError::Mismatch {
             path: exp.config_path.clone(),
@@ -698,6 +752,9 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     }
     let exposure = exp.file.report.exposure;
     save_images(&base.render.image, &images_dir, "uncompressed", exposure)?;
+    if let Some((_, paper)) = &base.paper {
+        save_images(&paper.image, &images_dir, "uncompressed_paper", exposure)?;
+    }
     base.render.write_mask_png(&images_dir.join("mask.png"))?;
     clock.mark("uncompressed baseline");
     fault_point("images");
@@ -733,6 +790,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     let eval = Evaluation {
         t: &t.matrix,
         light: &lighting.light,
+        moments: moments.as_ref().map(|m| (m, frames)),
         exact: &base.exact,
         baseline: &base.render,
         view: &view,
@@ -831,12 +889,21 @@ impl Metrics {
                 warnings: lighting.warnings.clone(),
             },
             transfer,
-            uncompressed: UncompressedMetrics { gather_ms: base.gather_ms, shade_ms: base.shade_ms },
+            uncompressed: UncompressedMetrics {
+                gather_ms: base.gather_ms,
+                shade_ms: base.shade_ms,
+                light_moments: exp.file.runtime.light_moments,
+                // Same camera, same size: compare cannot fail here.
+                paper_vs_moments: base.paper.as_ref().and_then(|(_, paper)| {
+                    compare(&paper.image, &base.render.image, Some(&base.render.mask)).ok().map(|m| errors(&m))
+                }),
+            },
             reference: reference.map(|r| ReferenceMetrics {
                 width: r.render.image.width,
                 height: r.render.image.height,
                 seconds: r.seconds,
                 uncompressed_vs_reference: errors(&r.baseline_error),
+                uncompressed_paper_vs_reference: r.paper_baseline_error.as_ref().map(errors),
             }),
             compressors,
             methods,

@@ -100,12 +100,16 @@ pub fn markdown(m: &Metrics, plan: &Plan) -> String {
             r.width, r.height, r.seconds, r.uncompressed_vs_reference.rmse, r.uncompressed_vs_reference.psnr, r.uncompressed_vs_reference.rel_l2
         );
     }
+    let _ = writeln!(s, "\n{}", light_moments_summary(m));
     s.push_str(&comparisons_markdown(m));
     s.push_str(&low_vs_all_markdown(m));
     let _ = writeln!(s, "\n## Images\n");
     let _ = writeln!(s, "![uncompressed](images/uncompressed.png)\n");
     if m.reference.is_some() {
         let _ = writeln!(s, "![reference](images/reference.png)\n");
+    }
+    if m.uncompressed.light_moments {
+        let _ = writeln!(s, "![uncompressed, paper's bin-mean cosine](images/uncompressed_paper.png)\n");
     }
     for c in &m.compressors {
         let _ = writeln!(s, "**{}** ([EXR]({})):\n\n![{}]({})\n", c.name, c.image.exr, c.name, c.image.png);
@@ -484,6 +488,32 @@ pub fn comparisons_markdown(m: &Metrics) -> String {
             })
             .collect();
         let _ = writeln!(s, "| {kind} | {} |", cells.join(" | "));
+    }
+    s
+}
+
+/// One sentence on the cosine rule of the run's `L*` (`[runtime] light_moments`) and, with
+/// moments, what they change: the paper-mode image against the moments' one, and both against
+/// the (exact-cosine) reference when one was traced.
+pub(crate) fn light_moments_summary(m: &Metrics) -> String {
+    if !m.uncompressed.light_moments {
+        return "Cosine rule: the paper's, every texel of a local bin weighted by the bin's mean cosine \
+                (`[runtime] light_moments = false`)."
+            .into();
+    }
+    let mut s = String::from(
+        "Cosine rule: light moments, every texel weighted by its own cosine (three gathers of the light's \
+         direction moments through each form; `[runtime] light_moments = true`).",
+    );
+    if let Some(e) = &m.uncompressed.paper_vs_moments {
+        let _ = write!(s, " The paper's bin-mean-cosine image differs from it by rel. L2 {:.4}.", e.rel_l2);
+    }
+    if let Some((r, paper)) = m.reference.as_ref().and_then(|r| r.uncompressed_paper_vs_reference.map(|p| (r, p))) {
+        let _ = write!(
+            s,
+            " Against the exact-cosine reference: rel. L2 {:.4} with moments, {:.4} with the paper's rule.",
+            r.uncompressed_vs_reference.rel_l2, paper.rel_l2
+        );
     }
     s
 }

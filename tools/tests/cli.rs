@@ -244,3 +244,49 @@ fn every_command_shares_one_default_cache_that_cache_lists_and_cleans() {
     run(&["cache", "clean"]);
     assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 0);
 }
+
+/// `[runtime] light_moments = true` on the smoke config: every form's `L*` matches the
+/// per-texel-cosine product, the paper's image is kept beside the moments' one, and against
+/// the (exact-cosine) reference the moments' uncompressed image is the closer of the two.
+#[test]
+fn light_moments_are_measured_side_by_side_with_the_papers_cosine() {
+    let dir = tempfile::tempdir().unwrap();
+    let assets = root().join("assets");
+    let text = std::fs::read_to_string(root().join("configs/smoke.toml"))
+        .unwrap()
+        .replace("../assets", assets.to_str().unwrap())
+        .replace("repeats = 1", "repeats = 1\nlight_moments = true");
+    let cfg = dir.path().join("moments.toml");
+    std::fs::write(&cfg, text).unwrap();
+    let (out, cache) = (dir.path().join("out"), dir.path().join("cache"));
+    let (ok, _, err) = biscale(&[
+        "run",
+        cfg.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--cache-dir",
+        cache.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
+    let u = &m["uncompressed"];
+    assert_eq!(u["light_moments"], true);
+    // At 4x4 bins the outer ring's mean cosine is far from its texels' own: the pictures differ.
+    let change = u["paper_vs_moments"]["rel_l2"].as_f64().unwrap();
+    assert!(change > 1e-3, "the moments changed nothing: {change}");
+    let r = &m["reference"];
+    let (moments, paper) = (
+        r["uncompressed_vs_reference"]["rel_l2"].as_f64().unwrap(),
+        r["uncompressed_paper_vs_reference"]["rel_l2"].as_f64().unwrap(),
+    );
+    assert!(moments < paper, "against the exact-cosine reference: moments {moments}, paper {paper}");
+    // Lossless forms gathered through the moments agree with the f64 per-texel product to f32
+    // rounding (every term of a traced T is positive: its texels lie above the horizon).
+    let sparse = m["compressors"].as_array().unwrap().iter().find(|c| c["kind"] == "sparse").unwrap();
+    let e = sparse["rel_error_lstar"].as_f64().unwrap();
+    assert!(e < 1e-6, "sparse rel. error of L* {e}");
+    assert!(out.join("images/uncompressed_paper.png").exists());
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("Cosine rule: light moments"), "{report}");
+}

@@ -439,6 +439,9 @@ pub(crate) fn evaluate(
     let eval = Evaluation {
         t: &m,
         light: &light,
+        // SH light and local bases have no texels or bins to take moments of: the low-frequency
+        // method shades as Sloan et al. do, with or without [runtime] light_moments.
+        moments: None,
         exact: &exact,
         baseline: inp.baseline,
         view: &view,
