@@ -304,6 +304,17 @@ pub trait Compressor: Send + Sync {
     fn compress(&self, t: &TransferMatrix, ctx: &CompressContext<'_>) -> Result<CompressedForm, CompressError>;
     /// The CPU gather on the compressed arrays: `L*` for every row of `T`, RGB.
     fn gather(&self, form: &CompressedForm, light: &LightVector) -> Result<LocalRadiance, CompressError>;
+
+    /// [`Compressor::gather`] of three lights, bit for bit (the light moments of
+    /// [`crate::gather::moments`]). The default gathers them one after another; a compressor
+    /// may fuse them into one pass over its form.
+    fn gather_three(
+        &self,
+        form: &CompressedForm,
+        lights: [&LightVector; 3],
+    ) -> Result<[LocalRadiance; 3], CompressError> {
+        Ok([self.gather(form, lights[0])?, self.gather(form, lights[1])?, self.gather(form, lights[2])?])
+    }
     /// The GPU gather program of `form` (a form of this compressor), as plain data with the
     /// structural checks the host runs before any upload.
     fn kernels(&self, form: &CompressedForm) -> Result<KernelDesc, CompressError>;

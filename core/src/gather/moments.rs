@@ -27,6 +27,7 @@ use crate::geometry::VertexFrame;
 use crate::sampling::{HemisphereGrid, LightVector};
 use crate::transfer::TransferMatrix;
 use glam::DVec3;
+use rayon::prelude::*;
 
 /// The three direction moments of a cubemap light vector: `along[a]` is `L_k d_k[a]` for the
 /// world axes `a = x, y, z` (per RGB channel), `d_k` the centre direction of texel `k`.
@@ -94,20 +95,21 @@ pub fn resolve(along: [&LocalRadiance; 3], frames: &[VertexFrame]) -> Result<Loc
     let inv = inverse_mean_cosines(&grid);
     let m = grid.len();
     let mut out = LocalRadiance::zeros(basis, vertices);
-    for (v, frame) in frames.iter().enumerate() {
+    out.values_mut().par_chunks_mut(m).zip(frames).enumerate().for_each(|(v, (out, frame))| {
         let n = frame.normal.as_dvec3();
         let rows = [along[0].vertex(v), along[1].vertex(v), along[2].vertex(v)];
-        for (j, o) in out.values_mut()[v * m..(v + 1) * m].iter_mut().enumerate() {
+        for (j, o) in out.iter_mut().enumerate() {
             for c in 0..3 {
                 let dot = n.x * rows[0][j][c] as f64 + n.y * rows[1][j][c] as f64 + n.z * rows[2][j][c] as f64;
                 o[c] = (dot * inv[j]) as f32;
             }
         }
-    }
+    });
     Ok(out)
 }
 
-/// `L*'` through `compressor`'s CPU gather of `form`: three gathers, one per moment, then
+/// `L*'` through `compressor`'s CPU gather of `form`: the three moments
+/// ([`Compressor::gather_three`], one fused pass where the compressor has one), then
 /// [`resolve`]. `frames` are the vertex frames `T` was traced with.
 pub fn gather_with_moments(
     compressor: &dyn Compressor,
@@ -116,14 +118,13 @@ pub fn gather_with_moments(
     frames: &[VertexFrame],
 ) -> std::result::Result<LocalRadiance, CompressError> {
     let [x, y, z] = &moments.along;
-    let gathered = [compressor.gather(form, x)?, compressor.gather(form, y)?, compressor.gather(form, z)?];
+    let gathered = compressor.gather_three(form, [x, y, z])?;
     resolve([&gathered[0], &gathered[1], &gathered[2]], frames).map_err(|e| CompressError::External(Box::new(e)))
 }
 
 /// The f64 reference of `L*'`: for every row `(v, j)`, `sum_k T[j, k] L_k (n_v . d_k) / cosbar_j`
 /// with each texel's own cosine (not through the moments).
 pub fn exact_cosine_product(t: &TransferMatrix, light: &LightVector, frames: &[VertexFrame]) -> Result<Vec<[f64; 3]>> {
-    use rayon::prelude::*;
     if t.light_basis() != light.basis() {
         return Err(CoreError::Invalid(format!(
             "the light vector is in the {}, T's light basis is the {}",
