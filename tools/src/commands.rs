@@ -22,7 +22,54 @@ pub fn export_matrix(exp: &Experiment, dir: &Path, opts: &RunOptions) -> Result<
     let lighting = pipeline::load_lighting(exp)?;
     let t = pipeline::transfer_matrix(exp, &geometry, StageCache::new(opts, dir).as_ref())?.matrix;
     write_mtx(&t, &lighting.light, dir)?;
+    write_scene(exp, &geometry, dir)?;
     Ok((t, lighting.light))
+}
+
+/// `mesh.obj` and `view.json` beside the matrices, for an external renderer to see what biscale
+/// sees: the mesh as every stage uses it (repaired, renumbered and placed; vertex `i` is T's
+/// vertex `i`), each vertex's `vn` the normal T was traced with and faces `f a//a b//b c//c`,
+/// so a reader that keeps indices needs no re-indexing; and the run's camera (full
+/// resolution, in the mesh's coordinates) with the lighting's source.
+fn write_scene(exp: &Experiment, geometry: &pipeline::Geometry, dir: &Path) -> Result<()> {
+    use std::fmt::Write as _;
+    let mesh = &geometry.mesh;
+    let mut obj = String::from("# biscale's mesh: vertex i is T's vertex i, vn its traced normal\n");
+    for p in &mesh.positions {
+        let _ = writeln!(obj, "v {} {} {}", p.x, p.y, p.z);
+    }
+    for f in geometry.transfer.frames() {
+        let _ = writeln!(obj, "vn {} {} {}", f.normal.x, f.normal.y, f.normal.z);
+    }
+    for t in &mesh.triangles {
+        let [a, b, c] = t.map(|i| i + 1);
+        let _ = writeln!(obj, "f {a}//{a} {b}//{b} {c}//{c}");
+    }
+    let obj_path = dir.join("mesh.obj");
+    biscale_core::io::write_atomic_bytes(&obj_path, obj.as_bytes())?;
+    let cam = geometry.camera(exp, 1);
+    let v3 = |v: glam::Vec3| [v.x, v.y, v.z];
+    let l = &exp.file.lighting;
+    let view = serde_json::json!({
+        "camera": {
+            "position": v3(cam.position),
+            "target": v3(cam.target),
+            "up": v3(cam.up),
+            "fov_y_degrees": cam.fov_y_degrees,
+            "width": cam.width,
+            "height": cam.height,
+            "pixel_centres": "ray through (x + 0.5, y + 0.5), row 0 at the top",
+        },
+        "env_map": exp.env_path.as_ref().map(|p| std::path::absolute(p).unwrap_or_else(|_| p.clone())),
+        "constant": l.constant,
+        "rotation_degrees": l.rotation_degrees,
+        "sun_boost": l.sun_boost.as_ref().map(|b| *b.get_ref()),
+        "placement": { "centre": [geometry.placement.centre.x, geometry.placement.centre.y, geometry.placement.centre.z], "scale": geometry.placement.scale },
+    });
+    let view_path = dir.join("view.json");
+    let text = serde_json::to_string_pretty(&view).expect("plain JSON");
+    biscale_core::io::write_atomic_bytes(&view_path, text.as_bytes())?;
+    Ok(())
 }
 
 pub fn write_mtx(t: &TransferMatrix, light: &LightVector, dir: &Path) -> Result<()> {

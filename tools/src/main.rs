@@ -35,7 +35,8 @@ enum Command {
     /// Print what `run` would do and what it leaves out, without running anything.
     Plan { config: PathBuf },
     /// Write T.mtx (sparse, Matrix Market) and L.mtx (dense N x 3) for other tools, e.g.
-    /// `scipy.io.mmread`.
+    /// `scipy.io.mmread`, with mesh.obj (T's vertex order and traced normals) and view.json
+    /// (camera and lighting) for an external renderer (scripts/mitsuba_check.py).
     ExportMatrix {
         config: PathBuf,
         /// Folder to write T.mtx and L.mtx into.
@@ -305,7 +306,7 @@ fn run() -> anyhow::Result<()> {
             let opts = cache.options(Some(out.clone()));
             let (t, l) = biscale::commands::export_matrix(&exp, &out, &opts)?;
             println!(
-                "wrote {} ({} x {}, {} non-zeros) and {} ({} x 3)",
+                "wrote {} ({} x {}, {} non-zeros), {} ({} x 3), mesh.obj and view.json",
                 out.join("T.mtx").display(),
                 t.rows(),
                 t.cols(),

@@ -74,6 +74,25 @@ fn export_matrix_writes_matrix_market_files_that_parse_back() {
     let values: Vec<&str> = l.lines().filter(|l| !l.starts_with('%')).collect();
     assert_eq!(values[0], "384 3");
     assert_eq!(values.len(), 1 + 3 * 384);
+    // mesh.obj: one unit normal per vertex, faces naming vertex and normal alike.
+    let obj = std::fs::read_to_string(out.join("mesh.obj")).unwrap();
+    let count = |tag: &str| obj.lines().filter(|l| l.starts_with(tag)).count();
+    assert_eq!((count("v "), count("vn ")), (1839, 1839));
+    for l in obj.lines().filter(|l| l.starts_with("vn ")) {
+        let n: Vec<f64> = l.split_whitespace().skip(1).map(|x| x.parse().unwrap()).collect();
+        assert!((n.iter().map(|x| x * x).sum::<f64>() - 1.0).abs() < 1e-5, "{l}");
+    }
+    for l in obj.lines().filter(|l| l.starts_with("f ")) {
+        for corner in l.split_whitespace().skip(1) {
+            let (v, n) = corner.split_once("//").unwrap();
+            assert_eq!(v, n, "{l}");
+            assert!((1..=1839).contains(&v.parse::<usize>().unwrap()), "{l}");
+        }
+    }
+    let view: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("view.json")).unwrap()).unwrap();
+    assert_eq!((view["camera"]["width"].as_u64(), view["camera"]["height"].as_u64()), (Some(96), Some(72)));
+    assert!(Path::new(view["env_map"].as_str().unwrap()).exists(), "{view}");
 }
 
 #[test]

@@ -1,0 +1,185 @@
+#!/usr/bin/env python3
+"""An external check of biscale's images against Mitsuba 3 (never needed by the tests).
+
+Renders what a biscale run rendered -- the same mesh in biscale's vertex order with the normals
+T was traced with, the same camera, environment map and rotation -- as a white Lambertian
+surface with Mitsuba 3's `direct` integrator (box film filter), and prints the relative L2
+error of biscale's images against it over the covered pixels ("full frame") and over the
+interior (covered pixels whose 5x5 neighbourhood is all covered, so silhouettes are out).
+
+    scripts/setup-python.sh --mitsuba          # .venv with Mitsuba 3 (and libllvm19 if apt can)
+    biscale run CONFIG --out RUN               # a white Lambertian run (albedo 1)
+    biscale export-matrix CONFIG --out SCENE   # mesh.obj and view.json (and T.mtx, L.mtx)
+    .venv/bin/python scripts/mitsuba_check.py SCENE RUN [--spp 1024] [--save mitsuba.exr]
+
+Conventions matched, each from biscale's code:
+* lat-long maps: biscale uses Mitsuba 3's mapping, so the emitter's to_world is only the
+  rotation about +Y by `rotation_degrees` (biscale's `rotate_y`, right-handed);
+* the camera: a pinhole through pixel centres, vertical field of view, row 0 at the top;
+* the mesh: `mesh.obj` has one `vn` per `v` and faces `a//a`, read here into arrays so no
+  loader re-indexes the vertices; Mitsuba interpolates the given normals.
+* shading: biscale's white Lambertian (albedo 1) is Mitsuba's `diffuse` with reflectance 1.
+The run's images are the files `images/<name>.exr` at the run's full resolution; biscale's
+`uncompressed` image (and with light moments `uncompressed_paper`) and every compressor's.
+"""
+
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+
+def read_obj(path):
+    v, vn, f = [], [], []
+    with open(path) as fh:
+        for line in fh:
+            p = line.split()
+            if not p:
+                continue
+            if p[0] == "v":
+                v.append([float(x) for x in p[1:4]])
+            elif p[0] == "vn":
+                vn.append([float(x) for x in p[1:4]])
+            elif p[0] == "f":
+                idx = [int(x.split("/")[0]) - 1 for x in p[1:4]]
+                if any(int(x.split("/")[-1]) - 1 != i for x, i in zip(p[1:4], idx)):
+                    sys.exit(f"{path}: face {len(f)} has a normal index other than its vertex's; export it with biscale")
+                f.append(idx)
+    v, vn, f = np.array(v, np.float32), np.array(vn, np.float32), np.array(f, np.uint32)
+    if len(v) != len(vn):
+        sys.exit(f"{path}: {len(v)} vertices but {len(vn)} normals; export it with `biscale export-matrix`")
+    return v, vn, f
+
+
+def read_exr(mi, path):
+    bmp = mi.Bitmap(path).convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32, srgb_gamma=False)
+    return np.array(bmp, dtype=np.float64)
+
+
+def read_mask(mi, path):
+    bmp = mi.Bitmap(path).convert(mi.Bitmap.PixelFormat.Y, mi.Struct.Type.UInt8, srgb_gamma=False)
+    a = np.array(bmp)
+    return (a[..., 0] if a.ndim == 3 else a) > 127
+
+
+def interior_of(mask, radius=2):
+    inner = mask.copy()
+    h, w = mask.shape
+    padded = np.zeros((h + 2 * radius, w + 2 * radius), bool)
+    padded[radius : radius + h, radius : radius + w] = mask
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            inner &= padded[radius + dy : radius + dy + h, radius + dx : radius + dx + w]
+    return inner
+
+
+def rel_l2(a, b, m):
+    d = (a - b)[m]
+    return float(np.sqrt((d * d).sum() / max((b[m] ** 2).sum(), 1e-300)))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("scene", help="a `biscale export-matrix --out` folder (mesh.obj, view.json)")
+    ap.add_argument("run", help="a `biscale run --out` folder of the same config (images/, metrics.json)")
+    ap.add_argument("--spp", type=int, default=1024, help="samples per pixel (default 1024)")
+    ap.add_argument("--variant", default=None, help="Mitsuba variant (default: llvm_ad_rgb, else scalar_rgb)")
+    ap.add_argument("--save", default=None, help="write Mitsuba's image to this EXR")
+    ap.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    args = ap.parse_args()
+
+    import mitsuba as mi
+
+    variants = [args.variant] if args.variant else ["llvm_ad_rgb", "scalar_rgb"]
+    for var in variants:
+        try:
+            mi.set_variant(var)
+            break
+        except Exception as e:  # the LLVM variant needs libllvm (scripts/setup-python.sh)
+            print(f"mitsuba_check: variant {var} unavailable ({e})", file=sys.stderr)
+    else:
+        sys.exit("mitsuba_check: no Mitsuba variant could be set")
+
+    view = json.load(open(os.path.join(args.scene, "view.json")))
+    metrics = json.load(open(os.path.join(args.run, "metrics.json")))
+    if view.get("sun_boost"):
+        sys.exit("mitsuba_check: sun_boost edits biscale's light vector, not the map Mitsuba reads; check without it")
+    if not view.get("env_map"):
+        sys.exit("mitsuba_check: this check needs an environment map (a constant sky is a trivial case)")
+    cam = view["camera"]
+    v, vn, f = read_obj(os.path.join(args.scene, "mesh.obj"))
+
+    mesh = mi.Mesh("biscale", vertex_count=len(v), face_count=len(f), has_vertex_normals=True, has_vertex_texcoords=False)
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = mi.Float(v.ravel())
+    params["vertex_normals"] = mi.Float(vn.ravel())
+    params["faces"] = mi.UInt(f.ravel())
+    params.update()
+    mesh.set_bsdf(mi.load_dict({"type": "diffuse", "reflectance": {"type": "rgb", "value": [1.0, 1.0, 1.0]}}))
+
+    T = mi.ScalarTransform4f
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "integrator": {"type": "direct"},
+            "sensor": {
+                "type": "perspective",
+                "fov_axis": "y",
+                "fov": cam["fov_y_degrees"],
+                "to_world": T().look_at(origin=cam["position"], target=cam["target"], up=cam["up"]),
+                "sampler": {"type": "multijitter", "sample_count": args.spp},
+                "film": {
+                    "type": "hdrfilm",
+                    "width": cam["width"],
+                    "height": cam["height"],
+                    "rfilter": {"type": "box"},
+                    "pixel_format": "rgb",
+                },
+            },
+            "emitter": {
+                "type": "envmap",
+                "filename": view["env_map"],
+                "to_world": T().rotate([0, 1, 0], view["rotation_degrees"]),
+            },
+            "mesh": mesh,
+        }
+    )
+    image = np.array(mi.render(scene), dtype=np.float64)[..., :3]
+    if args.save:
+        mi.Bitmap(image.astype(np.float32)).write(args.save)
+
+    images = os.path.join(args.run, "images")
+    mask = read_mask(mi, os.path.join(images, "mask.png"))
+    if mask.shape != image.shape[:2]:
+        sys.exit(f"mitsuba_check: the run's mask is {mask.shape[1]}x{mask.shape[0]}, the camera {cam['width']}x{cam['height']}")
+    inner = interior_of(mask)
+    names = ["uncompressed"]
+    if os.path.exists(os.path.join(images, "uncompressed_paper.exr")):
+        names.append("uncompressed_paper")
+    names += [c["name"] for c in metrics.get("compressors", []) if os.path.exists(os.path.join(images, c["name"] + ".exr"))]
+    rows = []
+    for name in names:
+        b = read_exr(mi, os.path.join(images, name + ".exr"))
+        rows.append({"image": name, "full_frame": rel_l2(b, image, mask), "interior": rel_l2(b, image, inner)})
+    out = {
+        "variant": mi.variant(),
+        "spp": args.spp,
+        "pixels": int(mask.sum()),
+        "interior_pixels": int(inner.sum()),
+        "light_moments": metrics["uncompressed"].get("light_moments", False),
+        "rows": rows,
+    }
+    if args.json:
+        print(json.dumps(out))
+        return
+    print(f"Mitsuba {mi.__version__} {out['variant']}, {args.spp} spp; {out['pixels']} covered pixels, {out['interior_pixels']} interior")
+    print("| biscale image | rel. L2, full frame | rel. L2, interior |")
+    print("|---|---|---|")
+    for r in rows:
+        print(f"| {r['image']} | {r['full_frame']:.4f} | {r['interior']:.4f} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,108 @@
+#!/usr/bin/env bash
+# The light-moments study (BENCHMARKS.md, "Light moments"): the bundled bunny, white
+# Lambertian (albedo 1), under every bundled sky and one with its brightest texel boosted into
+# a sun, rendered with `[runtime] light_moments = true`. Each run also keeps the paper's
+# bin-mean-cosine image, so the summary gives, side by side, both uncompressed images against
+# the per-pixel exact-cosine reference (same T visibility, each texel's own cosine at the
+# pixel normal), the paper's image against the moments' one, and the lossless and lossy
+# biclusterings' errors. Then `moments_bench` times the plain gather against the moments
+# gather for every built-in compressor.
+#
+# With Mitsuba 3 in .venv (scripts/setup-python.sh --mitsuba) every run without a boosted sun is
+# also checked against Mitsuba's direct-light render (scripts/mitsuba_check.py, 1024 spp).
+#
+# Usage: scripts/moments-study.sh            (about 5 minutes on 2 cores)
+#   SKIP_BENCH=1 leaves out the gather timing; SKIP_MITSUBA=1 the Mitsuba check;
+#   REUSE=1 keeps runs already in out/moments.
+# Writes out/moments/<sky>/ (one run each) and prints a Markdown table.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+root=$PWD
+out=$root/out/moments
+mkdir -p "$out"
+cargo build --release --locked -p biscale --bin biscale
+B=$root/target/release/biscale
+
+run_sky() { # NAME ENVMAP [SUN_BOOST]
+    local name=$1 env=$2 boost=${3:-} cfg=$out/$1.toml
+    {
+        echo "# Written by scripts/moments-study.sh: white Lambertian bunny under $env${boost:+, brightest texel x$boost}."
+        echo "name = \"moments-$name\""
+        echo "seed = 1"
+        echo "[scene]"
+        echo "mesh = \"$root/assets/meshes/bunny.obj\""
+        echo "[scene.material]"
+        echo "kind = \"lambertian\""
+        echo "albedo = [1.0, 1.0, 1.0]"
+        echo "[lighting]"
+        echo "env_map = \"$root/assets/envmaps/$env\""
+        [ -n "$boost" ] && echo "sun_boost = $boost"
+        echo "[transfer]"
+        echo "cubemap_resolution = 32"
+        echo "visibility_resolution = 64"
+        echo "local_grid = 8"
+        echo "[[compressors]]"
+        echo "kind = \"bicluster\""
+        echo "block_vertices = 1024"
+        echo "[[compressors]]"
+        echo "kind = \"bicluster\""
+        echo "error_budget = 0.1"
+        echo "[runtime]"
+        echo "width = 320"
+        echo "height = 240"
+        echo "repeats = 3"
+        echo "light_moments = true"
+        echo "[runtime.camera]"
+        echo "azimuth_degrees = 25.0"
+        echo "elevation_degrees = 15.0"
+        echo "fov_y_degrees = 30.0"
+        echo "[report]"
+        echo "reference = true"
+        echo "reference_downscale = 2"
+    } >"$cfg"
+    echo "== $name" >&2
+    if [ -n "${REUSE:-}" ] && [ -f "$out/$name/metrics.json" ]; then return; fi
+    "$B" run "$cfg" --out "$out/$name" 2>"$out/$name.log" || { cat "$out/$name.log" >&2; exit 1; }
+}
+
+run_sky courtyard blender_courtyard.exr
+run_sky forest blender_forest.exr
+run_sky studio blender_studio.exr
+run_sky sunset blender_sunset.exr
+run_sky apartment pmndrs_apartment.exr
+run_sky sunset-sun1e3 blender_sunset.exr 1000
+
+python3 - "$out" <<'PY'
+import json, sys, os
+out = sys.argv[1]
+print("| sky | paper vs moments (image) | uncompressed vs reference: paper | with moments | lossless bicluster vs reference | lossy bicluster (10%) vs reference | moments gather / ms (lossless) |")
+print("|---|---|---|---|---|---|---|")
+for name in ["courtyard", "forest", "studio", "sunset", "apartment", "sunset-sun1e3"]:
+    m = json.load(open(os.path.join(out, name, "metrics.json")))
+    u, r = m["uncompressed"], m["reference"]
+    cs = m["compressors"]
+    vs = lambda c: c["image"]["vs_reference"]["rel_l2"]
+    print(f"| {name} | {u['paper_vs_moments']['rel_l2']:.4f} | {r['uncompressed_paper_vs_reference']['rel_l2']:.4f} "
+          f"| {r['uncompressed_vs_reference']['rel_l2']:.4f} | {vs(cs[0]):.4f} | {vs(cs[1]):.4f} | {cs[0]['gather_ms']:.2f} |")
+PY
+if [ -z "${SKIP_MITSUBA:-}" ] && [ -x .venv/bin/python ] && .venv/bin/python -c "import mitsuba" 2>/dev/null; then
+    echo
+    echo "| sky | Mitsuba 3 vs paper: full frame | interior | vs moments: full frame | interior | lossy bicluster (moments): interior |"
+    echo "|---|---|---|---|---|---|"
+    for name in courtyard forest studio sunset apartment; do
+        "$B" export-matrix "$out/$name.toml" --out "$out/$name-scene" >/dev/null 2>&1
+        .venv/bin/python scripts/mitsuba_check.py "$out/$name-scene" "$out/$name" --spp 1024 --json \
+            >"$out/$name-mitsuba.json"
+    done
+    python3 - "$out" <<'PY'
+import json, os, sys
+for name in ["courtyard", "forest", "studio", "sunset", "apartment"]:
+    o = json.load(open(os.path.join(sys.argv[1], name + "-mitsuba.json")))
+    r = {x["image"]: x for x in o["rows"]}
+    p, m, l = r["uncompressed_paper"], r["uncompressed"], r["bicluster-e0.1"]
+    print(f"| {name} | {p['full_frame']:.4f} | {p['interior']:.4f} | {m['full_frame']:.4f} | {m['interior']:.4f} | {l['interior']:.4f} |")
+PY
+fi
+if [ -z "${SKIP_BENCH:-}" ]; then
+    cargo run --release --locked -p biscale-compressors --example moments_bench -- --rounds 21
+fi
