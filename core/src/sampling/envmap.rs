@@ -2,7 +2,9 @@
 //!
 //! The mapping between pixels and directions lives in [`latlong_direction`] and
 //! [`direction_to_latlong`] alone (Mitsuba 3's convention, so a physically based renderer
-//! given the same file sees the same sky): +Y is up, row 0 is the zenith,
+//! given the same file sees the sky in the same directions; pixels are integrated as boxes
+//! here, so one that interpolates bilinearly sees slightly different values): +Y is up, row
+//! 0 is the zenith,
 //! `u = atan2(d.x, -d.z) / 2 pi` (u = 0 looks down -Z, u = 1/4 down +X),
 //! `v = acos(d.y) / pi`.
 //!

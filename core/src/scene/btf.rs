@@ -5,9 +5,8 @@
 //! towards view `e` under a directional light of unit perpendicular irradiance from `d_j`,
 //! *including* `cos(theta_d)`. For an analytic BRDF `f` this is `f(d_j, e) cos(theta_j)`.
 //!
-//! Two choices make the discrete sum `sum_j b_j L*_j` (where `L*_j` is the light *power* that
-//! arrives through bin `j`, i.e. radiance integrated over the bin's `2 pi / M` steradians)
-//! exact for smooth light:
+//! Two choices fix the discrete sum `sum_j b_j L*_j` (where `L*_j` is the light *power* that
+//! arrives through bin `j`, i.e. radiance integrated over the bin's `2 pi / M` steradians):
 //!
 //! * the cosine factor is the bin's **mean** cosine ([`HemisphereGrid::bin_mean_cosine`]), not
 //!   the cosine at its centre. Then `sum_j cosbar_j * 2 pi / M = pi` exactly, so a constant sky
@@ -16,6 +15,13 @@
 //!   `cos` is convex in the concentric coordinate.
 //! * the BRDF lobe itself (the part that depends on the light direction other than the cosine)
 //!   is evaluated at the bin-centre direction ([`HemisphereGrid::bin_direction`]).
+//!
+//! The sum is exact only for fully visible, evenly lit bins (a constant sky). Light that varies
+//! within a bin is weighted by the bin's mean cosine instead of its own: a sun low in an
+//! outer-ring bin, whose cosines span 0 to 0.44, is over-weighted up to an order of magnitude,
+//! one high in the same ring under-weighted, and an occluder that hides a bin's low part
+//! darkens it. `[runtime] light_moments` replaces the mean cosine by each texel's own
+//! (`biscale_core::gather::moments`); the paper's rule stays the default.
 //!
 //! Table layout: `data[(texel * V + view) * M + light]`, texel `= ty * spatial[0] + tx`, `V` the
 //! number of view samples (1 when the BTF is view-independent and has no view axis, docs/DESIGN.md
