@@ -411,60 +411,58 @@ impl Compressor for Bicluster {
 /// The two passes of the gather for `W` lanes of prescaled light per texel (3: one RGB light;
 /// 9: three of them): one `W`-vector per bicluster, then each row's sum of its biclusters'.
 fn gather_lanes<const W: usize>(v: &BiclusterView<'_>, lp: &[[f32; W]]) -> Result<Vec<[f32; W]>, CompressError> {
-    {
-        // Pass 1: one scalar per bicluster.
-        let mut a = vec![[0.0f32; W]; v.biclusters()];
-        a.par_chunks_mut(PASS1_CHUNK)
-            .enumerate()
-            .try_for_each(|(chunk, out)| {
-                for (j, out) in out.iter_mut().enumerate() {
-                    let b = chunk * PASS1_CHUNK + j;
-                    // `bc_col_ptr` has B + 1 entries (header): `b + 1` is in range.
-                    let r = v.bc_col_ptr[b] as usize..v.bc_col_ptr[b + 1] as usize;
-                    let (Some(ks), Some(ts)) = (v.bc_cols.get(r.clone()), v.bc_vals.get(r)) else {
-                        return Err(format!("bicluster {b}: offsets out of order or past bc_cols"));
-                    };
-                    *out = bicluster_sum(ks, ts, lp).map_err(|k| format!("bicluster {b}: column {k} out of range"))?;
+    // Pass 1: one scalar per bicluster.
+    let mut a = vec![[0.0f32; W]; v.biclusters()];
+    a.par_chunks_mut(PASS1_CHUNK)
+        .enumerate()
+        .try_for_each(|(chunk, out)| {
+            for (j, out) in out.iter_mut().enumerate() {
+                let b = chunk * PASS1_CHUNK + j;
+                // `bc_col_ptr` has B + 1 entries (header): `b + 1` is in range.
+                let r = v.bc_col_ptr[b] as usize..v.bc_col_ptr[b + 1] as usize;
+                let (Some(ks), Some(ts)) = (v.bc_cols.get(r.clone()), v.bc_vals.get(r)) else {
+                    return Err(format!("bicluster {b}: offsets out of order or past bc_cols"));
+                };
+                *out = bicluster_sum(ks, ts, lp).map_err(|k| format!("bicluster {b}: column {k} out of range"))?;
+            }
+            Ok(())
+        })
+        .map_err(|what: String| CompressError::malformed("bicluster", "bc_col_ptr", what))?;
+    // Pass 2: each row sums the scalars of its biclusters.
+    let mut values = vec![[0.0f32; W]; v.rows];
+    values
+        .par_chunks_mut(PASS2_CHUNK)
+        .enumerate()
+        .try_for_each(|(chunk, out)| {
+            // The row's block, and the block's range of `a`, are advanced as the rows go
+            // by, not divided out per row (the division was 8% of the gather on the bunny).
+            // The header checked `block_rows > 0` (rows > 0 here) and all of
+            // `block_bc_base` (blocks + 1 non-decreasing entries ending at B), so each
+            // block's range of `a` is in bounds; `row_ptr` has rows + 1 entries.
+            let first = chunk * PASS2_CHUNK;
+            let mut block = first / v.block_rows;
+            let mut next_block_row = (block + 1) * v.block_rows;
+            let own_of = |block: usize| &a[v.block_bc_base[block] as usize..v.block_bc_base[block + 1] as usize];
+            let mut own = own_of(block);
+            for (j, out) in out.iter_mut().enumerate() {
+                let i = first + j;
+                if i == next_block_row {
+                    block += 1;
+                    next_block_row += v.block_rows;
+                    own = own_of(block);
                 }
-                Ok(())
-            })
-            .map_err(|what: String| CompressError::malformed("bicluster", "bc_col_ptr", what))?;
-        // Pass 2: each row sums the scalars of its biclusters.
-        let mut values = vec![[0.0f32; W]; v.rows];
-        values
-            .par_chunks_mut(PASS2_CHUNK)
-            .enumerate()
-            .try_for_each(|(chunk, out)| {
-                // The row's block, and the block's range of `a`, are advanced as the rows go
-                // by, not divided out per row (the division was 8% of the gather on the bunny).
-                // The header checked `block_rows > 0` (rows > 0 here) and all of
-                // `block_bc_base` (blocks + 1 non-decreasing entries ending at B), so each
-                // block's range of `a` is in bounds; `row_ptr` has rows + 1 entries.
-                let first = chunk * PASS2_CHUNK;
-                let mut block = first / v.block_rows;
-                let mut next_block_row = (block + 1) * v.block_rows;
-                let own_of = |block: usize| &a[v.block_bc_base[block] as usize..v.block_bc_base[block + 1] as usize];
-                let mut own = own_of(block);
-                for (j, out) in out.iter_mut().enumerate() {
-                    let i = first + j;
-                    if i == next_block_row {
-                        block += 1;
-                        next_block_row += v.block_rows;
-                        own = own_of(block);
-                    }
-                    let err = || format!("row {i} names a bicluster out of range or has bad offsets");
-                    let r = v.row_ptr[i] as usize..v.row_ptr[i + 1] as usize;
-                    let sum = match v.row_bc {
-                        RowBc::Local(ids) => row_sum(ids.get(r).ok_or_else(err)?, own),
-                        RowBc::Global(ids) => row_sum(ids.get(r).ok_or_else(err)?, &a),
-                    };
-                    *out = sum.ok_or_else(err)?;
-                }
-                Ok(())
-            })
-            .map_err(|what: String| CompressError::malformed("bicluster", "row_bc", what))?;
-        Ok(values)
-    }
+                let err = || format!("row {i} names a bicluster out of range or has bad offsets");
+                let r = v.row_ptr[i] as usize..v.row_ptr[i + 1] as usize;
+                let sum = match v.row_bc {
+                    RowBc::Local(ids) => row_sum(ids.get(r).ok_or_else(err)?, own),
+                    RowBc::Global(ids) => row_sum(ids.get(r).ok_or_else(err)?, &a),
+                };
+                *out = sum.ok_or_else(err)?;
+            }
+            Ok(())
+        })
+        .map_err(|what: String| CompressError::malformed("bicluster", "row_bc", what))?;
+    Ok(values)
 }
 
 impl Bicluster {

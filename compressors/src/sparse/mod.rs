@@ -108,74 +108,96 @@ impl Compressor for Sparse {
 
     fn gather(&self, form: &CompressedForm, light: &LightVector) -> Result<LocalRadiance, CompressError> {
         form.check_light(light)?;
-        let row_ptr = form.u32s("row_ptr")?;
-        let col_idx = form.u32s("col_idx")?;
-        let values = form.f32s("values")?;
-        if row_ptr.len() != form.rows() + 1 || col_idx.len() != values.len() {
-            return Err(CompressError::malformed("sparse", "row_ptr", "and col_idx/values do not match the shape"));
-        }
-        // Row pointers must be monotone and end at nnz, columns in range: checked where read
-        // (`get`), so a corrupt form is an error, never a panic, at no measurable cost.
-        let malformed = |r: usize| {
-            CompressError::malformed("sparse", "row_ptr", format!("row {r} has an out-of-range offset or column"))
-        };
-        // Rows in chunks written in place, four rows interleaved over their common length: each
-        // row's sum is a chain of dependent adds (its f32 order is the GPU kernel's, kept), so
-        // four independent chains hide the add latency that bounds one row alone.
-        let row = |r: usize| -> Result<(&[u32], &[f32]), CompressError> {
-            let (start, end) = (row_ptr[r] as usize, row_ptr[r + 1] as usize);
-            match (col_idx.get(start..end), values.get(start..end)) {
-                (Some(c), Some(v)) => Ok((c, v)),
-                _ => Err(malformed(r)),
-            }
-        };
         // The light padded to four lanes, so each term is one 4-wide multiply-add.
         let power: Vec<[f32; 4]> = light.power.iter().map(|p| [p[0], p[1], p[2], 0.0]).collect();
-        let power = &power;
-        // One row's dot product, `acc` starting at the sum of its first `from` terms.
-        let dot = |r: usize, from: usize, mut acc: [f32; 4]| -> Result<[f32; 4], CompressError> {
-            let (cols, vals) = row(r)?;
-            for (&k, &v) in cols[from..].iter().zip(&vals[from..]) {
-                let l = power.get(k as usize).ok_or_else(|| malformed(r))?;
-                for c in 0..4 {
-                    acc[c] += v * l[c];
-                }
+        form.lstar(gather_lanes(form, &power)?.into_iter().map(|a| [a[0], a[1], a[2]]).collect())
+    }
+
+    /// The three lights in one pass over the rows, twelve lanes wide (each light padded to
+    /// four): columns and values are read once. Each lane's sum runs in the order of
+    /// [`Compressor::gather`], so the result is its three gathers bit for bit.
+    fn gather_three(
+        &self,
+        form: &CompressedForm,
+        lights: [&LightVector; 3],
+    ) -> Result<[LocalRadiance; 3], CompressError> {
+        for l in lights {
+            form.check_light(l)?;
+        }
+        let [x, y, z] = lights.map(|l| &l.power);
+        let power: Vec<[f32; 12]> = (x.iter().zip(y).zip(z))
+            .map(|((a, b), c)| [a[0], a[1], a[2], 0.0, b[0], b[1], b[2], 0.0, c[0], c[1], c[2], 0.0])
+            .collect();
+        let wide = gather_lanes(form, &power)?;
+        let lane = |i: usize| form.lstar(wide.iter().map(|w| [w[4 * i], w[4 * i + 1], w[4 * i + 2]]).collect());
+        Ok([lane(0)?, lane(1)?, lane(2)?])
+    }
+}
+
+/// Every row's dot product with `W` lanes of light per texel.
+fn gather_lanes<const W: usize>(form: &CompressedForm, power: &[[f32; W]]) -> Result<Vec<[f32; W]>, CompressError> {
+    let row_ptr = form.u32s("row_ptr")?;
+    let col_idx = form.u32s("col_idx")?;
+    let values = form.f32s("values")?;
+    if row_ptr.len() != form.rows() + 1 || col_idx.len() != values.len() {
+        return Err(CompressError::malformed("sparse", "row_ptr", "and col_idx/values do not match the shape"));
+    }
+    // Row pointers must be monotone and end at nnz, columns in range: checked where read
+    // (`get`), so a corrupt form is an error, never a panic, at no measurable cost.
+    let malformed = |r: usize| {
+        CompressError::malformed("sparse", "row_ptr", format!("row {r} has an out-of-range offset or column"))
+    };
+    // Rows in chunks written in place, four rows interleaved over their common length: each
+    // row's sum is a chain of dependent adds (its f32 order is the GPU kernel's, kept), so
+    // four independent chains hide the add latency that bounds one row alone.
+    let row = |r: usize| -> Result<(&[u32], &[f32]), CompressError> {
+        let (start, end) = (row_ptr[r] as usize, row_ptr[r + 1] as usize);
+        match (col_idx.get(start..end), values.get(start..end)) {
+            (Some(c), Some(v)) => Ok((c, v)),
+            _ => Err(malformed(r)),
+        }
+    };
+    // One row's dot product, `acc` starting at the sum of its first `from` terms.
+    let dot = |r: usize, from: usize, mut acc: [f32; W]| -> Result<[f32; W], CompressError> {
+        let (cols, vals) = row(r)?;
+        for (&k, &v) in cols[from..].iter().zip(&vals[from..]) {
+            let l = power.get(k as usize).ok_or_else(|| malformed(r))?;
+            for c in 0..W {
+                acc[c] += v * l[c];
             }
-            Ok(acc)
-        };
-        let mut values_out = vec![[0.0f32; 3]; form.rows()];
-        values_out.par_chunks_mut(ROWS_PER_TASK).enumerate().try_for_each(|(chunk, out)| {
-            let first = chunk * ROWS_PER_TASK;
-            let rest = first + out.len() / 4 * 4;
-            let mut quads = out.chunks_exact_mut(4);
-            for (q, quad) in (&mut quads).enumerate() {
-                let r0 = first + 4 * q;
-                let rows = [row(r0)?, row(r0 + 1)?, row(r0 + 2)?, row(r0 + 3)?];
-                let common = rows.iter().map(|(c, _)| c.len()).min().unwrap_or(0);
-                let cols = rows.map(|(c, _)| &c[..common]);
-                let vals = rows.map(|(_, v)| &v[..common]);
-                let mut acc = [[0.0f32; 4]; 4];
-                for j in 0..common {
-                    for i in 0..4 {
-                        let l = power.get(cols[i][j] as usize).ok_or_else(|| malformed(r0 + i))?;
-                        for c in 0..4 {
-                            acc[i][c] += vals[i][j] * l[c];
-                        }
+        }
+        Ok(acc)
+    };
+    let mut values_out = vec![[0.0f32; W]; form.rows()];
+    values_out.par_chunks_mut(ROWS_PER_TASK).enumerate().try_for_each(|(chunk, out)| {
+        let first = chunk * ROWS_PER_TASK;
+        let rest = first + out.len() / 4 * 4;
+        let mut quads = out.chunks_exact_mut(4);
+        for (q, quad) in (&mut quads).enumerate() {
+            let r0 = first + 4 * q;
+            let rows = [row(r0)?, row(r0 + 1)?, row(r0 + 2)?, row(r0 + 3)?];
+            let common = rows.iter().map(|(c, _)| c.len()).min().unwrap_or(0);
+            let cols = rows.map(|(c, _)| &c[..common]);
+            let vals = rows.map(|(_, v)| &v[..common]);
+            let mut acc = [[0.0f32; W]; 4];
+            for j in 0..common {
+                for i in 0..4 {
+                    let l = power.get(cols[i][j] as usize).ok_or_else(|| malformed(r0 + i))?;
+                    for c in 0..W {
+                        acc[i][c] += vals[i][j] * l[c];
                     }
                 }
-                for (i, o) in quad.iter_mut().enumerate() {
-                    let a = dot(r0 + i, common, acc[i])?;
-                    *o = [a[0], a[1], a[2]];
-                }
             }
-            for (i, o) in quads.into_remainder().iter_mut().enumerate() {
-                let a = dot(rest + i, 0, [0.0; 4])?;
-                *o = [a[0], a[1], a[2]];
+            for (i, o) in quad.iter_mut().enumerate() {
+                *o = dot(r0 + i, common, acc[i])?;
             }
-            Ok::<(), CompressError>(())
-        })?;
-        form.lstar(values_out)
-    }
+        }
+        for (i, o) in quads.into_remainder().iter_mut().enumerate() {
+            *o = dot(rest + i, 0, [0.0; W])?;
+        }
+        Ok::<(), CompressError>(())
+    })?;
+    Ok(values_out)
 }
 
 #[cfg(test)]
