@@ -131,9 +131,10 @@ pub(crate) fn run(materials: &SceneMaterials, inp: &StudyInputs<'_>) -> Result<V
         let png = format!("images/{stem}.png");
         render.image.write_png(&images.join(format!("{stem}.png")), inp.exposure)?;
         let error_png = format!("images/{stem}_error.png");
-        let error_scale = biscale_shading::image::write_error_image(
+        let (error_scale, _) = crate::pipeline::write_error_figure(
             &render.image,
             &dense.image,
+            "all-dense BTFs",
             None,
             &inp.out_dir.join(&error_png),
         )?;

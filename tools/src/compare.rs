@@ -119,6 +119,7 @@ mod tests {
                 exr: String::new(),
                 error_png: None,
                 error_scale: None,
+                error_max: None,
             },
             stats: None,
             gpu: None,

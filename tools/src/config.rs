@@ -862,6 +862,10 @@ pub struct ReportConfig {
     /// Error target of the equal-quality comparison (relative L2 error of L*).
     #[serde(default = "default_target_error")]
     pub target_error: f64,
+    /// Full scale of every compressor's error figure (luminance, linear radiance); by default
+    /// the largest 99th-percentile error of the lossy settings, shared by all.
+    #[serde(default)]
+    pub error_scale: Option<f32>,
 }
 
 fn default_target_error() -> f64 {
@@ -883,6 +887,7 @@ impl Default for ReportConfig {
             exposure: 0.0,
             background: true,
             target_error: default_target_error(),
+            error_scale: None,
         }
     }
 }
@@ -1087,6 +1092,12 @@ impl Experiment {
         range(&file.runtime.width, 1, 16384, "runtime.width")?;
         range(&file.runtime.height, 1, 16384, "runtime.height")?;
         range(&file.report.reference_downscale, 1, 64, "report.reference_downscale")?;
+        if let Some(e) = file.report.error_scale.filter(|e| !(*e > 0.0 && e.is_finite())) {
+            return Err(ConfigError::whole_file(
+                path,
+                format!("report.error_scale must be a positive number, got {e}"),
+            ));
+        }
         if !(file.report.target_error > 0.0 && file.report.target_error.is_finite()) {
             return Err(ConfigError::whole_file(path, "report.target_error must be a positive number"));
         }
@@ -1280,6 +1291,16 @@ mod tests {
         let e = parse(&format!("{OK}{t}[[compressors]]\nkind = \"haar\"\nterms = [12, 385]\n")).unwrap_err();
         assert!(e.to_string().contains("haar-t385") && e.to_string().contains("384 coefficients"), "{e}");
         parse(&format!("{OK}{t}[[compressors]]\nkind = \"haar\"\nterms = 384\n")).unwrap();
+    }
+
+    #[test]
+    fn a_fixed_error_scale_must_be_positive_and_light_moments_parse() {
+        let e = parse(&format!("{OK}[report]\nerror_scale = -1.0\n")).unwrap_err().to_string();
+        assert!(e.contains("report.error_scale must be a positive number, got -1"), "{e}");
+        let exp = parse(&format!("{OK}[report]\nerror_scale = 0.05\n[runtime]\nlight_moments = true\n")).unwrap();
+        assert_eq!(exp.file.report.error_scale, Some(0.05));
+        assert!(exp.file.runtime.light_moments);
+        assert!(!parse(OK).unwrap().file.runtime.light_moments, "the paper's cosine is the default");
     }
 
     #[test]

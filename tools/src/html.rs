@@ -273,10 +273,11 @@ pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, Stri
         if let Some(e) = &c.image.error_png {
             let _ = write!(
                 s,
-                "<figure>{}<figcaption>{}: |error| against the uncompressed render (full scale {:.3e})</figcaption></figure>",
+                "<figure>{}<figcaption>{}: |error| against the uncompressed render (full scale {}, shared; largest {})</figcaption></figure>",
                 img(out_dir, e, &c.name),
                 escape(&c.name),
-                c.image.error_scale.unwrap_or(0.0)
+                crate::plots::tick_label(c.image.error_scale.unwrap_or(0.0) as f64),
+                crate::plots::tick_label(c.image.error_max.unwrap_or(0.0) as f64)
             );
         }
     }

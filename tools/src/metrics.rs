@@ -314,9 +314,11 @@ pub struct ImageRecord {
     pub vs_reference: Option<ImageErrors>,
     pub png: String,
     pub exr: String,
-    /// False-colour |error| against the uncompressed render, and its full-scale value.
+    /// False-colour |error| against the uncompressed render, with its colour bar; its full
+    /// scale (shared by every compressor of the run) and the largest per-pixel error.
     pub error_png: Option<String>,
     pub error_scale: Option<f32>,
+    pub error_max: Option<f32>,
 }
 
 #[derive(Debug, Serialize)]

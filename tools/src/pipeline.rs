@@ -558,9 +558,10 @@ impl Evaluation<'_> {
         let images_dir = self.out_dir.join("images");
         let (png, exr) = save_images(&render.image, &images_dir, name, self.exposure)?;
         let error_rel = format!("images/{name}_error.png");
-        let error_scale = biscale_shading::image::write_error_image(
+        let (error_scale, error_max) = write_error_figure(
             &render.image,
             &self.baseline.image,
+            "uncompressed",
             None,
             &self.out_dir.join(&error_rel),
         )?;
@@ -600,12 +601,67 @@ impl Evaluation<'_> {
                 exr,
                 error_png: Some(error_rel),
                 error_scale: Some(error_scale),
+                error_max: Some(error_max),
             },
             stats: compressor.stats(form, self.t),
             gpu,
         };
         Ok((record, render))
     }
+}
+
+/// The false-colour `|a - b|` of [`biscale_shading::image::error_image`] at `scale` (its own
+/// 99th percentile when `None`) with a colour bar below that says what it measures (`b` is
+/// the image named `against`) and the largest error, written as a PNG: the scale used and
+/// the largest per-pixel error.
+pub(crate) fn write_error_figure(
+    a: &HdrImage,
+    b: &HdrImage,
+    against: &str,
+    scale: Option<f32>,
+    path: &Path,
+) -> Result<(f32, f32)> {
+    let (picture, scale) = biscale_shading::image::error_image(a, b, scale)?;
+    let max = (a.pixels.iter().zip(&b.pixels))
+        .map(|(p, q)| biscale_core::scene::image::luminance(std::array::from_fn(|c| (p[c] - q[c]).abs())))
+        .filter(|e| e.is_finite())
+        .fold(0.0f32, f32::max);
+    let label = format!(
+        "luminance of |error| vs {against} (linear radiance)\nlargest {}",
+        crate::plots::tick_label(max as f64)
+    );
+    let figure = crate::plots::with_colour_bar(&picture, scale, &label)
+        .map_err(|what| PipelineError::Mismatch { path: path.to_path_buf(), what: format!("colour bar: {what}") })?;
+    biscale_core::scene::image::write_rgb8_png(&figure, path)?;
+    Ok((scale, max))
+}
+
+/// One error scale for every compressor of the run, so their error figures compare at a
+/// glance: `[report] error_scale` when set, else the largest of the lossy settings' own 99th
+/// percentiles (every lossy figure then fits; a lossless one, far below, shows dark), else of
+/// all. The figures are drawn again at that scale.
+fn share_error_scale(
+    records: &mut [CompressorRecord],
+    renders: &[Render],
+    baseline: &Render,
+    fixed: Option<f32>,
+    out_dir: &Path,
+) -> Result<()> {
+    let own = |lossy: bool| {
+        records.iter().filter(|r| lossy <= !r.lossless).filter_map(|r| r.image.error_scale).fold(0.0f32, f32::max)
+    };
+    let shared = fixed.unwrap_or_else(|| match own(true) {
+        s if s > 0.0 => s,
+        _ => own(false),
+    });
+    for (r, render) in records.iter_mut().zip(renders) {
+        if let Some(png) = &r.image.error_png {
+            let (scale, _) =
+                write_error_figure(&render.image, &baseline.image, "uncompressed", Some(shared), &out_dir.join(png))?;
+            r.image.error_scale = Some(scale);
+        }
+    }
+    Ok(())
 }
 
 /// The compressor of one setting (a plugin loads its library here).
@@ -799,7 +855,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
         exposure,
         out_dir: &out_dir,
     };
-    let mut records = vec![];
+    let (mut records, mut renders) = (vec![], vec![]);
     for (setting, compressor) in &compressors {
         let (form, cached) = match pre_forms.remove(&setting.label) {
             Some(form) => {
@@ -812,11 +868,14 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
             }
             None => compressed_form(setting, compressor.as_ref(), &t.matrix, &t.key, exp.file.seed, cache.as_ref())?,
         };
-        let (record, _) = eval.record(setting, compressor.as_ref(), &form, cached, gpu.as_mut())?;
+        let (record, render) = eval.record(setting, compressor.as_ref(), &form, cached, gpu.as_mut())?;
         records.push(record);
+        renders.push(render);
         clock.mark(format!("compressor {}", setting.label));
         fault_point("compression");
     }
+    share_error_scale(&mut records, &renders, &base.render, exp.file.report.error_scale, &out_dir)?;
+    drop(renders);
     let inputs = crate::methods::sh::MethodInputs {
         exp,
         geometry: &geometry,

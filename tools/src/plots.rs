@@ -5,6 +5,7 @@
 
 use crate::metrics::CompressorRecord;
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::Once;
@@ -201,8 +202,66 @@ pub fn log_log_plot_with(
     std::fs::rename(&tmp, path).map_err(|e| format!("{}: {e}", path.display()))
 }
 
+/// Height in pixels of the colour bar [`with_colour_bar`] puts under an error picture.
+pub const COLOUR_BAR_HEIGHT: u32 = 60;
+
+/// `picture` (a false-colour error map, [`biscale_shading::image::error_image`]) with its colour
+/// bar below: the viridis ramp from 0 to `scale`, ticks at 0, half and full scale, and
+/// `label` saying what is measured and in which unit (one or two lines, split at `\n`). The
+/// bar is at least 300 pixels wide; a narrower picture is centred above it on white.
+pub fn with_colour_bar(picture: &image::RgbImage, scale: f32, label: &str) -> Result<image::RgbImage, String> {
+    register_font();
+    let w = picture.width().max(300);
+    let mut bar = vec![255u8; (w * COLOUR_BAR_HEIGHT * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut bar, (w, COLOUR_BAR_HEIGHT)).into_drawing_area();
+        let (x0, x1) = (10i32, w as i32 - 10);
+        let e = |e: DrawingAreaErrorKind<_>| e.to_string();
+        for x in x0..x1 {
+            let c = biscale_shading::image::viridis((x - x0) as f32 / (x1 - x0 - 1).max(1) as f32);
+            root.draw(&Rectangle::new([(x, 3), (x + 1, 15)], RGBColor(c[0], c[1], c[2]).filled())).map_err(e)?;
+        }
+        for (frac, h) in [(0.0f32, HPos::Left), (0.5, HPos::Center), (1.0, HPos::Right)] {
+            let x = x0 + ((x1 - x0 - 1) as f32 * frac).round() as i32;
+            root.draw(&PathElement::new(vec![(x, 15), (x, 19)], BLACK)).map_err(e)?;
+            let style = ("sans-serif", 12).into_font().color(&BLACK).pos(Pos::new(h, VPos::Top));
+            root.draw(&Text::new(tick_label((scale * frac) as f64), (x, 20), style)).map_err(e)?;
+        }
+        for (i, line) in label.lines().take(2).enumerate() {
+            let style = ("sans-serif", 12).into_font().color(&BLACK).pos(Pos::new(HPos::Center, VPos::Top));
+            root.draw(&Text::new(line.to_string(), (w as i32 / 2, 33 + 13 * i as i32), style)).map_err(e)?;
+        }
+        root.present().map_err(|e| e.to_string())?;
+    }
+    let mut out = image::RgbImage::from_pixel(w, picture.height() + COLOUR_BAR_HEIGHT, image::Rgb([255, 255, 255]));
+    image::imageops::replace(&mut out, picture, ((w - picture.width()) / 2) as i64, 0);
+    let bar = image::RgbImage::from_raw(w, COLOUR_BAR_HEIGHT, bar).ok_or("colour bar buffer size")?;
+    image::imageops::replace(&mut out, &bar, 0, picture.height() as i64);
+    Ok(out)
+}
+
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_colour_bar_runs_from_zero_to_the_scale_under_the_picture() {
+        let picture = image::RgbImage::from_pixel(120, 30, image::Rgb([1, 2, 3]));
+        let out = with_colour_bar(&picture, 0.25, "luminance of |error|").unwrap();
+        // At least 300 wide, the picture centred on top, the bar below.
+        assert_eq!((out.width(), out.height()), (300, 30 + COLOUR_BAR_HEIGHT));
+        assert_eq!(out.get_pixel(90, 0).0, [1, 2, 3]);
+        assert_eq!(out.get_pixel(89, 0).0, [255, 255, 255]);
+        assert_eq!(out.get_pixel(210, 29).0, [255, 255, 255]);
+        // The ramp's ends are viridis(0) and viridis(1), and it brightens left to right.
+        let ramp = |x: u32| out.get_pixel(x, 30 + 8).0;
+        assert_eq!(ramp(10), biscale_shading::image::viridis(0.0));
+        assert_eq!(ramp(289), biscale_shading::image::viridis(1.0));
+        let lum = |p: [u8; 3]| p.iter().map(|&c| c as u32).sum::<u32>();
+        assert!(lum(ramp(10)) < lum(ramp(150)) && lum(ramp(150)) < lum(ramp(289)));
+        // Tick labels are drawn: dark pixels under the ramp.
+        let dark = (30 + 20..30 + COLOUR_BAR_HEIGHT).flat_map(|y| (0..300).map(move |x| (x, y)));
+        assert!(dark.filter(|&(x, y)| lum(out.get_pixel(x, y).0) < 200).count() > 50);
+    }
+
     #[test]
     fn log_ticks_are_one_two_five_on_short_ranges() {
         use super::log_ticks;

@@ -111,8 +111,19 @@ pub fn markdown(m: &Metrics, plan: &Plan) -> String {
     if m.uncompressed.light_moments {
         let _ = writeln!(s, "![uncompressed, paper's bin-mean cosine](images/uncompressed_paper.png)\n");
     }
+    if let Some(scale) = m.compressors.iter().find_map(|c| c.image.error_scale) {
+        let _ = writeln!(
+            s,
+            "Every compressor's error figure has one colour scale, full scale {} (luminance of |error| against the \
+             uncompressed render, linear radiance; `[report] error_scale` fixes it).\n",
+            crate::plots::tick_label(scale as f64)
+        );
+    }
     for c in &m.compressors {
         let _ = writeln!(s, "**{}** ([EXR]({})):\n\n![{}]({})\n", c.name, c.image.exr, c.name, c.image.png);
+        if let (Some(e), Some(max)) = (&c.image.error_png, c.image.error_max) {
+            let _ = writeln!(s, "![{} error]({e})\n\nlargest error {}\n", c.name, crate::plots::tick_label(max as f64));
+        }
     }
     s
 }

@@ -208,6 +208,20 @@ fn every_run_records_how_it_was_made() {
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(report.contains("Run: biscale ") && report.contains("| compressor bicluster |"), "{report}");
 
+    // One error scale for every compressor; the lossless ones sit far below it; every error
+    // figure carries its colour bar (60 pixels under the 96x72 picture, 300 wide).
+    let cs = m["compressors"].as_array().unwrap();
+    let scale = cs[0]["image"]["error_scale"].as_f64().unwrap();
+    assert!(scale > 0.0 && cs.iter().all(|c| c["image"]["error_scale"].as_f64() == Some(scale)), "{cs:?}");
+    let lossy_max = cs.iter().filter(|c| c["lossless"] == false).map(|c| c["image"]["error_max"].as_f64().unwrap());
+    assert!(lossy_max.fold(0.0, f64::max) >= scale, "the shared scale is a lossy setting's 99th percentile");
+    for c in cs.iter().filter(|c| c["lossless"] == true) {
+        assert!(c["image"]["error_max"].as_f64().unwrap() < 1e-3 * scale, "{c}");
+    }
+    let figure = image::open(out.join(cs[0]["image"]["error_png"].as_str().unwrap())).unwrap();
+    assert_eq!((figure.width(), figure.height()), (300, 72 + 60));
+    assert!(report.contains("one colour scale, full scale"), "{report}");
+
     // `diff` with the run's mask gives the report's own numbers; without it the background
     // counts too (the report and `diff` used to disagree on the same pair).
     let img = |name: &str| out.join("images").join(name).to_str().unwrap().to_string();
