@@ -61,6 +61,7 @@ fn window_shows_the_tone_mapped_frame() {
         fov_y_degrees: 50.0,
         width: w,
         height: h,
+        samples_per_pixel: 1,
     };
     let (rotation, exposure) = (0.7f64, -2.0f32);
     let setup = ViewerSetup {

@@ -104,19 +104,50 @@ pub(crate) fn render_rows(
     let m = scene.local_basis().len();
     let mut image = HdrImage::new(camera.width, camera.height);
     let mut mask = vec![false; w * h];
-    image.pixels.par_chunks_mut(w).zip(mask.par_chunks_mut(w)).enumerate().for_each(|(y, (row, row_mask))| {
-        let mut lstar = vec![[0.0f64; 3]; m];
-        let mut scratch = vec![[0.0f32; 3]; m];
-        for x in 0..w {
-            let (origin, dir) = camera.ray(x as f32 + 0.5, y as f32 + 0.5);
-            if let Some(p) = primary_hit(scene, origin, dir) {
-                row[x] = f(&p, &mut lstar, &mut scratch);
-                row_mask[x] = true;
+    let n = camera.samples_per_axis();
+    let samples = (n * n) as usize;
+    let mut coverage = vec![0.0f32; if samples > 1 { w * h } else { 0 }];
+    let coverage_rows: Vec<&mut [f32]> = match samples {
+        1 => (0..h).map(|_| &mut [][..]).collect(),
+        _ => coverage.chunks_mut(w).collect(),
+    };
+    image.pixels.par_chunks_mut(w).zip(mask.par_chunks_mut(w)).zip(coverage_rows).enumerate().for_each(
+        |(y, ((row, row_mask), row_coverage))| {
+            let mut lstar = vec![[0.0f64; 3]; m];
+            let mut scratch = vec![[0.0f32; 3]; m];
+            for x in 0..w {
+                if samples == 1 {
+                    let (origin, dir) = camera.ray(x as f32 + 0.5, y as f32 + 0.5);
+                    if let Some(p) = primary_hit(scene, origin, dir) {
+                        row[x] = f(&p, &mut lstar, &mut scratch);
+                        row_mask[x] = true;
+                    }
+                    continue;
+                }
+                // The box filter over the pixel: the mean over all n x n samples, with the
+                // missed ones contributing 0 here and the background later.
+                let (mut sum, mut hits) = ([0.0f64; 3], 0usize);
+                for j in 0..n {
+                    for i in 0..n {
+                        let (sx, sy) = camera.sample(x as u32, y as u32, i, j);
+                        let (origin, dir) = camera.ray(sx, sy);
+                        if let Some(p) = primary_hit(scene, origin, dir) {
+                            let c = f(&p, &mut lstar, &mut scratch);
+                            (0..3).for_each(|k| sum[k] += c[k] as f64);
+                            hits += 1;
+                        }
+                    }
+                }
+                if hits > 0 {
+                    row[x] = sum.map(|v| (v / samples as f64) as f32);
+                    row_mask[x] = true;
+                    row_coverage[x] = hits as f32 / samples as f32;
+                }
             }
-        }
-        row_done();
-    });
-    Render { image, mask }
+            row_done();
+        },
+    );
+    Render { image, mask, coverage: (samples > 1).then_some(coverage) }
 }
 
 /// Only the primary rays and the interpolation of the hit points (every covered pixel white):
@@ -339,6 +370,79 @@ pub(crate) mod tests {
         assert!(shade(&scene, &LocalRadiance::zeros(bins(8), 9), &bad_cam).is_err());
     }
 
+    /// Anti-aliasing: a square plane seen from straight above (its image an axis-aligned
+    /// rectangle with edges inside pixels), one Lambertian value `v` everywhere. With 16 samples
+    /// per pixel every pixel must be `v` times the fraction of its 4x4 sample rays that hit the
+    /// square, counted here by an analytic ray-plane test; with a constant background `b`
+    /// added, `v c + b (1 - c)`. One sample per pixel is the pixel centre's ray as before.
+    #[test]
+    fn samples_per_pixel_average_the_box_filter_and_blend_the_background() {
+        let mesh = shapes::grid_plane(2, 2.0);
+        let btf = Btf::lambertian([0.5; 3], bins(4)).unwrap();
+        let lstar = uniform_lstar(btf.local_basis(), mesh.vertex_count(), &[[1.0, 2.0, 3.0]; 16]);
+        let scene = scene_of(&mesh, vec![Material::new(btf)], None);
+        let camera = Camera {
+            position: Vec3::new(0.23, 4.0, 0.37),
+            target: Vec3::new(0.23, 0.0, 0.37),
+            up: Vec3::NEG_Z,
+            fov_y_degrees: 40.0,
+            width: 32,
+            height: 32,
+            samples_per_pixel: 16,
+        };
+        let aa = shade(&scene, &lstar, &camera).unwrap();
+        let one = shade(&scene, &lstar, &Camera { samples_per_pixel: 1, ..camera }).unwrap();
+        assert!(one.coverage.is_none() && aa.coverage.is_some());
+        let v = one.image.get(16, 16);
+        let coverage = aa.coverage.as_ref().unwrap();
+        let inside = |sx: f32, sy: f32| {
+            let (o, d) = camera.ray(sx, sy);
+            let p = o + d * (-o.y / d.y);
+            p.x.abs() < 1.0 && p.z.abs() < 1.0
+        };
+        let (mut partial, mut margin) = (0, f32::MAX);
+        for y in 0..32u32 {
+            for x in 0..32u32 {
+                let mut hits = 0;
+                for j in 0..4 {
+                    for i in 0..4 {
+                        let (sx, sy) = camera.sample(x, y, i, j);
+                        let (o, d) = camera.ray(sx, sy);
+                        let p = o + d * (-o.y / d.y);
+                        margin = margin.min((1.0 - p.x.abs()).abs()).min((1.0 - p.z.abs()).abs());
+                        hits += inside(sx, sy) as u32;
+                    }
+                }
+                let c = hits as f32 / 16.0;
+                let i = (y * 32 + x) as usize;
+                assert_eq!(aa.mask[i], hits > 0, "({x},{y})");
+                assert_eq!(coverage[i], c, "({x},{y})");
+                let got = aa.image.get(x, y);
+                for k in 0..3 {
+                    assert!((got[k] - v[k] * c).abs() <= 1e-6 * v[k], "({x},{y}) {got:?} vs {v:?} x {c}");
+                }
+                partial += (c > 0.0 && c < 1.0) as usize;
+            }
+        }
+        // Every sample is clear of the edge (so the analytic count is the BVH's), and the
+        // edges run through pixels.
+        assert!(margin > 1e-3, "a sample lies {margin} from the square's edge");
+        assert!(partial > 40, "{partial} partly covered pixels");
+        let b = [0.25f32, 0.5, 1.0];
+        let env = EnvMap::constant(8, 4, b);
+        let blended = aa.clone().with_background(&camera, &Background::Env { env: &env, rotation: 0.0 });
+        for (i, (p, q)) in blended.image.pixels.iter().zip(&aa.image.pixels).enumerate() {
+            let c = if aa.mask[i] { coverage[i] } else { 0.0 };
+            for k in 0..3 {
+                let want = q[k] + (1.0 - c) * b[k];
+                assert!((p[k] - want).abs() <= 1e-6 * want.max(1.0), "pixel {i}: {p:?}, coverage {c}");
+            }
+        }
+        // Not a square: refused.
+        let e = shade(&scene, &lstar, &Camera { samples_per_pixel: 8, ..camera }).unwrap_err().to_string();
+        assert!(e.contains("samples_per_pixel must be a square"), "{e}");
+    }
+
     #[test]
     fn view_dependent_shading_uses_the_eye_direction() {
         use rand::{Rng, SeedableRng};
@@ -359,6 +463,7 @@ pub(crate) mod tests {
             fov_y_degrees: 50.0,
             width: 32,
             height: 24,
+            samples_per_pixel: 1,
         };
         let render = shade(&scene, &lstar, &camera).unwrap();
         let mut scratch = vec![[0.0f32; 3]; 64];
@@ -425,6 +530,7 @@ pub(crate) mod tests {
             fov_y_degrees: 45.0,
             width: 40,
             height: 40,
+            samples_per_pixel: 1,
         };
         let render = shade(&scene, &lstar, &camera).unwrap();
         let mut scratch = vec![[0.0f32; 3]; 64];

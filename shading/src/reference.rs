@@ -188,6 +188,7 @@ mod tests {
             fov_y_degrees: 60.0,
             width: 40,
             height: 30,
+            samples_per_pixel: 1,
         };
         let render = render_reference(&scene, &light, &transfer, &sampler, &camera, false, None).unwrap();
         let empty = SceneBvh::build(&[], &[]);
@@ -293,6 +294,7 @@ mod tests {
             fov_y_degrees: 60.0,
             width: 40,
             height: 30,
+            samples_per_pixel: 1,
         };
         let mean_error = |light_moments: bool| {
             let render = render_reference(&scene, &light, &transfer, &sampler, &camera, light_moments, None).unwrap();

@@ -775,6 +775,21 @@ pub struct RuntimeConfig {
     /// `false` is the paper's shading, kept for reproduction.
     #[serde(default)]
     pub light_moments: bool,
+    /// Rays per pixel for anti-aliasing, a square (1, 4, 9, ...; a stratified box filter,
+    /// `biscale_core::scene::Camera`). Default 4 on the CPU backend, 1 on the GPU (whose shader
+    /// takes the pixel centre only): see [`RuntimeConfig::samples_per_pixel`].
+    pub samples_per_pixel: Option<Spanned<u32>>,
+}
+
+impl RuntimeConfig {
+    /// The rays per pixel every render of the run takes: the config's, else 4 (CPU) or 1 (GPU).
+    pub fn samples_per_pixel(&self) -> u32 {
+        match (&self.samples_per_pixel, self.backend) {
+            (Some(s), _) => *s.get_ref(),
+            (None, Backend::Cpu) => 4,
+            (None, Backend::Gpu) => 1,
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
@@ -804,6 +819,7 @@ impl Default for RuntimeConfig {
             camera: CameraConfig::default(),
             repeats: default_repeats(),
             light_moments: false,
+            samples_per_pixel: None,
         }
     }
 }
@@ -1091,6 +1107,26 @@ impl Experiment {
         .map_err(|e| err(t.local_grid.span(), e.to_string()))?;
         range(&file.runtime.width, 1, 16384, "runtime.width")?;
         range(&file.runtime.height, 1, 16384, "runtime.height")?;
+        if let Some(s) = &file.runtime.samples_per_pixel {
+            let n = (*s.get_ref() as f64).sqrt().round() as u32;
+            let max = biscale_core::scene::camera::MAX_SAMPLES_PER_PIXEL;
+            if n * n != *s.get_ref() || n == 0 || *s.get_ref() > max {
+                return Err(err(
+                    s.span(),
+                    format!(
+                        "runtime.samples_per_pixel must be a square (1, 4, 9, 16, ...) of at most {max}, got {}",
+                        s.get_ref()
+                    ),
+                ));
+            }
+            if *s.get_ref() > 1 && file.runtime.backend == Backend::Gpu {
+                return Err(err(
+                    s.span(),
+                    "runtime.samples_per_pixel > 1 needs the CPU backend: the wgpu shader takes one sample per pixel so far"
+                        .into(),
+                ));
+            }
+        }
         range(&file.report.reference_downscale, 1, 64, "report.reference_downscale")?;
         if let Some(e) = file.report.error_scale.filter(|e| !(*e > 0.0 && e.is_finite())) {
             return Err(ConfigError::whole_file(

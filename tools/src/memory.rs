@@ -48,6 +48,9 @@ pub const GEOMETRY_BYTES_PER_VERTEX: u64 = 64;
 pub const IMAGE_BYTES_PER_PIXEL: u64 = 40;
 /// The reference adds per pixel of its size: 20 MiB measured at 1280 x 960.
 pub const REFERENCE_BYTES_PER_PIXEL: u64 = 20;
+/// Every compressor's render stays alive until the run's shared error scale is known (its
+/// f32 RGB image, its coverage and mask): per pixel and setting.
+pub const KEPT_RENDER_BYTES_PER_PIXEL: u64 = 17;
 
 /// Per row of `T`: `T L` in f64 (24), the baseline's `L*` (12), one gather's `L*` (12).
 pub const VECTOR_BYTES_PER_ROW: u64 = 48;
@@ -147,7 +150,8 @@ impl RunMemory {
             true => (*f.runtime.width.get_ref() as u64 / ds).max(1) * (*f.runtime.height.get_ref() as u64 / ds).max(1),
             false => 0,
         };
-        let images = pixels * IMAGE_BYTES_PER_PIXEL + reference_pixels * REFERENCE_BYTES_PER_PIXEL;
+        let kept = pixels * KEPT_RENDER_BYTES_PER_PIXEL * exp.compressor_settings().len() as u64;
+        let images = pixels * IMAGE_BYTES_PER_PIXEL + reference_pixels * REFERENCE_BYTES_PER_PIXEL + kept;
         let btfs = exp.materials().iter().map(|c| btf_bytes(c, m)).sum();
         let vectors = rows * VECTOR_BYTES_PER_ROW + n * 16;
         let gpu_on = f.runtime.backend == Backend::Gpu;

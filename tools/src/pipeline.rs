@@ -329,6 +329,7 @@ pub fn camera_placed(exp: &Experiment, mesh: &Mesh, placement: &Placement, downs
     if let Some(t) = c.target {
         cam.target = placement.apply(t.into());
     }
+    cam.samples_per_pixel = rt.samples_per_pixel();
     cam
 }
 

@@ -4,6 +4,10 @@
 //! Image coordinates: `px` grows to the right, `py` downwards, row 0 is the top of the image;
 //! pixel `(x, y)` covers `[x, x + 1) x [y, y + 1)`, so its centre is `(x + 0.5, y + 0.5)`.
 //! `fov_y_degrees` is the full vertical field of view; pixels are square.
+//!
+//! Anti-aliasing: `samples_per_pixel` is `n^2`, and pixel `(x, y)` averages the rays through
+//! the centres of an `n x n` grid of equal cells, `(x + (i + 0.5) / n, y + (j + 0.5) / n)`
+//! ([`Camera::sample`]): a box filter, stratified. One sample is the pixel centre.
 
 use crate::error::{CoreError, Result};
 use glam::Vec3;
@@ -20,7 +24,12 @@ pub struct Camera {
     pub fov_y_degrees: f32,
     pub width: u32,
     pub height: u32,
+    /// Rays per pixel, a square `n^2` (1, 4, 9, ... up to [`MAX_SAMPLES_PER_PIXEL`]).
+    pub samples_per_pixel: u32,
 }
+
+/// The most rays per pixel a camera takes (16 x 16).
+pub const MAX_SAMPLES_PER_PIXEL: u32 = 256;
 
 impl Camera {
     /// A camera looking at the centre of the box `[min, max]` from the direction given by
@@ -56,7 +65,26 @@ impl Camera {
             fov_y_degrees,
             width,
             height,
+            samples_per_pixel: 1,
         }
+    }
+
+    /// `n`, the side of the pixel's sample grid (`samples_per_pixel = n^2`; 1 if it is not a
+    /// square, which [`Camera::validate`] refuses).
+    pub fn samples_per_axis(&self) -> u32 {
+        let n = (self.samples_per_pixel as f64).sqrt().round() as u32;
+        if n >= 1 && n * n == self.samples_per_pixel {
+            n
+        } else {
+            1
+        }
+    }
+
+    /// The image position of sample `(i, j)` of pixel `(x, y)`: the centre of cell `(i, j)` of
+    /// the pixel's `n x n` grid.
+    pub fn sample(&self, x: u32, y: u32, i: u32, j: u32) -> (f32, f32) {
+        let n = self.samples_per_axis() as f32;
+        (x as f32 + (i as f32 + 0.5) / n, y as f32 + (j as f32 + 0.5) / n)
     }
 
     /// Check the camera can produce rays.
@@ -73,6 +101,13 @@ impl Camera {
         }
         if (self.target - self.position).length_squared() == 0.0 {
             return bad("position equals target".into());
+        }
+        let n = self.samples_per_axis();
+        if n * n != self.samples_per_pixel || self.samples_per_pixel > MAX_SAMPLES_PER_PIXEL {
+            return bad(format!(
+                "samples_per_pixel must be a square (1, 4, 9, 16, ...) of at most {MAX_SAMPLES_PER_PIXEL}, got {}",
+                self.samples_per_pixel
+            ));
         }
         Ok(())
     }
@@ -122,6 +157,7 @@ mod tests {
             fov_y_degrees: 60.0,
             width: 200,
             height: 100,
+            samples_per_pixel: 1,
         };
         cam.validate().unwrap();
         let (o, d) = cam.ray(100.0, 50.0);
@@ -178,8 +214,15 @@ mod tests {
 
     #[test]
     fn degenerate_cameras_are_rejected_or_handled() {
-        let mut cam =
-            Camera { position: Vec3::Y, target: Vec3::ZERO, up: Vec3::Y, fov_y_degrees: 45.0, width: 8, height: 8 };
+        let mut cam = Camera {
+            position: Vec3::Y,
+            target: Vec3::ZERO,
+            up: Vec3::Y,
+            fov_y_degrees: 45.0,
+            width: 8,
+            height: 8,
+            samples_per_pixel: 1,
+        };
         let (r, u, f) = cam.basis();
         assert!(r.is_normalized() && u.is_normalized() && (f - Vec3::NEG_Y).length() < 1e-6, "up parallel to view");
         cam.width = 0;

@@ -173,8 +173,13 @@ pub fn write_rgb8_png(img: &image::RgbImage, path: &Path) -> Result<()> {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Render {
     pub image: HdrImage,
-    /// Row-major like the image: true where the pixel centre's ray hits the mesh.
+    /// Row-major like the image: true where a ray of the pixel hits the mesh (the pixel
+    /// centre's, with one sample per pixel).
     pub mask: Vec<bool>,
+    /// With several samples per pixel: the fraction of each pixel's rays that hit the mesh
+    /// (the image holds the hits' sum over all samples, so a silhouette pixel is partly
+    /// black until [`Render::with_background`]). `None`: every covered pixel is covered whole.
+    pub coverage: Option<Vec<f32>>,
 }
 
 impl Render {
@@ -225,16 +230,25 @@ impl Background<'_> {
 
 impl Render {
     /// Fill every uncovered pixel with what `camera`'s ray through its centre sees of
-    /// `background` (shaders leave uncovered pixels black).
+    /// `background` (shaders leave uncovered pixels black), and add to a partly covered pixel
+    /// its uncovered fraction of that same value (the background changes little across a
+    /// pixel; each missed sample's own ray would differ by about its gradient over half a pixel).
     pub fn with_background(mut self, camera: &Camera, background: &Background<'_>) -> Self {
         if matches!(background, Background::Black) {
             return self;
         }
         let w = self.image.width as usize;
         for (i, (p, covered)) in self.image.pixels.iter_mut().zip(&self.mask).enumerate() {
-            if !covered {
-                let (_, dir) = camera.ray((i % w) as f32 + 0.5, (i / w) as f32 + 0.5);
-                *p = background.radiance(dir);
+            let missed = match (covered, &self.coverage) {
+                (false, _) => 1.0,
+                (true, Some(c)) if c[i] < 1.0 => 1.0 - c[i],
+                (true, _) => continue,
+            };
+            let (_, dir) = camera.ray((i % w) as f32 + 0.5, (i / w) as f32 + 0.5);
+            let bg = background.radiance(dir);
+            match covered {
+                false => *p = bg,
+                true => (0..3).for_each(|c| p[c] += missed * bg[c]),
             }
         }
         self

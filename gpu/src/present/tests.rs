@@ -45,6 +45,7 @@ fn camera(w: u32, h: u32) -> Camera {
         fov_y_degrees: 55.0,
         width: w,
         height: h,
+        samples_per_pixel: 1,
     }
 }
 
@@ -136,6 +137,7 @@ fn background_is_the_rotated_environment_seen_through_the_pixel() {
         fov_y_degrees: cam.fov_y_degrees,
         width: w,
         height: h,
+        samples_per_pixel: 1,
     };
     for rotation in [0.0f32, 1.3, -2.9] {
         let mut tm = ToneMap::new(ctx, wgpu::TextureFormat::Rgba8UnormSrgb).unwrap();

@@ -84,6 +84,17 @@ const _: () = assert!(std::mem::size_of::<ShadeParams>() == 160);
 
 /// Fill the camera fields of `p` from `camera` (its basis, [`Camera::basis`]); `near` and
 /// `far` (view distances) bound the scene.
+/// The wgpu shader traces the pixel centre only: a camera that asks for more samples is
+/// refused rather than shaded differently from the CPU.
+fn one_sample_per_pixel(camera: &Camera) -> Result<()> {
+    match camera.samples_per_pixel {
+        1 => Ok(()),
+        n => Err(GpuError::Input(format!(
+            "the wgpu shader takes one sample per pixel, the camera asks for {n} (samples_per_pixel = 1 with the GPU)"
+        ))),
+    }
+}
+
 fn write_camera(camera: &Camera, p: &mut ShadeParams, near: f64, far: f64) {
     let (r, u, f) = camera.basis();
     let t = (camera.fov_y_degrees.to_radians() * 0.5).tan();
@@ -302,6 +313,7 @@ impl GpuShader {
             )));
         }
         camera.validate().map_err(|e| GpuError::Input(e.to_string()))?;
+        one_sample_per_pixel(camera)?;
         let (w, h) = (camera.width, camera.height);
         let max_dim = ctx.limits().max_texture_dimension_2d;
         if w > max_dim || h > max_dim {
@@ -515,6 +527,7 @@ impl GpuShader {
     /// Move the camera (the image size must stay the same).
     pub fn set_camera(&mut self, camera: &Camera) -> Result<()> {
         camera.validate().map_err(|e| GpuError::Input(e.to_string()))?;
+        one_sample_per_pixel(camera)?;
         if (camera.width, camera.height) != (self.params.width, self.params.height) {
             return Err(GpuError::Input(format!(
                 "camera is {}x{}, the shader was built for {}x{}",
@@ -696,6 +709,6 @@ impl GpuShader {
                 mask.push(px[3] > 0.5);
             }
         }
-        Ok(Render { image: HdrImage { width: w as u32, height: h as u32, pixels }, mask })
+        Ok(Render { image: HdrImage { width: w as u32, height: h as u32, pixels }, mask, coverage: None })
     }
 }

@@ -19,7 +19,7 @@ use std::f64::consts::PI;
 const U: f64 = f32::EPSILON as f64 / 2.0; // unit roundoff of f32, 2^-24
 
 fn camera(position: Vec3, width: u32, height: u32) -> Camera {
-    Camera { position, target: Vec3::ZERO, up: Vec3::Y, fov_y_degrees: 50.0, width, height }
+    Camera { position, target: Vec3::ZERO, up: Vec3::Y, fov_y_degrees: 50.0, width, height, samples_per_pixel: 1 }
 }
 
 fn bins(m: u32) -> LocalBasis {

@@ -53,6 +53,7 @@ impl Orbit {
             fov_y_degrees: self.fov_y_degrees,
             width: width.max(1),
             height: height.max(1),
+            samples_per_pixel: 1,
         }
     }
 
@@ -78,7 +79,7 @@ mod tests {
     use super::*;
 
     fn cam(position: Vec3, target: Vec3) -> Camera {
-        Camera { position, target, up: Vec3::Y, fov_y_degrees: 30.0, width: 64, height: 48 }
+        Camera { position, target, up: Vec3::Y, fov_y_degrees: 30.0, width: 64, height: 48, samples_per_pixel: 1 }
     }
 
     #[test]

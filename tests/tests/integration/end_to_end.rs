@@ -148,7 +148,9 @@ fn stage_outputs_are_cached_and_unusable_cache_files_are_rebuilt() {
 }
 
 /// Run a single-mesh scene under a constant white sky of radiance 1 with a white-ish
-/// Lambertian material seen from `camera`, and return the uncompressed image.
+/// Lambertian material seen from `camera`, and return the uncompressed image. One sample per
+/// pixel: the checks read every covered pixel as a surface value, which a silhouette pixel
+/// averaged with the black background is not (anti-aliasing has its own test, in the shader).
 fn constant_sky_image(mesh: &biscale_core::geometry::Mesh, albedo: f32, camera: &str, extra: &str) -> HdrImage {
     let dir = tempfile::tempdir().unwrap();
     write_obj(&dir.path().join("m.obj"), mesh);
@@ -158,7 +160,7 @@ fn constant_sky_image(mesh: &biscale_core::geometry::Mesh, albedo: f32, camera: 
         &format!(
             "name = \"analytic\"\n[scene]\nmesh = \"m.obj\"\n[scene.material]\nkind = \"lambertian\"\nalbedo = [{albedo}, {albedo}, {albedo}]\n\
              [lighting]\nconstant = [1, 1, 1]\n[transfer]\ncubemap_resolution = 16\nvisibility_resolution = 32\nlocal_grid = 8\n\
-             [[compressors]]\nkind = \"sparse\"\n[runtime]\nwidth = 64\nheight = 64\nrepeats = 1\n{camera}\n[report]\nbackground = false\n{extra}"
+             [[compressors]]\nkind = \"sparse\"\n[runtime]\nwidth = 64\nheight = 64\nrepeats = 1\nsamples_per_pixel = 1\n{camera}\n[report]\nbackground = false\n{extra}"
         ),
     );
     let out = dir.path().join("out");

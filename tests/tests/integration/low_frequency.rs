@@ -40,6 +40,8 @@ fn a_white_lambertian_sphere_under_a_constant_sky_shades_to_its_albedo() {
     let dir = tempfile::tempdir().unwrap();
     write_obj(&dir.path().join("m.obj"), &shapes::uv_sphere(Vec3::ZERO, 1.0, 16, 32));
     let albedo = 0.8f64;
+    // One sample per pixel: every covered pixel is read as a surface value (a silhouette
+    // pixel averaged with the black background is not one).
     let cfg = write_config(
         dir.path(),
         "diffuse",
@@ -47,7 +49,7 @@ fn a_white_lambertian_sphere_under_a_constant_sky_shades_to_its_albedo() {
             "name = \"diffuse\"\n[scene]\nmesh = \"m.obj\"\n[scene.material]\nkind = \"lambertian\"\nalbedo = [{albedo}, {albedo}, {albedo}]\n\
              [lighting]\nconstant = [1, 1, 1]\n[transfer]\ncubemap_resolution = 16\nvisibility_resolution = 32\nlocal_grid = 8\n\
              [[compressors]]\nkind = \"sparse\"\n[[methods]]\nkind = \"sh\"\norder = 5\n\
-             [runtime]\nwidth = 64\nheight = 64\nrepeats = 1\n[runtime.camera]\nazimuth_degrees = 10.0\nelevation_degrees = 35.0\n\
+             [runtime]\nwidth = 64\nheight = 64\nrepeats = 1\nsamples_per_pixel = 1\n[runtime.camera]\nazimuth_degrees = 10.0\nelevation_degrees = 35.0\n\
              [report]\nbackground = false\n"
         ),
     );

@@ -39,6 +39,8 @@ fn each_half_of_a_plane_shows_its_own_material_under_a_constant_sky() {
     // table; a third entry no triangle uses is left out.
     let dir = tempfile::tempdir().unwrap();
     write_obj(&dir.path().join("m.obj"), &split_plane("dark", "light"));
+    // One sample per pixel: every covered pixel is read as a surface value (a pixel on the
+    // plane's edge averaged with the black background is not one).
     let cfg = write_config(
         dir.path(),
         "two",
@@ -49,7 +51,7 @@ fn each_half_of_a_plane_shows_its_own_material_under_a_constant_sky() {
              [[scene.materials]]\nname = \"light\"\nkind = \"synthesized\"\npattern = \"bumps\"\namplitude = 0.0\nview_grid = 0\n\
              brdf = {{ kind = \"lambertian\", albedo = [0.9, 0.9, 0.9] }}\n\
              [lighting]\nconstant = [1, 1, 1]\n[transfer]\ncubemap_resolution = 16\nvisibility_resolution = 32\nlocal_grid = 8\n\
-             [[compressors]]\nkind = \"sparse\"\n[runtime]\nwidth = 64\nheight = 64\nrepeats = 1\n{TOP_VIEW}\n[report]\nbackground = false\n"
+             [[compressors]]\nkind = \"sparse\"\n[runtime]\nwidth = 64\nheight = 64\nrepeats = 1\nsamples_per_pixel = 1\n{TOP_VIEW}\n[report]\nbackground = false\n"
         ),
     );
     let out = dir.path().join("out");
