@@ -87,11 +87,11 @@ for name in ["courtyard", "forest", "studio", "sunset", "apartment", "sunset-sun
 PY
 if [ -z "${SKIP_MITSUBA:-}" ] && [ -x .venv/bin/python ] && .venv/bin/python -c "import mitsuba" 2>/dev/null; then
     echo
-    echo "| sky | Mitsuba 3 vs paper: full frame | interior | vs moments: full frame | interior | lossy bicluster (moments): interior |"
-    echo "|---|---|---|---|---|---|"
+    echo "| sky | Mitsuba 3 vs paper: full frame | interior | vs moments: full frame | interior | lossy bicluster (moments): interior | per-vertex irradiance: paper | moments | (Mitsuba noise) |"
+    echo "|---|---|---|---|---|---|---|---|---|"
     for name in courtyard forest studio sunset apartment; do
         "$B" export-matrix "$out/$name.toml" --out "$out/$name-scene" >/dev/null 2>&1
-        .venv/bin/python scripts/mitsuba_check.py "$out/$name-scene" "$out/$name" --spp 1024 --json \
+        .venv/bin/python scripts/mitsuba_check.py "$out/$name-scene" "$out/$name" --spp 1024 --vertex-samples 65536 --json \
             >"$out/$name-mitsuba.json"
     done
     python3 - "$out" <<'PY'
@@ -100,7 +100,9 @@ for name in ["courtyard", "forest", "studio", "sunset", "apartment"]:
     o = json.load(open(os.path.join(sys.argv[1], name + "-mitsuba.json")))
     r = {x["image"]: x for x in o["rows"]}
     p, m, l = r["uncompressed_paper"], r["uncompressed"], r["bicluster-e0.1"]
-    print(f"| {name} | {p['full_frame']:.4f} | {p['interior']:.4f} | {m['full_frame']:.4f} | {m['interior']:.4f} | {l['interior']:.4f} |")
+    i = o["irradiance"] or {"paper": float("nan"), "exact_cosine": float("nan"), "mitsuba_noise": float("nan")}
+    print(f"| {name} | {p['full_frame']:.4f} | {p['interior']:.4f} | {m['full_frame']:.4f} | {m['interior']:.4f} | {l['interior']:.4f} "
+          f"| {i['paper']:.4f} | {i['exact_cosine']:.4f} | {i['mitsuba_noise']:.4f} |")
 PY
 fi
 if [ -z "${SKIP_BENCH:-}" ]; then

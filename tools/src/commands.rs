@@ -23,7 +23,45 @@ pub fn export_matrix(exp: &Experiment, dir: &Path, opts: &RunOptions) -> Result<
     let t = pipeline::transfer_matrix(exp, &geometry, StageCache::new(opts, dir).as_ref())?.matrix;
     write_mtx(&t, &lighting.light, dir)?;
     write_scene(exp, &geometry, dir)?;
+    write_irradiance(&t, &lighting.light, geometry.transfer.frames(), dir)?;
     Ok((t, lighting.light))
+}
+
+/// `irradiance.csv`: each vertex's direct irradiance from `T L` (RGB), with the paper's rule
+/// (every texel of bin `j` weighted by `cosbar_j`: `sum_j cosbar_j L*_j`) and with each texel's
+/// own cosine (`sum_k T L_k (n . d_k)`, `biscale_core::gather::moments`), both in f64: what an
+/// external renderer's irradiance at the vertices is compared with.
+fn write_irradiance(
+    t: &TransferMatrix,
+    light: &LightVector,
+    frames: &[biscale_core::geometry::VertexFrame],
+    dir: &Path,
+) -> Result<()> {
+    use std::fmt::Write as _;
+    let Some(grid) = t.local_basis().grid() else { return Ok(()) };
+    if light.cubemap().is_none() {
+        return Ok(());
+    }
+    let paper = biscale_core::gather::reference_product(t, light);
+    let exact = biscale_core::gather::moments::exact_cosine_product(t, light, frames)?;
+    let m = grid.len();
+    let cosbar: Vec<f64> = (0..m as u32).map(|j| grid.bin_mean_cosine(j)).collect();
+    let mut csv = String::from("vertex,paper_r,paper_g,paper_b,exact_cosine_r,exact_cosine_g,exact_cosine_b\n");
+    for v in 0..t.vertices() {
+        let sum = |rows: &[[f64; 3]], c: usize| (0..m).map(|j| cosbar[j] * rows[v * m + j][c]).sum::<f64>();
+        let _ = writeln!(
+            csv,
+            "{v},{:e},{:e},{:e},{:e},{:e},{:e}",
+            sum(&paper, 0),
+            sum(&paper, 1),
+            sum(&paper, 2),
+            sum(&exact, 0),
+            sum(&exact, 1),
+            sum(&exact, 2)
+        );
+    }
+    biscale_core::io::write_atomic_bytes(&dir.join("irradiance.csv"), csv.as_bytes())?;
+    Ok(())
 }
 
 /// `mesh.obj` and `view.json` beside the matrices, for an external renderer to see what biscale

@@ -35,8 +35,9 @@ enum Command {
     /// Print what `run` would do and what it leaves out, without running anything.
     Plan { config: PathBuf },
     /// Write T.mtx (sparse, Matrix Market) and L.mtx (dense N x 3) for other tools, e.g.
-    /// `scipy.io.mmread`, with mesh.obj (T's vertex order and traced normals) and view.json
-    /// (camera and lighting) for an external renderer (scripts/mitsuba_check.py).
+    /// `scipy.io.mmread`, with mesh.obj (T's vertex order and traced normals), view.json
+    /// (camera and lighting) and irradiance.csv (each vertex's T L irradiance, paper's cosine
+    /// and exact) for an external renderer (scripts/mitsuba_check.py).
     ExportMatrix {
         config: PathBuf,
         /// Folder to write T.mtx and L.mtx into.
@@ -306,7 +307,7 @@ fn run() -> anyhow::Result<()> {
             let opts = cache.options(Some(out.clone()));
             let (t, l) = biscale::commands::export_matrix(&exp, &out, &opts)?;
             println!(
-                "wrote {} ({} x {}, {} non-zeros), {} ({} x 3), mesh.obj and view.json",
+                "wrote {} ({} x {}, {} non-zeros), {} ({} x 3), mesh.obj, view.json and irradiance.csv",
                 out.join("T.mtx").display(),
                 t.rows(),
                 t.cols(),

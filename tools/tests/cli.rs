@@ -93,6 +93,13 @@ fn export_matrix_writes_matrix_market_files_that_parse_back() {
         serde_json::from_str(&std::fs::read_to_string(out.join("view.json")).unwrap()).unwrap();
     assert_eq!((view["camera"]["width"].as_u64(), view["camera"]["height"].as_u64()), (Some(96), Some(72)));
     assert!(Path::new(view["env_map"].as_str().unwrap()).exists(), "{view}");
+    // irradiance.csv: one row per vertex, the paper's and the exact-cosine irradiance; an open
+    // vertex's two values differ by the bin rule only (a few percent), never by a factor.
+    let csv = std::fs::read_to_string(out.join("irradiance.csv")).unwrap();
+    let rows: Vec<Vec<f64>> = csv.lines().skip(1).map(|l| l.split(',').map(|x| x.parse().unwrap()).collect()).collect();
+    assert_eq!(rows.len(), 1839);
+    let (paper, exact): (f64, f64) = (rows.iter().map(|r| r[1]).sum(), rows.iter().map(|r| r[4]).sum());
+    assert!(paper > 0.0 && (exact / paper - 1.0).abs() < 0.1, "paper {paper}, exact cosine {exact}");
 }
 
 #[test]
