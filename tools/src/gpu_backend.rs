@@ -6,7 +6,9 @@
 use crate::metrics::{GpuRecord, ImageErrors};
 use crate::pipeline::Result;
 use biscale_core::compress::CompressedForm;
+use biscale_core::gather::moments::{resolve, LightMoments};
 use biscale_core::gather::relative_l2_error;
+use biscale_core::geometry::VertexFrame;
 use biscale_core::sampling::LightVector;
 use biscale_core::scene::{Camera, Render, ShadeScene};
 use biscale_gpu::{GpuContext, GpuGather, GpuShader};
@@ -39,21 +41,49 @@ impl GpuBackend {
     /// Gather `form` with its program `kernels` and shade it on the GPU; errors are measured
     /// against the f64 product (`exact`) and the CPU render of the same form (`cpu`, over the
     /// CPU's coverage).
+    ///
+    /// With light `moments` the form is gathered three times on the GPU (once per moment; the
+    /// gather time is their sum), the three `L*` are read back and resolved on the CPU
+    /// ([`resolve`]) and the result shaded by the GPU: no fused kernel yet.
+    #[allow(clippy::too_many_arguments)]
     pub fn run(
         &mut self,
         form: &CompressedForm,
         kernels: &KernelDesc,
         light: &LightVector,
+        moments: Option<(&LightMoments, &[VertexFrame])>,
         exact: &[[f64; 3]],
         cpu: &Render,
         repeats: usize,
     ) -> Result<GpuRecord> {
         let mut gather = GpuGather::new(&self.ctx, form, kernels)?;
-        let gather_timing = gather.time_gather(light, repeats)?;
-        gather.gather(light)?;
-        let lstar = gather.read_lstar()?;
+        let (gather_timing, lstar, gpu) = match moments {
+            None => {
+                let timing = gather.time_gather(light, repeats)?;
+                gather.gather(light)?;
+                (timing, gather.read_lstar()?, self.shader.shade(&gather)?)
+            }
+            Some((m, frames)) => {
+                let mut parts = vec![];
+                let mut timing: Option<biscale_gpu::timing::Timing> = None;
+                for l in &m.along {
+                    let t = gather.time_gather(l, repeats)?;
+                    timing = Some(match timing {
+                        None => t,
+                        Some(mut sum) => {
+                            sum.median_ms += t.median_ms;
+                            sum
+                        }
+                    });
+                    gather.gather(l)?;
+                    parts.push(gather.read_lstar()?);
+                }
+                let lstar = resolve([&parts[0], &parts[1], &parts[2]], frames)?;
+                let render = self.shader.shade_lstar(&lstar)?;
+                (timing.expect("three moments"), lstar, render)
+            }
+        };
         let shade_timing = self.shader.time_shade(&gather, repeats)?;
-        let gpu = self.shader.shade(&gather)?;
         // The GPU draws no background: compare where the CPU render covers the mesh.
         let m = compare(&gpu.image, &cpu.image, Some(&cpu.mask))?;
         let coverage_mismatch = gpu.mask.iter().zip(&cpu.mask).filter(|(a, b)| a != b).count();

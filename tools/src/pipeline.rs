@@ -471,11 +471,13 @@ impl GpuBackend {
         match *self {}
     }
 
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn run(
         &mut self,
         _: &CompressedForm,
         _: &biscale_kernels::KernelDesc,
         _: &LightVector,
+        _: Option<(&LightMoments, &[VertexFrame])>,
         _: &[[f64; 3]],
         _: &Render,
         _: usize,
@@ -544,7 +546,7 @@ impl Evaluation<'_> {
         let gpu = match gpu {
             Some(g) => {
                 let kernels = compressor.kernels(form).map_err(cerr)?;
-                Some(g.run(form, &kernels, self.light, self.exact, &render, repeats)?)
+                Some(g.run(form, &kernels, self.light, self.moments, self.exact, &render, repeats)?)
             }
             None => None,
         };
@@ -723,14 +725,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     if exp.file.runtime.backend == Backend::Gpu && !cfg!(feature = "gpu") {
         return Err(no_gpu_feature());
     }
-    if exp.file.runtime.backend == Backend::Gpu && exp.file.runtime.light_moments {
-        return Err(PipelineError::Mismatch {
-            path: exp.config_path.clone(),
-            what: "[runtime] light_moments = true runs on the CPU backend only: the wgpu gather of the three \
-                   moments is not built yet; set backend = \"cpu\" or light_moments = false"
-                .into(),
-        });
-    }
+
     let target = opts.out_dir.clone().unwrap_or_else(|| Path::new("out").join(exp.name()));
     let cache = StageCache::new(opts, &target);
     if let Some(c) = &cache {

@@ -252,30 +252,52 @@ fn a_false_lossless_claim_is_reported_as_lossy() {
 /// `runtime.backend = "gpu"`: every compressor's form is also gathered and shaded by the
 /// wgpu runtime (lavapipe without a GPU) and checked against the CPU in the same run. Without
 /// an adapter this prints why and passes, unless `BISCALE_REQUIRE_GPU=1` (CI sets it).
-#[test]
-fn the_gpu_backend_records_every_form_against_the_cpu() {
+/// Run the GPU-backend scene (a small sphere, sparse and bicluster forms) with `extra` config
+/// lines under `[runtime]`; `None` when there is no adapter and CI does not require one.
+fn gpu_backend_run(extra: &str) -> Option<biscale::metrics::Metrics> {
     let dir = tempfile::tempdir().unwrap();
     write_obj(&dir.path().join("m.obj"), &shapes::uv_sphere(Vec3::ZERO, 1.0, 8, 16));
     let cfg = write_config(
         dir.path(),
         "gpu",
-        "name = \"gpu\"\n[scene]\nmesh = \"m.obj\"\n[lighting]\nconstant = [1, 0.5, 0.25]\n\
-         [transfer]\ncubemap_resolution = 4\nvisibility_resolution = 8\nlocal_grid = 3\n\
-         [[compressors]]\nkind = \"sparse\"\n[[compressors]]\nkind = \"bicluster\"\n\
-         [runtime]\nbackend = \"gpu\"\nwidth = 64\nheight = 64\nrepeats = 3\n",
+        &format!(
+            "name = \"gpu\"\n[scene]\nmesh = \"m.obj\"\n[lighting]\nconstant = [1, 0.5, 0.25]\n\
+             [transfer]\ncubemap_resolution = 4\nvisibility_resolution = 8\nlocal_grid = 3\n\
+             [[compressors]]\nkind = \"sparse\"\n[[compressors]]\nkind = \"bicluster\"\n\
+             [runtime]\nbackend = \"gpu\"\nwidth = 64\nheight = 64\nrepeats = 3\n{extra}"
+        ),
     );
     let exp = Experiment::load(&cfg).unwrap();
     let opts = RunOptions { out_dir: Some(dir.path().join("out")), cache_dir: None, no_cache: true };
-    let m = match run(&exp, &opts) {
-        Ok((_, m)) => m,
+    match run(&exp, &opts) {
+        Ok((_, m)) => Some(m),
         Err(biscale::pipeline::PipelineError::Gpu(biscale_gpu::GpuError::NoAdapter(e)))
             if std::env::var("BISCALE_REQUIRE_GPU").as_deref() != Ok("1") =>
         {
             eprintln!("SKIPPING the gpu backend test: no adapter ({e})");
-            return;
+            None
         }
         Err(e) => panic!("{e}"),
-    };
+    }
+}
+
+/// With light moments the GPU gathers the three moment lights and shades the resolved `L*'`:
+/// its `L*'` matches the f64 per-texel product as the CPU's does (sums of at most 96 terms per
+/// row and moment, combined with a unit normal: 3 x 96 u), and its image the CPU's.
+#[test]
+fn the_gpu_backend_gathers_light_moments_like_the_cpu() {
+    let Some(m) = gpu_backend_run("light_moments = true\n") else { return };
+    assert!(m.uncompressed.light_moments);
+    for c in &m.compressors {
+        let g = c.gpu.as_ref().unwrap_or_else(|| panic!("{}: no gpu record", c.name));
+        assert!(g.rel_error_lstar < 3.0 * 96.0 * f64::from(f32::EPSILON) / 2.0, "{}: {}", c.name, g.rel_error_lstar);
+        assert!(g.covered_pixels > 500 && g.image_vs_cpu.rel_l2 < 1e-5, "{g:?}");
+    }
+}
+
+#[test]
+fn the_gpu_backend_records_every_form_against_the_cpu() {
+    let Some(m) = gpu_backend_run("") else { return };
     assert_eq!(m.backend, "gpu");
     for c in &m.compressors {
         let g = c.gpu.as_ref().unwrap_or_else(|| panic!("{}: no gpu record", c.name));
