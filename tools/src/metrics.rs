@@ -350,6 +350,68 @@ pub struct CompressorRecord {
     pub gpu: Option<GpuRecord>,
 }
 
+/// The columns of `metrics.csv`, one row per compressor and method setting: what a plot of
+/// error against storage or time needs, in plain units, without parsing JSON.
+pub const CSV_COLUMNS: [&str; 18] = [
+    "setting",
+    "kind",
+    "method",
+    "lossless",
+    "bytes",
+    "bytes_per_nnz",
+    "flops_per_gather",
+    "build_seconds",
+    "gather_ms",
+    "shade_ms",
+    "rel_error_lstar",
+    "image_rel_l2_vs_uncompressed",
+    "image_psnr_vs_uncompressed",
+    "image_rel_l2_vs_reference",
+    "image_psnr_vs_reference",
+    "image_error_max",
+    "gpu_gather_ms",
+    "gpu_shade_ms",
+];
+
+impl Metrics {
+    /// `metrics.csv`: a header of [`CSV_COLUMNS`], then one row per compressor setting
+    /// (`method` false) and per method setting (`method` true); absent values are empty.
+    pub fn to_csv(&self) -> String {
+        let field = |s: &str| match s.contains([',', '"', '\n']) {
+            true => format!("\"{}\"", s.replace('"', "\"\"")),
+            false => s.to_string(),
+        };
+        let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:e}"));
+        let mut out = CSV_COLUMNS.join(",") + "\n";
+        let rows = (self.compressors.iter().map(|r| (r, false))).chain(self.methods.iter().map(|m| (&m.record, true)));
+        for (r, method) in rows {
+            let cells = [
+                field(&r.name),
+                field(&r.kind),
+                method.to_string(),
+                r.lossless.to_string(),
+                r.bytes.to_string(),
+                format!("{:e}", r.bytes_per_nnz),
+                r.flops_per_gather.to_string(),
+                format!("{:e}", r.build_seconds),
+                format!("{:e}", r.gather_ms),
+                format!("{:e}", r.shade_ms),
+                format!("{:e}", r.rel_error_lstar),
+                format!("{:e}", r.image.vs_uncompressed.rel_l2),
+                format!("{:e}", r.image.vs_uncompressed.psnr),
+                opt(r.image.vs_reference.map(|e| e.rel_l2)),
+                opt(r.image.vs_reference.map(|e| e.psnr)),
+                opt(r.image.error_max.map(f64::from)),
+                opt(r.gpu.as_ref().map(|g| g.gather_ms)),
+                opt(r.gpu.as_ref().map(|g| g.shade_ms)),
+            ];
+            out += &cells.join(",");
+            out.push('\n');
+        }
+        out
+    }
+}
+
 /// Gather and shade of one compressed form on the GPU, checked against the CPU.
 #[derive(Debug, Serialize)]
 pub struct GpuRecord {

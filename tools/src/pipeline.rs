@@ -974,6 +974,7 @@ impl Metrics {
 fn write_report(metrics: &Metrics, plan: &Plan, out_dir: &Path) -> Result<()> {
     let json = serde_json::to_string_pretty(metrics).expect("metrics serialize");
     write_atomic_bytes(&out_dir.join("metrics.json"), json.as_bytes())?;
+    write_atomic_bytes(&out_dir.join("metrics.csv"), metrics.to_csv().as_bytes())?;
     fault_point("metrics");
     let plots = write_plots(metrics, out_dir);
     let html = crate::html::html(metrics, &plan.to_string(), out_dir, &plots);

@@ -229,6 +229,26 @@ fn every_run_records_how_it_was_made() {
     assert_eq!((figure.width(), figure.height()), (300, 72 + 60));
     assert!(report.contains("one colour scale, full scale"), "{report}");
 
+    // metrics.csv: one row per setting, the same numbers as metrics.json.
+    let csv = std::fs::read_to_string(out.join("metrics.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert_eq!(header, biscale::metrics::CSV_COLUMNS);
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), cs.len());
+    for (row, c) in rows.iter().zip(cs) {
+        assert_eq!(row[col("setting")], c["name"].as_str().unwrap());
+        assert_eq!(row[col("bytes")].parse::<u64>().unwrap(), c["bytes"].as_u64().unwrap());
+        // serde_json's float parser (without its float_roundtrip feature) may be an ulp off.
+        let same = |a: f64, b: f64| (a - b).abs() <= 1e-15 * b.abs();
+        let e: f64 = row[col("rel_error_lstar")].parse().unwrap();
+        assert!(same(e, c["rel_error_lstar"].as_f64().unwrap()), "{row:?}");
+        let r: f64 = row[col("image_rel_l2_vs_reference")].parse().unwrap();
+        assert!(same(r, c["image"]["vs_reference"]["rel_l2"].as_f64().unwrap()), "{row:?}");
+        assert_eq!(row[col("gpu_gather_ms")], "", "a CPU run has no GPU column");
+    }
+
     // `diff` with the run's mask gives the report's own numbers; without it the background
     // counts too (the report and `diff` used to disagree on the same pair).
     let img = |name: &str| out.join("images").join(name).to_str().unwrap().to_string();
