@@ -134,6 +134,33 @@ impl CompressedForm {
         LocalRadiance::new(self.local_basis(), self.vertices(), values)
             .map_err(|e| CompressError::malformed(&self.kind, "L*", e.to_string()))
     }
+
+    /// The three lights of a fused [`Compressor::gather_three`], each checked against the
+    /// form's light basis, interleaved per texel by `lanes` into the `W`-wide layout the
+    /// compressor's kernel reads.
+    pub fn interleave_three<const W: usize>(
+        &self,
+        lights: [&LightVector; 3],
+        lanes: impl Fn([crate::Rgb; 3]) -> [f32; W],
+    ) -> Result<Vec<[f32; W]>, CompressError> {
+        for l in lights {
+            self.check_light(l)?;
+        }
+        let [x, y, z] = lights.map(|l| &l.power);
+        Ok((x.iter().zip(y).zip(z)).map(|((a, b), c)| lanes([*a, *b, *c])).collect())
+    }
+
+    /// The three `L*` of a fused gather whose rows hold light `i`'s RGB at lanes
+    /// `i * stride .. i * stride + 3`.
+    pub fn lstar_three<const W: usize>(
+        &self,
+        wide: &[[f32; W]],
+        stride: usize,
+    ) -> Result<[LocalRadiance; 3], CompressError> {
+        let lane =
+            |i: usize| self.lstar(wide.iter().map(|w| [w[stride * i], w[stride * i + 1], w[stride * i + 2]]).collect());
+        Ok([lane(0)?, lane(1)?, lane(2)?])
+    }
 }
 
 /// A compressed form as a file ([`crate::artifact`], kind `form`): the compressor kind, the

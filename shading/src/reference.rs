@@ -162,15 +162,20 @@ mod tests {
         rmax * rmax - rmin * rmin
     }
 
-    #[test]
-    fn sphere_on_plane_darkens_towards_the_contact_point() {
-        // A unit sphere resting on a plane at the origin, constant sky of radiance 1, white
-        // Lambertian with albedo A. A plane point at distance rho from the contact point sees
-        // the sphere as a cap of half-angle alpha, sin(alpha) = a / d, d = sqrt(rho^2 + a^2),
-        // whose axis is at elevation beta with sin(beta) = a / d too: the cap touches the
-        // horizon. A cap entirely above the horizon has projected solid angle
-        // pi sin^2(alpha) cos(theta_axis) = pi (a/d)^2 (a/d), so
-        //     B(rho) = A (1 - (a / d)^3).
+    /// A unit sphere resting on an 8x8 plane at the origin under a constant sky of radiance 1,
+    /// white Lambertian (albedo 0.9), seen from above and in front at 40x30.
+    struct SphereOnPlane {
+        a: f32,
+        albedo: f64,
+        plane: biscale_core::geometry::Mesh,
+        sampler: VisibilitySampler,
+        light: LightVector,
+        scene: ShadeScene,
+        transfer: TransferScene,
+        camera: Camera,
+    }
+
+    fn sphere_on_plane() -> SphereOnPlane {
         let (a, albedo) = (1.0f32, 0.9f64);
         let plane = shapes::grid_plane(8, 8.0);
         let sphere = shapes::uv_sphere(Vec3::new(0.0, a, 0.0), a, 24, 48);
@@ -190,6 +195,19 @@ mod tests {
             height: 30,
             samples_per_pixel: 1,
         };
+        SphereOnPlane { a, albedo, plane, sampler, light, scene, transfer, camera }
+    }
+
+    #[test]
+    fn sphere_on_plane_darkens_towards_the_contact_point() {
+        // A unit sphere resting on a plane at the origin, constant sky of radiance 1, white
+        // Lambertian with albedo A. A plane point at distance rho from the contact point sees
+        // the sphere as a cap of half-angle alpha, sin(alpha) = a / d, d = sqrt(rho^2 + a^2),
+        // whose axis is at elevation beta with sin(beta) = a / d too: the cap touches the
+        // horizon. A cap entirely above the horizon has projected solid angle
+        // pi sin^2(alpha) cos(theta_axis) = pi (a/d)^2 (a/d), so
+        //     B(rho) = A (1 - (a / d)^3).
+        let SphereOnPlane { a, albedo, plane, sampler, light, scene, transfer, camera } = sphere_on_plane();
         let render = render_reference(&scene, &light, &transfer, &sampler, &camera, false, None).unwrap();
         let empty = SceneBvh::build(&[], &[]);
         let grid = sampler.grid;
@@ -277,25 +295,7 @@ mod tests {
     /// visibility sampling at the sphere's silhouette.
     #[test]
     fn sphere_on_plane_with_light_moments_is_closer_to_the_analytic_shading() {
-        let (a, albedo) = (1.0f32, 0.9f64);
-        let plane = shapes::grid_plane(8, 8.0);
-        let sphere = shapes::uv_sphere(Vec3::new(0.0, a, 0.0), a, 24, 48);
-        let mesh = shapes::merged(&[plane.clone(), sphere.clone()]);
-        let settings = TransferSettings::new(16, 32, 8).unwrap();
-        let sampler = VisibilitySampler::new(&settings);
-        let light = LightVector::constant(settings.light_basis(), [1.0; 3]);
-        let btf = Btf::lambertian([albedo as f32; 3], bins(8)).unwrap();
-        let scene = scene_of(&mesh, vec![Material::new(btf)], None);
-        let transfer = TransferScene::new(&mesh).unwrap();
-        let camera = Camera {
-            position: Vec3::new(0.0, 3.0, 4.0),
-            target: Vec3::new(0.0, 0.0, 1.6),
-            up: Vec3::Y,
-            fov_y_degrees: 60.0,
-            width: 40,
-            height: 30,
-            samples_per_pixel: 1,
-        };
+        let SphereOnPlane { a, albedo, plane, sampler, light, scene, transfer, camera } = sphere_on_plane();
         let mean_error = |light_moments: bool| {
             let render = render_reference(&scene, &light, &transfer, &sampler, &camera, light_moments, None).unwrap();
             let mut errs = vec![];

@@ -394,17 +394,13 @@ impl Compressor for Bicluster {
         form: &CompressedForm,
         lights: [&LightVector; 3],
     ) -> Result<[LocalRadiance; 3], CompressError> {
-        for l in lights {
-            form.check_light(l)?;
-        }
         let v = BiclusterView::header(form)?;
-        let [x, y, z] = lights.map(|l| prescaled_light(l, v.value_scale));
-        let lp: Vec<[f32; 9]> = (x.iter().zip(&y).zip(&z))
-            .map(|((a, b), c)| [a[0], a[1], a[2], b[0], b[1], b[2], c[0], c[1], c[2]])
-            .collect();
-        let wide = gather_lanes(&v, &lp)?;
-        let lane = |i: usize| form.lstar(wide.iter().map(|w| [w[3 * i], w[3 * i + 1], w[3 * i + 2]]).collect());
-        Ok([lane(0)?, lane(1)?, lane(2)?])
+        // The same prescaling as `prescaled_light`, lane by lane.
+        let inv_q = 1.0 / v.value_scale as f32;
+        let lp = form.interleave_three(lights, |[a, b, c]| {
+            [a[0], a[1], a[2], b[0], b[1], b[2], c[0], c[1], c[2]].map(|x| x * inv_q)
+        })?;
+        form.lstar_three(&gather_lanes(&v, &lp)?, 3)
     }
 }
 

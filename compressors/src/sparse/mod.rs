@@ -121,16 +121,10 @@ impl Compressor for Sparse {
         form: &CompressedForm,
         lights: [&LightVector; 3],
     ) -> Result<[LocalRadiance; 3], CompressError> {
-        for l in lights {
-            form.check_light(l)?;
-        }
-        let [x, y, z] = lights.map(|l| &l.power);
-        let power: Vec<[f32; 12]> = (x.iter().zip(y).zip(z))
-            .map(|((a, b), c)| [a[0], a[1], a[2], 0.0, b[0], b[1], b[2], 0.0, c[0], c[1], c[2], 0.0])
-            .collect();
-        let wide = gather_lanes(form, &power)?;
-        let lane = |i: usize| form.lstar(wide.iter().map(|w| [w[4 * i], w[4 * i + 1], w[4 * i + 2]]).collect());
-        Ok([lane(0)?, lane(1)?, lane(2)?])
+        let power = form.interleave_three(lights, |[a, b, c]| {
+            [a[0], a[1], a[2], 0.0, b[0], b[1], b[2], 0.0, c[0], c[1], c[2], 0.0]
+        })?;
+        form.lstar_three(&gather_lanes(form, &power)?, 4)
     }
 }
 
