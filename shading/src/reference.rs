@@ -16,6 +16,7 @@
 
 use crate::cpu::{render_rows, shade_point};
 use crate::error::{Result, ShadingError};
+use biscale_core::gather::moments::TexelCosine;
 use biscale_core::sampling::LightVector;
 use biscale_core::scene::{Camera, Render, ShadeScene};
 use biscale_core::transfer::{TransferScene, VisibilitySampler};
@@ -58,20 +59,9 @@ pub fn render_reference(
     if let Some(k) = light.power.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
         return Err(ShadingError::Invalid(format!("light vector is not finite at texel {k}")));
     }
-    let grid = sampler.grid;
-    // Per bin 1 / cosbar_j and per texel its centre direction, for the moments' exact cosine.
-    let (inverse_cosbar, texel_dirs): (Vec<f64>, Vec<glam::DVec3>) = match (light_moments, light.cubemap()) {
-        (false, _) => (vec![], vec![]),
-        (true, Some(cube)) => (
-            (0..grid.len() as u32).map(|j| 1.0 / grid.bin_mean_cosine(j)).collect(),
-            (0..cube.texel_count()).map(|k| cube.texel_direction_f64(k)).collect(),
-        ),
-        (true, None) => {
-            return Err(ShadingError::Invalid(format!(
-                "light moments need a cubemap light basis, the light vector is in the {}",
-                light.basis()
-            )))
-        }
+    let cosine = match light_moments {
+        true => Some(TexelCosine::new(light, &sampler.grid)?),
+        false => None,
     };
     let rows = AtomicUsize::new(0);
     let row_done = || {
@@ -85,9 +75,9 @@ pub fn render_reference(
         let n = p.frame.normal.as_dvec3();
         transfer.visibility_at(sampler, p.position, &p.frame, |j, k, v| {
             let l = light.power[k as usize];
-            let w = match light_moments {
-                false => v as f64,
-                true => v as f64 * n.dot(texel_dirs[k as usize]) * inverse_cosbar[j as usize],
+            let w = match &cosine {
+                None => v as f64,
+                Some(cosine) => v as f64 * cosine.weight(n, j as usize, k as usize),
             };
             let a = &mut acc[j as usize];
             for c in 0..3 {

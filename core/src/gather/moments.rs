@@ -24,7 +24,7 @@ use crate::compress::{CompressError, CompressedForm, Compressor};
 use crate::error::{CoreError, Result};
 use crate::gather::LocalRadiance;
 use crate::geometry::VertexFrame;
-use crate::sampling::{HemisphereGrid, LightVector};
+use crate::sampling::{Cubemap, HemisphereGrid, LightVector};
 use crate::transfer::TransferMatrix;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -40,22 +40,51 @@ impl LightMoments {
     /// The moments of `light`; an error unless it is in a cubemap basis (an SH light has no
     /// texels to take directions of).
     pub fn new(light: &LightVector) -> Result<Self> {
-        let cube = light.cubemap().ok_or_else(|| {
-            CoreError::Invalid(format!(
-                "light moments need a cubemap light basis, this light vector is in the {}",
-                light.basis()
-            ))
-        })?;
+        let directions = texel_directions(cubemap_of(light)?);
         let along = [0, 1, 2].map(|a| {
-            let power = (light.power.iter().enumerate())
-                .map(|(k, l)| {
-                    let d = cube.texel_direction_f64(k)[a];
-                    l.map(|x| (x as f64 * d) as f32)
-                })
-                .collect();
+            let power =
+                (light.power.iter().zip(&directions)).map(|(l, d)| l.map(|x| (x as f64 * d[a]) as f32)).collect();
             LightVector::new(light.basis(), power).expect("same basis, same length")
         });
         Ok(Self { along })
+    }
+}
+
+/// The cubemap of `light`'s basis; an error unless it has one (an SH light has no texels to
+/// take directions of).
+fn cubemap_of(light: &LightVector) -> Result<Cubemap> {
+    light.cubemap().ok_or_else(|| {
+        CoreError::Invalid(format!(
+            "light moments need a cubemap light basis, the light vector is in the {}",
+            light.basis()
+        ))
+    })
+}
+
+/// Every texel's centre direction, in f64.
+fn texel_directions(cube: Cubemap) -> Vec<DVec3> {
+    (0..cube.texel_count()).map(|k| cube.texel_direction_f64(k)).collect()
+}
+
+/// The weight light moments give entry `T[j, k]` at a point with unit normal `n`:
+/// `(n . d_k) / cosbar_j`, texel `k`'s own cosine over its bin's mean cosine. Shared by the
+/// f64 per-texel product ([`exact_cosine_product`]) and the per-pixel reference renderer.
+#[derive(Clone, Debug)]
+pub struct TexelCosine {
+    inverse_mean_cosine: Vec<f64>,
+    directions: Vec<DVec3>,
+}
+
+impl TexelCosine {
+    /// The weights for `light`'s texels and `grid`'s bins; an error unless `light` is in a
+    /// cubemap basis.
+    pub fn new(light: &LightVector, grid: &HemisphereGrid) -> Result<Self> {
+        Ok(Self { inverse_mean_cosine: inverse_mean_cosines(grid), directions: texel_directions(cubemap_of(light)?) })
+    }
+
+    /// `(n . d_k) / cosbar_j`.
+    pub fn weight(&self, n: DVec3, j: usize, k: usize) -> f64 {
+        n.dot(self.directions[k]) * self.inverse_mean_cosine[j]
     }
 }
 
@@ -132,12 +161,8 @@ pub fn exact_cosine_product(t: &TransferMatrix, light: &LightVector, frames: &[V
             t.light_basis()
         )));
     }
-    let cube = light.cubemap().ok_or_else(|| {
-        CoreError::Invalid(format!("light moments need a cubemap light basis, not the {}", light.basis()))
-    })?;
     let grid = bins_and_frames(t.local_basis(), t.vertices(), frames)?;
-    let inv = inverse_mean_cosines(&grid);
-    let dirs: Vec<DVec3> = (0..cube.texel_count()).map(|k| cube.texel_direction_f64(k)).collect();
+    let cosine = TexelCosine::new(light, &grid)?;
     let m = grid.len();
     let csr = t.csr();
     Ok((0..csr.rows())
@@ -148,7 +173,7 @@ pub fn exact_cosine_product(t: &TransferMatrix, light: &LightVector, frames: &[V
             let row = csr.outer_view(r).expect("row in range");
             let mut acc = [0.0f64; 3];
             for (k, &value) in row.iter() {
-                let w = value as f64 * n.dot(dirs[k]) * inv[j];
+                let w = value as f64 * cosine.weight(n, j, k);
                 let l = light.power[k];
                 for c in 0..3 {
                     acc[c] += w * l[c] as f64;
