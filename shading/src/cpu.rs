@@ -106,26 +106,14 @@ pub(crate) fn render_rows(
     let mut mask = vec![false; w * h];
     let n = camera.samples_per_axis();
     let samples = (n * n) as usize;
-    let mut coverage = vec![0.0f32; if samples > 1 { w * h } else { 0 }];
-    let coverage_rows: Vec<&mut [f32]> = match samples {
-        1 => (0..h).map(|_| &mut [][..]).collect(),
-        _ => coverage.chunks_mut(w).collect(),
-    };
-    image.pixels.par_chunks_mut(w).zip(mask.par_chunks_mut(w)).zip(coverage_rows).enumerate().for_each(
+    // Every pixel is the box filter's mean over its n x n samples (one sample: the pixel
+    // centre's ray, unchanged), the missed ones contributing 0 here and the background later.
+    let mut coverage = vec![0.0f32; w * h];
+    image.pixels.par_chunks_mut(w).zip(mask.par_chunks_mut(w)).zip(coverage.par_chunks_mut(w)).enumerate().for_each(
         |(y, ((row, row_mask), row_coverage))| {
             let mut lstar = vec![[0.0f64; 3]; m];
             let mut scratch = vec![[0.0f32; 3]; m];
             for x in 0..w {
-                if samples == 1 {
-                    let (origin, dir) = camera.ray(x as f32 + 0.5, y as f32 + 0.5);
-                    if let Some(p) = primary_hit(scene, origin, dir) {
-                        row[x] = f(&p, &mut lstar, &mut scratch);
-                        row_mask[x] = true;
-                    }
-                    continue;
-                }
-                // The box filter over the pixel: the mean over all n x n samples, with the
-                // missed ones contributing 0 here and the background later.
                 let (mut sum, mut hits) = ([0.0f64; 3], 0usize);
                 for j in 0..n {
                     for i in 0..n {
