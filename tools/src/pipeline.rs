@@ -506,6 +506,9 @@ pub(crate) struct Evaluation<'a> {
     pub repeats: usize,
     pub exposure: f32,
     pub out_dir: &'a Path,
+    /// The error figure waits for the run's shared scale ([`share_error_scale`] draws it once
+    /// every compressor is measured); otherwise it is drawn at its own scale right away.
+    pub shared_error_scale: bool,
 }
 
 /// Relative L* error above which a form's `lossless` claim is refused. f32 gathers of lossless
@@ -561,13 +564,16 @@ impl Evaluation<'_> {
         let images_dir = self.out_dir.join("images");
         let (png, exr) = save_images(&render.image, &images_dir, name, self.exposure)?;
         let error_rel = format!("images/{name}_error.png");
-        let (error_scale, error_max) = write_error_figure(
-            &render.image,
-            &self.baseline.image,
-            "uncompressed",
-            None,
-            &self.out_dir.join(&error_rel),
-        )?;
+        let (error_scale, error_max) = match self.shared_error_scale {
+            true => error_extent(&render.image, &self.baseline.image)?,
+            false => write_error_figure(
+                &render.image,
+                &self.baseline.image,
+                "uncompressed",
+                None,
+                &self.out_dir.join(&error_rel),
+            )?,
+        };
         eprintln!(
             "{name}: {:.2} MB, {:.2} Mflop/gather, built in {:.2} s{}, gather {gather_ms:.2} ms, rel. error of L* {rel_error_lstar:.2e}",
             form.bytes() as f64 / 1e6,
@@ -613,6 +619,21 @@ impl Evaluation<'_> {
     }
 }
 
+/// The largest finite per-pixel error `luminance(|a - b|)`.
+fn largest_error(a: &HdrImage, b: &HdrImage) -> f32 {
+    (a.pixels.iter().zip(&b.pixels))
+        .map(|(p, q)| biscale_core::scene::image::luminance(std::array::from_fn(|c| (p[c] - q[c]).abs())))
+        .filter(|e| e.is_finite())
+        .fold(0.0f32, f32::max)
+}
+
+/// The scale an error figure of `|a - b|` would have on its own (its 99th percentile,
+/// [`biscale_shading::image::error_image`]) and the largest error, without drawing it.
+fn error_extent(a: &HdrImage, b: &HdrImage) -> Result<(f32, f32)> {
+    let (_, scale) = biscale_shading::image::error_image(a, b, None)?;
+    Ok((scale, largest_error(a, b)))
+}
+
 /// The false-colour `|a - b|` of [`biscale_shading::image::error_image`] at `scale` (its own
 /// 99th percentile when `None`) with a colour bar below that says what it measures (`b` is
 /// the image named `against`) and the largest error, written as a PNG: the scale used and
@@ -625,10 +646,7 @@ pub(crate) fn write_error_figure(
     path: &Path,
 ) -> Result<(f32, f32)> {
     let (picture, scale) = biscale_shading::image::error_image(a, b, scale)?;
-    let max = (a.pixels.iter().zip(&b.pixels))
-        .map(|(p, q)| biscale_core::scene::image::luminance(std::array::from_fn(|c| (p[c] - q[c]).abs())))
-        .filter(|e| e.is_finite())
-        .fold(0.0f32, f32::max);
+    let max = largest_error(a, b);
     let label = format!(
         "luminance of |error| vs {against} (linear radiance)\nlargest {}",
         crate::plots::tick_label(max as f64)
@@ -642,7 +660,7 @@ pub(crate) fn write_error_figure(
 /// One error scale for every compressor of the run, so their error figures compare at a
 /// glance: `[report] error_scale` when set, else the largest of the lossy settings' own 99th
 /// percentiles (every lossy figure then fits; a lossless one, far below, shows dark), else of
-/// all. The figures are drawn again at that scale.
+/// all. Each figure is drawn here, once, at that scale.
 fn share_error_scale(
     records: &mut [CompressorRecord],
     renders: &[Render],
@@ -850,6 +868,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
         repeats,
         exposure,
         out_dir: &out_dir,
+        shared_error_scale: true,
     };
     let (mut records, mut renders) = (vec![], vec![]);
     for (setting, compressor) in &compressors {

@@ -449,6 +449,8 @@ pub(crate) fn evaluate(
         repeats: inp.repeats,
         exposure: inp.exposure,
         out_dir: inp.out_dir,
+        // A method's error figure is drawn at its own scale.
+        shared_error_scale: false,
     };
     let (mut record, render) = eval.record(&csetting, compressor.as_ref(), &form, cached, gpu.as_mut())?;
     record.kind = KIND.name.to_string();
