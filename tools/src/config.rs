@@ -1108,16 +1108,8 @@ impl Experiment {
         range(&file.runtime.width, 1, 16384, "runtime.width")?;
         range(&file.runtime.height, 1, 16384, "runtime.height")?;
         if let Some(s) = &file.runtime.samples_per_pixel {
-            let n = (*s.get_ref() as f64).sqrt().round() as u32;
-            let max = biscale_core::scene::camera::MAX_SAMPLES_PER_PIXEL;
-            if n * n != *s.get_ref() || n == 0 || *s.get_ref() > max {
-                return Err(err(
-                    s.span(),
-                    format!(
-                        "runtime.samples_per_pixel must be a square (1, 4, 9, 16, ...) of at most {max}, got {}",
-                        s.get_ref()
-                    ),
-                ));
+            if let Err(what) = biscale_core::scene::camera::samples_per_axis_of(*s.get_ref()) {
+                return Err(err(s.span(), format!("runtime.samples_per_pixel {what}")));
             }
             if *s.get_ref() > 1 && file.runtime.backend == Backend::Gpu {
                 return Err(err(
@@ -1337,6 +1329,29 @@ mod tests {
         assert_eq!(exp.file.report.error_scale, Some(0.05));
         assert!(exp.file.runtime.light_moments);
         assert!(!parse(OK).unwrap().file.runtime.light_moments, "the paper's cosine is the default");
+    }
+
+    #[test]
+    fn samples_per_pixel_must_be_a_square_and_one_on_the_gpu() {
+        let e = parse(&format!("{OK}[runtime]\nsamples_per_pixel = 8\n")).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("runtime.samples_per_pixel must be a square (1, 4, 9, 16, ...) of at most 256, got 8"),
+            "{e}"
+        );
+        assert_eq!(e.line, 7, "{e}");
+        assert!(parse(&format!("{OK}[runtime]\nsamples_per_pixel = 0\n")).is_err());
+        assert!(parse(&format!("{OK}[runtime]\nsamples_per_pixel = 1024\n")).is_err());
+        let e = parse(&format!("{OK}[runtime]\nbackend = \"gpu\"\nsamples_per_pixel = 4\n")).unwrap_err().to_string();
+        assert!(e.contains("needs the CPU backend"), "{e}");
+        // The defaults: 4 rays per pixel on the CPU, 1 on the GPU.
+        assert_eq!(parse(OK).unwrap().file.runtime.samples_per_pixel(), 4);
+        let gpu = parse(&format!("{OK}[runtime]\nbackend = \"gpu\"\n")).unwrap();
+        assert_eq!(gpu.file.runtime.samples_per_pixel(), 1);
+        assert_eq!(
+            parse(&format!("{OK}[runtime]\nsamples_per_pixel = 9\n")).unwrap().file.runtime.samples_per_pixel(),
+            9
+        );
     }
 
     #[test]

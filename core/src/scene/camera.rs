@@ -31,6 +31,16 @@ pub struct Camera {
 /// The most rays per pixel a camera takes (16 x 16).
 pub const MAX_SAMPLES_PER_PIXEL: u32 = 256;
 
+/// `n` for `samples = n^2` rays per pixel, or what is wrong with `samples` (to follow the
+/// key's name in a message).
+pub fn samples_per_axis_of(samples: u32) -> std::result::Result<u32, String> {
+    let n = (samples as f64).sqrt().round() as u32;
+    match n >= 1 && n * n == samples && samples <= MAX_SAMPLES_PER_PIXEL {
+        true => Ok(n),
+        false => Err(format!("must be a square (1, 4, 9, 16, ...) of at most {MAX_SAMPLES_PER_PIXEL}, got {samples}")),
+    }
+}
+
 impl Camera {
     /// A camera looking at the centre of the box `[min, max]` from the direction given by
     /// `azimuth_degrees` (about +Y; 0 looks from +Z towards -Z, 90 from +X) and
@@ -72,12 +82,7 @@ impl Camera {
     /// `n`, the side of the pixel's sample grid (`samples_per_pixel = n^2`; 1 if it is not a
     /// square, which [`Camera::validate`] refuses).
     pub fn samples_per_axis(&self) -> u32 {
-        let n = (self.samples_per_pixel as f64).sqrt().round() as u32;
-        if n >= 1 && n * n == self.samples_per_pixel {
-            n
-        } else {
-            1
-        }
+        samples_per_axis_of(self.samples_per_pixel).unwrap_or(1)
     }
 
     /// The image position of sample `(i, j)` of pixel `(x, y)`: the centre of cell `(i, j)` of
@@ -102,12 +107,8 @@ impl Camera {
         if (self.target - self.position).length_squared() == 0.0 {
             return bad("position equals target".into());
         }
-        let n = self.samples_per_axis();
-        if n * n != self.samples_per_pixel || self.samples_per_pixel > MAX_SAMPLES_PER_PIXEL {
-            return bad(format!(
-                "samples_per_pixel must be a square (1, 4, 9, 16, ...) of at most {MAX_SAMPLES_PER_PIXEL}, got {}",
-                self.samples_per_pixel
-            ));
+        if let Err(what) = samples_per_axis_of(self.samples_per_pixel) {
+            return bad(format!("samples_per_pixel {what}"));
         }
         Ok(())
     }
