@@ -64,23 +64,17 @@ impl GpuBackend {
                 (timing, gather.read_lstar()?, self.shader.shade(&gather)?)
             }
             Some((m, frames)) => {
-                let mut parts = vec![];
-                let mut timing: Option<biscale_gpu::timing::Timing> = None;
+                let (mut parts, mut timings) = (vec![], vec![]);
                 for l in &m.along {
-                    let t = gather.time_gather(l, repeats)?;
-                    timing = Some(match timing {
-                        None => t,
-                        Some(mut sum) => {
-                            sum.median_ms += t.median_ms;
-                            sum
-                        }
-                    });
+                    timings.push(gather.time_gather(l, repeats)?);
                     gather.gather(l)?;
                     parts.push(gather.read_lstar()?);
                 }
+                let mut timing = timings.remove(0);
+                timing.median_ms += timings.iter().map(|t| t.median_ms).sum::<f64>();
                 let lstar = resolve([&parts[0], &parts[1], &parts[2]], frames)?;
                 let render = self.shader.shade_lstar(&lstar)?;
-                (timing.expect("three moments"), lstar, render)
+                (timing, lstar, render)
             }
         };
         let shade_timing = self.shader.time_shade(&gather, repeats)?;

@@ -194,7 +194,8 @@ pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, Stri
             r.width, r.height, r.seconds, r.uncompressed_vs_reference.rmse, r.uncompressed_vs_reference.psnr
         );
     }
-    let _ = write!(s, "<p>{}</p>", escape(&crate::report::light_moments_summary(m).replace('`', "")));
+    // One paragraph, its config keys as code, as in report.md.
+    let _ = write!(s, "{}", markdown_to_html(&crate::report::light_moments_summary(m)));
     let comparisons = crate::report::comparisons_markdown(m);
     if !comparisons.is_empty() {
         // The comparison sections as HTML tables, with the equal-storage images below.
