@@ -12,17 +12,9 @@ use rand_chacha::ChaCha8Rng;
 /// A TransferMatrix from row lists of (column, value).
 fn matrix(vertices: usize, local_dirs: usize, cols: usize, rows: &[Vec<(usize, f32)>]) -> TransferMatrix {
     assert_eq!(rows.len(), vertices * local_dirs);
-    let mut indptr = vec![0];
-    let (mut idx, mut data) = (vec![], vec![]);
-    for r in rows {
-        for &(k, v) in r {
-            idx.push(k);
-            data.push(v);
-        }
-        indptr.push(idx.len());
-    }
-    TransferMatrix::new(bins(local_dirs), cubemap_of(cols), sprs::CsMat::new((rows.len(), cols), indptr, idx, data))
-        .unwrap()
+    let light = cubemap_of(cols);
+    assert_eq!(light.len(), cols);
+    biscale_core::testing::transfer_from_rows(bins(local_dirs), light, rows)
 }
 
 /// The `m x m` bin basis of `local_dirs = m^2` rows per vertex.

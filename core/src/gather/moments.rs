@@ -217,17 +217,7 @@ mod tests {
     }
 
     fn t_of_rows(cube: Cubemap, grid: HemisphereGrid, rows: &[Vec<(usize, f32)>]) -> TransferMatrix {
-        let mut indptr = vec![0usize];
-        let (mut indices, mut data) = (vec![], vec![]);
-        for row in rows {
-            for &(k, v) in row {
-                indices.push(k);
-                data.push(v);
-            }
-            indptr.push(indices.len());
-        }
-        let csr = sprs::CsMat::new((rows.len(), cube.texel_count()), indptr, indices, data);
-        TransferMatrix::new(LocalBasis::Bins(grid), LightBasis::Cubemap(cube), csr).unwrap()
+        crate::testing::transfer_from_rows(LocalBasis::Bins(grid), LightBasis::Cubemap(cube), rows)
     }
 
     /// Moments resolved in f32 agree with the per-texel f64 product on random T (values in
