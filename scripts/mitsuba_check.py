@@ -113,6 +113,12 @@ def main():
         sys.exit("mitsuba_check: sun_boost edits biscale's light vector, not the map Mitsuba reads; check without it")
     if not view.get("env_map"):
         sys.exit("mitsuba_check: this check needs an environment map (a constant sky is a trivial case)")
+    # Mitsuba's envmap emitter reads lat-long maps only; biscale also takes cube maps.
+    if "{face}" in os.path.basename(view["env_map"]):
+        sys.exit("mitsuba_check: the run's sky is six cube-map faces; Mitsuba needs a lat-long map")
+    env_size = mi.Bitmap(view["env_map"]).size()
+    if env_size[0] != 2 * env_size[1]:
+        sys.exit(f"mitsuba_check: the run's sky is {env_size[0]}x{env_size[1]} (a cube-map cross); Mitsuba needs a lat-long map")
     cam = view["camera"]
     v, vn, f = read_obj(os.path.join(args.scene, "mesh.obj"))
 

@@ -5,9 +5,9 @@
 //!
 //! * [`basis`]: the bases stage outputs carry (the light basis of `L`, the local basis of `L*`).
 //! * [`sampling`]: the cubemap layout and its exact texel solid angles, the Shirley-Chiu
-//!   hemisphere grids that index local light and view directions, lat-long environment maps
-//!   and the light vector `L` (power per cubemap texel).
-//! * [`geometry`]: triangle meshes (loading, repair), per-vertex frames, and the BVH used for
+//!   hemisphere grids that index local light and view directions, lat-long and cube-map
+//!   environment maps and the light vector `L` (power per cubemap texel).
+//! * [`geometry`]: triangle meshes (OBJ and PLY loading, repair), per-vertex frames, and the BVH used for
 //!   every ray query.
 //! * [`transfer`]: the per-vertex visibility transfer matrix `T` ((n M) x N, CSR).
 //! * [`compress`]: the [`compress::Compressor`] interface and the compressed form as plain

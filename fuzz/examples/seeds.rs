@@ -1,5 +1,6 @@
 //! Writes the binary seeds of the fuzzing suite into `fuzz/seeds/` (the text seeds, configs,
-//! OBJ files and form-check scripts, are written by hand): small valid EXR and HDR env maps, a
+//! OBJ files and form-check scripts, are written by hand, and so are the PLY files, the two
+//! binary tetrahedra and their truncation included): small valid EXR and HDR env maps, a
 //! transfer matrix, a compressed form of each built-in compressor, dense and local-PCA BTFs,
 //! and hostile variants of each (a header claiming a huge image, lying lengths under a valid
 //! checksum, truncation). Deterministic, so re-running it leaves the committed files unchanged:

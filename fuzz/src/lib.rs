@@ -6,9 +6,9 @@
 //! the committed seeds in `fuzz/seeds/<target>/`, so a plain `cargo test` exercises them.
 //!
 //! Beyond "no panic", each body checks what its reader promises: an error names the input's
-//! file, a mesh that loads is valid, an env map that loads is finite and lat-long shaped, an
-//! artifact re-encodes to itself, a form that passes its compressor's checks gathers without
-//! a panic, and a passing [`FormCheck`] means what it says (checked against a plain
+//! file, a mesh that loads (OBJ or PLY) is valid, an env map that loads is finite and lat-long
+//! or cube shaped, an artifact re-encodes to itself, a form that passes its compressor's checks
+//! gathers without a panic, and a passing [`FormCheck`] means what it says (checked against a plain
 //! re-statement of each check below, in wide integers).
 //!
 //! This file is compiled in both places, so it is one module without submodules, and it uses
@@ -20,7 +20,7 @@ use biscale_core::artifact::Artifact;
 use biscale_core::basis::LightBasis;
 use biscale_core::compress::{ArrayData, CompressedForm};
 use biscale_core::geometry::Mesh;
-use biscale_core::sampling::{EnvMap, LightVector};
+use biscale_core::sampling::{EnvLayout, EnvMap, LightVector};
 use biscale_core::scene::LpcaBtf;
 use biscale_core::transfer::{TransferMatrix, TransferScene};
 use biscale_kernels::{Count, Factor, FormCheck, FormData, KernelDesc, PassDesc, ScratchDesc};
@@ -36,6 +36,7 @@ pub type Body = fn(&[u8]);
 pub const TARGETS: &[(&str, Body)] = &[
     ("config", config),
     ("obj", obj),
+    ("ply", ply),
     ("envmap", envmap),
     ("transfer", transfer),
     ("btf", btf),
@@ -80,27 +81,38 @@ pub fn config(data: &[u8]) {
 pub fn obj(data: &[u8]) {
     match Mesh::parse_obj(data, Path::new("fuzz-input.obj")) {
         Err(e) => assert_names(&e, "fuzz-input.obj"),
-        Ok(load) => {
-            // What validation promises of every mesh it lets through.
-            let m = &load.mesh;
-            assert!(!m.triangles.is_empty(), "a mesh without triangles loaded");
-            assert!(m.positions.iter().all(|p| p.is_finite()), "a non-finite position loaded");
-            let n = m.positions.len();
-            for t in &m.triangles {
-                assert!(t.iter().all(|&i| (i as usize) < n), "triangle {t:?} out of range of {n} vertices");
-                assert!(t[0] != t[1] && t[1] != t[2] && t[0] != t[2], "triangle {t:?} repeats a vertex");
-            }
-            if let Some(uvs) = &m.uvs {
-                assert_eq!(uvs.len(), n, "one uv per vertex");
-                assert!(uvs.iter().all(|t| t.is_finite()), "a non-finite uv loaded");
-            }
-            if let Some(ids) = &m.materials {
-                assert_eq!(ids.per_triangle.len(), m.triangles.len(), "one material per triangle");
-            }
-            if m.triangles.len() <= MAX_SCENE_TRIANGLES {
-                let _ = TransferScene::new(m);
-            }
-        }
+        Ok(load) => check_mesh(&load.mesh),
+    }
+}
+
+/// A PLY file: `Mesh::parse_ply` (what `Mesh::load_ply` runs on the file's bytes), then the
+/// transfer scene of a small mesh that loads.
+pub fn ply(data: &[u8]) {
+    match Mesh::parse_ply(data, Path::new("fuzz-input.ply")) {
+        Err(e) => assert_names(&e, "fuzz-input.ply"),
+        Ok(load) => check_mesh(&load.mesh),
+    }
+}
+
+/// What validation promises of every mesh it lets through; then the transfer scene of a small
+/// one.
+fn check_mesh(m: &Mesh) {
+    assert!(!m.triangles.is_empty(), "a mesh without triangles loaded");
+    assert!(m.positions.iter().all(|p| p.is_finite()), "a non-finite position loaded");
+    let n = m.positions.len();
+    for t in &m.triangles {
+        assert!(t.iter().all(|&i| (i as usize) < n), "triangle {t:?} out of range of {n} vertices");
+        assert!(t[0] != t[1] && t[1] != t[2] && t[0] != t[2], "triangle {t:?} repeats a vertex");
+    }
+    if let Some(uvs) = &m.uvs {
+        assert_eq!(uvs.len(), n, "one uv per vertex");
+        assert!(uvs.iter().all(|t| t.is_finite()), "a non-finite uv loaded");
+    }
+    if let Some(ids) = &m.materials {
+        assert_eq!(ids.per_triangle.len(), m.triangles.len(), "one material per triangle");
+    }
+    if m.triangles.len() <= MAX_SCENE_TRIANGLES {
+        let _ = TransferScene::new(m);
     }
 }
 
@@ -113,7 +125,11 @@ pub fn envmap(data: &[u8]) {
     match EnvMap::load(file.path()) {
         Err(e) => assert_names(&e, "fuzz-input"),
         Ok((env, _warnings)) => {
-            assert!(env.height > 0 && env.width == 2 * env.height, "a {}x{} env map loaded", env.width, env.height);
+            let shape_ok = match env.layout {
+                EnvLayout::LatLong => env.width == 2 * env.height,
+                EnvLayout::Cube => env.height == 6 * env.width,
+            };
+            assert!(env.height > 0 && shape_ok, "a {}x{} {:?} env map loaded", env.width, env.height, env.layout);
             assert_eq!(env.pixels.len(), env.width * env.height);
             assert!(env.pixels.iter().flatten().all(|c| c.is_finite() && *c >= 0.0), "a pixel is < 0 or not finite");
             if env.pixels.len() <= MAX_LIGHT_PIXELS {

@@ -1,9 +1,10 @@
-//! Triangle meshes: OBJ loading, validation and repair (docs/DESIGN.md section 6: NaN/Inf never
-//! propagates silently; zero-area and sliver triangles and duplicate vertices are
-//! first-class inputs).
+//! Triangle meshes: OBJ and PLY loading, validation and repair (docs/DESIGN.md section 6:
+//! NaN/Inf never propagates silently; zero-area and sliver triangles and duplicate vertices
+//! are first-class inputs).
 //!
 //! Every mesh enters the pipeline through one validation ([`Mesh::from_parts`], which
-//! [`Mesh::load_obj`] shares after parsing with tobj), which
+//! [`Mesh::load_obj`] shares after parsing with tobj, and [`Mesh::load_ply`] after its own
+//! strict reader, `ply.rs`; [`Mesh::load`] picks one by extension), which
 //!
 //! * rejects what cannot be repaired with a [`CoreError::Input`] that says what and where:
 //!   a non-finite position or uv (naming the vertex), a triangle index out of range (naming
@@ -140,6 +141,59 @@ impl Mesh {
             },
         })?;
         Self::parse_obj(&bytes, path)
+    }
+
+    /// Load a mesh file by its extension: `.obj` ([`Mesh::load_obj`]) or `.ply`
+    /// ([`Mesh::load_ply`]), in any letter case.
+    pub fn load(path: &Path) -> Result<MeshLoad> {
+        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+        match ext.as_str() {
+            "obj" => Self::load_obj(path),
+            "ply" => Self::load_ply(path),
+            _ => Err(CoreError::Input {
+                path: path.to_path_buf(),
+                message: format!("unsupported mesh format '.{ext}' (expected .obj or .ply)"),
+            }),
+        }
+    }
+
+    /// Load a Stanford PLY file (ASCII or binary, either byte order): vertex positions and,
+    /// when the vertices have them, texture coordinates; faces from the `vertex_indices` (or
+    /// `vertex_index`) lists, triangulated as OBJ polygons are. Vertices keep their file
+    /// order. Then validated and repaired as in [`Mesh::from_parts`]. The reader is strict
+    /// (module `ply`): a bad file is an error naming it and the element, line or byte offset.
+    pub fn load_ply(path: &Path) -> Result<MeshLoad> {
+        Self::parse_ply(&read_mesh_file(path)?, path)
+    }
+
+    /// [`Mesh::load_ply`] on the bytes of a PLY file already in memory (`path` names it in
+    /// errors).
+    pub fn parse_ply(bytes: &[u8], path: &Path) -> Result<MeshLoad> {
+        let input_err = |message: String| CoreError::Input { path: path.to_path_buf(), message };
+        let ply = super::ply::parse(bytes).map_err(|m| input_err(format!("PLY: {m}")))?;
+        let mut triangles = Vec::with_capacity(ply.arities.len());
+        let (mut at, mut nonconvex_faces) = (0usize, 0usize);
+        let mut corners: Vec<Vec3> = vec![];
+        for &n in &ply.arities {
+            let face = &ply.indices[at..at + n as usize];
+            at += n as usize;
+            corners.clear();
+            corners.extend(face.iter().map(|&i| ply.positions[i as usize]));
+            if polygon::triangulate(&corners, |[a, b, c]| triangles.push([face[a], face[b], face[c]])) {
+                nonconvex_faces += 1;
+            }
+        }
+        let mut repairs = Vec::new();
+        if nonconvex_faces > 0 {
+            repairs.push(format!(
+                "triangulated {nonconvex_faces} non-convex polygon(s) by ear clipping (a fan would leave the polygon)"
+            ));
+        }
+        let mut load = validate_and_repair(ply.positions, ply.uvs, triangles, None)
+            .map_err(|issue| input_err(format!("PLY: {}", issue.message())))?;
+        repairs.append(&mut load.repairs);
+        load.repairs = repairs;
+        Ok(load)
     }
 
     /// [`Mesh::load_obj`] on the bytes of an OBJ file already in memory (`path` names it in
@@ -347,6 +401,17 @@ impl Mesh {
     pub fn triangle_count(&self) -> usize {
         self.triangles.len()
     }
+}
+
+/// The bytes of a mesh file, or an input error naming it.
+fn read_mesh_file(path: &Path) -> Result<Vec<u8>> {
+    std::fs::read(path).map_err(|e| CoreError::Input {
+        path: path.to_path_buf(),
+        message: match e.kind() {
+            std::io::ErrorKind::NotFound => "file not found".to_string(),
+            _ => format!("cannot read: {e}"),
+        },
+    })
 }
 
 /// Validation and the repairs of the module docs.

@@ -1,10 +1,11 @@
-//! Geometry: triangle meshes (loading, polygon triangulation and repair), per-vertex frames, and the BVH behind
-//! every ray query.
+//! Geometry: triangle meshes (OBJ and PLY loading, polygon triangulation and repair),
+//! per-vertex frames, and the BVH behind every ray query.
 
 pub mod bvh;
 pub mod frames;
 pub mod mesh;
 pub mod placement;
+mod ply;
 pub mod polygon;
 pub mod shapes;
 

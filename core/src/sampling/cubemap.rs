@@ -94,7 +94,7 @@ impl Cubemap {
 
 /// Point on the face-`face` plane at face coordinates `(a, b)` in [-1, 1]^2
 /// (`a` grows with the column, `b` with the row), Vulkan/OpenGL orientation.
-fn face_point(face: usize, a: f64, b: f64) -> DVec3 {
+pub(crate) fn face_point(face: usize, a: f64, b: f64) -> DVec3 {
     match face {
         0 => DVec3::new(1.0, -b, -a),
         1 => DVec3::new(-1.0, -b, a),
@@ -106,7 +106,7 @@ fn face_point(face: usize, a: f64, b: f64) -> DVec3 {
 }
 
 /// Inverse of [`face_point`]: the major-axis face of `d` and its face coordinates.
-fn face_coords(d: DVec3) -> (usize, f64, f64) {
+pub(crate) fn face_coords(d: DVec3) -> (usize, f64, f64) {
     let ad = d.abs();
     if ad.x >= ad.y && ad.x >= ad.z {
         if d.x > 0.0 {
@@ -125,6 +125,12 @@ fn face_coords(d: DVec3) -> (usize, f64, f64) {
     } else {
         (5, -d.x / ad.z, -d.y / ad.z)
     }
+}
+
+/// Exact solid angle of the rectangle `[a0, a1] x [b0, b1]` of one face's coordinates (the
+/// four-corner formula of [`Cubemap::texel_solid_angle`], for any rectangle).
+pub(crate) fn rect_solid_angle(a0: f64, a1: f64, b0: f64, b1: f64) -> f64 {
+    corner_integral(a1, b1) - corner_integral(a0, b1) - corner_integral(a1, b0) + corner_integral(a0, b0)
 }
 
 /// Solid angle of the face region [0,x] x [0,y] (signed), the building block of the

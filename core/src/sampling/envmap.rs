@@ -1,4 +1,5 @@
-//! Lat-long (equirectangular) environment maps and the light vector `L`.
+//! Environment maps and the light vector `L`: lat-long (equirectangular) maps here, cube
+//! maps (a cross image or six face files) in [`super::cube_env`], one [`EnvMap`] type for both.
 //!
 //! The mapping between pixels and directions lives in [`latlong_direction`] and
 //! [`direction_to_latlong`] alone (Mitsuba 3's convention, so a physically based renderer
@@ -23,12 +24,26 @@ use rayon::prelude::*;
 use std::f64::consts::PI;
 use std::path::Path;
 
-/// A lat-long HDR image of linear radiance, row-major, row 0 = zenith.
+/// An HDR environment of linear radiance: a lat-long image (row-major, row 0 = zenith), or
+/// a cube map (see [`EnvLayout`]).
 #[derive(Clone, Debug)]
 pub struct EnvMap {
     pub width: usize,
     pub height: usize,
     pub pixels: Vec<Rgb>,
+    pub layout: EnvLayout,
+}
+
+/// How an [`EnvMap`]'s pixels map to directions.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum EnvLayout {
+    /// `width = 2 height`, [`latlong_direction`].
+    #[default]
+    LatLong,
+    /// Six square faces of `width` texels, stacked (`height = 6 width`) in biscale's own
+    /// cubemap layout: the texels of `Cubemap::new(width)`, in its order (docs/DESIGN.md
+    /// section 3). [`super::cube_env`] reads cross images and face files into it.
+    Cube,
 }
 
 /// Direction (unit, +Y up) through lat-long coordinates `(u, v)` in `[0,1]^2`.
@@ -57,18 +72,33 @@ pub fn rotate_y(d: DVec3, angle: f64) -> DVec3 {
 impl EnvMap {
     /// A map of constant radiance.
     pub fn constant(width: usize, height: usize, rgb: Rgb) -> Self {
-        Self { width, height, pixels: vec![rgb; width * height] }
+        Self { width, height, pixels: vec![rgb; width * height], layout: EnvLayout::LatLong }
     }
 
-    /// Load an OpenEXR (`.exr`) or Radiance (`.hdr`) lat-long map. Pixels with NaN or
+    /// Load an OpenEXR (`.exr`) or Radiance (`.hdr`) environment: a lat-long map (2:1), a
+    /// cube-map cross (4:3 horizontal, 3:4 vertical), or, when the file name holds `{face}`,
+    /// six square face files (`px nx py ny pz nz`; [`super::cube_env`]). Pixels with NaN or
     /// infinite values are an error naming the pixel; negative values are clamped to 0 and
     /// reported in the returned warnings.
     pub fn load(path: &Path) -> Result<(Self, Vec<String>)> {
+        if let Some(faces) = super::cube_env::face_paths(path) {
+            return super::cube_env::load_faces(path, &faces);
+        }
+        let mut map = Self::read_image(path)?;
+        if map.width > 0 && super::cube_env::is_cross(map.width, map.height) {
+            return super::cube_env::from_cross(&map, path);
+        }
+        let warnings = map.validate(path)?;
+        Ok((map, warnings))
+    }
+
+    /// The pixels of an `.exr` or `.hdr` image as they are stored (a lat-long layout, unchecked).
+    pub(crate) fn read_image(path: &Path) -> Result<Self> {
         let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
         if !path.exists() {
             return Err(CoreError::Input { path: path.into(), message: "file not found".into() });
         }
-        let mut map = match ext.as_str() {
+        Ok(match ext.as_str() {
             "exr" => load_exr(path)?,
             "hdr" => load_hdr(path)?,
             _ => {
@@ -77,9 +107,7 @@ impl EnvMap {
                     message: format!("unsupported env map extension '.{ext}' (expected .exr or .hdr)"),
                 })
             }
-        };
-        let warnings = map.validate(path)?;
-        Ok((map, warnings))
+        })
     }
 
     /// Reject NaN/Inf (naming the first offending pixel), clamp negatives with a warning.
@@ -87,10 +115,31 @@ impl EnvMap {
         if self.width == 0 || self.height == 0 {
             return Err(CoreError::Input { path: path.into(), message: "image is empty".into() });
         }
-        if self.width != 2 * self.height {
+        let w = self.width;
+        match self.layout {
+            EnvLayout::LatLong if self.width != 2 * self.height => Err(CoreError::Input {
+                path: path.into(),
+                message: format!(
+                    "an env map must be a lat-long map twice as wide as tall, or a cube-map cross 4:3 \
+                     (horizontal) or 3:4 (vertical); got {}x{}",
+                    self.width, self.height
+                ),
+            }),
+            EnvLayout::LatLong => self.check_radiance(path, &|i| format!("pixel (x={}, y={})", i % w, i / w)),
+            EnvLayout::Cube if self.height != 6 * self.width => Err(CoreError::Input {
+                path: path.into(),
+                message: format!("a cube map of {w}x{w} faces needs {} rows, has {}", 6 * w, self.height),
+            }),
+            EnvLayout::Cube => self.check_radiance(path, &|i| super::cube_env::texel_place(w, i)),
+        }
+    }
+
+    /// [`EnvMap::validate`]'s pixel checks, naming pixel `i` as `place(i)` says.
+    pub(crate) fn check_radiance(&mut self, path: &Path, place: &dyn Fn(usize) -> String) -> Result<Vec<String>> {
+        if self.pixels.len() != self.width * self.height {
             return Err(CoreError::Input {
                 path: path.into(),
-                message: format!("a lat-long map must be twice as wide as tall, got {}x{}", self.width, self.height),
+                message: format!("{} pixels for a {}x{} image", self.pixels.len(), self.width, self.height),
             });
         }
         let mut negatives = 0usize;
@@ -100,9 +149,8 @@ impl EnvMap {
                     return Err(CoreError::Input {
                         path: path.into(),
                         message: format!(
-                            "pixel (x={}, y={}) channel {} is {} (NaN/Inf radiance is not allowed)",
-                            i % self.width,
-                            i / self.width,
+                            "{} channel {} is {} (NaN/Inf radiance is not allowed)",
+                            place(i),
                             ["R", "G", "B"][c],
                             v
                         ),
@@ -128,6 +176,9 @@ impl EnvMap {
         if self.width == 0 || self.height == 0 {
             return [0.0; 3];
         }
+        if self.layout == EnvLayout::Cube {
+            return super::cube_env::radiance(self, d, rotation);
+        }
         let (u, v) = direction_to_latlong(rotate_y(d.as_dvec3(), -rotation));
         let x = u * self.width as f64 - 0.5;
         let y = (v * self.height as f64 - 0.5).clamp(0.0, (self.height - 1) as f64);
@@ -146,6 +197,9 @@ impl EnvMap {
 
     /// Integral of radiance over the sphere, per channel (exact for the piecewise-constant map).
     pub fn total_power(&self) -> [f64; 3] {
+        if self.layout == EnvLayout::Cube {
+            return super::cube_env::total_power(self);
+        }
         let mut s = [0.0f64; 3];
         for y in 0..self.height {
             let w = pixel_solid_angle(self.width, self.height, y);
@@ -156,6 +210,23 @@ impl EnvMap {
             }
         }
         s
+    }
+
+    /// This map as a lat-long image, for what draws only lat-long textures (the GPU
+    /// background): itself, or a cube map looked up ([`EnvMap::radiance`]) at the centres of a
+    /// `4F x 2F` lat-long image. Never for `L`, which integrates the map itself.
+    pub fn latlong_view(&self) -> std::borrow::Cow<'_, EnvMap> {
+        if self.layout == EnvLayout::LatLong {
+            return std::borrow::Cow::Borrowed(self);
+        }
+        let (w, h) = (4 * self.width, 2 * self.width);
+        let pixels = (0..w * h)
+            .map(|i| {
+                let (u, v) = (((i % w) as f64 + 0.5) / w as f64, ((i / w) as f64 + 0.5) / h as f64);
+                self.radiance(latlong_direction(u, v).as_vec3(), 0.0)
+            })
+            .collect();
+        std::borrow::Cow::Owned(EnvMap { width: w, height: h, pixels, layout: EnvLayout::LatLong })
     }
 }
 
@@ -169,7 +240,12 @@ pub fn pixel_solid_angle(w: usize, h: usize, y: usize) -> f64 {
 fn load_exr(path: &Path) -> Result<EnvMap> {
     // Non-finite pixels come back as warnings; `validate` rejects them, naming the first.
     let (img, _) = crate::scene::HdrImage::read_exr(path)?;
-    Ok(EnvMap { width: img.width as usize, height: img.height as usize, pixels: img.pixels })
+    Ok(EnvMap {
+        width: img.width as usize,
+        height: img.height as usize,
+        pixels: img.pixels,
+        layout: EnvLayout::LatLong,
+    })
 }
 
 fn load_hdr(path: &Path) -> Result<EnvMap> {
@@ -178,7 +254,7 @@ fn load_hdr(path: &Path) -> Result<EnvMap> {
         .into_rgb32f();
     let (w, h) = (img.width() as usize, img.height() as usize);
     let pixels = img.pixels().map(|p| [p.0[0], p.0[1], p.0[2]]).collect();
-    Ok(EnvMap { width: w, height: h, pixels })
+    Ok(EnvMap { width: w, height: h, pixels, layout: EnvLayout::LatLong })
 }
 
 /// The light vector `L` in its basis, RGB: in a cubemap, the power per texel (radiance
@@ -214,9 +290,13 @@ impl LightVector {
         self.basis.cubemap_layout()
     }
 
-    /// Integrate `env` (rotated by `rotation` radians about +Y) over every texel of `cubemap`.
+    /// Integrate `env` (rotated by `rotation` radians about +Y) over every texel of `cubemap`
+    /// (a cube map input: [`super::cube_env`]).
     pub fn from_env(env: &EnvMap, cubemap: Cubemap, rotation: f64) -> Self {
         let basis = LightBasis::Cubemap(cubemap);
+        if env.layout == EnvLayout::Cube {
+            return Self { basis, power: super::cube_env::light_power(env, cubemap, rotation) };
+        }
         let resolution = cubemap.resolution;
         let n = cubemap.texel_count();
         // Sub-pixels small against a cubemap texel (about a quarter of its angular size).

@@ -138,13 +138,15 @@ impl ToneMap {
     }
 
     /// Draw `env` behind uncovered pixels (bilinear between lat-long pixel centres, as
-    /// `EnvMap::radiance`), or nothing (black) with `None`. Maps wider or taller than the
-    /// adapter's texture limit are box-filtered down by a whole factor first.
+    /// `EnvMap::radiance`; a cube map through its `EnvMap::latlong_view`), or nothing (black)
+    /// with `None`. Maps wider or taller than the adapter's texture limit are box-filtered
+    /// down by a whole factor first.
     pub fn set_environment(&mut self, env: Option<&EnvMap>) -> Result<()> {
         let Some(env) = env else {
             self.has_env = false;
             return Ok(());
         };
+        let env = &*env.latlong_view();
         if env.width == 0 || env.height == 0 || env.pixels.len() != env.width * env.height {
             return Err(GpuError::Input(format!(
                 "environment map is {}x{} with {} pixels",

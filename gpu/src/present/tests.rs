@@ -169,6 +169,45 @@ fn background_is_the_rotated_environment_seen_through_the_pixel() {
 }
 
 #[test]
+fn a_cube_map_background_is_drawn_as_the_cpu_looks_it_up() {
+    // A smooth cube map goes to the GPU through its lat-long view (4F x 2F): one 8-bit level
+    // from that view's CPU lookup, as for a lat-long map, and a few from the cube map's own
+    // (the view's bilinear resampling of a smooth map).
+    let ctx = gpu_or_skip!();
+    let (w, h) = (64, 48);
+    let cam = camera(w, h);
+    let (mut shader, gather) = scene(ctx, cam);
+    let hdr = shader.shade(&gather).unwrap();
+    let f = 16;
+    let cube = biscale_core::sampling::Cubemap::new(f as u32);
+    let pixels = (0..cube.texel_count())
+        .map(|k| {
+            let d = cube.texel_direction(k);
+            [0.4 + 0.3 * d.x, 0.4 + 0.3 * d.y, 0.4 + 0.3 * d.z]
+        })
+        .collect();
+    let env = EnvMap { width: f, height: 6 * f, pixels, layout: biscale_core::sampling::EnvLayout::Cube };
+    let view = env.latlong_view();
+    let srgb8 = |c: [f32; 3]| c.map(|v| (linear_to_srgb(v.clamp(0.0, 1.0)) * 255.0 + 0.5) as u8);
+    let mut tm = ToneMap::new(ctx, wgpu::TextureFormat::Rgba8UnormSrgb).unwrap();
+    tm.set_environment(Some(&env)).unwrap();
+    let sky: Vec<usize> = (0..(w * h) as usize).filter(|&i| !hdr.mask[i]).collect();
+    assert!(sky.len() > (w * h / 8) as usize, "only {} sky pixels", sky.len());
+    for rotation in [0.0f32, 0.9] {
+        let settings = ToneMapSettings { exposure: 0.0, env_rotation: rotation, background: true };
+        let gpu = tm.render_rgba8(&mut shader, &gather, &settings).unwrap();
+        for &i in &sky {
+            let (_, d) = cam.ray((i % w as usize) as f32 + 0.5, (i / w as usize) as f32 + 0.5);
+            let got = px(&gpu, i);
+            let levels = |want: [u8; 3]| (0..3).map(|k| got[k].abs_diff(want[k])).max().unwrap();
+            let (via_view, direct) = (view.radiance(d, rotation as f64), env.radiance(d, rotation as f64));
+            assert!(levels(srgb8(via_view)) <= 1, "rotation {rotation}: pixel {i} gpu {got:?} cpu {via_view:?}");
+            assert!(levels(srgb8(direct)) <= 4, "rotation {rotation}: pixel {i} gpu {got:?} cube {direct:?}");
+        }
+    }
+}
+
+#[test]
 fn bad_targets_and_settings_are_errors() {
     let ctx = gpu_or_skip!();
     assert!(ToneMap::new(ctx, wgpu::TextureFormat::Depth32Float).is_err());
@@ -180,6 +219,6 @@ fn bad_targets_and_settings_are_errors() {
     let nan = ToneMapSettings { exposure: f32::NAN, ..Default::default() };
     assert!(tm.render_rgba8(&mut shader, &gather, &nan).is_err());
     let mut tm = tm;
-    let broken = EnvMap { width: 4, height: 2, pixels: vec![[0.0; 3]; 3] };
+    let broken = EnvMap { width: 4, height: 2, pixels: vec![[0.0; 3]; 3], layout: Default::default() };
     assert!(tm.set_environment(Some(&broken)).is_err());
 }

@@ -65,6 +65,12 @@ fn the_valid_seeds_still_load() {
         let (path, bytes) = seed("obj", name);
         Mesh::parse_obj(&bytes, &path).unwrap();
     }
+    for (name, triangles) in
+        [("ascii_quads_uvs.ply", 5), ("ascii_nonconvex.ply", 3), ("tetrahedron_le.ply", 4), ("tetrahedron_be.ply", 4)]
+    {
+        let (path, bytes) = seed("ply", name);
+        assert_eq!(Mesh::parse_ply(&bytes, &path).unwrap().mesh.triangle_count(), triangles, "{name}");
+    }
     for name in ["latlong_8x4.exr", "latlong_8x4.hdr"] {
         let (env, _) = EnvMap::load(&seed("envmap", name).0).unwrap();
         assert_eq!((env.width, env.height), (8, 4), "{name}");
@@ -94,6 +100,15 @@ fn the_hostile_seeds_are_refused_for_what_they_are() {
     let (path, _) = seed("envmap", "huge_data_window.exr");
     let e = EnvMap::load(&path).unwrap_err().to_string();
     assert!(e.contains("1048576 x 524288") && e.contains("over the limit"), "{e}");
+    for (name, needle) in [
+        ("lying_vertex_count.ply", "declares 1000000000000 `vertex` elements"),
+        ("index_out_of_range.ply", "face 1 (line 14): vertex index -7 out of range"),
+        ("truncated_le.ply", "face 3 (byte offset"),
+    ] {
+        let (path, bytes) = seed("ply", name);
+        let e = Mesh::parse_ply(&bytes, &path).unwrap_err().to_string();
+        assert!(e.contains(needle), "{name}: {e}");
+    }
     let (path, bytes) = seed("obj", "nan_inf_vertex.obj");
     let e = Mesh::parse_obj(&bytes, &path).unwrap_err().to_string();
     assert!(e.contains("OBJ vertex 4 (line 4)") && e.contains("non-finite"), "{e}");

@@ -10,6 +10,7 @@
 //!   mesh scales, a camera that sees nothing, foreign cache files).
 //! * [`materials`]: BTF materials from the config (synthesis, the cache, several materials).
 //! * [`low_frequency`]: the SH method end to end (an analytic scene, records, the GPU).
+//! * [`inputs`]: PLY meshes and cube-map skies (cross, six faces) through config, plan and run.
 //!
 //! Two suites stay in their own crates because they cannot share a process or a binary:
 //! `tools/tests/cli.rs` runs the `biscale` executable (only its own package's tests can), and
@@ -19,5 +20,6 @@ mod bad_input;
 mod end_to_end;
 mod fuzz_seeds;
 mod hostile;
+mod inputs;
 mod low_frequency;
 mod materials;
