@@ -1,5 +1,6 @@
-//! Error metrics of images against a reference and false-colour error images (the report's
-//! comparisons). The image type itself is core's [`HdrImage`].
+//! Error metrics of images against a reference (HDR here, the tone-mapped LDR ones in
+//! [`crate::ldr`]), resampling for a comparison across sizes, and false-colour error images
+//! (the report's comparisons). The image type itself is core's [`HdrImage`].
 
 use crate::error::{Result, ShadingError};
 use biscale_core::scene::image::{luminance, write_rgb8_png, HdrImage};
@@ -19,6 +20,17 @@ pub struct ImageMetrics {
     pub rel_l2: f64,
     /// Number of pixels compared.
     pub pixels: usize,
+    /// LDR PSNR in dB after the report's tone map: `10 log10(1 / mse)` with peak 1 over the
+    /// masked pixels' three channels of [`crate::ldr::tone_map`] (`x 2^exposure`, clamped to
+    /// [0, 1], sRGB-encoded, not rounded to 8 bits). `+inf` when equal (JSON: null).
+    pub ldr_psnr: f64,
+    /// SSIM (Wang et al. 2004: 11 x 11 Gaussian window, sigma 1.5, K1 = 0.01, K2 = 0.03, L = 1)
+    /// of the tone-mapped values, per channel, averaged over R, G, B and the masked pixels
+    /// ([`crate::ldr::ssim_map`]). 1 when equal.
+    pub ssim: f64,
+    /// Mean LDR FLIP error over the masked pixels, of the report's 8-bit PNG pixels
+    /// ([`crate::ldr::flip_map`]): 0 when equal, at most 1.
+    pub flip: f64,
 }
 
 fn check_pair(a: &HdrImage, b: &HdrImage, mask: Option<&[bool]>) -> Result<()> {
@@ -38,11 +50,25 @@ fn check_pair(a: &HdrImage, b: &HdrImage, mask: Option<&[bool]>) -> Result<()> {
     Ok(())
 }
 
-/// Error metrics of `a` against `b_reference` over the pixels where `mask` is true (all pixels
-/// without a mask), accumulated in f64. Sizes must match, the mask must not be empty, and
-/// masked pixels must be finite in both images ([`ShadingError::NonFinite`] names the first).
+/// [`compare_exposed`] at exposure 0 (the tone map of the LDR figures leaves values as they are).
 pub fn compare(a: &HdrImage, b_reference: &HdrImage, mask: Option<&[bool]>) -> Result<ImageMetrics> {
+    compare_exposed(a, b_reference, mask, 0.0)
+}
+
+/// Error metrics of `a` against `b_reference` over the pixels where `mask` is true (all pixels
+/// without a mask), accumulated in f64; the LDR ones after the tone map at `exposure` (stops,
+/// the run's `[report] exposure`). Sizes must match, the mask must not be empty, and
+/// masked pixels must be finite in both images ([`ShadingError::NonFinite`] names the first).
+pub fn compare_exposed(
+    a: &HdrImage,
+    b_reference: &HdrImage,
+    mask: Option<&[bool]>,
+    exposure: f32,
+) -> Result<ImageMetrics> {
     check_pair(a, b_reference, mask)?;
+    if !exposure.is_finite() {
+        return Err(ShadingError::Invalid(format!("compare: exposure {exposure} is not finite")));
+    }
     let w = a.width as usize;
     let inside = |i: usize| mask.is_none_or(|m| m[i]);
     for (img, what) in [(a, "image"), (b_reference, "reference image")] {
@@ -74,7 +100,84 @@ pub fn compare(a: &HdrImage, b_reference: &HdrImage, mask: Option<&[bool]>) -> R
     let rmse = (d2 / (3 * pixels) as f64).sqrt();
     let psnr = if rmse == 0.0 { f64::INFINITY } else { 20.0 * (peak / rmse).log10() };
     let rel_l2 = biscale_core::stats::relative_l2(d2, r2);
-    Ok(ImageMetrics { rmse, psnr, rel_l2, pixels })
+    let ldr = crate::ldr::ldr_metrics(a, b_reference, mask, exposure);
+    Ok(ImageMetrics { rmse, psnr, rel_l2, pixels, ldr_psnr: ldr.ldr_psnr, ssim: ldr.ssim, flip: ldr.flip })
+}
+
+/// How [`resample`] changed an image's size.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Resampling {
+    /// Already the size asked for: unchanged.
+    None,
+    /// Each output pixel is the mean of an `fx x fy` block (the size divides exactly).
+    Box { fx: u32, fy: u32 },
+    /// Bilinear interpolation at the output pixels' centres, edges clamped.
+    Bilinear,
+}
+
+impl std::fmt::Display for Resampling {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Resampling::None => write!(f, "not resampled"),
+            Resampling::Box { fx, fy } => write!(f, "box-filtered over {fx}x{fy} pixel blocks"),
+            Resampling::Bilinear => write!(f, "resampled bilinearly (no prefilter: a large downsample aliases)"),
+        }
+    }
+}
+
+/// `img` at `width x height`: a box filter (block means, f64) when its size is an integer
+/// multiple of that in both axes, else bilinear interpolation at pixel centres (source
+/// position `(x + 0.5) * w_in / w_out - 0.5`, clamped to the edge). For comparing images of
+/// different resolutions (`biscale diff`); the returned [`Resampling`] says which was done.
+pub fn resample(img: &HdrImage, width: u32, height: u32) -> Result<(HdrImage, Resampling)> {
+    img.check_size("image to resample")?;
+    let (sw, sh) = (img.width, img.height);
+    if (sw, sh) == (width, height) {
+        return Ok((img.clone(), Resampling::None));
+    }
+    if sw == 0 || sh == 0 || width == 0 || height == 0 {
+        return Err(ShadingError::Invalid(format!("cannot resample a {sw}x{sh} image to {width}x{height}")));
+    }
+    let at = |x: u32, y: u32| img.pixels[y as usize * sw as usize + x as usize];
+    if sw % width == 0 && sh % height == 0 {
+        let (fx, fy) = (sw / width, sh / height);
+        let n = (fx * fy) as f64;
+        let pixels = (0..width * height)
+            .map(|i| {
+                let (x, y) = (i % width, i / width);
+                let mut s = [0.0f64; 3];
+                for v in y * fy..(y + 1) * fy {
+                    for u in x * fx..(x + 1) * fx {
+                        let p = at(u, v);
+                        for c in 0..3 {
+                            s[c] += p[c] as f64;
+                        }
+                    }
+                }
+                s.map(|v| (v / n) as f32)
+            })
+            .collect();
+        return Ok((HdrImage { width, height, pixels }, Resampling::Box { fx, fy }));
+    }
+    // Source coordinate of an output pixel centre along an axis, split into the lower sample
+    // and the weight of the upper one.
+    let axis = |o: u32, n_out: u32, n_in: u32| -> (u32, u32, f64) {
+        let s = ((o as f64 + 0.5) * n_in as f64 / n_out as f64 - 0.5).clamp(0.0, (n_in - 1) as f64);
+        let i = (s.floor() as u32).min(n_in - 1);
+        (i, (i + 1).min(n_in - 1), s - i as f64)
+    };
+    let pixels = (0..width * height)
+        .map(|i| {
+            let ((x0, x1, tx), (y0, y1, ty)) = (axis(i % width, width, sw), axis(i / width, height, sh));
+            let (p00, p10, p01, p11) = (at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1));
+            std::array::from_fn(|c| {
+                let top = p00[c] as f64 * (1.0 - tx) + p10[c] as f64 * tx;
+                let bottom = p01[c] as f64 * (1.0 - tx) + p11[c] as f64 * tx;
+                (top * (1.0 - ty) + bottom * ty) as f32
+            })
+        })
+        .collect();
+    Ok((HdrImage { width, height, pixels }, Resampling::Bilinear))
 }
 
 /// Matplotlib's viridis at 10 evenly spaced points (perceptually uniform, colour-blind safe).
@@ -190,6 +293,51 @@ mod tests {
         assert!(e.contains("(2, 0)"), "{e}");
         mask[2] = false;
         assert!(compare(&b, &reference, Some(&mask)).is_ok(), "NaN outside the mask is ignored");
+    }
+
+    #[test]
+    fn resampling_box_filters_exact_multiples_and_interpolates_otherwise() {
+        let img = random_hdr_image(6, 4, 5);
+        // A 2x nearest upsample box-filters back to the original exactly (4 equal values).
+        let up = HdrImage {
+            width: 12,
+            height: 8,
+            pixels: (0..96).map(|i| img.pixels[(i / 12 / 2) * 6 + (i % 12) / 2]).collect(),
+        };
+        let (down, how) = resample(&up, 6, 4).unwrap();
+        assert_eq!((down.pixels == img.pixels, how), (true, Resampling::Box { fx: 2, fy: 2 }));
+        // 3x1 blocks: each output pixel is the block's mean.
+        let (d, how) = resample(&img, 2, 4).unwrap();
+        assert_eq!(how, Resampling::Box { fx: 3, fy: 1 });
+        let mean = (0..3).map(|u| img.pixels[6 + u][1] as f64).sum::<f64>() / 3.0;
+        assert!((d.pixels[2][1] as f64 - mean).abs() <= 1e-6 * mean, "{} vs {mean}", d.pixels[2][1]);
+        // Not a multiple: bilinear, which keeps a linear ramp linear (and a constant constant).
+        let ramp = HdrImage { width: 4, height: 3, pixels: (0..12).map(|i| [(i % 4) as f32, 1.0, 2.0]).collect() };
+        let (r, how) = resample(&ramp, 6, 2).unwrap();
+        assert_eq!(how, Resampling::Bilinear);
+        for (i, p) in r.pixels.iter().enumerate() {
+            // Output centre x + 0.5 maps to (x + 0.5) * 4 / 6 - 0.5, clamped to [0, 3].
+            let want = (((i % 6) as f32 + 0.5) * 4.0 / 6.0 - 0.5).clamp(0.0, 3.0);
+            assert!((p[0] - want).abs() < 1e-6 && p[1] == 1.0 && p[2] == 2.0, "{i}: {p:?} vs {want}");
+        }
+        assert_eq!(resample(&img, 6, 4).unwrap(), (img.clone(), Resampling::None));
+        assert!(resample(&img, 0, 4).is_err());
+    }
+
+    #[test]
+    fn compare_reports_the_ldr_figures_at_the_exposure() {
+        let b = random_hdr_image(20, 10, 8);
+        let a = HdrImage { pixels: b.pixels.iter().map(|p| p.map(|x| x * 1.1)).collect(), ..b.clone() };
+        let at = |e: f32| compare_exposed(&a, &b, None, e).unwrap();
+        let m = at(0.0);
+        assert_eq!(m, compare(&a, &b, None).unwrap());
+        assert!(m.ldr_psnr.is_finite() && m.ssim < 1.0 && m.flip > 0.0, "{m:?}");
+        // Another exposure changes only the LDR figures.
+        let n = at(5.0);
+        assert_eq!((n.rmse, n.psnr, n.rel_l2, n.pixels), (m.rmse, m.psnr, m.rel_l2, m.pixels));
+        assert!(n.ldr_psnr != m.ldr_psnr && n.ssim != m.ssim, "{n:?} vs {m:?}");
+        let e = compare_exposed(&a, &b, None, f32::NAN).unwrap_err().to_string();
+        assert!(e.contains("exposure NaN"), "{e}");
     }
 
     #[test]

@@ -11,6 +11,7 @@
 //! * [`precomputed`]: LPCA BTFs under a fixed light from per-vertex dot products, the fast path
 //!   of the CPU shader (checked against it).
 //! * [`image`]: error metrics of images against a reference, false-colour error images.
+//! * [`ldr`]: the LDR metrics after the report's tone map (LDR PSNR, SSIM, FLIP).
 //!
 //! Shortest use, from per-vertex `L*` to an image file:
 //!
@@ -33,6 +34,7 @@
 pub mod cpu;
 pub mod error;
 pub mod image;
+pub mod ldr;
 pub mod precomputed;
 pub mod reference;
 pub mod synth;

@@ -11,7 +11,7 @@ use crate::metrics::{BtfRecord, BtfStudyRecord, PrecomputedRecord};
 use crate::pipeline::{errors, timed, Reference, Result, View};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::scene::{BtfRepresentation, Render, ShadeScene};
-use biscale_shading::image::compare;
+use biscale_shading::image::{compare, compare_exposed};
 use biscale_shading::precomputed::{shade_precomputed, LightDots};
 use std::path::Path;
 
@@ -110,11 +110,11 @@ pub(crate) fn run(materials: &SceneMaterials, inp: &StudyInputs<'_>) -> Result<V
     let images = inp.out_dir.join("images");
     for (i, record) in records.iter_mut().enumerate() {
         let (scene, render, shade_ms) = (&scenes[i], &direct[i], ms[2 + i]);
-        let vs_dense = errors(&compare(&render.image, &dense.image, Some(&dense.mask))?);
+        let vs_dense = errors(&compare_exposed(&render.image, &dense.image, Some(&dense.mask), inp.exposure)?);
         let vs_reference = match inp.reference {
             Some(r) => {
                 let small = shade(scene, &r.camera)?;
-                Some(errors(&compare(&small.image, &r.render.image, Some(&r.render.mask))?))
+                Some(errors(&compare_exposed(&small.image, &r.render.image, Some(&r.render.mask), inp.exposure)?))
             }
             None => None,
         };

@@ -10,7 +10,7 @@ use biscale_core::sampling::LightVector;
 use biscale_core::scene::image::write_rgb8_png;
 use biscale_core::scene::HdrImage;
 use biscale_core::transfer::TransferMatrix;
-use biscale_shading::image::{compare, error_image as error_image_of, ImageMetrics};
+use biscale_shading::image::{compare_exposed, error_image as error_image_of, resample, ImageMetrics, Resampling};
 use std::io::Write;
 use std::path::Path;
 
@@ -148,28 +148,59 @@ pub fn write_mtx(t: &TransferMatrix, light: &LightVector, dir: &Path) -> Result<
     Ok(())
 }
 
+/// What `biscale diff` compares and writes besides the two images.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct DiffOptions<'a> {
+    /// Only the pixels where this PNG is white; it must have the reference's size.
+    pub mask: Option<&'a Path>,
+    /// Also write a false-colour error image (PNG) here.
+    pub error_image: Option<&'a Path>,
+    /// Exposure (stops) of the tone map the LDR figures are measured after.
+    pub exposure: f32,
+}
+
 /// Compare two EXR images (`b` is the reference); optionally write a false-colour error image.
-pub fn diff(a: &Path, b: &Path, mask: Option<&Path>, error_image: Option<&Path>) -> Result<ImageMetrics> {
+/// When the sizes differ, `a` is resampled to `b`'s ([`resample`]: a box filter when `a`'s
+/// size is an integer multiple of `b`'s, else bilinear) and `warn` is told what was done; a
+/// mask must still have the reference's size. `warn` also gets the files' read warnings.
+pub fn diff(a: &Path, b: &Path, opts: DiffOptions<'_>, warn: &mut dyn FnMut(String)) -> Result<ImageMetrics> {
     let (ia, wa) = HdrImage::read_exr(a)?;
     let (ib, wb) = HdrImage::read_exr(b)?;
-    for w in wa.iter().chain(&wb) {
-        eprintln!("warning: {w}");
+    for w in wa.into_iter().chain(wb) {
+        warn(w);
     }
-    let mask = match mask {
+    let mask = match opts.mask {
         Some(p) => {
             let (m, w, h) = biscale_core::scene::image::read_mask_png(p)?;
             if (w, h) != (ib.width, ib.height) {
                 return Err(PipelineError::Mismatch {
                     path: p.to_path_buf(),
-                    what: format!("the mask is {w}x{h}, the images {}x{}", ib.width, ib.height),
+                    what: format!("the mask is {w}x{h}, the images {}x{} (the reference's size)", ib.width, ib.height),
                 });
             }
             Some(m)
         }
         None => None,
     };
-    let m = compare(&ia, &ib, mask.as_deref())?;
-    if let Some(p) = error_image {
+    let ia = match resample(&ia, ib.width, ib.height)? {
+        (img, Resampling::None) => img,
+        (img, how) => {
+            warn(format!(
+                "{} is {}x{}, the reference {} is {}x{}: {how} to {}x{} before comparing",
+                a.display(),
+                ia.width,
+                ia.height,
+                b.display(),
+                ib.width,
+                ib.height,
+                ib.width,
+                ib.height
+            ));
+            img
+        }
+    };
+    let m = compare_exposed(&ia, &ib, mask.as_deref(), opts.exposure)?;
+    if let Some(p) = opts.error_image {
         let (img, scale) = error_image_of(&ia, &ib, None)?;
         write_rgb8_png(&img, p)?;
         eprintln!("wrote {} (full scale = luminance error {scale:.4e})", p.display());
@@ -209,7 +240,7 @@ pub fn generate_scene(kind: GeneratedScene, out: &Path) -> Result<biscale_core::
 /// triangles, the half as many vertices and the edge map of the last level).
 pub const MAX_GENERATED_TRIANGLES: u64 = 1 << 25;
 
-/// Write `levels` of midpoint subdivision of the OBJ `input` to `out` (the scaling study's
+/// Write `levels` of midpoint subdivision of the OBJ or PLY `input` to `out` (an OBJ) (the scaling study's
 /// denser meshes: same shape, about 4x the vertices per level). Refused up front beyond
 /// [`MAX_GENERATED_TRIANGLES`] or when its memory estimate exceeds the available memory.
 pub fn subdivide(input: &Path, levels: u32, out: &Path) -> Result<biscale_core::geometry::Mesh> {
@@ -224,7 +255,7 @@ pub fn subdivide_within(
     out: &Path,
     available: &crate::memory::Available,
 ) -> Result<biscale_core::geometry::Mesh> {
-    let mut mesh = biscale_core::geometry::Mesh::load_obj(input)?.mesh;
+    let mut mesh = biscale_core::geometry::Mesh::load(input)?.mesh;
     // Each level quadruples the triangles: refuse up front what would not fit, with the
     // estimate (a level too many took 15 GB before failing).
     let triangles = (mesh.triangle_count() as u128) << (2 * levels.min(40));
@@ -256,11 +287,11 @@ pub fn subdivide_within(
     Ok(mesh)
 }
 
-/// Write the OBJ `input` with cylindrical texture coordinates (about the vertical axis, in
+/// Write the OBJ or PLY `input`, as an OBJ, with cylindrical texture coordinates (about the vertical axis, in
 /// world units; see `shapes::cylindrical_uvs`) to `out`, so patterned BTFs can tile on a mesh
 /// that has none.
 pub fn cylindrical_uv(input: &Path, out: &Path) -> Result<biscale_core::geometry::Mesh> {
-    let mesh = biscale_core::geometry::shapes::cylindrical_uvs(&biscale_core::geometry::Mesh::load_obj(input)?.mesh);
+    let mesh = biscale_core::geometry::shapes::cylindrical_uvs(&biscale_core::geometry::Mesh::load(input)?.mesh);
     write_obj(&mesh, out)?;
     Ok(mesh)
 }
@@ -543,6 +574,47 @@ mod tests {
         assert_eq!(super::subdivide_within(&bunny, 3, &out, &enough).unwrap().triangle_count(), 64 * 3674);
         // The written file is within the estimate's text and mesh allowance.
         assert!(std::fs::metadata(&out).unwrap().len() < needed);
+    }
+
+    #[test]
+    fn diff_resamples_a_larger_image_and_refuses_a_mask_of_another_size() {
+        use super::{diff, DiffOptions};
+        use biscale_core::scene::HdrImage;
+        let dir = tempfile::tempdir().unwrap();
+        let (a, b) = (dir.path().join("a.exr"), dir.path().join("b.exr"));
+        let pixels = (0..60).map(|i| [i as f32 * 0.02, (i % 7) as f32 * 0.1, 1.0 / (1 + i) as f32]).collect();
+        let reference = HdrImage { width: 10, height: 6, pixels };
+        // A 2x nearest upsample: the 2x2 box filter gives the reference back exactly.
+        let up = HdrImage {
+            width: 20,
+            height: 12,
+            pixels: (0..240).map(|i| reference.pixels[(i / 20 / 2) * 10 + (i % 20) / 2]).collect(),
+        };
+        up.write_exr(&a).unwrap();
+        reference.write_exr(&b).unwrap();
+        let mut warnings = vec![];
+        let m = diff(&a, &b, DiffOptions::default(), &mut |w| warnings.push(w)).unwrap();
+        assert_eq!((m.rmse, m.ssim, m.ldr_psnr, m.flip, m.pixels), (0.0, 1.0, f64::INFINITY, 0.0, 60));
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        assert!(
+            warnings[0].contains("is 20x12, the reference") && warnings[0].contains("2x2 pixel blocks"),
+            "{warnings:?}"
+        );
+        // Not a multiple: bilinear, said so.
+        let mut odd = up.clone();
+        (odd.width, odd.height, odd.pixels) = (15, 9, up.pixels[..135].to_vec());
+        odd.write_exr(&a).unwrap();
+        warnings.clear();
+        diff(&a, &b, DiffOptions::default(), &mut |w| warnings.push(w)).unwrap();
+        assert!(warnings[0].contains("is 15x9") && warnings[0].contains("bilinearly"), "{warnings:?}");
+        // A mask must have the reference's size, even at the first image's.
+        let mask = dir.path().join("mask.png");
+        image::GrayImage::from_pixel(15, 9, image::Luma([255])).save(&mask).unwrap();
+        let opts = DiffOptions { mask: Some(&mask), ..Default::default() };
+        let e = diff(&a, &b, opts, &mut |_| {}).unwrap_err().to_string();
+        assert!(e.contains("mask.png") && e.contains("the mask is 15x9, the images 10x6"), "{e}");
+        image::GrayImage::from_pixel(10, 6, image::Luma([255])).save(&mask).unwrap();
+        assert_eq!(diff(&a, &b, opts, &mut |_| {}).unwrap().pixels, 60);
     }
 
     use std::path::Path;

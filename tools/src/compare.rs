@@ -97,7 +97,7 @@ mod tests {
     use crate::metrics::{ImageErrors, ImageRecord};
 
     fn rec(kind: &str, name: &str, bytes: u64, err: f64) -> CompressorRecord {
-        let e = ImageErrors { rmse: 0.0, psnr: 0.0, rel_l2: 0.0 };
+        let e = ImageErrors { rmse: 0.0, psnr: 0.0, rel_l2: 0.0, ldr_psnr: 0.0, ssim: 0.0, flip: 0.0 };
         CompressorRecord {
             name: name.into(),
             kind: kind.into(),

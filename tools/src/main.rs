@@ -109,7 +109,9 @@ enum Command {
         #[command(subcommand)]
         what: Cache,
     },
-    /// Compare two EXR images: prints RMSE, PSNR and relative L2 of A against B.
+    /// Compare two EXR images: prints RMSE, PSNR and relative L2 of A against B, and after
+    /// the report's tone map LDR PSNR (peak 1), SSIM and FLIP. A of another size is resampled
+    /// to B's (box filter for an integer ratio, else bilinear), with a warning.
     Diff {
         a: PathBuf,
         /// The reference image.
@@ -121,9 +123,14 @@ enum Command {
         /// Also write a false-colour error image (PNG).
         #[arg(long)]
         error_image: Option<PathBuf>,
-        /// Print the figures as one JSON object (psnr is null when the images are equal).
+        /// Print the figures as one JSON object (psnr and ldr_psnr are null when the images
+        /// are equal).
         #[arg(long)]
         json: bool,
+        /// Exposure in stops of the tone map (x 2^exposure, clamp, sRGB) the LDR figures are
+        /// measured after: a run's `[report] exposure` gives its report's numbers.
+        #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+        exposure: f32,
     },
 }
 
@@ -363,18 +370,24 @@ fn run() -> anyhow::Result<()> {
         }
         Command::Shard { what } => shard(what)?,
         Command::Cache { what } => cache(what)?,
-        Command::Diff { a, b, mask, error_image, json } => {
-            let m = biscale::commands::diff(&a, &b, mask.as_deref(), error_image.as_deref())?;
+        Command::Diff { a, b, mask, error_image, json, exposure } => {
+            let opts =
+                biscale::commands::DiffOptions { mask: mask.as_deref(), error_image: error_image.as_deref(), exposure };
+            let m = biscale::commands::diff(&a, &b, opts, &mut |w| eprintln!("warning: {w}"))?;
             if json {
                 let v = serde_json::json!({
                     "rmse": m.rmse,
                     "psnr": m.psnr.is_finite().then_some(m.psnr),
                     "rel_l2": m.rel_l2,
                     "pixels": m.pixels,
+                    "ldr_psnr": m.ldr_psnr.is_finite().then_some(m.ldr_psnr),
+                    "ssim": m.ssim,
+                    "flip": m.flip,
                 });
                 println!("{v}");
             } else {
                 println!("rmse {:.6e}\npsnr {:.3} dB\nrel_l2 {:.6e}\npixels {}", m.rmse, m.psnr, m.rel_l2, m.pixels);
+                println!("ldr_psnr {:.3} dB\nssim {:.6}\nflip {:.6}", m.ldr_psnr, m.ssim, m.flip);
             }
         }
     }

@@ -118,7 +118,17 @@ fn diff_reports_known_errors_and_names_bad_files() {
     let rmse: f64 =
         out.lines().find(|l| l.starts_with("rmse")).unwrap().split_whitespace().nth(1).unwrap().parse().unwrap();
     assert!((rmse - (0.25f64 / 3.0).sqrt()).abs() < 1e-6, "{out}");
+    for key in ["ldr_psnr", "ssim", "flip"] {
+        assert!(out.lines().any(|l| l.starts_with(key)), "{key} missing: {out}");
+    }
     assert!(e.is_file());
+    // Another size is resampled to the reference's, with a warning: 2x2 blocks of 1.0 give a.
+    let big = dir.path().join("big.exr");
+    HdrImage { width: 8, height: 4, pixels: vec![[1.0, 1.0, 1.0]; 32] }.write_exr(&big).unwrap();
+    let (ok, json, err) = biscale(&["diff", big.to_str().unwrap(), a.to_str().unwrap(), "--json"]);
+    assert!(ok && err.contains("warning: ") && err.contains("is 8x4, the reference"), "{err}");
+    let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+    assert_eq!((v["rmse"].as_f64(), v["ssim"].as_f64(), v["pixels"].as_u64()), (Some(0.0), Some(1.0), Some(8)), "{v}");
     let (ok, _, err) = biscale(&["diff", a.to_str().unwrap(), "/nonexistent/x.exr"]);
     assert!(!ok && err.contains("/nonexistent/x.exr") && !err.contains("panicked"), "{err}");
 }
@@ -246,6 +256,20 @@ fn every_run_records_how_it_was_made() {
         assert!(same(e, c["rel_error_lstar"].as_f64().unwrap()), "{row:?}");
         let r: f64 = row[col("image_rel_l2_vs_reference")].parse().unwrap();
         assert!(same(r, c["image"]["vs_reference"]["rel_l2"].as_f64().unwrap()), "{row:?}");
+        for (column, key) in
+            [("image_ssim_vs_reference", "vs_reference"), ("image_ssim_vs_uncompressed", "vs_uncompressed")]
+        {
+            let x: f64 = row[col(column)].parse().unwrap();
+            assert!(same(x, c["image"][key]["ssim"].as_f64().unwrap()), "{column}: {row:?}");
+        }
+        let f: f64 = row[col("image_flip_vs_reference")].parse().unwrap();
+        assert!(same(f, c["image"]["vs_reference"]["flip"].as_f64().unwrap()), "{row:?}");
+        // Lossless settings are equal after the tone map: +inf in the CSV, null in JSON.
+        let l = row[col("image_ldr_psnr_vs_uncompressed")];
+        match c["image"]["vs_uncompressed"]["ldr_psnr"].as_f64() {
+            Some(want) => assert!(same(l.parse().unwrap(), want), "{row:?}"),
+            None => assert_eq!(l, "inf", "{row:?}"),
+        }
         assert_eq!(row[col("gpu_gather_ms")], "", "a CPU run has no GPU column");
     }
 
@@ -258,7 +282,7 @@ fn every_run_records_how_it_was_made() {
     let (ok, json, err) = biscale(&["diff", &pair[0], &pair[1], "--mask", &mask, "--json"]);
     assert!(ok, "{err}");
     let masked: serde_json::Value = serde_json::from_str(&json).unwrap();
-    for key in ["rmse", "psnr", "rel_l2"] {
+    for key in ["rmse", "psnr", "rel_l2", "ldr_psnr", "ssim", "flip"] {
         let (got, want) = (masked[key].as_f64().unwrap(), record["image"]["vs_uncompressed"][key].as_f64().unwrap());
         assert!((got - want).abs() <= 1e-12 * want.abs(), "{key}: diff {got}, report {want}");
     }
@@ -340,7 +364,7 @@ fn light_moments_are_measured_side_by_side_with_the_papers_cosine() {
         r["uncompressed_vs_reference"]["rel_l2"].as_f64().unwrap(),
         r["uncompressed_paper_vs_reference"]["rel_l2"].as_f64().unwrap(),
     );
-    assert!(moments < paper, "against the exact-cosine reference: moments {moments}, paper {paper}");
+    assert!(moments < paper, "against the ground truth: moments {moments}, paper {paper}");
     // Lossless forms gathered through the moments agree with the f64 per-texel product to f32
     // rounding (every term of a traced T is positive: its texels lie above the horizon).
     let sparse = m["compressors"].as_array().unwrap().iter().find(|c| c["kind"] == "sparse").unwrap();
