@@ -9,7 +9,7 @@
 
 use biscale_compressors::registry;
 use biscale_core::compress::CompressContext;
-use biscale_core::gather::moments::{exact_cosine_product, gather_with_moments, LightMoments};
+use biscale_core::gather::moments::{exact_moments_product, gather_with_moments, LightMoments};
 use biscale_core::gather::relative_l2_error;
 use biscale_core::geometry::Mesh;
 use biscale_core::sampling::{EnvMap, LightVector};
@@ -47,7 +47,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (env, _) = EnvMap::load(&args.env)?;
     let light = LightVector::from_env(&env, settings.cubemap(), 0.0);
     let moments = LightMoments::new(&light)?;
-    let exact = exact_cosine_product(&t, &light, &frames)?;
+    let exact = exact_moments_product(&t, &light, &frames)?;
     println!(
         "T: {} vertices, {} non-zeros; {} rounds, {} threads",
         t.vertices(),

@@ -7,12 +7,12 @@
 //! ```toml
 //! name = "bunny"
 //! [scene]
-//! mesh = "../assets/meshes/bunny.obj"
+//! mesh = "../assets/meshes/bunny.obj"   # or a .ply
 //! [scene.material]                 # or several [[scene.materials]], each with a name
 //! kind = "lambertian"
 //! albedo = [0.8, 0.8, 0.8]
 //! [lighting]
-//! env_map = "../assets/envmaps/blender_forest.exr"
+//! env_map = "../assets/envmaps/blender_forest.exr"   # lat-long, a cube cross, or "sky_{face}.exr"
 //! [[compressors]]
 //! kind = "sparse"
 //! ```
@@ -165,7 +165,7 @@ pub struct ExperimentFile {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SceneConfig {
-    /// OBJ mesh, relative to the config file.
+    /// OBJ or PLY mesh, relative to the config file.
     pub mesh: Spanned<PathBuf>,
     /// One material for the whole mesh (ignores the OBJ's material names).
     #[serde(default)]
@@ -572,7 +572,9 @@ fn check_material(m: &MaterialConfig) -> Result<(), String> {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LightingConfig {
-    /// Lat-long EXR or HDR environment map (relative to the config file).
+    /// EXR or HDR environment map (relative to the config file): lat-long (2:1), a cube-map
+    /// cross (4:3 or 3:4), or six cube faces when the file name holds `{face}`
+    /// (`sky_{face}.exr`: `px nx py ny pz nz`; `biscale_core::sampling::cube_env`).
     pub env_map: Option<Spanned<PathBuf>>,
     /// A constant sky of this radiance instead of a map.
     pub constant: Option<[f32; 3]>,
@@ -776,19 +778,15 @@ pub struct RuntimeConfig {
     #[serde(default)]
     pub light_moments: bool,
     /// Rays per pixel for anti-aliasing, a square (1, 4, 9, ...; a stratified box filter,
-    /// `biscale_core::scene::Camera`). Default 4 on the CPU backend, 1 on the GPU (whose shader
-    /// takes the pixel centre only): see [`RuntimeConfig::samples_per_pixel`].
+    /// `biscale_core::scene::Camera`; the wgpu shader runs on the supersampled grid). Default 4:
+    /// see [`RuntimeConfig::samples_per_pixel`].
     pub samples_per_pixel: Option<Spanned<u32>>,
 }
 
 impl RuntimeConfig {
-    /// The rays per pixel every render of the run takes: the config's, else 4 (CPU) or 1 (GPU).
+    /// The rays per pixel every render of the run takes: the config's, else 4.
     pub fn samples_per_pixel(&self) -> u32 {
-        match (&self.samples_per_pixel, self.backend) {
-            (Some(s), _) => *s.get_ref(),
-            (None, Backend::Cpu) => 4,
-            (None, Backend::Gpu) => 1,
-        }
+        self.samples_per_pixel.as_ref().map_or(4, |s| *s.get_ref())
     }
 }
 
@@ -1039,13 +1037,27 @@ impl Experiment {
             let want: Vec<String> = allowed.iter().map(|a| format!(".{a}")).collect();
             Err(err(p.span(), format!("{what} must be a {} file, got '{}'", want.join(" or "), p.get_ref().display())))
         };
-        kind_of(&file.scene.mesh, "scene.mesh", &["obj"])?;
+        kind_of(&file.scene.mesh, "scene.mesh", &["obj", "ply"])?;
         if let Some(p) = &file.lighting.env_map {
             kind_of(p, "lighting.env_map", &["exr", "hdr"])?;
         }
         let mesh_path = resolve(&file.scene.mesh, "mesh")?;
         let env_path = match (&file.lighting.env_map, &file.lighting.constant) {
-            (Some(p), None) => Some(resolve(p, "env map")?),
+            (Some(p), None) => match biscale_core::sampling::cube_env::face_paths(&dir.join(p.get_ref())) {
+                // Six cube faces: each must be there (the pattern itself is no file).
+                Some(faces) => {
+                    for (face, tag) in faces.iter().zip(biscale_core::sampling::cube_env::FACE_TAGS) {
+                        if !face.is_file() {
+                            return Err(err(
+                                p.span(),
+                                format!("env map cube face `{tag}` not found: {}", face.display()),
+                            ));
+                        }
+                    }
+                    Some(dir.join(p.get_ref()))
+                }
+                None => Some(resolve(p, "env map")?),
+            },
             (None, Some(c)) => {
                 if c.iter().any(|v| !v.is_finite() || *v < 0.0) {
                     return Err(ConfigError::whole_file(path, "lighting.constant must be finite and >= 0"));
@@ -1110,13 +1122,6 @@ impl Experiment {
         if let Some(s) = &file.runtime.samples_per_pixel {
             if let Err(what) = biscale_core::scene::camera::samples_per_axis_of(*s.get_ref()) {
                 return Err(err(s.span(), format!("runtime.samples_per_pixel {what}")));
-            }
-            if *s.get_ref() > 1 && file.runtime.backend == Backend::Gpu {
-                return Err(err(
-                    s.span(),
-                    "runtime.samples_per_pixel > 1 needs the CPU backend: the wgpu shader takes one sample per pixel so far"
-                        .into(),
-                ));
             }
         }
         range(&file.report.reference_downscale, 1, 64, "report.reference_downscale")?;
@@ -1332,7 +1337,7 @@ mod tests {
     }
 
     #[test]
-    fn samples_per_pixel_must_be_a_square_and_one_on_the_gpu() {
+    fn samples_per_pixel_must_be_a_square() {
         let e = parse(&format!("{OK}[runtime]\nsamples_per_pixel = 8\n")).unwrap_err();
         assert!(
             e.to_string()
@@ -1342,12 +1347,10 @@ mod tests {
         assert_eq!(e.line, 7, "{e}");
         assert!(parse(&format!("{OK}[runtime]\nsamples_per_pixel = 0\n")).is_err());
         assert!(parse(&format!("{OK}[runtime]\nsamples_per_pixel = 1024\n")).is_err());
-        let e = parse(&format!("{OK}[runtime]\nbackend = \"gpu\"\nsamples_per_pixel = 4\n")).unwrap_err().to_string();
-        assert!(e.contains("needs the CPU backend"), "{e}");
-        // The defaults: 4 rays per pixel on the CPU, 1 on the GPU.
+        // The default: 4 rays per pixel on either backend.
         assert_eq!(parse(OK).unwrap().file.runtime.samples_per_pixel(), 4);
         let gpu = parse(&format!("{OK}[runtime]\nbackend = \"gpu\"\n")).unwrap();
-        assert_eq!(gpu.file.runtime.samples_per_pixel(), 1);
+        assert_eq!(gpu.file.runtime.samples_per_pixel(), 4);
         assert_eq!(
             parse(&format!("{OK}[runtime]\nsamples_per_pixel = 9\n")).unwrap().file.runtime.samples_per_pixel(),
             9
@@ -1466,8 +1469,8 @@ mod tests {
             let e = parse(&format!("{OK}{extra}")).unwrap_err();
             assert!(e.message.contains(want), "{extra}: {e}");
         }
-        let e = parse(&OK.replace("bunny.obj", "bunny.ply")).unwrap_err();
-        assert!(e.message.contains("scene.mesh must be a .obj file") && e.line == 3, "{e}");
+        let e = parse(&OK.replace("bunny.obj", "bunny.stl")).unwrap_err();
+        assert!(e.message.contains("scene.mesh must be a .obj or .ply file") && e.line == 3, "{e}");
         let e = parse(&OK.replace("constant = [1, 1, 1]", "env_map = \"sky.png\"")).unwrap_err();
         assert!(e.message.contains("lighting.env_map must be a .exr or .hdr file"), "{e}");
     }
@@ -1524,6 +1527,24 @@ mod tests {
         let e = parse(&format!("{OK}[transfer]\ncubemap_resolution = 32\nvisibility_resolution = 48\n")).unwrap_err();
         assert_eq!(e.line, 8, "{e}");
         assert!(e.message.contains("multiple"), "{e}");
+    }
+
+    #[test]
+    fn ply_meshes_and_six_face_env_maps_are_accepted() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("m.ply"), "ply\n").unwrap();
+        for tag in biscale_core::sampling::cube_env::FACE_TAGS {
+            std::fs::write(dir.path().join(format!("sky_{tag}.exr")), "").unwrap();
+        }
+        let text = "name = \"t\"\n[scene]\nmesh = \"m.ply\"\n[lighting]\nenv_map = \"sky_{face}.exr\"\n";
+        let exp = Experiment::parse(&dir.path().join("x.toml"), text.into()).unwrap();
+        assert_eq!(exp.mesh_path, dir.path().join("m.ply"));
+        assert_eq!(exp.env_path, Some(dir.path().join("sky_{face}.exr")));
+        // A missing face is named, at the key.
+        std::fs::remove_file(dir.path().join("sky_pz.exr")).unwrap();
+        let e = Experiment::parse(&dir.path().join("x.toml"), text.into()).unwrap_err();
+        assert_eq!((e.line, e.column), (5, 11), "{e}");
+        assert!(e.message.contains("env map cube face `pz` not found") && e.message.contains("sky_pz.exr"), "{e}");
     }
 
     #[test]

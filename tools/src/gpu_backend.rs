@@ -10,7 +10,7 @@ use biscale_core::gather::moments::{resolve, LightMoments};
 use biscale_core::gather::relative_l2_error;
 use biscale_core::geometry::VertexFrame;
 use biscale_core::sampling::LightVector;
-use biscale_core::scene::{Camera, Render, ShadeScene};
+use biscale_core::scene::{Background, Camera, Render, ShadeScene};
 use biscale_gpu::{GpuContext, GpuGather, GpuShader};
 use biscale_kernels::KernelDesc;
 use biscale_shading::image::compare;
@@ -19,6 +19,8 @@ use biscale_shading::image::compare;
 pub struct GpuBackend {
     ctx: GpuContext,
     shader: GpuShader,
+    /// The shader's camera, for the background behind its image.
+    camera: Camera,
     pub adapter: String,
 }
 
@@ -29,18 +31,19 @@ impl GpuBackend {
         let adapter = format!("{} ({:?}, {})", a.name, a.backend, a.driver);
         let shader = GpuShader::new(&ctx, scene, camera)?;
         eprintln!("gpu: {adapter}");
-        Ok(Self { ctx, shader, adapter })
+        Ok(Self { ctx, shader, camera: *camera, adapter })
     }
 
     /// The same device with a shader for another scene (a method's materials on its basis).
     pub fn for_scene(&self, scene: &ShadeScene, camera: &Camera) -> Result<Self> {
         let shader = GpuShader::new(&self.ctx, scene, camera)?;
-        Ok(Self { ctx: self.ctx.clone(), shader, adapter: self.adapter.clone() })
+        Ok(Self { ctx: self.ctx.clone(), shader, camera: *camera, adapter: self.adapter.clone() })
     }
 
     /// Gather `form` with its program `kernels` and shade it on the GPU; errors are measured
     /// against the f64 product (`exact`) and the CPU render of the same form (`cpu`, over the
-    /// CPU's coverage).
+    /// CPU's coverage), after the GPU image gets the CPU's `background` behind it (silhouette
+    /// pixels of an anti-aliased image are part background).
     ///
     /// With light `moments` the form is gathered three times on the GPU (once per moment; the
     /// gather time is their sum), the three `L*` are read back and resolved on the CPU
@@ -54,6 +57,7 @@ impl GpuBackend {
         moments: Option<(&LightMoments, &[VertexFrame])>,
         exact: &[[f64; 3]],
         cpu: &Render,
+        background: &Background<'_>,
         repeats: usize,
     ) -> Result<GpuRecord> {
         let mut gather = GpuGather::new(&self.ctx, form, kernels)?;
@@ -78,9 +82,18 @@ impl GpuBackend {
             }
         };
         let shade_timing = self.shader.time_shade(&gather, repeats)?;
-        // The GPU draws no background: compare where the CPU render covers the mesh.
-        let m = compare(&gpu.image, &cpu.image, Some(&cpu.mask))?;
-        let coverage_mismatch = gpu.mask.iter().zip(&cpu.mask).filter(|(a, b)| a != b).count();
+        let gpu = gpu.with_background(&self.camera, background);
+        // Rasterised and ray-cast samples within rounding of a silhouette may land on either
+        // side: such pixels differ in coverage (by a sample) and are counted, not compared.
+        // Everywhere else the two average the same samples.
+        let covered = |r: &Render, i: usize| match &r.coverage {
+            Some(c) => c[i],
+            None => f32::from(u8::from(r.mask[i])),
+        };
+        let same_samples: Vec<bool> = (0..cpu.mask.len()).map(|i| covered(&gpu, i) == covered(cpu, i)).collect();
+        let coverage_mismatch = same_samples.iter().filter(|&&same| !same).count();
+        let compared: Vec<bool> = cpu.mask.iter().zip(&same_samples).map(|(&c, &same)| c && same).collect();
+        let m = compare(&gpu.image, &cpu.image, Some(&compared))?;
         // Where the two differ by more than 1e-3 of the pixel's value: with nearest-texel BTF
         // lookups, a hit point that rounds across a texel (or material) boundary picks the
         // neighbouring texel, a large difference in a few pixels; elsewhere they agree to f32.
@@ -89,7 +102,7 @@ impl GpuBackend {
             .pixels
             .iter()
             .zip(&cpu.image.pixels)
-            .zip(&cpu.mask)
+            .zip(&compared)
             .filter(|((g, c), &covered)| {
                 let scale = c.iter().fold(1e-6f32, |a, &b| a.max(b.abs()));
                 covered && g.iter().zip(c.iter()).any(|(a, b)| (a - b).abs() > 1e-3 * scale)
@@ -101,7 +114,7 @@ impl GpuBackend {
             gather_ms: gather_timing.median_ms,
             shade_ms: shade_timing.median_ms,
             rel_error_lstar: relative_l2_error(lstar.values(), exact),
-            image_vs_cpu: ImageErrors { rmse: m.rmse, psnr: m.psnr, rel_l2: m.rel_l2 },
+            image_vs_cpu: ImageErrors::from(&m),
             coverage_mismatch,
             differing_pixels,
             covered_pixels: cpu.mask.iter().filter(|&&c| c).count(),

@@ -186,12 +186,13 @@ pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, Stri
     for row in rows {
         let _ = write!(s, "<tr>{}</tr>", cells("td", &row));
     }
-    let _ = write!(s, "</table>");
+    let _ = write!(s, "</table>{}", markdown_to_html(crate::report::LDR_NOTE));
     if let Some(r) = &m.reference {
         let _ = write!(
             s,
-            "<p>Reference traced at {}x{} in {:.1} s; per-vertex sampling error of the uncompressed render: RMSE {:.4}, PSNR {:.2} dB.</p>",
-            r.width, r.height, r.seconds, r.uncompressed_vs_reference.rmse, r.uncompressed_vs_reference.psnr
+            "<p>Ground truth (direct light) traced per pixel at {}x{} in {:.1} s (each pixel's own visibility, each texel's own cosine, the BRDF at each texel's own direction); error of the uncompressed vertex render against it: RMSE {:.4}, PSNR {:.2} dB; LDR PSNR / SSIM / FLIP {}.</p>",
+            r.width, r.height, r.seconds, r.uncompressed_vs_reference.rmse, r.uncompressed_vs_reference.psnr,
+            crate::report::ldr_cell(&r.uncompressed_vs_reference)
         );
     }
     // One paragraph, its config keys as code, as in report.md.
@@ -260,7 +261,7 @@ pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, Stri
     if m.reference.is_some() {
         let _ = write!(
             s,
-            "<figure>{}<figcaption>ray-traced reference</figcaption></figure>",
+            "<figure>{}<figcaption>ground truth (direct light)</figcaption></figure>",
             img(out_dir, "images/reference.png", "reference")
         );
     }

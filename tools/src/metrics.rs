@@ -285,8 +285,12 @@ pub struct UncompressedMetrics {
     pub paper_vs_moments: Option<ImageErrors>,
 }
 
+/// The per-pixel reference image: always "ground truth (direct light)"
+/// (`biscale_shading::reference::ReferenceRule::GroundTruth`), whatever `light_moments` says.
 #[derive(Debug, Serialize)]
 pub struct ReferenceMetrics {
+    /// What the reference is: `"ground truth (direct light)"`.
+    pub kind: &'static str,
     pub width: u32,
     pub height: u32,
     pub seconds: f64,
@@ -299,11 +303,24 @@ pub struct ReferenceMetrics {
     pub uncompressed_paper_vs_reference: Option<ImageErrors>,
 }
 
+/// An image's error against another (`biscale_shading::image::ImageMetrics`, which documents
+/// each figure): HDR `rmse`, `psnr` (peak: the reference's largest value) and `rel_l2`; then
+/// after the report's tone map (`[report] exposure`, clamp, sRGB) `ldr_psnr` (peak 1), `ssim`
+/// (mean over R, G, B and the masked pixels) and `flip` (mean LDR FLIP).
 #[derive(Clone, Copy, Debug, Serialize)]
 pub struct ImageErrors {
     pub rmse: f64,
     pub psnr: f64,
     pub rel_l2: f64,
+    pub ldr_psnr: f64,
+    pub ssim: f64,
+    pub flip: f64,
+}
+
+impl From<&biscale_shading::image::ImageMetrics> for ImageErrors {
+    fn from(m: &biscale_shading::image::ImageMetrics) -> Self {
+        Self { rmse: m.rmse, psnr: m.psnr, rel_l2: m.rel_l2, ldr_psnr: m.ldr_psnr, ssim: m.ssim, flip: m.flip }
+    }
 }
 
 #[derive(Debug, Serialize)]
@@ -351,8 +368,9 @@ pub struct CompressorRecord {
 }
 
 /// The columns of `metrics.csv`, one row per compressor and method setting: what a plot of
-/// error against storage or time needs, in plain units, without parsing JSON.
-pub const CSV_COLUMNS: [&str; 18] = [
+/// error against storage or time needs, in plain units, without parsing JSON. New columns
+/// are appended (the LDR figures last), so a reader by position keeps working.
+pub const CSV_COLUMNS: [&str; 24] = [
     "setting",
     "kind",
     "method",
@@ -371,6 +389,12 @@ pub const CSV_COLUMNS: [&str; 18] = [
     "image_error_max",
     "gpu_gather_ms",
     "gpu_shade_ms",
+    "image_ldr_psnr_vs_uncompressed",
+    "image_ssim_vs_uncompressed",
+    "image_flip_vs_uncompressed",
+    "image_ldr_psnr_vs_reference",
+    "image_ssim_vs_reference",
+    "image_flip_vs_reference",
 ];
 
 impl Metrics {
@@ -404,6 +428,12 @@ impl Metrics {
                 opt(r.image.error_max.map(f64::from)),
                 opt(r.gpu.as_ref().map(|g| g.gather_ms)),
                 opt(r.gpu.as_ref().map(|g| g.shade_ms)),
+                format!("{:e}", r.image.vs_uncompressed.ldr_psnr),
+                format!("{:e}", r.image.vs_uncompressed.ssim),
+                format!("{:e}", r.image.vs_uncompressed.flip),
+                opt(r.image.vs_reference.map(|e| e.ldr_psnr)),
+                opt(r.image.vs_reference.map(|e| e.ssim)),
+                opt(r.image.vs_reference.map(|e| e.flip)),
             ];
             out += &cells.join(",");
             out.push('\n');
@@ -424,11 +454,13 @@ pub struct GpuRecord {
     pub shade_ms: f64,
     /// Relative L2 error of the GPU's `L*` against the f64 product.
     pub rel_error_lstar: f64,
-    /// The GPU image against the CPU image of the same form, over the CPU's coverage.
+    /// The GPU image against the CPU image of the same form, over the pixels the CPU covers
+    /// with the same samples as the GPU (its LDR figures at exposure 0).
     pub image_vs_cpu: ImageErrors,
-    /// Pixels whose coverage differs between the GPU rasterizer and the CPU ray cast.
+    /// Pixels whose coverage differs between the GPU rasterizer and the CPU ray cast (with
+    /// anti-aliasing: by a sample near a silhouette); they are left out of `image_vs_cpu`.
     pub coverage_mismatch: usize,
-    /// Covered pixels where GPU and CPU differ by more than 1e-3 of the pixel's value
+    /// Compared pixels where GPU and CPU differ by more than 1e-3 of the pixel's value
     /// (nearest-texel lookups flipping at texel and material boundaries).
     pub differing_pixels: usize,
     /// Pixels the CPU render covers.

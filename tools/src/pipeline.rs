@@ -15,7 +15,7 @@ use crate::staging::{fault_point, StagedDir};
 use crate::util::progress_bar;
 use biscale_compressors::registry::{self, BuildError};
 use biscale_core::compress::{CompressContext, CompressedForm, Compressor};
-use biscale_core::gather::moments::{exact_cosine_product, gather_with_moments, LightMoments};
+use biscale_core::gather::moments::{exact_moments_product, gather_with_moments, LightMoments};
 use biscale_core::gather::{reference_product, relative_l2_error, LocalRadiance};
 use biscale_core::geometry::{Mesh, Placement, VertexFrame};
 use biscale_core::io::write_atomic_bytes;
@@ -24,7 +24,7 @@ use biscale_core::scene::{Background, Camera, HdrImage, Render, ShadeScene};
 use biscale_core::transfer::{self, TransferMatrix, TransferScene, TransferSettings, VisibilitySampler};
 use biscale_shading::cpu::shade;
 use biscale_shading::error::ShadingError;
-use biscale_shading::image::{compare, ImageMetrics};
+use biscale_shading::image::{compare_exposed, ImageMetrics};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -100,7 +100,7 @@ impl Geometry {
 /// Load the mesh, condition its coordinates for f32 (one similarity for every stage) and
 /// build its transfer scene (frames and the normalised BVH), once.
 pub fn load_geometry(exp: &Experiment) -> Result<Geometry> {
-    let mut load = Mesh::load_obj(&exp.mesh_path)?;
+    let mut load = Mesh::load(&exp.mesh_path)?;
     let placement = biscale_core::geometry::placement::condition(&mut load.mesh);
     if !placement.is_identity() {
         load.repairs.push(format!(
@@ -334,12 +334,13 @@ pub fn camera_placed(exp: &Experiment, mesh: &Mesh, placement: &Placement, downs
 }
 
 pub(crate) fn errors(m: &ImageMetrics) -> ImageErrors {
-    ImageErrors { rmse: m.rmse, psnr: m.psnr, rel_l2: m.rel_l2 }
+    ImageErrors::from(m)
 }
 
 /// The uncompressed baseline: the f64 product `T L` (the reference for `L*` errors) and,
 /// rounded to f32, the image every compressor is compared with. With light moments the
-/// product weights every texel by its own cosine ([`exact_cosine_product`]), and the paper's
+/// product weights every texel by its own cosine and moves the BRDF to each bin's mean light
+/// direction ([`exact_moments_product`]), and the paper's
 /// bin-mean-cosine `L*` is kept beside it so the report measures both side by side.
 pub struct Baseline {
     pub exact: Vec<[f64; 3]>,
@@ -360,7 +361,7 @@ fn baseline(
 ) -> Result<Baseline> {
     let (exact, gather_ms) = timed(repeats, || match moments {
         None => Ok(reference_product(t, &lighting.light)),
-        Some(frames) => Ok(exact_cosine_product(t, &lighting.light, frames)?),
+        Some(frames) => Ok(exact_moments_product(t, &lighting.light, frames)?),
     })?;
     let lstar = LocalRadiance::from_f64(t.local_basis(), t.vertices(), &exact)?;
     let (render, shade_ms) = view.timed_render(&lstar, repeats)?;
@@ -406,7 +407,8 @@ pub(crate) fn timed<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Resu
     Ok((last.expect("at least one run"), biscale_core::stats::median(&samples)))
 }
 
-/// The ray-traced reference at the reference resolution, and the baseline's error against it.
+/// The ground truth (direct light), ray-traced per pixel at the reference resolution
+/// ([`biscale_shading::reference::ReferenceRule::GroundTruth`]), and the baseline's error against it.
 pub struct Reference {
     pub render: Render,
     pub camera: Camera,
@@ -434,18 +436,19 @@ fn reference(
         &geometry.transfer,
         &sampler,
         &camera,
-        exp.file.runtime.light_moments,
+        biscale_shading::reference::ReferenceRule::GroundTruth,
         Some(&tick),
     )?
     .with_background(&camera, &view.background);
     let seconds = start.elapsed().as_secs_f64();
     pb.finish_and_clear();
     let small = view.render(&baseline.lstar, &camera)?;
-    let baseline_error = compare(&small.image, &render.image, Some(&render.mask))?;
+    let exposure = exp.file.report.exposure;
+    let baseline_error = compare_exposed(&small.image, &render.image, Some(&render.mask), exposure)?;
     let paper_baseline_error = match &baseline.paper {
         Some((lstar, _)) => {
             let small = view.render(lstar, &camera)?;
-            Some(compare(&small.image, &render.image, Some(&render.mask))?)
+            Some(compare_exposed(&small.image, &render.image, Some(&render.mask), exposure)?)
         }
         None => None,
     };
@@ -480,6 +483,7 @@ impl GpuBackend {
         _: Option<(&LightMoments, &[VertexFrame])>,
         _: &[[f64; 3]],
         _: &Render,
+        _: &Background<'_>,
         _: usize,
     ) -> Result<GpuRecord> {
         match *self {}
@@ -538,18 +542,19 @@ impl Evaluation<'_> {
         })?;
         let rel_error_lstar = relative_l2_error(lstar.values(), self.exact);
         let (render, shade_ms) = view.timed_render(&lstar, repeats)?;
-        let vs_uncompressed = errors(&compare(&render.image, &self.baseline.image, Some(&self.baseline.mask))?);
+        let vs_uncompressed =
+            errors(&compare_exposed(&render.image, &self.baseline.image, Some(&self.baseline.mask), self.exposure)?);
         let vs_reference = match self.reference {
             Some(r) => {
                 let small = view.render(&lstar, &r.camera)?;
-                Some(errors(&compare(&small.image, &r.render.image, Some(&r.render.mask))?))
+                Some(errors(&compare_exposed(&small.image, &r.render.image, Some(&r.render.mask), self.exposure)?))
             }
             None => None,
         };
         let gpu = match gpu {
             Some(g) => {
                 let kernels = compressor.kernels(form).map_err(cerr)?;
-                Some(g.run(form, &kernels, self.light, self.moments, self.exact, &render, repeats)?)
+                Some(g.run(form, &kernels, self.light, self.moments, self.exact, &render, &view.background, repeats)?)
             }
             None => None,
         };
@@ -969,10 +974,14 @@ impl Metrics {
                 light_moments: exp.file.runtime.light_moments,
                 // Same camera, same size: compare cannot fail here.
                 paper_vs_moments: base.paper.as_ref().and_then(|(_, paper)| {
-                    compare(&paper.image, &base.render.image, Some(&base.render.mask)).ok().map(|m| errors(&m))
+                    let exposure = exp.file.report.exposure;
+                    compare_exposed(&paper.image, &base.render.image, Some(&base.render.mask), exposure)
+                        .ok()
+                        .map(|m| errors(&m))
                 }),
             },
             reference: reference.map(|r| ReferenceMetrics {
+                kind: "ground truth (direct light)",
                 width: r.render.image.width,
                 height: r.render.image.height,
                 seconds: r.seconds,
@@ -1062,7 +1071,7 @@ fn write_plots(m: &Metrics, out_dir: &Path) -> Vec<(String, String)> {
         }));
         let series = crate::plots::series_by(named, |r| r.bytes as f64 / 1e6, y);
         let y_label = if against_reference {
-            "relative L2 image error vs reference"
+            "relative L2 image error vs ground truth"
         } else {
             "relative L2 image error vs all-frequency"
         };

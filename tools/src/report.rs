@@ -69,6 +69,7 @@ pub fn markdown(m: &Metrics, plan: &Plan) -> String {
     for row in rows {
         let _ = writeln!(s, "| {} |", row.join(" | "));
     }
+    let _ = writeln!(s, "\n{LDR_NOTE}");
     if m.compressors.iter().any(|c| c.gpu.is_some()) {
         let adapter = m.compressors.iter().find_map(|c| c.gpu.as_ref()).map(|g| g.adapter.clone()).unwrap_or_default();
         let _ = writeln!(s, "\n### wgpu backend ({adapter})\n");
@@ -96,8 +97,9 @@ pub fn markdown(m: &Metrics, plan: &Plan) -> String {
     if let Some(r) = &m.reference {
         let _ = writeln!(
             s,
-            "\nReference traced at {}x{} in {:.1} s. Per-vertex sampling error (uncompressed vs reference): RMSE {:.4}, PSNR {:.2} dB, rel. L2 {:.4}.",
-            r.width, r.height, r.seconds, r.uncompressed_vs_reference.rmse, r.uncompressed_vs_reference.psnr, r.uncompressed_vs_reference.rel_l2
+            "\nGround truth (direct light) traced per pixel at {}x{} in {:.1} s (each pixel's own visibility, each texel's own cosine, the BRDF at each texel's own direction). Uncompressed vertex render against it: RMSE {:.4}, PSNR {:.2} dB, rel. L2 {:.4}; LDR PSNR / SSIM / FLIP {}.",
+            r.width, r.height, r.seconds, r.uncompressed_vs_reference.rmse, r.uncompressed_vs_reference.psnr, r.uncompressed_vs_reference.rel_l2,
+            ldr_cell(&r.uncompressed_vs_reference)
         );
     }
     let _ = writeln!(s, "\n{}", light_moments_summary(m));
@@ -106,7 +108,7 @@ pub fn markdown(m: &Metrics, plan: &Plan) -> String {
     let _ = writeln!(s, "\n## Images\n");
     let _ = writeln!(s, "![uncompressed](images/uncompressed.png)\n");
     if m.reference.is_some() {
-        let _ = writeln!(s, "![reference](images/reference.png)\n");
+        let _ = writeln!(s, "![ground truth (direct light)](images/reference.png)\n");
     }
     if m.uncompressed.light_moments {
         let _ = writeln!(s, "![uncompressed, paper's bin-mean cosine](images/uncompressed_paper.png)\n");
@@ -221,7 +223,7 @@ pub fn btf_table(m: &Metrics) -> Option<BtfTable> {
     let total = format!(
         "The materials' own BTFs: {:.2} MB dense, {:.2} MB as stored (1:{:.0}). Every shader evaluates a compressed \
          BTF from its eigen-BRDFs. Image errors: each setting shaded with the uncompressed L* (the other materials \
-         dense) against the all-dense image and the reference; shade ms: CPU median, the all-dense image's and \
+         dense) against the all-dense image and the ground truth; shade ms: CPU median, the all-dense image's and \
          the primary rays' alone (the floor of both) in brackets; precomputed: per-vertex dot products for the fixed light, ms per frame + ms once.",
         dense as f64 * 1e-6,
         stored as f64 * 1e-6,
@@ -238,7 +240,7 @@ pub fn btf_table(m: &Metrics) -> Option<BtfTable> {
             "table rel. RMS",
             "build s",
             "image vs dense",
-            "image vs reference",
+            "image vs ground truth",
             "shade ms (dense)",
             "precomputed ms",
         ],
@@ -259,13 +261,15 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
         "precompute s",
         "gather ms",
         "shade ms",
-        "rel. L2 vs reference",
+        "rel. L2 vs ground truth",
+        "LDR PSNR / SSIM / FLIP vs ground truth",
         "rel. L2 vs all-frequency",
         "negative pixels",
     ];
     let mb = |b: u64| format!("{:.2}", b as f64 / 1e6);
     let err =
         |c: &crate::metrics::CompressorRecord| c.image.vs_reference.map_or("-".into(), |e| format!("{:.4}", e.rel_l2));
+    let ldr = |c: &crate::metrics::CompressorRecord| c.image.vs_reference.map_or("-".into(), |e| ldr_cell(&e));
     let mut rows = vec![];
     let mut figures = vec![];
     let t = &m.transfer;
@@ -281,6 +285,7 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
             format!("{:.2}", c.gather_ms),
             format!("{:.1}", c.shade_ms),
             err(c),
+            ldr(c),
             "0 (itself)".into(),
             "-".into(),
         ]),
@@ -292,6 +297,7 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
             format!("{:.2}", m.uncompressed.gather_ms),
             format!("{:.1}", m.uncompressed.shade_ms),
             m.reference.as_ref().map_or("-".into(), |r| format!("{:.4}", r.uncompressed_vs_reference.rel_l2)),
+            m.reference.as_ref().map_or("-".into(), |r| ldr_cell(&r.uncompressed_vs_reference)),
             "0 (itself)".into(),
             "-".into(),
         ]),
@@ -305,6 +311,7 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
             format!("{:.2}", c.gather_ms),
             format!("{:.1}", c.shade_ms),
             err(c),
+            ldr(c),
             format!("{:.2e}", c.image.vs_uncompressed.rel_l2),
             "-".into(),
         ]);
@@ -332,6 +339,7 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
             format!("{:.2}", c.gather_ms),
             format!("{:.1}", c.shade_ms),
             err(c),
+            ldr(c),
             format!("{:.4}", c.image.vs_uncompressed.rel_l2),
             neg,
         ]);
@@ -341,7 +349,7 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
         }
     }
     if m.reference.is_some() {
-        figures.push(("images/reference.png".into(), "ray-traced reference".into()));
+        figures.push(("images/reference.png".into(), "ground truth (direct light)".into()));
     }
     Some(LowVsAll { header: HEADER, rows, figures })
 }
@@ -370,6 +378,16 @@ pub fn low_vs_all_markdown(m: &Metrics) -> String {
     s
 }
 
+/// What the tables' LDR figures are (both reports).
+pub const LDR_NOTE: &str = "LDR PSNR / SSIM / FLIP: after the PNGs' tone map (x 2^exposure of `[report] exposure`, \
+     clamped to [0, 1], sRGB-encoded), over the covered pixels: PSNR in dB with peak 1; SSIM with an 11x11 Gaussian \
+     window (sigma 1.5), the mean of R, G and B (1 = equal); mean LDR FLIP of the 8-bit PNGs (0 = equal).";
+
+/// An image error's LDR figures as one table cell: `LDR PSNR / SSIM / FLIP`.
+pub fn ldr_cell(e: &crate::metrics::ImageErrors) -> String {
+    format!("{:.2} / {:.4} / {:.4}", e.ldr_psnr, e.ssim, e.flip)
+}
+
 /// The compressor table of both reports (Markdown and HTML): its header and one row of
 /// cells per setting.
 pub fn compressor_table(m: &Metrics) -> (&'static [&'static str], Vec<Vec<String>>) {
@@ -385,7 +403,9 @@ pub fn compressor_table(m: &Metrics) -> (&'static [&'static str], Vec<Vec<String
         "rel. err L*",
         "RMSE vs uncompressed",
         "PSNR vs uncompressed",
-        "PSNR vs reference",
+        "PSNR vs ground truth",
+        "LDR PSNR / SSIM / FLIP vs uncompressed",
+        "LDR PSNR / SSIM / FLIP vs ground truth",
     ];
     let rows = m
         .compressors
@@ -404,6 +424,8 @@ pub fn compressor_table(m: &Metrics) -> (&'static [&'static str], Vec<Vec<String
                 format!("{:.3e}", c.image.vs_uncompressed.rmse),
                 format!("{:.2}", c.image.vs_uncompressed.psnr),
                 c.image.vs_reference.map_or("-".into(), |e| format!("{:.2}", e.psnr)),
+                ldr_cell(&c.image.vs_uncompressed),
+                c.image.vs_reference.map_or("-".into(), |e| ldr_cell(&e)),
             ]
         })
         .collect();
@@ -522,7 +544,7 @@ pub(crate) fn light_moments_summary(m: &Metrics) -> String {
     if let Some((r, paper)) = m.reference.as_ref().and_then(|r| r.uncompressed_paper_vs_reference.map(|p| (r, p))) {
         let _ = write!(
             s,
-            " Against the exact-cosine reference: rel. L2 {:.4} with moments, {:.4} with the paper's rule.",
+            " Against the ground truth (direct light): rel. L2 {:.4} with moments, {:.4} with the paper's rule.",
             r.uncompressed_vs_reference.rel_l2, paper.rel_l2
         );
     }

@@ -1,30 +1,37 @@
-//! Direction moments: `L*` with each texel's exact cosine instead of its bin's mean cosine.
+//! Direction moments: `L*` with each texel's exact cosine instead of its bin's mean cosine, and
+//! the BTF lobe at the light's mean direction instead of the bin centre.
 //!
 //! The paper's shading weights every texel of local bin `j` by the bin's mean cosine
-//! `cosbar_j` (the BTF value `b(u, e, d_j)` includes it, docs/DESIGN.md section 3). That is exact
-//! only for a fully visible, evenly lit bin: a sun near the horizon in an outer bin is
-//! over-weighted up to an order of magnitude, and an occluder that removes a bin's low part
-//! darkens it. The cosine of texel `k` at a vertex with normal `n` is `n . d_k`, linear in the
-//! texel's direction, so gathering the three light vectors `L d_x`, `L d_y`, `L d_z` through the
-//! *same* `T` (the same compressed form: only the gather's arithmetic grows) gives each bin the
-//! radiance-weighted direction sum `D_j = sum_k T[j, k] L_k d_k`, and
+//! `cosbar_j` (the BTF value `b(u, e, d_j)` includes it, docs/DESIGN.md section 3) and evaluates
+//! the rest of the BRDF at the bin centre. That is exact only for a fully visible, evenly lit
+//! bin: a sun near the horizon in an outer bin is over-weighted up to an order of magnitude,
+//! and an occluder that removes a bin's low part darkens it. The cosine of texel `k` at a
+//! vertex with normal `n` is `n . d_k`, linear in the texel's direction, so gathering the three
+//! light vectors `L d_x`, `L d_y`, `L d_z` through the *same* `T` (the same compressed form:
+//! only the gather's arithmetic grows) gives each bin the radiance-weighted direction sum
+//! `D_j = sum_k T[j, k] L_k d_k` (per RGB channel). Its dot with the normal is the bin's light
+//! with every texel's own cosine, and its direction is where that light comes from on average.
 //!
-//! `L*'_j = (n . D_j) / cosbar_j = sum_k T[j, k] L_k (n . d_k) / cosbar_j`.
-//!
-//! Dotted with the unchanged BTF, `b_j L*'_j = f_j (n . D_j)`: the exact per-texel cosine, the
-//! rest of the BRDF still at the bin centre. For a white Lambertian material this is the exact
-//! direct irradiance `sum_k T[j, k] L_k cos_k / pi` of `T`'s visibility. `d_k` is the texel's
-//! centre direction, the one `T` bins it by; `n` is the vertex normal `T` was traced with.
+//! [`resolve`] turns the moments into an `L*'` that every shader dots with the unchanged BTF:
+//! bin `j`'s exact-cosine power `n . D_j` is handed to the bins around `D_j`'s direction with
+//! bilinear weights, each divided by its own mean cosine, so that `sum_i b_i L*'_i` is
+//! `sum_j f(D_j / |D_j|) (n . D_j)`, the BRDF interpolated in the BTF's light grid at the mean
+//! direction. For a white Lambertian material this is the exact direct irradiance
+//! `sum_k T[j, k] L_k cos_k / pi` of `T`'s visibility. `d_k` is the texel's centre direction,
+//! the one `T` bins it by; `n` is the vertex normal `T` was traced with.
 //!
 //! Every gather is linear in the light, so [`gather_with_moments`] works through any
-//! compressor's CPU gather, lossless or not, and [`exact_cosine_product`] is its f64
-//! reference, computed per texel from `T` and not from the moments.
+//! compressor's CPU gather, lossless or not. [`exact_moments_product`] is its f64 reference,
+//! with `D_j` summed per texel from `T` and not from the moments; [`exact_cosine_product`] is
+//! the per-texel exact-cosine light of each bin, before the redistribution (the irradiance a
+//! white Lambertian vertex receives).
 
 use crate::compress::{CompressError, CompressedForm, Compressor};
 use crate::error::{CoreError, Result};
 use crate::gather::LocalRadiance;
 use crate::geometry::VertexFrame;
 use crate::sampling::{Cubemap, HemisphereGrid, LightVector};
+use crate::scene::btf::light_weights;
 use crate::transfer::TransferMatrix;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -71,6 +78,7 @@ fn texel_directions(cube: Cubemap) -> Vec<DVec3> {
 /// f64 per-texel product ([`exact_cosine_product`]) and the per-pixel reference renderer.
 #[derive(Clone, Debug)]
 pub struct TexelCosine {
+    grid: HemisphereGrid,
     inverse_mean_cosine: Vec<f64>,
     directions: Vec<DVec3>,
 }
@@ -79,12 +87,28 @@ impl TexelCosine {
     /// The weights for `light`'s texels and `grid`'s bins; an error unless `light` is in a
     /// cubemap basis.
     pub fn new(light: &LightVector, grid: &HemisphereGrid) -> Result<Self> {
-        Ok(Self { inverse_mean_cosine: inverse_mean_cosines(grid), directions: texel_directions(cubemap_of(light)?) })
+        Ok(Self {
+            grid: *grid,
+            inverse_mean_cosine: inverse_mean_cosines(grid),
+            directions: texel_directions(cubemap_of(light)?),
+        })
     }
 
     /// `(n . d_k) / cosbar_j`.
     pub fn weight(&self, n: DVec3, j: usize, k: usize) -> f64 {
         n.dot(self.directions[k]) * self.inverse_mean_cosine[j]
+    }
+
+    /// Texel `k` seen from a point with `frame`, spread over the (up to) four light bins around
+    /// its own direction: `(i, (n . d_k) w_i / cosbar_i)` with the bilinear weights of
+    /// [`light_weights`]. Summed into `L*` and dotted with a BTF, the texel contributes
+    /// `f(d_k) (n . d_k)`, the BRDF interpolated at its exact direction (what [`resolve`] does
+    /// with a bin's mean direction).
+    pub fn spread(&self, frame: &VertexFrame, k: usize) -> [(usize, f64); 4] {
+        let d = self.directions[k];
+        let cosine = frame.normal.as_dvec3().dot(d);
+        light_weights(self.grid, frame.to_local(d.as_vec3()))
+            .map(|(i, w)| (i, cosine * w as f64 * self.inverse_mean_cosine[i]))
     }
 }
 
@@ -112,8 +136,18 @@ fn inverse_mean_cosines(grid: &HemisphereGrid) -> Vec<f64> {
     (0..grid.len() as u32).map(|j| 1.0 / grid.bin_mean_cosine(j)).collect()
 }
 
-/// `L*'` from the three gathered moments: `(n_v . D_{v,j}) / cosbar_j` per channel, `n_v` the
-/// normal of `frames[v]`.
+/// `L*'` from the three gathered moments. Per vertex `v`, bin `j` and channel `c`, the bin's
+/// light `D = D_{v,j,c}` brings the exact-cosine power `n_v . D`, arriving from its mean
+/// direction `D / |D|`. That power is handed to the (up to) four light bins `i` around the mean
+/// direction with the bilinear weights `w_i` of [`crate::scene::btf::light_weights`] (in
+/// `frames[v]`), each divided by its own mean cosine:
+///
+/// `L*'_{v,i,c} = sum_j w_i(D_{v,j,c}) (n_v . D_{v,j,c}) / cosbar_i`.
+///
+/// Dotted with a BTF (`b_i = f_i cosbar_i`), bin `j` contributes `f(D / |D|) (n . D)`: the BRDF
+/// interpolated at the light's mean direction times its exact cosine. The weights sum to 1, so
+/// a Lambertian BTF (constant `f`) sees exactly `sum_j n . D_j`, whatever the directions. The
+/// shaders dot `L*'` with the BTF as they dot `L*`: nothing downstream changes.
 pub fn resolve(along: [&LocalRadiance; 3], frames: &[VertexFrame]) -> Result<LocalRadiance> {
     let basis = along[0].basis();
     let vertices = along[0].vertices();
@@ -124,17 +158,39 @@ pub fn resolve(along: [&LocalRadiance; 3], frames: &[VertexFrame]) -> Result<Loc
     let inv = inverse_mean_cosines(&grid);
     let m = grid.len();
     let mut out = LocalRadiance::zeros(basis, vertices);
-    out.values_mut().par_chunks_mut(m).zip(frames).enumerate().for_each(|(v, (out, frame))| {
-        let n = frame.normal.as_dvec3();
-        let rows = [along[0].vertex(v), along[1].vertex(v), along[2].vertex(v)];
-        for (j, o) in out.iter_mut().enumerate() {
-            for c in 0..3 {
-                let dot = n.x * rows[0][j][c] as f64 + n.y * rows[1][j][c] as f64 + n.z * rows[2][j][c] as f64;
-                o[c] = (dot * inv[j]) as f32;
+    out.values_mut().par_chunks_mut(m).zip(frames).enumerate().for_each_init(
+        || vec![[0.0f64; 3]; m],
+        |acc, (v, (out, frame))| {
+            let rows = [along[0].vertex(v), along[1].vertex(v), along[2].vertex(v)];
+            let d = |j: usize, c: usize| DVec3::new(rows[0][j][c] as f64, rows[1][j][c] as f64, rows[2][j][c] as f64);
+            redistribute(grid, frame, d, acc);
+            for (i, (o, a)) in out.iter_mut().zip(acc.iter()).enumerate() {
+                *o = a.map(|x| (x * inv[i]) as f32);
+            }
+        },
+    );
+    Ok(out)
+}
+
+/// Hand each bin's exact-cosine power `n . D` (`d(j, c)` = `D_{j,c}`, world space) to the light
+/// bins around its mean direction, with [`light_weights`] in `frame`: `acc[i][c]` is
+/// `sum_j w_i(D_{j,c}) (n . D_{j,c})`, before the division by `cosbar_i`. Shared by [`resolve`]
+/// and its f64 reference [`exact_moments_product`], which differ in how `D` is summed.
+fn redistribute(grid: HemisphereGrid, frame: &VertexFrame, d: impl Fn(usize, usize) -> DVec3, acc: &mut [[f64; 3]]) {
+    acc.fill([0.0; 3]);
+    let n = frame.normal.as_dvec3();
+    for j in 0..grid.len() {
+        for c in 0..3 {
+            let d = d(j, c);
+            let power = n.dot(d);
+            if power == 0.0 {
+                continue;
+            }
+            for (i, w) in light_weights(grid, frame.to_local(d.as_vec3())) {
+                acc[i][c] += w as f64 * power;
             }
         }
-    });
-    Ok(out)
+    }
 }
 
 /// `L*'` through `compressor`'s CPU gather of `form`: the three moments
@@ -151,8 +207,10 @@ pub fn gather_with_moments(
     resolve([&gathered[0], &gathered[1], &gathered[2]], frames).map_err(|e| CompressError::External(Box::new(e)))
 }
 
-/// The f64 reference of `L*'`: for every row `(v, j)`, `sum_k T[j, k] L_k (n_v . d_k) / cosbar_j`
-/// with each texel's own cosine (not through the moments).
+/// Every row's exact-cosine light in f64: for every row `(v, j)`,
+/// `sum_k T[j, k] L_k (n_v . d_k) / cosbar_j`, each texel with its own cosine, and without the
+/// redistribution of [`resolve`]. `sum_j cosbar_j` times it is the irradiance at vertex `v`;
+/// dotted with a Lambertian BTF it equals [`exact_moments_product`] (the weights sum to 1).
 pub fn exact_cosine_product(t: &TransferMatrix, light: &LightVector, frames: &[VertexFrame]) -> Result<Vec<[f64; 3]>> {
     if t.light_basis() != light.basis() {
         return Err(CoreError::Invalid(format!(
@@ -182,6 +240,43 @@ pub fn exact_cosine_product(t: &TransferMatrix, light: &LightVector, frames: &[V
             acc
         })
         .collect())
+}
+
+/// The f64 reference of [`resolve`] after the moments gather: every row's `D_{v,j}` summed in
+/// f64 per texel straight from `T` (`sum_k T[j, k] L_k d_k`), then redistributed over the bins
+/// around its direction as [`resolve`] does. Rows in `T`'s order.
+pub fn exact_moments_product(t: &TransferMatrix, light: &LightVector, frames: &[VertexFrame]) -> Result<Vec<[f64; 3]>> {
+    if t.light_basis() != light.basis() {
+        return Err(CoreError::Invalid(format!(
+            "the light vector is in the {}, T's light basis is the {}",
+            light.basis(),
+            t.light_basis()
+        )));
+    }
+    let grid = bins_and_frames(t.local_basis(), t.vertices(), frames)?;
+    let directions = texel_directions(cubemap_of(light)?);
+    let inv = inverse_mean_cosines(&grid);
+    let m = grid.len();
+    let csr = t.csr();
+    let mut out = vec![[0.0f64; 3]; csr.rows()];
+    out.par_chunks_mut(m).zip(frames).enumerate().for_each(|(v, (out, frame))| {
+        let sums: Vec<[DVec3; 3]> = (0..m)
+            .map(|j| {
+                let mut d = [DVec3::ZERO; 3];
+                for (k, &value) in csr.outer_view(v * m + j).expect("row in range").iter() {
+                    for c in 0..3 {
+                        d[c] += value as f64 * light.power[k][c] as f64 * directions[k];
+                    }
+                }
+                d
+            })
+            .collect();
+        redistribute(grid, frame, |j, c| sums[j][c], out);
+        for (i, o) in out.iter_mut().enumerate() {
+            *o = o.map(|x| x * inv[i]);
+        }
+    });
+    Ok(out)
 }
 
 #[cfg(test)]
@@ -253,11 +348,27 @@ mod tests {
                 .clone()
                 .map(|l| LocalRadiance::from_f64(LocalBasis::Bins(grid), 40, &reference_product(&t, &l)).unwrap());
             let fast = resolve([&gathered[0], &gathered[1], &gathered[2]], &frames).unwrap();
-            let exact = exact_cosine_product(&t, &light, &frames).unwrap();
+            let exact = exact_moments_product(&t, &light, &frames).unwrap();
             let err = relative_l2_error(fast.values(), &exact);
             // Per row the terms n . d_k have either sign (random T puts texels below the
-            // horizon too), so cancellation can amplify rounding; 1e-5 is 100 f32 ulps.
+            // horizon too), so cancellation can amplify rounding; the bilinear weights move by
+            // about m times the direction's relative rounding. 1e-5 is 100 f32 ulps.
             assert!(err < 1e-5, "stiff {stiff}: relative error {err:e}");
+            // Lambertian invariant: the redistribution keeps every vertex's irradiance
+            // `sum_i cosbar_i L*'_i`, the per-texel exact-cosine sum (weights sum to 1).
+            let cosine = exact_cosine_product(&t, &light, &frames).unwrap();
+            let m = grid.len();
+            for v in 0..40 {
+                for c in 0..3 {
+                    let irradiance = |row: &dyn Fn(usize) -> f64| -> f64 {
+                        (0..m).map(|j| grid.bin_mean_cosine(j as u32) * row(v * m + j)).sum()
+                    };
+                    let (a, b) = (irradiance(&|r| exact[r][c]), irradiance(&|r| cosine[r][c]));
+                    let scale = (0..m).map(|j| cosine[v * m + j][c].abs()).sum::<f64>();
+                    // The four f32 weights sum to 1 up to a few f32 roundings (4 ulps, 5e-7).
+                    assert!((a - b).abs() <= 5e-7 * scale, "vertex {v} channel {c}: {a} vs {b}");
+                }
+            }
         }
     }
 
@@ -308,6 +419,49 @@ mod tests {
         let want = cos_k / grid.bin_mean_cosine(j as u32);
         assert!(want < 0.5, "the sun is low: cos {cos_k} against the bin's mean cosine");
         assert!((exact[j][0] / paper[j][0] - want).abs() < 1e-12, "{} vs {want}", exact[j][0] / paper[j][0]);
+    }
+
+    /// A single bright texel lights an open vertex: its bin's mean direction is the texel's own,
+    /// so a BTF whose BRDF is linear in the grid coordinates, `f = a + b x + c y`, is
+    /// interpolated exactly, and `sum_i b_i L*'_i` must equal `f(d_k) cos_k P` (bilinear weights
+    /// reproduce linear functions). The bin-centre rule gives `f(d_j)` instead: the test
+    /// checks the two differ, so it would notice a lobe left at the bin centre.
+    #[test]
+    fn the_lobe_is_evaluated_at_the_lights_direction() {
+        let (cube, grid) = (Cubemap::new(32), HemisphereGrid::new(8));
+        let f = VertexFrame::from_normal(Vec3::new(0.3, 1.0, -0.2).normalize());
+        let t = open_sky_t(cube, grid, &f);
+        let brdf = |x: f64, y: f64| 2.0 + 0.25 * x - 0.125 * y;
+        let btf: Vec<f64> = (0..grid.len() as u32)
+            .map(|i| brdf((i % grid.m) as f64, (i / grid.m) as f64) * grid.bin_mean_cosine(i))
+            .collect();
+        let (mut checked, mut moved) = (0, 0.0f64);
+        for k in (0..cube.texel_count()).step_by(7) {
+            let local = f.to_local(cube.texel_direction(k));
+            let Some(j) = grid.bin_of(local) else { continue };
+            let (x, y) = grid.continuous_coords(local);
+            let (power, cos_k) = (3e5, cube.texel_direction_f64(k).dot(f.normal.as_dvec3()));
+            let mut light = vec![[0.0f32; 3]; cube.texel_count()];
+            light[k] = [power as f32; 3];
+            let light = LightVector::new(LightBasis::Cubemap(cube), light).unwrap();
+            let moments = LightMoments::new(&light).unwrap();
+            let gathered = moments
+                .along
+                .clone()
+                .map(|l| LocalRadiance::from_f64(LocalBasis::Bins(grid), 1, &reference_product(&t, &l)).unwrap());
+            let lstar = resolve([&gathered[0], &gathered[1], &gathered[2]], &[f]).unwrap();
+            let shaded: f64 = (0..grid.len()).map(|i| btf[i] * lstar.values()[i][0] as f64).sum();
+            let want = brdf(x as f64, y as f64) * cos_k * power;
+            // f32 storage of the moments and of L*' (a few 1e-7 relative), the f32 grid
+            // coordinates (1e-7 of 8) in the weights.
+            assert!((shaded - want).abs() < 2e-6 * want, "texel {k}: {shaded} vs {want}");
+            let j = j as f64;
+            let centre = brdf(j % 8.0, (j / 8.0).floor()) * cos_k * power;
+            moved = moved.max((centre - want).abs() / want);
+            checked += 1;
+        }
+        assert!(checked > 100, "{checked} texels above the plane checked");
+        assert!(moved > 0.05, "the bin centre's BRDF differs from the texel's by up to {moved}");
     }
 
     #[test]

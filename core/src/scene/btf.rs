@@ -106,8 +106,24 @@ pub fn texel_of(spatial: [u32; 2], uv: Vec2) -> usize {
 /// clamped onto it, and a non-finite or zero direction is treated as the normal.
 /// Weights sum to 1. A view-independent BTF returns sample 0 with weight 1.
 pub fn view_weights(view_grid: Option<HemisphereGrid>, view_local: Vec3) -> [(usize, f32); 4] {
-    let Some(g) = view_grid else { return [(0, 1.0), (0, 0.0), (0, 0.0), (0, 0.0)] };
-    let e = if view_local.is_finite() && view_local.length_squared() > 0.0 { view_local } else { Vec3::Z };
+    match view_grid {
+        Some(g) => grid_weights(g, view_local),
+        None => [(0, 1.0), (0, 0.0), (0, 0.0), (0, 0.0)],
+    }
+}
+
+/// The (up to) four light bins of `grid` and bilinear weights for local light direction
+/// `light_local`: the same interpolation as [`view_weights`], over the BTF's light axis. A BTF
+/// value divided by its bin's mean cosine is the BRDF at the bin centre, so
+/// `sum_i w_i b_i / cosbar_i` is the BRDF interpolated at `light_local` (light moments and the
+/// ground-truth reference evaluate the lobe this way instead of at the bin centre).
+pub fn light_weights(grid: HemisphereGrid, light_local: Vec3) -> [(usize, f32); 4] {
+    grid_weights(grid, light_local)
+}
+
+/// Bilinear weights of local direction `d` between the bin centres of `g` (see [`view_weights`]).
+fn grid_weights(g: HemisphereGrid, d: Vec3) -> [(usize, f32); 4] {
+    let e = if d.is_finite() && d.length_squared() > 0.0 { d } else { Vec3::Z };
     let (x, y) = g.continuous_coords(e);
     let m = g.m as usize;
     if m == 1 {

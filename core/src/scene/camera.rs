@@ -92,6 +92,16 @@ impl Camera {
         (x as f32 + (i as f32 + 0.5) / n, y as f32 + (j as f32 + 0.5) / n)
     }
 
+    /// The camera whose pixels are this camera's samples: `n` times the width and height, one
+    /// sample per pixel, same view. Pixel `(n x + i, n y + j)`'s centre is sample `(i, j)` of
+    /// pixel `(x, y)` ([`Camera::sample`]), so shading it and box-filtering with
+    /// [`crate::scene::Render::box_filtered`] is this camera's anti-aliased image (the GPU
+    /// shader's supersampled visibility buffer).
+    pub fn supersampled(&self) -> Camera {
+        let n = self.samples_per_axis();
+        Camera { width: self.width * n, height: self.height * n, samples_per_pixel: 1, ..*self }
+    }
+
     /// Check the camera can produce rays.
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(CoreError::Invalid(format!("camera: {m}")));

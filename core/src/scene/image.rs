@@ -197,6 +197,52 @@ impl Render {
     }
 }
 
+impl Render {
+    /// Box-filter a one-sample-per-pixel render of [`Camera::supersampled`] down by `n` per
+    /// axis: each pixel is the sum of its `n x n` samples' values over `n^2` (missed samples
+    /// contribute 0), covered where any sample hits, with the hit fraction as its coverage.
+    /// The same arithmetic as the CPU shaders' anti-aliasing, so a supersampled GPU render
+    /// filtered here matches a CPU render of the original camera.
+    pub fn box_filtered(&self, n: u32) -> Result<Render> {
+        let (w, h) = (self.image.width, self.image.height);
+        if n == 0 || w % n != 0 || h % n != 0 || self.coverage.is_some() {
+            return Err(CoreError::Invalid(format!(
+                "cannot box-filter a {w}x{h} render{} by {n}: it needs one sample per pixel and a size divisible by {n}",
+                if self.coverage.is_some() { " with coverage" } else { "" }
+            )));
+        }
+        if n == 1 {
+            return Ok(self.clone());
+        }
+        let (cw, ch) = (w / n, h / n);
+        let samples = (n * n) as f64;
+        let mut image = HdrImage::new(cw, ch);
+        let (mut mask, mut coverage) = (vec![false; (cw * ch) as usize], vec![0.0f32; (cw * ch) as usize]);
+        for y in 0..ch {
+            for x in 0..cw {
+                let (mut sum, mut hits) = ([0.0f64; 3], 0u32);
+                for j in 0..n {
+                    for i in 0..n {
+                        let s = ((y * n + j) * w + x * n + i) as usize;
+                        if self.mask[s] {
+                            let p = self.image.pixels[s];
+                            (0..3).for_each(|c| sum[c] += p[c] as f64);
+                            hits += 1;
+                        }
+                    }
+                }
+                let o = (y * cw + x) as usize;
+                if hits > 0 {
+                    image.pixels[o] = sum.map(|v| (v / samples) as f32);
+                    mask[o] = true;
+                    coverage[o] = hits as f32 / samples as f32;
+                }
+            }
+        }
+        Ok(Render { image, mask, coverage: Some(coverage) })
+    }
+}
+
 /// A mask written by [`Render::write_mask_png`] (any PNG: a pixel is in where its luma is at
 /// least 128), with its size.
 pub fn read_mask_png(path: &Path) -> Result<(Vec<bool>, u32, u32)> {
@@ -258,6 +304,26 @@ impl Render {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Box filtering a one-sample render by 2: sums over four samples divided by four, the
+    /// hit fraction as coverage, any hit as the mask; sizes that do not divide, or a render
+    /// that already has coverage, are refused.
+    #[test]
+    fn box_filtering_averages_samples_over_the_whole_cell() {
+        let mut fine = Render { image: HdrImage::new(4, 2), mask: vec![false; 8], coverage: None };
+        for (i, v) in [(0, 1.0), (1, 3.0), (4, 5.0), (2, 8.0)] {
+            fine.image.pixels[i] = [v, 2.0 * v, 0.0];
+            fine.mask[i] = true;
+        }
+        let coarse = fine.box_filtered(2).unwrap();
+        assert_eq!((coarse.image.width, coarse.image.height), (2, 1));
+        assert_eq!(coarse.image.pixels, vec![[9.0 / 4.0, 18.0 / 4.0, 0.0], [2.0, 4.0, 0.0]]);
+        assert_eq!(coarse.mask, vec![true, true]);
+        assert_eq!(coarse.coverage, Some(vec![0.75, 0.25]));
+        assert_eq!(fine.box_filtered(1).unwrap(), fine);
+        assert!(fine.box_filtered(3).unwrap_err().to_string().contains("divisible by 3"));
+        assert!(coarse.box_filtered(1).unwrap_err().to_string().contains("with coverage"));
+    }
     use crate::testing::random_hdr_image;
     use std::io::Write;
 

@@ -11,6 +11,11 @@
 //! product over the M light directions. Output: linear HDR RGB (rgba32float) and a coverage
 //! mask, row 0 at the top, pixel centres at +0.5.
 //!
+//! Anti-aliasing: with `n x n` samples per pixel both passes run on the camera's sample grid
+//! ([`Camera::supersampled`], `n` times the width and height: a supersampled visibility buffer),
+//! and the read-back box-filters it to the camera's pixels ([`Render::box_filtered`]), the same
+//! sample positions and arithmetic as the CPU shaders.
+//!
 //! Several materials per scene (as `biscale_core::scene::ShadeScene`): every material's BTF
 //! floats (a dense table, or an LPCA BTF's means, eigen-BRDFs and weights) are appended to one
 //! storage buffer and the LPCA cluster ids to another; a small storage buffer holds one
@@ -84,17 +89,6 @@ const _: () = assert!(std::mem::size_of::<ShadeParams>() == 160);
 
 /// Fill the camera fields of `p` from `camera` (its basis, [`Camera::basis`]); `near` and
 /// `far` (view distances) bound the scene.
-/// The wgpu shader traces the pixel centre only: a camera that asks for more samples is
-/// refused rather than shaded differently from the CPU.
-fn one_sample_per_pixel(camera: &Camera) -> Result<()> {
-    match camera.samples_per_pixel {
-        1 => Ok(()),
-        n => Err(GpuError::Input(format!(
-            "the wgpu shader takes one sample per pixel, the camera asks for {n} (samples_per_pixel = 1 with the GPU)"
-        ))),
-    }
-}
-
 fn write_camera(camera: &Camera, p: &mut ShadeParams, near: f64, far: f64) {
     let (r, u, f) = camera.basis();
     let t = (camera.fov_y_degrees.to_radians() * 0.5).tan();
@@ -286,6 +280,8 @@ pub struct GpuShader {
     positions: Vec<Vec3>,
     /// What the scene's BTFs are dotted with, for [`Self::check_lstar`].
     scene_basis: biscale_core::basis::LocalBasis,
+    /// The camera's sample grid side `n`: the passes run at `n` times its width and height.
+    samples_per_axis: u32,
 }
 
 impl GpuShader {
@@ -313,7 +309,10 @@ impl GpuShader {
             )));
         }
         camera.validate().map_err(|e| GpuError::Input(e.to_string()))?;
-        one_sample_per_pixel(camera)?;
+        // Several samples per pixel: the passes run on the grid of samples (a supersampled
+        // visibility buffer), box-filtered to the camera's pixels on read-back.
+        let samples_per_axis = camera.samples_per_axis();
+        let camera = &camera.supersampled();
         let (w, h) = (camera.width, camera.height);
         let max_dim = ctx.limits().max_texture_dimension_2d;
         if w > max_dim || h > max_dim {
@@ -521,19 +520,28 @@ impl GpuShader {
             triangle_count: tri_count as u32,
             positions: mesh.positions.clone(),
             scene_basis: scene.local_basis(),
+            samples_per_axis,
         })
     }
 
-    /// Move the camera (the image size must stay the same).
+    /// Move the camera (the image size and samples per pixel must stay the same).
     pub fn set_camera(&mut self, camera: &Camera) -> Result<()> {
         camera.validate().map_err(|e| GpuError::Input(e.to_string()))?;
-        one_sample_per_pixel(camera)?;
-        if (camera.width, camera.height) != (self.params.width, self.params.height) {
+        let n = self.samples_per_axis;
+        if (camera.width * n, camera.height * n, camera.samples_per_axis())
+            != (self.params.width, self.params.height, n)
+        {
             return Err(GpuError::Input(format!(
-                "camera is {}x{}, the shader was built for {}x{}",
-                camera.width, camera.height, self.params.width, self.params.height
+                "camera is {}x{} at {} samples per pixel, the shader was built for {}x{} at {}",
+                camera.width,
+                camera.height,
+                camera.samples_per_pixel,
+                self.params.width / n,
+                self.params.height / n,
+                n * n
             )));
         }
+        let camera = &camera.supersampled();
         let (near, far) = depth_range(&self.positions, camera.position);
         write_camera(camera, &mut self.params, near, far);
         self.ctx.scoped("updating the camera", || {
@@ -622,7 +630,8 @@ impl GpuShader {
         &self.params_buf
     }
 
-    /// Image size `(width, height)`.
+    /// Size `(width, height)` of the shaded grid: the camera's image times its samples per
+    /// axis (the image itself with one sample per pixel).
     pub fn size(&self) -> (u32, u32) {
         (self.params.width, self.params.height)
     }
@@ -709,6 +718,7 @@ impl GpuShader {
                 mask.push(px[3] > 0.5);
             }
         }
-        Ok(Render { image: HdrImage { width: w as u32, height: h as u32, pixels }, mask, coverage: None })
+        let render = Render { image: HdrImage { width: w as u32, height: h as u32, pixels }, mask, coverage: None };
+        Ok(render.box_filtered(self.samples_per_axis)?)
     }
 }

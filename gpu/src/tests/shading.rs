@@ -257,6 +257,66 @@ fn sphere_with_phong_btf_matches_cpu_shade() {
     eprintln!("sphere vs CPU: {mismatched} coverage mismatches, worst relative error {worst:e}");
 }
 
+/// Anti-aliasing: the GPU shades the sample grid and box-filters it, the CPU averages the
+/// same sample positions per pixel. Where both saw the same samples hit (equal coverage) the
+/// pixel is the mean of the same samples, within the one-sample tolerance above (5e-5); a
+/// sample within rounding of the silhouette may fall on either side, so a handful of pixels
+/// differ by one sample in coverage and nothing else.
+#[test]
+fn anti_aliased_shading_matches_the_cpu_samples() {
+    let ctx = gpu_or_skip!();
+    let mesh = shapes::uv_sphere(Vec3::ZERO, 1.0, 12, 24);
+    let (frames, _) = vertex_frames(&mesh);
+    let btf = Btf::phong([0.3, 0.25, 0.2], [0.4, 0.5, 0.6], 20.0, bins(8), 12).unwrap();
+    let m = btf.light_count();
+    // L* a smooth function of position: the sphere's seam vertices are duplicated, and random
+    // values there would make a sample within rounding of the seam jump between two L*.
+    let values = (0..mesh.positions.len() * m)
+        .map(|r| {
+            let (p, j) = (mesh.positions[r / m], (r % m) as f32);
+            [0, 1, 2].map(|c| 1.0 + 0.5 * (3.0 * p.x + 0.1 * j).sin() * (2.0 * p.y + c as f32).cos())
+        })
+        .collect();
+    let lstar = lstar_of(btf.local_basis(), mesh.positions.len(), values);
+    for spp in [4u32, 9] {
+        let cam = Camera { samples_per_pixel: spp, ..camera(Vec3::new(0.5, 0.8, 3.2), 40, 30) };
+        let mut shader = gpu_shader(ctx, &mesh, &frames, &[Material::new(btf.clone())], None, cam).unwrap();
+        let n = (spp as f64).sqrt() as u32;
+        assert_eq!(shader.size(), (40 * n, 30 * n), "the passes run on the sample grid");
+        let gpu = shader.shade_lstar(&lstar).unwrap();
+        let cpu = shade(&scene(&mesh, &frames, &[Material::new(btf.clone())], None), &lstar, &cam).unwrap();
+        let (gc, cc) = (gpu.coverage.as_ref().unwrap(), cpu.coverage.as_ref().unwrap());
+        assert_eq!((gpu.image.width, gpu.image.height), (40, 30));
+        let (mut same, mut partial, mut off_by_one) = (0, 0, 0);
+        for i in 0..gpu.image.pixels.len() {
+            let samples_apart = ((gc[i] - cc[i]) * spp as f32).abs().round() as u32;
+            assert!(samples_apart <= 1, "spp {spp} pixel {i}: coverage {} vs {}", gc[i], cc[i]);
+            if samples_apart == 1 {
+                off_by_one += 1;
+                continue;
+            }
+            assert_eq!(gpu.mask[i], cpu.mask[i]);
+            if !cpu.mask[i] {
+                continue;
+            }
+            same += 1;
+            partial += usize::from(cc[i] < 1.0);
+            let (g, c) = (gpu.image.pixels[i], cpu.image.pixels[i]);
+            let scale = c.iter().fold(0.0f32, |a, &b| a.max(b.abs())) as f64;
+            for k in 0..3 {
+                let err = (g[k] as f64 - c[k] as f64).abs() / scale;
+                assert!(err <= 5e-5, "spp {spp} pixel {i} channel {k}: GPU {} vs CPU {} (rel {err:e})", g[k], c[k]);
+            }
+        }
+        eprintln!("spp {spp}: {same} pixels agree ({partial} partly covered), {off_by_one} one sample apart");
+        assert!(partial > 20 && same > 300, "the view has an anti-aliased silhouette: {partial} partial of {same}");
+        assert!(off_by_one * 100 <= same, "{off_by_one} pixels one sample apart of {same}");
+        // Moving the camera keeps the sample grid; another sample count is refused.
+        assert!(shader.set_camera(&Camera { position: Vec3::new(0.4, 0.9, 3.0), ..cam }).is_ok());
+        assert!(shader.set_camera(&Camera { samples_per_pixel: 1, ..cam }).is_err());
+    }
+}
+
 #[test]
 fn gather_to_shade_on_the_gpu_with_32x32_directions_matches_cpu() {
     // The no-read-back path (shade straight from the gather's buffer) with M = 1024 bins,
