@@ -37,7 +37,7 @@ fn every_lossless_compressor_gathers_the_moments_of_the_per_texel_cosine() {
             let light = random_light(8, seed);
             let moments = LightMoments::new(&light).unwrap();
             let got = gather_with_moments(compressor.as_ref(), &form, &moments, &frames).expect("gather");
-            let exact = exact_moments_product(&t, &light, &frames).unwrap();
+            let exact = exact_moments_product(&t, &light, &frames, moments.lobe).unwrap();
             // Three f32 gathers of rows of up to ~100 terms of either sign (the random T has
             // texels below each horizon), summed in f64: a few hundred ulps of the row's
             // absolute sum at worst; the L2 over all rows is far inside 1e-5.

@@ -76,7 +76,7 @@ impl GpuBackend {
                 }
                 let mut timing = timings.remove(0);
                 timing.median_ms += timings.iter().map(|t| t.median_ms).sum::<f64>();
-                let lstar = resolve([&parts[0], &parts[1], &parts[2]], frames)?;
+                let lstar = resolve([&parts[0], &parts[1], &parts[2]], frames, m.lobe)?;
                 let render = self.shader.shade_lstar(&lstar)?;
                 (timing, lstar, render)
             }

@@ -41,11 +41,24 @@ use rayon::prelude::*;
 #[derive(Clone, Debug, PartialEq)]
 pub struct LightMoments {
     pub along: [LightVector; 3],
+    /// Where [`resolve`] takes each bin's BRDF.
+    pub lobe: Lobe,
+}
+
+/// Where the resolve of the moments takes each bin's BRDF.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Lobe {
+    /// At the bin's mean light direction (bilinear in the BTF's light grid): the general case.
+    MeanDirection,
+    /// At the bin centre, as the paper: only the cosine is exact. Exactly the same image for
+    /// BTFs whose BRDF does not vary with the light direction (Lambertian ones), and the
+    /// resolve is then a dot product per bin instead of a lookup of the direction in the grid.
+    BinCentre,
 }
 
 impl LightMoments {
-    /// The moments of `light`; an error unless it is in a cubemap basis (an SH light has no
-    /// texels to take directions of).
+    /// The moments of `light`, resolved with the BRDF at each bin's mean direction; an error
+    /// unless it is in a cubemap basis (an SH light has no texels to take directions of).
     pub fn new(light: &LightVector) -> Result<Self> {
         let directions = texel_directions(cubemap_of(light)?);
         let along = [0, 1, 2].map(|a| {
@@ -53,7 +66,12 @@ impl LightMoments {
                 (light.power.iter().zip(&directions)).map(|(l, d)| l.map(|x| (x as f64 * d[a]) as f32)).collect();
             LightVector::new(light.basis(), power).expect("same basis, same length")
         });
-        Ok(Self { along })
+        Ok(Self { along, lobe: Lobe::MeanDirection })
+    }
+
+    /// The same moments, resolved with `lobe`.
+    pub fn with_lobe(self, lobe: Lobe) -> Self {
+        Self { lobe, ..self }
     }
 }
 
@@ -137,18 +155,20 @@ fn inverse_mean_cosines(grid: &HemisphereGrid) -> Vec<f64> {
 }
 
 /// `L*'` from the three gathered moments. Per vertex `v`, bin `j` and channel `c`, the bin's
-/// light `D = D_{v,j,c}` brings the exact-cosine power `n_v . D`, arriving from its mean
-/// direction `D / |D|`. That power is handed to the (up to) four light bins `i` around the mean
-/// direction with the bilinear weights `w_i` of [`crate::scene::btf::light_weights`] (in
-/// `frames[v]`), each divided by its own mean cosine:
+/// light `D_{v,j,c}` brings the exact-cosine power `n_v . D_{v,j,c}`, arriving on average from
+/// the direction of `D_{v,j}`, the luminance of the three channels' `D`. That power is handed to
+/// the (up to) four light bins `i` around the mean direction with the bilinear weights `w_i` of
+/// [`crate::scene::btf::light_weights`] (in `frames[v]`), each divided by its own mean cosine:
 ///
-/// `L*'_{v,i,c} = sum_j w_i(D_{v,j,c}) (n_v . D_{v,j,c}) / cosbar_i`.
+/// `L*'_{v,i,c} = sum_j w_i(D_{v,j}) (n_v . D_{v,j,c}) / cosbar_i`.
 ///
-/// Dotted with a BTF (`b_i = f_i cosbar_i`), bin `j` contributes `f(D / |D|) (n . D)`: the BRDF
-/// interpolated at the light's mean direction times its exact cosine. The weights sum to 1, so
-/// a Lambertian BTF (constant `f`) sees exactly `sum_j n . D_j`, whatever the directions. The
-/// shaders dot `L*'` with the BTF as they dot `L*`: nothing downstream changes.
-pub fn resolve(along: [&LocalRadiance; 3], frames: &[VertexFrame]) -> Result<LocalRadiance> {
+/// Dotted with a BTF (`b_i = f_i cosbar_i`), bin `j` contributes `f(D / |D|) (n . D_c)`: the
+/// BRDF interpolated at the light's mean direction times its exact cosine. The weights sum to
+/// 1, so a Lambertian BTF (constant `f`) sees exactly `sum_j n . D_{j,c}`, whatever the
+/// directions. The shaders dot `L*'` with the BTF as they dot `L*`: nothing downstream changes.
+///
+/// With [`Lobe::BinCentre`] each bin keeps its own power: `L*'_{v,j,c} = (n_v . D_{v,j,c}) / cosbar_j`.
+pub fn resolve(along: [&LocalRadiance; 3], frames: &[VertexFrame], lobe: Lobe) -> Result<LocalRadiance> {
     let basis = along[0].basis();
     let vertices = along[0].vertices();
     if along.iter().any(|a| a.basis() != basis || a.vertices() != vertices) {
@@ -163,7 +183,7 @@ pub fn resolve(along: [&LocalRadiance; 3], frames: &[VertexFrame]) -> Result<Loc
         |acc, (v, (out, frame))| {
             let rows = [along[0].vertex(v), along[1].vertex(v), along[2].vertex(v)];
             let d = |j: usize, c: usize| DVec3::new(rows[0][j][c] as f64, rows[1][j][c] as f64, rows[2][j][c] as f64);
-            redistribute(grid, frame, d, acc);
+            redistribute(grid, frame, lobe, d, acc);
             for (i, (o, a)) in out.iter_mut().zip(acc.iter()).enumerate() {
                 *o = a.map(|x| (x * inv[i]) as f32);
             }
@@ -174,21 +194,39 @@ pub fn resolve(along: [&LocalRadiance; 3], frames: &[VertexFrame]) -> Result<Loc
 
 /// Hand each bin's exact-cosine power `n . D` (`d(j, c)` = `D_{j,c}`, world space) to the light
 /// bins around its mean direction, with [`light_weights`] in `frame`: `acc[i][c]` is
-/// `sum_j w_i(D_{j,c}) (n . D_{j,c})`, before the division by `cosbar_i`. Shared by [`resolve`]
+/// `sum_j w_i(D_j) (n . D_{j,c})`, before the division by `cosbar_i`. One direction per bin, the
+/// luminance's (`D_j = sum_c Y_c D_{j,c}`, Rec. 709 weights), serves all three channels: a
+/// bin's colours rarely come from directions a bilinear weight could tell apart, and one
+/// lookup per bin instead of three keeps the resolve cheaper than the gather. A bin whose
+/// luminance direction vanishes keeps its light (the bin-centre rule). Shared by [`resolve`]
 /// and its f64 reference [`exact_moments_product`], which differ in how `D` is summed.
-fn redistribute(grid: HemisphereGrid, frame: &VertexFrame, d: impl Fn(usize, usize) -> DVec3, acc: &mut [[f64; 3]]) {
+fn redistribute(
+    grid: HemisphereGrid,
+    frame: &VertexFrame,
+    lobe: Lobe,
+    d: impl Fn(usize, usize) -> DVec3,
+    acc: &mut [[f64; 3]],
+) {
+    const LUMINANCE: [f64; 3] = [0.2126, 0.7152, 0.0722];
     acc.fill([0.0; 3]);
     let n = frame.normal.as_dvec3();
     for j in 0..grid.len() {
-        for c in 0..3 {
-            let d = d(j, c);
-            let power = n.dot(d);
-            if power == 0.0 {
-                continue;
-            }
-            for (i, w) in light_weights(grid, frame.to_local(d.as_vec3())) {
-                acc[i][c] += w as f64 * power;
-            }
+        let d = [d(j, 0), d(j, 1), d(j, 2)];
+        let power = d.map(|d| n.dot(d));
+        if power == [0.0; 3] {
+            continue;
+        }
+        if lobe == Lobe::BinCentre {
+            acc[j] = power;
+            continue;
+        }
+        let direction = d[0] * LUMINANCE[0] + d[1] * LUMINANCE[1] + d[2] * LUMINANCE[2];
+        if direction == DVec3::ZERO {
+            (0..3).for_each(|c| acc[j][c] += power[c]);
+            continue;
+        }
+        for (i, w) in light_weights(grid, frame.to_local(direction.as_vec3())) {
+            (0..3).for_each(|c| acc[i][c] += w as f64 * power[c]);
         }
     }
 }
@@ -204,7 +242,8 @@ pub fn gather_with_moments(
 ) -> std::result::Result<LocalRadiance, CompressError> {
     let [x, y, z] = &moments.along;
     let gathered = compressor.gather_three(form, [x, y, z])?;
-    resolve([&gathered[0], &gathered[1], &gathered[2]], frames).map_err(|e| CompressError::External(Box::new(e)))
+    resolve([&gathered[0], &gathered[1], &gathered[2]], frames, moments.lobe)
+        .map_err(|e| CompressError::External(Box::new(e)))
 }
 
 /// Every row's exact-cosine light in f64: for every row `(v, j)`,
@@ -245,7 +284,12 @@ pub fn exact_cosine_product(t: &TransferMatrix, light: &LightVector, frames: &[V
 /// The f64 reference of [`resolve`] after the moments gather: every row's `D_{v,j}` summed in
 /// f64 per texel straight from `T` (`sum_k T[j, k] L_k d_k`), then redistributed over the bins
 /// around its direction as [`resolve`] does. Rows in `T`'s order.
-pub fn exact_moments_product(t: &TransferMatrix, light: &LightVector, frames: &[VertexFrame]) -> Result<Vec<[f64; 3]>> {
+pub fn exact_moments_product(
+    t: &TransferMatrix,
+    light: &LightVector,
+    frames: &[VertexFrame],
+    lobe: Lobe,
+) -> Result<Vec<[f64; 3]>> {
     if t.light_basis() != light.basis() {
         return Err(CoreError::Invalid(format!(
             "the light vector is in the {}, T's light basis is the {}",
@@ -271,7 +315,7 @@ pub fn exact_moments_product(t: &TransferMatrix, light: &LightVector, frames: &[
                 d
             })
             .collect();
-        redistribute(grid, frame, |j, c| sums[j][c], out);
+        redistribute(grid, frame, lobe, |j, c| sums[j][c], out);
         for (i, o) in out.iter_mut().enumerate() {
             *o = o.map(|x| x * inv[i]);
         }
@@ -347,13 +391,17 @@ mod tests {
                 .along
                 .clone()
                 .map(|l| LocalRadiance::from_f64(LocalBasis::Bins(grid), 40, &reference_product(&t, &l)).unwrap());
-            let fast = resolve([&gathered[0], &gathered[1], &gathered[2]], &frames).unwrap();
-            let exact = exact_moments_product(&t, &light, &frames).unwrap();
+            let fast = resolve([&gathered[0], &gathered[1], &gathered[2]], &frames, Lobe::MeanDirection).unwrap();
+            let exact = exact_moments_product(&t, &light, &frames, Lobe::MeanDirection).unwrap();
             let err = relative_l2_error(fast.values(), &exact);
             // Per row the terms n . d_k have either sign (random T puts texels below the
             // horizon too), so cancellation can amplify rounding; the bilinear weights move by
             // about m times the direction's relative rounding. 1e-5 is 100 f32 ulps.
             assert!(err < 1e-5, "stiff {stiff}: relative error {err:e}");
+            // Bin-centre lobe: every bin keeps its exact-cosine power, the per-texel product.
+            let centre = resolve([&gathered[0], &gathered[1], &gathered[2]], &frames, Lobe::BinCentre).unwrap();
+            let err = relative_l2_error(centre.values(), &exact_cosine_product(&t, &light, &frames).unwrap());
+            assert!(err < 1e-5, "stiff {stiff}, bin-centre lobe: relative error {err:e}");
             // Lambertian invariant: the redistribution keeps every vertex's irradiance
             // `sum_i cosbar_i L*'_i`, the per-texel exact-cosine sum (weights sum to 1).
             let cosine = exact_cosine_product(&t, &light, &frames).unwrap();
@@ -449,7 +497,7 @@ mod tests {
                 .along
                 .clone()
                 .map(|l| LocalRadiance::from_f64(LocalBasis::Bins(grid), 1, &reference_product(&t, &l)).unwrap());
-            let lstar = resolve([&gathered[0], &gathered[1], &gathered[2]], &[f]).unwrap();
+            let lstar = resolve([&gathered[0], &gathered[1], &gathered[2]], &[f], Lobe::MeanDirection).unwrap();
             let shaded: f64 = (0..grid.len()).map(|i| btf[i] * lstar.values()[i][0] as f64).sum();
             let want = brdf(x as f64, y as f64) * cos_k * power;
             // f32 storage of the moments and of L*' (a few 1e-7 relative), the f32 grid
@@ -458,6 +506,10 @@ mod tests {
             let j = j as f64;
             let centre = brdf(j % 8.0, (j / 8.0).floor()) * cos_k * power;
             moved = moved.max((centre - want).abs() / want);
+            // The bin-centre lobe gives exactly that.
+            let lstar = resolve([&gathered[0], &gathered[1], &gathered[2]], &[f], Lobe::BinCentre).unwrap();
+            let shaded: f64 = (0..grid.len()).map(|i| btf[i] * lstar.values()[i][0] as f64).sum();
+            assert!((shaded - centre).abs() < 2e-6 * centre, "texel {k}, bin centre: {shaded} vs {centre}");
             checked += 1;
         }
         assert!(checked > 100, "{checked} texels above the plane checked");

@@ -22,22 +22,24 @@ pub fn square_to_disk(u: f64, v: f64) -> DVec2 {
 
 /// Inverse of [`square_to_disk`].
 pub fn disk_to_square(p: DVec2) -> (f64, f64) {
-    let r = p.length();
-    if r == 0.0 {
+    wedge_to_square(p.length(), p.x, p.y)
+}
+
+/// The square point of the disk point at radius `r` in the direction of `(x, y)` (any scale).
+/// In the wedge `|x| >= |y|` the point came from `a = +-r`, `b = a (4 / pi) atan(y / x)` (and
+/// symmetrically with `x` and `y` swapped), so one `atan` of a ratio in `[-1, 1]` inverts the
+/// concentric map, with no angle unwrapping and no normalisation (this runs once per light bin
+/// per vertex in the light-moments resolve).
+fn wedge_to_square(r: f64, x: f64, y: f64) -> (f64, f64) {
+    if r == 0.0 || (x == 0.0 && y == 0.0) {
         return (0.5, 0.5);
     }
-    let mut phi = p.y.atan2(p.x);
-    if phi < -FRAC_PI_4 {
-        phi += 2.0 * PI;
-    }
-    let (a, b) = if phi < FRAC_PI_4 {
-        (r, phi / FRAC_PI_4 * r)
-    } else if phi < 3.0 * FRAC_PI_4 {
-        (-(phi - FRAC_PI_2) / FRAC_PI_4 * r, r)
-    } else if phi < 5.0 * FRAC_PI_4 {
-        (-r, -(phi - PI) / FRAC_PI_4 * r)
+    let (a, b) = if x.abs() >= y.abs() {
+        let a = r.copysign(x);
+        (a, a * (y / x).atan() / FRAC_PI_4)
     } else {
-        ((phi - 3.0 * FRAC_PI_2) / FRAC_PI_4 * r, -r)
+        let b = r.copysign(y);
+        (b * (x / y).atan() / FRAC_PI_4, b)
     };
     (((a + 1.0) * 0.5).clamp(0.0, 1.0), ((b + 1.0) * 0.5).clamp(0.0, 1.0))
 }
@@ -50,17 +52,12 @@ pub fn square_to_hemisphere(u: f64, v: f64) -> DVec3 {
     DVec3::new(d.x * s, d.y * s, 1.0 - r2)
 }
 
-/// Inverse of [`square_to_hemisphere`] for a unit vector with `z >= 0`
-/// (a direction below the horizon is projected onto it).
+/// Inverse of [`square_to_hemisphere`] for a non-zero vector `d` of any length (a direction
+/// below the horizon is projected onto it): the disk radius is `sqrt(1 - z)` of the unit
+/// direction, and its angle is that of `(d.x, d.y)`.
 pub fn hemisphere_to_square(d: DVec3) -> (f64, f64) {
-    let z = d.z.clamp(0.0, 1.0);
-    let r = (1.0 - z).sqrt();
-    let xy = DVec2::new(d.x, d.y);
-    let len = xy.length();
-    if len == 0.0 {
-        return (0.5, 0.5);
-    }
-    disk_to_square(xy * (r / len))
+    let z = (d.z / d.length()).clamp(0.0, 1.0);
+    wedge_to_square((1.0 - z).sqrt(), d.x, d.y)
 }
 
 /// An `m x m` grid of equal-solid-angle bins over the upper hemisphere.
@@ -100,7 +97,7 @@ impl HemisphereGrid {
         if d.z <= 0.0 || !d.is_finite() {
             return None;
         }
-        let (u, v) = hemisphere_to_square(d.normalize());
+        let (u, v) = hemisphere_to_square(d);
         let m = self.m as f64;
         let col = ((u * m) as u32).min(self.m - 1);
         let row = ((v * m) as u32).min(self.m - 1);
@@ -163,15 +160,24 @@ impl HemisphereGrid {
     /// bin centres: `(x, y)` in `[0, m-1]` so that integer values are bin centres.
     /// Directions below the horizon are clamped onto it.
     pub fn continuous_coords(&self, d: Vec3) -> (f32, f32) {
-        let mut d = d.as_dvec3();
-        if d.z < 1e-6 {
-            d.z = 1e-6;
-        }
-        let (u, v) = hemisphere_to_square(d.normalize());
-        let m = self.m as f64;
-        let x = (u * m - 0.5).clamp(0.0, m - 1.0);
-        let y = (v * m - 0.5).clamp(0.0, m - 1.0);
-        (x as f32, y as f32)
+        // In f32, as the coordinates are returned (the f64 map of `hemisphere_to_square` is
+        // twice as slow and its extra digits are rounded away): one length, one division, one
+        // square root and one atan.
+        let z = (d.z / d.length()).clamp(0.0, 1.0);
+        let r = if z.is_nan() { 0.0 } else { (1.0 - z).sqrt() };
+        let (a, b) = if r == 0.0 || (d.x == 0.0 && d.y == 0.0) {
+            (0.0, 0.0)
+        } else if d.x.abs() >= d.y.abs() {
+            let a = r.copysign(d.x);
+            (a, a * (d.y / d.x).atan() / std::f32::consts::FRAC_PI_4)
+        } else {
+            let b = r.copysign(d.y);
+            (b * (d.x / d.y).atan() / std::f32::consts::FRAC_PI_4, b)
+        };
+        let m = self.m as f32;
+        let x = ((a + 1.0) * 0.5 * m - 0.5).clamp(0.0, m - 1.0);
+        let y = ((b + 1.0) * 0.5 * m - 0.5).clamp(0.0, m - 1.0);
+        (x, y)
     }
 }
 
