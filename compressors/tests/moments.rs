@@ -63,6 +63,8 @@ fn gather_three_is_three_gathers_bit_for_bit() {
         ("bicluster", serde_json::json!({ "error_budget": 0.1 })),
         ("sparse", serde_json::json!({})),
         ("haar", serde_json::json!({ "terms": 6 })),
+        ("cpca", serde_json::json!({ "clusters": 4, "components": 3 })),
+        ("cpca", serde_json::json!({ "clusters": 3, "components": 2, "unit": "vertex" })),
     ] {
         let c = registry::build(name, &params).unwrap();
         let form = c.compress(&t, &CompressContext::default()).unwrap();

@@ -213,56 +213,75 @@ impl Compressor for Cpca {
 
     fn gather(&self, form: &CompressedForm, light: &LightVector) -> Result<LocalRadiance, CompressError> {
         form.check_light(light)?;
-        let (k, c, n) = (form.meta("clusters")? as usize, form.meta("components")? as usize, form.cols());
-        let u = unit_rows(form)?;
-        let basis = form.f32s("basis")?;
-        let cluster = form.u16s("cluster")?;
-        let coeffs = form.f32s("coeffs")?;
-        let units = form.rows() / u;
-        if basis.len() != k * (c + 1) * u * n
-            || cluster.len() != units
-            || coeffs.len() != units * c
-            || cluster.iter().any(|&id| id as usize > k)
-        {
-            return Err(CompressError::malformed("cpca", "cluster", "lengths or ids do not match the shape"));
-        }
-        // Projections of the light on every mean and component segment (f64: a sun may sit
-        // beside a dim sky in L, and the components have both signs). The light is laid out
-        // per channel, and each dot product keeps four partial sums per channel: one running
-        // sum would chain every f64 add on the one before (4 cycles each), and the compiler may
-        // not reorder float sums itself. Each projection is stored as RGB padded to four f64
-        // lanes, so the per-row combination below is two packed multiply-adds per term.
-        // Segment `(v (C + 1) + c) U + j` is row j of cluster v's vector c.
         let channels: [Vec<f64>; 3] = std::array::from_fn(|ch| light.power.iter().map(|l| l[ch] as f64).collect());
-        let proj: Vec<[f64; 4]> = basis
-            .par_chunks(n.max(1))
-            .take(k * (c + 1) * u)
-            .map(|b| {
-                let [x, y, z] = split_dot(b, &channels);
-                [x, y, z, 0.0]
-            })
-            .collect();
-        let values: Vec<[f32; 3]> = (0..form.rows())
-            .into_par_iter()
-            .map(|r| {
-                let (unit, j) = (r / u, r % u);
-                let id = cluster[unit] as usize;
-                if id == k {
-                    return [0.0; 3];
-                }
-                let segment = |v: usize| &proj[(id * (c + 1) + v) * u + j];
-                let mut acc = *segment(0);
-                for (v, &w) in coeffs[unit * c..(unit + 1) * c].iter().enumerate() {
-                    let pj = segment(v + 1);
-                    for ch in 0..4 {
-                        acc[ch] += w as f64 * pj[ch];
-                    }
-                }
-                [acc[0] as f32, acc[1] as f32, acc[2] as f32]
-            })
-            .collect();
-        form.lstar(values)
+        let rows = gather_lanes(form, &channels)?;
+        form.lstar(rows.iter().map(|r| r.map(|x| x as f32)).collect())
     }
+
+    /// The three lights in one pass: every basis segment is read once and projected on nine
+    /// channels instead of three, three times. Each channel's sums run in the order of
+    /// [`Compressor::gather`], so the result is its three gathers bit for bit.
+    fn gather_three(
+        &self,
+        form: &CompressedForm,
+        lights: [&LightVector; 3],
+    ) -> Result<[LocalRadiance; 3], CompressError> {
+        for l in lights {
+            form.check_light(l)?;
+        }
+        let channels: [Vec<f64>; 9] =
+            std::array::from_fn(|ch| lights[ch / 3].power.iter().map(|l| l[ch % 3] as f64).collect());
+        let rows = gather_lanes(form, &channels)?;
+        let wide: Vec<[f32; 9]> = rows.iter().map(|r| r.map(|x| x as f32)).collect();
+        form.lstar_three(&wide, 3)
+    }
+}
+
+/// The CPCA gather for `W` channels of light (3: one RGB light; 9: three), each laid out per
+/// channel in f64: every row's `W` sums, in f64.
+fn gather_lanes<const W: usize>(
+    form: &CompressedForm,
+    channels: &[Vec<f64>; W],
+) -> Result<Vec<[f64; W]>, CompressError> {
+    let (k, c, n) = (form.meta("clusters")? as usize, form.meta("components")? as usize, form.cols());
+    let u = unit_rows(form)?;
+    let basis = form.f32s("basis")?;
+    let cluster = form.u16s("cluster")?;
+    let coeffs = form.f32s("coeffs")?;
+    let units = form.rows() / u;
+    if basis.len() != k * (c + 1) * u * n
+        || cluster.len() != units
+        || coeffs.len() != units * c
+        || cluster.iter().any(|&id| id as usize > k)
+    {
+        return Err(CompressError::malformed("cpca", "cluster", "lengths or ids do not match the shape"));
+    }
+    // Projections of the light on every mean and component segment (f64: a sun may sit beside
+    // a dim sky in L, and the components have both signs). Each dot product keeps four partial
+    // sums per channel: one running sum would chain every f64 add on the one before (4 cycles
+    // each), and the compiler may not reorder float sums itself. Segment `(v (C + 1) + c) U + j`
+    // is row j of cluster v's vector c.
+    let proj: Vec<[f64; W]> =
+        basis.par_chunks(n.max(1)).take(k * (c + 1) * u).map(|b| split_dot(b, channels)).collect();
+    Ok((0..form.rows())
+        .into_par_iter()
+        .map(|r| {
+            let (unit, j) = (r / u, r % u);
+            let id = cluster[unit] as usize;
+            if id == k {
+                return [0.0; W];
+            }
+            let segment = |v: usize| &proj[(id * (c + 1) + v) * u + j];
+            let mut acc = *segment(0);
+            for (v, &w) in coeffs[unit * c..(unit + 1) * c].iter().enumerate() {
+                let pj = segment(v + 1);
+                for ch in 0..W {
+                    acc[ch] += w as f64 * pj[ch];
+                }
+            }
+            acc
+        })
+        .collect())
 }
 
 /// Rows per clustered unit of a form (1, or M for vertex units).
@@ -333,17 +352,17 @@ pub fn relative_frobenius_error(form: &CompressedForm, t: &TransferMatrix) -> Re
     Ok(if den > 0.0 { (num / den).sqrt() } else { 0.0 })
 }
 
-/// `sum_i b_i l_i` in f64 for the three channels of `l` at once (`b` is read and widened
+/// `sum_i b_i l_i` in f64 for the `W` channels of `l` at once (`b` is read and widened
 /// once), with four partial sums per channel: element `i` goes to sum `i % 4`, the four added
 /// `(0 + 1) + (2 + 3)`, so consecutive adds do not wait on each other.
-fn split_dot(b: &[f32], l: &[Vec<f64>; 3]) -> [f64; 3] {
-    let mut acc = [[0.0f64; 4]; 3];
-    let n = b.len().min(l[0].len()).min(l[1].len()).min(l[2].len());
-    let (b, l) = (&b[..n], [&l[0][..n], &l[1][..n], &l[2][..n]]);
+fn split_dot<const W: usize>(b: &[f32], l: &[Vec<f64>; W]) -> [f64; W] {
+    let mut acc = [[0.0f64; 4]; W];
+    let n = l.iter().fold(b.len(), |n, l| n.min(l.len()));
+    let b = &b[..n];
     let whole = n / 4 * 4;
     for i in (0..whole).step_by(4) {
         let x: [f64; 4] = std::array::from_fn(|e| b[i + e] as f64);
-        for ch in 0..3 {
+        for ch in 0..W {
             let y = &l[ch][i..i + 4];
             for e in 0..4 {
                 acc[ch][e] += x[e] * y[e];
@@ -351,7 +370,7 @@ fn split_dot(b: &[f32], l: &[Vec<f64>; 3]) -> [f64; 3] {
         }
     }
     for i in whole..n {
-        for ch in 0..3 {
+        for ch in 0..W {
             acc[ch][i - whole] += b[i] as f64 * l[ch][i];
         }
     }
