@@ -1,0 +1,929 @@
+//! NumPy interop: `biscale export` writes a config's stage outputs as `.npz` files (or `T` and
+//! `L` as Matrix Market) for Python, and `biscale eval` renders and scores an `L*` or a
+//! compressed form made outside biscale exactly as a run scores a compressor setting.
+//!
+//! Files (`python/biscale_io.py` reads and writes them; the arrays are plain `numpy.load`
+//! arrays, and every file carries its metadata as one JSON string, the 0-d array
+//! [`META`]):
+//!
+//! | file | arrays |
+//! |---|---|
+//! | `t.npz` | `T` as CSR: `indptr` (int64, rows + 1), `indices` (int32), `data` (float32), `shape` (int64 `[rows, cols]`) |
+//! | `l.npz` | `l` (float32, N x 3), `directions` (float32, N x 3, texel centres), `solid_angles` (float64, N) |
+//! | `lstar.npz` | `lstar` (float32, V*M x 3), `local_directions` (float32, M x 3), `local_mean_cosines` (float64, M) |
+//! | `form-<label>.npz` | every array of the `CompressedForm` under its own name and type |
+//! | `btf-<material>.npz` | `data` (float32, H x W x V x M x 3), `light_directions`, `light_mean_cosines`, `view_directions` |
+//!
+//! A form's [`META`] holds `kind`, `label`, `params`, the shape (`vertices`, `local_basis`,
+//! `light_basis`, `rows`, `cols`), `meta` (the form's integer parameters), `lossless`,
+//! `flops_per_gather`, `build_seconds` and the array order, so `eval --form` rebuilds the
+//! very `CompressedForm` the run gathered.
+
+use crate::cache::StageCache;
+use crate::config::{CompressorSetting, Experiment, MaterialConfig};
+use crate::metrics::{CompressorRecord, Metrics};
+use crate::npy::{self, ArrayRef, Elements, NpyArray, NpyData, NpyError};
+use crate::pipeline::{self, Evaluation, PipelineError, Result, RunOptions, View};
+use crate::plan::Plan;
+use crate::staging::StagedDir;
+use biscale_core::basis::{LightBasis, LocalBasis, TransferShape};
+use biscale_core::compress::{ArrayData, CompressedForm, NamedArray};
+use biscale_core::gather::LocalRadiance;
+use biscale_core::io::write_atomic_bytes;
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+
+/// The name of the metadata array every exported `.npz` carries: a 0-d string holding one
+/// JSON object. Two leading underscores: no form array can be called so, since form arrays
+/// bind by name to WGSL globals, where such names are reserved.
+pub const META: &str = "__biscale__";
+
+/// The version of the files' layout, in every [`META`] (`"version"`).
+pub const FORMAT_VERSION: u32 = 1;
+
+impl From<NpyError> for PipelineError {
+    fn from(e: NpyError) -> Self {
+        match e {
+            NpyError::Io { path, source } => PipelineError::Io { path, source },
+            NpyError::Format { path, what } => PipelineError::Mismatch { path, what },
+        }
+    }
+}
+
+/// The file format of `biscale export`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ExportFormat {
+    /// NumPy `.npz` (every item).
+    Npz,
+    /// Matrix Market `T.mtx` and `L.mtx` (`t` and `l` only), as `export-matrix` writes them.
+    Mtx,
+}
+
+/// What `biscale export` writes (`--what`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Item {
+    T,
+    L,
+    Lstar,
+    Forms,
+    Btf,
+}
+
+impl Item {
+    pub const ALL: [Item; 5] = [Item::T, Item::L, Item::Lstar, Item::Forms, Item::Btf];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Item::T => "t",
+            Item::L => "l",
+            Item::Lstar => "lstar",
+            Item::Forms => "forms",
+            Item::Btf => "btf",
+        }
+    }
+
+    /// The items of `--what` (comma-separated names, each once); every item of the format
+    /// when empty. An unknown name, or an item the format cannot hold, is an error that says
+    /// which are known.
+    pub fn parse_list(names: &[String], format: ExportFormat) -> std::result::Result<Vec<Item>, String> {
+        let known = || Item::ALL.map(Item::name).join(", ");
+        let mut items = vec![];
+        for n in names.iter().flat_map(|n| n.split(',')).map(str::trim).filter(|n| !n.is_empty()) {
+            let item = Item::ALL
+                .into_iter()
+                .find(|i| i.name() == n)
+                .ok_or_else(|| format!("--what: unknown item '{n}' (known: {})", known()))?;
+            if !items.contains(&item) {
+                items.push(item);
+            }
+        }
+        let mtx = [Item::T, Item::L];
+        if items.is_empty() {
+            items = match format {
+                ExportFormat::Npz => Item::ALL.to_vec(),
+                ExportFormat::Mtx => mtx.to_vec(),
+            };
+        }
+        if format == ExportFormat::Mtx {
+            if let Some(i) = items.iter().find(|i| !mtx.contains(i)) {
+                return Err(format!(
+                    "--what {}: --format mtx writes t and l only (T.mtx, L.mtx); use --format npz for {}",
+                    i.name(),
+                    i.name()
+                ));
+            }
+        }
+        items.sort();
+        Ok(items)
+    }
+}
+
+/// One file `biscale export` wrote and what it holds (one line).
+#[derive(Clone, Debug)]
+pub struct Written {
+    pub path: PathBuf,
+    pub about: String,
+}
+
+/// A label as a file-name stem: letters, digits, `-` and `_` kept, anything else `_`.
+fn file_stem(label: &str) -> String {
+    label.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' }).collect()
+}
+
+/// The metadata every file starts with.
+fn meta_header(exp: &Experiment, what: &str) -> serde_json::Map<String, Value> {
+    let v = json!({
+        "format": "biscale-npz",
+        "version": FORMAT_VERSION,
+        "what": what,
+        "experiment": exp.name(),
+        "config": exp.config_path.display().to_string(),
+        "biscale_version": env!("CARGO_PKG_VERSION"),
+    });
+    match v {
+        Value::Object(m) => m,
+        _ => unreachable!("an object literal"),
+    }
+}
+
+/// The shape fields of a transfer shape, as they appear in every file that has one.
+fn shape_meta(shape: TransferShape) -> Value {
+    json!({
+        "vertices": shape.vertices,
+        "local_dirs": shape.local_dirs(),
+        "rows": shape.rows(),
+        "cols": shape.cols(),
+        "local_basis": shape.local.tag(),
+        "local_basis_about": shape.local.to_string(),
+        "light_basis": shape.light.tag(),
+        "light_basis_about": shape.light.to_string(),
+    })
+}
+
+fn merge(mut a: serde_json::Map<String, Value>, b: Value) -> String {
+    if let Value::Object(b) = b {
+        a.extend(b);
+    }
+    serde_json::to_string(&Value::Object(a)).expect("plain JSON")
+}
+
+/// The bin-centre directions (local frame, +Z the normal) and mean cosines of a local basis
+/// of bins (empty for other bases).
+fn local_directions(basis: LocalBasis) -> (Vec<f32>, Vec<f64>) {
+    match basis.grid() {
+        Some(g) => (
+            (0..g.len() as u32).flat_map(|j| g.bin_direction(j).to_array()).collect(),
+            (0..g.len() as u32).map(|j| g.bin_mean_cosine(j)).collect(),
+        ),
+        None => (vec![], vec![]),
+    }
+}
+
+/// `biscale export`: write `items` of `exp` into `dir` (created if needed; other files there
+/// are left alone, each file is written atomically). `T` comes from the stage cache or is
+/// traced, as `run` does; forms likewise.
+pub fn export(
+    exp: &Experiment,
+    dir: &Path,
+    format: ExportFormat,
+    items: &[Item],
+    opts: &RunOptions,
+) -> Result<Vec<Written>> {
+    std::fs::create_dir_all(dir).map_err(|source| PipelineError::Io { path: dir.into(), source })?;
+    let cache = StageCache::new(opts, dir);
+    let mut written = vec![];
+    let needs_t = items.iter().any(|i| matches!(i, Item::T | Item::Lstar | Item::Forms));
+    let geometry = if needs_t { Some(pipeline::load_geometry(exp)?) } else { None };
+    let lighting = if items.iter().any(|i| matches!(i, Item::L | Item::Lstar)) {
+        Some(pipeline::load_lighting(exp)?)
+    } else {
+        None
+    };
+    let transfer = match &geometry {
+        Some(g) => Some(pipeline::transfer_matrix(exp, g, cache.as_ref())?),
+        None => None,
+    };
+    for &item in items {
+        match (item, format) {
+            (Item::T, ExportFormat::Mtx) => {
+                let t = &transfer.as_ref().expect("loaded for t").matrix;
+                let path = crate::commands::write_t_mtx(t, dir)?;
+                written.push(Written { path, about: format!("T, {} x {}, {} non-zeros", t.rows(), t.cols(), t.nnz()) });
+            }
+            (Item::L, ExportFormat::Mtx) => {
+                let l = &lighting.as_ref().expect("loaded for l").light;
+                let path = crate::commands::write_l_mtx(l, dir)?;
+                written.push(Written { path, about: format!("L, {} x 3", l.len()) });
+            }
+            (Item::T, ExportFormat::Npz) => {
+                let t = &transfer.as_ref().expect("loaded for t").matrix;
+                let settings = exp.transfer_settings();
+                let csr = t.csr();
+                let indptr: Vec<i64> = csr.indptr().raw_storage().iter().map(|&x| x as i64).collect();
+                let indices: Vec<i32> = csr.indices().iter().map(|&x| x as i32).collect();
+                let shape = [t.rows() as i64, t.cols() as i64];
+                let meta = merge(
+                    meta_header(exp, "t"),
+                    json!({
+                        "shape": shape_meta(t.shape()),
+                        "nnz": t.nnz(),
+                        "visibility_resolution": settings.visibility_resolution(),
+                        "rows_are": "row v*M + j: vertex v (mesh order), local direction j of the local basis",
+                        "cols_are": "column k: cubemap texel k = face*R*R + row*R + col, faces +X -X +Y -Y +Z -Z",
+                        "values_are": "T[v*M+j, k]: the unoccluded fraction of texel k's visibility children seen through local bin j of vertex v",
+                    }),
+                );
+                let path = dir.join("t.npz");
+                npy::write_npz(
+                    &path,
+                    &[
+                        ("indptr", ArrayRef::flat(Elements::I64(&indptr))),
+                        ("indices", ArrayRef::flat(Elements::I32(&indices))),
+                        ("data", ArrayRef::flat(Elements::F32(csr.data()))),
+                        ("shape", ArrayRef::flat(Elements::I64(&shape))),
+                        (META, ArrayRef::string(&meta)),
+                    ],
+                )?;
+                written.push(Written {
+                    path,
+                    about: format!("T as CSR, {} x {}, {} non-zeros", t.rows(), t.cols(), t.nnz()),
+                });
+            }
+            (Item::L, ExportFormat::Npz) => {
+                let lighting = lighting.as_ref().expect("loaded for l");
+                let l = &lighting.light;
+                let cube = l.cubemap();
+                let directions: Vec<f32> = cube
+                    .map_or(vec![], |c| (0..c.texel_count()).flat_map(|k| c.texel_direction(k).to_array()).collect());
+                let solid_angles = cube.map_or(vec![], |c| c.solid_angles());
+                let meta = merge(
+                    meta_header(exp, "l"),
+                    json!({
+                        "light_basis": l.basis().tag(),
+                        "light_basis_about": l.basis().to_string(),
+                        "n": l.len(),
+                        "units": "power per cubemap texel: radiance integrated over the texel's solid angle (divide by solid_angles for the mean radiance)",
+                        "channels": "linear RGB",
+                        "env_map": exp.env_path.as_ref().map(|p| p.display().to_string()),
+                        "constant": exp.file.lighting.constant,
+                        "rotation_degrees": exp.file.lighting.rotation_degrees,
+                        "total_power": l.total(),
+                        "warnings": lighting.warnings,
+                    }),
+                );
+                let path = dir.join("l.npz");
+                let n = l.len();
+                let mut members = vec![("l", ArrayRef::new(&[n, 3], Elements::F32(l.power.as_flattened())))];
+                if cube.is_some() {
+                    members.push(("directions", ArrayRef::new(&[n, 3], Elements::F32(&directions))));
+                    members.push(("solid_angles", ArrayRef::flat(Elements::F64(&solid_angles))));
+                }
+                members.push((META, ArrayRef::string(&meta)));
+                npy::write_npz(&path, &members)?;
+                written.push(Written { path, about: format!("L, {n} x 3 ({})", l.basis()) });
+            }
+            (Item::Lstar, _) => {
+                let t = &transfer.as_ref().expect("loaded for lstar").matrix;
+                let light = &lighting.as_ref().expect("loaded for lstar").light;
+                let moments = exp.file.runtime.light_moments;
+                let frames = geometry.as_ref().expect("loaded for lstar").transfer.frames();
+                let exact = pipeline::uncompressed_product(t, light, moments.then_some(frames))?;
+                let lstar = LocalRadiance::from_f64(t.local_basis(), t.vertices(), &exact)?;
+                let path = dir.join("lstar.npz");
+                write_lstar(exp, &lstar, t.light_basis(), moments, &path)?;
+                written.push(Written {
+                    path,
+                    about: format!(
+                        "the uncompressed L*{}, {} x 3 ({} vertices x {})",
+                        if moments { " (light moments)" } else { " = T L" },
+                        lstar.values().len(),
+                        t.vertices(),
+                        t.local_basis()
+                    ),
+                });
+            }
+            (Item::Forms, _) => {
+                let t = transfer.as_ref().expect("loaded for forms");
+                for setting in exp.compressor_settings() {
+                    let compressor = pipeline::build_compressor(setting)?;
+                    let (form, _) = pipeline::compressed_form(
+                        setting,
+                        compressor.as_ref(),
+                        &t.matrix,
+                        &t.key,
+                        exp.file.seed,
+                        cache.as_ref(),
+                    )?;
+                    let path = dir.join(format!("form-{}.npz", file_stem(&setting.label)));
+                    write_form(exp, &form, &setting.label, &setting.params, &path)?;
+                    written.push(Written {
+                        path,
+                        about: format!(
+                            "{} form ({}), {:.2} MB in {} arrays",
+                            form.kind,
+                            setting.label,
+                            form.bytes() as f64 / 1e6,
+                            form.arrays.len()
+                        ),
+                    });
+                }
+            }
+            (Item::Btf, _) => {
+                let local_basis = exp.transfer_settings().local_basis();
+                for cfg in exp.materials() {
+                    let label = cfg.label();
+                    let (btf, _) = crate::materials::material_btf(&cfg, local_basis, cache.as_ref(), &label)?;
+                    let path = dir.join(format!("btf-{}.npz", file_stem(&label)));
+                    write_btf(exp, &cfg, &label, &btf, &path)?;
+                    let [w, h] = btf.spatial();
+                    written.push(Written {
+                        path,
+                        about: format!(
+                            "BTF of {label}: {w}x{h} texels x {} views x {} lights",
+                            btf.view_count(),
+                            btf.light_count()
+                        ),
+                    });
+                }
+            }
+        }
+    }
+    Ok(written)
+}
+
+/// `lstar.npz`: `L*` as (V*M) x 3 float32 rows `v*M + j`, with the local basis's directions.
+fn write_lstar(exp: &Experiment, lstar: &LocalRadiance, light: LightBasis, moments: bool, path: &Path) -> Result<()> {
+    let shape = TransferShape::new(lstar.vertices(), lstar.basis(), light);
+    let (dirs, cosines) = local_directions(lstar.basis());
+    let meta = merge(
+        meta_header(exp, "lstar"),
+        json!({
+            "shape": shape_meta(shape),
+            "product": if moments { "light_moments" } else { "paper" },
+            "product_about": if moments {
+                "the light moments' L* ([runtime] light_moments = true): every texel weighted by its own cosine, resolved per bin; not T L"
+            } else {
+                "L* = T L, each row accumulated in f64 and rounded to f32"
+            },
+            "rows_are": "row v*M + j: vertex v (mesh order), local direction j",
+            "units": "power through local bin j (radiance integrated over the bin's solid angle), linear RGB",
+        }),
+    );
+    let rows = lstar.values().len();
+    let m = lstar.local_dirs();
+    let mut members = vec![("lstar", ArrayRef::new(&[rows, 3], Elements::F32(lstar.values().as_flattened())))];
+    if !dirs.is_empty() {
+        members.push(("local_directions", ArrayRef::new(&[m, 3], Elements::F32(&dirs))));
+        members.push(("local_mean_cosines", ArrayRef::flat(Elements::F64(&cosines))));
+    }
+    members.push((META, ArrayRef::string(&meta)));
+    Ok(npy::write_npz(path, &members)?)
+}
+
+fn elements_of(data: &ArrayData) -> Elements<'_> {
+    match data {
+        ArrayData::U8(v) => Elements::U8(v),
+        ArrayData::I8(v) => Elements::I8(v),
+        ArrayData::U16(v) => Elements::U16(v),
+        ArrayData::I16(v) => Elements::I16(v),
+        ArrayData::U32(v) => Elements::U32(v),
+        ArrayData::F32(v) => Elements::F32(v),
+    }
+}
+
+/// `form-<label>.npz`: every array of `form` under its own name and type, and [`META`].
+pub fn write_form(exp: &Experiment, form: &CompressedForm, label: &str, params: &Value, path: &Path) -> Result<()> {
+    if let Some(a) = form.arrays.iter().find(|a| a.name == META) {
+        return Err(PipelineError::Mismatch {
+            path: path.into(),
+            what: format!("the {} form has an array called '{}', the name of the metadata", form.kind, a.name),
+        });
+    }
+    let meta = merge(
+        meta_header(exp, "form"),
+        json!({
+            "kind": form.kind,
+            "label": label,
+            "params": params,
+            "shape": shape_meta(form.shape()),
+            "meta": form.meta,
+            "lossless": form.lossless,
+            "flops_per_gather": form.flops_per_gather,
+            "build_seconds": form.build_seconds,
+            "bytes": form.bytes(),
+            "arrays": form.arrays.iter().map(|a| json!({"name": a.name, "dtype": a.data.element_type()})).collect::<Vec<_>>(),
+        }),
+    );
+    let mut members: Vec<(&str, ArrayRef<'_>)> =
+        form.arrays.iter().map(|a| (a.name.as_str(), ArrayRef::flat(elements_of(&a.data)))).collect();
+    members.push((META, ArrayRef::string(&meta)));
+    Ok(npy::write_npz(path, &members)?)
+}
+
+/// `btf-<material>.npz`: the dense table as `data[ty, tx, view, light, rgb]` with its grids.
+fn write_btf(
+    exp: &Experiment,
+    cfg: &MaterialConfig,
+    label: &str,
+    btf: &biscale_core::scene::Btf,
+    path: &Path,
+) -> Result<()> {
+    let [w, h] = btf.spatial();
+    let (v, m) = (btf.view_count(), btf.light_count());
+    let (light_dirs, cosines) = local_directions(btf.local_basis());
+    let view_dirs: Vec<f32> =
+        btf.view_grid().map_or(vec![], |g| (0..g.len() as u32).flat_map(|j| g.bin_direction(j).to_array()).collect());
+    let meta = merge(
+        meta_header(exp, "btf"),
+        json!({
+            "material": label,
+            "name": btf.name(),
+            "spatial": [w, h],
+            "texels": btf.texel_count(),
+            "views": v,
+            "lights": m,
+            "local_basis": btf.local_basis().tag(),
+            "light_grid": btf.local_basis().grid().map(|g| g.m),
+            "view_grid": btf.view_grid().map(|g| g.m),
+            "tiling": cfg.tiling(),
+            "representations": cfg.representations().all().iter().map(|r| r.label()).collect::<Vec<_>>(),
+            "layout": "data[ty, tx, view, light, rgb]; texel = ty * width + tx; view: bins of view_grid (one view when view_grid is null: no view axis); light: bins of the local basis (the rows j of L*)",
+            "values_are": "b(u, e, d_j): outgoing radiance towards view e under unit perpendicular irradiance from bin j, the bin's mean cosine included; pixel = sum_j b_j L*_j",
+            "note": "the dense table as the run tabulates it (its stored encoding); a compressed representation (lpca) is built from it",
+        }),
+    );
+    let mut members =
+        vec![("data", ArrayRef::new(&[h as usize, w as usize, v, m, 3], Elements::F32(btf.data().as_flattened())))];
+    if !light_dirs.is_empty() {
+        members.push(("light_directions", ArrayRef::new(&[m, 3], Elements::F32(&light_dirs))));
+        members.push(("light_mean_cosines", ArrayRef::flat(Elements::F64(&cosines))));
+    }
+    if !view_dirs.is_empty() {
+        members.push(("view_directions", ArrayRef::new(&[v, 3], Elements::F32(&view_dirs))));
+    }
+    members.push((META, ArrayRef::string(&meta)));
+    Ok(npy::write_npz(path, &members)?)
+}
+
+/// What `biscale eval` scores.
+#[derive(Clone, Debug)]
+pub enum EvalInput {
+    /// An `L*`: `.npy` (float32 or float64, `(V*M, 3)` or `(V, M, 3)`) or `.npz` (array
+    /// `lstar`, or its only array; [`META`] checked when present).
+    Lstar(PathBuf),
+    /// A compressed form of a built-in kind (`.npz` as `export` or `biscale_io.save_form`
+    /// write it), gathered by that compressor's CPU gather.
+    Form(PathBuf),
+}
+
+impl EvalInput {
+    pub fn path(&self) -> &Path {
+        match self {
+            EvalInput::Lstar(p) | EvalInput::Form(p) => p,
+        }
+    }
+}
+
+/// The [`META`] object of a file, if it has one.
+fn meta_of(path: &Path, arrays: &[(String, NpyArray)]) -> Result<Option<serde_json::Map<String, Value>>> {
+    let Some((_, a)) = arrays.iter().find(|(n, _)| n == META) else { return Ok(None) };
+    let bad = |what: String| PipelineError::Mismatch { path: path.into(), what: format!("array '{META}': {what}") };
+    let NpyData::Str(text) = &a.data else {
+        return Err(bad(format!("is {}, not a JSON string", a.data.dtype_name())));
+    };
+    match serde_json::from_str(text) {
+        Ok(Value::Object(m)) => Ok(Some(m)),
+        Ok(_) => Err(bad("is not a JSON object".into())),
+        Err(e) => Err(bad(format!("is not JSON: {e}"))),
+    }
+}
+
+/// An error unless the shape a file's metadata states (`shape.vertices`, `local_basis`,
+/// `light_basis`) is `want`.
+fn check_meta_shape(path: &Path, meta: &serde_json::Map<String, Value>, want: TransferShape) -> Result<()> {
+    let Some(shape) = meta.get("shape") else { return Ok(()) };
+    let mismatch = |what: String| PipelineError::Mismatch { path: path.into(), what };
+    let field = |k: &str| shape.get(k).and_then(Value::as_str).map(str::to_string);
+    if let Some(tag) = field("local_basis") {
+        let local = LocalBasis::parse(&tag).map_err(|e| mismatch(format!("metadata 'local_basis': {e}")))?;
+        if local != want.local {
+            return Err(mismatch(format!(
+                "was written for a local basis of {local} ({tag}), this config's T has {} ({}): another [transfer] local_grid?",
+                want.local,
+                want.local.tag()
+            )));
+        }
+    }
+    if let Some(tag) = field("light_basis") {
+        let light = LightBasis::parse(&tag).map_err(|e| mismatch(format!("metadata 'light_basis': {e}")))?;
+        if light != want.light {
+            return Err(mismatch(format!(
+                "was written for a light basis of {light} ({tag}), this config's T has {} ({}): another [transfer] cubemap_resolution?",
+                want.light,
+                want.light.tag()
+            )));
+        }
+    }
+    if let Some(v) = shape.get("vertices").and_then(Value::as_u64) {
+        if v != want.vertices as u64 {
+            return Err(mismatch(format!(
+                "was written for {v} vertices, this config's mesh has {} (another mesh?)",
+                want.vertices
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Read an external `L*` and check it against the config's shape: every mistake is an error
+/// naming the file, the array and what the config needs. Returns the `L*` and what was read
+/// (for the record's `params`).
+pub fn read_lstar(path: &Path, want: TransferShape, light_moments: bool) -> Result<(LocalRadiance, Value)> {
+    let mismatch = |what: String| PipelineError::Mismatch { path: path.into(), what };
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+    let (name, array, meta) = match ext {
+        "npy" => ("array".to_string(), npy::read_npy(path)?, None),
+        "npz" => {
+            let arrays = npy::read_npz(path)?;
+            let meta = meta_of(path, &arrays)?;
+            let data: Vec<&(String, NpyArray)> = arrays.iter().filter(|(n, _)| n != META).collect();
+            let chosen = match data.iter().find(|(n, _)| n == "lstar") {
+                Some(a) => *a,
+                None if data.len() == 1 => data[0],
+                None => {
+                    let names: Vec<&str> = data.iter().map(|(n, _)| n.as_str()).collect();
+                    return Err(mismatch(format!(
+                        "has no array 'lstar' (arrays: {}); save L* as 'lstar' (biscale_io.save_lstar does)",
+                        if names.is_empty() { "none".to_string() } else { names.join(", ") }
+                    )));
+                }
+            };
+            (format!("array '{}'", chosen.0), chosen.1.clone(), meta)
+        }
+        _ => return Err(mismatch("an L* must be a .npy or .npz file".into())),
+    };
+    if let Some(meta) = &meta {
+        if let Some(what) = meta.get("what").and_then(Value::as_str).filter(|w| *w != "lstar") {
+            return Err(mismatch(format!("holds a '{what}' export, not an L* (use --form for a compressed form)")));
+        }
+        check_meta_shape(path, meta, want)?;
+        let product = meta.get("product").and_then(Value::as_str);
+        let ours = if light_moments { "light_moments" } else { "paper" };
+        if product.is_some_and(|p| p != ours) {
+            eprintln!(
+                "warning: {}: an L* of the '{}' product, this config's uncompressed L* is the '{ours}' one (runtime.light_moments); scored as it is",
+                path.display(),
+                product.unwrap_or_default()
+            );
+        }
+    }
+    let (v, m) = (want.vertices, want.local_dirs());
+    let rows = want.rows();
+    let fits = array.shape == [rows, 3] || array.shape == [v, m, 3];
+    if !fits {
+        let mut what = format!(
+            "{name} has shape {}, this config's L* is ({rows}, 3): rows v*M + j for {v} vertices x M = {m} ({}), RGB; or ({v}, {m}, 3)",
+            array.shape_text(),
+            want.local
+        );
+        match array.shape[..] {
+            [.., c] if c != 3 => what += &format!("; the last axis must be the 3 RGB channels, not {c}"),
+            [r, 3] if r % m == 0 => {
+                what += &format!("; its {r} rows are {} vertices of {m} (another mesh or local_grid?)", r / m)
+            }
+            [a, b, 3] if (a, b) != (v, m) => {
+                what += &format!("; {a} vertices x {b} local directions (another mesh or local_grid?)")
+            }
+            _ => {}
+        }
+        return Err(mismatch(what));
+    }
+    let (values, dtype): (Vec<f32>, &str) = match array.data {
+        NpyData::F32(v) => (v, "float32"),
+        NpyData::F64(v) => (v.into_iter().map(|x| x as f32).collect(), "float64, rounded to float32"),
+        other => {
+            return Err(mismatch(format!("{name} is {}; an L* must be float32 or float64", other.dtype_name())));
+        }
+    };
+    if let Some(i) = values.iter().position(|x| !x.is_finite()) {
+        let (row, c) = (i / 3, i % 3);
+        return Err(mismatch(format!(
+            "{name}: row {row} (vertex {}, local direction {}), channel {} is {} (not finite)",
+            row / m,
+            row % m,
+            ["R", "G", "B"][c],
+            values[i]
+        )));
+    }
+    let rgb: Vec<[f32; 3]> = values.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    let lstar = LocalRadiance::new(want.local, v, rgb)?;
+    let about = json!({
+        "source": "external L*",
+        "file": std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf()).display().to_string(),
+        "array": name.strip_prefix("array '").and_then(|n| n.strip_suffix('\'')),
+        "dtype": dtype,
+    });
+    Ok((lstar, about))
+}
+
+/// A compressed form read from `.npz`, with the label and parameters its metadata gives.
+pub struct ReadForm {
+    pub form: CompressedForm,
+    pub label: Option<String>,
+    pub params: Option<Value>,
+}
+
+/// Read a compressed form written by `export` (or `biscale_io.save_form`) and check its shape
+/// against `want`.
+pub fn read_form(path: &Path, want: TransferShape) -> Result<ReadForm> {
+    let mismatch = |what: String| PipelineError::Mismatch { path: path.into(), what };
+    let arrays = npy::read_npz(path)?;
+    let meta = meta_of(path, &arrays)?.ok_or_else(|| {
+        mismatch(format!(
+            "has no '{META}' metadata: a form needs its kind, shape and meta (write it with `biscale export --what forms` or biscale_io.save_form)"
+        ))
+    })?;
+    if let Some(what) = meta.get("what").and_then(Value::as_str).filter(|w| *w != "form") {
+        return Err(mismatch(format!("holds a '{what}' export, not a compressed form")));
+    }
+    let kind = meta.get("kind").and_then(Value::as_str).ok_or_else(|| mismatch("metadata has no 'kind'".into()))?;
+    check_meta_shape(path, &meta, want)?;
+    if meta.get("shape").and_then(|s| s.get("local_basis")).is_none() {
+        return Err(mismatch("metadata 'shape' has no 'local_basis' and 'light_basis'".into()));
+    }
+    let mut form = CompressedForm::new(kind, want);
+    if let Some(m) = meta.get("meta") {
+        let m = m.as_object().ok_or_else(|| mismatch("metadata 'meta' is not an object".into()))?;
+        for (k, v) in m {
+            let v = v.as_u64().ok_or_else(|| mismatch(format!("metadata meta.{k} is {v}, not an integer >= 0")))?;
+            form.meta.insert(k.clone(), v);
+        }
+    }
+    form.lossless = meta.get("lossless").and_then(Value::as_bool).unwrap_or(false);
+    form.flops_per_gather = meta.get("flops_per_gather").and_then(Value::as_u64).unwrap_or(0);
+    form.build_seconds = meta.get("build_seconds").and_then(Value::as_f64).unwrap_or(0.0);
+    let data: Vec<&(String, NpyArray)> = arrays.iter().filter(|(n, _)| n != META).collect();
+    let order: Vec<String> = match meta.get("arrays").and_then(Value::as_array) {
+        Some(list) => list
+            .iter()
+            .map(|a| a.get("name").or(Some(a)).and_then(Value::as_str).map(str::to_string))
+            .collect::<Option<_>>()
+            .ok_or_else(|| mismatch("metadata 'arrays' is not a list of names".into()))?,
+        None => data.iter().map(|(n, _)| n.clone()).collect(),
+    };
+    if let Some((extra, _)) = data.iter().find(|(n, _)| !order.contains(n)) {
+        return Err(mismatch(format!("array '{extra}' is not in the metadata's array list {order:?}")));
+    }
+    for name in &order {
+        let (_, a) = data
+            .iter()
+            .find(|(n, _)| n == name)
+            .ok_or_else(|| mismatch(format!("the metadata lists array '{name}', the file has no such array")))?;
+        let d = match a.data.clone() {
+            NpyData::U8(v) => ArrayData::U8(v),
+            NpyData::I8(v) => ArrayData::I8(v),
+            NpyData::U16(v) => ArrayData::U16(v),
+            NpyData::I16(v) => ArrayData::I16(v),
+            NpyData::U32(v) => ArrayData::U32(v),
+            NpyData::F32(v) => ArrayData::F32(v),
+            other => {
+                return Err(mismatch(format!(
+                    "array '{name}' is {}; a form's arrays are uint8, int8, uint16, int16, uint32 or float32",
+                    other.dtype_name()
+                )))
+            }
+        };
+        form.arrays.push(NamedArray { name: name.clone(), data: d });
+    }
+    let label = meta.get("label").and_then(Value::as_str).map(str::to_string);
+    let params = meta.get("params").filter(|p| p.is_object()).cloned();
+    Ok(ReadForm { form, label, params })
+}
+
+/// Names the run's own images take, which an evaluated setting may not.
+const TAKEN_NAMES: [&str; 5] = ["uncompressed", "uncompressed_paper", "reference", "mask", "reference_mask"];
+
+/// `biscale eval`: render and score `input` for `exp` as a run scores a compressor setting
+/// (the same [`Evaluation`]: `L*` error against the f64 product, image errors against the
+/// uncompressed render and, when the config traces one, the reference), and write the output
+/// folder (default `out/<name>-eval-<NAME>/`, replaced whole as a run's is): `metrics.json`
+/// and `metrics.csv` with one record in `compressors`, `images/` (the setting's image, its
+/// error figure, the uncompressed render, the reference, the masks). CPU only; the BTF study
+/// and `[[methods]]` are left out.
+pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
+    let config_text = std::fs::read_to_string(&exp.config_path)
+        .map_err(|source| PipelineError::Io { path: exp.config_path.clone(), source })?;
+    let mut clock = crate::provenance::StageClock::start(&config_text, exp.file.seed);
+    let path = input.path();
+    let geometry = pipeline::load_geometry(exp)?;
+    let want = exp.transfer_settings().shape(geometry.mesh.vertex_count());
+    // Read and check the input before any heavy work.
+    enum Loaded {
+        Lstar(LocalRadiance, Value),
+        Form(ReadForm),
+    }
+    let loaded = match input {
+        EvalInput::Lstar(p) => {
+            let (lstar, about) = read_lstar(p, want, exp.file.runtime.light_moments)?;
+            Loaded::Lstar(lstar, about)
+        }
+        EvalInput::Form(p) => Loaded::Form(read_form(p, want)?),
+    };
+    let default_name = match &loaded {
+        Loaded::Form(f) => f.label.clone(),
+        Loaded::Lstar(..) => None,
+    }
+    .unwrap_or_else(|| {
+        let stem = path.file_stem().map_or("external".into(), |s| s.to_string_lossy().into_owned());
+        stem.strip_prefix("form-").map_or(stem.clone(), str::to_string)
+    });
+    let name = name.map_or(default_name, str::to_string);
+    if name.is_empty() || !name.chars().all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c)) {
+        return Err(PipelineError::Mismatch {
+            path: path.into(),
+            what: format!("--name {name:?}: use letters, digits, '-', '_' and '.' (it names the images)"),
+        });
+    }
+    if TAKEN_NAMES.contains(&name.as_str()) {
+        return Err(PipelineError::Mismatch {
+            path: path.into(),
+            what: format!("--name {name}: the run's own images are called so; choose another name"),
+        });
+    }
+    // The compressor of a form: a built-in kind, with the config's parameters for that label
+    // when it has them, else the file's, else the kind's defaults (a gather reads the form's
+    // own arrays and meta, not the parameters).
+    let compressor = match &loaded {
+        Loaded::Lstar(..) => None,
+        Loaded::Form(f) => {
+            let kind = f.form.kind.as_str();
+            let builtin = biscale_compressors::registry::find(kind).filter(|k| k.name != "plugin");
+            if builtin.is_none() {
+                let names: Vec<&str> =
+                    biscale_compressors::registry::names().into_iter().filter(|k| *k != "plugin").collect();
+                return Err(PipelineError::Mismatch {
+                    path: path.into(),
+                    what: format!(
+                        "a form of kind '{kind}': eval --form gathers built-in kinds only ({})",
+                        names.join(", ")
+                    ),
+                });
+            }
+            let from_config = exp
+                .compressor_settings()
+                .iter()
+                .find(|s| s.kind == kind && f.label.as_deref() == Some(s.label.as_str()))
+                .map(|s| s.params.clone());
+            let candidates = [from_config, f.params.clone(), Some(json!({}))];
+            let (params, compressor) = candidates
+                .into_iter()
+                .flatten()
+                .find_map(|p| biscale_compressors::registry::build(kind, &p).ok().map(|c| (p, c)))
+                .ok_or_else(|| PipelineError::Mismatch {
+                    path: path.into(),
+                    what: format!("the {kind} compressor could not be built"),
+                })?;
+            let kernels = compressor
+                .kernels(&f.form)
+                .map_err(|source| PipelineError::Compress { name: format!("{name} ({})", path.display()), source })?;
+            kernels.check_form(&f.form).map_err(|e| PipelineError::Compress {
+                name: format!("{name} ({})", path.display()),
+                source: e.into(),
+            })?;
+            Some((CompressorSetting { label: name.clone(), kind: kind.to_string(), params }, compressor))
+        }
+    };
+    clock.mark("input");
+
+    let target = opts.out_dir.clone().unwrap_or_else(|| Path::new("out").join(format!("{}-eval-{name}", exp.name())));
+    let cache = StageCache::new(opts, &target);
+    if let Some(c) = &cache {
+        let inside = |d: &Path| std::path::absolute(d).unwrap_or_else(|_| d.to_path_buf());
+        if inside(c.dir()).starts_with(inside(&target)) {
+            return Err(PipelineError::Mismatch {
+                path: c.dir().to_path_buf(),
+                what: format!(
+                    "the cache folder lies inside the output folder {}, which eval replaces whole; put it elsewhere",
+                    target.display()
+                ),
+            });
+        }
+    }
+    let staged = StagedDir::begin(&target, &format!("biscale eval {} {}", exp.config_path.display(), path.display()))?;
+    let out_dir = staged.path().to_path_buf();
+    let images_dir = out_dir.join("images");
+    std::fs::create_dir_all(&images_dir).map_err(|source| PipelineError::Io { path: images_dir.clone(), source })?;
+
+    let lighting = pipeline::load_lighting(exp)?;
+    let t = pipeline::transfer_matrix(exp, &geometry, cache.as_ref())?;
+    clock.mark("transfer");
+    let (scene, materials) = pipeline::shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
+    let repeats = exp.file.runtime.repeats;
+    let exposure = exp.file.report.exposure;
+    let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
+    let moments = match exp.file.runtime.light_moments {
+        true => Some(biscale_core::gather::moments::LightMoments::new(&lighting.light)?),
+        false => None,
+    };
+    let frames = geometry.transfer.frames();
+    let base = pipeline::baseline(&t.matrix, &lighting, moments.as_ref().map(|_| frames), &view, repeats)?;
+    pipeline::save_images(&base.render.image, &images_dir, "uncompressed", exposure)?;
+    base.render.write_mask_png(&images_dir.join("mask.png"))?;
+    clock.mark("uncompressed baseline");
+    let reference = match Plan::new(exp).reference {
+        true => {
+            let r = pipeline::reference(exp, &geometry, &view, &lighting, &base)?;
+            pipeline::save_images(&r.render.image, &images_dir, "reference", exposure)?;
+            r.render.write_mask_png(&images_dir.join("reference_mask.png"))?;
+            clock.mark("reference");
+            Some(r)
+        }
+        false => None,
+    };
+    let evaluation = Evaluation {
+        t: &t.matrix,
+        light: &lighting.light,
+        moments: moments.as_ref().map(|m| (m, frames)),
+        exact: &base.exact,
+        baseline: &base.render,
+        view: &view,
+        reference: reference.as_ref(),
+        repeats,
+        exposure,
+        out_dir: &out_dir,
+        shared_error_scale: false,
+    };
+    let record = match (loaded, compressor) {
+        (Loaded::Form(f), Some((setting, compressor))) => {
+            evaluation.record(&setting, compressor.as_ref(), &f.form, false, None)?.0
+        }
+        (Loaded::Lstar(lstar, about), _) => score_lstar(&evaluation, &name, &lstar, about, t.matrix.nnz())?,
+        (Loaded::Form(_), None) => unreachable!("a form has its compressor"),
+    };
+    clock.mark(format!("evaluate {name}"));
+    let mut metrics = Metrics::of_run(
+        exp,
+        &geometry,
+        &lighting,
+        &materials,
+        t.metrics,
+        &base,
+        reference.as_ref(),
+        vec![record],
+        vec![],
+    );
+    metrics.run = Some(clock.finish());
+    let json = serde_json::to_string_pretty(&metrics).expect("metrics serialize");
+    write_atomic_bytes(&out_dir.join("metrics.json"), json.as_bytes())?;
+    write_atomic_bytes(&out_dir.join("metrics.csv"), metrics.to_csv().as_bytes())?;
+    let out_dir = staged.commit()?;
+    crate::note!("wrote {}", out_dir.display());
+    Ok((out_dir, metrics))
+}
+
+/// The record of an external `L*`: scored by [`Evaluation::score`]; no gather (it was read),
+/// storage the `L*` itself (float32 RGB per row), never lossless (there is no claim to check).
+fn score_lstar(
+    evaluation: &Evaluation<'_>,
+    name: &str,
+    lstar: &LocalRadiance,
+    about: Value,
+    nnz: usize,
+) -> Result<CompressorRecord> {
+    let (mut record, _) = evaluation.score(name, lstar, 0.0)?;
+    let bytes = (lstar.values().len() * 3 * 4) as u64;
+    record.kind = "lstar".into();
+    record.params = about;
+    record.bytes = bytes;
+    record.bytes_by_array = [("lstar".to_string(), bytes)].into();
+    record.bytes_per_nnz = bytes as f64 / nnz.max(1) as f64;
+    crate::note!("{name}: external L*, rel. error of L* {:.2e}", record.rel_error_lstar);
+    Ok(record)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn what_lists_parse_and_unknown_items_are_refused() {
+        let s = |v: &[&str]| v.iter().map(|x| x.to_string()).collect::<Vec<_>>();
+        assert_eq!(Item::parse_list(&[], ExportFormat::Npz).unwrap(), Item::ALL.to_vec());
+        assert_eq!(Item::parse_list(&[], ExportFormat::Mtx).unwrap(), vec![Item::T, Item::L]);
+        assert_eq!(
+            Item::parse_list(&s(&["btf,t", "t"]), ExportFormat::Npz).unwrap(),
+            vec![Item::T, Item::Btf],
+            "sorted, each once"
+        );
+        let e = Item::parse_list(&s(&["t,lstr"]), ExportFormat::Npz).unwrap_err();
+        assert_eq!(e, "--what: unknown item 'lstr' (known: t, l, lstar, forms, btf)");
+        let e = Item::parse_list(&s(&["t,forms"]), ExportFormat::Mtx).unwrap_err();
+        assert!(e.contains("--format mtx writes t and l only"), "{e}");
+    }
+
+    #[test]
+    fn labels_become_plain_file_names() {
+        assert_eq!(file_stem("cpca-k4-c2"), "cpca-k4-c2");
+        assert_eq!(file_stem("plugin:x/y z"), "plugin_x_y_z");
+    }
+}

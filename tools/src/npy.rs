@@ -1,0 +1,973 @@
+//! NumPy's file formats, written and read without Python: `.npy` (one array) and `.npz` (a
+//! zip archive of `.npy` files, what `numpy.savez` writes), for `biscale export` and
+//! `biscale eval` (`crate::interop`).
+//!
+//! * **`.npy`** (format 1.0, or 2.0 when the header passes 64 KiB): the magic `\x93NUMPY`, the
+//!   version, a little-endian header length, and a Python dict literal
+//!   `{'descr': '<f4', 'fortran_order': False, 'shape': (3, 4), }` padded with spaces to a
+//!   multiple of 64 bytes and ended by a newline; then the elements in C order. We write
+//!   little-endian numbers (`|u1 |i1 <u2 <i2 <u4 <i4 <u8 <i8 <f4 <f8`) and 0-d Unicode strings
+//!   (`<Un`, UTF-32), and read those plus big-endian and native byte orders, booleans (as
+//!   `u8`), byte strings (`|Sn`), format versions 1 to 3 and Fortran-ordered arrays
+//!   (reordered to C order).
+//! * **`.npz`**: a zip archive, member `name.npy` per array. We write stored (uncompressed)
+//!   members with fixed timestamps, so equal arrays give equal files, and ZIP64 records only
+//!   where a size or an offset passes 4 GiB; we read stored and deflated members (what
+//!   `numpy.savez_compressed` writes) with or without ZIP64 (`numpy.savez` always writes
+//!   ZIP64 extra fields), checking every CRC.
+//!
+//! Every read is bounds-checked: a truncated or inconsistent file is an [`NpyError`] naming
+//! the file, the member and what is wrong, never a panic.
+
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+
+/// Why a NumPy file could not be written or read; each names the file (and the member of an
+/// archive).
+#[derive(Debug, thiserror::Error)]
+pub enum NpyError {
+    #[error("{}: {source}", path.display())]
+    Io { path: PathBuf, source: std::io::Error },
+    /// The file is not what it should be: `what` says what is wrong and where.
+    #[error("{}: {what}", path.display())]
+    Format { path: PathBuf, what: String },
+}
+
+fn format_err(path: &Path, what: impl Into<String>) -> NpyError {
+    NpyError::Format { path: path.to_path_buf(), what: what.into() }
+}
+
+/// An array's elements, owned.
+#[derive(Clone, Debug, PartialEq)]
+pub enum NpyData {
+    U8(Vec<u8>),
+    I8(Vec<i8>),
+    U16(Vec<u16>),
+    I16(Vec<i16>),
+    U32(Vec<u32>),
+    I32(Vec<i32>),
+    U64(Vec<u64>),
+    I64(Vec<i64>),
+    F32(Vec<f32>),
+    F64(Vec<f64>),
+    /// A 0-d string (`<Un` or `|Sn`).
+    Str(String),
+}
+
+/// An array read from a file: its shape (C order) and its elements.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NpyArray {
+    pub shape: Vec<usize>,
+    pub data: NpyData,
+}
+
+/// An array's elements, borrowed (what is written).
+#[derive(Clone, Copy, Debug)]
+pub enum Elements<'a> {
+    U8(&'a [u8]),
+    I8(&'a [i8]),
+    U16(&'a [u16]),
+    I16(&'a [i16]),
+    U32(&'a [u32]),
+    I32(&'a [i32]),
+    U64(&'a [u64]),
+    I64(&'a [i64]),
+    F32(&'a [f32]),
+    F64(&'a [f64]),
+    Str(&'a str),
+}
+
+/// One array to write: its shape and its elements in C order.
+#[derive(Clone, Debug)]
+pub struct ArrayRef<'a> {
+    pub shape: Vec<usize>,
+    pub elements: Elements<'a>,
+}
+
+impl<'a> ArrayRef<'a> {
+    /// An array of `shape` (its elements must fill it: checked when written).
+    pub fn new(shape: &[usize], elements: Elements<'a>) -> Self {
+        Self { shape: shape.to_vec(), elements }
+    }
+
+    /// A 1-d array of every element.
+    pub fn flat(elements: Elements<'a>) -> Self {
+        let n = match elements {
+            Elements::Str(_) => return Self { shape: vec![], elements },
+            e => e.len(),
+        };
+        Self { shape: vec![n], elements }
+    }
+
+    /// A 0-d Unicode string (`numpy.array("...")`).
+    pub fn string(s: &'a str) -> Self {
+        Self { shape: vec![], elements: Elements::Str(s) }
+    }
+}
+
+impl Elements<'_> {
+    /// Number of elements (1 for a string).
+    pub fn len(&self) -> usize {
+        match self {
+            Elements::U8(v) => v.len(),
+            Elements::I8(v) => v.len(),
+            Elements::U16(v) => v.len(),
+            Elements::I16(v) => v.len(),
+            Elements::U32(v) => v.len(),
+            Elements::I32(v) => v.len(),
+            Elements::U64(v) => v.len(),
+            Elements::I64(v) => v.len(),
+            Elements::F32(v) => v.len(),
+            Elements::F64(v) => v.len(),
+            Elements::Str(_) => 1,
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// NumPy's type string (`<f4`, ...).
+    fn descr(&self) -> String {
+        match self {
+            Elements::U8(_) => "|u1".into(),
+            Elements::I8(_) => "|i1".into(),
+            Elements::U16(_) => "<u2".into(),
+            Elements::I16(_) => "<i2".into(),
+            Elements::U32(_) => "<u4".into(),
+            Elements::I32(_) => "<i4".into(),
+            Elements::U64(_) => "<u8".into(),
+            Elements::I64(_) => "<i8".into(),
+            Elements::F32(_) => "<f4".into(),
+            Elements::F64(_) => "<f8".into(),
+            Elements::Str(s) => format!("<U{}", s.chars().count().max(1)),
+        }
+    }
+
+    /// Bytes of the elements as stored.
+    fn data_bytes(&self) -> u64 {
+        let width = match self {
+            Elements::U8(_) | Elements::I8(_) => 1,
+            Elements::U16(_) | Elements::I16(_) => 2,
+            Elements::U32(_) | Elements::I32(_) | Elements::F32(_) => 4,
+            Elements::U64(_) | Elements::I64(_) | Elements::F64(_) => 8,
+            Elements::Str(s) => return 4 * s.chars().count().max(1) as u64,
+        };
+        width * self.len() as u64
+    }
+
+    /// Write the elements, little-endian, in chunks.
+    fn write_to(&self, w: &mut dyn Write) -> std::io::Result<()> {
+        fn chunks<T: Copy, const B: usize>(
+            v: &[T],
+            w: &mut dyn Write,
+            le: impl Fn(T) -> [u8; B],
+        ) -> std::io::Result<()> {
+            let mut buf = Vec::with_capacity(B * 8192);
+            for c in v.chunks(8192) {
+                buf.clear();
+                for &x in c {
+                    buf.extend_from_slice(&le(x));
+                }
+                w.write_all(&buf)?;
+            }
+            Ok(())
+        }
+        match *self {
+            Elements::U8(v) => w.write_all(v),
+            Elements::I8(v) => chunks(v, w, |x| x.to_le_bytes()),
+            Elements::U16(v) => chunks(v, w, |x| x.to_le_bytes()),
+            Elements::I16(v) => chunks(v, w, |x| x.to_le_bytes()),
+            Elements::U32(v) => chunks(v, w, |x| x.to_le_bytes()),
+            Elements::I32(v) => chunks(v, w, |x| x.to_le_bytes()),
+            Elements::U64(v) => chunks(v, w, |x| x.to_le_bytes()),
+            Elements::I64(v) => chunks(v, w, |x| x.to_le_bytes()),
+            Elements::F32(v) => chunks(v, w, |x| x.to_le_bytes()),
+            Elements::F64(v) => chunks(v, w, |x| x.to_le_bytes()),
+            Elements::Str(s) => {
+                let mut units: Vec<u32> = s.chars().map(u32::from).collect();
+                if units.is_empty() {
+                    units.push(0);
+                }
+                chunks(&units, w, |x| x.to_le_bytes())
+            }
+        }
+    }
+}
+
+impl NpyData {
+    /// The borrowed elements.
+    pub fn elements(&self) -> Elements<'_> {
+        match self {
+            NpyData::U8(v) => Elements::U8(v),
+            NpyData::I8(v) => Elements::I8(v),
+            NpyData::U16(v) => Elements::U16(v),
+            NpyData::I16(v) => Elements::I16(v),
+            NpyData::U32(v) => Elements::U32(v),
+            NpyData::I32(v) => Elements::I32(v),
+            NpyData::U64(v) => Elements::U64(v),
+            NpyData::I64(v) => Elements::I64(v),
+            NpyData::F32(v) => Elements::F32(v),
+            NpyData::F64(v) => Elements::F64(v),
+            NpyData::Str(s) => Elements::Str(s),
+        }
+    }
+
+    /// NumPy's name of the element type (`float32`, `uint16`, `str`, ...), for messages.
+    pub fn dtype_name(&self) -> &'static str {
+        match self {
+            NpyData::U8(_) => "uint8",
+            NpyData::I8(_) => "int8",
+            NpyData::U16(_) => "uint16",
+            NpyData::I16(_) => "int16",
+            NpyData::U32(_) => "uint32",
+            NpyData::I32(_) => "int32",
+            NpyData::U64(_) => "uint64",
+            NpyData::I64(_) => "int64",
+            NpyData::F32(_) => "float32",
+            NpyData::F64(_) => "float64",
+            NpyData::Str(_) => "str",
+        }
+    }
+
+    /// Number of elements (1 for a string).
+    pub fn len(&self) -> usize {
+        self.elements().len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+impl NpyArray {
+    /// The shape as NumPy prints it: `(3,)`, `(2, 3)`, `()`.
+    pub fn shape_text(&self) -> String {
+        shape_text(&self.shape)
+    }
+
+    /// The array viewed for writing.
+    pub fn as_ref(&self) -> ArrayRef<'_> {
+        ArrayRef { shape: self.shape.clone(), elements: self.data.elements() }
+    }
+}
+
+/// A shape as NumPy prints it.
+pub fn shape_text(shape: &[usize]) -> String {
+    match shape {
+        [n] => format!("({n},)"),
+        s => format!("({})", s.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(", ")),
+    }
+}
+
+/// The `.npy` header of `a` (magic, version, length, dict, padding): format 1.0 unless the
+/// dict needs more than 64 KiB.
+fn npy_header(a: &ArrayRef<'_>) -> Vec<u8> {
+    let shape = match a.shape.as_slice() {
+        [n] => format!("({n},)"),
+        s => format!("({})", s.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(", ")),
+    };
+    let dict = format!("{{'descr': '{}', 'fortran_order': False, 'shape': {shape}, }}", a.elements.descr());
+    // Magic (6) + version (2) + length (2 or 4) + dict + padding + '\n', a multiple of 64.
+    let (version, len_bytes) = if dict.len() + 11 < 65536 { (1u8, 2) } else { (2u8, 4) };
+    let unpadded = 6 + 2 + len_bytes + dict.len() + 1;
+    let total = unpadded.div_ceil(64) * 64;
+    let header_len = total - 6 - 2 - len_bytes;
+    let mut out = Vec::with_capacity(total);
+    out.extend_from_slice(b"\x93NUMPY");
+    out.extend_from_slice(&[version, 0]);
+    match version {
+        1 => out.extend_from_slice(&(header_len as u16).to_le_bytes()),
+        _ => out.extend_from_slice(&(header_len as u32).to_le_bytes()),
+    }
+    out.extend_from_slice(dict.as_bytes());
+    out.resize(total - 1, b' ');
+    out.push(b'\n');
+    out
+}
+
+fn check_fills(a: &ArrayRef<'_>, name: &str, path: &Path) -> Result<(), NpyError> {
+    let count = a.shape.iter().try_fold(1usize, |acc, &n| acc.checked_mul(n));
+    let wanted = match a.elements {
+        Elements::Str(_) if a.shape.is_empty() => 1,
+        Elements::Str(_) => return Err(format_err(path, format!("array '{name}': a string array must be 0-d"))),
+        e => e.len(),
+    };
+    if count != Some(wanted) {
+        return Err(format_err(
+            path,
+            format!("array '{name}': shape {} does not hold its {wanted} elements", shape_text(&a.shape)),
+        ));
+    }
+    Ok(())
+}
+
+/// Write one array as a `.npy` file, atomically (a temporary file, then a rename).
+pub fn write_npy(path: &Path, a: &ArrayRef<'_>) -> Result<(), NpyError> {
+    check_fills(a, "array", path)?;
+    let header = npy_header(a);
+    biscale_core::io::write_atomic(path, |f| {
+        f.write_all(&header).and_then(|()| a.elements.write_to(f)).map_err(|e| e.to_string())
+    })
+    .map_err(|e| format_err(path, e.to_string()))
+}
+
+/// A writer that counts what passes through.
+struct Counting<W> {
+    inner: W,
+    count: u64,
+}
+
+impl<W: Write> Write for Counting<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.count += n as u64;
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+/// One member's place in the archive, for the central directory.
+struct Entry {
+    name: String,
+    crc: u32,
+    size: u64,
+    offset: u64,
+}
+
+const U32_MAX: u64 = 0xFFFF_FFFF;
+/// The DOS date of every member: 1980-01-01, 00:00 (fixed, so equal arrays give equal files).
+const DOS_DATE: u16 = (1 << 5) | 1;
+
+/// Write `members` (name without `.npy`, array) as a `.npz` archive, atomically. Names must
+/// be plain (`[A-Za-z0-9_.-]`, not empty) and distinct.
+pub fn write_npz(path: &Path, members: &[(&str, ArrayRef<'_>)]) -> Result<(), NpyError> {
+    write_npz_with(path, members, false)
+}
+
+/// [`write_npz`], with ZIP64 records for every member when `force_zip64` (tests reach the
+/// ZIP64 path this way without writing 4 GiB).
+pub fn write_npz_with(path: &Path, members: &[(&str, ArrayRef<'_>)], force_zip64: bool) -> Result<(), NpyError> {
+    for (i, (name, a)) in members.iter().enumerate() {
+        let plain = !name.is_empty() && name.chars().all(|c| c.is_ascii_alphanumeric() || "_.-".contains(c));
+        if !plain {
+            return Err(format_err(path, format!("array name {name:?}: only letters, digits, '_', '.' and '-'")));
+        }
+        if members[..i].iter().any(|(n, _)| n == name) {
+            return Err(format_err(path, format!("two arrays are called '{name}'")));
+        }
+        check_fills(a, name, path)?;
+    }
+    biscale_core::io::write_atomic(path, |f| write_zip(f, members, force_zip64).map_err(|e| e.to_string()))
+        .map_err(|e| format_err(path, e.to_string()))
+}
+
+fn write_zip(f: &mut dyn Write, members: &[(&str, ArrayRef<'_>)], force_zip64: bool) -> std::io::Result<()> {
+    let mut out = Counting { inner: f, count: 0 };
+    let mut entries = vec![];
+    for (name, a) in members {
+        let header = npy_header(a);
+        // First pass: the CRC of the member (the local header comes before the data).
+        let mut crc = flate2::CrcWriter::new(std::io::sink());
+        crc.write_all(&header)?;
+        a.elements.write_to(&mut crc)?;
+        let size = header.len() as u64 + a.elements.data_bytes();
+        let entry = Entry { name: format!("{name}.npy"), crc: crc.crc().sum(), size, offset: out.count };
+        let zip64 = force_zip64 || size >= U32_MAX;
+        let mut local = vec![];
+        local.extend_from_slice(&0x0403_4b50u32.to_le_bytes());
+        local.extend_from_slice(&(if zip64 { 45u16 } else { 20 }).to_le_bytes());
+        local.extend_from_slice(&0u16.to_le_bytes()); // flags
+        local.extend_from_slice(&0u16.to_le_bytes()); // stored
+        local.extend_from_slice(&0u16.to_le_bytes()); // time
+        local.extend_from_slice(&DOS_DATE.to_le_bytes());
+        local.extend_from_slice(&entry.crc.to_le_bytes());
+        let small = if zip64 { U32_MAX as u32 } else { size as u32 };
+        local.extend_from_slice(&small.to_le_bytes());
+        local.extend_from_slice(&small.to_le_bytes());
+        local.extend_from_slice(&(entry.name.len() as u16).to_le_bytes());
+        local.extend_from_slice(&(if zip64 { 20u16 } else { 0 }).to_le_bytes());
+        local.extend_from_slice(entry.name.as_bytes());
+        if zip64 {
+            local.extend_from_slice(&1u16.to_le_bytes());
+            local.extend_from_slice(&16u16.to_le_bytes());
+            local.extend_from_slice(&size.to_le_bytes());
+            local.extend_from_slice(&size.to_le_bytes());
+        }
+        out.write_all(&local)?;
+        out.write_all(&header)?;
+        a.elements.write_to(&mut out)?;
+        entries.push(entry);
+    }
+    let cd_offset = out.count;
+    let mut any_zip64 = force_zip64 || entries.len() >= 0xFFFF;
+    for e in &entries {
+        let (big_size, big_offset) = (force_zip64 || e.size >= U32_MAX, force_zip64 || e.offset >= U32_MAX);
+        let mut extra = vec![];
+        if big_size {
+            extra.extend_from_slice(&e.size.to_le_bytes());
+            extra.extend_from_slice(&e.size.to_le_bytes());
+        }
+        if big_offset {
+            extra.extend_from_slice(&e.offset.to_le_bytes());
+        }
+        let zip64 = !extra.is_empty();
+        any_zip64 |= zip64;
+        let mut c = vec![];
+        c.extend_from_slice(&0x0201_4b50u32.to_le_bytes());
+        let version: u16 = if zip64 { 45 } else { 20 };
+        c.extend_from_slice(&version.to_le_bytes()); // made by
+        c.extend_from_slice(&version.to_le_bytes()); // needed
+        c.extend_from_slice(&0u16.to_le_bytes());
+        c.extend_from_slice(&0u16.to_le_bytes());
+        c.extend_from_slice(&0u16.to_le_bytes());
+        c.extend_from_slice(&DOS_DATE.to_le_bytes());
+        c.extend_from_slice(&e.crc.to_le_bytes());
+        let size = if big_size { U32_MAX as u32 } else { e.size as u32 };
+        c.extend_from_slice(&size.to_le_bytes());
+        c.extend_from_slice(&size.to_le_bytes());
+        c.extend_from_slice(&(e.name.len() as u16).to_le_bytes());
+        c.extend_from_slice(&(if zip64 { extra.len() as u16 + 4 } else { 0 }).to_le_bytes());
+        c.extend_from_slice(&0u16.to_le_bytes()); // comment
+        c.extend_from_slice(&0u16.to_le_bytes()); // disk
+        c.extend_from_slice(&0u16.to_le_bytes()); // internal attributes
+        c.extend_from_slice(&0u32.to_le_bytes()); // external attributes
+        let offset = if big_offset { U32_MAX as u32 } else { e.offset as u32 };
+        c.extend_from_slice(&offset.to_le_bytes());
+        c.extend_from_slice(e.name.as_bytes());
+        if zip64 {
+            c.extend_from_slice(&1u16.to_le_bytes());
+            c.extend_from_slice(&(extra.len() as u16).to_le_bytes());
+            c.extend_from_slice(&extra);
+        }
+        out.write_all(&c)?;
+    }
+    let cd_size = out.count - cd_offset;
+    any_zip64 |= cd_offset >= U32_MAX || cd_size >= U32_MAX;
+    let n = entries.len() as u64;
+    let mut end = vec![];
+    if any_zip64 {
+        let record = out.count;
+        end.extend_from_slice(&0x0606_4b50u32.to_le_bytes());
+        end.extend_from_slice(&44u64.to_le_bytes());
+        end.extend_from_slice(&45u16.to_le_bytes());
+        end.extend_from_slice(&45u16.to_le_bytes());
+        end.extend_from_slice(&0u32.to_le_bytes());
+        end.extend_from_slice(&0u32.to_le_bytes());
+        end.extend_from_slice(&n.to_le_bytes());
+        end.extend_from_slice(&n.to_le_bytes());
+        end.extend_from_slice(&cd_size.to_le_bytes());
+        end.extend_from_slice(&cd_offset.to_le_bytes());
+        end.extend_from_slice(&0x0706_4b50u32.to_le_bytes());
+        end.extend_from_slice(&0u32.to_le_bytes());
+        end.extend_from_slice(&record.to_le_bytes());
+        end.extend_from_slice(&1u32.to_le_bytes());
+    }
+    let clamp16 = |x: u64| if any_zip64 { 0xFFFF } else { x as u16 };
+    let clamp32 = |x: u64| if any_zip64 { U32_MAX as u32 } else { x as u32 };
+    end.extend_from_slice(&0x0605_4b50u32.to_le_bytes());
+    end.extend_from_slice(&0u16.to_le_bytes());
+    end.extend_from_slice(&0u16.to_le_bytes());
+    end.extend_from_slice(&clamp16(n).to_le_bytes());
+    end.extend_from_slice(&clamp16(n).to_le_bytes());
+    end.extend_from_slice(&clamp32(cd_size).to_le_bytes());
+    end.extend_from_slice(&clamp32(cd_offset).to_le_bytes());
+    end.extend_from_slice(&0u16.to_le_bytes());
+    out.write_all(&end)?;
+    Ok(())
+}
+
+/// Read a `.npy` file.
+pub fn read_npy(path: &Path) -> Result<NpyArray, NpyError> {
+    let bytes = std::fs::read(path).map_err(|source| NpyError::Io { path: path.into(), source })?;
+    parse_npy(&bytes).map_err(|what| format_err(path, what))
+}
+
+/// Read every array of a `.npz` file, in the archive's order, named without `.npy`.
+pub fn read_npz(path: &Path) -> Result<Vec<(String, NpyArray)>, NpyError> {
+    let bytes = std::fs::read(path).map_err(|source| NpyError::Io { path: path.into(), source })?;
+    let members =
+        zip_members(&bytes).map_err(|what| format_err(path, format!("not a readable .npz archive: {what}")))?;
+    let mut out = vec![];
+    for (name, data) in members {
+        let Some(stem) = name.strip_suffix(".npy") else {
+            return Err(format_err(path, format!("member '{name}' is not a .npy file")));
+        };
+        let array = parse_npy(&data).map_err(|what| format_err(path, format!("array '{stem}': {what}")))?;
+        out.push((stem.to_string(), array));
+    }
+    Ok(out)
+}
+
+/// A little-endian reader over a byte slice whose every read is bounds-checked.
+struct Cursor<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Cursor<'a> {
+    fn at(bytes: &'a [u8], pos: usize) -> Self {
+        Self { bytes, pos }
+    }
+    fn take(&mut self, n: usize) -> Result<&'a [u8], String> {
+        let end = self.pos.checked_add(n).filter(|&e| e <= self.bytes.len());
+        let end = end.ok_or_else(|| format!("truncated: needs {n} bytes at offset {}", self.pos))?;
+        let s = &self.bytes[self.pos..end];
+        self.pos = end;
+        Ok(s)
+    }
+    fn u16(&mut self) -> Result<u16, String> {
+        Ok(u16::from_le_bytes(self.take(2)?.try_into().expect("2 bytes")))
+    }
+    fn u32(&mut self) -> Result<u32, String> {
+        Ok(u32::from_le_bytes(self.take(4)?.try_into().expect("4 bytes")))
+    }
+    fn u64(&mut self) -> Result<u64, String> {
+        Ok(u64::from_le_bytes(self.take(8)?.try_into().expect("8 bytes")))
+    }
+}
+
+fn to_usize(x: u64, what: &str) -> Result<usize, String> {
+    usize::try_from(x).map_err(|_| format!("{what} {x} is too large"))
+}
+
+/// The members of a zip archive (name, uncompressed bytes), in central-directory order.
+fn zip_members(bytes: &[u8]) -> Result<Vec<(String, Vec<u8>)>, String> {
+    // The end of central directory record: 22 bytes plus a comment of up to 64 KiB.
+    let lowest = bytes.len().saturating_sub(22 + 65535);
+    let eocd = (lowest..=bytes.len().saturating_sub(22))
+        .rev()
+        .find(|&i| bytes[i..].starts_with(&0x0605_4b50u32.to_le_bytes()))
+        .ok_or("no end of central directory record")?;
+    let mut c = Cursor::at(bytes, eocd + 10);
+    let (mut count, mut cd_size, mut cd_offset) = (c.u16()? as u64, c.u32()? as u64, c.u32()? as u64);
+    if count == 0xFFFF || cd_size == U32_MAX || cd_offset == U32_MAX {
+        let locator = eocd.checked_sub(20).ok_or("a ZIP64 end record is announced but missing")?;
+        let mut l = Cursor::at(bytes, locator);
+        if l.u32()? != 0x0706_4b50 {
+            return Err("a ZIP64 end record is announced but its locator is missing".into());
+        }
+        l.u32()?;
+        let record = to_usize(l.u64()?, "ZIP64 end record offset")?;
+        let mut r = Cursor::at(bytes, record);
+        if r.u32()? != 0x0606_4b50 {
+            return Err("the ZIP64 end record's signature is wrong".into());
+        }
+        r.take(8 + 2 + 2 + 4 + 4 + 8)?;
+        count = r.u64()?;
+        cd_size = r.u64()?;
+        cd_offset = r.u64()?;
+    }
+    let cd_end = cd_offset.checked_add(cd_size).filter(|&e| e <= bytes.len() as u64);
+    if cd_end.is_none() {
+        return Err(format!("the central directory ({cd_size} bytes at {cd_offset}) lies past the end of the file"));
+    }
+    let mut c = Cursor::at(bytes, to_usize(cd_offset, "central directory offset")?);
+    let mut out = vec![];
+    for i in 0..count {
+        if c.u32()? != 0x0201_4b50 {
+            return Err(format!("central directory entry {i} has a wrong signature"));
+        }
+        c.take(4)?; // versions
+        let flags = c.u16()?;
+        let method = c.u16()?;
+        c.take(4)?; // time, date
+        let crc = c.u32()?;
+        let (mut csize, mut usize_) = (c.u32()? as u64, c.u32()? as u64);
+        let (name_len, extra_len, comment_len) = (c.u16()? as usize, c.u16()? as usize, c.u16()? as usize);
+        c.take(8)?; // disk, attributes
+        let mut offset = c.u32()? as u64;
+        let name = String::from_utf8_lossy(c.take(name_len)?).into_owned();
+        let mut extra = Cursor::at(c.take(extra_len)?, 0);
+        c.take(comment_len)?;
+        while extra.pos + 4 <= extra.bytes.len() {
+            let (id, len) = (extra.u16()?, extra.u16()? as usize);
+            let mut field = Cursor::at(extra.take(len)?, 0);
+            if id == 1 {
+                if usize_ == U32_MAX {
+                    usize_ = field.u64()?;
+                }
+                if csize == U32_MAX {
+                    csize = field.u64()?;
+                }
+                if offset == U32_MAX {
+                    offset = field.u64()?;
+                }
+            }
+        }
+        if flags & 1 != 0 {
+            return Err(format!("member '{name}' is encrypted"));
+        }
+        let mut l = Cursor::at(bytes, to_usize(offset, "local header offset")?);
+        if l.u32()? != 0x0403_4b50 {
+            return Err(format!("member '{name}': no local header at offset {offset}"));
+        }
+        l.take(22)?;
+        let (n, e) = (l.u16()? as usize, l.u16()? as usize);
+        l.take(n + e)?;
+        let raw = l.take(to_usize(csize, "compressed size")?).map_err(|e| format!("member '{name}': {e}"))?;
+        let expected = to_usize(usize_, "size")?;
+        let data = match method {
+            0 => raw.to_vec(),
+            8 => {
+                let mut data = Vec::with_capacity(expected.min(1 << 30));
+                flate2::read::DeflateDecoder::new(raw)
+                    .take(usize_ + 1)
+                    .read_to_end(&mut data)
+                    .map_err(|e| format!("member '{name}': deflate: {e}"))?;
+                data
+            }
+            m => return Err(format!("member '{name}': compression method {m} (only stored and deflate are read)")),
+        };
+        if data.len() != expected {
+            return Err(format!("member '{name}' holds {} bytes, its directory entry says {expected}", data.len()));
+        }
+        let mut hasher = flate2::Crc::new();
+        hasher.update(&data);
+        if hasher.sum() != crc {
+            return Err(format!("member '{name}': CRC mismatch (the file is corrupt)"));
+        }
+        out.push((name, data));
+    }
+    Ok(out)
+}
+
+/// The element type of a `descr`: (kind letter, byte width, big-endian).
+fn parse_descr(descr: &str) -> Result<(char, usize, bool), String> {
+    let bad = || format!("unsupported dtype '{descr}'");
+    let mut chars = descr.chars();
+    let (order, rest) = match chars.next() {
+        Some(c @ ('<' | '>' | '|' | '=')) => (c, chars.as_str()),
+        _ => ('=', descr),
+    };
+    let mut rest_chars = rest.chars();
+    let kind = rest_chars.next().ok_or_else(bad)?;
+    let width: usize = rest_chars.as_str().parse().map_err(|_| bad())?;
+    let big = order == '>' || (order == '=' && cfg!(target_endian = "big"));
+    match (kind, width) {
+        ('u' | 'i', 1 | 2 | 4 | 8) | ('f', 4 | 8) | ('b', 1) => Ok((kind, width, big)),
+        ('U', n) => Ok(('U', n.checked_mul(4).ok_or_else(bad)?, big)),
+        ('S', n) => Ok(('S', n, big)),
+        _ => Err(bad()),
+    }
+}
+
+/// The header dict's three entries.
+struct Header {
+    descr: String,
+    fortran_order: bool,
+    shape: Vec<usize>,
+}
+
+/// Parse the Python dict literal of a `.npy` header (the subset NumPy writes).
+fn parse_header(text: &str) -> Result<Header, String> {
+    let bad = |what: &str| format!("header {text:?}: {what}");
+    let s = text.trim().trim_end_matches('\n').trim();
+    let inner = s.strip_prefix('{').and_then(|s| s.trim_end().strip_suffix('}')).ok_or_else(|| bad("not a dict"))?;
+    let (mut descr, mut fortran, mut shape) = (None, None, None);
+    let mut rest = inner.trim_start();
+    while !rest.is_empty() {
+        let quote =
+            rest.chars().next().filter(|c| *c == '\'' || *c == '"').ok_or_else(|| bad("a key is not a string"))?;
+        let end = rest[1..].find(quote).ok_or_else(|| bad("unterminated key"))? + 1;
+        let key = &rest[1..end];
+        rest = rest[end + 1..].trim_start().strip_prefix(':').ok_or_else(|| bad("no ':' after a key"))?.trim_start();
+        match key {
+            "descr" => {
+                let q =
+                    rest.chars().next().filter(|c| *c == '\'' || *c == '"').ok_or_else(|| {
+                        bad("'descr' is not a plain type string (structured dtypes are not supported)")
+                    })?;
+                let end = rest[1..].find(q).ok_or_else(|| bad("unterminated 'descr'"))? + 1;
+                descr = Some(rest[1..end].to_string());
+                rest = &rest[end + 1..];
+            }
+            "fortran_order" => {
+                let (value, after) = if let Some(r) = rest.strip_prefix("True") {
+                    (true, r)
+                } else if let Some(r) = rest.strip_prefix("False") {
+                    (false, r)
+                } else {
+                    return Err(bad("'fortran_order' is not True or False"));
+                };
+                fortran = Some(value);
+                rest = after;
+            }
+            "shape" => {
+                let open = rest.strip_prefix('(').ok_or_else(|| bad("'shape' is not a tuple"))?;
+                let close = open.find(')').ok_or_else(|| bad("unterminated 'shape'"))?;
+                let dims = open[..close]
+                    .split(',')
+                    .map(str::trim)
+                    .filter(|d| !d.is_empty())
+                    .map(|d| d.trim_end_matches('L').parse::<usize>().map_err(|_| bad("a dimension is not a size")))
+                    .collect::<Result<Vec<_>, _>>()?;
+                shape = Some(dims);
+                rest = &open[close + 1..];
+            }
+            other => return Err(bad(&format!("unknown key '{other}'"))),
+        }
+        rest = rest.trim_start();
+        rest = rest.strip_prefix(',').unwrap_or(rest).trim_start();
+    }
+    Ok(Header {
+        descr: descr.ok_or_else(|| bad("no 'descr'"))?,
+        fortran_order: fortran.ok_or_else(|| bad("no 'fortran_order'"))?,
+        shape: shape.ok_or_else(|| bad("no 'shape'"))?,
+    })
+}
+
+/// Parse a whole `.npy` file held in memory.
+pub fn parse_npy(bytes: &[u8]) -> Result<NpyArray, String> {
+    let mut c = Cursor::at(bytes, 0);
+    if c.take(6).ok() != Some(b"\x93NUMPY".as_slice()) {
+        return Err("not a .npy file (no \\x93NUMPY magic)".into());
+    }
+    let version = c.take(2)?;
+    let header_len = match version[0] {
+        1 => c.u16()? as usize,
+        2 | 3 => to_usize(c.u32()? as u64, "header length")?,
+        v => return Err(format!(".npy format version {v}.{} is not supported", version[1])),
+    };
+    let text = std::str::from_utf8(c.take(header_len)?).map_err(|_| "the header is not text".to_string())?;
+    let h = parse_header(text)?;
+    let (kind, width, big) = parse_descr(&h.descr)?;
+    let count = h.shape.iter().try_fold(1usize, |a, &n| a.checked_mul(n)).ok_or("the shape overflows")?;
+    let data = &bytes[c.pos..];
+    let needed = count.checked_mul(width).ok_or("the shape overflows")?;
+    if data.len() != needed {
+        return Err(format!(
+            "holds {} bytes of data, shape {} of '{}' needs {needed}",
+            data.len(),
+            shape_text(&h.shape),
+            h.descr
+        ));
+    }
+    fn read<T, const B: usize>(data: &[u8], big: bool, f: impl Fn([u8; B]) -> T) -> Vec<T> {
+        data.chunks_exact(B)
+            .map(|c| {
+                let mut b: [u8; B] = c.try_into().expect("chunk of B");
+                if big {
+                    b.reverse();
+                }
+                f(b)
+            })
+            .collect()
+    }
+    let mut out = match (kind, width) {
+        ('u' | 'b', 1) => NpyData::U8(data.to_vec()),
+        ('i', 1) => NpyData::I8(data.iter().map(|&b| b as i8).collect()),
+        ('u', 2) => NpyData::U16(read(data, big, u16::from_le_bytes)),
+        ('i', 2) => NpyData::I16(read(data, big, i16::from_le_bytes)),
+        ('u', 4) => NpyData::U32(read(data, big, u32::from_le_bytes)),
+        ('i', 4) => NpyData::I32(read(data, big, i32::from_le_bytes)),
+        ('u', 8) => NpyData::U64(read(data, big, u64::from_le_bytes)),
+        ('i', 8) => NpyData::I64(read(data, big, i64::from_le_bytes)),
+        ('f', 4) => NpyData::F32(read(data, big, f32::from_le_bytes)),
+        ('f', 8) => NpyData::F64(read(data, big, f64::from_le_bytes)),
+        ('U' | 'S', _) if count != 1 => {
+            return Err(format!("a string array of shape {} (only single strings are read)", shape_text(&h.shape)))
+        }
+        ('U', _) => {
+            let units = read(data, big, u32::from_le_bytes);
+            let s: Option<String> = units.into_iter().take_while(|&u| u != 0).map(char::from_u32).collect();
+            NpyData::Str(s.ok_or("the string is not valid UTF-32")?)
+        }
+        ('S', _) => {
+            let end = data.iter().position(|&b| b == 0).unwrap_or(data.len());
+            NpyData::Str(String::from_utf8(data[..end].to_vec()).map_err(|_| "the byte string is not UTF-8")?)
+        }
+        _ => return Err(format!("unsupported dtype '{}'", h.descr)),
+    };
+    if h.fortran_order && h.shape.len() > 1 {
+        out = to_c_order(out, &h.shape);
+    }
+    Ok(NpyArray { shape: h.shape, data: out })
+}
+
+/// Elements stored in Fortran (column-major) order, reordered to C order.
+fn to_c_order(data: NpyData, shape: &[usize]) -> NpyData {
+    fn reorder<T: Copy>(v: Vec<T>, shape: &[usize]) -> Vec<T> {
+        // Fortran strides: the first axis is contiguous.
+        let mut strides = vec![1usize; shape.len()];
+        for a in 1..shape.len() {
+            strides[a] = strides[a - 1] * shape[a - 1];
+        }
+        let mut index = vec![0usize; shape.len()];
+        let mut out = Vec::with_capacity(v.len());
+        for _ in 0..v.len() {
+            out.push(v[index.iter().zip(&strides).map(|(i, s)| i * s).sum::<usize>()]);
+            // Next C-order index: the last axis fastest.
+            for a in (0..shape.len()).rev() {
+                index[a] += 1;
+                if index[a] < shape[a] {
+                    break;
+                }
+                index[a] = 0;
+            }
+        }
+        out
+    }
+    match data {
+        NpyData::U8(v) => NpyData::U8(reorder(v, shape)),
+        NpyData::I8(v) => NpyData::I8(reorder(v, shape)),
+        NpyData::U16(v) => NpyData::U16(reorder(v, shape)),
+        NpyData::I16(v) => NpyData::I16(reorder(v, shape)),
+        NpyData::U32(v) => NpyData::U32(reorder(v, shape)),
+        NpyData::I32(v) => NpyData::I32(reorder(v, shape)),
+        NpyData::U64(v) => NpyData::U64(reorder(v, shape)),
+        NpyData::I64(v) => NpyData::I64(reorder(v, shape)),
+        NpyData::F32(v) => NpyData::F32(reorder(v, shape)),
+        NpyData::F64(v) => NpyData::F64(reorder(v, shape)),
+        s @ NpyData::Str(_) => s,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> Vec<(String, NpyArray)> {
+        let a = |shape: &[usize], data| NpyArray { shape: shape.to_vec(), data };
+        vec![
+            ("u8".into(), a(&[3], NpyData::U8(vec![0, 7, 255]))),
+            ("i8".into(), a(&[2], NpyData::I8(vec![-128, 127]))),
+            ("u16".into(), a(&[1, 2], NpyData::U16(vec![1, 65535]))),
+            ("i16".into(), a(&[2, 1], NpyData::I16(vec![-2, 3]))),
+            ("u32".into(), a(&[0], NpyData::U32(vec![]))),
+            ("i32".into(), a(&[2], NpyData::I32(vec![i32::MIN, 5]))),
+            ("u64".into(), a(&[1], NpyData::U64(vec![u64::MAX]))),
+            ("i64".into(), a(&[2], NpyData::I64(vec![-1, i64::MAX]))),
+            ("f32".into(), a(&[2, 2, 1], NpyData::F32(vec![1.5, -0.0, f32::MIN_POSITIVE, 3e38]))),
+            ("f64".into(), a(&[], NpyData::F64(vec![std::f64::consts::PI]))),
+            ("meta".into(), a(&[], NpyData::Str("{\"a\": \"é ✓\"}".into()))),
+        ]
+    }
+
+    #[test]
+    fn npz_round_trips_every_type_with_and_without_zip64() {
+        let dir = tempfile::tempdir().unwrap();
+        for zip64 in [false, true] {
+            let path = dir.path().join(format!("x{zip64}.npz"));
+            let arrays = sample();
+            let members: Vec<(&str, ArrayRef<'_>)> = arrays.iter().map(|(n, a)| (n.as_str(), a.as_ref())).collect();
+            write_npz_with(&path, &members, zip64).unwrap();
+            assert_eq!(read_npz(&path).unwrap(), arrays);
+        }
+        // Stored, with fixed timestamps: equal arrays, equal files.
+        let again = dir.path().join("again.npz");
+        let arrays = sample();
+        let members: Vec<(&str, ArrayRef<'_>)> = arrays.iter().map(|(n, a)| (n.as_str(), a.as_ref())).collect();
+        write_npz(&again, &members).unwrap();
+        assert_eq!(std::fs::read(&again).unwrap(), std::fs::read(dir.path().join("xfalse.npz")).unwrap());
+    }
+
+    #[test]
+    fn npy_headers_are_aligned_and_read_back() {
+        let dir = tempfile::tempdir().unwrap();
+        for (name, a) in sample() {
+            let path = dir.path().join(format!("{name}.npy"));
+            write_npy(&path, &a.as_ref()).unwrap();
+            let bytes = std::fs::read(&path).unwrap();
+            let header_len = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
+            assert_eq!((10 + header_len) % 64, 0, "{name}");
+            assert_eq!(bytes[9 + header_len], b'\n');
+            assert_eq!(read_npy(&path).unwrap(), a, "{name}");
+        }
+    }
+
+    #[test]
+    fn fortran_order_big_endian_and_deflate_are_read() {
+        // (2, 3) float64 [[0, 1, 2], [3, 4, 5]] stored column-major: 0 3 1 4 2 5.
+        let dict = "{'descr': '<f8', 'fortran_order': True, 'shape': (2, 3), }";
+        let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+        bytes.extend_from_slice(&(dict.len() as u16 + 1).to_le_bytes());
+        bytes.extend_from_slice(dict.as_bytes());
+        bytes.push(b'\n');
+        for x in [0.0f64, 3.0, 1.0, 4.0, 2.0, 5.0] {
+            bytes.extend_from_slice(&x.to_le_bytes());
+        }
+        let a = parse_npy(&bytes).unwrap();
+        assert_eq!((a.shape.as_slice(), a.data), (&[2usize, 3][..], NpyData::F64(vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0])));
+        let dict = "{'descr': '>u2', 'fortran_order': False, 'shape': (2,), }";
+        let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+        bytes.extend_from_slice(&(dict.len() as u16 + 1).to_le_bytes());
+        bytes.extend_from_slice(dict.as_bytes());
+        bytes.extend_from_slice(b"\n\x01\x02\x00\x03");
+        assert_eq!(parse_npy(&bytes).unwrap().data, NpyData::U16(vec![0x0102, 3]));
+        // A deflated member, as numpy.savez_compressed writes.
+        let payload = {
+            let dir = tempfile::tempdir().unwrap();
+            let p = dir.path().join("a.npy");
+            write_npy(&p, &ArrayRef::flat(Elements::F32(&[1.0, 2.0, 3.0]))).unwrap();
+            std::fs::read(p).unwrap()
+        };
+        let mut enc = flate2::write::DeflateEncoder::new(vec![], flate2::Compression::default());
+        enc.write_all(&payload).unwrap();
+        let packed = enc.finish().unwrap();
+        let mut crc = flate2::Crc::new();
+        crc.update(&payload);
+        let mut zip = vec![];
+        let name = b"a.npy";
+        zip.extend_from_slice(&0x0403_4b50u32.to_le_bytes());
+        zip.extend_from_slice(&[20, 0, 0, 0, 8, 0, 0, 0, 0, 0]);
+        zip.extend_from_slice(&crc.sum().to_le_bytes());
+        zip.extend_from_slice(&(packed.len() as u32).to_le_bytes());
+        zip.extend_from_slice(&(payload.len() as u32).to_le_bytes());
+        zip.extend_from_slice(&(name.len() as u16).to_le_bytes());
+        zip.extend_from_slice(&0u16.to_le_bytes());
+        zip.extend_from_slice(name);
+        zip.extend_from_slice(&packed);
+        let cd = zip.len() as u32;
+        zip.extend_from_slice(&0x0201_4b50u32.to_le_bytes());
+        zip.extend_from_slice(&[20, 0, 20, 0, 0, 0, 8, 0, 0, 0, 0, 0]);
+        zip.extend_from_slice(&crc.sum().to_le_bytes());
+        zip.extend_from_slice(&(packed.len() as u32).to_le_bytes());
+        zip.extend_from_slice(&(payload.len() as u32).to_le_bytes());
+        zip.extend_from_slice(&(name.len() as u16).to_le_bytes());
+        zip.extend_from_slice(&[0u8; 12]);
+        zip.extend_from_slice(&0u32.to_le_bytes());
+        zip.extend_from_slice(name);
+        let cd_size = zip.len() as u32 - cd;
+        zip.extend_from_slice(&0x0605_4b50u32.to_le_bytes());
+        zip.extend_from_slice(&[0, 0, 0, 0, 1, 0, 1, 0]);
+        zip.extend_from_slice(&cd_size.to_le_bytes());
+        zip.extend_from_slice(&cd.to_le_bytes());
+        zip.extend_from_slice(&0u16.to_le_bytes());
+        let members = zip_members(&zip).unwrap();
+        assert_eq!(members, vec![("a.npy".to_string(), payload)]);
+        // A flipped byte is a CRC error, a cut file a located error, never a panic.
+        let mut bad = zip.clone();
+        bad[40] ^= 0xff;
+        assert!(zip_members(&bad).is_err());
+        for cut in [0, 10, 30, zip.len() - 30, zip.len() - 1] {
+            assert!(zip_members(&zip[..cut]).is_err(), "{cut}");
+        }
+    }
+
+    #[test]
+    fn bad_files_and_names_are_errors() {
+        assert!(parse_npy(b"nope").unwrap_err().contains("magic"));
+        let dict = "{'descr': '<f4', 'fortran_order': False, 'shape': (4,), }\n";
+        let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+        bytes.extend_from_slice(&(dict.len() as u16).to_le_bytes());
+        bytes.extend_from_slice(dict.as_bytes());
+        bytes.extend_from_slice(&[0; 12]);
+        assert!(parse_npy(&bytes).unwrap_err().contains("holds 12 bytes of data, shape (4,) of '<f4' needs 16"));
+        let dict = "{'descr': [('a', '<f4')], 'fortran_order': False, 'shape': (), }\n";
+        let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+        bytes.extend_from_slice(&(dict.len() as u16).to_le_bytes());
+        bytes.extend_from_slice(dict.as_bytes());
+        assert!(parse_npy(&bytes).unwrap_err().contains("structured"));
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.npz");
+        let one = [1u8];
+        let e = write_npz(&p, &[("a/b", ArrayRef::flat(Elements::U8(&one)))]).unwrap_err();
+        assert!(e.to_string().contains("only letters"), "{e}");
+        let e = write_npz(&p, &[("a", ArrayRef::new(&[2], Elements::U8(&one)))]).unwrap_err();
+        assert!(e.to_string().contains("shape (2,) does not hold its 1 elements"), "{e}");
+        assert!(!p.exists());
+    }
+}
