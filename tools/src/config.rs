@@ -880,6 +880,10 @@ pub struct ReportConfig {
     /// the largest 99th-percentile error of the lossy settings, shared by all.
     #[serde(default)]
     pub error_scale: Option<f32>,
+    /// The region `[x, y, width, height]` (pixels of the render) every setting's zoomed inset
+    /// shows; by default the window where the worst lossy setting's error is largest.
+    #[serde(default)]
+    pub inset: Option<Spanned<[u32; 4]>>,
 }
 
 fn default_target_error() -> f64 {
@@ -902,6 +906,7 @@ impl Default for ReportConfig {
             background: true,
             target_error: default_target_error(),
             error_scale: None,
+            inset: None,
         }
     }
 }
@@ -1125,6 +1130,19 @@ impl Experiment {
             }
         }
         range(&file.report.reference_downscale, 1, 64, "report.reference_downscale")?;
+        if let Some(inset) = &file.report.inset {
+            let [x, y, w, h] = *inset.get_ref();
+            let (width, height) = (*file.runtime.width.get_ref(), *file.runtime.height.get_ref());
+            if w == 0 || h == 0 || x as u64 + w as u64 > width as u64 || y as u64 + h as u64 > height as u64 {
+                return Err(err(
+                    inset.span(),
+                    format!(
+                        "report.inset = [x, y, width, height] must be a non-empty region inside the {width}x{height} \
+                         render (x + width <= {width}, y + height <= {height}), got [{x}, {y}, {w}, {h}]"
+                    ),
+                ));
+            }
+        }
         if let Some(e) = file.report.error_scale.filter(|e| !(*e > 0.0 && e.is_finite())) {
             return Err(ConfigError::whole_file(
                 path,
@@ -1324,6 +1342,32 @@ mod tests {
         let e = parse(&format!("{OK}{t}[[compressors]]\nkind = \"haar\"\nterms = [12, 385]\n")).unwrap_err();
         assert!(e.to_string().contains("haar-t385") && e.to_string().contains("384 coefficients"), "{e}");
         parse(&format!("{OK}{t}[[compressors]]\nkind = \"haar\"\nterms = 384\n")).unwrap();
+    }
+
+    #[test]
+    fn an_inset_region_must_lie_inside_the_render_and_errors_name_its_line() {
+        let exp =
+            parse(&format!("{OK}[runtime]\nwidth = 96\nheight = 72\n[report]\ninset = [10, 20, 30, 40]\n")).unwrap();
+        assert_eq!(exp.file.report.inset.as_ref().map(|i| *i.get_ref()), Some([10, 20, 30, 40]));
+        assert!(parse(OK).unwrap().file.report.inset.is_none());
+        for (inset, what) in [
+            ("[70, 0, 30, 10]", "inside the 96x72 render"),
+            ("[0, 40, 10, 33]", "got [0, 40, 10, 33]"),
+            ("[0, 0, 0, 10]", "non-empty"),
+            ("[4294967295, 0, 2, 2]", "inside"),
+        ] {
+            let text =
+                format!("{OK}[runtime]\nwidth = 96\nheight = 72\n[report]\n# the zoomed region\ninset = {inset}\n");
+            let e = parse(&text).unwrap_err();
+            assert!(e.message.contains(what) && e.message.contains("report.inset"), "{e}");
+            assert_eq!(e.line, text.lines().position(|l| l.starts_with("inset")).unwrap() + 1, "{e}");
+        }
+        // Wrong shapes and types are serde's errors, at the key's line too.
+        for inset in ["[1, 2, 3]", "[1, 2, 3, -4]", "\"middle\""] {
+            let text = format!("{OK}[report]\ninset = {inset}\n");
+            let e = parse(&text).unwrap_err();
+            assert_eq!(e.line, text.lines().count(), "{inset}: {e}");
+        }
     }
 
     #[test]

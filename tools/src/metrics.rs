@@ -30,6 +30,38 @@ pub struct Metrics {
     pub sharded: Option<ShardedMetrics>,
     /// How the run was made (`crate::provenance`).
     pub run: Option<crate::provenance::RunRecord>,
+    /// The report's comparison figures: the inset region and each row's thumbnail, inset and
+    /// error against the ground truth.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub figures: Option<ComparisonFigures>,
+}
+
+/// The figures of the report's comparison section (`crate::inset`), one row per image: the
+/// uncompressed render, every compressor and method setting, the ground truth.
+#[derive(Clone, Debug, Serialize)]
+pub struct ComparisonFigures {
+    /// The inset region `[x, y, width, height]` in pixels of the render.
+    pub inset: [u32; 4],
+    /// Where it comes from: `[report] inset`, or the window of the largest error of a setting.
+    pub inset_from: String,
+    /// Each inset's nearest-neighbour magnification (a reference's is this times its downscale).
+    pub inset_magnification: u32,
+    /// The full scale shared by every error figure against the ground truth, when traced.
+    pub reference_error_scale: Option<f32>,
+    pub rows: Vec<FigureRow>,
+}
+
+/// One row of [`ComparisonFigures`]; paths relative to the output folder.
+#[derive(Clone, Debug, Serialize)]
+pub struct FigureRow {
+    /// `uncompressed`, a setting's label, or `reference` (the ground truth).
+    pub name: String,
+    /// The image, magnified to at least 300 pixels wide, with the inset region marked.
+    pub thumbnail: String,
+    pub inset: String,
+    /// The error against the ground truth at [`ComparisonFigures::reference_error_scale`],
+    /// its largest per-pixel error on its colour bar.
+    pub error_vs_reference_png: Option<String>,
 }
 
 /// How a sharded precompute went (`crate::shard`).

@@ -1,9 +1,12 @@
-//! Report plots (PNG): error against gather time and error against storage, one curve per
-//! compressor kind through its sweep points, and the image error of every compressor and
-//! method against its storage. Text is drawn with the bundled DejaVu Sans
-//! (assets/fonts), so plots look the same on machines without system fonts.
+//! Report plots: error against gather time and error against storage, one curve per
+//! compressor kind through its sweep points, every point labelled with its setting, and the
+//! image error of every compressor and method against its storage. Each plot is drawn once per
+//! backend by one routine and written twice, as PNG and as SVG beside it. Text is drawn with
+//! the bundled DejaVu Sans (assets/fonts), so plots look the same on machines without system
+//! fonts.
 
 use crate::metrics::CompressorRecord;
+use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::collections::BTreeMap;
@@ -20,10 +23,21 @@ pub(crate) fn register_font() {
     });
 }
 
-/// One named curve of (x, y) points.
+/// One named curve of (x, y) points, each with its label (the setting, short: a record's
+/// name without its kind, `t12` for `haar-t12`; an empty label draws none).
 pub struct Series {
     pub name: String,
     pub points: Vec<(f64, f64)>,
+    pub labels: Vec<String>,
+}
+
+/// A setting's label on a plot whose curves are its kind: its name without the `kind-`
+/// prefix (`t12` for `haar-t12`), or the whole name when that is all there is.
+pub fn short_label(name: &str, kind: &str) -> String {
+    match name.strip_prefix(kind).and_then(|r| r.strip_prefix('-')) {
+        Some(rest) if !rest.is_empty() => rest.to_string(),
+        _ => name.to_string(),
+    }
 }
 
 /// Group records by compressor kind into series of `(x(record), y(record))`, each curve
@@ -52,7 +66,8 @@ pub fn series_by<'a>(
         .into_iter()
         .map(|(name, mut rs)| {
             rs.sort_by_key(|r| r.bytes);
-            Series { name, points: rs.iter().map(|r| (x(r), y(r))).collect() }
+            let points = rs.iter().map(|r| (x(r), y(r))).collect();
+            Series { name, points, labels: rs.iter().map(|r| short_label(&r.name, &r.kind)).collect() }
         })
         .collect()
 }
@@ -84,26 +99,163 @@ pub fn tick_label(v: f64) -> String {
     }
 }
 
-/// Tick values for a log axis over `[lo, hi]`: 1, 2 and 5 per decade when it spans at most
-/// three decades (so a range of 2 to 6 ms is not left with one tick), else the decades.
-pub fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
+/// The pixels between two neighbouring tick labels of an axis, at least.
+pub const TICK_LABEL_GAP: f64 = 8.0;
+
+/// `d x 10^e` as the nearest f64 (`2e-3` is 0.002, not `2.0 * 10f64.powi(-3)`).
+fn decimal(d: u32, e: i32) -> f64 {
+    format!("{d}e{e}").parse().expect("a decimal literal")
+}
+
+/// Tick values for a log axis over `[lo, hi]` drawn `pixels` long, whose labels
+/// ([`tick_label`]) take `extent(label)` pixels along the axis (their width on an x axis, their
+/// height on a y axis). Every tick is `d x 10^k` with `d` 1, 2 or 5: 1, 2 and 5 per decade when
+/// the range spans at most three decades and their labels fit (so a range of 2 to 6 ms is not
+/// left with one tick), else the decades, else every second, third, ... decade: the densest
+/// of these whose neighbouring labels keep [`TICK_LABEL_GAP`] pixels apart.
+pub fn log_ticks(lo: f64, hi: f64, pixels: f64, extent: impl Fn(&str) -> f64) -> Vec<f64> {
     if !(lo > 0.0 && hi > lo && lo.is_finite() && hi.is_finite()) {
         return vec![];
     }
-    let steps: &[f64] = if hi / lo <= 1e3 { &[1.0, 2.0, 5.0] } else { &[1.0] };
-    let mut out = vec![];
-    for e in lo.log10().floor() as i32..=hi.log10().ceil() as i32 {
-        for &m in steps {
-            let v = m * 10f64.powi(e);
-            if v >= lo && v <= hi {
-                out.push(v);
+    let (e0, e1) = (lo.log10().floor() as i32 - 1, hi.log10().ceil() as i32 + 1);
+    let ticks = |steps: &[u32], stride: i32| -> Vec<f64> {
+        let mut out = vec![];
+        for e in (e0..=e1).filter(|e| e.rem_euclid(stride) == 0) {
+            for &d in steps {
+                let v = decimal(d, e);
+                if v >= lo && v <= hi {
+                    out.push(v);
+                }
             }
         }
+        out
+    };
+    let span = (hi / lo).ln();
+    let fits = |t: &[f64]| {
+        t.windows(2).all(|w| {
+            let apart = pixels * (w[1] / w[0]).ln() / span;
+            apart >= (extent(&tick_label(w[0])) + extent(&tick_label(w[1]))) / 2.0 + TICK_LABEL_GAP
+        })
+    };
+    let mut candidates = vec![];
+    if hi / lo <= 1e3 * (1.0 + 1e-9) {
+        candidates.push(ticks(&[1, 2, 5], 1));
     }
-    out
+    for stride in 1..=(e1 - e0).max(1) {
+        candidates.push(ticks(&[1], stride));
+    }
+    let last = candidates.last().cloned().unwrap_or_default();
+    candidates.into_iter().find(|t| !t.is_empty() && fits(t)).unwrap_or(last)
 }
 
-/// A log-log plot of `series` written to `path` (PNG, 800 x 560).
+/// The light grid lines under `ticks` ([`log_ticks`]): 1..9 per decade where the ticks are
+/// 1-2-5 or every decade of a range of at most four decades, else every decade.
+fn log_light_points(lo: f64, hi: f64, ticks: &[f64]) -> Vec<f64> {
+    let every_decade = ticks.windows(2).all(|w| w[1] / w[0] < 10.5);
+    let steps: Vec<u32> = if every_decade && hi / lo <= 1e4 { (1..=9).collect() } else { vec![1] };
+    let (e0, e1) = (lo.log10().floor() as i32, hi.log10().ceil() as i32);
+    (e0..=e1).flat_map(|e| steps.iter().map(move |&d| decimal(d, e))).filter(|v| *v >= lo && *v <= hi).collect()
+}
+
+/// An axis-aligned box in pixels (y down).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Rect {
+    pub x0: f64,
+    pub y0: f64,
+    pub x1: f64,
+    pub y1: f64,
+}
+
+impl Rect {
+    pub fn new(x: f64, y: f64, w: f64, h: f64) -> Self {
+        Rect { x0: x, y0: y, x1: x + w, y1: y + h }
+    }
+    pub fn overlaps(&self, o: &Rect) -> bool {
+        self.x0 < o.x1 && o.x0 < self.x1 && self.y0 < o.y1 && o.y0 < self.y1
+    }
+    pub fn inside(&self, o: &Rect) -> bool {
+        self.x0 >= o.x0 && self.x1 <= o.x1 && self.y0 >= o.y0 && self.y1 <= o.y1
+    }
+}
+
+/// Where each point's label goes: `anchors` are the markers' centres (radius `radius`),
+/// `sizes` the labels' widths and heights, all in pixels. A label sits beside its marker
+/// (right, left, above, below, then the diagonals), and, where all of those are taken, stacked
+/// further above, below or to the right; it never covers a marker, another label or an
+/// `obstacle` (the legend), and stays inside `area`; it keeps off the `soft` ones (the
+/// curves) too where any place allows. A label with no free place is left out (`None`).
+/// Points are labelled in order, so earlier ones get the nearer places.
+pub fn place_labels(
+    anchors: &[(f64, f64)],
+    sizes: &[(f64, f64)],
+    radius: f64,
+    area: Rect,
+    obstacles: &[Rect],
+    soft: &[Rect],
+) -> Vec<Option<Rect>> {
+    let markers: Vec<Rect> =
+        anchors.iter().map(|&(x, y)| Rect::new(x - radius, y - radius, 2.0 * radius, 2.0 * radius)).collect();
+    let g = radius + 3.0;
+    let mut placed: Vec<Rect> = vec![];
+    anchors
+        .iter()
+        .zip(sizes)
+        .map(|(&(px, py), &(w, h))| {
+            let mut offsets = vec![
+                (g, -h / 2.0),
+                (-g - w, -h / 2.0),
+                (-w / 2.0, -g - h),
+                (-w / 2.0, g),
+                (g / 2.0, -g - h),
+                (g / 2.0, g),
+                (-g / 2.0 - w, -g - h),
+                (-g / 2.0 - w, g),
+            ];
+            for k in 1..=3 {
+                let k = k as f64 * (h + 2.0);
+                offsets.extend([(-w / 2.0, -g - h - k), (-w / 2.0, g + k), (g, -h / 2.0 - k), (g, -h / 2.0 + k)]);
+            }
+            let spots: Vec<Rect> = offsets
+                .into_iter()
+                .map(|(dx, dy)| Rect::new(px + dx, py + dy, w, h))
+                .filter(|r| r.inside(&area) && !markers.iter().chain(&placed).chain(obstacles).any(|o| r.overlaps(o)))
+                .collect();
+            let clear = spots.iter().find(|r| !soft.iter().any(|o| r.overlaps(o)));
+            let spot = clear.or(spots.first()).copied();
+            placed.extend(spot);
+            spot
+        })
+        .collect()
+}
+
+/// Size in pixels (width, height) of the plots.
+pub const PLOT_SIZE: (u32, u32) = (1000, 620);
+const TICK_FONT: u32 = 14;
+const POINT_FONT: u32 = 12;
+const MARKER_RADIUS: i32 = 4;
+
+/// The text's width and height in pixels in the bundled font at `px`.
+fn text_size(text: &str, px: u32) -> (f64, f64) {
+    register_font();
+    match ("sans-serif", px).into_font().box_size(text) {
+        Ok((w, h)) => (w as f64, h as f64),
+        Err(_) => (0.6 * px as f64 * text.chars().count() as f64, px as f64),
+    }
+}
+
+/// What one plot draws, the same for both files.
+struct Figure<'a> {
+    title: &'a str,
+    x_label: &'a str,
+    y_label: &'a str,
+    series: Vec<Series>,
+    guide: Option<&'a Guide>,
+    x: (f64, f64),
+    y: (f64, f64),
+}
+
+/// A log-log plot of `series` written to `path` (PNG, [`PLOT_SIZE`]) and beside it as SVG
+/// (`path` with the extension `svg`), both drawn by one routine.
 pub fn log_log_plot(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series]) -> Result<(), String> {
     log_log_plot_with(path, title, x_label, y_label, series, None)
 }
@@ -118,12 +270,22 @@ pub fn log_log_plot_with(
     guide: Option<&Guide>,
 ) -> Result<(), String> {
     register_font();
-    let pts: Vec<(f64, f64)> = series
+    // The points a log-log plot can draw (x > 0; errors below the floor drawn at it), each
+    // with its label.
+    let series: Vec<Series> = series
         .iter()
-        .flat_map(|s| s.points.iter().copied())
-        .filter(|(x, y)| x.is_finite() && y.is_finite() && *x > 0.0)
-        .map(|(x, y)| (x, y.max(ERROR_FLOOR)))
+        .map(|s| {
+            let (points, labels) = s
+                .points
+                .iter()
+                .enumerate()
+                .filter(|(_, (x, y))| x.is_finite() && y.is_finite() && *x > 0.0)
+                .map(|(i, &(x, y))| ((x, y.max(ERROR_FLOOR)), s.labels.get(i).cloned().unwrap_or_default()))
+                .unzip();
+            Series { name: s.name.clone(), points, labels }
+        })
         .collect();
+    let pts: Vec<(f64, f64)> = series.iter().flat_map(|s| s.points.iter().copied()).collect();
     if pts.is_empty() {
         return Err("nothing to plot".into());
     }
@@ -131,111 +293,254 @@ pub fn log_log_plot_with(
         let (lo, hi) = v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
         (lo / 2.0, hi * 2.0)
     };
-    let (x0, x1) = span(pts.iter().map(|p| p.0).collect());
-    let (y0, y1) = span(pts.iter().map(|p| p.1).collect());
+    let figure = Figure {
+        title,
+        x_label,
+        y_label,
+        x: span(pts.iter().map(|p| p.0).collect()),
+        y: span(pts.iter().map(|p| p.1).collect()),
+        series,
+        guide,
+    };
     let tmp = path.with_extension("tmp.png");
     {
-        let root = BitMapBackend::new(&tmp, (800, 560)).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| e.to_string())?;
-        let mut chart = ChartBuilder::on(&root)
-            .caption(title, ("sans-serif", 22))
-            .margin(12)
-            .x_label_area_size(48)
-            .y_label_area_size(72)
-            .build_cartesian_2d((x0..x1).log_scale().with_key_points(log_ticks(x0, x1)), (y0..y1).log_scale())
-            .map_err(|e| e.to_string())?;
-        chart
-            .configure_mesh()
-            .x_desc(x_label)
-            .y_desc(y_label)
-            .label_style(("sans-serif", 14))
-            .x_labels(8)
-            .y_labels(8)
-            .x_label_formatter(&|v| tick_label(*v))
-            .y_label_formatter(&|v| tick_label(*v))
-            .draw()
-            .map_err(|e| e.to_string())?;
-        for (i, s) in series.iter().enumerate() {
-            let colour = Palette99::pick(i).to_rgba();
-            let points: Vec<(f64, f64)> = s
-                .points
-                .iter()
-                .filter(|(x, y)| x.is_finite() && y.is_finite() && *x > 0.0)
-                .map(|&(x, y)| (x, y.max(ERROR_FLOOR)))
-                .collect();
-            chart
-                .draw_series(LineSeries::new(points.clone(), colour.stroke_width(2)))
-                .map_err(|e| e.to_string())?
-                .label(s.name.clone())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
-            chart.draw_series(points.iter().map(|&p| Circle::new(p, 4, colour.filled()))).map_err(|e| e.to_string())?;
-        }
-        if let Some(g) = guide.filter(|g| g.y > y0 && g.y < y1) {
-            let dashes: Vec<PathElement<(f64, f64)>> = (0..40)
-                .map(|i| {
-                    let at = |f: f64| x0 * (x1 / x0).powf(f);
-                    PathElement::new(vec![(at(i as f64 / 40.0), g.y), (at((i as f64 + 0.5) / 40.0), g.y)], BLACK)
-                })
-                .collect();
-            chart
-                .draw_series(dashes)
-                .map_err(|e| e.to_string())?
-                .label(g.label.clone())
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 8, y), (x + 12, y), (x + 20, y)], BLACK));
-            for (name, x) in &g.marks {
-                let Some(i) = series.iter().position(|s| &s.name == name) else { continue };
-                if *x > x0 && *x < x1 {
-                    let colour = Palette99::pick(i).to_rgba();
-                    chart.draw_series([Cross::new((*x, g.y), 7, colour.stroke_width(3))]).map_err(|e| e.to_string())?;
-                }
-            }
-        }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 14))
-            .draw()
-            .map_err(|e| e.to_string())?;
+        let root = BitMapBackend::new(&tmp, PLOT_SIZE).into_drawing_area();
+        draw(&root, &figure)?;
         root.present().map_err(|e| e.to_string())?;
     }
-    std::fs::rename(&tmp, path).map_err(|e| format!("{}: {e}", path.display()))
+    std::fs::rename(&tmp, path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, PLOT_SIZE).into_drawing_area();
+        draw(&root, &figure)?;
+        root.present().map_err(|e| e.to_string())?;
+    }
+    let svg_path = path.with_extension("svg");
+    let tmp = path.with_extension("tmp.svg");
+    std::fs::write(&tmp, svg).map_err(|e| format!("{}: {e}", tmp.display()))?;
+    std::fs::rename(&tmp, &svg_path).map_err(|e| format!("{}: {e}", svg_path.display()))
 }
 
-/// Height in pixels of the colour bar [`with_colour_bar`] puts under an error picture.
+/// Draw `f` on `root`: axes with [`log_ticks`], one curve and marker per point per series,
+/// the guide, the legend in the emptiest corner, and every point's label ([`place_labels`]).
+fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, f: &Figure<'_>) -> Result<(), String> {
+    let e = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
+    root.fill(&WHITE).map_err(e)?;
+    let ((x0, x1), (y0, y1)) = (f.x, f.y);
+    // The plotting area's size, near enough for choosing ticks (the exact one is known only
+    // once the chart is built, and the ticks are part of building it).
+    let (w, h) = (PLOT_SIZE.0 as f64 - 2.0 * 12.0 - 72.0, PLOT_SIZE.1 as f64 - 2.0 * 12.0 - 48.0 - 36.0);
+    let x_ticks = log_ticks(x0, x1, w, |l| text_size(l, TICK_FONT).0);
+    let y_ticks = log_ticks(y0, y1, h, |l| text_size(l, TICK_FONT).1);
+    let mut chart = ChartBuilder::on(root)
+        .caption(f.title, ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(48)
+        .y_label_area_size(72)
+        .build_cartesian_2d(
+            (x0..x1).log_scale().with_key_points(x_ticks.clone()).with_light_points(log_light_points(x0, x1, &x_ticks)),
+            (y0..y1).log_scale().with_key_points(y_ticks.clone()).with_light_points(log_light_points(y0, y1, &y_ticks)),
+        )
+        .map_err(e)?;
+    chart
+        .configure_mesh()
+        .x_desc(f.x_label)
+        .y_desc(f.y_label)
+        .label_style(("sans-serif", TICK_FONT))
+        .light_line_style(RGBColor(235, 235, 235))
+        .bold_line_style(RGBColor(200, 200, 200))
+        .x_label_formatter(&|v| tick_label(*v))
+        .y_label_formatter(&|v| tick_label(*v))
+        .draw()
+        .map_err(e)?;
+    let colour = |i: usize| Palette99::pick(i).to_rgba();
+    for (i, s) in f.series.iter().enumerate() {
+        let c = colour(i);
+        chart
+            .draw_series(LineSeries::new(s.points.clone(), c.stroke_width(2)))
+            .map_err(e)?
+            .label(s.name.clone())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+        chart.draw_series(s.points.iter().map(|&p| Circle::new(p, MARKER_RADIUS, c.filled()))).map_err(e)?;
+    }
+    let mut crosses = vec![];
+    if let Some(g) = f.guide.filter(|g| g.y > y0 && g.y < y1) {
+        let dashes: Vec<PathElement<(f64, f64)>> = (0..40)
+            .map(|i| {
+                let at = |t: f64| x0 * (x1 / x0).powf(t);
+                PathElement::new(vec![(at(i as f64 / 40.0), g.y), (at((i as f64 + 0.5) / 40.0), g.y)], BLACK)
+            })
+            .collect();
+        chart
+            .draw_series(dashes)
+            .map_err(e)?
+            .label(g.label.clone())
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 8, y), (x + 12, y), (x + 20, y)], BLACK));
+        for (name, x) in &g.marks {
+            let Some(i) = f.series.iter().position(|s| &s.name == name) else { continue };
+            if *x > x0 && *x < x1 {
+                chart.draw_series([Cross::new((*x, g.y), 7, colour(i).stroke_width(3))]).map_err(e)?;
+                crosses.push(chart.backend_coord(&(*x, g.y)));
+            }
+        }
+    }
+    // The legend in the corner of the plotting area with the fewest points under it.
+    let (xr, yr) = chart.plotting_area().get_pixel_range();
+    let area = Rect { x0: xr.start as f64, y0: yr.start as f64, x1: xr.end as f64, y1: yr.end as f64 };
+    let mut names: Vec<&str> = f.series.iter().map(|s| s.name.as_str()).collect();
+    if let Some(g) = f.guide.filter(|g| g.y > y0 && g.y < y1) {
+        names.push(&g.label);
+    }
+    let text_w = names.iter().map(|n| text_size(n, TICK_FONT).0).fold(0.0, f64::max);
+    let (lw, lh) =
+        (text_w + 30.0 + 20.0 + 4.0, (names.len() as f64 - 1.0).max(0.0) * 1.25 * TICK_FONT as f64 + 18.0 + 20.0);
+    let anchors: Vec<(f64, f64)> = f
+        .series
+        .iter()
+        .flat_map(|s| s.points.iter().map(|p| chart.backend_coord(p)))
+        .map(|(x, y)| (x as f64, y as f64))
+        .collect();
+    let corners = [
+        (area.x1 - lw - 5.0, area.y0 + 5.0),
+        (area.x0 + 5.0, area.y0 + 5.0),
+        (area.x1 - lw - 5.0, area.y1 - lh - 5.0),
+        (area.x0 + 5.0, area.y1 - lh - 5.0),
+    ];
+    let covered = |r: &Rect| {
+        let near = |&(x, y): &(f64, f64)| r.overlaps(&Rect::new(x - 12.0, y - 12.0, 24.0, 24.0));
+        anchors.iter().filter(|p| near(p)).count()
+    };
+    let legend =
+        corners.iter().map(|&(x, y)| Rect::new(x, y, lw, lh)).min_by_key(|r| covered(r)).expect("four corners");
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::Coordinate((legend.x0 - area.x0) as i32, (legend.y0 - area.y0) as i32))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(("sans-serif", TICK_FONT))
+        .draw()
+        .map_err(e)?;
+    // Every point's label, in its series' colour darkened for reading on white.
+    let labels: Vec<(&str, usize)> =
+        f.series.iter().enumerate().flat_map(|(i, s)| s.labels.iter().map(move |l| (l.as_str(), i))).collect();
+    let sizes: Vec<(f64, f64)> = labels.iter().map(|(l, _)| text_size(l, POINT_FONT)).collect();
+    let mut obstacles = vec![legend];
+    obstacles.extend(crosses.iter().map(|&(x, y)| Rect::new(x as f64 - 8.0, y as f64 - 8.0, 16.0, 16.0)));
+    // The curves, as small boxes every few pixels along each segment, and the guide's line.
+    let mut soft = vec![];
+    for s in &f.series {
+        let px: Vec<(f64, f64)> =
+            s.points.iter().map(|p| chart.backend_coord(p)).map(|(x, y)| (x as f64, y as f64)).collect();
+        for w in px.windows(2) {
+            let steps = ((w[1].0 - w[0].0).hypot(w[1].1 - w[0].1) / 4.0).ceil().max(1.0) as usize;
+            for i in 0..=steps {
+                let t = i as f64 / steps as f64;
+                let (x, y) = (w[0].0 + t * (w[1].0 - w[0].0), w[0].1 + t * (w[1].1 - w[0].1));
+                soft.push(Rect::new(x - 1.5, y - 1.5, 3.0, 3.0));
+            }
+        }
+    }
+    if let Some(g) = f.guide.filter(|g| g.y > y0 && g.y < y1) {
+        let y = chart.backend_coord(&(x0, g.y)).1 as f64;
+        soft.push(Rect { x0: area.x0, y0: y - 1.0, x1: area.x1, y1: y + 1.0 });
+    }
+    let places = place_labels(&anchors, &sizes, MARKER_RADIUS as f64 + 1.0, area, &obstacles, &soft);
+    for ((text, i), spot) in labels.iter().zip(places) {
+        let Some(r) = spot.filter(|_| !text.is_empty()) else { continue };
+        let c = colour(*i);
+        let dark = RGBColor((c.0 as f64 * 0.6) as u8, (c.1 as f64 * 0.6) as u8, (c.2 as f64 * 0.6) as u8);
+        let style = ("sans-serif", POINT_FONT).into_font().color(&dark).pos(Pos::new(HPos::Left, VPos::Top));
+        root.draw(&Text::new(text.to_string(), (r.x0.round() as i32, r.y0.round() as i32), style)).map_err(e)?;
+    }
+    Ok(())
+}
+
+/// Whether `text` is XML whose elements nest: every opened tag closed in order, comments,
+/// declarations and self-closing tags allowed; the check the report's SVG plots pass.
+pub fn xml_tags_balance(text: &str) -> Result<(), String> {
+    let mut open: Vec<&str> = vec![];
+    let mut rest = text;
+    while let Some(i) = rest.find('<') {
+        rest = &rest[i..];
+        if let Some(r) = rest.strip_prefix("<!--") {
+            let end = r.find("-->").ok_or("an unclosed comment")?;
+            rest = &r[end + 3..];
+            continue;
+        }
+        let end = rest.find('>').ok_or("an unclosed tag")?;
+        let tag = &rest[1..end];
+        rest = &rest[end + 1..];
+        if tag.starts_with('?') || tag.starts_with('!') || tag.ends_with('/') {
+            continue;
+        }
+        if let Some(name) = tag.strip_prefix('/') {
+            match open.pop() {
+                Some(o) if o == name.trim() => {}
+                o => return Err(format!("</{}> closes {o:?}", name.trim())),
+            }
+        } else {
+            let name = tag.split_whitespace().next().unwrap_or("");
+            if name.is_empty() {
+                return Err("an empty tag".into());
+            }
+            open.push(name);
+        }
+    }
+    match open.is_empty() {
+        true => Ok(()),
+        false => Err(format!("unclosed elements {open:?}")),
+    }
+}
+
+/// Height in pixels of the colour bar [`with_colour_bar`] puts under an error picture at most
+/// 300 pixels wide ([`colour_bar_height`] under a wider one).
 pub const COLOUR_BAR_HEIGHT: u32 = 60;
+
+/// The height of the colour bar under a picture `width` pixels wide: [`COLOUR_BAR_HEIGHT`] up
+/// to 300 pixels, and in proportion beyond, so its text keeps its size beside the picture
+/// when the figure is shown shrunk to a column of the report.
+pub fn colour_bar_height(width: u32) -> u32 {
+    COLOUR_BAR_HEIGHT * width.max(300) / 300
+}
 
 /// `picture` (a false-colour error map, [`biscale_shading::image::error_image`]) with its colour
 /// bar below: the viridis ramp from 0 to `scale`, ticks at 0, half and full scale, and
 /// `label` saying what is measured and in which unit (one or two lines, split at `\n`). The
-/// bar is at least 300 pixels wide; a narrower picture is centred above it on white.
+/// bar is at least 300 pixels wide; a narrower picture is centred above it on white. Under a
+/// wider picture the bar, its ticks and text grow with it ([`colour_bar_height`]).
 pub fn with_colour_bar(picture: &image::RgbImage, scale: f32, label: &str) -> Result<image::RgbImage, String> {
     register_font();
     let w = picture.width().max(300);
-    let mut bar = vec![255u8; (w * COLOUR_BAR_HEIGHT * 3) as usize];
+    let h = colour_bar_height(w);
+    // Every length below is for a 300-pixel bar, times `k`.
+    let k = w as f64 / 300.0;
+    let at = |v: f64| (v * k).round() as i32;
+    let font = (12.0 * k).round() as u32;
+    let mut bar = vec![255u8; (w * h * 3) as usize];
     {
-        let root = BitMapBackend::with_buffer(&mut bar, (w, COLOUR_BAR_HEIGHT)).into_drawing_area();
-        let (x0, x1) = (10i32, w as i32 - 10);
+        let root = BitMapBackend::with_buffer(&mut bar, (w, h)).into_drawing_area();
+        let (x0, x1) = (at(10.0), w as i32 - at(10.0));
         let e = |e: DrawingAreaErrorKind<_>| e.to_string();
         for x in x0..x1 {
             let c = biscale_shading::image::viridis((x - x0) as f32 / (x1 - x0 - 1).max(1) as f32);
-            root.draw(&Rectangle::new([(x, 3), (x + 1, 15)], RGBColor(c[0], c[1], c[2]).filled())).map_err(e)?;
+            root.draw(&Rectangle::new([(x, at(3.0)), (x + 1, at(15.0))], RGBColor(c[0], c[1], c[2]).filled()))
+                .map_err(e)?;
         }
-        for (frac, h) in [(0.0f32, HPos::Left), (0.5, HPos::Center), (1.0, HPos::Right)] {
+        for (frac, hp) in [(0.0f32, HPos::Left), (0.5, HPos::Center), (1.0, HPos::Right)] {
             let x = x0 + ((x1 - x0 - 1) as f32 * frac).round() as i32;
-            root.draw(&PathElement::new(vec![(x, 15), (x, 19)], BLACK)).map_err(e)?;
-            let style = ("sans-serif", 12).into_font().color(&BLACK).pos(Pos::new(h, VPos::Top));
-            root.draw(&Text::new(tick_label((scale * frac) as f64), (x, 20), style)).map_err(e)?;
+            root.draw(&PathElement::new(vec![(x, at(15.0)), (x, at(19.0))], BLACK)).map_err(e)?;
+            let style = ("sans-serif", font).into_font().color(&BLACK).pos(Pos::new(hp, VPos::Top));
+            root.draw(&Text::new(tick_label((scale * frac) as f64), (x, at(20.0)), style)).map_err(e)?;
         }
         for (i, line) in label.lines().take(2).enumerate() {
-            let style = ("sans-serif", 12).into_font().color(&BLACK).pos(Pos::new(HPos::Center, VPos::Top));
-            root.draw(&Text::new(line.to_string(), (w as i32 / 2, 33 + 13 * i as i32), style)).map_err(e)?;
+            let style = ("sans-serif", font).into_font().color(&BLACK).pos(Pos::new(HPos::Center, VPos::Top));
+            root.draw(&Text::new(line.to_string(), (w as i32 / 2, at(33.0 + 13.0 * i as f64)), style)).map_err(e)?;
         }
         root.present().map_err(|e| e.to_string())?;
     }
-    let mut out = image::RgbImage::from_pixel(w, picture.height() + COLOUR_BAR_HEIGHT, image::Rgb([255, 255, 255]));
+    let mut out = image::RgbImage::from_pixel(w, picture.height() + h, image::Rgb([255, 255, 255]));
     image::imageops::replace(&mut out, picture, ((w - picture.width()) / 2) as i64, 0);
-    let bar = image::RgbImage::from_raw(w, COLOUR_BAR_HEIGHT, bar).ok_or("colour bar buffer size")?;
+    let bar = image::RgbImage::from_raw(w, h, bar).ok_or("colour bar buffer size")?;
     image::imageops::replace(&mut out, &bar, 0, picture.height() as i64);
     Ok(out)
 }
@@ -260,17 +565,97 @@ mod tests {
         // Tick labels are drawn: dark pixels under the ramp.
         let dark = (30 + 20..30 + COLOUR_BAR_HEIGHT).flat_map(|y| (0..300).map(move |x| (x, y)));
         assert!(dark.filter(|&(x, y)| lum(out.get_pixel(x, y).0) < 200).count() > 50);
+        // Under a picture twice as wide, the bar is twice as tall, its ramp and text too.
+        let wide = with_colour_bar(&image::RgbImage::new(600, 30), 0.25, "luminance of |error|").unwrap();
+        assert_eq!(colour_bar_height(600), 120);
+        assert_eq!((wide.width(), wide.height()), (600, 30 + 120));
+        assert_eq!(wide.get_pixel(20, 30 + 16).0, biscale_shading::image::viridis(0.0));
+        assert_eq!(wide.get_pixel(150, 30 + 34).0, [255, 255, 255], "below the ramp, which ends at 30");
     }
 
     #[test]
-    fn log_ticks_are_one_two_five_on_short_ranges() {
-        use super::log_ticks;
-        assert_eq!(log_ticks(1.5, 7.0), vec![2.0, 5.0]);
-        let t = log_ticks(0.6, 35.0);
-        assert_eq!(t.len(), 5, "{t:?}"); // 1 2 5 10 20
-        assert!((t[4] - 20.0).abs() < 1e-9 && (t[0] - 1.0).abs() < 1e-12, "{t:?}");
-        assert_eq!(log_ticks(1e-9, 1.0).len(), 10); // decades only
-        assert!(log_ticks(0.0, 1.0).is_empty());
+    fn log_ticks_are_one_two_five_times_a_power_of_ten_and_their_labels_never_overlap() {
+        use super::{log_ticks, tick_label, TICK_LABEL_GAP};
+        // A label 8 pixels a character wide (wider than the plots' 14-pixel font draws).
+        let extent = |l: &str| 8.0 * l.chars().count() as f64;
+        let labels = |t: &[f64]| t.iter().map(|&v| tick_label(v)).collect::<Vec<_>>();
+        for (lo, hi) in [(2.0, 6.0), (0.8, 120.0), (1e-8, 1e-1), (1.5, 7.0), (0.6, 35.0), (1e-9, 1.0), (0.05, 4e4)] {
+            for pixels in [900.0, 300.0, 120.0] {
+                let t = log_ticks(lo, hi, pixels, extent);
+                assert!(!t.is_empty(), "[{lo}, {hi}] at {pixels}");
+                for &v in &t {
+                    assert!(v >= lo && v <= hi, "{v} outside [{lo}, {hi}]");
+                    let d = v / 10f64.powf(v.log10().floor());
+                    assert!([1.0, 2.0, 5.0].iter().any(|m| (d - m).abs() < 1e-9), "{v} is not 1, 2 or 5 x 10^k");
+                }
+                // Labels strictly increasing (read back as numbers) and apart by their widths.
+                let read: Vec<f64> = labels(&t).iter().map(|l| l.parse().unwrap()).collect();
+                assert!(read.windows(2).all(|w| w[0] < w[1]), "{:?}", labels(&t));
+                for (w, l) in t.windows(2).zip(labels(&t).windows(2)) {
+                    let apart = pixels * (w[1] / w[0]).ln() / (hi / lo).ln();
+                    let need = (extent(&l[0]) + extent(&l[1])) / 2.0 + TICK_LABEL_GAP;
+                    assert!(apart >= need, "{l:?} {apart:.1} px apart at {pixels} px for [{lo}, {hi}]");
+                }
+            }
+        }
+        // 1, 2, 5 on short ranges; plain labels, never "10.000" or "1e1".
+        assert_eq!(labels(&log_ticks(2.0, 6.0, 900.0, extent)), ["2", "5"]);
+        assert_eq!(labels(&log_ticks(0.8, 120.0, 900.0, extent)), ["1", "2", "5", "10", "20", "50", "100"]);
+        let wide = labels(&log_ticks(1e-8, 1e-1, 900.0, extent));
+        assert_eq!(wide, ["1e-8", "1e-7", "1e-6", "1e-5", "1e-4", "1e-3", "0.01", "0.1"]);
+        // Too little room for every decade: every second or third one.
+        let few = log_ticks(1e-8, 1e-1, 120.0, extent);
+        assert!(few.len() >= 2 && few.len() < 8, "{:?}", labels(&few));
+        // Short labels on a short axis drop the 2s and 5s first.
+        assert_eq!(labels(&log_ticks(0.8, 120.0, 120.0, extent)), ["1", "10", "100"]);
+        assert!(log_ticks(0.0, 1.0, 900.0, extent).is_empty());
+    }
+
+    #[test]
+    fn point_labels_keep_off_markers_each_other_and_the_legend_or_are_left_out() {
+        use super::{place_labels, Rect};
+        let area = Rect::new(0.0, 0.0, 400.0, 300.0);
+        let legend = Rect::new(300.0, 0.0, 100.0, 60.0);
+        let check = |anchors: &[(f64, f64)], sizes: &[(f64, f64)]| {
+            let placed = place_labels(anchors, sizes, 5.0, area, &[legend], &[]);
+            let markers: Vec<Rect> = anchors.iter().map(|&(x, y)| Rect::new(x - 5.0, y - 5.0, 10.0, 10.0)).collect();
+            let got: Vec<Rect> = placed.iter().flatten().copied().collect();
+            for (i, r) in got.iter().enumerate() {
+                assert!(r.inside(&area) && !r.overlaps(&legend), "{r:?}");
+                assert!(markers.iter().all(|m| !r.overlaps(m)), "{r:?} covers a marker");
+                assert!(got[i + 1..].iter().all(|o| !r.overlaps(o)), "{r:?} overlaps another label");
+            }
+            placed
+        };
+        // Two points close together: both labelled, the second moved out of the first's way.
+        let two = check(&[(100.0, 100.0), (100.0, 108.0)], &[(40.0, 12.0), (40.0, 12.0)]);
+        assert!(two.iter().all(Option::is_some), "{two:?}");
+        // The first sits to the right of its marker, beside it.
+        let r = two[0].unwrap();
+        assert!(r.x0 > 105.0 && r.x0 < 115.0 && (r.y0 + 6.0 - 100.0).abs() < 1.0, "{r:?}");
+        // Twenty points on one spot: some labels stacked, the rest left out, none overlapping.
+        let crowd = check(&[(200.0, 150.0); 20], &[(50.0, 12.0); 20]);
+        let shown = crowd.iter().flatten().count();
+        assert!((8..20).contains(&shown), "{shown}");
+        // Near the legend and the edge: the label goes where there is room.
+        let corner = check(&[(390.0, 80.0)], &[(60.0, 12.0)]);
+        assert!(corner[0].is_some_and(|r| r.x1 <= 390.0), "{corner:?}");
+        // A curve through the right-hand place moves the label off it where there is room,
+        // and never keeps it from being shown.
+        let curve = [Rect::new(105.0, 90.0, 60.0, 20.0)];
+        let moved = place_labels(&[(100.0, 100.0)], &[(40.0, 12.0)], 5.0, area, &[], &curve);
+        assert!(moved[0].is_some_and(|r| !r.overlaps(&curve[0])), "{moved:?}");
+        let kept = place_labels(&[(100.0, 100.0)], &[(40.0, 12.0)], 5.0, area, &[], &[area]);
+        assert_eq!(kept, [Some(Rect::new(108.0, 94.0, 40.0, 12.0))], "beside the marker, as without the curve");
+    }
+
+    #[test]
+    fn xml_tag_balance_is_checked() {
+        use super::xml_tags_balance;
+        xml_tags_balance("<svg a=\"1\"><!-- <x> --><g><text>a &lt; b</text><line/></g></svg>").unwrap();
+        assert!(xml_tags_balance("<svg><g></svg>").is_err());
+        assert!(xml_tags_balance("<svg><g>").is_err());
+        assert!(xml_tags_balance("<svg></g>").is_err());
     }
 
     #[test]
@@ -283,20 +668,42 @@ mod tests {
     use super::*;
 
     #[test]
-    fn writes_a_png_with_the_expected_size() {
-        let dir = std::env::temp_dir().join(format!("biscale-plot-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let p = dir.join("p.png");
+    fn writes_a_png_and_an_svg_twin_with_every_point_labelled() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("p.png");
+        let labels = |l: &[&str]| l.iter().map(|s| s.to_string()).collect::<Vec<_>>();
         let series = vec![
-            Series { name: "haar".into(), points: vec![(1.0, 0.1), (2.0, 0.05), (4.0, 0.01)] },
-            Series { name: "bicluster".into(), points: vec![(3.0, 0.0)] },
+            Series {
+                name: "haar".into(),
+                points: vec![(1.0, 0.1), (2.0, 0.05), (4.0, 0.01)],
+                labels: labels(&["t4", "t8", "t16"]),
+            },
+            Series { name: "bicluster".into(), points: vec![(3.0, 0.0)], labels: labels(&["bicluster"]) },
         ];
         log_log_plot(&p, "error against storage", "MB", "rel. error", &series).unwrap();
         let guide = Guide { y: 0.05, label: "target".into(), marks: vec![("haar".into(), 2.0)] };
         log_log_plot_with(&p, "with a guide", "MB", "rel. error", &series, Some(&guide)).unwrap();
         let img = image::open(&p).unwrap();
-        assert_eq!((img.width(), img.height()), (800, 560));
+        assert_eq!((img.width(), img.height()), PLOT_SIZE);
+        let svg = std::fs::read_to_string(p.with_extension("svg")).unwrap();
+        assert!(svg.starts_with("<svg"), "{}", &svg[..80]);
+        xml_tags_balance(&svg).unwrap();
+        // The texts drawn: title, ticks, legend and every point's label.
+        let texts: Vec<&str> = (svg.split("<text").skip(1))
+            .filter_map(|t| t.split_once('>').map(|(_, r)| r.split("</text>").next().unwrap_or("").trim()))
+            .collect();
+        for text in ["with a guide", "t4", "t8", "t16", "bicluster", "target", "0.01", "1", "2"] {
+            assert!(texts.contains(&text), "the SVG lacks {text}: {texts:?}");
+        }
+        assert!(!dir.path().join("p.tmp.png").exists() && !dir.path().join("p.tmp.svg").exists());
         assert!(log_log_plot(&p, "t", "x", "y", &[]).is_err());
-        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_setting_is_labelled_without_its_kind() {
+        assert_eq!(short_label("haar-t12", "haar"), "t12");
+        assert_eq!(short_label("bicluster", "bicluster"), "bicluster");
+        assert_eq!(short_label("cpca-k32-c8", "cpca"), "k32-c8");
+        assert_eq!(short_label("haarish", "haar"), "haarish");
     }
 }

@@ -1,133 +1,446 @@
-//! The run's Markdown report: what ran, the transfer matrix, and one row per compressor
-//! setting, with links to the images. Readable without the program.
+//! The run's report as one document model ([`document`]): headings, paragraphs, lists,
+//! preformatted text, [`Table`]s and figures, rendered twice, as Markdown (`report.md`,
+//! [`markdown`]) and as one self-contained HTML page (`report.html`, `crate::html`). Every
+//! table of both files is a [`Table`] (header and rows of cells), so the two print the same
+//! numbers. Readable without the program.
 
 use crate::metrics::{Metrics, TransferMetrics};
-use crate::plan::Plan;
 use std::fmt::Write;
 
-pub fn markdown(m: &Metrics, plan: &Plan) -> String {
-    let mut s = String::new();
-    let _ = writeln!(s, "# biscale run: {}\n", m.experiment);
-    let _ = writeln!(s, "Config `{}`, backend {}.\n", m.config, m.backend);
-    if let Some(r) = &m.run {
-        let _ = writeln!(s, "Run: {}.\n", r.summary());
-        let _ = writeln!(s, "| stage | wall s | CPU s |\n|---|---|---|");
-        for t in &r.stages {
-            let cpu = t.cpu_seconds.map_or("?".into(), |c| format!("{c:.2}"));
-            let _ = writeln!(s, "| {} | {:.2} | {cpu} |", t.stage, t.wall_seconds);
+/// One piece of a table cell.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Inline {
+    Text(String),
+    Code(String),
+    Link {
+        text: String,
+        href: String,
+    },
+    /// An image of the output folder (path relative to it): a Markdown image, embedded in
+    /// the HTML page.
+    Image {
+        src: String,
+        alt: String,
+    },
+    /// A line break inside the cell.
+    Break,
+}
+
+/// A table cell: its pieces in order.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Cell(pub Vec<Inline>);
+
+impl From<String> for Cell {
+    fn from(s: String) -> Self {
+        Cell(vec![Inline::Text(s)])
+    }
+}
+
+impl From<&str> for Cell {
+    fn from(s: &str) -> Self {
+        Cell(vec![Inline::Text(s.to_string())])
+    }
+}
+
+impl Cell {
+    pub fn image(src: &str, alt: &str) -> Self {
+        Cell(vec![Inline::Image { src: src.to_string(), alt: alt.to_string() }])
+    }
+
+    /// The cell's text without markup (images by their alt text).
+    pub fn plain(&self) -> String {
+        self.0
+            .iter()
+            .map(|i| match i {
+                Inline::Text(t) | Inline::Code(t) => t.clone(),
+                Inline::Link { text, .. } => text.clone(),
+                Inline::Image { alt, .. } => alt.clone(),
+                Inline::Break => " ".into(),
+            })
+            .collect()
+    }
+
+    /// The cell as Markdown: `|` escaped, images and links in Markdown's syntax, breaks as
+    /// `<br>` (a pipe table's cell is one line).
+    pub fn markdown(&self) -> String {
+        self.0
+            .iter()
+            .map(|i| match i {
+                Inline::Text(t) => t.replace('|', "\\|"),
+                Inline::Code(t) => format!("`{}`", t.replace('|', "\\|")),
+                Inline::Link { text, href } => format!("[{}]({href})", text.replace('|', "\\|")),
+                Inline::Image { src, alt } => format!("![{}]({src})", alt.replace('|', "\\|")),
+                Inline::Break => "<br>".into(),
+            })
+            .collect()
+    }
+}
+
+/// A table of both reports: its header and one row of cells per line.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Table {
+    pub header: Vec<String>,
+    pub rows: Vec<Vec<Cell>>,
+    /// A class for the HTML page's styling (`figures`: a table of images drawn full width;
+    /// `thumbnails`: small images).
+    pub class: Option<&'static str>,
+}
+
+impl Table {
+    pub fn new(header: &[&str]) -> Self {
+        Table { header: header.iter().map(|h| h.to_string()).collect(), rows: vec![], class: None }
+    }
+
+    /// Append a row of text cells.
+    pub fn text_row<S: Into<String>>(&mut self, cells: impl IntoIterator<Item = S>) {
+        self.rows.push(cells.into_iter().map(|c| Cell::from(c.into())).collect());
+    }
+
+    /// The table as a Markdown pipe table (header, rule, rows), ending in a newline.
+    pub fn markdown(&self) -> String {
+        let mut s = String::new();
+        let head: Vec<String> = self.header.iter().map(|h| h.replace('|', "\\|")).collect();
+        let _ = writeln!(s, "| {} |\n|{}", head.join(" | "), "---|".repeat(self.header.len()));
+        for row in &self.rows {
+            let cells: Vec<String> = row.iter().map(Cell::markdown).collect();
+            let _ = writeln!(s, "| {} |", cells.join(" | "));
         }
-        let _ = writeln!(s);
+        s
     }
-    let _ = writeln!(s, "```\n{plan}```\n");
-    let _ = writeln!(s, "## Scene\n");
-    let _ = writeln!(
-        s,
-        "- mesh `{}`: {} vertices, {} triangles; material {}",
+}
+
+/// An image shown as a figure: its file (relative to the output folder), caption, and a
+/// file the figure links to (a plot's SVG).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Figure {
+    pub src: String,
+    pub caption: String,
+    pub link: Option<String>,
+}
+
+impl Figure {
+    fn new(src: impl Into<String>, caption: impl Into<String>) -> Self {
+        Figure { src: src.into(), caption: caption.into(), link: None }
+    }
+}
+
+/// One block of the report.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Block {
+    /// A heading of level 1..3.
+    Heading(u8, String),
+    /// A paragraph of Markdown inline text: `` `code` `` and `[text](link)` are marked up.
+    Para(String),
+    /// A bulleted list of inline texts like [`Block::Para`]'s.
+    List(Vec<String>),
+    /// Preformatted text (the plan).
+    Pre(String),
+    Table(Table),
+    /// Figures side by side, or one under the other across the page (`wide`: the plots).
+    Figures {
+        figures: Vec<Figure>,
+        wide: bool,
+    },
+}
+
+/// The report of a run: `plan` is the plan's text, `plots` the plots written (PNG path
+/// relative to the output folder, caption; each has an SVG twin beside it).
+pub fn document(m: &Metrics, plan: &str, plots: &[(String, String)]) -> Vec<Block> {
+    let mut d = vec![];
+    let para = |d: &mut Vec<Block>, s: String| d.push(Block::Para(s));
+    d.push(Block::Heading(1, format!("biscale run: {}", m.experiment)));
+    para(&mut d, format!("Config `{}`, backend {}.", m.config, m.backend));
+    if let Some(r) = &m.run {
+        para(&mut d, format!("Run: {}.", r.summary()));
+        let mut t = Table::new(&["stage", "wall s", "CPU s"]);
+        for s in &r.stages {
+            let cpu = s.cpu_seconds.map_or("?".into(), |c| format!("{c:.2}"));
+            t.text_row([s.stage.clone(), format!("{:.2}", s.wall_seconds), cpu]);
+        }
+        d.push(Block::Table(t));
+    }
+    d.push(Block::Pre(plan.to_string()));
+
+    d.push(Block::Heading(2, "Scene".into()));
+    let mut items = vec![format!(
+        "mesh `{}`: {} vertices, {} triangles; material {}",
         m.scene.mesh, m.scene.vertices, m.scene.triangles, m.scene.material
-    );
-    for r in &m.scene.repairs {
-        let _ = writeln!(s, "- repair: {r}");
-    }
-    for n in &m.scene.material_notes {
-        let _ = writeln!(s, "- materials: {n}");
-    }
-    let _ = writeln!(
-        s,
-        "- light: {} at 6x{r}x{r}, rotated {}°, total power (RGB) {:.4} {:.4} {:.4}",
+    )];
+    items.extend(m.scene.repairs.iter().map(|r| format!("repair: {r}")));
+    items.extend(m.scene.material_notes.iter().map(|n| format!("materials: {n}")));
+    items.push(format!(
+        "light: {} at 6x{r}x{r}, rotated {}°, total power (RGB) {:.4} {:.4} {:.4}",
         m.lighting.source,
         m.lighting.rotation_degrees,
         m.lighting.total_power[0],
         m.lighting.total_power[1],
         m.lighting.total_power[2],
         r = m.lighting.cubemap_resolution
-    );
+    ));
+    d.push(Block::List(items));
     if let Some(b) = btf_table(m) {
-        let _ = writeln!(s, "\n| {} |\n|{}", b.header.join(" | "), "---|".repeat(b.header.len()));
-        for row in &b.rows {
-            let _ = writeln!(s, "| {} |", row.join(" | "));
-        }
-        let _ = writeln!(s, "\n{}\n", b.total);
-        for (png, caption) in &b.figures {
-            let _ = writeln!(s, "![{caption}]({png})\n");
-        }
+        d.push(Block::Heading(3, "BTFs".into()));
+        d.push(Block::Table(b.table));
+        para(&mut d, b.total);
+        d.push(Block::Figures { figures: b.figures, wide: false });
     }
+
     let t = &m.transfer;
-    let _ = writeln!(s, "\n## Transfer matrix\n");
-    let _ = writeln!(s, "{}\n", transfer_summary(t));
-    let _ = writeln!(s, "| value | count |\n|---|---|");
+    d.push(Block::Heading(2, "Transfer matrix".into()));
+    para(&mut d, transfer_summary(t));
+    let mut hist = Table::new(&["value", "count"]);
     for v in &t.value_histogram {
-        let _ = writeln!(s, "| {} | {} |", v.value, v.count);
+        hist.text_row([v.value.to_string(), v.count.to_string()]);
     }
-    let _ = writeln!(s, "\n## Compressors\n");
-    let _ = writeln!(
-        s,
-        "Uncompressed `T L`: gather {:.2} ms (f64 reference), shade {:.1} ms.\n",
-        m.uncompressed.gather_ms, m.uncompressed.shade_ms
+    d.push(Block::Table(hist));
+
+    d.push(Block::Heading(2, "Compressors".into()));
+    para(
+        &mut d,
+        format!(
+            "Uncompressed `T L`: gather {:.2} ms (f64 reference), shade {:.1} ms.",
+            m.uncompressed.gather_ms, m.uncompressed.shade_ms
+        ),
     );
-    let (header, rows) = compressor_table(m);
-    let _ = writeln!(s, "| {} |\n|{}", header.join(" | "), "---|".repeat(header.len()));
-    for row in rows {
-        let _ = writeln!(s, "| {} |", row.join(" | "));
+    d.push(Block::Table(compressor_table(m)));
+    para(&mut d, LDR_NOTE.into());
+    if let Some(g) = gpu_table(m) {
+        d.push(Block::Heading(3, g.0));
+        d.push(Block::Table(g.1));
     }
-    let _ = writeln!(s, "\n{LDR_NOTE}");
-    if m.compressors.iter().any(|c| c.gpu.is_some()) {
-        let adapter = m.compressors.iter().find_map(|c| c.gpu.as_ref()).map(|g| g.adapter.clone()).unwrap_or_default();
-        let _ = writeln!(s, "\n### wgpu backend ({adapter})\n");
-        let _ = writeln!(
-            s,
-            "| setting | gather ms | shade ms | timing | rel. err L* | image rel. L2 vs CPU | coverage mismatches |"
+    if let Some(r) = &m.reference {
+        para(
+            &mut d,
+            format!(
+                "Ground truth (direct light) traced per pixel at {}x{} in {:.1} s (each pixel's own visibility, each \
+                 texel's own cosine, the BRDF at each texel's own direction). Uncompressed vertex render against it: \
+                 RMSE {:.4}, PSNR {:.2} dB, rel. L2 {:.4}; LDR PSNR / SSIM / FLIP {}.",
+                r.width,
+                r.height,
+                r.seconds,
+                r.uncompressed_vs_reference.rmse,
+                r.uncompressed_vs_reference.psnr,
+                r.uncompressed_vs_reference.rel_l2,
+                ldr_cell(&r.uncompressed_vs_reference)
+            ),
         );
-        let _ = writeln!(s, "|---|---|---|---|---|---|---|");
-        for c in &m.compressors {
-            if let Some(g) = &c.gpu {
-                let _ = writeln!(
-                    s,
-                    "| {} | {:.2} | {:.2} | {} | {:.2e} | {:.2e} | {} |",
-                    c.name,
-                    g.gather_ms,
-                    g.shade_ms,
-                    g.timing,
-                    g.rel_error_lstar,
-                    g.image_vs_cpu.rel_l2,
-                    g.coverage_mismatch
-                );
+    }
+    para(&mut d, light_moments_summary(m));
+    d.extend(comparisons(m));
+    d.extend(low_vs_all_blocks(m));
+    d.extend(comparison_rows(m));
+    if !plots.is_empty() {
+        d.push(Block::Heading(2, "Plots".into()));
+        para(
+            &mut d,
+            "Every point is labelled with its setting (without its kind, which the legend gives by colour); \
+             each plot links to its SVG."
+                .into(),
+        );
+        let figures = plots
+            .iter()
+            .map(|(png, caption)| Figure { src: png.clone(), caption: caption.clone(), link: Some(svg_twin(png)) })
+            .collect();
+        d.push(Block::Figures { figures, wide: true });
+    }
+    d
+}
+
+/// The SVG written beside a plot's PNG.
+pub fn svg_twin(png: &str) -> String {
+    match png.strip_suffix(".png") {
+        Some(stem) => format!("{stem}.svg"),
+        None => format!("{png}.svg"),
+    }
+}
+
+/// The run's Markdown report (`report.md`): [`document`] as Markdown.
+pub fn markdown(m: &Metrics, plan: &str, plots: &[(String, String)]) -> String {
+    let mut s = String::new();
+    for block in document(m, plan, plots) {
+        match block {
+            Block::Heading(level, text) => {
+                let _ = writeln!(s, "{} {text}\n", "#".repeat(level.clamp(1, 6) as usize));
+            }
+            Block::Para(text) => {
+                let _ = writeln!(s, "{text}\n");
+            }
+            Block::List(items) => {
+                for i in items {
+                    let _ = writeln!(s, "- {i}");
+                }
+                s.push('\n');
+            }
+            Block::Pre(text) => {
+                let _ = writeln!(s, "```\n{}\n```\n", text.trim_end());
+            }
+            Block::Table(t) => {
+                let _ = writeln!(s, "{}", t.markdown());
+            }
+            Block::Figures { figures, .. } => {
+                for f in figures {
+                    match &f.link {
+                        Some(link) => {
+                            let _ = writeln!(
+                                s,
+                                "[![{}]({})]({link})\n\n*{}* ([SVG]({link}))\n",
+                                f.caption, f.src, f.caption
+                            );
+                        }
+                        None => {
+                            let _ = writeln!(s, "![{}]({})\n", f.caption, f.src);
+                        }
+                    }
+                }
             }
         }
     }
-    if let Some(r) = &m.reference {
-        let _ = writeln!(
-            s,
-            "\nGround truth (direct light) traced per pixel at {}x{} in {:.1} s (each pixel's own visibility, each texel's own cosine, the BRDF at each texel's own direction). Uncompressed vertex render against it: RMSE {:.4}, PSNR {:.2} dB, rel. L2 {:.4}; LDR PSNR / SSIM / FLIP {}.",
-            r.width, r.height, r.seconds, r.uncompressed_vs_reference.rmse, r.uncompressed_vs_reference.psnr, r.uncompressed_vs_reference.rel_l2,
-            ldr_cell(&r.uncompressed_vs_reference)
-        );
-    }
-    let _ = writeln!(s, "\n{}", light_moments_summary(m));
-    s.push_str(&comparisons_markdown(m));
-    s.push_str(&low_vs_all_markdown(m));
-    let _ = writeln!(s, "\n## Images\n");
-    let _ = writeln!(s, "![uncompressed](images/uncompressed.png)\n");
-    if m.reference.is_some() {
-        let _ = writeln!(s, "![ground truth (direct light)](images/reference.png)\n");
-    }
-    if m.uncompressed.light_moments {
-        let _ = writeln!(s, "![uncompressed, paper's bin-mean cosine](images/uncompressed_paper.png)\n");
-    }
-    if let Some(scale) = m.compressors.iter().find_map(|c| c.image.error_scale) {
-        let _ = writeln!(
-            s,
-            "Every compressor's error figure has one colour scale, full scale {} (luminance of |error| against the \
-             uncompressed render, linear radiance; `[report] error_scale` fixes it).\n",
-            crate::plots::tick_label(scale as f64)
-        );
-    }
+    s
+}
+
+/// The wgpu table: its heading and table, when the run used the GPU backend.
+fn gpu_table(m: &Metrics) -> Option<(String, Table)> {
+    let adapter = m.compressors.iter().find_map(|c| c.gpu.as_ref())?.adapter.clone();
+    let mut t = Table::new(&[
+        "setting",
+        "gather ms",
+        "shade ms",
+        "timing",
+        "rel. err L*",
+        "image rel. L2 vs CPU",
+        "coverage mismatches",
+    ]);
     for c in &m.compressors {
-        let _ = writeln!(s, "**{}** ([EXR]({})):\n\n![{}]({})\n", c.name, c.image.exr, c.name, c.image.png);
-        if let (Some(e), Some(max)) = (&c.image.error_png, c.image.error_max) {
-            let _ = writeln!(s, "![{} error]({e})\n\nlargest error {}\n", c.name, crate::plots::tick_label(max as f64));
+        if let Some(g) = &c.gpu {
+            t.text_row([
+                c.name.clone(),
+                format!("{:.2}", g.gather_ms),
+                format!("{:.2}", g.shade_ms),
+                g.timing.clone(),
+                format!("{:.2e}", g.rel_error_lstar),
+                format!("{:.2e}", g.image_vs_cpu.rel_l2),
+                g.coverage_mismatch.to_string(),
+            ]);
         }
     }
-    s
+    Some((format!("wgpu backend ({adapter})"), t))
+}
+
+/// The comparison section: one row per image (the uncompressed render, every compressor and
+/// method setting, the ground truth): the render with the inset region marked, its error
+/// against the uncompressed render, against the ground truth (when traced), and the inset.
+fn comparison_rows(m: &Metrics) -> Vec<Block> {
+    use crate::plots::tick_label;
+    let mut d = vec![Block::Heading(2, "Comparison".into())];
+    let figures = m.figures.as_ref();
+    let reference = m.reference.is_some();
+    let mut text = String::new();
+    if let Some(scale) = m.compressors.iter().find_map(|c| c.image.error_scale) {
+        let _ = write!(
+            text,
+            "Every compressor's error figure has one colour scale, full scale {} (luminance of |error| against the \
+             uncompressed render, linear radiance; `[report] error_scale` fixes it); a method's has its own.",
+            tick_label(scale as f64)
+        );
+    }
+    if let Some(s) = figures.and_then(|f| f.reference_error_scale) {
+        let _ = write!(
+            text,
+            " Errors against the ground truth (at its resolution) share the full scale {}, the largest of their own \
+             99th percentiles.",
+            tick_label(s as f64)
+        );
+    }
+    if let Some(f) = figures {
+        let [x, y, w, h] = f.inset;
+        let _ = write!(
+            text,
+            " Inset: the {w}x{h} pixels at ({x}, {y}) ({}), magnified {}x by nearest neighbour and marked in red on \
+             every image.",
+            f.inset_from, f.inset_magnification
+        );
+    }
+    if !text.is_empty() {
+        d.push(Block::Para(text.trim_start().to_string()));
+    }
+    let mut header = vec!["setting", "render", "error vs uncompressed"];
+    if reference {
+        header.push("error vs ground truth");
+    }
+    if figures.is_some() {
+        header.push("inset");
+    }
+    let mut t = Table::new(&header);
+    t.class = Some("figures");
+    let row_of = |name: &str| figures.and_then(|f| f.rows.iter().find(|r| r.name == name));
+    let dash = || Cell::from("-");
+    let push = |t: &mut Table, label: Cell, name: &str, png: &str, error: Cell| {
+        let row = row_of(name);
+        let mut cells = vec![label, Cell::image(row.map_or(png, |r| &r.thumbnail), name), error];
+        if reference {
+            cells.push(match row.and_then(|r| r.error_vs_reference_png.as_ref()) {
+                Some(e) => Cell::image(e, &format!("{name}: error vs ground truth")),
+                None => dash(),
+            });
+        }
+        if figures.is_some() {
+            cells.push(row.map_or_else(dash, |r| Cell::image(&r.inset, &format!("{name}: inset"))));
+        }
+        t.rows.push(cells);
+    };
+    let label = |name: &str, lines: Vec<String>, exr: Option<&str>| {
+        let mut c = vec![Inline::Text(name.to_string())];
+        for l in lines {
+            c.extend([Inline::Break, Inline::Text(l)]);
+        }
+        if let Some(exr) = exr {
+            c.extend([Inline::Break, Inline::Link { text: "EXR".into(), href: exr.to_string() }]);
+        }
+        Cell(c)
+    };
+    push(
+        &mut t,
+        label("uncompressed T", vec![], Some("images/uncompressed.exr")),
+        "uncompressed",
+        "images/uncompressed.png",
+        dash(),
+    );
+    if m.uncompressed.light_moments {
+        push(
+            &mut t,
+            label("uncompressed, paper's bin-mean cosine", vec![], Some("images/uncompressed_paper.exr")),
+            "uncompressed_paper",
+            "images/uncompressed_paper.png",
+            dash(),
+        );
+    }
+    let records = m.compressors.iter().map(|c| (c, false)).chain(m.methods.iter().map(|r| (&r.record, true)));
+    for (c, method) in records {
+        let mut lines = vec![if c.lossless { "lossless".to_string() } else { "lossy".to_string() }];
+        lines.push(format!("{:.2} MB", c.bytes as f64 / 1e6));
+        if let Some(max) = c.image.error_max {
+            lines.push(format!("largest error {}", tick_label(max as f64)));
+        }
+        if method {
+            lines.push("error vs uncompressed at its own scale".into());
+        }
+        let error = match &c.image.error_png {
+            Some(e) => Cell::image(e, &format!("{}: error vs uncompressed", c.name)),
+            None => dash(),
+        };
+        push(&mut t, label(&c.name, lines, Some(&c.image.exr)), &c.name, &c.image.png, error);
+    }
+    if reference {
+        push(
+            &mut t,
+            label("ground truth (direct light)", vec![], Some("images/reference.exr")),
+            "reference",
+            "images/reference.png",
+            dash(),
+        );
+    }
+    d.push(Block::Table(t));
+    d
 }
 
 /// The transfer matrix in one sentence (both reports).
@@ -151,27 +464,24 @@ pub fn transfer_summary(t: &TransferMetrics) -> String {
     )
 }
 
-/// The low- vs all-frequency comparison of both reports: a table (header, rows) of storage,
-/// precompute, gather and shade time and image error per method, and the figures to show side
-/// by side (`(image, caption)`, error images against the all-frequency uncompressed render).
-/// `None` when no method setting ran.
+/// The low- vs all-frequency comparison of both reports: a table of storage, precompute,
+/// gather and shade time and image error per method, and the figures to show side by side
+/// (error images against the all-frequency uncompressed render). `None` when no method
+/// setting ran.
 pub struct LowVsAll {
-    pub header: &'static [&'static str],
-    pub rows: Vec<Vec<String>>,
-    pub figures: Vec<(String, String)>,
+    pub table: Table,
+    pub figures: Vec<Figure>,
 }
 
 /// The materials' BTF representations as a table, when any is not dense: storage and table
 /// error of every setting and, from the BTF study, its image error and shade time.
 pub struct BtfTable {
-    pub header: [&'static str; 12],
-    pub rows: Vec<Vec<String>>,
+    pub table: Table,
     /// One sentence: the materials' own BTFs, dense and as stored (what decides whether the
     /// scene fits a GPU), and how the study was made.
     pub total: String,
-    /// `(image, caption)`: each studied setting's image and its error against the all-dense
-    /// image.
-    pub figures: Vec<(String, String)>,
+    /// Each studied setting's image and its error against the all-dense image.
+    pub figures: Vec<Figure>,
 }
 
 /// [`BtfTable`] of a run, `None` when every BTF is dense.
@@ -181,15 +491,15 @@ pub fn btf_table(m: &Metrics) -> Option<BtfTable> {
     }
     let pct = |x: f64| format!("{:.2}%", 100.0 * x);
     let mut figures = vec![];
-    let rows = m
+    let rows: Vec<Vec<String>> = m
         .scene
         .btfs
         .iter()
         .map(|b| {
             let st = b.study.as_ref();
             if let Some(st) = st {
-                figures.push((st.png.clone(), format!("{} {}", b.material, b.representation)));
-                figures.push((
+                figures.push(Figure::new(st.png.clone(), format!("{} {}", b.material, b.representation)));
+                figures.push(Figure::new(
                     st.error_png.clone(),
                     format!(
                         "{} {}: |error| against dense BTFs (full scale {:.3e})",
@@ -229,25 +539,24 @@ pub fn btf_table(m: &Metrics) -> Option<BtfTable> {
         stored as f64 * 1e-6,
         dense as f64 / stored.max(1) as f64
     );
-    Some(BtfTable {
-        header: [
-            "material",
-            "BTF",
-            "own",
-            "dense MB (f32)",
-            "stored MB",
-            "ratio",
-            "table rel. RMS",
-            "build s",
-            "image vs dense",
-            "image vs ground truth",
-            "shade ms (dense)",
-            "precomputed ms",
-        ],
-        rows,
-        total,
-        figures,
-    })
+    let mut table = Table::new(&[
+        "material",
+        "BTF",
+        "own",
+        "dense MB (f32)",
+        "stored MB",
+        "ratio",
+        "table rel. RMS",
+        "build s",
+        "image vs dense",
+        "image vs ground truth",
+        "shade ms (dense)",
+        "precomputed ms",
+    ]);
+    for row in rows {
+        table.text_row(row);
+    }
+    Some(BtfTable { table, total, figures })
 }
 
 pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
@@ -315,7 +624,7 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
             format!("{:.2e}", c.image.vs_uncompressed.rel_l2),
             "-".into(),
         ]);
-        figures.push((c.image.png.clone(), format!("all-frequency: {}", c.name)));
+        figures.push(Figure::new(c.image.png.clone(), format!("all-frequency: {}", c.name)));
     }
     for r in &m.methods {
         let c = &r.record;
@@ -343,39 +652,37 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
             format!("{:.4}", c.image.vs_uncompressed.rel_l2),
             neg,
         ]);
-        figures.push((c.image.png.clone(), format!("low-frequency: {}", c.name)));
+        figures.push(Figure::new(c.image.png.clone(), format!("low-frequency: {}", c.name)));
         if let Some(e) = &c.image.error_png {
-            figures.push((e.clone(), format!("{}: |error| against the all-frequency uncompressed render", c.name)));
+            let caption = format!("{}: |error| against the all-frequency uncompressed render", c.name);
+            figures.push(Figure::new(e.clone(), caption));
         }
     }
     if m.reference.is_some() {
-        figures.push(("images/reference.png".into(), "ground truth (direct light)".into()));
+        figures.push(Figure::new("images/reference.png", "ground truth (direct light)"));
     }
-    Some(LowVsAll { header: HEADER, rows, figures })
+    let mut table = Table::new(HEADER);
+    for row in rows {
+        table.text_row(row);
+    }
+    Some(LowVsAll { table, figures })
 }
 
-/// The low- vs all-frequency section as Markdown (empty without method settings).
-pub fn low_vs_all_markdown(m: &Metrics) -> String {
-    let Some(l) = low_vs_all(m) else { return String::new() };
-    let mut s = String::new();
-    let _ = writeln!(s, "\n## Low- vs all-frequency\n");
-    let _ = writeln!(
-        s,
+/// The low- vs all-frequency section (nothing without method settings).
+fn low_vs_all_blocks(m: &Metrics) -> Vec<Block> {
+    let Some(l) = low_vs_all(m) else { return vec![] };
+    let mut d = vec![Block::Heading(2, "Low- vs all-frequency".into())];
+    d.push(Block::Para(
         "The same scene, BTFs, light, camera and reference through the all-frequency method (bins T) and the \
          low-frequency one (SH light, per-vertex SH transfer, radiance transfer textures). Transfer MB is the \
          transfer's stored form, meso MB the BTF tables (all-frequency) or radiance transfer textures (SH), at f32; \
          precompute is the transfer's build plus its compression (`cached` when the transfer came from the stage \
-         cache).\n"
-    );
-    let _ = writeln!(s, "| {} |\n|{}", l.header.join(" | "), "---|".repeat(l.header.len()));
-    for row in &l.rows {
-        let _ = writeln!(s, "| {} |", row.join(" | "));
-    }
-    let _ = writeln!(s);
-    for (png, caption) in &l.figures {
-        let _ = writeln!(s, "![{caption}]({png})\n");
-    }
-    s
+         cache)."
+            .into(),
+    ));
+    d.push(Block::Table(l.table));
+    d.push(Block::Figures { figures: l.figures, wide: false });
+    d
 }
 
 /// What the tables' LDR figures are (both reports).
@@ -388,9 +695,8 @@ pub fn ldr_cell(e: &crate::metrics::ImageErrors) -> String {
     format!("{:.2} / {:.4} / {:.4}", e.ldr_psnr, e.ssim, e.flip)
 }
 
-/// The compressor table of both reports (Markdown and HTML): its header and one row of
-/// cells per setting.
-pub fn compressor_table(m: &Metrics) -> (&'static [&'static str], Vec<Vec<String>>) {
+/// The compressor table of both reports: one row per setting.
+pub fn compressor_table(m: &Metrics) -> Table {
     const HEADER: &[&str] = &[
         "setting",
         "lossless",
@@ -428,8 +734,12 @@ pub fn compressor_table(m: &Metrics) -> (&'static [&'static str], Vec<Vec<String
                 c.image.vs_reference.map_or("-".into(), |e| ldr_cell(&e)),
             ]
         })
-        .collect();
-    (HEADER, rows)
+        .collect::<Vec<Vec<String>>>();
+    let mut table = Table::new(HEADER);
+    for row in rows {
+        table.text_row(row);
+    }
+    table
 }
 
 /// The storage budget of the equal-storage comparison: the lossless biclustering's storage
@@ -446,43 +756,36 @@ pub fn storage_budget(m: &Metrics) -> Option<(u64, String)> {
 }
 
 /// Equal-storage and equal-quality sections (only when at least two kinds ran).
-pub fn comparisons_markdown(m: &Metrics) -> String {
+pub fn comparisons(m: &Metrics) -> Vec<Block> {
     use crate::compare::{by_kind, equal_storage, storage_for_error, StorageForError};
-    let mut s = String::new();
+    let mut d = vec![];
     let kinds = by_kind(&m.compressors);
     if kinds.len() < 2 {
-        return s;
+        return d;
     }
     if let Some((budget, why)) = storage_budget(m) {
-        let _ = writeln!(
-            s,
-            "\n## Equal storage\n\nEach compressor's setting closest to {why} ({:.2} MB):\n",
-            budget as f64 / 1e6
-        );
-        let _ = writeln!(
-            s,
-            "| setting | MB | rel. err L* | PSNR vs uncompressed | image | error |\n|---|---|---|---|---|---|"
-        );
+        d.push(Block::Heading(2, "Equal storage".into()));
+        d.push(Block::Para(format!("Each compressor's setting closest to {why} ({:.2} MB):", budget as f64 / 1e6)));
+        let mut t = Table::new(&["setting", "MB", "rel. err L*", "PSNR vs uncompressed", "image", "error"]);
+        t.class = Some("thumbnails");
         for r in equal_storage(&m.compressors, budget) {
-            let _ = writeln!(
-                s,
-                "| {} | {:.2} | {:.2e} | {:.2} | ![{}]({}) | {} |",
-                r.name,
-                r.bytes as f64 / 1e6,
-                r.rel_error_lstar,
-                r.image.vs_uncompressed.psnr,
-                r.name,
-                r.image.png,
-                r.image.error_png.as_ref().map_or("-".into(), |e| format!("![error]({e})"))
-            );
+            t.rows.push(vec![
+                r.name.clone().into(),
+                format!("{:.2}", r.bytes as f64 / 1e6).into(),
+                format!("{:.2e}", r.rel_error_lstar).into(),
+                format!("{:.2}", r.image.vs_uncompressed.psnr).into(),
+                Cell::image(&r.image.png, &r.name),
+                r.image.error_png.as_ref().map_or_else(|| "-".into(), |e| Cell::image(e, "error")),
+            ]);
         }
+        d.push(Block::Table(t));
     }
-    let _ = writeln!(
-        s,
-        "\n## Equal quality\n\nStorage each compressor needs for a relative L* error of {:.2e} (log-log interpolation along its sweep):\n",
+    d.push(Block::Heading(2, "Equal quality".into()));
+    d.push(Block::Para(format!(
+        "Storage each compressor needs for a relative L* error of {:.2e} (log-log interpolation along its sweep):",
         m.target_error
-    );
-    let _ = writeln!(s, "| compressor | storage needed |\n|---|---|");
+    )));
+    let mut t = Table::new(&["compressor", "storage needed"]);
     for (kind, recs) in &kinds {
         let text = match storage_for_error(recs, m.target_error) {
             Some(StorageForError::AtMost { bytes, setting }) => {
@@ -496,33 +799,33 @@ pub fn comparisons_markdown(m: &Metrics) -> String {
             }
             None => "-".into(),
         };
-        let _ = writeln!(s, "| {kind} | {text} |");
+        t.text_row([kind.clone(), text]);
     }
+    d.push(Block::Table(t));
     // The same read-off at the field's usual targets, one column each: where each
     // compressor's curve crosses them (interpolated between two measured settings, never
     // extrapolated).
     let targets = crate::compare::equal_quality_targets(m.target_error);
-    let _ = writeln!(
-        s,
-        "\nAt other targets (MB; `<=`: the cheapest setting already meets it; `>`: not reached, so it needs more than the largest setting measured):\n"
-    );
+    d.push(Block::Para(
+        "At other targets (MB; `<=`: the cheapest setting already meets it; `>`: not reached, so it needs more than \
+         the largest setting measured):"
+            .into(),
+    ));
     let head: Vec<String> = targets.iter().map(|t| format!("{t:.1e}")).collect();
-    let _ = writeln!(s, "| compressor | {} |\n|---|{}", head.join(" | "), "---|".repeat(targets.len()));
+    let mut t = Table { header: std::iter::once("compressor".to_string()).chain(head).collect(), ..Table::default() };
     for (kind, recs) in &kinds {
-        let cells: Vec<String> = targets
-            .iter()
-            .map(|&t| match storage_for_error(recs, t) {
-                Some(StorageForError::AtMost { bytes, .. }) => format!("<= {:.2}", bytes as f64 / 1e6),
-                Some(StorageForError::Between { bytes, .. }) => format!("{:.2}", bytes / 1e6),
-                Some(StorageForError::NotReached { .. }) => {
-                    format!("> {:.2}", recs.iter().map(|r| r.bytes).max().unwrap_or(0) as f64 / 1e6)
-                }
-                None => "-".into(),
-            })
-            .collect();
-        let _ = writeln!(s, "| {kind} | {} |", cells.join(" | "));
+        let cells = targets.iter().map(|&t| match storage_for_error(recs, t) {
+            Some(StorageForError::AtMost { bytes, .. }) => format!("<= {:.2}", bytes as f64 / 1e6),
+            Some(StorageForError::Between { bytes, .. }) => format!("{:.2}", bytes / 1e6),
+            Some(StorageForError::NotReached { .. }) => {
+                format!("> {:.2}", recs.iter().map(|r| r.bytes).max().unwrap_or(0) as f64 / 1e6)
+            }
+            None => "-".into(),
+        });
+        t.text_row(std::iter::once(kind.clone()).chain(cells));
     }
-    s
+    d.push(Block::Table(t));
+    d
 }
 
 /// One sentence on the cosine rule of the run's `L*` (`[runtime] light_moments`) and, with
