@@ -111,6 +111,13 @@ fn write_scene(exp: &Experiment, geometry: &pipeline::Geometry, dir: &Path) -> R
 }
 
 pub fn write_mtx(t: &TransferMatrix, light: &LightVector, dir: &Path) -> Result<()> {
+    write_t_mtx(t, dir)?;
+    write_l_mtx(light, dir)?;
+    Ok(())
+}
+
+/// `T.mtx` in `dir` (coordinate, real, general; 1-based): its path.
+pub fn write_t_mtx(t: &TransferMatrix, dir: &Path) -> Result<std::path::PathBuf> {
     let tp = dir.join("T.mtx");
     write_atomic(&tp, |f| {
         (|| -> std::io::Result<()> {
@@ -130,6 +137,11 @@ pub fn write_mtx(t: &TransferMatrix, light: &LightVector, dir: &Path) -> Result<
         })()
         .map_err(|e| e.to_string())
     })?;
+    Ok(tp)
+}
+
+/// `L.mtx` in `dir` (array N x 3, column-major): its path.
+pub fn write_l_mtx(light: &LightVector, dir: &Path) -> Result<std::path::PathBuf> {
     let lp = dir.join("L.mtx");
     write_atomic(&lp, |f| {
         (|| -> std::io::Result<()> {
@@ -145,7 +157,7 @@ pub fn write_mtx(t: &TransferMatrix, light: &LightVector, dir: &Path) -> Result<
         })()
         .map_err(|e| e.to_string())
     })?;
-    Ok(())
+    Ok(lp)
 }
 
 /// What `biscale diff` compares and writes besides the two images.
@@ -203,7 +215,7 @@ pub fn diff(a: &Path, b: &Path, opts: DiffOptions<'_>, warn: &mut dyn FnMut(Stri
     if let Some(p) = opts.error_image {
         let (img, scale) = error_image_of(&ia, &ib, None)?;
         write_rgb8_png(&img, p)?;
-        eprintln!("wrote {} (full scale = luminance error {scale:.4e})", p.display());
+        crate::note!("wrote {} (full scale = luminance error {scale:.4e})", p.display());
     }
     Ok(m)
 }

@@ -18,10 +18,13 @@ pub mod config;
 #[cfg(feature = "gpu")]
 pub mod gpu_backend;
 pub mod html;
+pub mod inset;
+pub mod interop;
 pub mod materials;
 pub mod memory;
 pub mod methods;
 pub mod metrics;
+pub mod npy;
 pub mod pipeline;
 pub mod plan;
 pub mod plots;

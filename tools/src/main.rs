@@ -19,6 +19,12 @@ struct Cli {
     /// one per core); recorded in metrics.json.
     #[arg(long, global = true)]
     threads: Option<usize>,
+    /// Print only warnings and errors: no progress, no notes (batch jobs that log elsewhere).
+    #[arg(short, long, global = true, conflicts_with = "verbose")]
+    quiet: bool,
+    /// Also print each stage's wall time as it ends.
+    #[arg(short, long, global = true)]
+    verbose: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -26,6 +32,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Run an experiment and write its output folder (default out/<name>/).
+    #[command(after_help = "Example: biscale run configs/bunny.toml --out out/bunny")]
     Run {
         /// The experiment's TOML file.
         config: PathBuf,
@@ -33,12 +40,18 @@ enum Command {
         output: OutputArgs,
     },
     /// Print what `run` would do and what it leaves out, without running anything.
-    Plan { config: PathBuf },
+    #[command(after_help = "Example: biscale plan configs/bunny.toml")]
+    Plan {
+        /// The experiment's TOML file.
+        config: PathBuf,
+    },
     /// Write T.mtx (sparse, Matrix Market) and L.mtx (dense N x 3) for other tools, e.g.
     /// `scipy.io.mmread`, with mesh.obj (T's vertex order and traced normals), view.json
     /// (camera and lighting) and irradiance.csv (each vertex's T L irradiance, paper's cosine
     /// and exact) for an external renderer (scripts/mitsuba_check.py).
+    #[command(after_help = "Example: biscale export-matrix configs/bunny.toml --out out/bunny-mtx")]
     ExportMatrix {
+        /// The experiment's TOML file.
         config: PathBuf,
         /// Folder to write T.mtx and L.mtx into.
         #[arg(long)]
@@ -46,9 +59,56 @@ enum Command {
         #[command(flatten)]
         cache: CacheArgs,
     },
+    /// Write T, L, the uncompressed L*, every compressor setting's form and the BTFs as NumPy
+    /// files (t.npz, l.npz, lstar.npz, form-<label>.npz, btf-<material>.npz; read them with
+    /// python/biscale_io.py or numpy.load), or T and L as Matrix Market (--format mtx).
+    #[command(after_help = "Example: biscale export configs/bunny.toml --what t,lstar,forms --out out/bunny-npz")]
+    Export {
+        /// The experiment's TOML file.
+        config: PathBuf,
+        /// npz: NumPy archives; mtx: T.mtx and L.mtx (what export-matrix writes).
+        #[arg(long, value_enum, default_value = "npz")]
+        format: biscale::interop::ExportFormat,
+        /// What to write, comma-separated: t, l, lstar, forms, btf (default: all the format
+        /// holds).
+        #[arg(long, value_delimiter = ',')]
+        what: Vec<String>,
+        /// Folder for the files (default: out/<name>-export/).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        #[command(flatten)]
+        cache: CacheArgs,
+    },
+    /// Render and score an L* or a compressed form made outside biscale (e.g. in NumPy) as a
+    /// run scores a compressor setting: L* error against T L, image errors against the
+    /// uncompressed render and the reference; writes metrics.json and images/ (CPU only).
+    #[command(after_help = "Example: biscale eval configs/bunny.toml --lstar out/bunny-npz/lstar.npz --name mine")]
+    Eval {
+        /// The experiment's TOML file.
+        config: PathBuf,
+        /// An L*: .npy (float32/float64, (V*M, 3) rows v*M+j, or (V, M, 3)) or .npz (array
+        /// `lstar`), e.g. biscale_io.save_lstar's.
+        #[arg(long, required_unless_present = "form", conflicts_with = "form")]
+        lstar: Option<PathBuf>,
+        /// A compressed form (.npz: `export --what forms` or biscale_io.save_form) of a
+        /// built-in kind, gathered by that compressor's CPU gather.
+        #[arg(long)]
+        form: Option<PathBuf>,
+        /// The setting's name in metrics.json and the images (default: the form's label, or
+        /// the file's stem).
+        #[arg(long)]
+        name: Option<String>,
+        /// Output folder (default: out/<name>-eval-<NAME>/), replaced whole as a run's is.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        #[command(flatten)]
+        cache: CacheArgs,
+    },
     /// Pictures of the transfer matrix's structure: sparsity and biclusters of a patch of
     /// vertices, bicluster size and value histograms, per-vertex heat maps on the mesh.
+    #[command(after_help = "Example: biscale viz configs/bunny.toml --out out/bunny-viz")]
     Viz {
+        /// The experiment's TOML file.
         config: PathBuf,
         /// Folder for the PNG files.
         #[arg(long, default_value = "out/viz")]
@@ -66,7 +126,9 @@ enum Command {
     /// --features viewer -- view CONFIG`): drag to orbit, wheel to zoom, right-drag or
     /// arrows to rotate the sky, Tab to switch compressors.
     #[cfg(feature = "viewer")]
+    #[command(after_help = "Example: biscale view configs/bunny.toml")]
     View {
+        /// The experiment's TOML file.
         config: PathBuf,
         /// Show the `[[methods]]` setting with this label (e.g. sh-n5) instead of the
         /// compressors: the low-frequency method, its sky rotated in SH.
@@ -76,14 +138,27 @@ enum Command {
         #[arg(long)]
         screenshot: Option<PathBuf>,
     },
+    /// Open the interactive viewer: not in this build. Rebuild with the `viewer` feature:
+    /// `bash scripts/setup-viewer.sh && cargo install --path tools --features viewer` (or
+    /// `cargo run --release -p biscale --features viewer -- view CONFIG`).
+    #[cfg(not(feature = "viewer"))]
+    #[command(after_help = "Example: biscale view configs/bunny.toml (after rebuilding with --features viewer)")]
+    View {
+        /// What the viewer would take (CONFIG, --method, --screenshot).
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<String>,
+    },
     /// Write a generated mesh (OBJ): a test scene, or a subdivided mesh for scaling studies.
+    #[command(after_help = "Example: biscale generate scene plane-sphere --out assets/meshes/plane_sphere.obj")]
     Generate {
         #[command(subcommand)]
         what: Generate,
     },
     /// Build the BTFs of a config's materials (synthesized ones are ray traced from their
     /// height-field patch, or taken from the cache) and write them as .btf files.
+    #[command(after_help = "Example: biscale btf configs/bunny.toml --out out/bunny-btf")]
     Btf {
+        /// The experiment's TOML file.
         config: PathBuf,
         /// Only the material with this name.
         #[arg(long)]
@@ -100,11 +175,13 @@ enum Command {
     },
     /// Split the precompute (T and the separable compressors) into shards for a Slurm job
     /// array or local processes, and merge them into what `run` would have produced.
+    #[command(after_help = "Example: biscale shard plan configs/bunny.toml --shards 8 --out out/bunny-shards")]
     Shard {
         #[command(subcommand)]
         what: Shard,
     },
     /// List or clean the stage cache.
+    #[command(after_help = "Example: biscale cache clean --older-than-days 30 --dry-run")]
     Cache {
         #[command(subcommand)]
         what: Cache,
@@ -112,7 +189,11 @@ enum Command {
     /// Compare two EXR images: prints RMSE, PSNR and relative L2 of A against B, and after
     /// the report's tone map LDR PSNR (peak 1), SSIM and FLIP. A of another size is resampled
     /// to B's (box filter for an integer ratio, else bilinear), with a warning.
+    #[command(
+        after_help = "Example: biscale diff out/bunny/images/bicluster.exr out/bunny/images/uncompressed.exr --mask out/bunny/images/mask.png"
+    )]
     Diff {
+        /// The image to score (EXR).
         a: PathBuf,
         /// The reference image.
         b: PathBuf,
@@ -171,13 +252,16 @@ impl OutputArgs {
 #[derive(Subcommand)]
 enum Cache {
     /// List the cache's files: kind, size, age and the inputs each was built from.
+    #[command(after_help = "Example: biscale cache list")]
     List {
         /// Cache folder (default: $XDG_CACHE_HOME/biscale, else ~/.cache/biscale).
         #[arg(long)]
         cache_dir: Option<PathBuf>,
     },
     /// Remove cache files (all of biscale's by default; never files that are not biscale's).
+    #[command(after_help = "Example: biscale cache clean --kind form --older-than-days 30 --dry-run")]
     Clean {
+        /// Cache folder (default: $XDG_CACHE_HOME/biscale, else ~/.cache/biscale).
         #[arg(long)]
         cache_dir: Option<PathBuf>,
         /// Only files of these kinds (transfer, form, sh, btf, lpca, temporary).
@@ -196,7 +280,9 @@ enum Cache {
 enum Shard {
     /// Write DIR/manifest.json: the vertex range and outputs of each shard, which compressors
     /// run in the shards and which in the merge, and memory estimates.
+    #[command(after_help = "Example: biscale shard plan configs/bunny.toml --shards 8 --out out/bunny-shards")]
     Plan {
+        /// The experiment's TOML file.
         config: PathBuf,
         /// Number of shards (ranges hold whole blocks of the separable compressors).
         #[arg(long)]
@@ -206,7 +292,9 @@ enum Shard {
         out: PathBuf,
     },
     /// Build one shard: T's rows for its vertices and its part of every separable form.
+    #[command(after_help = "Example: biscale shard run out/bunny-shards/manifest.json --index 3")]
     Run {
+        /// The shard plan's manifest.json (`biscale shard plan` wrote it).
         manifest: PathBuf,
         /// The shard (default: $SLURM_ARRAY_TASK_ID).
         #[arg(long)]
@@ -214,10 +302,16 @@ enum Shard {
     },
     /// List the shards that are complete, and the command that reruns each one that is not
     /// (exits 1 unless all are complete).
-    Status { manifest: PathBuf },
+    #[command(after_help = "Example: biscale shard status out/bunny-shards/manifest.json")]
+    Status {
+        /// The shard plan's manifest.json (`biscale shard plan` wrote it).
+        manifest: PathBuf,
+    },
     /// Check every shard, stack T, merge the forms and run the rest of the pipeline (the
     /// whole-matrix compressors, gathers, images, report) as `biscale run` would.
+    #[command(after_help = "Example: biscale shard merge out/bunny-shards/manifest.json --out out/bunny")]
     Merge {
+        /// The shard plan's manifest.json (`biscale shard plan` wrote it).
         manifest: PathBuf,
         #[command(flatten)]
         output: OutputArgs,
@@ -225,8 +319,13 @@ enum Shard {
     /// Write slurm/shards.sbatch (a job array over the shards), slurm/merge.sbatch and
     /// slurm/submit.sh (the array, then the merge with --dependency=afterok) beside the
     /// manifest.
+    #[command(
+        after_help = "Example: biscale shard sbatch out/bunny-shards/manifest.json --partition cpu --time 60 && bash out/bunny-shards/slurm/submit.sh"
+    )]
     Sbatch {
+        /// The shard plan's manifest.json (`biscale shard plan` wrote it).
         manifest: PathBuf,
+        /// Slurm partition of the jobs (default: the cluster's default).
         #[arg(long)]
         partition: Option<String>,
         /// Time limit per job (Slurm's format: minutes, or D-HH:MM:SS).
@@ -253,23 +352,35 @@ enum Shard {
 #[derive(Subcommand)]
 enum Generate {
     /// A built-in scene.
+    #[command(after_help = "Example: biscale generate scene plane-sphere --out plane_sphere.obj")]
     Scene {
+        /// Which scene.
         #[arg(value_enum)]
         kind: biscale::commands::GeneratedScene,
+        /// The OBJ file to write.
         #[arg(long)]
         out: PathBuf,
     },
     /// Add cylindrical texture coordinates (world units, about the vertical axis) to a mesh.
+    #[command(after_help = "Example: biscale generate uv assets/meshes/bunny.obj --out bunny_uv.obj")]
     Uv {
+        /// The mesh (OBJ or PLY).
         mesh: PathBuf,
+        /// The OBJ file to write.
         #[arg(long)]
         out: PathBuf,
     },
     /// Midpoint-subdivide a mesh `levels` times (about 4x the vertices per level).
+    #[command(
+        after_help = "Example: biscale generate subdivide assets/meshes/bunny.obj --levels 2 --out bunny_l2.obj"
+    )]
     Subdivide {
+        /// The mesh (OBJ or PLY).
         mesh: PathBuf,
+        /// Subdivision levels (each about quadruples the triangles).
         #[arg(long, default_value_t = 1)]
         levels: u32,
+        /// The OBJ file to write.
         #[arg(long)]
         out: PathBuf,
     },
@@ -296,6 +407,12 @@ fn main() -> std::process::ExitCode {
 
 fn run() -> anyhow::Result<()> {
     let cli = Cli::parse();
+    use biscale::util::{set_verbosity, Verbosity};
+    set_verbosity(match (cli.quiet, cli.verbose) {
+        (true, _) => Verbosity::Quiet,
+        (_, true) => Verbosity::Verbose,
+        _ => Verbosity::Normal,
+    });
     if let Some(n) = cli.threads {
         anyhow::ensure!(n >= 1, "--threads must be at least 1");
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("--threads")?;
@@ -323,6 +440,41 @@ fn run() -> anyhow::Result<()> {
                 l.len()
             );
         }
+        Command::Export { config, format, what, out, cache } => {
+            let items = biscale::interop::Item::parse_list(&what, format).map_err(anyhow::Error::msg)?;
+            let exp = load(&config)?;
+            let out = out.unwrap_or_else(|| Path::new("out").join(format!("{}-export", exp.name())));
+            let opts = cache.options(Some(out.clone()));
+            let written = biscale::interop::export(&exp, &out, format, &items, &opts)
+                .with_context(|| format!("exporting {}", config.display()))?;
+            for w in &written {
+                println!("wrote {} ({})", w.path.display(), w.about);
+            }
+        }
+        Command::Eval { config, lstar, form, name, out, cache } => {
+            let exp = load(&config)?;
+            let input = match (lstar, form) {
+                (Some(p), None) => biscale::interop::EvalInput::Lstar(p),
+                (None, Some(p)) => biscale::interop::EvalInput::Form(p),
+                _ => anyhow::bail!("give one of --lstar FILE or --form FILE"),
+            };
+            let (dir, metrics) = biscale::interop::eval(&exp, &input, name.as_deref(), &cache.options(out))
+                .with_context(|| format!("evaluating {} for {}", input.path().display(), config.display()))?;
+            let r = &metrics.compressors[0];
+            let img = &r.image.vs_uncompressed;
+            println!("{}: rel. error of L* {:.3e}", r.name, r.rel_error_lstar);
+            println!(
+                "  image vs uncompressed: rel. L2 {:.3e}, PSNR {:.2} dB, SSIM {:.4}",
+                img.rel_l2, img.psnr, img.ssim
+            );
+            if let Some(e) = &r.image.vs_reference {
+                println!(
+                    "  image vs reference:    rel. L2 {:.3e}, PSNR {:.2} dB, SSIM {:.4}",
+                    e.rel_l2, e.psnr, e.ssim
+                );
+            }
+            println!("wrote {}", dir.join("metrics.json").display());
+        }
         Command::Viz { config, out, first, count, cache } => {
             let exp = load(&config)?;
             let opts = cache.options(Some(out.clone()));
@@ -330,6 +482,11 @@ fn run() -> anyhow::Result<()> {
                 println!("wrote {}", p.display());
             }
         }
+        #[cfg(not(feature = "viewer"))]
+        Command::View { .. } => anyhow::bail!(
+            "this biscale was built without the viewer: rebuild it with `bash scripts/setup-viewer.sh && cargo install \
+             --path tools --features viewer` (or run `cargo run --release -p biscale --features viewer -- view CONFIG`)"
+        ),
         #[cfg(feature = "viewer")]
         Command::View { config, method, screenshot } => {
             let exp = load(&config)?;
@@ -490,4 +647,37 @@ fn cache(what: Cache) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Cli;
+    use clap::CommandFactory;
+
+    /// Every argument of every command has help text, and every leaf command an example.
+    #[test]
+    fn every_argument_has_help_and_every_command_an_example() {
+        fn walk(cmd: &clap::Command, path: &str, missing: &mut Vec<String>) {
+            let path = format!("{path} {}", cmd.get_name());
+            for arg in cmd.get_arguments() {
+                let builtin = matches!(arg.get_id().as_str(), "help" | "version");
+                if !builtin && arg.get_help().is_none() && arg.get_long_help().is_none() {
+                    missing.push(format!("{path}: argument {}", arg.get_id()));
+                }
+            }
+            let subs: Vec<_> = cmd.get_subcommands().filter(|s| s.get_name() != "help").collect();
+            if subs.is_empty() && path != " biscale" {
+                let example = cmd.get_after_help().map(|h| h.to_string()).unwrap_or_default();
+                if !example.contains("Example: biscale") {
+                    missing.push(format!("{path}: no example"));
+                }
+            }
+            for sub in subs {
+                walk(sub, &path, missing);
+            }
+        }
+        let mut missing = vec![];
+        walk(&Cli::command(), "", &mut missing);
+        assert!(missing.is_empty(), "missing help:\n{}", missing.join("\n"));
+    }
 }

@@ -327,8 +327,8 @@ pub fn load_materials(
         let (btf, origin) = material_btf(cfg, local_basis, cache, &label)?;
         match &origin {
             Origin::Analytic => {}
-            Origin::Synthesized { seconds } => eprintln!("btf {label}: synthesized in {seconds:.1} s"),
-            Origin::Cached(p) => eprintln!("btf {label}: loaded from cache {}", p.display()),
+            Origin::Synthesized { seconds } => crate::note!("btf {label}: synthesized in {seconds:.1} s"),
+            Origin::Cached(p) => crate::note!("btf {label}: loaded from cache {}", p.display()),
         }
         if btf.view_grid().is_none() {
             notes.push(format!("material {label}: view axis left out (view-independent BTF)"));
@@ -448,7 +448,7 @@ pub(crate) fn represent(
     record.compression_ratio = dense_bytes as f64 / lpca.bytes().max(1) as f64;
     record.relative_rms_error = lpca.table_error(btf).0;
     record.build_seconds = seconds;
-    eprintln!(
+    crate::note!(
         "btf {label}: {} {how}: {:.2} MB of {:.2} MB (1:{:.0}), relative RMS error {:.2}%",
         record.representation,
         record.bytes as f64 * 1e-6,

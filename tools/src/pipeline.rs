@@ -15,7 +15,7 @@ use crate::staging::{fault_point, StagedDir};
 use crate::util::progress_bar;
 use biscale_compressors::registry::{self, BuildError};
 use biscale_core::compress::{CompressContext, CompressedForm, Compressor};
-use biscale_core::gather::moments::{exact_moments_product, gather_with_moments, LightMoments};
+use biscale_core::gather::moments::{exact_moments_product, gather_with_moments, LightMoments, Lobe};
 use biscale_core::gather::{reference_product, relative_l2_error, LocalRadiance};
 use biscale_core::geometry::{Mesh, Placement, VertexFrame};
 use biscale_core::io::write_atomic_bytes;
@@ -177,7 +177,7 @@ pub fn transfer_matrix(exp: &Experiment, geometry: &Geometry, cache: Option<&Sta
             false => Err(format!("{}: holds {}, this run needs {shape}", path.display(), t.shape())),
         };
         if let Some(matrix) = c.get(&path, &key, TransferMatrix::from_artifact, accept) {
-            eprintln!("transfer: loaded from cache {}", path.display());
+            crate::note!("transfer: loaded from cache {}", path.display());
             let metrics = transfer_metrics(&matrix, 0.0, 0, 0.0, true, &settings);
             return Ok(Transfer { matrix, metrics, key });
         }
@@ -191,7 +191,7 @@ pub fn transfer_matrix(exp: &Experiment, geometry: &Geometry, cache: Option<&Sta
     build.stats.seconds = start.elapsed().as_secs_f64();
     build.stats.rays_per_second = build.stats.rays_traced as f64 / build.stats.seconds.max(1e-12);
     pb.finish_and_clear();
-    eprintln!("transfer: {build}");
+    crate::note!("transfer: {build}");
     if let Some(c) = cache {
         c.put_with(&c.transfer_path(&key), &key, || build.matrix.to_artifact());
     }
@@ -225,7 +225,7 @@ pub fn compressed_form(
             )),
         };
         if let Some(form) = c.get(path, key, CompressedForm::from_artifact, accept) {
-            eprintln!("{name}: loaded from cache {}", path.display());
+            crate::note!("{name}: loaded from cache {}", path.display());
             return Ok((form, true));
         }
     }
@@ -352,17 +352,29 @@ pub struct Baseline {
     pub paper: Option<(LocalRadiance, Render)>,
 }
 
-fn baseline(
+/// The uncompressed product in f64: `T L`, or with light moments (`moments`: the frames `T`
+/// was traced with) the moments' product ([`exact_moments_product`]). Rounded to f32 it is the
+/// uncompressed `L*` a run renders (`biscale export` writes it as `lstar.npz`).
+pub(crate) fn uncompressed_product(
+    t: &TransferMatrix,
+    light: &LightVector,
+    moments: Option<&[VertexFrame]>,
+) -> Result<Vec<[f64; 3]>> {
+    match moments {
+        None => Ok(reference_product(t, light)),
+        // LightMoments::new's lobe: the BRDF at each bin's mean direction.
+        Some(frames) => Ok(exact_moments_product(t, light, frames, Lobe::MeanDirection)?),
+    }
+}
+
+pub(crate) fn baseline(
     t: &TransferMatrix,
     lighting: &Lighting,
     moments: Option<&[VertexFrame]>,
     view: &View<'_>,
     repeats: usize,
 ) -> Result<Baseline> {
-    let (exact, gather_ms) = timed(repeats, || match moments {
-        None => Ok(reference_product(t, &lighting.light)),
-        Some(frames) => Ok(exact_moments_product(t, &lighting.light, frames)?),
-    })?;
+    let (exact, gather_ms) = timed(repeats, || uncompressed_product(t, &lighting.light, moments))?;
     let lstar = LocalRadiance::from_f64(t.local_basis(), t.vertices(), &exact)?;
     let (render, shade_ms) = view.timed_render(&lstar, repeats)?;
     let paper = match moments {
@@ -416,9 +428,13 @@ pub struct Reference {
     pub baseline_error: ImageMetrics,
     /// With light moments: the paper-mode baseline's error against the same reference.
     pub paper_baseline_error: Option<ImageMetrics>,
+    /// Every setting's render at the reference's camera, by name, kept as it is scored
+    /// ([`Evaluation::score`]) for its error figure against the reference, which
+    /// [`comparison_figures`] draws once every setting is in, at one scale for all.
+    pub(crate) scored: std::sync::Mutex<Vec<(String, HdrImage)>>,
 }
 
-fn reference(
+pub(crate) fn reference(
     exp: &Experiment,
     geometry: &Geometry,
     view: &View<'_>,
@@ -452,8 +468,8 @@ fn reference(
         }
         None => None,
     };
-    eprintln!("reference: traced {}x{} in {seconds:.1} s", camera.width, camera.height);
-    Ok(Reference { render, camera, seconds, baseline_error, paper_baseline_error })
+    crate::note!("reference: traced {}x{} in {seconds:.1} s", camera.width, camera.height);
+    Ok(Reference { render, camera, seconds, baseline_error, paper_baseline_error, scored: Default::default() })
 }
 
 #[cfg(feature = "gpu")]
@@ -540,17 +556,7 @@ impl Evaluation<'_> {
             }
             .map_err(cerr)
         })?;
-        let rel_error_lstar = relative_l2_error(lstar.values(), self.exact);
-        let (render, shade_ms) = view.timed_render(&lstar, repeats)?;
-        let vs_uncompressed =
-            errors(&compare_exposed(&render.image, &self.baseline.image, Some(&self.baseline.mask), self.exposure)?);
-        let vs_reference = match self.reference {
-            Some(r) => {
-                let small = view.render(&lstar, &r.camera)?;
-                Some(errors(&compare_exposed(&small.image, &r.render.image, Some(&r.render.mask), self.exposure)?))
-            }
-            None => None,
-        };
+        let (mut record, render) = self.score(&setting.label, &lstar, gather_ms)?;
         let gpu = match gpu {
             Some(g) => {
                 let kernels = compressor.kernels(form).map_err(cerr)?;
@@ -560,26 +566,14 @@ impl Evaluation<'_> {
         };
         let name = &setting.label;
         if let Some(g) = &gpu {
-            eprintln!(
+            crate::note!(
                 "{name} on the gpu: gather {:.2} ms, shade {:.2} ms ({}), rel. error of L* {:.2e}, image vs cpu rel. L2 {:.2e} ({} of {} pixels differ by > 1e-3)",
                 g.gather_ms, g.shade_ms, g.timing, g.rel_error_lstar, g.image_vs_cpu.rel_l2, g.differing_pixels, g.covered_pixels
             );
         }
         let name = &name.replace(':', "-");
-        let images_dir = self.out_dir.join("images");
-        let (png, exr) = save_images(&render.image, &images_dir, name, self.exposure)?;
-        let error_rel = format!("images/{name}_error.png");
-        let (error_scale, error_max) = match self.shared_error_scale {
-            true => error_extent(&render.image, &self.baseline.image)?,
-            false => write_error_figure(
-                &render.image,
-                &self.baseline.image,
-                "uncompressed",
-                None,
-                &self.out_dir.join(&error_rel),
-            )?,
-        };
-        eprintln!(
+        let rel_error_lstar = record.rel_error_lstar;
+        crate::note!(
             "{name}: {:.2} MB, {:.2} Mflop/gather, built in {:.2} s{}, gather {gather_ms:.2} ms, rel. error of L* {rel_error_lstar:.2e}",
             form.bytes() as f64 / 1e6,
             form.flops_per_gather as f64 / 1e6,
@@ -594,17 +588,69 @@ impl Evaluation<'_> {
                  product T L (more than f32 rounding explains, {LOSSLESS_CLAIM_TOLERANCE:.0e}); reported as lossy"
             );
         }
+        record.kind = compressor.kind().to_string();
+        record.params = compressor.params();
+        record.lossless = lossless;
+        record.bytes = form.bytes();
+        record.bytes_by_array = form.bytes_by_array();
+        record.bytes_per_nnz = form.bytes() as f64 / self.t.nnz().max(1) as f64;
+        record.flops_per_gather = form.flops_per_gather;
+        record.build_seconds = form.build_seconds;
+        record.cached = cached;
+        record.stats = compressor.stats(form, self.t);
+        record.gpu = gpu;
+        Ok((record, render))
+    }
+
+    /// Shade `lstar` (gathered in `gather_ms`), compare it with the baseline and the reference
+    /// and write its images as `images/<name>.*`: a record whose form fields (kind, params,
+    /// storage, flops, build, stats, GPU) are empty for the caller to fill in ([`Self::record`]
+    /// for a compressed form, `crate::interop::eval` for an external `L*`).
+    pub(crate) fn score(
+        &self,
+        name: &str,
+        lstar: &LocalRadiance,
+        gather_ms: f64,
+    ) -> Result<(CompressorRecord, Render)> {
+        let (view, repeats) = (self.view, self.repeats);
+        let rel_error_lstar = relative_l2_error(lstar.values(), self.exact);
+        let (render, shade_ms) = view.timed_render(lstar, repeats)?;
+        let vs_uncompressed =
+            errors(&compare_exposed(&render.image, &self.baseline.image, Some(&self.baseline.mask), self.exposure)?);
+        let vs_reference = match self.reference {
+            Some(r) => {
+                let small = view.render(lstar, &r.camera)?;
+                let e = errors(&compare_exposed(&small.image, &r.render.image, Some(&r.render.mask), self.exposure)?);
+                r.scored.lock().unwrap_or_else(|p| p.into_inner()).push((name.replace(':', "-"), small.image));
+                Some(e)
+            }
+            None => None,
+        };
+        let name = &name.replace(':', "-");
+        let images_dir = self.out_dir.join("images");
+        let (png, exr) = save_images(&render.image, &images_dir, name, self.exposure)?;
+        let error_rel = format!("images/{name}_error.png");
+        let (error_scale, error_max) = match self.shared_error_scale {
+            true => error_extent(&render.image, &self.baseline.image)?,
+            false => write_error_figure(
+                &render.image,
+                &self.baseline.image,
+                "uncompressed",
+                None,
+                &self.out_dir.join(&error_rel),
+            )?,
+        };
         let record = CompressorRecord {
             name: name.clone(),
-            kind: compressor.kind().to_string(),
-            params: compressor.params(),
-            lossless,
-            bytes: form.bytes(),
-            bytes_by_array: form.bytes_by_array(),
-            bytes_per_nnz: form.bytes() as f64 / self.t.nnz().max(1) as f64,
-            flops_per_gather: form.flops_per_gather,
-            build_seconds: form.build_seconds,
-            cached,
+            kind: String::new(),
+            params: serde_json::Value::Null,
+            lossless: false,
+            bytes: 0,
+            bytes_by_array: Default::default(),
+            bytes_per_nnz: 0.0,
+            flops_per_gather: 0,
+            build_seconds: 0.0,
+            cached: false,
             gather_ms,
             shade_ms,
             rel_error_lstar,
@@ -617,8 +663,8 @@ impl Evaluation<'_> {
                 error_scale: Some(error_scale),
                 error_max: Some(error_max),
             },
-            stats: compressor.stats(form, self.t),
-            gpu,
+            stats: None,
+            gpu: None,
         };
         Ok((record, render))
     }
@@ -651,6 +697,8 @@ pub(crate) fn write_error_figure(
     path: &Path,
 ) -> Result<(f32, f32)> {
     let (picture, scale) = biscale_shading::image::error_image(a, b, scale)?;
+    // A picture narrower than the colour bar is magnified (nearest) to fill it.
+    let picture = crate::inset::magnify(&picture, crate::inset::thumbnail_factor(picture.width()));
     let max = largest_error(a, b);
     let label = format!(
         "luminance of |error| vs {against} (linear radiance)\nlargest {}",
@@ -660,6 +708,116 @@ pub(crate) fn write_error_figure(
         .map_err(|what| PipelineError::Mismatch { path: path.to_path_buf(), what: format!("colour bar: {what}") })?;
     biscale_core::scene::image::write_rgb8_png(&figure, path)?;
     Ok((scale, max))
+}
+
+/// A setting's error figure against the reference, relative to the output folder.
+pub(crate) fn reference_error_png(name: &str) -> String {
+    format!("images/{}_error_reference.png", name.replace(':', "-"))
+}
+
+/// The region of the report's insets, once per run, and where it comes from: `[report]
+/// inset`, else the default window ([`crate::inset::default_side`]) with the largest error of
+/// the worst lossy setting (largest RMSE) against the uncompressed render as the PNGs show it
+/// ([`crate::inset::error_map`]), else of the worst setting, else the window with the most of
+/// the mesh.
+fn inset_region(
+    exp: &Experiment,
+    records: &[CompressorRecord],
+    renders: &[Render],
+    base: &Baseline,
+) -> (crate::inset::Region, String) {
+    use crate::inset::{self, Region};
+    let (width, height) = (base.render.image.width, base.render.image.height);
+    match &exp.file.report.inset {
+        Some(r) => {
+            let [x, y, w, h] = *r.get_ref();
+            (Region { x, y, width: w, height: h }, "`[report] inset`".to_string())
+        }
+        None => {
+            let side = inset::default_side(width, height);
+            let worst = |lossy: bool| {
+                (records.iter().zip(renders))
+                    .filter(|(r, _)| !lossy || !r.lossless)
+                    .max_by(|a, b| a.0.image.vs_uncompressed.rmse.total_cmp(&b.0.image.vs_uncompressed.rmse))
+            };
+            let errors = worst(true)
+                .or_else(|| worst(false))
+                .map(|(r, render)| {
+                    (r.name.clone(), inset::error_map(&render.image, &base.render.image, exp.file.report.exposure))
+                })
+                .filter(|(_, e)| e.iter().any(|&v| v > 0.0));
+            let (values, from) = match errors {
+                Some((name, e)) => {
+                    (e, format!("the {side}x{side} window where {name} differs most from the uncompressed render"))
+                }
+                None => (
+                    base.render.mask.iter().map(|&hit| hit as u8 as f32).collect(),
+                    format!("the {side}x{side} window with the most of the mesh"),
+                ),
+            };
+            let (x, y) = inset::largest_sum_window(&values, width, height, side, side);
+            (Region { x, y, width: side, height: side }, from)
+        }
+    }
+}
+
+/// The report's comparison figures ([`ComparisonFigures`]) at the inset `region`
+/// ([`inset_region`]): per row (uncompressed, each compressor and method setting, the ground
+/// truth) its thumbnail with the region marked and its inset, from the PNGs written, and its
+/// error figure against the ground truth (the uncompressed render's is drawn here).
+#[allow(clippy::too_many_arguments)]
+fn comparison_figures(
+    (region, from): (crate::inset::Region, String),
+    records: &[CompressorRecord],
+    methods: &[MethodRecord],
+    base: &Baseline,
+    view: &View<'_>,
+    reference: Option<&Reference>,
+    out_dir: &Path,
+) -> Result<ComparisonFigures> {
+    use crate::inset;
+    let width = base.render.image.width;
+    let mismatch = |what: String| PipelineError::Mismatch { path: out_dir.to_path_buf(), what };
+    let row = |name: &str, png: &str, error_vs_reference_png: Option<String>| -> Result<FigureRow> {
+        let (thumbnail, zoom) = inset::write_row(out_dir, png, name, &region, width).map_err(mismatch)?;
+        Ok(FigureRow { name: name.to_string(), thumbnail, inset: zoom, error_vs_reference_png })
+    };
+    // Every error figure against the reference at one scale: the largest of their own 99th
+    // percentiles (the uncompressed render's included), so each fits and they compare.
+    let mut against_reference: Vec<String> = vec![];
+    let mut reference_error_scale = None;
+    if let Some(r) = reference {
+        let mut scored = std::mem::take(&mut *r.scored.lock().unwrap_or_else(|p| p.into_inner()));
+        scored.insert(0, ("uncompressed".into(), view.render(&base.lstar, &r.camera)?.image));
+        let mut scale = 0.0f32;
+        for (_, small) in &scored {
+            scale = scale.max(error_extent(small, &r.render.image)?.0);
+        }
+        for (name, small) in &scored {
+            let png = reference_error_png(name);
+            write_error_figure(small, &r.render.image, "ground truth", Some(scale), &out_dir.join(&png))?;
+            against_reference.push(name.clone());
+        }
+        reference_error_scale = Some(scale);
+    }
+    let error = |name: &str| against_reference.iter().any(|n| n == name).then(|| reference_error_png(name));
+    let mut rows = vec![row("uncompressed", "images/uncompressed.png", error("uncompressed"))?];
+    if base.paper.is_some() {
+        rows.push(row("uncompressed_paper", "images/uncompressed_paper.png", None)?);
+    }
+    for r in records.iter().chain(methods.iter().map(|m| &m.record)) {
+        rows.push(row(&r.name, &r.image.png, error(&r.name))?);
+    }
+    if reference.is_some() {
+        rows.push(row("reference", "images/reference.png", None)?);
+    }
+    Ok(ComparisonFigures {
+        inset: [region.x, region.y, region.width, region.height],
+        inset_from: from,
+        inset_magnification: inset::magnification(&region),
+        reference_error_scale,
+        rows,
+    })
 }
 
 /// One error scale for every compressor of the run, so their error figures compare at a
@@ -730,7 +888,7 @@ fn precomputed_transfer(
         c.put_with(&c.transfer_path(&key), &key, || matrix.to_artifact());
     }
     let metrics = transfer_metrics(&matrix, seconds, rays, rays as f64 / seconds.max(1e-12), false, &settings);
-    eprintln!("transfer: {} x {} from the shards, {} non-zeros", matrix.rows(), matrix.cols(), matrix.nnz());
+    crate::note!("transfer: {} x {} from the shards, {} non-zeros", matrix.rows(), matrix.cols(), matrix.nnz());
     Ok(Transfer { matrix, metrics, key })
 }
 
@@ -802,7 +960,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     }
     let (scene, mut materials) = shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
     for n in &materials.notes {
-        eprintln!("materials: {n}");
+        crate::note!("materials: {n}");
     }
     clock.mark("materials");
     let repeats = exp.file.runtime.repeats;
@@ -895,6 +1053,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
         fault_point("compression");
     }
     share_error_scale(&mut records, &renders, &base.render, exp.file.report.error_scale, &out_dir)?;
+    let region = inset_region(exp, &records, &renders, &base);
     drop(renders);
     let inputs = crate::methods::sh::MethodInputs {
         exp,
@@ -919,22 +1078,24 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
         clock.mark("methods");
     }
 
+    let figures = comparison_figures(region, &records, &methods, &base, &view, reference.as_ref(), &out_dir)?;
     let mut metrics =
         Metrics::of_run(exp, &geometry, &lighting, &materials, t.metrics, &base, reference.as_ref(), records, methods);
+    metrics.figures = Some(figures);
     metrics.memory = Some(memory.metrics(&available));
     metrics.sharded = sharded;
     metrics.run = Some(clock.finish());
     write_report(&metrics, &plan, &out_dir)?;
     fault_point("report");
     let out_dir = staged.commit()?;
-    eprintln!("wrote {}", out_dir.display());
+    crate::note!("wrote {}", out_dir.display());
     Ok((out_dir, metrics))
 }
 
 impl Metrics {
     /// The run's record from its stages' records.
     #[allow(clippy::too_many_arguments)]
-    fn of_run(
+    pub(crate) fn of_run(
         exp: &Experiment,
         geometry: &Geometry,
         lighting: &Lighting,
@@ -994,6 +1155,7 @@ impl Metrics {
             memory: None,
             sharded: None,
             run: None,
+            figures: None,
         }
     }
 }
@@ -1007,7 +1169,8 @@ fn write_report(metrics: &Metrics, plan: &Plan, out_dir: &Path) -> Result<()> {
     let plots = write_plots(metrics, out_dir);
     let html = crate::html::html(metrics, &plan.to_string(), out_dir, &plots);
     write_atomic_bytes(&out_dir.join("report.html"), html.as_bytes())?;
-    write_atomic_bytes(&out_dir.join("report.md"), crate::report::markdown(metrics, plan).as_bytes())?;
+    let markdown = crate::report::markdown(metrics, &plan.to_string(), &plots);
+    write_atomic_bytes(&out_dir.join("report.md"), markdown.as_bytes())?;
     Ok(())
 }
 
@@ -1086,10 +1249,11 @@ fn write_plots(m: &Metrics, out_dir: &Path) -> Vec<(String, String)> {
     }
     // BTF storage against the image error it adds (vs the all-dense image), one series per
     // material; dense settings sit at error 0 (drawn at the plot's floor).
-    let mut by_material: std::collections::BTreeMap<&str, Vec<(f64, f64)>> = Default::default();
+    let mut by_material: std::collections::BTreeMap<&str, Vec<(f64, f64, String)>> = Default::default();
     for b in &m.scene.btfs {
         if let Some(st) = &b.study {
-            by_material.entry(&b.material).or_default().push((b.bytes as f64 / 1e6, st.vs_dense.rel_l2));
+            let point = (b.bytes as f64 / 1e6, st.vs_dense.rel_l2, b.representation.clone());
+            by_material.entry(&b.material).or_default().push(point);
         }
     }
     if by_material.values().map(Vec::len).sum::<usize>() >= 2 {
@@ -1097,7 +1261,8 @@ fn write_plots(m: &Metrics, out_dir: &Path) -> Vec<(String, String)> {
             .into_iter()
             .map(|(name, mut points)| {
                 points.sort_by(|a, b| a.0.total_cmp(&b.0));
-                crate::plots::Series { name: name.to_string(), points }
+                let (points, labels) = points.into_iter().map(|(x, y, label)| ((x, y), label)).unzip();
+                crate::plots::Series { name: name.to_string(), points, labels }
             })
             .collect();
         plot_with(
@@ -1113,7 +1278,7 @@ fn write_plots(m: &Metrics, out_dir: &Path) -> Vec<(String, String)> {
 }
 
 /// Write `<name>.png` and `<name>.exr`; returns their paths relative to the output folder.
-fn save_images(img: &HdrImage, dir: &Path, name: &str, exposure: f32) -> Result<(String, String)> {
+pub(crate) fn save_images(img: &HdrImage, dir: &Path, name: &str, exposure: f32) -> Result<(String, String)> {
     let png = dir.join(format!("{name}.png"));
     let exr = dir.join(format!("{name}.exr"));
     img.write_png(&png, exposure)?;

@@ -100,11 +100,16 @@ impl StageClock {
     /// Close the stage `stage`: the time since the previous mark (or the start).
     pub fn mark(&mut self, stage: impl Into<String>) {
         let (now, cpu) = (Instant::now(), process_cpu_seconds());
-        self.record.stages.push(StageTime {
+        let stage = StageTime {
             stage: stage.into(),
             wall_seconds: (now - self.last).as_secs_f64(),
             cpu_seconds: cpu.zip(self.last_cpu).map(|(b, a)| round_ms(b - a)),
-        });
+        };
+        if crate::util::verbosity() == crate::util::Verbosity::Verbose {
+            let cpu = stage.cpu_seconds.map_or(String::new(), |c| format!(", {c:.1} s CPU"));
+            eprintln!("stage {}: {:.2} s wall{cpu}", stage.stage, stage.wall_seconds);
+        }
+        self.record.stages.push(stage);
         (self.last, self.last_cpu) = (now, cpu);
     }
 

@@ -1,13 +1,55 @@
-//! Small shared helpers of the pipeline: progress reports.
+//! Small shared helpers of the pipeline: progress reports and how much the commands say.
 //!
 //! On a terminal, progress is an indicatif bar. When stderr is not a terminal (a batch job's
 //! log, a pipe), the bar would print nothing, so a line is printed instead at most every
 //! [`PROGRESS_SECONDS_VAR`] seconds (default 10): how far, how long, and about how long is left.
+//!
+//! [`Verbosity`] (`-q` / `-v` on the command line) decides what reaches stderr besides
+//! warnings and errors, which always do: `-q` drops progress and the per-stage notes
+//! ([`note!`](crate::note)), `-v` adds each stage's wall time as it ends.
 
 use indicatif::{ProgressBar, ProgressStyle};
 use std::io::IsTerminal;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
+
+/// How much the commands print on stderr besides warnings and errors.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Verbosity {
+    /// `-q`: warnings and errors only.
+    Quiet,
+    /// Progress and one note per stage (the default).
+    Normal,
+    /// `-v`: also each stage's wall time as it ends.
+    Verbose,
+}
+
+static VERBOSITY: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(1);
+
+/// Set the process's verbosity (once, from the command line).
+pub fn set_verbosity(v: Verbosity) {
+    VERBOSITY.store(v as u8, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// The process's verbosity.
+pub fn verbosity() -> Verbosity {
+    match VERBOSITY.load(std::sync::atomic::Ordering::Relaxed) {
+        0 => Verbosity::Quiet,
+        1 => Verbosity::Normal,
+        _ => Verbosity::Verbose,
+    }
+}
+
+/// `eprintln!` unless the commands were asked to be quiet (`-q`): for notes on what a stage
+/// did, not for warnings or errors.
+#[macro_export]
+macro_rules! note {
+    ($($arg:tt)*) => {
+        if $crate::util::verbosity() != $crate::util::Verbosity::Quiet {
+            eprintln!($($arg)*);
+        }
+    };
+}
 
 /// Environment variable: seconds between progress lines when stderr is not a terminal.
 pub const PROGRESS_SECONDS_VAR: &str = "BISCALE_PROGRESS_SECONDS";
@@ -29,6 +71,9 @@ struct Lines {
 
 /// A progress report for `len` steps of `what`, on stderr.
 pub fn progress_bar(len: u64, what: &str) -> Progress {
+    if verbosity() == Verbosity::Quiet {
+        return Progress { bar: ProgressBar::hidden(), lines: None };
+    }
     let bar = ProgressBar::new(len);
     bar.set_style(
         ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} ({elapsed} < {eta})")

@@ -53,9 +53,11 @@ fn export_matrix_writes_matrix_market_files_that_parse_back() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("mtx");
     let (ok, stdout, err) =
-        biscale(&["export-matrix", "configs/smoke.toml", "--out", out.to_str().unwrap(), "--no-cache"]);
+        biscale(&["export-matrix", "-q", "configs/smoke.toml", "--out", out.to_str().unwrap(), "--no-cache"]);
     assert!(ok, "{err}");
     assert!(stdout.contains("T.mtx"), "{stdout}");
+    // -q: no progress and no notes on stderr (this run has no warnings).
+    assert!(err.is_empty(), "-q printed: {err}");
     let t = std::fs::read_to_string(out.join("T.mtx")).unwrap();
     let mut lines = t.lines().filter(|l| !l.starts_with('%'));
     assert!(t.starts_with("%%MatrixMarket matrix coordinate real general"));
@@ -226,7 +228,8 @@ fn every_run_records_how_it_was_made() {
     assert!(report.contains("Run: biscale ") && report.contains("| compressor bicluster |"), "{report}");
 
     // One error scale for every compressor; the lossless ones sit far below it; every error
-    // figure carries its colour bar (60 pixels under the 96x72 picture, 300 wide).
+    // figure carries its colour bar (under the 96x72 picture, magnified 4x to fill the bar's
+    // 300 pixels).
     let cs = m["compressors"].as_array().unwrap();
     let scale = cs[0]["image"]["error_scale"].as_f64().unwrap();
     assert!(scale > 0.0 && cs.iter().all(|c| c["image"]["error_scale"].as_f64() == Some(scale)), "{cs:?}");
@@ -236,7 +239,7 @@ fn every_run_records_how_it_was_made() {
         assert!(c["image"]["error_max"].as_f64().unwrap() < 1e-3 * scale, "{c}");
     }
     let figure = image::open(out.join(cs[0]["image"]["error_png"].as_str().unwrap())).unwrap();
-    assert_eq!((figure.width(), figure.height()), (300, 72 + 60));
+    assert_eq!((figure.width(), figure.height()), (4 * 96, 4 * 72 + biscale::plots::colour_bar_height(4 * 96)));
     assert!(report.contains("one colour scale, full scale"), "{report}");
 
     // metrics.csv: one row per setting, the same numbers as metrics.json.
@@ -296,6 +299,99 @@ fn every_run_records_how_it_was_made() {
     assert!(!ok && err.contains("the mask is 48x36, the images 96x72"), "{err}");
     let (ok, _, err) = biscale(&["--threads", "0", "plan", cfg.to_str().unwrap()]);
     assert!(!ok && err.contains("--threads must be at least 1"), "{err}");
+}
+
+/// report.html prints every table as an HTML `<table>` from the model report.md prints (no
+/// Markdown table left in a `<pre>`, as one was), section for section; the comparison section
+/// has one row per image with its thumbnail, errors and inset; every plot has an SVG twin.
+#[test]
+fn report_html_tables_are_tables_and_every_plot_has_an_svg_twin() {
+    let dir = tempfile::tempdir().unwrap();
+    let (out, cache) = (dir.path().join("out"), dir.path().join("cache"));
+    let args =
+        ["run", "-v", "configs/smoke.toml", "--out", out.to_str().unwrap(), "--cache-dir", cache.to_str().unwrap()];
+    let (ok, _, err) = biscale(&args);
+    assert!(ok, "{err}");
+    // -v adds each stage's wall time as it ends.
+    assert!(err.contains("stage transfer: ") && err.contains("stage reference: "), "{err}");
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    // No Markdown table inside a <pre>.
+    for pre in html.split("<pre>").skip(1).map(|p| p.split("</pre>").next().unwrap()) {
+        let table = pre.lines().any(|l| l.trim_start().starts_with('|') && l.contains("|---"));
+        assert!(!table, "a Markdown table in a <pre>:\n{pre}");
+    }
+    assert!(!html.contains("|---|"), "Markdown table syntax in report.html");
+    // The same sections in the same order, each with at least as many <table>s as report.md
+    // has pipe tables there.
+    let md_sections: Vec<(&str, usize)> = md
+        .split("\n## ")
+        .skip(1)
+        .map(|s| {
+            let (title, body) = s.split_once('\n').unwrap();
+            (title.trim(), body.lines().filter(|l| l.starts_with("|---")).count())
+        })
+        .collect();
+    let html_sections: Vec<(String, usize)> = html
+        .split("<h2")
+        .skip(1)
+        .map(|s| {
+            let title = s.split_once('>').unwrap().1.split("</h2>").next().unwrap().to_string();
+            (title, s.matches("<table").count())
+        })
+        .collect();
+    let titles = |v: &[(String, usize)]| v.iter().map(|(t, _)| t.clone()).collect::<Vec<_>>();
+    let md_titles: Vec<String> = md_sections.iter().map(|(t, _)| t.to_string()).collect();
+    assert_eq!(titles(&html_sections), md_titles);
+    for ((title, md_tables), (_, html_tables)) in md_sections.iter().zip(&html_sections) {
+        assert!(html_tables >= md_tables, "{title}: {md_tables} tables in report.md, {html_tables} in report.html");
+    }
+    for want in ["Transfer matrix", "Compressors", "Equal storage", "Equal quality", "Comparison"] {
+        let n = html_sections.iter().find(|(t, _)| t == want).map_or(0, |s| s.1);
+        assert!(n >= 1, "no <table> in section {want}");
+    }
+    // The comparison: one row per image (uncompressed, five settings, the ground truth), each
+    // with its thumbnail (the region marked in red) and inset; all insets but the ground
+    // truth's (traced at half the resolution) the same size.
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
+    let f = &m["figures"];
+    let inset: Vec<u64> = f["inset"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap()).collect();
+    assert_eq!(&inset[2..], &[9, 9], "an eighth of the 72-pixel side");
+    assert!(f["inset_from"].as_str().unwrap().contains("haar-t4"), "the worst lossy setting: {f}");
+    let rows = f["rows"].as_array().unwrap();
+    let names: Vec<&str> = rows.iter().map(|r| r["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["uncompressed", "sparse", "bicluster", "cpca-k4-c2", "haar-t4", "haar-t8", "reference"]);
+    let comparison = md.split("\n## Comparison").nth(1).unwrap().split("\n## ").next().unwrap();
+    assert_eq!(comparison.lines().filter(|l| l.starts_with("| ")).count(), 1 + rows.len(), "{comparison}");
+    let magnification = f["inset_magnification"].as_u64().unwrap() as u32;
+    for r in rows {
+        let inset = image::open(out.join(r["inset"].as_str().unwrap())).unwrap();
+        if r["name"] != "reference" {
+            assert_eq!((inset.width(), inset.height()), (9 * magnification, 9 * magnification), "{r}");
+            assert!(r["error_vs_reference_png"].is_string(), "{r}");
+        }
+        let thumb = image::open(out.join(r["thumbnail"].as_str().unwrap())).unwrap().to_rgb8();
+        assert!(thumb.width() >= 300, "{r}");
+        assert!(thumb.pixels().any(|p| p.0 == biscale::inset::MARK.0), "no marked region: {r}");
+        for key in ["inset", "thumbnail"] {
+            assert!(md.contains(r[key].as_str().unwrap()), "report.md lacks {}", r[key]);
+        }
+    }
+    // Every plot has an SVG twin that parses, and the page links to it.
+    let plots: Vec<_> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "png"))
+        .collect();
+    assert_eq!(plots.len(), 2, "{plots:?}");
+    for png in plots {
+        let svg = std::fs::read_to_string(png.with_extension("svg")).unwrap();
+        assert!(svg.starts_with("<svg"), "{}", png.display());
+        biscale::plots::xml_tags_balance(&svg).unwrap_or_else(|e| panic!("{}: {e}", png.display()));
+        let name = png.with_extension("svg").file_name().unwrap().to_str().unwrap().to_string();
+        assert!(html.contains(&format!("href=\"{name}\"")) && md.contains(&format!("]({name})")), "{name}");
+    }
 }
 
 #[test]
