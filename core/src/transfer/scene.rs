@@ -64,6 +64,14 @@ impl TransferScene {
         let diagonal = mesh.diagonal();
         let scale = if diagonal > 0.0 { BVH_DIAGONAL / diagonal } else { 1.0 };
         let positions: Vec<Vec3> = mesh.positions.iter().map(|p| (*p - centre) * scale).collect();
+        // A mesh a few subnormals across has no f32 scale to the BVH's size (1024 / 1e-37
+        // overflows), and infinite positions break the BVH build. The pipeline's placement
+        // brings tiny meshes into range first; here they are refused.
+        if !scale.is_finite() || positions.iter().any(|p| !p.is_finite()) {
+            return Err(CoreError::Invalid(format!(
+                "the mesh spans {diagonal:e}, too small to trace in f32: scale it up (placement does)"
+            )));
+        }
         let bvh = SceneBvh::build(&positions, &mesh.triangles);
         Ok(Self {
             frames,

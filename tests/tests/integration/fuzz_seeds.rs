@@ -109,6 +109,12 @@ fn the_hostile_seeds_are_refused_for_what_they_are() {
         let e = Mesh::parse_ply(&bytes, &path).unwrap_err().to_string();
         assert!(e.contains(needle), "{name}: {e}");
     }
+    // Found by the fuzzer: a tetrahedron a few subnormals across loads, and its transfer scene
+    // is refused (its scale to the BVH's size overflows f32) instead of breaking the BVH build.
+    let (path, bytes) = seed("ply", "subnormal_extent_be.ply");
+    let mesh = Mesh::parse_ply(&bytes, &path).unwrap().mesh;
+    let e = biscale_core::transfer::TransferScene::new(&mesh).err().expect("refused").to_string();
+    assert!(e.contains("too small to trace"), "{e}");
     let (path, bytes) = seed("obj", "nan_inf_vertex.obj");
     let e = Mesh::parse_obj(&bytes, &path).unwrap_err().to_string();
     assert!(e.contains("OBJ vertex 4 (line 4)") && e.contains("non-finite"), "{e}");
