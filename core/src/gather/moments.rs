@@ -149,6 +149,19 @@ fn bins_and_frames(
     Ok(grid)
 }
 
+/// The checks the two f64 products share: `light` in `T`'s light basis, then
+/// [`bins_and_frames`].
+fn t_light_and_frames(t: &TransferMatrix, light: &LightVector, frames: &[VertexFrame]) -> Result<HemisphereGrid> {
+    if t.light_basis() != light.basis() {
+        return Err(CoreError::Invalid(format!(
+            "the light vector is in the {}, T's light basis is the {}",
+            light.basis(),
+            t.light_basis()
+        )));
+    }
+    bins_and_frames(t.local_basis(), t.vertices(), frames)
+}
+
 /// `1 / cosbar_j` for every bin.
 fn inverse_mean_cosines(grid: &HemisphereGrid) -> Vec<f64> {
     (0..grid.len() as u32).map(|j| 1.0 / grid.bin_mean_cosine(j)).collect()
@@ -251,14 +264,7 @@ pub fn gather_with_moments(
 /// redistribution of [`resolve`]. `sum_j cosbar_j` times it is the irradiance at vertex `v`;
 /// dotted with a Lambertian BTF it equals [`exact_moments_product`] (the weights sum to 1).
 pub fn exact_cosine_product(t: &TransferMatrix, light: &LightVector, frames: &[VertexFrame]) -> Result<Vec<[f64; 3]>> {
-    if t.light_basis() != light.basis() {
-        return Err(CoreError::Invalid(format!(
-            "the light vector is in the {}, T's light basis is the {}",
-            light.basis(),
-            t.light_basis()
-        )));
-    }
-    let grid = bins_and_frames(t.local_basis(), t.vertices(), frames)?;
+    let grid = t_light_and_frames(t, light, frames)?;
     let cosine = TexelCosine::new(light, &grid)?;
     let m = grid.len();
     let csr = t.csr();
@@ -290,14 +296,7 @@ pub fn exact_moments_product(
     frames: &[VertexFrame],
     lobe: Lobe,
 ) -> Result<Vec<[f64; 3]>> {
-    if t.light_basis() != light.basis() {
-        return Err(CoreError::Invalid(format!(
-            "the light vector is in the {}, T's light basis is the {}",
-            light.basis(),
-            t.light_basis()
-        )));
-    }
-    let grid = bins_and_frames(t.local_basis(), t.vertices(), frames)?;
+    let grid = t_light_and_frames(t, light, frames)?;
     let directions = texel_directions(cubemap_of(light)?);
     let inv = inverse_mean_cosines(&grid);
     let m = grid.len();

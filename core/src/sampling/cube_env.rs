@@ -260,17 +260,7 @@ fn splat_power(env: &EnvMap, cubemap: Cubemap, rotation: f64) -> Vec<[f64; 3]> {
                 acc
             },
         )
-        .reduce(
-            || vec![[0.0f64; 3]; n],
-            |mut a, b| {
-                for (x, y) in a.iter_mut().zip(&b) {
-                    for c in 0..3 {
-                        x[c] += y[c];
-                    }
-                }
-                a
-            },
-        )
+        .reduce(|| vec![[0.0f64; 3]; n], super::envmap::add_power)
 }
 
 #[cfg(test)]

@@ -330,17 +330,7 @@ impl LightVector {
                     acc
                 },
             )
-            .reduce(
-                || vec![[0.0f64; 3]; n],
-                |mut a, b| {
-                    for (x, y) in a.iter_mut().zip(&b) {
-                        for c in 0..3 {
-                            x[c] += y[c];
-                        }
-                    }
-                    a
-                },
-            );
+            .reduce(|| vec![[0.0f64; 3]; n], add_power);
         let power = acc.iter().map(|p| [p[0] as f32, p[1] as f32, p[2] as f32]).collect();
         Self { basis, power }
     }
@@ -395,6 +385,17 @@ impl LightVector {
         }
         s
     }
+}
+
+/// The sum of two threads' per-texel power sums (the reduction of the splatting folds that
+/// turn a lat-long or cube-map image into a light vector).
+pub(crate) fn add_power(mut a: Vec<[f64; 3]>, b: Vec<[f64; 3]>) -> Vec<[f64; 3]> {
+    for (x, y) in a.iter_mut().zip(&b) {
+        for c in 0..3 {
+            x[c] += y[c];
+        }
+    }
+    a
 }
 
 #[cfg(test)]
