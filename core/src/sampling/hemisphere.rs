@@ -160,24 +160,11 @@ impl HemisphereGrid {
     /// bin centres: `(x, y)` in `[0, m-1]` so that integer values are bin centres.
     /// Directions below the horizon are clamped onto it.
     pub fn continuous_coords(&self, d: Vec3) -> (f32, f32) {
-        // In f32, as the coordinates are returned (the f64 map of `hemisphere_to_square` is
-        // twice as slow and its extra digits are rounded away): one length, one division, one
-        // square root and one atan.
-        let z = (d.z / d.length()).clamp(0.0, 1.0);
-        let r = if z.is_nan() { 0.0 } else { (1.0 - z).sqrt() };
-        let (a, b) = if r == 0.0 || (d.x == 0.0 && d.y == 0.0) {
-            (0.0, 0.0)
-        } else if d.x.abs() >= d.y.abs() {
-            let a = r.copysign(d.x);
-            (a, a * (d.y / d.x).atan() / std::f32::consts::FRAC_PI_4)
-        } else {
-            let b = r.copysign(d.y);
-            (b * (d.x / d.y).atan() / std::f32::consts::FRAC_PI_4, b)
-        };
-        let m = self.m as f32;
-        let x = ((a + 1.0) * 0.5 * m - 0.5).clamp(0.0, m - 1.0);
-        let y = ((b + 1.0) * 0.5 * m - 0.5).clamp(0.0, m - 1.0);
-        (x, y)
+        let (u, v) = hemisphere_to_square(d.as_dvec3());
+        let m = self.m as f64;
+        let x = (u * m - 0.5).clamp(0.0, m - 1.0);
+        let y = (v * m - 0.5).clamp(0.0, m - 1.0);
+        (x as f32, y as f32)
     }
 }
 
