@@ -594,7 +594,9 @@ fn first_nonfinite_obj_vertex(text: &str) -> Option<(usize, usize)> {
 /// normal index that names no record: counting back past the first one read so far, or
 /// beyond the last one in the file. tobj resolves such an index to a huge offset and
 /// multiplies it unchecked (an overflow panic in builds with overflow checks), so these are
-/// refused before it runs; positions it checks itself.
+/// refused before it runs; positions it checks itself. tobj reads `l` (line) records with
+/// the same face parser, and one of three or more corners becomes a polygon, so both kinds
+/// are checked.
 fn unresolvable_face_index(text: &str) -> Option<(usize, &str, tobj::LoadError)> {
     let count = |kind: &str| text.lines().filter(|l| l.split_whitespace().next() == Some(kind)).count() as i64;
     let (textures, normals) = (count("vt"), count("vn"));
@@ -604,7 +606,7 @@ fn unresolvable_face_index(text: &str) -> Option<(usize, &str, tobj::LoadError)>
         match words.next() {
             Some("vt") => vt += 1,
             Some("vn") => vn += 1,
-            Some("f") => {
+            Some("f" | "l") => {
                 for word in words {
                     let mut parts = word.split('/').skip(1);
                     for (part, so_far, total, e) in [
@@ -646,7 +648,7 @@ fn locate_obj_error(text: &str, err: &tobj::LoadError) -> Option<(usize, String)
                 matches!(err, E::TexcoordParseError) && !floats(words, 1)
             }
             Some("vn") => matches!(err, E::NormalParseError) && !floats(words, 3),
-            Some("f") => match err {
+            Some("f" | "l") => match err {
                 E::FaceParseError | E::FaceVertexOutOfBounds | E::FaceTexCoordOutOfBounds => {
                     // Bad if unparsable, 0, or beyond the records read so far (OBJ
                     // indices are 1-based; negative ones count back from the last).
@@ -741,6 +743,9 @@ mod tests {
             ("f 1/1 2/2 3/9223372036854775807", "texcoord"),
             ("f 1//1 2//1 3//-2", "normal"),
             ("f 1//1 2//1 3//6148914691236517205", "normal"),
+            // Regression (fuzzing): an `l` record goes through tobj's face parser too.
+            ("l 1//1 2//1 3//-9", "normal"),
+            ("l 1/-7 2/1", "texcoord"),
         ] {
             let msg = load_err("index", &format!("{head}{face}\n"));
             assert!(msg.contains(what) && msg.contains(&format!("line 8: `{face}`")), "{face}: {msg}");
