@@ -39,11 +39,14 @@ enum Command {
         #[command(flatten)]
         output: OutputArgs,
     },
-    /// Print what `run` would do and what it leaves out, without running anything.
+    /// Print what `run` would do and what it leaves out, what the stage cache already holds and
+    /// how big each output is, and the peak memory, without running anything.
     #[command(after_help = "Example: biscale plan configs/bunny.toml")]
     Plan {
         /// The experiment's TOML file.
         config: PathBuf,
+        #[command(flatten)]
+        cache: CacheArgs,
     },
     /// Write T.mtx (sparse, Matrix Market) and L.mtx (dense N x 3) for other tools, e.g.
     /// `scipy.io.mmread`, with mesh.obj (T's vertex order and traced normals), view.json
@@ -422,9 +425,9 @@ fn run() -> anyhow::Result<()> {
             let exp = load(&config)?;
             biscale::pipeline::run(&exp, &output.options()).with_context(|| format!("running {}", config.display()))?;
         }
-        Command::Plan { config } => {
+        Command::Plan { config, cache } => {
             let exp = load(&config)?;
-            print!("{}", biscale::plan::Plan::new(&exp).with_memory(&exp)?);
+            print!("{}", biscale::plan::Plan::new(&exp).with_estimates(&exp, &cache.options(None))?);
         }
         Command::ExportMatrix { config, out, cache } => {
             let exp = load(&config)?;

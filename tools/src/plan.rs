@@ -1,9 +1,15 @@
 //! The planner (docs/DESIGN.md section 5): from the experiment, decide which stages and data
 //! dimensions are needed, and say what is left out and why. Printed before every run;
-//! `biscale plan` adds the run's estimated peak memory ([`Plan::with_memory`]).
+//! `biscale plan` adds the run's estimated peak memory and, stage by stage, what the cache
+//! already holds and how big each output it would write is ([`Plan::with_estimates`]).
 
+use crate::cache::StageCache;
 use crate::config::{CompressorSetting, Experiment, MaterialConfig};
+use crate::memory::human;
+use crate::pipeline::RunOptions;
+use biscale_shading::synth::BtfEncoding;
 use std::fmt;
+use std::path::PathBuf;
 
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Action {
@@ -25,6 +31,50 @@ pub struct Plan {
     pub reference: bool,
     /// The estimated memory of the run and the memory available, when asked for.
     pub memory: Option<(crate::memory::RunMemory, crate::memory::Available)>,
+    /// What the stage cache holds of this run's outputs, when asked for.
+    pub cache: CacheReport,
+}
+
+/// The stage cache as a run with given options would find it.
+#[derive(Clone, Debug, Default)]
+pub enum CacheReport {
+    /// Not looked at (the plan printed before a run).
+    #[default]
+    NotChecked,
+    /// `--no-cache`: every stage is built and nothing is written.
+    Off,
+    /// The cache folder and each cacheable output of the run, in run order.
+    Dir { dir: PathBuf, outputs: Vec<CachedOutput> },
+}
+
+/// One output the stage cache can hold.
+#[derive(Clone, Debug)]
+pub struct CachedOutput {
+    pub stage: &'static str,
+    pub what: String,
+    pub state: CacheState,
+}
+
+/// Whether a run would load an output or build it, and its size.
+#[derive(Clone, Debug, PartialEq)]
+pub enum CacheState {
+    /// In the cache: the run loads it (after checking the key the file carries).
+    Cached { path: PathBuf, bytes: u64 },
+    /// Not in the cache: the run builds it and writes a file of about `estimate` bytes
+    /// (`None`: no estimate, e.g. a plugin's form).
+    Build { path: PathBuf, estimate: Option<u64> },
+    /// Its key is the content of an earlier stage's output, known only once that is built.
+    KeyLater(String),
+}
+
+impl CacheState {
+    /// `path`'s state: cached with its size on disk if it is a file, else built.
+    fn of(path: PathBuf, estimate: Option<u64>) -> Self {
+        match std::fs::metadata(&path) {
+            Ok(m) if m.is_file() => CacheState::Cached { path, bytes: m.len() },
+            _ => CacheState::Build { path, estimate },
+        }
+    }
 }
 
 impl Plan {
@@ -183,19 +233,103 @@ impl Plan {
             if reference { Action::Run } else { Action::LeftOut("report.reference = false".into()) },
         );
         step("report", "metrics.json, report.md, images".into(), Action::Run);
-        Plan { steps, compressors, reference, memory: None }
+        Plan { steps, compressors, reference, memory: None, cache: CacheReport::NotChecked }
     }
 
-    /// This plan with the run's memory estimate (`crate::memory`): loads the mesh and the
-    /// light and traces the sample of vertices, as `biscale run` does before it starts (with
-    /// the stage cache on, its default).
-    pub fn with_memory(mut self, exp: &Experiment) -> crate::pipeline::Result<Plan> {
+    /// This plan with the run's memory estimate (`crate::memory`) and what the stage cache
+    /// of `opts` holds of its outputs: loads the mesh and the light and traces the sample of
+    /// vertices, as `biscale run` does before it starts.
+    pub fn with_estimates(mut self, exp: &Experiment, opts: &RunOptions) -> crate::pipeline::Result<Plan> {
         let geometry = crate::pipeline::load_geometry(exp)?;
         let lighting = crate::pipeline::load_lighting(exp)?;
-        let memory = crate::memory::estimate(exp, &geometry, &lighting, true);
+        let cache = StageCache::new(opts, std::path::Path::new("."));
+        let memory = crate::memory::estimate(exp, &geometry, &lighting, cache.is_some());
+        self.cache = match &cache {
+            None => CacheReport::Off,
+            Some(c) => CacheReport::Dir {
+                dir: c.dir().to_path_buf(),
+                outputs: cached_outputs(exp, &geometry.mesh, &self.compressors, &memory, c)?,
+            },
+        };
         self.memory = Some((memory, crate::memory::available()?));
         Ok(self)
     }
+}
+
+/// Each output of the run that the stage cache keys, in run order: `T`, the synthesized
+/// BTFs and their local-PCA fits, each compressed form, each SH method's direct transfer.
+/// Keys are computed exactly as the run computes them, so "cached" means the run loads it.
+fn cached_outputs(
+    exp: &Experiment,
+    mesh: &biscale_core::geometry::Mesh,
+    compressors: &[CompressorSetting],
+    memory: &crate::memory::RunMemory,
+    cache: &StageCache,
+) -> crate::pipeline::Result<Vec<CachedOutput>> {
+    let mut out = vec![];
+    let settings = exp.transfer_settings();
+    let t_key = crate::cache::transfer_key(mesh, &settings);
+    out.push(CachedOutput {
+        stage: "transfer",
+        what: format!("T (about {} non-zeros)", memory.nnz.expected),
+        state: CacheState::of(cache.transfer_path(&t_key), Some(memory.transfer.file_bytes)),
+    });
+    let local = settings.local_basis();
+    for m in exp.materials() {
+        let label = m.label();
+        if let MaterialConfig::Synthesized(s) = &m {
+            let key = crate::materials::synth_key(s, local)?;
+            let bytes = BtfEncoding::from_name(&s.encoding)
+                .map(|e| match e {
+                    BtfEncoding::F32 => 4,
+                    BtfEncoding::F16 => 2,
+                    BtfEncoding::U8 => 1,
+                })
+                .unwrap_or(4);
+            let views = (s.view_grid as u64 * s.view_grid as u64).max(1);
+            let values = s.resolution as u64 * s.resolution as u64 * views * local.len() as u64;
+            out.push(CachedOutput {
+                stage: "btf",
+                what: format!("{label}: synthesized table"),
+                state: CacheState::of(cache.btf_path(&key, &s.encoding), Some(values * 3 * bytes)),
+            });
+        }
+        for r in m.representations().all() {
+            if let crate::config::BtfRepresentation::Lpca { .. } = r {
+                out.push(CachedOutput {
+                    stage: "btf",
+                    what: format!("{label}: local-PCA fit {}", r.label()),
+                    state: CacheState::KeyLater("keyed by the BTF's values".into()),
+                });
+            }
+        }
+    }
+    for (setting, mem) in compressors.iter().zip(&memory.compressors) {
+        let compressor = crate::pipeline::build_compressor(setting)?;
+        let state = match crate::cache::form_key(&t_key, compressor.as_ref(), exp.file.seed) {
+            Some(key) => CacheState::of(cache.form_path(&key, &setting.label), Some(mem.form)),
+            None => CacheState::KeyLater("this build cannot identify itself, so forms are not cached".into()),
+        };
+        out.push(CachedOutput { stage: "compress", what: setting.label.clone(), state });
+    }
+    for m in exp.method_settings() {
+        let Ok(p) = crate::methods::sh::ShParams::parse(&m.params) else { continue };
+        let Ok(sh) = biscale_core::transfer::sh::ShTransferSettings::new(p.order, p.rays, exp.file.seed) else {
+            continue;
+        };
+        let key = crate::cache::sh_transfer_key(mesh, &sh, 0, 0);
+        // The file holds the CSR of the dense n^2 x n^2 blocks as T's file does: an f32
+        // value and a u16 column per value, a u32 pointer per row.
+        let n2 = (p.order * p.order) as u64;
+        let rows = mesh.vertex_count() as u64 * n2;
+        let estimate = rows * n2 * 6 + rows * 4;
+        out.push(CachedOutput {
+            stage: "method",
+            what: format!("{}: direct SH transfer M", m.label),
+            state: CacheState::of(cache.sh_transfer_path(&key, sh.order().n()), Some(estimate)),
+        });
+    }
+    Ok(out)
 }
 
 impl fmt::Display for Plan {
@@ -207,6 +341,30 @@ impl fmt::Display for Plan {
                 Action::LeftOut(why) => writeln!(f, "  skip  {:<10} {} ({why})", s.stage, s.what)?,
             }
         }
+        match &self.cache {
+            CacheReport::NotChecked => {}
+            CacheReport::Off => writeln!(f, "cache: off (--no-cache): every stage is built, nothing is written")?,
+            CacheReport::Dir { dir, outputs } => {
+                let (hit, bytes) = outputs.iter().fold((0, 0), |(n, b), o| match o.state {
+                    CacheState::Cached { bytes, .. } => (n + 1, b + bytes),
+                    _ => (n, b),
+                });
+                writeln!(f, "cache {} ({hit} of {} outputs cached, {}):", dir.display(), outputs.len(), human(bytes))?;
+                for o in outputs {
+                    let what = format!("{:<10} {}", o.stage, o.what);
+                    match &o.state {
+                        CacheState::Cached { path, bytes } => {
+                            writeln!(f, "  load  {what:<56} {:>10}  {}", human(*bytes), file_name(path))?
+                        }
+                        CacheState::Build { path, estimate } => {
+                            let size = estimate.map_or("?".to_string(), |b| format!("~{}", human(b)));
+                            writeln!(f, "  build {what:<56} {size:>10}  {}", file_name(path))?
+                        }
+                        CacheState::KeyLater(why) => writeln!(f, "  ?     {what:<56} {:>10}  ({why})", "")?,
+                    }
+                }
+            }
+        }
         if let Some((memory, available)) = &self.memory {
             write!(f, "{}", memory.summary(available))?;
             if memory.peak().bytes > available.bytes {
@@ -215,6 +373,10 @@ impl fmt::Display for Plan {
         }
         Ok(())
     }
+}
+
+fn file_name(path: &std::path::Path) -> String {
+    path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned())
 }
 
 /// True when a material entry is Lambertian in shape for certain: analytic Lambertian, or a

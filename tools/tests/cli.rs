@@ -38,6 +38,39 @@ fn plan_lists_what_runs_and_what_is_left_out() {
 }
 
 #[test]
+fn plan_says_what_the_cache_holds_and_how_big_each_output_is() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("cache");
+    let cache_arg = cache.to_str().unwrap();
+    let outputs =
+        ["transfer   T", "compress   sparse", "compress   bicluster", "compress   cpca", "compress   haar-t4"];
+    let (ok, out, err) = biscale(&["plan", "configs/smoke.toml", "--cache-dir", cache_arg]);
+    assert!(ok, "{err}");
+    assert!(out.contains("(0 of 6 outputs cached, 0.0 MiB)"), "{out}");
+    for o in outputs {
+        assert!(out.contains(&format!("build {o}")), "{o}: {out}");
+    }
+    let run_out = dir.path().join("out");
+    let (ok, _, err) =
+        biscale(&["run", "-q", "configs/smoke.toml", "--cache-dir", cache_arg, "--out", run_out.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    // The plan computes the keys the run wrote under: every output is now loaded, and its
+    // size is its file's.
+    let (ok, out, err) = biscale(&["plan", "configs/smoke.toml", "--cache-dir", cache_arg]);
+    assert!(ok, "{err}");
+    assert!(out.contains("(6 of 6 outputs cached"), "{out}");
+    for o in outputs {
+        let line = out.lines().find(|l| l.contains(&format!("load  {o}"))).unwrap_or_else(|| panic!("{o}: {out}"));
+        let file = line.split_whitespace().last().unwrap();
+        let bytes = std::fs::metadata(cache.join(file)).unwrap().len();
+        let mib = format!("{:.1} MiB", bytes as f64 / (1u64 << 20) as f64);
+        assert!(line.contains(&mib), "{line}: {mib}");
+    }
+    let (ok, out, _) = biscale(&["plan", "configs/smoke.toml", "--no-cache"]);
+    assert!(ok && out.contains("cache: off"), "{out}");
+}
+
+#[test]
 fn bad_config_is_a_located_error_not_a_panic() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = dir.path().join("x.toml");
