@@ -90,8 +90,10 @@ fn a_ply_mesh_under_six_sky_faces_runs_exactly_as_its_obj_under_the_cross() {
 
     let a = config(d, "obj_cross", "m.obj", "cross.exr");
     let b = config(d, "ply_faces", "m.ply", "sky_{face}.exr");
-    // plan: the memory estimate loads the mesh and the sky.
-    let plan = biscale::plan::Plan::new(&b).with_memory(&b).unwrap().to_string();
+    // plan: the memory estimate loads the mesh and the sky (and keys T by the PLY's content).
+    let opts = biscale::pipeline::RunOptions { out_dir: None, cache_dir: Some(d.join("cache")), no_cache: false };
+    let plan = biscale::plan::Plan::new(&b).with_estimates(&b, &opts).unwrap().to_string();
+    assert!(plan.contains("build transfer   T"), "{plan}");
     assert!(plan.contains("sky_{face}.exr"), "{plan}");
     let la = biscale::pipeline::load_lighting(&a).unwrap();
     let lb = biscale::pipeline::load_lighting(&b).unwrap();
