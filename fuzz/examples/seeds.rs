@@ -2,7 +2,8 @@
 //! OBJ files and form-check scripts, are written by hand, and so are the PLY files, the two
 //! binary tetrahedra and their truncation included): small valid EXR and HDR env maps, a
 //! transfer matrix, a compressed form of each built-in compressor, dense and local-PCA BTFs,
-//! and hostile variants of each (a header claiming a huge image, lying lengths under a valid
+//! `.npz` files and recipes for `biscale eval` (an `L*` and forms of that matrix), and hostile
+//! variants of each (a header claiming a huge image, lying lengths under a valid
 //! checksum, truncation). Deterministic, so re-running it leaves the committed files unchanged:
 //!
 //! ```sh
@@ -25,6 +26,7 @@ fn main() {
     let t = transfer(&root.join("transfer"));
     forms(&root.join("form"), &t);
     btfs(&root.join("btf"));
+    npzs(&root.join("npz"), &t);
 }
 
 /// A small deterministic pseudo-random stream (seeds must not change from run to run).
@@ -218,5 +220,67 @@ fn btfs(dir: &Path) {
             }
             write(dir, "lpca_cluster_id_out_of_range.bsf", &b.encode());
         }
+    }
+}
+
+/// `.npz` files as `biscale export` writes them for the 3-vertex matrix of [`transfer`] (an
+/// `L*` and two forms; the ZIP64 layout too), a bare `.npy`, and each as an `NPZ:` recipe
+/// (the `npz` target's well-formed-archive input: see `npz` in `fuzz/src/lib.rs`).
+fn npzs(dir: &Path, t: &TransferMatrix) {
+    use biscale::interop::META;
+    use biscale::npy::{self, ArrayRef, Elements};
+    let tmp = tempfile::tempdir().expect("a temporary folder");
+    let shape = serde_json::json!({
+        "vertices": 3, "local_basis": t.local_basis().tag(), "light_basis": t.light_basis().tag(),
+    });
+    let npy_bytes = |a: &ArrayRef<'_>| {
+        let p = tmp.path().join("a.npy");
+        npy::write_npy(&p, a).expect("write a .npy");
+        std::fs::read(&p).expect("read it back")
+    };
+    let recipe = |meta: &str, arrays: &[(&str, ArrayRef<'_>)]| {
+        let mut b = b"NPZ:".to_vec();
+        b.extend_from_slice(meta.as_bytes());
+        for (name, a) in arrays {
+            b.extend_from_slice(&[0xFF, 0xFE]);
+            b.extend_from_slice(format!("{name}=").as_bytes());
+            b.extend_from_slice(&npy_bytes(a));
+        }
+        b
+    };
+    let archive = |arrays: &[(&str, ArrayRef<'_>)], meta: &str, zip64: bool| {
+        let p = tmp.path().join("a.npz");
+        let mut members = arrays.to_vec();
+        members.push((META, ArrayRef::string(meta)));
+        npy::write_npz_with(&p, &members, zip64).expect("write a .npz");
+        std::fs::read(&p).expect("read it back")
+    };
+
+    let mut rng = Lcg(4);
+    let lstar: Vec<f32> = (0..t.rows() * 3).map(|_| rng.next()).collect();
+    let lstar_meta =
+        serde_json::json!({ "format": "biscale-npz", "version": 1, "what": "lstar", "shape": shape }).to_string();
+    let arrays = [("lstar", ArrayRef::new(&[t.rows(), 3], Elements::F32(&lstar)))];
+    write(dir, "lstar.npz", &archive(&arrays, &lstar_meta, false));
+    write(dir, "lstar_zip64.npz", &archive(&arrays, &lstar_meta, true));
+    write(dir, "lstar.recipe", &recipe(&lstar_meta, &arrays));
+    write(dir, "lstar.npy", &npy_bytes(&arrays[0].1));
+
+    let ctx = CompressContext::default();
+    for (kind, params) in
+        [("sparse", serde_json::json!({})), ("cpca", serde_json::json!({ "clusters": 2, "components": 1 }))]
+    {
+        let c = registry::build(kind, &params).expect("a built-in compressor");
+        let form = c.compress(t, &ctx).expect("it compresses");
+        let arrays: Vec<(&str, ArrayRef<'_>)> =
+            form.arrays.iter().map(|a| (a.name.as_str(), ArrayRef::flat(Elements::from(&a.data)))).collect();
+        let meta = serde_json::json!({
+            "format": "biscale-npz", "version": 1, "what": "form", "kind": kind, "shape": shape,
+            "meta": form.meta, "lossless": form.lossless,
+            "arrays": form.arrays.iter().map(|a| a.name.as_str()).collect::<Vec<_>>(),
+        })
+        .to_string();
+        write(dir, &format!("form_{kind}.npz"), &archive(&arrays, &meta, false));
+        write(dir, &format!("form_{kind}.recipe"), &recipe(&meta, &arrays));
     }
 }

@@ -42,7 +42,18 @@ pub const TARGETS: &[(&str, Body)] = &[
     ("btf", btf),
     ("form", form),
     ("form_check", form_check),
+    ("npz", npz),
 ];
+
+/// The shape the `npz` target reads `L*` and forms for: 3 vertices, 2x2 local bins, a 6x2x2
+/// light cubemap (the seeds are exports of a one-triangle scene at these settings).
+fn npz_shape() -> biscale_core::basis::TransferShape {
+    biscale_core::basis::TransferShape::new(
+        3,
+        biscale_core::basis::LocalBasis::bins(2).expect("a valid basis"),
+        LightBasis::cubemap(2).expect("a valid basis"),
+    )
+}
 
 /// Meshes up to this many triangles also get their transfer scene (frames and BVH) built, as
 /// the pipeline does next; bigger ones would make single inputs slow without reaching new code.
@@ -543,4 +554,117 @@ fn holds(check: &FormCheck, form: &Probe) -> bool {
             })
         }
     }
+}
+
+/// A `.npz` (or `.npy`) for `biscale eval`: the zip and `.npy` readers (`biscale::npy`), then
+/// what `eval` makes of the arrays (`interop::read_lstar`, `interop::read_form`).
+///
+/// Two kinds of input. Raw bytes are the file itself. Bytes starting with `NPZ:` are a recipe
+/// for a well-formed archive, so mutations reach the readers behind the zip's CRC-32 checks:
+/// chunks split at `0xFF 0xFE`, the first the metadata's JSON text, each next one
+/// `name=` followed by a `.npy` file's bytes (chunks that do not parse are dropped); the
+/// archive is written with `npy::write_npz`.
+pub fn npz(data: &[u8]) {
+    use biscale::npy;
+    let dir = tempfile::Builder::new().prefix("fuzz-npz").tempdir().expect("a temporary folder");
+    let path = dir.path().join("fuzz-input.npz");
+    match data.strip_prefix(b"NPZ:") {
+        None => {
+            std::fs::write(&path, data).expect("write the temporary file");
+            if let Err(e) = npy::parse_npy(data) {
+                assert!(!e.is_empty(), "an empty .npy error");
+            }
+        }
+        Some(recipe) => {
+            let mut chunks = split_chunks(recipe, &[0xFF, 0xFE]);
+            let meta = String::from_utf8_lossy(chunks.next().unwrap_or_default()).into_owned();
+            let mut arrays = vec![(biscale::interop::META.to_string(), None)];
+            for chunk in chunks {
+                let Some(eq) = chunk.iter().position(|&b| b == b'=') else { continue };
+                let Ok(name) = std::str::from_utf8(&chunk[..eq]) else { continue };
+                let Ok(array) = npy::parse_npy(&chunk[eq + 1..]) else { continue };
+                arrays.push((name.to_string(), Some(array)));
+            }
+            let members: Vec<(&str, npy::ArrayRef<'_>)> = arrays
+                .iter()
+                .map(|(n, a)| (n.as_str(), a.as_ref().map_or_else(|| npy::ArrayRef::string(&meta), |a| a.as_ref())))
+                .collect();
+            if npy::write_npz(&path, &members).is_err() {
+                return; // e.g. a name the writer refuses
+            }
+        }
+    }
+    match npy::read_npz(&path) {
+        Err(e) => assert_names(&e, "fuzz-input.npz"),
+        Ok(arrays) => {
+            for (name, a) in &arrays {
+                let count: Option<usize> = a.shape.iter().try_fold(1usize, |c, &n| c.checked_mul(n));
+                let string = matches!(a.data, npy::NpyData::Str(_));
+                assert!(
+                    string || count == Some(a.data.len()),
+                    "array '{name}': shape {:?}, {} elements",
+                    a.shape,
+                    a.data.len()
+                );
+            }
+            // What was read writes back, and reads back to the same bytes (bytes, not values:
+            // a NaN is not equal to itself).
+            let (a, b) = (dir.path().join("a.npz"), dir.path().join("b.npz"));
+            let write = |p: &Path, arrays: &[(String, npy::NpyArray)]| {
+                let refs: Vec<(&str, npy::ArrayRef<'_>)> =
+                    arrays.iter().map(|(n, a)| (n.as_str(), a.as_ref())).collect();
+                npy::write_npz(p, &refs)
+            };
+            if write(&a, &arrays).is_ok() {
+                let again = npy::read_npz(&a).expect("a written archive reads back");
+                write(&b, &again).expect("what was read back writes");
+                assert_eq!(
+                    std::fs::read(&a).unwrap(),
+                    std::fs::read(&b).unwrap(),
+                    "an archive does not re-write to itself"
+                );
+            }
+        }
+    }
+    let want = npz_shape();
+    match biscale::interop::read_lstar(&path, want, false) {
+        Err(e) => assert_names(&e, "fuzz-input.npz"),
+        Ok((lstar, _)) => {
+            assert_eq!(lstar.values().len(), want.rows(), "an L* of the wrong shape was accepted");
+            assert!(lstar.values().iter().flatten().all(|x| x.is_finite()), "a non-finite L* was accepted");
+        }
+    }
+    match biscale::interop::read_form(&path, want) {
+        Err(e) => assert_names(&e, "fuzz-input.npz"),
+        Ok(read) => {
+            let form = read.form;
+            let Some(kind) = registry::KINDS.iter().find(|k| k.name == form.kind && k.name != "plugin") else { return };
+            let compressor = (kind.build)(&serde_json::json!({})).expect("a built-in builds with its defaults");
+            let Ok(kernels) = compressor.kernels(&form) else { return };
+            if kernels.check_form(&form).is_err() {
+                return;
+            }
+            let light = LightVector::new(form.light_basis(), vec![[1.0, 0.5, 0.25]; form.cols()])
+                .expect("a light of the basis");
+            let _ = compressor.gather(&form, &light);
+        }
+    }
+}
+
+/// `data` split at every occurrence of `sep`.
+fn split_chunks<'a>(data: &'a [u8], sep: &'a [u8]) -> impl Iterator<Item = &'a [u8]> {
+    let mut rest = Some(data);
+    std::iter::from_fn(move || {
+        let r = rest?;
+        match r.windows(sep.len()).position(|w| w == sep) {
+            Some(i) => {
+                rest = Some(&r[i + sep.len()..]);
+                Some(&r[..i])
+            }
+            None => {
+                rest = None;
+                Some(r)
+            }
+        }
+    })
 }

@@ -380,17 +380,6 @@ fn write_lstar(exp: &Experiment, lstar: &LocalRadiance, light: LightBasis, momen
     Ok(npy::write_npz(path, &members)?)
 }
 
-fn elements_of(data: &ArrayData) -> Elements<'_> {
-    match data {
-        ArrayData::U8(v) => Elements::U8(v),
-        ArrayData::I8(v) => Elements::I8(v),
-        ArrayData::U16(v) => Elements::U16(v),
-        ArrayData::I16(v) => Elements::I16(v),
-        ArrayData::U32(v) => Elements::U32(v),
-        ArrayData::F32(v) => Elements::F32(v),
-    }
-}
-
 /// `form-<label>.npz`: every array of `form` under its own name and type, and [`META`].
 pub fn write_form(exp: &Experiment, form: &CompressedForm, label: &str, params: &Value, path: &Path) -> Result<()> {
     if let Some(a) = form.arrays.iter().find(|a| a.name == META) {
@@ -415,7 +404,7 @@ pub fn write_form(exp: &Experiment, form: &CompressedForm, label: &str, params: 
         }),
     );
     let mut members: Vec<(&str, ArrayRef<'_>)> =
-        form.arrays.iter().map(|a| (a.name.as_str(), ArrayRef::flat(elements_of(&a.data)))).collect();
+        form.arrays.iter().map(|a| (a.name.as_str(), ArrayRef::flat(Elements::from(&a.data)))).collect();
     members.push((META, ArrayRef::string(&meta)));
     Ok(npy::write_npz(path, &members)?)
 }

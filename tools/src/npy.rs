@@ -105,6 +105,21 @@ impl<'a> ArrayRef<'a> {
     }
 }
 
+/// A compressed form's array as elements to write, at its own width.
+impl<'a> From<&'a biscale_core::compress::ArrayData> for Elements<'a> {
+    fn from(data: &'a biscale_core::compress::ArrayData) -> Self {
+        use biscale_core::compress::ArrayData;
+        match data {
+            ArrayData::U8(v) => Elements::U8(v),
+            ArrayData::I8(v) => Elements::I8(v),
+            ArrayData::U16(v) => Elements::U16(v),
+            ArrayData::I16(v) => Elements::I16(v),
+            ArrayData::U32(v) => Elements::U32(v),
+            ArrayData::F32(v) => Elements::F32(v),
+        }
+    }
+}
+
 impl Elements<'_> {
     /// Number of elements (1 for a string).
     pub fn len(&self) -> usize {

@@ -92,6 +92,17 @@ fn the_valid_seeds_still_load() {
     for name in ["lpca_texel_f32.bsf", "lpca_view_u8.bsf"] {
         LpcaBtf::from_artifact(artifact("btf", name)).unwrap();
     }
+    // The `.npz` seeds are what `biscale eval` accepts for the 3-vertex matrix above.
+    let shape = t.shape();
+    for name in ["lstar.npz", "lstar_zip64.npz"] {
+        let (lstar, _) = biscale::interop::read_lstar(&seed("npz", name).0, shape, false).unwrap();
+        assert_eq!(lstar.values().len(), 12, "{name}");
+    }
+    for kind in ["sparse", "cpca"] {
+        let form = biscale::interop::read_form(&seed("npz", &format!("form_{kind}.npz")).0, shape).unwrap().form;
+        let c = registry::build(kind, &serde_json::json!({})).unwrap();
+        c.kernels(&form).unwrap().check_form(&form).unwrap();
+    }
 }
 
 /// The hostile seeds the suite was asked for are refused, each for its own reason.
@@ -115,6 +126,11 @@ fn the_hostile_seeds_are_refused_for_what_they_are() {
     let mesh = Mesh::parse_ply(&bytes, &path).unwrap().mesh;
     let e = biscale_core::transfer::TransferScene::new(&mesh).err().expect("refused").to_string();
     assert!(e.contains("too small to trace"), "{e}");
+    // Found by the fuzzer: tobj reads `l` records with its face parser, so their normal and
+    // texture indices are checked as a face's are.
+    let (path, bytes) = seed("obj", "line_record_index_counting_back.obj");
+    let e = Mesh::parse_obj(&bytes, &path).unwrap_err().to_string();
+    assert!(e.contains("normal index out of bounds") && e.contains("line 6"), "{e}");
     let (path, bytes) = seed("obj", "nan_inf_vertex.obj");
     let e = Mesh::parse_obj(&bytes, &path).unwrap_err().to_string();
     assert!(e.contains("OBJ vertex 4 (line 4)") && e.contains("non-finite"), "{e}");
