@@ -8,6 +8,7 @@
 //! * [`reference`](mod@reference): the ray-traced reference image (`L*` from exact per-pixel visibility).
 //! * [`synth`]: BTFs synthesized by ray tracing tileable height-field patches, their files and
 //!   contact sheets.
+//! * [`measured`]: measured BTFs in the Bonn BTF Database layout, resampled onto the bins.
 //! * [`precomputed`]: LPCA BTFs under a fixed light from per-vertex dot products, the fast path
 //!   of the CPU shader (checked against it).
 //! * [`image`]: error metrics of images against a reference, false-colour error images.
@@ -35,6 +36,7 @@ pub mod cpu;
 pub mod error;
 pub mod image;
 pub mod ldr;
+pub mod measured;
 pub mod precomputed;
 pub mod reference;
 pub mod synth;

@@ -210,6 +210,38 @@ pub enum MaterialConfig {
     /// A BTF ray traced from a tileable height-field patch (`biscale_shading::synth`),
     /// generated on demand and cached by content.
     Synthesized(SynthesizedConfig),
+    /// A measured BTF in the Bonn BTF Database layout (`biscale_shading::measured::bonn`),
+    /// resampled onto `T`'s light bins and a view grid when the run starts.
+    Bonn(BonnConfig),
+}
+
+/// The parameters of a measured BTF in the Bonn layout (a folder per view,
+/// `tv000_pv000/00000 tl000 pl000 tv000 pv000.jpg`, ...).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct BonnConfig {
+    #[serde(default)]
+    pub name: Option<String>,
+    #[serde(default = "default_tiling")]
+    pub tiling: f32,
+    /// The sample's folder (relative to the config file).
+    pub path: PathBuf,
+    /// Texels per patch side: the images are box-filtered down to it (it must divide their size).
+    #[serde(default = "default_resolution")]
+    pub resolution: u32,
+    /// View grid side the measured views are resampled onto; 0 keeps the view nearest the
+    /// normal alone (no view axis).
+    #[serde(default = "default_view_grid")]
+    pub view_grid: u32,
+    /// Multiplies every value: image units to radiance under unit perpendicular irradiance.
+    #[serde(default = "default_scale")]
+    pub scale: f32,
+    #[serde(default)]
+    pub representation: Representations,
+}
+
+fn default_scale() -> f32 {
+    1.0
 }
 
 /// The parameters of a synthesized BTF (see `biscale_shading::synth::BtfSpec`).
@@ -460,6 +492,7 @@ impl MaterialConfig {
         match self {
             MaterialConfig::Lambertian { name, .. } | MaterialConfig::Phong { name, .. } => name.as_deref(),
             MaterialConfig::Synthesized(s) => s.name.as_deref(),
+            MaterialConfig::Bonn(b) => b.name.as_deref(),
         }
     }
 
@@ -475,6 +508,7 @@ impl MaterialConfig {
                 representation
             }
             MaterialConfig::Synthesized(s) => &s.representation,
+            MaterialConfig::Bonn(b) => &b.representation,
         }
     }
 
@@ -482,15 +516,17 @@ impl MaterialConfig {
         match self {
             MaterialConfig::Lambertian { tiling, .. } | MaterialConfig::Phong { tiling, .. } => *tiling,
             MaterialConfig::Synthesized(s) => s.tiling,
+            MaterialConfig::Bonn(b) => b.tiling,
         }
     }
 
-    /// `lambertian`, `phong` or `synthesized`.
+    /// `lambertian`, `phong`, `synthesized` or `bonn`.
     pub fn kind(&self) -> &'static str {
         match self {
             MaterialConfig::Lambertian { .. } => "lambertian",
             MaterialConfig::Phong { .. } => "phong",
             MaterialConfig::Synthesized(_) => "synthesized",
+            MaterialConfig::Bonn(_) => "bonn",
         }
     }
 
@@ -531,6 +567,17 @@ fn check_material(m: &MaterialConfig) -> Result<(), String> {
     }
     match m {
         MaterialConfig::Lambertian { albedo, .. } if !rgb_ok(albedo) => Err("albedo must be finite and >= 0".into()),
+        MaterialConfig::Bonn(b) => {
+            if !(1..=1024).contains(&b.resolution) {
+                Err(format!("resolution must be in 1..=1024, got {}", b.resolution))
+            } else if b.view_grid > 64 {
+                Err(format!("view_grid must be in 0..=64 (0: no view axis), got {}", b.view_grid))
+            } else if !(b.scale.is_finite() && b.scale >= 0.0) {
+                Err(format!("scale must be finite and >= 0, got {}", b.scale))
+            } else {
+                Ok(())
+            }
+        }
         MaterialConfig::Phong { kd, ks, exponent, view_grid, .. } => {
             if !(exponent.is_finite() && *exponent >= 0.0) || *view_grid == 0 || *view_grid > 64 {
                 Err("phong needs exponent >= 0 and view_grid in 1..=64".into())
@@ -1243,6 +1290,13 @@ impl Experiment {
                     ));
                 }
                 None => {}
+            }
+            if let MaterialConfig::Bonn(b) = m.get_mut() {
+                let full = dir.join(&b.path);
+                if !full.is_dir() {
+                    return Err(err(span.clone(), format!("bonn sample folder not found: {}", full.display())));
+                }
+                b.path = full;
             }
             if let MaterialConfig::Synthesized(syn) = m.get_mut() {
                 for (file_ref, what) in [(&mut syn.height_map, "height_map"), (&mut syn.albedo_map, "albedo_map")] {

@@ -511,6 +511,10 @@ fn run() -> anyhow::Result<()> {
                     biscale::materials::Origin::Analytic => "analytic".to_string(),
                     biscale::materials::Origin::Synthesized { seconds } => format!("synthesized in {seconds:.1} s"),
                     biscale::materials::Origin::Cached(p) => format!("from cache {}", p.display()),
+                    biscale::materials::Origin::Measured(r, seconds) => format!(
+                        "resampled from {} views x {} lights in {seconds:.1} s, bins up to {:.1} deg from a measurement",
+                        r.views, r.lights, r.max_interpolation_angle_deg
+                    ),
                 };
                 println!("{}: wrote {} ({:.2} MB, {how})", w.label, w.path.display(), w.bytes as f64 / 1e6);
                 if let Some(p) = &w.preview {

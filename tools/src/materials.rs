@@ -203,6 +203,8 @@ pub enum Origin {
     Synthesized { seconds: f64 },
     /// Loaded from this cache file.
     Cached(PathBuf),
+    /// Resampled from measured images now.
+    Measured(biscale_shading::measured::BonnReport, f64),
 }
 
 /// The BTF of one entry on `local_basis`; synthesized tables are cached when there is a
@@ -221,6 +223,18 @@ pub fn material_btf(
         }
         MaterialConfig::Phong { kd, ks, exponent, view_grid, .. } => {
             Ok((Btf::phong(*kd, *ks, *exponent, local_basis, *view_grid).map_err(core_err)?, Origin::Analytic))
+        }
+        MaterialConfig::Bonn(b) => {
+            let opts = biscale_shading::measured::BonnImport {
+                local_basis,
+                view_grid: b.view_grid,
+                resolution: b.resolution,
+                scale: b.scale,
+                name: label.to_string(),
+            };
+            let start = Instant::now();
+            let (btf, report) = biscale_shading::measured::load_bonn(&b.path, &opts).map_err(&err)?;
+            Ok((btf, Origin::Measured(report, start.elapsed().as_secs_f64())))
         }
         MaterialConfig::Synthesized(s) => {
             let encoding = BtfEncoding::from_name(&s.encoding).map_err(&err)?;
@@ -329,6 +343,14 @@ pub fn load_materials(
             Origin::Analytic => {}
             Origin::Synthesized { seconds } => crate::note!("btf {label}: synthesized in {seconds:.1} s"),
             Origin::Cached(p) => crate::note!("btf {label}: loaded from cache {}", p.display()),
+            Origin::Measured(r, seconds) => crate::note!(
+                "btf {label}: resampled {} views x {} lights of {}x{} images in {seconds:.1} s (farthest bin centre {:.1} deg from a measured direction)",
+                r.views,
+                r.lights,
+                r.image_size[0],
+                r.image_size[1],
+                r.max_interpolation_angle_deg
+            ),
         }
         if btf.view_grid().is_none() {
             notes.push(format!("material {label}: view axis left out (view-independent BTF)"));

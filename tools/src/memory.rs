@@ -343,6 +343,11 @@ fn btf_bytes(c: &MaterialConfig, m: u64) -> u64 {
             let views = (s.view_grid as u64 * s.view_grid as u64).max(1);
             (s.resolution as u64 * s.resolution as u64 * views * m, 5)
         }
+        // The table and the shade scene's copy, plus one view's f64 sums while importing.
+        MaterialConfig::Bonn(b) => {
+            let views = (b.view_grid as u64 * b.view_grid as u64).max(1);
+            (b.resolution as u64 * b.resolution as u64 * views * m, 5)
+        }
     };
     let lpca = c.representations().all().iter().any(|r| *r != crate::config::BtfRepresentation::Dense);
     values * BTF_BYTES_PER_VALUE * (halves + 2 * lpca as u64) / 2

@@ -113,6 +113,22 @@ impl Plan {
                 MaterialConfig::Phong { view_grid, .. } => {
                     step("btf", format!("{label}: phong BTF with {view_grid}x{view_grid} view directions"), Action::Run)
                 }
+                MaterialConfig::Bonn(b) => {
+                    let views = match b.view_grid {
+                        0 => "the view nearest the normal (no view axis)".to_string(),
+                        v => format!("{v}x{v} views"),
+                    };
+                    step(
+                        "btf",
+                        format!(
+                            "{label}: resample the measured BTF in {} to {r}x{r} texels x {views} x {m}x{m} lights",
+                            b.path.display(),
+                            r = b.resolution,
+                            m = t.local_grid().m
+                        ),
+                        Action::Run,
+                    )
+                }
                 MaterialConfig::Synthesized(s) if s.amplitude == 0.0 && s.albedo_map.is_none() => step(
                     "btf",
                     format!("{label}: ray tracing of a flat patch"),
@@ -384,7 +400,7 @@ fn file_name(path: &std::path::Path) -> String {
 fn lambertian_config(m: &MaterialConfig) -> bool {
     match m {
         MaterialConfig::Lambertian { .. } => true,
-        MaterialConfig::Phong { .. } => false,
+        MaterialConfig::Phong { .. } | MaterialConfig::Bonn(_) => false,
         MaterialConfig::Synthesized(s) => {
             s.amplitude == 0.0 && matches!(s.brdf, crate::config::BrdfConfig::Lambertian { .. })
         }

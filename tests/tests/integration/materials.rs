@@ -275,3 +275,73 @@ fn lpca_btfs_render_like_the_dense_table_at_full_rank_and_report_their_cost() {
     let msg = run(&exp, &opts).unwrap_err().to_string();
     assert!(msg.contains("clusters = 20") && msg.contains("16 texels"), "{msg}");
 }
+
+/// A measured BTF in the Bonn database's layout (a folder per view, an image per light)
+/// whose photographs are those of a Lambertian patch, `albedo / pi * cos theta_l`: the
+/// importer divides the cosine out, interpolates a constant ABRDF (exact) and multiplies the
+/// bins' mean cosines back in, which is `Btf::lambertian`'s table. So a plane of the measured
+/// material renders as the same plane with the analytic Lambertian, up to f32 rounding.
+#[test]
+fn a_measured_btf_in_the_bonn_layout_renders_as_the_material_it_measured() {
+    let dir = tempfile::tempdir().unwrap();
+    let albedo = [0.3f32, 0.5, 0.7];
+    let sample = dir.path().join("sample");
+    let views = [(0, 0), (30, 0), (30, 180)];
+    let mut lights = vec![(0u32, 0u32)];
+    for theta in [30, 60] {
+        for phi in [0, 90, 180, 270] {
+            lights.push((theta, phi));
+        }
+    }
+    for (tv, pv) in views {
+        let folder = sample.join(format!("tv{tv:03}_pv{pv:03}"));
+        std::fs::create_dir_all(&folder).unwrap();
+        for (i, (tl, pl)) in lights.iter().enumerate() {
+            let cos = (*tl as f64).to_radians().cos();
+            let mut img = HdrImage::new(4, 4);
+            for p in &mut img.pixels {
+                *p = albedo.map(|a| (a as f64 / std::f64::consts::PI * cos) as f32);
+            }
+            img.write_exr(&folder.join(format!("{i:05} tl{tl:03} pl{pl:03} tv{tv:03} pv{pv:03}.exr"))).unwrap();
+        }
+    }
+    write_obj(&dir.path().join("m.obj"), &shapes::grid_plane(4, 2.0));
+    let config = |name: &str, material: &str| {
+        write_config(
+            dir.path(),
+            name,
+            &format!(
+                "name = \"{name}\"\n[scene]\nmesh = \"m.obj\"\n[scene.material]\n{material}\n\
+                 [lighting]\nconstant = [1, 0.8, 0.6]\n[transfer]\ncubemap_resolution = 8\nvisibility_resolution = 16\nlocal_grid = 4\n\
+                 [[compressors]]\nkind = \"sparse\"\n[runtime]\nwidth = 32\nheight = 32\nrepeats = 1\n{TOP_VIEW}\n[report]\nreference = false\n"
+            ),
+        )
+    };
+    let measured = config("measured", "kind = \"bonn\"\npath = \"sample\"\nresolution = 2\nview_grid = 2");
+    let analytic = config("analytic", &format!("kind = \"lambertian\"\nalbedo = {albedo:?}"));
+    let exp = Experiment::load(&measured).unwrap();
+    let plan = biscale::plan::Plan::new(&exp).to_string();
+    assert!(
+        plan.contains("resample the measured BTF in") && plan.contains("2x2 texels x 2x2 views x 4x4 lights"),
+        "{plan}"
+    );
+    let (out_m, out_a) = (dir.path().join("out-m"), dir.path().join("out-a"));
+    run_in(&measured, &out_m);
+    run_in(&analytic, &out_a);
+    let read = |out: &std::path::Path| HdrImage::read_exr(&out.join("images/uncompressed.exr")).unwrap().0;
+    let (m, a) = (read(&out_m), read(&out_a));
+    let mut lit = 0;
+    for (pm, pa) in m.pixels.iter().zip(&a.pixels) {
+        for c in 0..3 {
+            // f32 rounding of the table (a few ulps) through a dot of 16 bins.
+            assert!((pm[c] - pa[c]).abs() <= 1e-5 * pa[c].abs() + 1e-7, "{pm:?} vs {pa:?}");
+        }
+        lit += usize::from(pa[0] > 0.0);
+    }
+    assert!(lit > 100, "the plane covers {lit} pixels");
+
+    // A sample folder that is not there is a config error naming it.
+    let missing = config("missing", "kind = \"bonn\"\npath = \"nowhere\"");
+    let e = Experiment::load(&missing).unwrap_err().to_string();
+    assert!(e.contains("bonn sample folder not found") && e.contains("nowhere"), "{e}");
+}
