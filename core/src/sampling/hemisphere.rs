@@ -30,6 +30,7 @@ pub fn disk_to_square(p: DVec2) -> (f64, f64) {
 /// symmetrically with `x` and `y` swapped), so one `atan` of a ratio in `[-1, 1]` inverts the
 /// concentric map, with no angle unwrapping and no normalisation (this runs once per light bin
 /// per vertex in the light-moments resolve).
+#[inline]
 fn wedge_to_square(r: f64, x: f64, y: f64) -> (f64, f64) {
     if r == 0.0 || (x == 0.0 && y == 0.0) {
         return (0.5, 0.5);
@@ -55,6 +56,7 @@ pub fn square_to_hemisphere(u: f64, v: f64) -> DVec3 {
 /// Inverse of [`square_to_hemisphere`] for a non-zero vector `d` of any length (a direction
 /// below the horizon is projected onto it): the disk radius is `sqrt(1 - z)` of the unit
 /// direction, and its angle is that of `(d.x, d.y)`.
+#[inline]
 pub fn hemisphere_to_square(d: DVec3) -> (f64, f64) {
     let z = (d.z / d.length()).clamp(0.0, 1.0);
     wedge_to_square((1.0 - z).sqrt(), d.x, d.y)
@@ -159,6 +161,7 @@ impl HemisphereGrid {
     /// Continuous grid coordinates of local direction `d` for bilinear interpolation between
     /// bin centres: `(x, y)` in `[0, m-1]` so that integer values are bin centres.
     /// Directions below the horizon are clamped onto it.
+    #[inline]
     pub fn continuous_coords(&self, d: Vec3) -> (f32, f32) {
         let (u, v) = hemisphere_to_square(d.as_dvec3());
         let m = self.m as f64;

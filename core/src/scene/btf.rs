@@ -117,11 +117,13 @@ pub fn view_weights(view_grid: Option<HemisphereGrid>, view_local: Vec3) -> [(us
 /// value divided by its bin's mean cosine is the BRDF at the bin centre, so
 /// `sum_i w_i b_i / cosbar_i` is the BRDF interpolated at `light_local` (light moments and the
 /// ground-truth reference evaluate the lobe this way instead of at the bin centre).
+#[inline]
 pub fn light_weights(grid: HemisphereGrid, light_local: Vec3) -> [(usize, f32); 4] {
     grid_weights(grid, light_local)
 }
 
 /// Bilinear weights of local direction `d` between the bin centres of `g` (see [`view_weights`]).
+#[inline]
 fn grid_weights(g: HemisphereGrid, d: Vec3) -> [(usize, f32); 4] {
     let e = if d.is_finite() && d.length_squared() > 0.0 { d } else { Vec3::Z };
     let (x, y) = g.continuous_coords(e);
@@ -129,8 +131,10 @@ fn grid_weights(g: HemisphereGrid, d: Vec3) -> [(usize, f32); 4] {
     if m == 1 {
         return [(0, 1.0), (0, 0.0), (0, 0.0), (0, 0.0)];
     }
+    // `continuous_coords` is in [0, m - 1], where truncation is the floor (and a cast, not a
+    // libm call on the x86-64 baseline).
     let split = |c: f32| {
-        let i = (c.floor() as usize).min(m - 2);
+        let i = (c as usize).min(m - 2);
         (i, (c - i as f32).clamp(0.0, 1.0))
     };
     let ((x0, fx), (y0, fy)) = (split(x), split(y));
