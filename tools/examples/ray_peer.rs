@@ -1,0 +1,143 @@
+//! biscale's side of `scripts/ray_peer.py`: the transfer stage's visibility rays as a plain
+//! ray list, traced through biscale's BVH (obvhs) and, by the script, through Mitsuba 3's
+//! (Embree on its LLVM variant), so the two tracers are timed on the same mesh and the same
+//! rays.
+//!
+//! The rays: from every vertex (offset along its normal as the transfer stage offsets it), one
+//! per texel centre of a 6 x R x R direction cube (R = the visibility resolution, 64 at the
+//! reference setting) above the vertex's tangent plane, in the BVH's normalised space
+//! (`TransferScene`: centred, diagonal 1024). Writes `positions.npy`, `triangles.npy`,
+//! `origins.npy`, `normals.npy`, `directions.npy` into OUT, times the occlusion queries on
+//! 1 and 2 threads (medians of interleaved rounds) and the transfer stage itself (which
+//! traces the same directions, but tile by tile with its cone-culled candidate lists), and
+//! prints one JSON object.
+//!
+//! ```text
+//! cargo run --release -p biscale --example ray_peer -- MESH OUT [--resolution 64] [--rounds 3]
+//! ```
+
+use anyhow::Result;
+use biscale::npy::{self, ArrayRef, Elements};
+use biscale_core::geometry::{Mesh, SceneBvh};
+use biscale_core::stats::median;
+use biscale_core::transfer::{self, TransferScene, TransferSettings, BVH_DIAGONAL, ORIGIN_OFFSET};
+use glam::Vec3;
+use rayon::prelude::*;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// The transfer stage's ray start in the normalised space (`geometry::bvh::RAY_TMIN`).
+const RAY_TMIN: f32 = 1e-4;
+
+#[derive(clap::Parser)]
+struct Args {
+    /// The mesh (OBJ or PLY).
+    mesh: PathBuf,
+    /// Folder for the ray arrays.
+    out: PathBuf,
+    /// Direction cube resolution (the transfer stage's visibility resolution).
+    #[arg(long, default_value_t = 64)]
+    resolution: u32,
+    /// Timing rounds per thread count.
+    #[arg(long, default_value_t = 3)]
+    rounds: usize,
+}
+
+/// Texel-centre directions of a 6 x r x r cube, unit length.
+fn cube_directions(r: u32) -> Vec<Vec3> {
+    let mut out = Vec::with_capacity(6 * (r * r) as usize);
+    for face in 0..6 {
+        for y in 0..r {
+            for x in 0..r {
+                let (s, t) = ((x as f32 + 0.5) / r as f32 * 2.0 - 1.0, (y as f32 + 0.5) / r as f32 * 2.0 - 1.0);
+                let d = match face {
+                    0 => Vec3::new(1.0, -t, -s),
+                    1 => Vec3::new(-1.0, -t, s),
+                    2 => Vec3::new(s, 1.0, t),
+                    3 => Vec3::new(s, -1.0, -t),
+                    4 => Vec3::new(s, -t, 1.0),
+                    _ => Vec3::new(-s, -t, -1.0),
+                };
+                out.push(d.normalize());
+            }
+        }
+    }
+    out
+}
+
+fn main() -> Result<()> {
+    let args = <Args as clap::Parser>::parse();
+    let mesh = Mesh::load(&args.mesh)?.mesh;
+    let scene = TransferScene::new(&mesh)?;
+    let (lo, hi) = mesh.bounds();
+    let centre = 0.5 * (lo + hi);
+    let scale = BVH_DIAGONAL / mesh.diagonal();
+    let positions: Vec<Vec3> = mesh.positions.iter().map(|p| (*p - centre) * scale).collect();
+    let normals: Vec<Vec3> = scene.frames().iter().map(|f| f.normal).collect();
+    let offset = ORIGIN_OFFSET * BVH_DIAGONAL;
+    let origins: Vec<Vec3> = positions.iter().zip(&normals).map(|(p, n)| *p + *n * offset).collect();
+    let dirs = cube_directions(args.resolution);
+    let bvh = SceneBvh::build(&positions, &mesh.triangles);
+
+    std::fs::create_dir_all(&args.out)?;
+    let flat = |v: &[Vec3]| v.iter().flat_map(|p| p.to_array()).collect::<Vec<f32>>();
+    let tris: Vec<u32> = mesh.triangles.iter().flatten().copied().collect();
+    for (name, shape, data) in [
+        ("positions", [positions.len(), 3], Elements::F32(&flat(&positions))),
+        ("origins", [origins.len(), 3], Elements::F32(&flat(&origins))),
+        ("normals", [normals.len(), 3], Elements::F32(&flat(&normals))),
+        ("directions", [dirs.len(), 3], Elements::F32(&flat(&dirs))),
+    ] {
+        npy::write_npy(&args.out.join(format!("{name}.npy")), &ArrayRef::new(&shape, data))?;
+    }
+    npy::write_npy(&args.out.join("triangles.npy"), &ArrayRef::new(&[mesh.triangles.len(), 3], Elements::U32(&tris)))?;
+
+    // Every vertex's rays above its tangent plane: (rays, occluded).
+    let trace = || -> (u64, u64) {
+        (0..origins.len())
+            .into_par_iter()
+            .map(|v| {
+                let (o, n) = (origins[v], normals[v]);
+                let (mut rays, mut hit) = (0u64, 0u64);
+                for d in &dirs {
+                    if n.dot(*d) > 0.0 {
+                        rays += 1;
+                        hit += u64::from(bvh.occluded(o, *d, RAY_TMIN, f32::INFINITY));
+                    }
+                }
+                (rays, hit)
+            })
+            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+    };
+    let pools: Vec<(usize, rayon::ThreadPool)> = [1, 2]
+        .into_iter()
+        .map(|n| Ok((n, rayon::ThreadPoolBuilder::new().num_threads(n).build()?)))
+        .collect::<Result<_>>()?;
+    let mut seconds: Vec<Vec<f64>> = vec![vec![]; pools.len()];
+    let mut counts = (0, 0);
+    for _ in 0..args.rounds.max(1) {
+        for (i, (_, pool)) in pools.iter().enumerate() {
+            let s = Instant::now();
+            counts = pool.install(trace);
+            seconds[i].push(s.elapsed().as_secs_f64());
+        }
+    }
+    let settings = TransferSettings::new(args.resolution / 2, args.resolution, 8)?;
+    let build = transfer::build(&mesh, &settings, None)?;
+    let mut out = serde_json::json!({
+        "vertices": mesh.vertex_count(),
+        "triangles": mesh.triangles.len(),
+        "rays": counts.0,
+        "occluded": counts.1,
+        "transfer_stage": {
+            "rays_traced": build.stats.rays_traced,
+            "seconds": build.stats.seconds,
+            "threads": rayon::current_num_threads(),
+        },
+    });
+    for ((n, _), s) in pools.iter().zip(&seconds) {
+        out[format!("bvh_seconds_{n}t")] = median(s).into();
+    }
+    println!("{out}");
+    Ok(())
+}
