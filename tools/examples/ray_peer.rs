@@ -19,6 +19,7 @@
 use anyhow::Result;
 use biscale::npy::{self, ArrayRef, Elements};
 use biscale_core::geometry::{Mesh, SceneBvh};
+use biscale_core::sampling::Cubemap;
 use biscale_core::stats::median;
 use biscale_core::transfer::{self, TransferScene, TransferSettings, BVH_DIAGONAL, ORIGIN_OFFSET};
 use glam::Vec3;
@@ -43,28 +44,6 @@ struct Args {
     rounds: usize,
 }
 
-/// Texel-centre directions of a 6 x r x r cube, unit length.
-fn cube_directions(r: u32) -> Vec<Vec3> {
-    let mut out = Vec::with_capacity(6 * (r * r) as usize);
-    for face in 0..6 {
-        for y in 0..r {
-            for x in 0..r {
-                let (s, t) = ((x as f32 + 0.5) / r as f32 * 2.0 - 1.0, (y as f32 + 0.5) / r as f32 * 2.0 - 1.0);
-                let d = match face {
-                    0 => Vec3::new(1.0, -t, -s),
-                    1 => Vec3::new(-1.0, -t, s),
-                    2 => Vec3::new(s, 1.0, t),
-                    3 => Vec3::new(s, -1.0, -t),
-                    4 => Vec3::new(s, -t, 1.0),
-                    _ => Vec3::new(-s, -t, -1.0),
-                };
-                out.push(d.normalize());
-            }
-        }
-    }
-    out
-}
-
 fn main() -> Result<()> {
     let args = <Args as clap::Parser>::parse();
     let mesh = Mesh::load(&args.mesh)?.mesh;
@@ -76,7 +55,8 @@ fn main() -> Result<()> {
     let normals: Vec<Vec3> = scene.frames().iter().map(|f| f.normal).collect();
     let offset = ORIGIN_OFFSET * BVH_DIAGONAL;
     let origins: Vec<Vec3> = positions.iter().zip(&normals).map(|(p, n)| *p + *n * offset).collect();
-    let dirs = cube_directions(args.resolution);
+    let cube = Cubemap::new(args.resolution);
+    let dirs: Vec<Vec3> = (0..cube.texel_count()).map(|k| cube.texel_direction(k)).collect();
     let bvh = SceneBvh::build(&positions, &mesh.triangles);
 
     std::fs::create_dir_all(&args.out)?;
