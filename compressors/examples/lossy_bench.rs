@@ -13,7 +13,7 @@
 //! R = 32, no rotation). Gather times are single runs of the CPU gather (rayon).
 
 use biscale_compressors::cpca::Cpca;
-use biscale_compressors::haar::Haar;
+use biscale_compressors::haar::{Haar, HaarWeighting};
 use biscale_compressors::sparse::Sparse;
 use biscale_compressors::testing::random_light;
 use biscale_core::compress::{CompressContext, Compressor};
@@ -113,8 +113,11 @@ fn main() -> Result<(), Box<dyn Error>> {
         for terms in [6, 12, 24, 48] {
             run(format!("haar T={terms}"), &Haar::with_terms(terms))?;
         }
-        run("haar T=12 unweighted".into(), &Haar { terms: 12, area_weighted: false, f16_values: false })?;
-        run("haar T=12 f16".into(), &Haar { terms: 12, area_weighted: true, f16_values: true })?;
+        run(
+            "haar T=12 unweighted".into(),
+            &Haar { terms: 12, weighting: HaarWeighting::Magnitude, f16_values: false },
+        )?;
+        run("haar T=12 f16".into(), &Haar { terms: 12, weighting: HaarWeighting::Area, f16_values: true })?;
     }
     if which == "all" || which == "cpca" {
         for (k, c) in [(8, 4), (32, 8)] {

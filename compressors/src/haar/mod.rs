@@ -34,7 +34,11 @@
 //! terms that carry most of `T L` for typical environments (Ng et al. report area weighting as
 //! their best heuristic). Using exact solid angles rather than texel counts also accounts for
 //! the cube's distortion (corner texels subtend about 5x less than centre texels at R = 32).
-//! `Haar { area_weighted: false, .. }` ranks by `|c_i|` alone. Ties break towards the lower
+//! `weighting = "side"` ranks by `|c_i| sqrt(A_i)` instead: for an orthonormal basis the
+//! transformed light's coefficient `(W L)_i` of a light smooth over the support grows as the
+//! square root of the support, so `|c_i| sqrt(A_i)` is the expected size of the term's share of
+//! `T L`, and the area weighting over-favours coarse terms (BENCHMARKS.md measures both over
+//! the bundled skies). `weighting = "magnitude"` ranks by `|c_i|` alone. Ties break towards the lower
 //! index, so the selection is deterministic. Rows whose transform has at most `terms` non-zero
 //! coefficients are stored exactly (all of them); all-zero rows store nothing.
 //!
@@ -58,7 +62,7 @@
 //! steps in f32: a pass per (face, channel) transforms the light, a pass per row dots.
 
 mod params;
-pub use params::Haar;
+pub use params::{Haar, HaarWeighting};
 
 use crate::registry::{self, Kind};
 use biscale_core::basis::TransferShape;
@@ -81,11 +85,13 @@ pub const KIND: Kind = Kind {
     name: "haar",
     about: "non-linear Haar wavelets: the `terms` largest area-weighted coefficients per row (lossy)",
     label: |p| {
-        Ok(registry::tagged_label(
-            "haar",
-            &serde_json::to_value(registry::parse::<Haar>(p)?).unwrap(),
-            &[("terms", "t")],
-        ))
+        let haar = registry::parse::<Haar>(p)?;
+        let label = registry::tagged_label("haar", &serde_json::to_value(haar).unwrap(), &[("terms", "t")]);
+        // The default ranking is left out of the label, as settings before it was a key.
+        Ok(match haar.weighting {
+            HaarWeighting::Area => label,
+            w => format!("{label}-{}", w.name()),
+        })
     },
     check: |p| build(p).map(drop),
     build: |p| Ok(build(p)?),
@@ -395,11 +401,11 @@ impl Compressor for Haar {
         let indptr_view = csr.indptr();
         let indptr = indptr_view.to_proper();
         let (indices, data) = (csr.indices(), csr.data());
-        let weight = if self.area_weighted {
+        let weight: Vec<f64> =
             support_solid_angles(&t.light_basis().cubemap_layout().expect("face_resolution checked it"))
-        } else {
-            vec![1.0; t.cols()]
-        };
+                .into_iter()
+                .map(|a| self.weighting.weight(a))
+                .collect();
         let terms = self.terms.min(t.cols());
         let rows = t.rows();
         const CHUNK: usize = 2048;

@@ -12,17 +12,53 @@ pub struct Haar {
     /// default). Rows with fewer non-zero coefficients keep all of them. `terms >= N` keeps
     /// every row exactly.
     pub terms: usize,
-    /// Rank coefficients by `|c_i| x solid angle of support` (Ng et al.'s area-weighted
-    /// selection) instead of `|c_i|`. Default true.
-    pub area_weighted: bool,
+    /// How each row's coefficients are ranked for the selection: `area` (default),
+    /// `side` or `magnitude` ([`HaarWeighting`]).
+    pub weighting: HaarWeighting,
     /// Store the kept values as IEEE half floats (2 bytes) instead of f32 (4 bytes). Relative
     /// rounding 2^-11 per value. Default false.
     pub f16_values: bool,
 }
 
+/// The weight `w_i` of a coefficient's rank `|c_i| w_i` in the selection, from `A_i`, the
+/// solid angle of basis function `i`'s support (module docs of `haar`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HaarWeighting {
+    /// `w_i = A_i`: Ng et al. 2003's area weighting.
+    #[default]
+    Area,
+    /// `w_i = sqrt(A_i)`, the support's side: the expected size of term `i`'s share of
+    /// `T L` when the light is smooth over its support (`|(W L)_i|` grows as the square
+    /// root of the support for an orthonormal basis).
+    Side,
+    /// `w_i = 1`: `|c_i|` alone, L2-optimal for the row itself.
+    Magnitude,
+}
+
+impl HaarWeighting {
+    /// The weight of a support of solid angle `area`.
+    pub fn weight(self, area: f64) -> f64 {
+        match self {
+            HaarWeighting::Area => area,
+            HaarWeighting::Side => area.sqrt(),
+            HaarWeighting::Magnitude => 1.0,
+        }
+    }
+
+    /// The config value (`area`, `side`, `magnitude`).
+    pub fn name(self) -> &'static str {
+        match self {
+            HaarWeighting::Area => "area",
+            HaarWeighting::Side => "side",
+            HaarWeighting::Magnitude => "magnitude",
+        }
+    }
+}
+
 impl Default for Haar {
     fn default() -> Self {
-        Self { terms: 12, area_weighted: true, f16_values: false }
+        Self { terms: 12, weighting: HaarWeighting::Area, f16_values: false }
     }
 }
 

@@ -263,13 +263,13 @@ fn area_weighting_helps_for_a_smooth_light() {
     let t = random_transfer(40, 2, 8, 0.3, 4);
     let light = LightVector::constant(LightBasis::cubemap(8).unwrap(), [1.0, 0.5, 0.25]);
     let reference = reference_product(&t, &light);
-    let err = |area_weighted| {
-        let haar = Haar { terms: 12, area_weighted, f16_values: false };
+    let err = |weighting| {
+        let haar = Haar { terms: 12, weighting, f16_values: false };
         let form = haar.compress(&t, &CompressContext::default()).unwrap();
         relative_l2_error(haar.gather(&form, &light).unwrap().values(), &reference)
     };
-    let (weighted, plain) = (err(true), err(false));
-    assert!(weighted < plain, "area weighted {weighted} vs plain {plain}");
+    let (area, side, plain) = (err(HaarWeighting::Area), err(HaarWeighting::Side), err(HaarWeighting::Magnitude));
+    assert!(area < plain && side < plain, "area {area}, side {side} vs plain {plain}");
 }
 
 #[test]
@@ -277,7 +277,7 @@ fn f16_values_halve_value_storage_with_bounded_error() {
     let t = random_transfer(10, 2, 4, 0.3, 6);
     let light = random_light(4, 8);
     let f32_form = Haar::with_terms(96).compress(&t, &CompressContext::default()).unwrap();
-    let haar16 = Haar { terms: 96, area_weighted: true, f16_values: true };
+    let haar16 = Haar { terms: 96, weighting: HaarWeighting::Area, f16_values: true };
     let f16_form = haar16.compress(&t, &CompressContext::default()).unwrap();
     assert!(!f16_form.lossless);
     let n = f16_form.u16s("coeff_idx").unwrap().len() as u64;
@@ -423,5 +423,20 @@ fn forms_of_vertex_ranges_merge_into_the_whole_form() {
             let merged = crate::testing::assert_parts_merge_to_whole(&haar, &t, cuts);
             assert_eq!(merged.lossless, haar.terms == 96);
         }
+    }
+}
+
+#[test]
+fn the_weighting_is_a_config_key_and_names_its_setting() {
+    let label = |p: serde_json::Value| (KIND.label)(&p).unwrap();
+    assert_eq!(label(serde_json::json!({ "terms": 12 })), "haar-t12");
+    assert_eq!(label(serde_json::json!({ "terms": 12, "weighting": "area" })), "haar-t12");
+    assert_eq!(label(serde_json::json!({ "terms": 12, "weighting": "side" })), "haar-t12-side");
+    assert_eq!(label(serde_json::json!({ "terms": 6, "weighting": "magnitude" })), "haar-t6-magnitude");
+    assert!(build(&serde_json::json!({ "weighting": "volume" })).is_err());
+    for a in [0.0, 0.25, 2.0] {
+        assert_eq!(HaarWeighting::Area.weight(a), a);
+        assert_eq!(HaarWeighting::Side.weight(a), a.sqrt());
+        assert_eq!(HaarWeighting::Magnitude.weight(a), 1.0);
     }
 }

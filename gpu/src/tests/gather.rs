@@ -410,15 +410,15 @@ fn haar_matches_its_cpu_gather_with_f32_and_f16_values() {
     // all-plus transform A = |W| |L| (log2 R levels), storing l^ one more; the row sum of n
     // terms c_e l^_k adds (n + 1) u of sum |c_e| A_k; the CPU result's own f32 rounding adds
     // u |cpu|. We allow u ((n + 3 + 3 log2 R) sum_e |c_e| A_k + |cpu|).
-    use biscale_compressors::haar::Haar;
+    use biscale_compressors::haar::{Haar, HaarWeighting};
     let ctx = gpu_or_skip!();
     let u = f32::EPSILON as f64 / 2.0;
     let r = 8u32;
     let levels = r.trailing_zeros() as f64;
     let t = random_transfer(6, 8, r, 0.2, 5);
     for haar in [
-        Haar { terms: 12, area_weighted: true, f16_values: false },
-        Haar { terms: 20, area_weighted: false, f16_values: true },
+        Haar { terms: 12, weighting: HaarWeighting::Area, f16_values: false },
+        Haar { terms: 20, weighting: HaarWeighting::Side, f16_values: true },
     ] {
         let form = haar.compress(&t, &CompressContext::default()).unwrap();
         for seed in [6u64, 7] {
