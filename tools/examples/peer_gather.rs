@@ -14,7 +14,7 @@ use biscale::npy::{self, NpyArray, NpyData};
 use biscale_compressors::registry;
 use biscale_core::basis::{LightBasis, LocalBasis};
 use biscale_core::compress::CompressContext;
-use biscale_core::gather::relative_l2_error;
+use biscale_core::gather::{reference_product, relative_l2_error};
 use biscale_core::sampling::LightVector;
 use biscale_core::stats::median;
 use biscale_core::transfer::TransferMatrix;
@@ -78,14 +78,7 @@ fn main() -> Result<()> {
     let args = <Args as clap::Parser>::parse();
     let (t, light) = load(&args.export)?;
     // f64 T L, the check every gather passes before it is timed.
-    let mut exact = vec![[0.0f64; 3]; t.rows()];
-    for (r, row) in t.csr().outer_iterator().enumerate() {
-        for (c, &v) in row.iter() {
-            for k in 0..3 {
-                exact[r][k] += v as f64 * light.power[c][k] as f64;
-            }
-        }
-    }
+    let exact = reference_product(&t, &light);
     let settings: [(&str, serde_json::Value); 4] = [
         ("sparse", serde_json::json!({})),
         ("bicluster", serde_json::json!({ "block_vertices": 1024 })),

@@ -18,10 +18,10 @@
 
 use anyhow::Result;
 use biscale::npy::{self, ArrayRef, Elements};
-use biscale_core::geometry::{Mesh, SceneBvh};
+use biscale_core::geometry::Mesh;
 use biscale_core::sampling::Cubemap;
 use biscale_core::stats::median;
-use biscale_core::transfer::{self, TransferScene, TransferSettings, BVH_DIAGONAL, ORIGIN_OFFSET};
+use biscale_core::transfer::{self, TransferScene, TransferSettings};
 use glam::Vec3;
 use rayon::prelude::*;
 use std::path::PathBuf;
@@ -47,23 +47,19 @@ struct Args {
 fn main() -> Result<()> {
     let args = <Args as clap::Parser>::parse();
     let mesh = Mesh::load(&args.mesh)?.mesh;
+    // The transfer stage's own normalised space, origins and BVH.
     let scene = TransferScene::new(&mesh)?;
-    let (lo, hi) = mesh.bounds();
-    let centre = 0.5 * (lo + hi);
-    let scale = BVH_DIAGONAL / mesh.diagonal();
-    let positions: Vec<Vec3> = mesh.positions.iter().map(|p| (*p - centre) * scale).collect();
+    let (positions, bvh) = (scene.normalised_positions(), scene.bvh());
     let normals: Vec<Vec3> = scene.frames().iter().map(|f| f.normal).collect();
-    let offset = ORIGIN_OFFSET * BVH_DIAGONAL;
-    let origins: Vec<Vec3> = positions.iter().zip(&normals).map(|(p, n)| *p + *n * offset).collect();
+    let origins: Vec<Vec3> = (0..mesh.vertex_count()).map(|v| scene.vertex_origin(v)).collect();
     let cube = Cubemap::new(args.resolution);
     let dirs: Vec<Vec3> = (0..cube.texel_count()).map(|k| cube.texel_direction(k)).collect();
-    let bvh = SceneBvh::build(&positions, &mesh.triangles);
 
     std::fs::create_dir_all(&args.out)?;
     let flat = |v: &[Vec3]| v.iter().flat_map(|p| p.to_array()).collect::<Vec<f32>>();
     let tris: Vec<u32> = mesh.triangles.iter().flatten().copied().collect();
     for (name, shape, data) in [
-        ("positions", [positions.len(), 3], Elements::F32(&flat(&positions))),
+        ("positions", [positions.len(), 3], Elements::F32(&flat(positions))),
         ("origins", [origins.len(), 3], Elements::F32(&flat(&origins))),
         ("normals", [normals.len(), 3], Elements::F32(&flat(&normals))),
         ("directions", [dirs.len(), 3], Elements::F32(&flat(&dirs))),

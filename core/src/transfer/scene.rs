@@ -103,8 +103,18 @@ impl TransferScene {
         (p - self.centre) * self.scale + n * self.origin_offset
     }
 
+    /// The vertex positions in the BVH's normalised space (centred, diagonal [`BVH_DIAGONAL`]).
+    pub fn normalised_positions(&self) -> &[Vec3] {
+        &self.positions
+    }
+
+    /// The BVH over the normalised positions, which every visibility query traces.
+    pub fn bvh(&self) -> &SceneBvh {
+        &self.bvh
+    }
+
     /// The normalised-space ray origin of vertex `v` (offset along its normal).
-    pub(crate) fn vertex_origin(&self, v: usize) -> Vec3 {
+    pub fn vertex_origin(&self, v: usize) -> Vec3 {
         self.positions[v] + self.frames[v].normal * self.origin_offset
     }
 
