@@ -295,13 +295,7 @@ fn cached_outputs(
         let label = m.label();
         if let MaterialConfig::Synthesized(s) = &m {
             let key = crate::materials::synth_key(s, local)?;
-            let bytes = BtfEncoding::from_name(&s.encoding)
-                .map(|e| match e {
-                    BtfEncoding::F32 => 4,
-                    BtfEncoding::F16 => 2,
-                    BtfEncoding::U8 => 1,
-                })
-                .unwrap_or(4);
+            let bytes = BtfEncoding::from_name(&s.encoding).map_or(4, BtfEncoding::value_bytes);
             let views = (s.view_grid as u64 * s.view_grid as u64).max(1);
             let values = s.resolution as u64 * s.resolution as u64 * views * local.len() as u64;
             out.push(CachedOutput {
@@ -334,11 +328,10 @@ fn cached_outputs(
             continue;
         };
         let key = crate::cache::sh_transfer_key(mesh, &sh, 0, 0);
-        // The file holds the CSR of the dense n^2 x n^2 blocks as T's file does: an f32
-        // value and a u16 column per value, a u32 pointer per row.
+        // The file holds the CSR of the dense n^2 x n^2 blocks, laid out as T's file.
         let n2 = (p.order * p.order) as u64;
         let rows = mesh.vertex_count() as u64 * n2;
-        let estimate = rows * n2 * 6 + rows * 4;
+        let estimate = biscale_core::transfer::TransferMemory::file_bytes_of(rows, rows * n2);
         out.push(CachedOutput {
             stage: "method",
             what: format!("{}: direct SH transfer M", m.label),

@@ -222,16 +222,27 @@ impl TransferMemory {
         // Per thread: the entries vector (8 bytes each, up to N / 2, capacity up to double)
         // and the u16 count per coarse texel.
         let per_thread = n / 2 * 8 * 2 + n * 2;
-        let file_arrays = nnz * 6 + (rows + 1) * 4;
+        let file_arrays = Self::file_arrays_of(rows, nnz);
         Self {
             rows,
             nnz,
             staging: nnz * 4 + rows * 4 + vertices as u64 * per_vertex,
             csr: nnz * (4 + usize_bytes) + (rows + 1) * usize_bytes,
             file_arrays,
-            file_bytes: file_arrays + FILE_HEADER_BYTES,
+            file_bytes: Self::file_bytes_of(rows, nnz),
             scratch: fine_texels * ray + n * 16 + threads.max(1) as u64 * per_thread,
         }
+    }
+
+    /// The arrays of the file of a transfer matrix (`T`, or an SH method's `M`) with `rows`
+    /// rows and `nnz` non-zeros: u32 row pointers, u16 columns, f32 values.
+    pub fn file_arrays_of(rows: u64, nnz: u64) -> u64 {
+        nnz * 6 + (rows + 1) * 4
+    }
+
+    /// The whole file of such a matrix: [`Self::file_arrays_of`] and the container's header.
+    pub fn file_bytes_of(rows: u64, nnz: u64) -> u64 {
+        Self::file_arrays_of(rows, nnz) + FILE_HEADER_BYTES
     }
 
     /// The build's peak: the staging, the CSR assembled from it and the tracing state.

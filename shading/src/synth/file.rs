@@ -55,6 +55,15 @@ pub enum BtfEncoding {
 
 impl BtfEncoding {
     /// `f32`, `f16` or `u8` (config and report names).
+    /// Bytes per stored channel value (`u8` tables also store an f32 scale per texel).
+    pub fn value_bytes(self) -> u64 {
+        match self {
+            BtfEncoding::F32 => 4,
+            BtfEncoding::F16 => 2,
+            BtfEncoding::U8 => 1,
+        }
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             BtfEncoding::F32 => "f32",
