@@ -697,7 +697,8 @@ const TAKEN_NAMES: [&str; 5] = ["uncompressed", "uncompressed_paper", "reference
 /// uncompressed render and, when the config traces one, the reference), and write the output
 /// folder (default `out/<name>-eval-<NAME>/`, replaced whole as a run's is): `metrics.json`
 /// and `metrics.csv` with one record in `compressors`, `images/` (the setting's image, its
-/// error figure, the uncompressed render, the reference, the masks). CPU only; the BTF study
+/// error figure, the uncompressed render (and the paper product's, with light moments), the
+/// reference, the masks), made by the same `pipeline::targets` as a run's. CPU only; the BTF study
 /// and `[[methods]]` are left out.
 pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     let config_text = std::fs::read_to_string(&exp.config_path)
@@ -810,25 +811,17 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
     let repeats = exp.file.runtime.repeats;
     let exposure = exp.file.report.exposure;
     let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
-    let moments = match exp.file.runtime.light_moments {
-        true => Some(biscale_core::gather::moments::LightMoments::new(&lighting.light)?),
-        false => None,
-    };
+    let pipeline::Targets { moments, base, reference } = pipeline::targets(
+        exp,
+        &geometry,
+        &lighting,
+        &t.matrix,
+        &view,
+        &images_dir,
+        Plan::new(exp).reference,
+        &mut clock,
+    )?;
     let frames = geometry.transfer.frames();
-    let base = pipeline::baseline(&t.matrix, &lighting, moments.as_ref().map(|_| frames), &view, repeats)?;
-    pipeline::save_images(&base.render.image, &images_dir, "uncompressed", exposure)?;
-    base.render.write_mask_png(&images_dir.join("mask.png"))?;
-    clock.mark("uncompressed baseline");
-    let reference = match Plan::new(exp).reference {
-        true => {
-            let r = pipeline::reference(exp, &geometry, &view, &lighting, &base)?;
-            pipeline::save_images(&r.render.image, &images_dir, "reference", exposure)?;
-            r.render.write_mask_png(&images_dir.join("reference_mask.png"))?;
-            clock.mark("reference");
-            Some(r)
-        }
-        false => None,
-    };
     let evaluation = Evaluation {
         t: &t.matrix,
         light: &lighting.light,

@@ -367,6 +367,68 @@ pub(crate) fn uncompressed_product(
     }
 }
 
+/// What every compressor setting is scored against, made the same way for `run` and `eval`.
+pub(crate) struct Targets {
+    /// The light's direction moments, with `runtime.light_moments`.
+    pub moments: Option<LightMoments>,
+    pub base: Baseline,
+    /// The ground-truth reference, when the plan traces one.
+    pub reference: Option<Reference>,
+}
+
+/// The [`Targets`] of `t` in `view`, their images written into `images_dir` (`uncompressed`,
+/// with moments also `uncompressed_paper`, `mask`, and with `trace_reference` `reference` and
+/// `reference_mask`). Refuses a camera that sees none of the mesh: every score would be empty.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn targets(
+    exp: &Experiment,
+    geometry: &Geometry,
+    lighting: &Lighting,
+    t: &TransferMatrix,
+    view: &View<'_>,
+    images_dir: &Path,
+    trace_reference: bool,
+    clock: &mut crate::provenance::StageClock,
+) -> Result<Targets> {
+    let moments = match exp.file.runtime.light_moments {
+        true => Some(LightMoments::new(&lighting.light)?),
+        false => None,
+    };
+    let frames = geometry.transfer.frames();
+    let base = baseline(t, lighting, moments.as_ref().map(|_| frames), view, exp.file.runtime.repeats)?;
+    if !base.render.mask.iter().any(|&hit| hit) {
+        return Err(PipelineError::Mismatch {
+            path: exp.config_path.clone(),
+            what: format!(
+                "the camera sees none of the mesh (no pixel of the {}x{} image hits it): check [runtime.camera] \
+                 (position, target, azimuth, elevation, fov) against the mesh's bounds {:?}",
+                view.camera.width,
+                view.camera.height,
+                geometry.mesh.bounds()
+            ),
+        });
+    }
+    let exposure = exp.file.report.exposure;
+    save_images(&base.render.image, images_dir, "uncompressed", exposure)?;
+    if let Some((_, paper)) = &base.paper {
+        save_images(&paper.image, images_dir, "uncompressed_paper", exposure)?;
+    }
+    base.render.write_mask_png(&images_dir.join("mask.png"))?;
+    clock.mark("uncompressed baseline");
+    fault_point("images");
+    let reference = match trace_reference {
+        true => {
+            let r = reference(exp, geometry, view, lighting, &base)?;
+            save_images(&r.render.image, images_dir, "reference", exposure)?;
+            r.render.write_mask_png(&images_dir.join("reference_mask.png"))?;
+            clock.mark("reference");
+            Some(r)
+        }
+        false => None,
+    };
+    Ok(Targets { moments, base, reference })
+}
+
 pub(crate) fn baseline(
     t: &TransferMatrix,
     lighting: &Lighting,
@@ -965,42 +1027,10 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     clock.mark("materials");
     let repeats = exp.file.runtime.repeats;
     let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
-    let moments = match exp.file.runtime.light_moments {
-        true => Some(LightMoments::new(&lighting.light)?),
-        false => None,
-    };
+    let Targets { moments, base, reference } =
+        targets(exp, &geometry, &lighting, &t.matrix, &view, &images_dir, plan.reference, &mut clock)?;
     let frames = geometry.transfer.frames();
-    let base = baseline(&t.matrix, &lighting, moments.as_ref().map(|_| frames), &view, repeats)?;
-    if !base.render.mask.iter().any(|&hit| hit) {
-        return Err(PipelineError::Mismatch {
-            path: exp.config_path.clone(),
-            what: format!(
-                "the camera sees none of the mesh (no pixel of the {}x{} image hits it): check [runtime.camera] \
-                 (position, target, azimuth, elevation, fov) against the mesh's bounds {:?}",
-                view.camera.width,
-                view.camera.height,
-                geometry.mesh.bounds()
-            ),
-        });
-    }
     let exposure = exp.file.report.exposure;
-    save_images(&base.render.image, &images_dir, "uncompressed", exposure)?;
-    if let Some((_, paper)) = &base.paper {
-        save_images(&paper.image, &images_dir, "uncompressed_paper", exposure)?;
-    }
-    base.render.write_mask_png(&images_dir.join("mask.png"))?;
-    clock.mark("uncompressed baseline");
-    fault_point("images");
-    let reference = match plan.reference {
-        true => {
-            let r = reference(exp, &geometry, &view, &lighting, &base)?;
-            save_images(&r.render.image, &images_dir, "reference", exposure)?;
-            r.render.write_mask_png(&images_dir.join("reference_mask.png"))?;
-            clock.mark("reference");
-            Some(r)
-        }
-        false => None,
-    };
 
     let study = crate::btf_study::StudyInputs {
         view: &view,
