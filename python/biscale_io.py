@@ -141,15 +141,11 @@ def _header(what: str, like_meta: Optional[Dict[str, Any]] = None) -> Dict[str, 
     return meta
 
 
-@dataclass
-class Transfer:
-    """T as CSR (``t.npz``)."""
+class _Shaped:
+    """The shape fields of a file's metadata (``meta["shape"]``), for arrays with rows
+    ``v*M + j``."""
 
-    indptr: np.ndarray
-    indices: np.ndarray
-    data: np.ndarray
-    shape: tuple
-    meta: Dict[str, Any] = field(default_factory=dict)
+    meta: Dict[str, Any]
 
     @property
     def vertices(self) -> int:
@@ -159,6 +155,17 @@ class Transfer:
     def local_dirs(self) -> int:
         """M, the rows per vertex."""
         return int(self.meta["shape"]["local_dirs"])
+
+
+@dataclass
+class Transfer(_Shaped):
+    """T as CSR (``t.npz``)."""
+
+    indptr: np.ndarray
+    indices: np.ndarray
+    data: np.ndarray
+    shape: tuple
+    meta: Dict[str, Any] = field(default_factory=dict)
 
     @property
     def nnz(self) -> int:
@@ -217,21 +224,13 @@ def load_l(path) -> Light:
 
 
 @dataclass
-class Lstar:
+class Lstar(_Shaped):
     """L*, rows ``v*M + j`` (``lstar.npz``)."""
 
     lstar: np.ndarray
     meta: Dict[str, Any] = field(default_factory=dict)
     local_directions: Optional[np.ndarray] = None
     local_mean_cosines: Optional[np.ndarray] = None
-
-    @property
-    def vertices(self) -> int:
-        return int(self.meta["shape"]["vertices"])
-
-    @property
-    def local_dirs(self) -> int:
-        return int(self.meta["shape"]["local_dirs"])
 
     def per_vertex(self) -> np.ndarray:
         """The same values as (V, M, 3)."""
