@@ -1,7 +1,8 @@
 //! What light moments cost in the gather: each form's plain CPU gather against
 //! [`gather_with_moments`] (three gathers of the direction moments and the resolve, with the
 //! BRDF at the bin centre and at the bin's mean direction), timed in interleaved rounds on one
-//! real `T`, medians and their ratio.
+//! real `T`, medians and their ratio; and the resolve alone (after one `gather_three`), for
+//! each lobe.
 //!
 //! ```text
 //! cargo run --release -p biscale-compressors --example moments_bench -- \
@@ -10,7 +11,7 @@
 
 use biscale_compressors::registry;
 use biscale_core::compress::CompressContext;
-use biscale_core::gather::moments::{exact_moments_product, gather_with_moments, LightMoments, Lobe};
+use biscale_core::gather::moments::{exact_moments_product, gather_with_moments, resolve, LightMoments, Lobe};
 use biscale_core::gather::relative_l2_error;
 use biscale_core::geometry::Mesh;
 use biscale_core::sampling::{EnvMap, LightVector};
@@ -57,9 +58,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         rayon::current_num_threads()
     );
     println!(
-        "| compressor | plain gather ms | gather_three ms | moments, lobe at bin centre ms | ratio | moments, lobe at mean direction ms | ratio | rel. error of L*' |"
+        "| compressor | plain gather ms | gather_three ms | moments, lobe at bin centre ms | ratio | moments, lobe at mean direction ms | ratio | resolve alone, bin centre / mean direction ms | rel. error of L*' |"
     );
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|");
     let settings: [(&str, serde_json::Value); 4] = [
         ("sparse", serde_json::json!({})),
         ("bicluster", serde_json::json!({ "block_vertices": 1024 })),
@@ -71,6 +72,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let c = registry::build(name, &params)?;
         let form = c.compress(&t, &CompressContext::default())?;
         let (mut plain, mut three, mut with_centre, mut with) = (vec![], vec![], vec![], vec![]);
+        let (mut resolve_centre, mut resolve_mean) = (vec![], vec![]);
         let [x, y, z] = &moments.along;
         let mut last = None;
         for _ in 0..args.rounds.max(1) {
@@ -78,8 +80,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             std::hint::black_box(c.gather(&form, &light)?);
             plain.push(s.elapsed().as_secs_f64() * 1e3);
             let s = Instant::now();
-            std::hint::black_box(c.gather_three(&form, [x, y, z])?);
+            let parts = std::hint::black_box(c.gather_three(&form, [x, y, z])?);
             three.push(s.elapsed().as_secs_f64() * 1e3);
+            let parts = [&parts[0], &parts[1], &parts[2]];
+            for (lobe, times) in [(Lobe::BinCentre, &mut resolve_centre), (Lobe::MeanDirection, &mut resolve_mean)] {
+                let s = Instant::now();
+                std::hint::black_box(resolve(parts, &frames, lobe)?);
+                times.push(s.elapsed().as_secs_f64() * 1e3);
+            }
             let s = Instant::now();
             std::hint::black_box(gather_with_moments(c.as_ref(), &form, &centre, &frames)?);
             with_centre.push(s.elapsed().as_secs_f64() * 1e3);
@@ -89,7 +97,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         let (p, g, wc, w) = (median(&plain), median(&three), median(&with_centre), median(&with));
         let err = relative_l2_error(last.expect("one round").values(), &exact);
-        println!("| {name} | {p:.3} | {g:.3} | {wc:.3} | {:.2} | {w:.3} | {:.2} | {err:.2e} |", wc / p, w / p);
+        let (rc, rm) = (median(&resolve_centre), median(&resolve_mean));
+        println!(
+            "| {name} | {p:.3} | {g:.3} | {wc:.3} | {:.2} | {w:.3} | {:.2} | {rc:.3} / {rm:.3} | {err:.2e} |",
+            wc / p,
+            w / p
+        );
     }
     Ok(())
 }

@@ -162,9 +162,17 @@ fn t_light_and_frames(t: &TransferMatrix, light: &LightVector, frames: &[VertexF
     bins_and_frames(t.local_basis(), t.vertices(), frames)
 }
 
-/// `1 / cosbar_j` for every bin.
+/// `1 / cosbar_j` for every bin. Each mean cosine is an integral over 1,024 cells, which for
+/// 64 bins is a few percent of a resolve, so each grid's are computed once per process.
 fn inverse_mean_cosines(grid: &HemisphereGrid) -> Vec<f64> {
-    (0..grid.len() as u32).map(|j| 1.0 / grid.bin_mean_cosine(j)).collect()
+    use std::collections::HashMap;
+    use std::sync::{Mutex, OnceLock};
+    static KNOWN: OnceLock<Mutex<HashMap<u32, Vec<f64>>>> = OnceLock::new();
+    let mut known = KNOWN.get_or_init(Default::default).lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    known
+        .entry(grid.m)
+        .or_insert_with(|| (0..grid.len() as u32).map(|j| 1.0 / grid.bin_mean_cosine(j)).collect())
+        .clone()
 }
 
 /// `L*'` from the three gathered moments. Per vertex `v`, bin `j` and channel `c`, the bin's
@@ -188,21 +196,221 @@ pub fn resolve(along: [&LocalRadiance; 3], frames: &[VertexFrame], lobe: Lobe) -
         return Err(CoreError::Invalid("the three gathered moments differ in basis or vertex count".into()));
     }
     let grid = bins_and_frames(basis, vertices, frames)?;
-    let inv = inverse_mean_cosines(&grid);
+    let inv: Vec<f32> = inverse_mean_cosines(&grid).into_iter().map(|x| x as f32).collect();
     let m = grid.len();
     let mut out = LocalRadiance::zeros(basis, vertices);
     out.values_mut().par_chunks_mut(m).zip(frames).enumerate().for_each_init(
-        || vec![[0.0f64; 3]; m],
-        |acc, (v, (out, frame))| {
+        || Lanes::new(grid),
+        |lanes, (v, (out, frame))| {
             let rows = [along[0].vertex(v), along[1].vertex(v), along[2].vertex(v)];
-            let d = |j: usize, c: usize| DVec3::new(rows[0][j][c] as f64, rows[1][j][c] as f64, rows[2][j][c] as f64);
-            redistribute(grid, frame, lobe, d, acc);
-            for (i, (o, a)) in out.iter_mut().zip(acc.iter()).enumerate() {
-                *o = a.map(|x| (x * inv[i]) as f32);
+            lanes.redistribute(grid, frame, lobe, rows);
+            for ((o, a), inv) in out.iter_mut().zip(&lanes.acc).zip(&inv) {
+                *o = [a[0] * inv, a[1] * inv, a[2] * inv];
             }
         },
     );
     Ok(out)
+}
+
+/// The working rows of [`resolve`] for one vertex, one f32 lane per bin (structure of arrays,
+/// so that each step is one loop over the bins that the compiler vectorises).
+struct Lanes {
+    /// `D_{j,c}` per channel `c` and world axis `a`: `moment[c][a][j]`.
+    moment: [[Vec<f32>; 3]; 3],
+    /// `n . D_{j,c}`, the bin's exact-cosine power per channel, and a zero fourth lane (so the
+    /// scatter adds four-wide).
+    power: Vec<[f32; 4]>,
+    /// The luminance direction `D_j` in the vertex's local frame.
+    local: [Vec<f32>; 3],
+    /// Where each bin's power goes.
+    cells: Cells,
+    /// `sum_j w_i(D_j) (n . D_{j,c})`, before the division by `cosbar_i`.
+    acc: Vec<[f32; 4]>,
+}
+
+impl Lanes {
+    fn new(grid: HemisphereGrid) -> Self {
+        let m = grid.len();
+        let lanes = || [vec![0.0; m], vec![0.0; m], vec![0.0; m]];
+        Self {
+            moment: [lanes(), lanes(), lanes()],
+            power: vec![[0.0; 4]; m],
+            local: lanes(),
+            cells: Cells::new(grid),
+            acc: vec![[0.0; 4]; m],
+        }
+    }
+
+    /// [`redistribute`] in f32 for the gathered rows of one vertex (`rows[a][j][c]`: axis `a`
+    /// of `D_{j,c}`), with the direction lookup done for all bins at once ([`Cells::locate`])
+    /// instead of one [`light_weights`] call per bin. The f32 sums round at the level of the
+    /// gathered moments' own f32 storage (a few ulps of `|D_j|`), tested against the f64 form.
+    fn redistribute(&mut self, grid: HemisphereGrid, frame: &VertexFrame, lobe: Lobe, rows: [&[[f32; 3]]; 3]) {
+        const LUMINANCE: [f32; 3] = [0.2126, 0.7152, 0.0722];
+        let bins = grid.len();
+        for (a, row) in rows.iter().enumerate() {
+            for (j, d) in row[..bins].iter().enumerate() {
+                (0..3).for_each(|c| self.moment[c][a][j] = d[c]);
+            }
+        }
+        // The exact-cosine power in f64: near the horizon `n . D` is much smaller than `|D|`,
+        // and an f32 sum would lose `eps |D| / |n . D|` of it.
+        let n = frame.normal.as_dvec3();
+        for (j, power) in self.power.iter_mut().enumerate() {
+            for (c, [dx, dy, dz]) in self.moment.iter().enumerate() {
+                power[c] = (n.x * dx[j] as f64 + n.y * dy[j] as f64 + n.z * dz[j] as f64) as f32;
+            }
+        }
+        if lobe == Lobe::BinCentre || grid.m == 1 {
+            // Every bin keeps its power; a one-bin grid has nowhere else to put it.
+            self.acc.copy_from_slice(&self.power);
+            return;
+        }
+        let [r, g, b] = &self.moment;
+        let [lx, ly, lz] = &mut self.local;
+        let (t, bt, n) = (frame.tangent, frame.bitangent, frame.normal);
+        for j in 0..bins {
+            let axis = |a: usize| LUMINANCE[0] * r[a][j] + LUMINANCE[1] * g[a][j] + LUMINANCE[2] * b[a][j];
+            let d = [axis(0), axis(1), axis(2)];
+            lx[j] = t.x * d[0] + t.y * d[1] + t.z * d[2];
+            ly[j] = bt.x * d[0] + bt.y * d[1] + bt.z * d[2];
+            lz[j] = n.x * d[0] + n.y * d[1] + n.z * d[2];
+        }
+        self.cells.locate(&self.local);
+        self.acc.fill([0.0; 4]);
+        let (m, cells) = (grid.m as usize, &self.cells);
+        let [w0, w1, w2, w3] = &cells.weight;
+        for (j, &power) in self.power.iter().enumerate() {
+            // `corner` holds a whole number in [0, m^2 - m - 2].
+            let corner = cells.corner[j] as i32 as usize;
+            let acc = &mut self.acc[corner..corner + m + 2];
+            for (i, w) in [(0, w0[j]), (1, w1[j]), (m, w2[j]), (m + 1, w3[j])] {
+                let a = acc[i];
+                acc[i] = [a[0] + w * power[0], a[1] + w * power[1], a[2] + w * power[2], a[3] + w * power[3]];
+            }
+        }
+    }
+}
+
+/// The bilinear cell of every bin's mean direction in an `m x m` grid (`m >= 2`): the bin at
+/// the cell's lower corner, and the weights of the corner, its right, upper and upper-right
+/// neighbours (those of [`light_weights`]).
+struct Cells {
+    m: f32,
+    /// Each bin's own grid coordinates, where a bin without a mean direction keeps its light.
+    own: [Vec<f32>; 2],
+    corner: Vec<f32>,
+    weight: [Vec<f32>; 4],
+}
+
+impl Cells {
+    fn new(grid: HemisphereGrid) -> Self {
+        let n = grid.len();
+        Self {
+            m: grid.m as f32,
+            own: [0, 1].map(|a| (0..grid.m * grid.m).map(|j| [j % grid.m, j / grid.m][a] as f32).collect()),
+            corner: vec![0.0; n],
+            weight: [vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]],
+        }
+    }
+
+    /// The cells of `local`'s directions, computed as [`HemisphereGrid::continuous_coords`]
+    /// does but in f32, branch-free, with a polynomial arctangent ([`atan_unit`]), so the loop
+    /// runs four or eight lanes at a time. Near the zenith the disk radius `sqrt(1 - z / |d|)`
+    /// is taken as `sqrt(h^2 / (|d| (|d| + z)))` with `h^2 = x^2 + y^2`, which does not cancel.
+    /// Against the f64 map the coordinates differ by a few f32 ulps of `m` (the arctangent's
+    /// 1.1e-7 and rounding), tested below. A zero direction gets the bin's own coordinates
+    /// (all its weight on itself), one that is not finite the zenith's.
+    fn locate(&mut self, local: &[Vec<f32>; 3]) {
+        let [w0, w1, w2, w3] = &mut self.weight;
+        locate_lanes(
+            self.m,
+            [&local[0], &local[1], &local[2]],
+            [&self.own[0], &self.own[1]],
+            &mut self.corner,
+            [w0, w1, w2, w3],
+        );
+    }
+}
+
+/// The loop of [`Cells::locate`], on slices passed as arguments: the compiler knows that
+/// distinct `&mut` arguments do not overlap, so it vectorises without run-time overlap checks
+/// (of which there would be too many for it across eleven arrays).
+fn locate_lanes(m: f32, local: [&[f32]; 3], own: [&[f32]; 2], corner: &mut [f32], weight: [&mut [f32]; 4]) {
+    // Only arithmetic, comparisons and selects of values in the loop (no `clamp`, whose
+    // assertion, and no float-to-int cast, whose saturation, keep it from vectorising; no
+    // `f32::min` or `max`, whose NaN rules cost three instructions where one does: no lane
+    // holds a NaN here).
+    let lo = |a: f32, b: f32| if a < b { a } else { b };
+    let hi = |a: f32, b: f32| if a > b { a } else { b };
+    let top = m - 2.0;
+    let n = corner.len();
+    let (lx, ly, lz) = (&local[0][..n], &local[1][..n], &local[2][..n]);
+    let (ox, oy) = (&own[0][..n], &own[1][..n]);
+    let [w0, w1, w2, w3] = weight;
+    let (w0, w1, w2, w3) = (&mut w0[..n], &mut w1[..n], &mut w2[..n], &mut w3[..n]);
+    // The floor of `x` in `[0, 2^22]`: adding and removing 2^23 rounds it to an integer, one
+    // less where that rounded up.
+    let floor = |x: f32| {
+        let r = (x + 8_388_608.0) - 8_388_608.0;
+        r - if r > x { 1.0 } else { 0.0 }
+    };
+    for j in 0..n {
+        let finite = (lx[j] * 0.0 == 0.0) & (ly[j] * 0.0 == 0.0) & (lz[j] * 0.0 == 0.0);
+        let (x, y, z) = if finite { (lx[j], ly[j], lz[j]) } else { (0.0, 0.0, 1.0) };
+        let (ax, ay) = (x.abs(), y.abs());
+        let (big, small) = (hi(ax, ay), lo(ax, ay));
+        // Scaled to a largest component of 1, so that squares neither overflow nor
+        // underflow (moments of a sun can be large, those of a dim bin tiny).
+        let largest = hi(big, z.abs());
+        let scale = if largest > 0.0 { 1.0 / largest } else { 0.0 };
+        let (x, y, z) = (x * scale, y * scale, z * scale);
+        let h2 = x * x + y * y;
+        let len = (h2 + z * z).sqrt();
+        let r2 = if z > 0.0 { h2 / (len * (len + z)) } else { 1.0 };
+        let r = lo(r2, 1.0).sqrt();
+        let t = small / hi(big, f32::MIN_POSITIVE);
+        // In the wedge |x| >= |y|: a = +-r, b = r sign(y) atan(|y| / |x|) / (pi / 4);
+        // swapped in the other wedge. At the zenith (x = y = 0) both are 0, the centre. Both
+        // are in [-1, 1].
+        let s = r * atan_unit(t) * (4.0 / std::f32::consts::PI);
+        let (a, b) = if ax >= ay { (r, s) } else { (s, r) };
+        let (a, b) = if big > 0.0 { (a.copysign(x), b.copysign(y)) } else { (0.0, 0.0) };
+        let coord = |a: f32| lo(hi((a + 1.0) * 0.5 * m - 0.5, 0.0), m - 1.0);
+        let (own_x, own_y) = (ox[j], oy[j]);
+        let k = if largest > 0.0 { 1.0 } else { 0.0 };
+        let (x, y) = (k * coord(a) + (1.0 - k) * own_x, k * coord(b) + (1.0 - k) * own_y);
+        // A cell starts at most at m - 2; the fractions are then in [0, 1].
+        let (x0, y0) = (lo(floor(x), top), lo(floor(y), top));
+        let (fx, fy) = (x - x0, y - y0);
+        corner[j] = y0 * m + x0;
+        w0[j] = (1.0 - fx) * (1.0 - fy);
+        w1[j] = fx * (1.0 - fy);
+        w2[j] = (1.0 - fx) * fy;
+        w3[j] = fx * fy;
+    }
+}
+
+/// `atan(t)` for `t` in `[0, 1]`: an odd polynomial of degree 15 fitted near-minimax on the
+/// interval; its error with f32 evaluation is at most 1.2e-7 (tested against f64 `atan`).
+#[inline]
+fn atan_unit(t: f32) -> f32 {
+    const C: [f32; 8] = [
+        0.999_999_34,
+        -0.333_298_62,
+        0.199_465_66,
+        -0.139_086_3,
+        0.096_421_994,
+        -0.055_912_334,
+        0.021_862_954,
+        -0.004_054_564_5,
+    ];
+    let s = t * t;
+    let mut p = C[7];
+    for c in C[..7].iter().rev() {
+        p = p * s + c;
+    }
+    t * p
 }
 
 /// Hand each bin's exact-cosine power `n . D` (`d(j, c)` = `D_{j,c}`, world space) to the light
@@ -211,8 +419,10 @@ pub fn resolve(along: [&LocalRadiance; 3], frames: &[VertexFrame], lobe: Lobe) -
 /// luminance's (`D_j = sum_c Y_c D_{j,c}`, Rec. 709 weights), serves all three channels: a
 /// bin's colours rarely come from directions a bilinear weight could tell apart, and one
 /// lookup per bin instead of three keeps the resolve cheaper than the gather. A bin whose
-/// luminance direction vanishes keeps its light (the bin-centre rule). Shared by [`resolve`]
-/// and its f64 reference [`exact_moments_product`], which differ in how `D` is summed.
+/// luminance direction vanishes keeps its light (the bin-centre rule). This is the f64 form,
+/// one [`light_weights`] call per bin, used by the reference [`exact_moments_product`];
+/// [`resolve`] does the same with the lookup of all of a vertex's bins in f32 lanes
+/// ([`Lanes::redistribute`]).
 fn redistribute(
     grid: HemisphereGrid,
     frame: &VertexFrame,
@@ -365,8 +575,13 @@ mod tests {
     #[test]
     fn resolved_moments_match_the_per_texel_reference_on_random_and_stiff_light() {
         let mut rng = ChaCha8Rng::seed_from_u64(7);
-        let (cube, grid) = (Cubemap::new(8), HemisphereGrid::new(4));
-        let frames = random_frames(40, &mut rng);
+        for m in [1, 4, 8] {
+            resolved_moments_match_on_grid(&mut rng, Cubemap::new(8), HemisphereGrid::new(m));
+        }
+    }
+
+    fn resolved_moments_match_on_grid(rng: &mut ChaCha8Rng, cube: Cubemap, grid: HemisphereGrid) {
+        let frames = random_frames(40, rng);
         let rows: Vec<Vec<(usize, f32)>> = (0..40 * grid.len())
             .map(|_| {
                 let mut row = vec![];
@@ -513,6 +728,95 @@ mod tests {
         }
         assert!(checked > 100, "{checked} texels above the plane checked");
         assert!(moved > 0.05, "the bin centre's BRDF differs from the texel's by up to {moved}");
+    }
+
+    /// The polynomial arctangent against f64 `atan` on a dense grid of `[0, 1]`: the fit's own
+    /// error is 3.8e-8 and the f32 Horner evaluation adds about one ulp of the result (6e-8
+    /// below pi / 4), so 1.5e-7 bounds it (measured 1.12e-7).
+    #[test]
+    fn the_polynomial_arctangent_is_within_its_bound() {
+        let worst = (0..=1 << 20)
+            .map(|i| {
+                let t = i as f32 / (1 << 20) as f32;
+                (atan_unit(t) as f64 - (t as f64).atan()).abs()
+            })
+            .fold(0.0, f64::max);
+        assert!(worst < 1.5e-7, "worst error {worst:e}");
+    }
+
+    /// The vectorised lookup of the resolve against [`light_weights`] (the f64 concentric map,
+    /// rounded to f32 coordinates) on random directions, below the horizon too, and on the
+    /// cases that need care: near the zenith, on the axes and the wedge diagonals, tiny and
+    /// huge vectors (the lookup of their unit direction), a zero vector (which keeps its bin)
+    /// and non-finite ones (the zenith, as `light_weights` takes them). Bound: the f32 chain loses a few ulps in the square point
+    /// `(a, b)` (square roots, divisions) plus the arctangent's 1.5e-7, about 3e-7 in all, and
+    /// the coordinates `(a + 1) m / 2` scale it by `m / 2`; the f64 path rounds its
+    /// coordinates to f32 (6e-8 m). A bilinear weight moves by at most the sum of the two
+    /// coordinates' errors, so `6e-7 m` bounds the difference of any weight.
+    #[test]
+    fn the_vectorised_lookup_matches_the_f64_one() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        for m in [2u32, 3, 8, 16] {
+            let grid = HemisphereGrid::new(m);
+            let mut cells = Cells::new(grid);
+            let n = grid.len();
+            let special = [
+                Vec3::Z,
+                Vec3::new(1e-4, -2e-4, 1.0),
+                Vec3::new(-3e-7, 1e-7, 0.5),
+                Vec3::X,
+                Vec3::new(0.0, -1.0, 0.0),
+                Vec3::new(1.0, 1.0, 0.3),
+                Vec3::new(-1.0, 1.0, -0.3),
+                Vec3::new(0.5, -0.5, 0.0),
+                Vec3::new(1e-30, 2e-30, 3e-30),
+                Vec3::new(-3e30, 1e30, 2e30),
+                Vec3::new(0.0, 0.0, -1.0),
+            ];
+            let (mut checked, mut worst) = (0, 0.0f32);
+            for round in 0..300 {
+                let mut dirs: Vec<Vec3> = (0..n)
+                    .map(|_| Vec3::new(rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0), rng.gen_range(-0.3..1.0)))
+                    .collect();
+                if round == 0 {
+                    for (d, s) in dirs.iter_mut().zip(special) {
+                        *d = s;
+                    }
+                }
+                if round == 1 {
+                    dirs[0] = Vec3::ZERO;
+                    dirs[n - 1] = Vec3::ZERO;
+                    dirs[n / 2] = Vec3::new(f32::NAN, 0.0, 1.0);
+                    dirs[1] = Vec3::new(0.0, f32::INFINITY, 1.0);
+                }
+                let local = [0, 1, 2].map(|a| dirs.iter().map(|d| d[a]).collect::<Vec<f32>>());
+                cells.locate(&local);
+                for (j, d) in dirs.iter().enumerate() {
+                    let mut got = vec![0.0f32; n];
+                    let c = cells.corner[j] as usize;
+                    for (k, off) in [0, 1, m as usize, m as usize + 1].into_iter().enumerate() {
+                        got[c + off] += cells.weight[k][j];
+                    }
+                    let mut want = vec![0.0f32; n];
+                    if *d == Vec3::ZERO {
+                        want[j] = 1.0;
+                    } else {
+                        // The unit direction: `light_weights` takes a vector whose square
+                        // underflows as the zenith, the lanes scale it first.
+                        let unit = if d.is_finite() { d.as_dvec3().normalize().as_vec3() } else { *d };
+                        for (i, w) in light_weights(grid, unit) {
+                            want[i] += w;
+                        }
+                    }
+                    let e = got.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+                    assert!(e <= 6e-7 * m as f32, "m {m}, direction {d}: weights {got:?} against {want:?}");
+                    worst = worst.max(e);
+                    checked += 1;
+                }
+            }
+            assert!(checked == 300 * n, "{checked}");
+            eprintln!("m {m}: worst weight difference {worst:e}");
+        }
     }
 
     #[test]
