@@ -4,12 +4,14 @@
 //! `transfer::build`; by default at cubemap 16, visibility 32, 8x8 local bins so it builds in
 //! seconds; `--full` for the reference 32 / 64 / 8), compressed as sparse and Haar (12 terms)
 //! (`--all` adds CPCA 32x8 and biclustering), a view-dependent Phong BTF, under
-//! `assets/envmaps/blender_forest.exr` (or `--env PATH`).
+//! `assets/envmaps/blender_forest.exr` (or `--env PATH`). `--light-moments` gathers the light's
+//! direction moments and resolves them on the GPU (`[runtime] light_moments` of a config).
 //!
 //! ```text
 //! cargo run --release -p biscale-gpu --features viewer --example view_demo -- \
 //!     [--full] [--all] [--width 800 --height 600] [--rotation 90] [--exposure 0] [--form 0]
-//!     [--env PATH] [--no-background] [--continuous] [--screenshot out.png --frames 5]
+//!     [--env PATH] [--no-background] [--continuous] [--light-moments]
+//!     [--screenshot out.png --frames 5]
 //! ```
 //!
 //! Headless: `xvfb-run -s "-screen 0 1024x768x24" cargo run ... -- --screenshot shot.png`
@@ -91,6 +93,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         background: !flag("--no-background"),
         screenshot,
         continuous: flag("--continuous"),
+        light_moments: flag("--light-moments"),
     };
     run_viewer(setup)?;
     Ok(())

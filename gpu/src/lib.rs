@@ -9,6 +9,9 @@
 //! * [`GpuGather`]: the generic gather host. Any [`biscale_core::compress::CompressedForm`]
 //!   with its compressor's program (a `biscale_kernels::KernelDesc`, built-in or plugin) is
 //!   uploaded as plain arrays and its WGSL kernels leave `L* = T L` in a GPU buffer.
+//! * [`GpuMoments`]: light moments (`[runtime] light_moments`) on the GPU: a form's three
+//!   moment gathers and a compute pass resolving them into `L*'`, which the shader reads as it
+//!   reads `L*` (no read-back in between).
 //! * [`GpuShader`]: visibility-buffer shading: triangles rasterized to (id, barycentrics),
 //!   then one compute invocation per pixel interpolates `L*` and the vertex frame and takes
 //!   the dot product with the BTF of the triangle's material (bilinear in the view direction).
@@ -33,6 +36,7 @@
 pub mod context;
 pub mod error;
 pub mod gather;
+pub mod moments;
 pub mod present;
 pub mod shade;
 pub mod timing;
@@ -41,7 +45,8 @@ pub mod viewer;
 
 pub use context::{AdapterSummary, GpuContext, TimestampPolicy};
 pub use error::{GpuError, Result};
-pub use gather::GpuGather;
+pub use gather::{GpuGather, GpuLstar};
+pub use moments::GpuMoments;
 pub use present::{Rgba8Image, ToneMap, ToneMapSettings};
 pub use shade::{GpuMaterialHeader, GpuShader, GpuVertex, ShadeParams};
 pub use timing::{PassTiming, Timing, TimingMethod};

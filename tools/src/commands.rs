@@ -436,6 +436,9 @@ pub fn view(
         background: exp.file.report.background,
         screenshot: screenshot.map(|path| Screenshot { path, frames: 5 }),
         continuous: false,
+        // As a run: the compressors' forms resolve the light's moments, the SH methods (no
+        // texels, no bins) ignore them.
+        light_moments: exp.file.runtime.light_moments && method.is_none(),
     };
     Ok(biscale_gpu::run_viewer(setup)?)
 }

@@ -6,12 +6,12 @@
 use crate::metrics::{GpuRecord, ImageErrors};
 use crate::pipeline::Result;
 use biscale_core::compress::CompressedForm;
-use biscale_core::gather::moments::{resolve, LightMoments};
+use biscale_core::gather::moments::LightMoments;
 use biscale_core::gather::relative_l2_error;
 use biscale_core::geometry::VertexFrame;
 use biscale_core::sampling::LightVector;
 use biscale_core::scene::{Background, Camera, Render, ShadeScene};
-use biscale_gpu::{GpuContext, GpuGather, GpuShader};
+use biscale_gpu::{GpuContext, GpuGather, GpuMoments, GpuShader};
 use biscale_kernels::KernelDesc;
 use biscale_shading::image::compare;
 
@@ -45,9 +45,12 @@ impl GpuBackend {
     /// CPU's coverage), after the GPU image gets the CPU's `background` behind it (silhouette
     /// pixels of an anti-aliased image are part background).
     ///
-    /// With light `moments` the form is gathered three times on the GPU (once per moment; the
-    /// gather time is their sum), the three `L*` are read back and resolved on the CPU
-    /// ([`resolve`]) and the result shaded by the GPU: no fused kernel yet.
+    /// With light `moments` the form is gathered three times on the GPU (once per moment) and
+    /// the three `L*` resolved into `L*'` by a GPU pass ([`GpuMoments`]), which the shader reads
+    /// in place: no round trip through the host. The gather time is then that of the three
+    /// gathers plus the resolve pass, timed together in one submission (with GPU timestamps,
+    /// the sum of their passes: the buffer copies between the gathers fall outside them);
+    /// `L*'` is read back only for the error record.
     #[allow(clippy::too_many_arguments)]
     pub fn run(
         &mut self,
@@ -61,27 +64,21 @@ impl GpuBackend {
         repeats: usize,
     ) -> Result<GpuRecord> {
         let mut gather = GpuGather::new(&self.ctx, form, kernels)?;
-        let (gather_timing, lstar, gpu) = match moments {
+        let (gather_timing, shade_timing, lstar, gpu) = match moments {
             None => {
                 let timing = gather.time_gather(light, repeats)?;
                 gather.gather(light)?;
-                (timing, gather.read_lstar()?, self.shader.shade(&gather)?)
+                let render = self.shader.shade(&gather)?;
+                (timing, self.shader.time_shade(&gather, repeats)?, gather.read_lstar()?, render)
             }
             Some((m, frames)) => {
-                let (mut parts, mut timings) = (vec![], vec![]);
-                for l in &m.along {
-                    timings.push(gather.time_gather(l, repeats)?);
-                    gather.gather(l)?;
-                    parts.push(gather.read_lstar()?);
-                }
-                let mut timing = timings.remove(0);
-                timing.median_ms += timings.iter().map(|t| t.median_ms).sum::<f64>();
-                let lstar = resolve([&parts[0], &parts[1], &parts[2]], frames, m.lobe)?;
-                let render = self.shader.shade_lstar(&lstar)?;
-                (timing, lstar, render)
+                let mut moments = GpuMoments::new(gather, frames)?;
+                let timing = moments.time_gather(m, repeats)?;
+                moments.gather(m)?;
+                let render = self.shader.shade(&moments)?;
+                (timing, self.shader.time_shade(&moments, repeats)?, moments.read_lstar()?, render)
             }
         };
-        let shade_timing = self.shader.time_shade(&gather, repeats)?;
         let gpu = gpu.with_background(&self.camera, background);
         // Rasterised and ray-cast samples within rounding of a silhouette may land on either
         // side: such pixels differ in coverage (by a sample) and are counted, not compared.

@@ -480,7 +480,8 @@ pub struct GpuRecord {
     pub adapter: String,
     /// `GpuTimestamps` or `WallClock`.
     pub timing: String,
-    /// Median GPU time of the gather (RGB).
+    /// Median GPU time of the gather (RGB); with light moments, of the three moment gathers
+    /// plus the GPU resolve into `L*'` (`GpuMoments::time_gather`).
     pub gather_ms: f64,
     /// Median GPU time of the shade (visibility buffer + compute pass).
     pub shade_ms: f64,

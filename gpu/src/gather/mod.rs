@@ -300,7 +300,7 @@ impl GpuGather {
     /// the adapter has them, else wall clock). The light is uploaded once, outside the timing.
     pub fn time_gather(&mut self, light: &LightVector, repetitions: usize) -> Result<Timing> {
         self.upload_light(light)?;
-        let names: Vec<String> = self.passes.iter().map(|p| p.name.clone()).collect();
+        let names = self.pass_names();
         measure(&self.ctx, &names, repetitions, |enc, timer| self.record(enc, timer))
     }
 
@@ -342,6 +342,16 @@ impl GpuGather {
     }
 
     pub(crate) fn upload_light(&self, light: &LightVector) -> Result<()> {
+        self.check_light(light)?;
+        self.ctx.scoped("uploading the light vector", || {
+            if !light.power.is_empty() {
+                self.ctx.queue.write_buffer(&self.light, 0, bytemuck::cast_slice(&light.power));
+            }
+        })
+    }
+
+    /// An error unless `light` is in the form's light basis and finite.
+    pub(crate) fn check_light(&self, light: &LightVector) -> Result<()> {
         if light.basis() != self.shape.light {
             return Err(GpuError::Input(format!(
                 "the light vector is in {}, the form's columns are {}",
@@ -352,25 +362,46 @@ impl GpuGather {
         if let Some(k) = light.power.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
             return Err(GpuError::Input(format!("light texel {k} is not finite: {:?}", light.power[k])));
         }
-        self.ctx.scoped("uploading the light vector", || {
-            if !light.power.is_empty() {
-                self.ctx.queue.write_buffer(&self.light, 0, bytemuck::cast_slice(&light.power));
-            }
-        })
+        Ok(())
+    }
+
+    /// The context the form lives in.
+    pub(crate) fn ctx(&self) -> &GpuContext {
+        &self.ctx
+    }
+
+    /// The GPU buffer the gather reads the light from (`cols * 3` f32).
+    pub(crate) fn light_buffer(&self) -> &wgpu::Buffer {
+        &self.light
+    }
+
+    /// The entry points of the program's passes, in order.
+    pub(crate) fn pass_names(&self) -> Vec<String> {
+        self.passes.iter().map(|p| p.name.clone()).collect()
     }
 
     /// Number of kernel passes of the program (one timestamp pair each).
-    #[cfg_attr(not(feature = "viewer"), allow(dead_code))]
     pub(crate) fn pass_count(&self) -> usize {
         self.passes.len()
     }
 
     /// Record every pass into `enc` (pass `i` writes timestamps `2i`, `2i + 1` of `timer`).
     pub(crate) fn record(&self, enc: &mut wgpu::CommandEncoder, timer: Option<&crate::timing::PassTimer>) {
+        self.record_from(enc, timer, 0);
+    }
+
+    /// [`Self::record`] with pass `i` writing timestamp pair `first + i` of `timer` (several
+    /// gathers timed in one submission: the light moments).
+    pub(crate) fn record_from(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        timer: Option<&crate::timing::PassTimer>,
+        first: u32,
+    ) {
         for (i, p) in self.passes.iter().enumerate() {
             let mut cp = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some(&p.name),
-                timestamp_writes: timer.map(|t| t.compute_writes(i as u32)),
+                timestamp_writes: timer.map(|t| t.compute_writes(first + i as u32)),
             });
             if p.workgroups[0] > 0 {
                 cp.set_pipeline(&p.pipeline);
@@ -378,5 +409,23 @@ impl GpuGather {
                 cp.dispatch_workgroups(p.workgroups[0], p.workgroups[1], 1);
             }
         }
+    }
+}
+
+/// An `L*` resident on the GPU that the shader can read straight from its buffer: a
+/// [`GpuGather`]'s `T L`, or a [`crate::GpuMoments`]' resolved `L*'`.
+pub trait GpuLstar {
+    /// The shape of the form the `L*` belongs to (its rows are `vertices x M`).
+    fn lstar_shape(&self) -> TransferShape;
+    /// `rows * 3` f32, row `v * M + j`, RGB interleaved.
+    fn lstar_buffer(&self) -> &wgpu::Buffer;
+}
+
+impl GpuLstar for GpuGather {
+    fn lstar_shape(&self) -> TransferShape {
+        self.shape
+    }
+    fn lstar_buffer(&self) -> &wgpu::Buffer {
+        &self.lstar
     }
 }

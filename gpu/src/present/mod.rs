@@ -10,7 +10,7 @@
 use crate::context::{GpuContext, RasterPipeline};
 
 use crate::error::{GpuError, Result};
-use crate::gather::GpuGather;
+use crate::gather::GpuLstar;
 use crate::shade::GpuShader;
 use crate::timing::PassTimer;
 use biscale_core::sampling::EnvMap;
@@ -264,13 +264,14 @@ impl ToneMap {
         })
     }
 
-    /// Shade `gather`'s `L*` with `shader`, tone-map into an offscreen texture of this pass's
-    /// format at the image's size and read it back (submits and waits). The format must be
-    /// one of `Rgba8Unorm`, `Rgba8UnormSrgb`, `Bgra8Unorm`, `Bgra8UnormSrgb`.
+    /// Shade `gather`'s `L*` (a [`crate::GpuGather`]'s, or a [`crate::GpuMoments`]' `L*'`) with
+    /// `shader`, tone-map into an offscreen texture of this pass's format at the image's size
+    /// and read it back (submits and waits). The format must be one of `Rgba8Unorm`,
+    /// `Rgba8UnormSrgb`, `Bgra8Unorm`, `Bgra8UnormSrgb`.
     pub fn render_rgba8(
         &self,
         shader: &mut GpuShader,
-        gather: &GpuGather,
+        gather: &impl GpuLstar,
         settings: &ToneMapSettings,
     ) -> Result<Rgba8Image> {
         shader.check_lstar(gather)?;

@@ -37,7 +37,7 @@
 
 use crate::context::{bytes_to_f32, GpuContext, RasterPipeline};
 use crate::error::{GpuError, Result};
-use crate::gather::GpuGather;
+use crate::gather::GpuLstar;
 use crate::timing::{measure, PassTimer, Timing};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::scene::{BtfRepresentation, Camera, HdrImage, Render, ShadeScene};
@@ -563,8 +563,9 @@ impl GpuShader {
         })
     }
 
-    /// Shade with the `L*` a [`GpuGather`] left on the GPU (no read-back in between).
-    pub fn shade(&mut self, gather: &GpuGather) -> Result<Render> {
+    /// Shade with the `L*` a [`crate::GpuGather`] (or the `L*'` a [`crate::GpuMoments`]) left on the
+    /// GPU (no read-back in between).
+    pub fn shade(&mut self, gather: &impl GpuLstar) -> Result<Render> {
         self.check_lstar(gather)?;
         self.run(gather.lstar_buffer())?;
         self.read_image()
@@ -583,7 +584,7 @@ impl GpuShader {
     }
 
     /// Median time of the two shading passes (`visibility`, `shade`) over `repetitions` frames.
-    pub fn time_shade(&mut self, gather: &GpuGather, repetitions: usize) -> Result<Timing> {
+    pub fn time_shade(&mut self, gather: &impl GpuLstar, repetitions: usize) -> Result<Timing> {
         self.check_lstar(gather)?;
         let bind_group = self.shade_bind_group(gather.lstar_buffer())?;
         let names = ["visibility".to_string(), "shade".to_string()];
@@ -591,8 +592,9 @@ impl GpuShader {
     }
 
     /// An error unless `gather`'s `L*` fits the scene.
-    pub(crate) fn check_lstar(&self, gather: &GpuGather) -> Result<()> {
-        self.check_lstar_shape(gather.shape().local, gather.vertices())
+    pub(crate) fn check_lstar(&self, gather: &impl GpuLstar) -> Result<()> {
+        let shape = gather.lstar_shape();
+        self.check_lstar_shape(shape.local, shape.vertices)
     }
 
     fn check_lstar_shape(&self, basis: biscale_core::basis::LocalBasis, vertices: usize) -> Result<()> {

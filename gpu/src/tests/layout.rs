@@ -101,6 +101,22 @@ fn vertex_layout_matches_wgsl() {
 }
 
 #[test]
+fn resolve_params_layout_matches_wgsl() {
+    type P = crate::moments::ResolveParams;
+    check(
+        crate::moments::RESOLVE_WGSL,
+        "ResolveParams",
+        size_of::<P>(),
+        &[
+            ("vertices", offset_of!(P, vertices)),
+            ("grid", offset_of!(P, grid)),
+            ("lobe", offset_of!(P, lobe)),
+            ("groups_x", offset_of!(P, groups_x)),
+        ],
+    );
+}
+
+#[test]
 fn layout_check_catches_a_vec3_followed_by_a_misplaced_scalar() {
     // The check itself must fail on the classic mistake: Rust packs [f32; 3] + u32 into 16
     // bytes, WGSL puts a vec3<f32> at a 16-byte boundary.

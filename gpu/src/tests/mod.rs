@@ -4,6 +4,7 @@
 
 mod gather;
 mod layout;
+mod moments;
 mod plugin;
 mod sh;
 mod shading;

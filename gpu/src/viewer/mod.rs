@@ -6,7 +6,9 @@
 //! over the image.
 //!
 //! Per frame: [`GpuGather`] (only after a light change, a switch to a form whose `L*` is
-//! stale, or every frame in continuous mode), [`GpuShader`]'s visibility and shade passes into
+//! stale, or every frame in continuous mode; with light moments, [`GpuMoments`]: the rotated
+//! light's three direction moments gathered and resolved into `L*'` on the GPU, as the
+//! pipeline's `[runtime] light_moments`), [`GpuShader`]'s visibility and shade passes into
 //! its HDR image, [`ToneMap`] into the window's surface texture, the text overlay on top; all
 //! in one submission, with GPU timestamps around every pass where the adapter has them.
 //!
@@ -27,11 +29,13 @@ pub(crate) mod overlay;
 use crate::context::GpuContext;
 use crate::error::{GpuError, Result};
 use crate::gather::GpuGather;
+use crate::moments::GpuMoments;
 use crate::present::{read_texture_rgba8, Rgba8Image, ToneMap, ToneMapSettings};
 use crate::shade::GpuShader;
 use crate::timing::{median, PassTimer};
 use biscale_core::basis::LightBasis;
 use biscale_core::compress::CompressedForm;
+use biscale_core::gather::moments::LightMoments;
 use biscale_core::sampling::{Cubemap, EnvMap, LightVector};
 use biscale_core::scene::{Camera, ShadeScene};
 use biscale_core::sh::light::LIGHT_SUBTEXELS;
@@ -98,12 +102,21 @@ pub struct ViewerSetup {
     pub screenshot: Option<Screenshot>,
     /// Start in continuous mode (redraw and re-gather every frame; Space toggles it).
     pub continuous: bool,
+    /// Light moments (the config's `runtime.light_moments`): every light change gathers the
+    /// light's three direction moments (`LightMoments::new`) through the form and resolves
+    /// them into `L*'` on the GPU ([`GpuMoments`]), each texel weighted by its own cosine and
+    /// each bin's BRDF taken at its mean light direction. Needs a cubemap light basis and a
+    /// local basis of bins (the SH methods have neither: leave it off for them); the moments
+    /// are resolved in the scene's frames, which must be those `T` was traced with.
+    pub light_moments: bool,
 }
 
-/// What the worker thread sends back: a light vector for a rotation.
+/// What the worker thread sends back: a light vector for a rotation (and its moments, with
+/// light moments).
 struct LightReady {
     rotation: f64,
     light: LightVector,
+    moments: Option<LightMoments>,
     ms: f64,
 }
 
@@ -184,6 +197,20 @@ impl ViewerSetup {
         if self.screenshot.as_ref().is_some_and(|s| s.frames == 0) {
             return bad("a screenshot needs at least one frame".into());
         }
+        if self.light_moments {
+            if self.light_basis.cubemap_layout().is_none() {
+                return bad(format!(
+                    "light moments need a cubemap light basis, the forms' is the {}",
+                    self.light_basis
+                ));
+            }
+            if self.scene.local_basis().grid().is_none() {
+                return bad(format!(
+                    "light moments need a local basis of bins, the scene's is {}",
+                    self.scene.local_basis()
+                ));
+            }
+        }
         Ok(())
     }
 
@@ -218,11 +245,12 @@ pub fn run_viewer(setup: ViewerSetup) -> Result<()> {
     let start = Instant::now();
     let source = Arc::new(LightSource::new(&Arc::new(setup.env.clone()), setup.light_basis, setup.sun_boost)?);
     let light = source.at(setup.env_rotation);
+    let moments = moments_of(&light, setup.light_moments)?;
     let light_ms = start.elapsed().as_secs_f64() * 1e3;
     let mut app = App {
         source,
         proxy: event_loop.create_proxy(),
-        state: State::new(&setup, light, light_ms),
+        state: State::new(&setup, light, moments, light_ms),
         setup,
         gpu: None,
         error: None,
@@ -260,6 +288,8 @@ struct State {
     requested_rotation: f64,
     light_rotation: f64,
     light: LightVector,
+    /// The light's direction moments, with light moments.
+    moments: Option<LightMoments>,
     light_ms: f64,
     /// Per form: its `L*` on the GPU is from an older light.
     stale: Vec<bool>,
@@ -283,7 +313,7 @@ struct State {
 }
 
 impl State {
-    fn new(setup: &ViewerSetup, light: LightVector, light_ms: f64) -> Self {
+    fn new(setup: &ViewerSetup, light: LightVector, moments: Option<LightMoments>, light_ms: f64) -> Self {
         let orbit = Orbit::from_camera(&setup.camera);
         Self {
             orbit,
@@ -295,6 +325,7 @@ impl State {
             requested_rotation: setup.env_rotation,
             light_rotation: setup.env_rotation,
             light,
+            moments,
             light_ms,
             stale: vec![true; setup.forms.len()],
             continuous: setup.continuous,
@@ -321,7 +352,7 @@ struct Gpu {
     config: wgpu::SurfaceConfiguration,
     ctx: GpuContext,
     shader: GpuShader,
-    gathers: Vec<GpuGather>,
+    gathers: Vec<FormGather>,
     /// Per form, the shade bind group of its `L*` for the current shader.
     bind_groups: Vec<Option<wgpu::BindGroup>>,
     tonemap: ToneMap,
@@ -331,6 +362,55 @@ struct Gpu {
     gather_timers: Vec<Option<PassTimer>>,
     /// The surface texture can be copied (screenshots read the real frame).
     surface_copy: bool,
+}
+
+/// One form's gather on the GPU: `L* = T L`, or with light moments the three moment gathers
+/// and the resolve into `L*'`.
+enum FormGather {
+    Plain(Box<GpuGather>),
+    Moments(Box<GpuMoments>),
+}
+
+impl FormGather {
+    /// The buffer the shader reads: `L*`, or `L*'`.
+    fn lstar_buffer(&self) -> &wgpu::Buffer {
+        match self {
+            Self::Plain(g) => g.lstar_buffer(),
+            Self::Moments(m) => m.lstar_buffer(),
+        }
+    }
+
+    /// Timestamp pairs one gather writes.
+    fn pass_count(&self) -> usize {
+        match self {
+            Self::Plain(g) => g.pass_count(),
+            Self::Moments(m) => m.pass_count(),
+        }
+    }
+
+    /// Upload the light (or, with light moments, its three moments, which `validate` made sure
+    /// the state has).
+    fn upload(&mut self, light: &LightVector, moments: Option<&LightMoments>) -> Result<()> {
+        match (self, moments) {
+            (Self::Plain(g), _) => g.upload_light(light),
+            (Self::Moments(m), Some(moments)) => m.upload(moments),
+            (Self::Moments(_), None) => Err(GpuError::Input("light moments without the light's moments".into())),
+        }
+    }
+
+    /// Record the gather (and resolve) with the light last uploaded.
+    fn record(&self, enc: &mut wgpu::CommandEncoder, timer: Option<&PassTimer>) {
+        match self {
+            Self::Plain(g) => g.record(enc, timer),
+            Self::Moments(m) => m.record(enc, timer),
+        }
+    }
+}
+
+/// The direction moments of `light` when `enabled` (the light is then in a cubemap basis,
+/// which `ViewerSetup::validate` checked).
+fn moments_of(light: &LightVector, enabled: bool) -> Result<Option<LightMoments>> {
+    Ok(if enabled { Some(LightMoments::new(light)?) } else { None })
 }
 
 struct App {
@@ -396,12 +476,20 @@ impl App {
         };
         ctx.scoped("configuring the surface", || surface.configure(&ctx.device, &config))?;
         let shader = self.setup.shader(&ctx, self.state.orbit.camera(config.width, config.height))?;
+        let moments = self.setup.light_moments;
         let gathers = self
             .setup
             .forms
             .iter()
             .map(|f| {
-                GpuGather::new(&ctx, &f.form, &f.kernels).map_err(|e| GpuError::Form(format!("'{}': {e}", f.label)))
+                let form = || -> Result<FormGather> {
+                    let gather = GpuGather::new(&ctx, &f.form, &f.kernels)?;
+                    Ok(match moments {
+                        true => FormGather::Moments(Box::new(GpuMoments::new(gather, self.setup.scene.frames())?)),
+                        false => FormGather::Plain(Box::new(gather)),
+                    })
+                };
+                form().map_err(|e| GpuError::Form(format!("'{}': {e}", f.label)))
             })
             .collect::<Result<Vec<_>>>()?;
         let gather_timers =
@@ -416,6 +504,7 @@ impl App {
         let (tx, rx) = mpsc::channel::<f64>();
         let proxy = self.proxy.clone();
         let source = self.source.clone();
+        let with_moments = self.setup.light_moments;
         std::thread::Builder::new()
             .name("biscale-view-light".into())
             .spawn(move || {
@@ -425,8 +514,10 @@ impl App {
                     }
                     let start = Instant::now();
                     let light = source.at(rotation);
+                    // `validate` checked that the light basis is a cubemap: this cannot fail.
+                    let moments = moments_of(&light, with_moments).expect("a cubemap light has moments");
                     let ms = start.elapsed().as_secs_f64() * 1e3;
-                    if proxy.send_event(LightReady { rotation, light, ms }).is_err() {
+                    if proxy.send_event(LightReady { rotation, light, moments, ms }).is_err() {
                         break;
                     }
                 }
@@ -494,10 +585,11 @@ fn overlay_lines(setup: &ViewerSetup, s: &State, gpu: &Gpu) -> Vec<String> {
         if s.continuous { "  [continuous: gather every frame]" } else { "" }
     ));
     let when = if s.gather_this_frame { "" } else { " (at the last light change)" };
+    let what = if setup.light_moments { "gather (3 light moments + resolve)" } else { "gather" };
     lines.push(match (s.last_gather_ms, s.last_gather_wall_ms) {
-        (Some(g), Some(w)) => format!("gather {g:.2} ms GPU, {w:.2} ms wall{when}"),
-        (None, Some(w)) => format!("gather {w:.2} ms wall{when}"),
-        _ => "gather -".into(),
+        (Some(g), Some(w)) => format!("{what} {g:.2} ms GPU, {w:.2} ms wall{when}"),
+        (None, Some(w)) => format!("{what} {w:.2} ms wall{when}"),
+        _ => format!("{what} -"),
     });
     match s.last_passes {
         Some([vis, shade, tone, text]) => lines.push(format!(
@@ -567,7 +659,7 @@ impl App {
         if gather {
             let t0 = Instant::now();
             let gather_timer = gpu.gather_timers[i].as_ref();
-            gpu.gathers[i].upload_light(&s.light)?;
+            gpu.gathers[i].upload(&s.light, s.moments.as_ref())?;
             gpu.ctx.scoped("running the gather", || {
                 let mut genc = gpu.ctx.device.create_command_encoder(&Default::default());
                 gpu.gathers[i].record(&mut genc, gather_timer);
@@ -729,6 +821,7 @@ impl ApplicationHandler<LightReady> for App {
     fn user_event(&mut self, _event_loop: &ActiveEventLoop, ev: LightReady) {
         let s = &mut self.state;
         s.light = ev.light;
+        s.moments = ev.moments;
         s.light_rotation = ev.rotation;
         s.light_ms = ev.ms;
         s.stale.iter_mut().for_each(|x| *x = true);
