@@ -253,10 +253,11 @@ pub fn generate_scene(kind: GeneratedScene, out: &Path) -> Result<biscale_core::
 pub const MAX_GENERATED_TRIANGLES: u64 = 1 << 25;
 
 /// Write `levels` of midpoint subdivision of the OBJ or PLY `input` to `out` (an OBJ) (the scaling study's
-/// denser meshes: same shape, about 4x the vertices per level). Refused up front beyond
-/// [`MAX_GENERATED_TRIANGLES`] or when its memory estimate exceeds the available memory.
-pub fn subdivide(input: &Path, levels: u32, out: &Path) -> Result<biscale_core::geometry::Mesh> {
-    subdivide_within(input, levels, out, &crate::memory::available()?)
+/// denser meshes: same shape, about 4x the vertices per level), with `unweld` as a polygon
+/// soup (`shapes::unweld`: three vertices per triangle, no shared edge). Refused up front
+/// beyond [`MAX_GENERATED_TRIANGLES`] or when its memory estimate exceeds the available memory.
+pub fn subdivide(input: &Path, levels: u32, unweld: bool, out: &Path) -> Result<biscale_core::geometry::Mesh> {
+    subdivide_within(input, levels, unweld, out, &crate::memory::available()?)
 }
 
 /// [`subdivide`] with `available` bytes of memory: refused when
@@ -264,6 +265,7 @@ pub fn subdivide(input: &Path, levels: u32, out: &Path) -> Result<biscale_core::
 pub fn subdivide_within(
     input: &Path,
     levels: u32,
+    unweld: bool,
     out: &Path,
     available: &crate::memory::Available,
 ) -> Result<biscale_core::geometry::Mesh> {
@@ -284,7 +286,7 @@ pub fn subdivide_within(
         mesh.vertex_count() as u64,
         mesh.uvs.is_some(),
         levels,
-    );
+    ) + if unweld { crate::memory::unweld_bytes(triangles as u64) } else { 0 };
     crate::memory::refuse(
         &format!("{}: {levels} levels of subdivision", input.display()),
         estimate,
@@ -294,6 +296,9 @@ pub fn subdivide_within(
     )?;
     for _ in 0..levels {
         mesh = biscale_core::geometry::shapes::subdivide_midpoint(&mesh);
+    }
+    if unweld {
+        mesh = biscale_core::geometry::shapes::unweld(&mesh);
     }
     write_obj(&mesh, out)?;
     Ok(mesh)
@@ -563,11 +568,11 @@ mod tests {
         let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/meshes/bunny.obj");
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("dense.obj");
-        let e = super::subdivide(&bunny, 9, &out).unwrap_err().to_string();
+        let e = super::subdivide(&bunny, 9, false, &out).unwrap_err().to_string();
         // 3,674 triangles x 4^9.
         assert!(e.contains("963117056 triangles") && e.contains("fewer levels"), "{e}");
         assert!(!out.exists());
-        let mesh = super::subdivide(&bunny, 1, &out).unwrap();
+        let mesh = super::subdivide(&bunny, 1, false, &out).unwrap();
         assert_eq!(mesh.triangle_count(), 4 * 3674);
     }
 
@@ -581,12 +586,12 @@ mod tests {
         // than their estimate they are refused, naming the estimate and what to change.
         let needed = subdivide_bytes(3674, 1839, false, 3);
         let short = Available { bytes: needed - 1, source: "test" };
-        let e = super::subdivide_within(&bunny, 3, &out, &short).unwrap_err().to_string();
+        let e = super::subdivide_within(&bunny, 3, false, &out, &short).unwrap_err().to_string();
         assert!(e.contains("3 levels of subdivision needs about") && e.contains("235136 triangles"), "{e}");
         assert!(e.contains("available (test); use fewer levels"), "{e}");
         assert!(!out.exists());
         let enough = Available { bytes: needed, source: "test" };
-        assert_eq!(super::subdivide_within(&bunny, 3, &out, &enough).unwrap().triangle_count(), 64 * 3674);
+        assert_eq!(super::subdivide_within(&bunny, 3, false, &out, &enough).unwrap().triangle_count(), 64 * 3674);
         // The written file is within the estimate's text and mesh allowance.
         assert!(std::fs::metadata(&out).unwrap().len() < needed);
     }

@@ -373,16 +373,23 @@ enum Generate {
         #[arg(long)]
         out: PathBuf,
     },
-    /// Midpoint-subdivide a mesh `levels` times (about 4x the vertices per level).
+    /// Midpoint-subdivide a mesh `levels` times (about 4x the vertices per level), or make a
+    /// polygon soup of it (`--unweld`).
     #[command(
-        after_help = "Example: biscale generate subdivide assets/meshes/bunny.obj --levels 2 --out bunny_l2.obj"
+        after_help = "Examples:\n  biscale generate subdivide assets/meshes/bunny.obj --levels 2 --out bunny_l2.obj\n  \
+                      biscale generate subdivide assets/meshes/temple.obj --levels 1 --unweld --out temple_soup.obj   \
+                      # 75k vertices, no shared edge"
     )]
     Subdivide {
         /// The mesh (OBJ or PLY).
         mesh: PathBuf,
-        /// Subdivision levels (each about quadruples the triangles).
+        /// Subdivision levels (each about quadruples the triangles; 0 keeps them).
         #[arg(long, default_value_t = 1)]
         levels: u32,
+        /// Then give every triangle three vertices of its own and its own uv chart: a polygon
+        /// soup (duplicated vertices, open edges, flat normals) that a welding loader keeps.
+        #[arg(long)]
+        unweld: bool,
         /// The OBJ file to write.
         #[arg(long)]
         out: PathBuf,
@@ -498,7 +505,9 @@ fn run() -> anyhow::Result<()> {
         Command::Generate { what } => {
             let (mesh, out) = match what {
                 Generate::Scene { kind, out } => (biscale::commands::generate_scene(kind, &out)?, out),
-                Generate::Subdivide { mesh, levels, out } => (biscale::commands::subdivide(&mesh, levels, &out)?, out),
+                Generate::Subdivide { mesh, levels, unweld, out } => {
+                    (biscale::commands::subdivide(&mesh, levels, unweld, &out)?, out)
+                }
                 Generate::Uv { mesh, out } => (biscale::commands::cylindrical_uv(&mesh, &out)?, out),
             };
             println!("wrote {} ({} vertices, {} triangles)", out.display(), mesh.positions.len(), mesh.triangles.len());

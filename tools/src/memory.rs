@@ -564,6 +564,13 @@ pub fn kib_field(text: &str, name: &str) -> Option<u64> {
     })
 }
 
+/// What unwelding `triangles` into a polygon soup adds to [`subdivide_bytes`]: three
+/// vertices with a uv each per triangle (20 bytes each), and their `v` and `vt` lines of OBJ
+/// text (at most 43 and 30 characters).
+pub fn unweld_bytes(triangles: u64) -> u64 {
+    triangles.saturating_mul(3).saturating_mul(20 + 43 + 30)
+}
+
 /// Peak bytes of `generate subdivide` writing `levels` levels of a mesh of `triangles`
 /// triangles and `vertices` vertices (`uvs`: with texture coordinates): the larger of the
 /// last level (its input and output meshes and the midpoint map) and the write (the output

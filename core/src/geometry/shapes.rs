@@ -205,6 +205,28 @@ pub fn subdivide_midpoint(mesh: &Mesh) -> Mesh {
     Mesh { positions, uvs, triangles, materials }
 }
 
+/// The polygon soup of `mesh`: every triangle gets three vertices of its own, so no edge is
+/// shared and every vertex's normal is its face's. Each triangle also gets its own texture
+/// chart (the corners of cell `t` of a square grid of charts), so that the copies of a position
+/// differ in their uv and a loader that welds exact duplicates (`Mesh::load_obj` does) keeps
+/// them apart: the soup survives the round trip through an OBJ file, as the output of a
+/// modeller that unwelds at every uv seam would. Positions are unchanged, so the surface and
+/// what it occludes are the same; only the vertex count (3F) and the shading frames change.
+pub fn unweld(mesh: &Mesh) -> Mesh {
+    let f = mesh.triangles.len();
+    let side = (f as f64).sqrt().ceil().max(1.0) as usize;
+    let cell = 1.0 / side as f32;
+    let mut positions = Vec::with_capacity(3 * f);
+    let mut uvs = Vec::with_capacity(3 * f);
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        positions.extend(tri.map(|i| mesh.positions[i as usize]));
+        let corner = Vec2::new((t % side) as f32, (t / side) as f32) * cell;
+        uvs.extend([corner, corner + Vec2::new(0.9 * cell, 0.0), corner + Vec2::new(0.0, 0.9 * cell)]);
+    }
+    let triangles = (0..f as u32).map(|t| [3 * t, 3 * t + 1, 3 * t + 2]).collect();
+    Mesh { positions, uvs: Some(uvs), triangles, materials: mesh.materials.clone() }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -240,6 +262,33 @@ mod tests {
         assert_eq!((m.positions.len(), m.triangles.len()), (17, 20));
         assert!(m.uvs.is_none());
         assert!(m.triangles.iter().flatten().all(|&i| (i as usize) < m.positions.len()));
+    }
+
+    /// The soup has three vertices per triangle at the same positions (same volume), flat
+    /// normals, and survives an OBJ round trip through the welding loader.
+    #[test]
+    fn unwelded_soup_keeps_its_vertices_through_an_obj_file() {
+        let sphere = uv_sphere(Vec3::ZERO, 1.0, 8, 12);
+        let soup = unweld(&sphere);
+        let f = sphere.triangles.len();
+        assert_eq!((soup.positions.len(), soup.triangles.len()), (3 * f, f));
+        assert!((signed_volume(&soup) - signed_volume(&sphere)).abs() < 1e-6);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("soup.obj");
+        std::fs::write(&path, soup.to_obj()).unwrap();
+        let loaded = Mesh::load_obj(&path).unwrap();
+        assert!(loaded.repairs.iter().all(|r| !r.contains("welded")), "{:?}", loaded.repairs);
+        assert_eq!(loaded.mesh.positions.len(), 3 * f);
+        let (frames, fallbacks) = crate::geometry::vertex_frames(&loaded.mesh);
+        assert_eq!(fallbacks, 0);
+        for (t, tri) in loaded.mesh.triangles.iter().enumerate() {
+            let [a, b, c] = tri.map(|i| loaded.mesh.positions[i as usize]);
+            let face = (b - a).cross(c - a).normalize();
+            for &i in tri {
+                let n = frames[i as usize].normal;
+                assert!(n.dot(face) > 1.0 - 1e-5, "triangle {t}: vertex normal {n} against face {face}");
+            }
+        }
     }
 
     #[test]
