@@ -574,6 +574,11 @@ mod tests {
         assert!(!out.exists());
         let mesh = super::subdivide(&bunny, 1, false, &out).unwrap();
         assert_eq!(mesh.triangle_count(), 4 * 3674);
+        // The soup keeps three vertices per triangle through the welding loader.
+        let soup = super::subdivide(&bunny, 0, true, &out).unwrap();
+        assert_eq!((soup.vertex_count(), soup.triangle_count()), (3 * 3674, 3674));
+        let loaded = biscale_core::geometry::Mesh::load(&out).unwrap().mesh;
+        assert_eq!(loaded.vertex_count(), 3 * 3674);
     }
 
     #[test]
