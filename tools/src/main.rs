@@ -376,9 +376,9 @@ enum Generate {
     /// Midpoint-subdivide a mesh `levels` times (about 4x the vertices per level), or make a
     /// polygon soup of it (`--unweld`).
     #[command(
-        after_help = "Examples:\n  biscale generate subdivide assets/meshes/bunny.obj --levels 2 --out bunny_l2.obj\n  \
-                      biscale generate subdivide assets/meshes/temple.obj --levels 1 --unweld --out temple_soup.obj   \
-                      # 75k vertices, no shared edge"
+        after_help = "Example: biscale generate subdivide assets/meshes/bunny.obj --levels 2 --out bunny_l2.obj\n\
+                      A polygon soup (74,688 vertices, no shared edge): \
+                      biscale generate subdivide assets/meshes/temple.obj --levels 1 --unweld --out temple_soup.obj"
     )]
     Subdivide {
         /// The mesh (OBJ or PLY).
