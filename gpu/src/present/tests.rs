@@ -5,12 +5,11 @@ use super::{Rgba8Image, ToneMap, ToneMapSettings};
 use crate::tests::gpu_or_skip;
 use crate::{GpuContext, GpuGather, GpuShader};
 use biscale_compressors::sparse::Sparse;
-use biscale_compressors::testing::{bins, random_light, random_transfer};
+use biscale_compressors::testing::{random_light, random_transfer};
 use biscale_core::compress::{CompressContext, Compressor};
-use biscale_core::geometry::{shapes, VertexFrame};
 use biscale_core::sampling::EnvMap;
 use biscale_core::scene::image::linear_to_srgb;
-use biscale_core::scene::{Btf, Camera, Material, Render, ShadeScene};
+use biscale_core::scene::{Camera, Render};
 use glam::Vec3;
 
 const FORMATS: [wgpu::TextureFormat; 4] = [
@@ -23,12 +22,7 @@ const FORMATS: [wgpu::TextureFormat; 4] = [
 /// A Lambertian plane ([-1, 1]^2 in XZ) seen at a grazing angle so the top of the image is
 /// sky, with a random sparse T gathered on the GPU.
 fn scene(ctx: &GpuContext, cam: Camera) -> (GpuShader, GpuGather) {
-    let mut mesh = shapes::grid_plane(6, 2.0);
-    mesh.uvs = None;
-    let nv = mesh.positions.len();
-    let frame = VertexFrame::from_normal_tangent(Vec3::Y, Vec3::X);
-    let btf = Btf::phong([0.6, 0.5, 0.4], [0.3, 0.3, 0.3], 16.0, bins(4), 4).unwrap();
-    let scene = ShadeScene::new(mesh, vec![frame; nv], vec![Material::new(btf)], None).unwrap();
+    let (scene, nv) = crate::tests::phong_plane();
     let shader = GpuShader::new(ctx, &scene, &cam).unwrap();
     let t = random_transfer(nv, 4, 4, 0.3, 5);
     let form = Sparse.compress(&t, &CompressContext::default()).unwrap();

@@ -31,6 +31,19 @@ pub(crate) fn ctx() -> Option<&'static GpuContext> {
     .as_ref()
 }
 
+/// A Phong plane (`[-1, 1]^2` in XZ, 6x6 cells, no UVs, every frame +Y up) on 4x4 light bins
+/// and 4x4 views, the small scene several shading tests draw, and its vertex count.
+pub(crate) fn phong_plane() -> (biscale_core::scene::ShadeScene, usize) {
+    use biscale_core::geometry::{shapes, VertexFrame};
+    use biscale_core::scene::{Btf, Material, ShadeScene};
+    let mut mesh = shapes::grid_plane(6, 2.0);
+    mesh.uvs = None;
+    let nv = mesh.positions.len();
+    let frame = VertexFrame::from_normal_tangent(glam::Vec3::Y, glam::Vec3::X);
+    let btf = Btf::phong([0.6, 0.5, 0.4], [0.3, 0.3, 0.3], 16.0, biscale_compressors::testing::bins(4), 4).unwrap();
+    (ShadeScene::new(mesh, vec![frame; nv], vec![Material::new(btf)], None).unwrap(), nv)
+}
+
 /// The shared context or return from the test with a message.
 macro_rules! gpu_or_skip {
     () => {

@@ -369,16 +369,10 @@ fn gather_and_resolve_match_the_cpu_end_to_end() {
 #[test]
 fn resolved_moments_shade_in_place_and_time_every_pass() {
     use crate::{GpuContext, GpuShader, TimestampPolicy};
-    use biscale_core::geometry::shapes;
-    use biscale_core::scene::{Btf, Camera, Material, ShadeScene};
+    use biscale_core::scene::Camera;
     let _ = gpu_or_skip!();
     let always = GpuContext::with_timestamps(TimestampPolicy::Always).unwrap();
-    let mut mesh = shapes::grid_plane(6, 2.0);
-    mesh.uvs = None;
-    let nv = mesh.positions.len();
-    let frame = VertexFrame::from_normal_tangent(Vec3::Y, Vec3::X);
-    let btf = Btf::phong([0.6, 0.5, 0.4], [0.3, 0.3, 0.3], 16.0, bins(4), 4).unwrap();
-    let scene = ShadeScene::new(mesh, vec![frame; nv], vec![Material::new(btf)], None).unwrap();
+    let (scene, nv) = crate::tests::phong_plane();
     let camera = Camera {
         position: Vec3::new(0.3, 1.5, 2.2),
         target: Vec3::ZERO,
@@ -392,7 +386,7 @@ fn resolved_moments_shade_in_place_and_time_every_pass() {
     let bicluster = Bicluster { block_vertices: 8, ..Bicluster::default() };
     let form = bicluster.compress(&t, &CompressContext::default()).unwrap();
     let mut g =
-        GpuMoments::new(GpuGather::new(&always, &form, &bicluster.kernels(&form).unwrap()).unwrap(), &vec![frame; nv])
+        GpuMoments::new(GpuGather::new(&always, &form, &bicluster.kernels(&form).unwrap()).unwrap(), scene.frames())
             .unwrap();
     let moments = LightMoments::new(&random_light(4, 3)).unwrap();
     g.gather(&moments).unwrap();
