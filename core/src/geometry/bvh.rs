@@ -134,8 +134,9 @@ impl SceneBvh {
     }
 
     /// [`Self::occluded_cached`] testing only `candidates` (from [`Self::cone_candidates`]
-    /// for a cone containing `dir`): the same answer, by brute force over a short list.
-    #[inline]
+    /// for a cone containing `dir`): the same answer, by brute force over a short list, one
+    /// triangle at a time (the reference of [`Self::occluded_in_tile`]).
+    #[cfg(test)]
     pub(crate) fn occluded_among(&self, origin: Vec3A, dir: &RayDir, candidates: &[u32], cache: &mut u32) -> bool {
         let ray = Ray { origin, direction: dir.dir, inv_direction: dir.inv, tmin: RAY_TMIN, tmax: f32::INFINITY };
         if let Some(tri) = self.tris.get(*cache as usize) {
@@ -146,6 +147,52 @@ impl SceneBvh {
         for &id in candidates {
             if self.tris[id as usize].intersect(&ray) < f32::INFINITY {
                 *cache = id;
+                return true;
+            }
+        }
+        false
+    }
+
+    /// `candidates` seen from `origin`, for [`Self::occluded_in_tile`]: `c = v0 - origin` and
+    /// `c . ng` computed as [`RtTri::intersect`] computes them.
+    pub(crate) fn prepare_tile(&self, origin: Vec3A, candidates: &[u32], out: &mut TileTriangles) {
+        out.chunks.clear();
+        out.ids.clear();
+        for group in candidates.chunks(LANES) {
+            let mut chunk = TriChunk::default();
+            for (lane, &id) in group.iter().enumerate() {
+                let t = &self.tris[id as usize];
+                let c = t.v0 - origin;
+                for a in 0..3 {
+                    chunk.c[a][lane] = c[a];
+                    chunk.e1[a][lane] = t.e1[a];
+                    chunk.e2[a][lane] = t.e2[a];
+                    chunk.ng[a][lane] = t.ng[a];
+                }
+                chunk.c_ng[lane] = c.dot(t.ng);
+            }
+            out.chunks.push(chunk);
+        }
+        out.ids.extend_from_slice(candidates);
+    }
+
+    /// [`Self::occluded_among`] over a prepared tile ([`Self::prepare_tile`] of the same
+    /// candidates and `origin`): the same answer, bit for bit. Each lane repeats
+    /// [`RtTri::intersect`]'s operations in its order (glam's `dot` sums `(x + y) + z`, its
+    /// `cross` the same products; nothing is fused), eight triangles at a time.
+    #[inline]
+    pub(crate) fn occluded_in_tile(&self, origin: Vec3A, dir: &RayDir, tile: &TileTriangles, cache: &mut u32) -> bool {
+        let ray = Ray { origin, direction: dir.dir, inv_direction: dir.inv, tmin: RAY_TMIN, tmax: f32::INFINITY };
+        if let Some(tri) = self.tris.get(*cache as usize) {
+            if tri.intersect(&ray) < f32::INFINITY {
+                return true;
+            }
+        }
+        let d = [dir.dir.x, dir.dir.y, dir.dir.z];
+        for (k, chunk) in tile.chunks.iter().enumerate() {
+            let hits = chunk_hits(chunk, d);
+            if hits != 0 {
+                *cache = tile.ids[k * LANES + hits.trailing_zeros() as usize];
                 return true;
             }
         }
@@ -283,6 +330,64 @@ impl RtTri {
         }
         f32::INFINITY
     }
+}
+
+/// Lanes of a [`TileTriangles`] chunk.
+const LANES: usize = 8;
+
+/// Eight triangles, structure of arrays, as one ray from the tile's origin tests them.
+#[derive(Clone, Copy, Debug, Default)]
+struct TriChunk {
+    /// `c = v0 - origin`, the edges and the unnormalised normal, per axis.
+    c: [[f32; LANES]; 3],
+    e1: [[f32; LANES]; 3],
+    e2: [[f32; LANES]; 3],
+    ng: [[f32; LANES]; 3],
+    /// `c . ng`, the numerator of every ray's `t` (it does not depend on the direction).
+    c_ng: [f32; LANES],
+}
+
+/// The candidate occluders of one tile ([`SceneBvh::cone_candidates`]) prepared for its
+/// rays, which all start at one origin: eight triangles to a chunk in structure-of-arrays
+/// form, with what depends only on the origin computed once, so a ray tests a chunk in one
+/// pass the compiler vectorises ([`SceneBvh::occluded_in_tile`]). Unused lanes are zero
+/// triangles, which no ray hits (their determinant is 0, so `u` is NaN).
+#[derive(Clone, Debug, Default)]
+pub(crate) struct TileTriangles {
+    chunks: Vec<TriChunk>,
+    /// The BVH primitive of each lane (for the occluder cache).
+    ids: Vec<u32>,
+}
+
+impl TileTriangles {
+    pub(crate) fn is_empty(&self) -> bool {
+        self.ids.is_empty()
+    }
+}
+
+/// Which lanes of `chunk` the ray in direction `d` hits (bit `i` for lane `i`), with
+/// [`RtTri::intersect`]'s arithmetic and acceptance test.
+// The comparisons are combined with `&`, not `&&` (or `contains`), so that all eight lanes
+// are computed without branches.
+#[allow(clippy::manual_range_contains)]
+#[inline(always)]
+fn chunk_hits(chunk: &TriChunk, d: [f32; 3]) -> u32 {
+    let TriChunk { c, e1, e2, ng, c_ng } = chunk;
+    let mut hit = [false; LANES];
+    for i in 0..LANES {
+        // r = d x c, as glam's cross.
+        let r = [d[1] * c[2][i] - d[2] * c[1][i], d[2] * c[0][i] - d[0] * c[2][i], d[0] * c[1][i] - d[1] * c[0][i]];
+        let inv_det = 1.0 / ((d[0] * ng[0][i] + d[1] * ng[1][i]) + d[2] * ng[2][i]);
+        let u = -((e2[0][i] * r[0] + e2[1][i] * r[1]) + e2[2][i] * r[2]) * inv_det;
+        let v = ((e1[0][i] * r[0] + e1[1][i] * r[1]) + e1[2][i] * r[2]) * inv_det;
+        let t = c_ng[i] * inv_det;
+        hit[i] = (u >= -EDGE_TOLERANCE)
+            & (v >= -EDGE_TOLERANCE)
+            & (u + v <= 1.0 + EDGE_TOLERANCE)
+            & (t >= RAY_TMIN)
+            & (t <= f32::INFINITY);
+    }
+    hit.iter().enumerate().fold(0, |m, (i, &h)| m | (h as u32) << i)
 }
 
 /// Start of the occlusion rays of the transfer stage, `t >= RAY_TMIN`: obvhs's node test skips
@@ -554,6 +659,79 @@ mod tests {
         prims.sort_unstable();
         assert_eq!(prims, (0..1000).collect::<Vec<u32>>());
         assert!(cwbvh_depth(&bvh2_to_cwbvh(&b, 3, true, false)) <= 4);
+    }
+
+    /// The eight-lane tile test gives every triangle's answer of the one-at-a-time test, bit
+    /// for bit: on a closed mesh (shared edges) and random triangles, from origins on and off
+    /// the surface, for random rays and for rays aimed exactly at vertices and edge midpoints
+    /// (where the edge tolerance decides), with candidate lists of every length modulo 8.
+    #[test]
+    fn the_tile_test_matches_the_triangle_test_bit_for_bit() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let sphere = crate::geometry::shapes::uv_sphere(Vec3::ZERO, 1.0, 10, 14);
+        let mut positions = sphere.positions.clone();
+        let mut triangles = sphere.triangles.clone();
+        for _ in 0..60 {
+            let base = positions.len() as u32;
+            let c = Vec3::new(rng.gen_range(-2.0..2.0), rng.gen_range(-2.0..2.0), rng.gen_range(-2.0..2.0));
+            for _ in 0..3 {
+                positions
+                    .push(c + Vec3::new(rng.gen_range(-0.5..0.5), rng.gen_range(-0.5..0.5), rng.gen_range(-0.5..0.5)));
+            }
+            triangles.push([base, base + 1, base + 2]);
+        }
+        let bvh = SceneBvh::build(&positions, &triangles);
+        let all: Vec<u32> = (0..bvh.len() as u32).collect();
+        let mut tile = TileTriangles::default();
+        let (mut checked, mut hits) = (0usize, 0usize);
+        for round in 0..40 {
+            let origin = match round % 2 {
+                0 => Vec3A::new(rng.gen_range(-2.5..2.5), rng.gen_range(-2.5..2.5), rng.gen_range(-2.5..2.5)),
+                _ => Vec3A::from(positions[rng.gen_range(0..sphere.positions.len())]) * 1.0001,
+            };
+            let len = rng.gen_range(1..=all.len().min(120));
+            let start = rng.gen_range(0..=all.len() - len);
+            let candidates = &all[start..start + len];
+            bvh.prepare_tile(origin, candidates, &mut tile);
+            for r in 0..200 {
+                let target = match r % 3 {
+                    0 => Vec3A::new(rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0)),
+                    1 => {
+                        let t = &bvh.tris[candidates[rng.gen_range(0..len)] as usize];
+                        [t.v0, t.v0 + t.e1, t.v0 + t.e2][rng.gen_range(0..3)] - origin
+                    }
+                    _ => {
+                        let t = &bvh.tris[candidates[rng.gen_range(0..len)] as usize];
+                        t.v0 + 0.5 * [t.e1, t.e2, t.e1 + t.e2][rng.gen_range(0..3)] - origin
+                    }
+                };
+                if target.length_squared() == 0.0 {
+                    continue;
+                }
+                let dir = RayDir::new(Vec3::from(target.normalize()));
+                let ray =
+                    Ray { origin, direction: dir.dir, inv_direction: dir.inv, tmin: RAY_TMIN, tmax: f32::INFINITY };
+                let d = [dir.dir.x, dir.dir.y, dir.dir.z];
+                for (k, chunk) in tile.chunks.iter().enumerate() {
+                    let mask = chunk_hits(chunk, d);
+                    for lane in 0..LANES {
+                        let want = candidates
+                            .get(k * LANES + lane)
+                            .is_some_and(|&id| bvh.tris[id as usize].intersect(&ray) < f32::INFINITY);
+                        assert_eq!(mask >> lane & 1 == 1, want, "round {round}, ray {r}, lane {}", k * LANES + lane);
+                        hits += want as usize;
+                        checked += 1;
+                    }
+                }
+                let (mut c1, mut c2) = (u32::MAX, u32::MAX);
+                assert_eq!(
+                    bvh.occluded_in_tile(origin, &dir, &tile, &mut c1),
+                    bvh.occluded_among(origin, &dir, candidates, &mut c2)
+                );
+            }
+        }
+        assert!(hits > 1000 && checked > 100_000, "{hits} hits of {checked}");
     }
 
     #[test]

@@ -7,7 +7,7 @@
 //! in tiles of nearby texels: a tile below the horizon is skipped, and otherwise one cone
 //! query lists the triangles its rays could hit, usually none or a few.
 
-use crate::geometry::bvh::{Cone, RayDir};
+use crate::geometry::bvh::{Cone, RayDir, TileTriangles};
 use crate::geometry::{SceneBvh, VertexFrame};
 use crate::sampling::{Cubemap, HemisphereGrid};
 use crate::transfer::TransferSettings;
@@ -46,8 +46,9 @@ const BRUTE_FORCE_MAX: usize = 96;
 pub struct VisibilityScratch {
     /// Unoccluded children per coarse texel.
     visible: Vec<u16>,
-    /// Candidate occluders of the current tile.
+    /// Candidate occluders of the current tile, and the same prepared for its rays.
     candidates: Vec<u32>,
+    tile: TileTriangles,
     /// Tiles traced by brute force over their candidates / through the BVH (last query).
     #[cfg(test)]
     pub(crate) paths: [u32; 2],
@@ -150,7 +151,7 @@ impl VisibilitySampler {
         {
             scratch.paths = [0, 0];
         }
-        let VisibilityScratch { visible, candidates, .. } = scratch;
+        let VisibilityScratch { visible, candidates, tile, .. } = scratch;
         visible.clear();
         visible.resize(self.coarse_dirs.len(), 0);
         let mut rays = 0u64;
@@ -179,6 +180,9 @@ impl VisibilitySampler {
                     if !queried {
                         candidates.clear();
                         brute = bvh.cone_candidates(o, n_a, cone, candidates, BRUTE_FORCE_MAX);
+                        if brute {
+                            bvh.prepare_tile(o, candidates, tile);
+                        }
                         queried = true;
                         #[cfg(test)]
                         {
@@ -187,7 +191,7 @@ impl VisibilitySampler {
                     }
                     rays += 1;
                     let occluded = if brute {
-                        !candidates.is_empty() && bvh.occluded_among(o, ray, candidates, &mut cache)
+                        !tile.is_empty() && bvh.occluded_in_tile(o, ray, tile, &mut cache)
                     } else {
                         bvh.occluded_cached(o, ray, &mut cache)
                     };
