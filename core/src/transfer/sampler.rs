@@ -31,14 +31,18 @@ pub struct VisibilitySampler {
     tile_texels: Vec<u32>,
 }
 
-/// Side of a tile in fine texels (about): tiles of `8 / s` coarse texels, 64 rays.
-const TILE_FINE: usize = 8;
+/// Side of a tile in fine texels (about): tiles of `16 / s` coarse texels, 256 rays (at most
+/// a cube face: its cone's half-angle, 54.7 degrees, keeps the cone test's `a + b < pi`).
+const TILE_FINE: usize = 16;
 
 /// A tile whose cone query returns more candidates than this traces its rays through the
-/// BVH instead of testing the list. Tuned on the bunny (CPU seconds per build at tile 8:
-/// 3.9 with 8, 2.8 with 24, 2.6 with 64..256, 2.7 with no limit; tiles of 4 or 16 fine
-/// texels were slower or equal).
-const BRUTE_FORCE_MAX: usize = 96;
+/// BVH instead of testing the list. Tuned with the eight-lane list test
+/// (`SceneBvh::occluded_in_tile`), 2 threads under load, interleaved: tiles of 8 fine
+/// texels and a cap of 96 (the best before that test) against 16 and 192 took 70.6 / 66.0 s
+/// against 58.9 / 62.5 s on the 30k-vertex bunny at the reference settings, 2.39 against
+/// 2.01 s (1 thread) on the bunny; 16 with 96 and 384 were in between, and the tiny setting
+/// (one tile per face) is the same either way.
+const BRUTE_FORCE_MAX: usize = 192;
 
 /// Per-thread scratch state of [`VisibilitySampler::point_counts`], reset by every query (so
 /// results never depend on which thread, or which earlier query, used it).

@@ -150,7 +150,7 @@ fn fast_kernel_matches_the_plain_definition() {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
     let mut positions = vec![];
     let mut triangles = vec![];
-    for i in 0..300u32 {
+    for i in 0..900u32 {
         let c = Vec3::new(rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0));
         let size = if i % 3 == 0 { 1.0 } else { 0.2 };
         for _ in 0..3 {
