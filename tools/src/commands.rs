@@ -45,7 +45,7 @@ fn write_irradiance(
     let paper = biscale_core::gather::reference_product(t, light);
     let exact = biscale_core::gather::moments::exact_cosine_product(t, light, frames)?;
     let m = grid.len();
-    let cosbar: Vec<f64> = (0..m as u32).map(|j| grid.bin_mean_cosine(j)).collect();
+    let cosbar = grid.mean_cosines();
     let mut csv = String::from("vertex,paper_r,paper_g,paper_b,exact_cosine_r,exact_cosine_g,exact_cosine_b\n");
     for v in 0..t.vertices() {
         let sum = |rows: &[[f64; 3]], c: usize| (0..m).map(|j| cosbar[j] * rows[v * m + j][c]).sum::<f64>();

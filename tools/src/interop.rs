@@ -171,10 +171,9 @@ fn merge(mut a: serde_json::Map<String, Value>, b: Value) -> String {
 /// of bins (empty for other bases).
 fn local_directions(basis: LocalBasis) -> (Vec<f32>, Vec<f64>) {
     match basis.grid() {
-        Some(g) => (
-            (0..g.len() as u32).flat_map(|j| g.bin_direction(j).to_array()).collect(),
-            (0..g.len() as u32).map(|j| g.bin_mean_cosine(j)).collect(),
-        ),
+        Some(g) => {
+            ((0..g.len() as u32).flat_map(|j| g.bin_direction(j).to_array()).collect(), g.mean_cosines().to_vec())
+        }
         None => (vec![], vec![]),
     }
 }

@@ -162,17 +162,13 @@ fn t_light_and_frames(t: &TransferMatrix, light: &LightVector, frames: &[VertexF
     bins_and_frames(t.local_basis(), t.vertices(), frames)
 }
 
-/// `1 / cosbar_j` for every bin. Each mean cosine is an integral over 1,024 cells, which for
-/// 64 bins is a few percent of a resolve, so each grid's are computed once per process.
+/// The Rec. 709 luminance weights of R, G and B: a bin's mean light direction is that of the
+/// luminance of its three channels' moments (every resolve, CPU and GPU, uses these).
+pub const LUMINANCE: [f64; 3] = [0.2126, 0.7152, 0.0722];
+
+/// `1 / cosbar_j` for every bin.
 fn inverse_mean_cosines(grid: &HemisphereGrid) -> Vec<f64> {
-    use std::collections::HashMap;
-    use std::sync::{Mutex, OnceLock};
-    static KNOWN: OnceLock<Mutex<HashMap<u32, Vec<f64>>>> = OnceLock::new();
-    let mut known = KNOWN.get_or_init(Default::default).lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-    known
-        .entry(grid.m)
-        .or_insert_with(|| (0..grid.len() as u32).map(|j| 1.0 / grid.bin_mean_cosine(j)).collect())
-        .clone()
+    grid.mean_cosines().iter().map(|c| 1.0 / c).collect()
 }
 
 /// `L*'` from the three gathered moments. Per vertex `v`, bin `j` and channel `c`, the bin's
@@ -246,7 +242,7 @@ impl Lanes {
     /// instead of one [`light_weights`] call per bin. The f32 sums round at the level of the
     /// gathered moments' own f32 storage (a few ulps of `|D_j|`), tested against the f64 form.
     fn redistribute(&mut self, grid: HemisphereGrid, frame: &VertexFrame, lobe: Lobe, rows: [&[[f32; 3]]; 3]) {
-        const LUMINANCE: [f32; 3] = [0.2126, 0.7152, 0.0722];
+        let luminance = LUMINANCE.map(|y| y as f32);
         let bins = grid.len();
         for (a, row) in rows.iter().enumerate() {
             for (j, d) in row[..bins].iter().enumerate() {
@@ -270,7 +266,7 @@ impl Lanes {
         let [lx, ly, lz] = &mut self.local;
         let (t, bt, n) = (frame.tangent, frame.bitangent, frame.normal);
         for j in 0..bins {
-            let axis = |a: usize| LUMINANCE[0] * r[a][j] + LUMINANCE[1] * g[a][j] + LUMINANCE[2] * b[a][j];
+            let axis = |a: usize| luminance[0] * r[a][j] + luminance[1] * g[a][j] + luminance[2] * b[a][j];
             let d = [axis(0), axis(1), axis(2)];
             lx[j] = t.x * d[0] + t.y * d[1] + t.z * d[2];
             ly[j] = bt.x * d[0] + bt.y * d[1] + bt.z * d[2];
@@ -430,7 +426,6 @@ fn redistribute(
     d: impl Fn(usize, usize) -> DVec3,
     acc: &mut [[f64; 3]],
 ) {
-    const LUMINANCE: [f64; 3] = [0.2126, 0.7152, 0.0722];
     acc.fill([0.0; 3]);
     let n = frame.normal.as_dvec3();
     for j in 0..grid.len() {
@@ -748,8 +743,9 @@ mod tests {
     /// rounded to f32 coordinates) on random directions, below the horizon too, and on the
     /// cases that need care: near the zenith, on the axes and the wedge diagonals, tiny and
     /// huge vectors (the lookup of their unit direction), a zero vector (which keeps its bin)
-    /// and non-finite ones (the zenith, as `light_weights` takes them). Bound: the f32 chain loses a few ulps in the square point
-    /// `(a, b)` (square roots, divisions) plus the arctangent's 1.5e-7, about 3e-7 in all, and
+    /// and non-finite ones (the zenith, as `light_weights` takes them). Bound: the f32 chain
+    /// loses a few ulps in the square point `(a, b)` (square roots, divisions) plus the
+    /// arctangent's 1.5e-7, about 3e-7 in all, and
     /// the coordinates `(a + 1) m / 2` scale it by `m / 2`; the f64 path rounds its
     /// coordinates to f32 (6e-8 m). A bilinear weight moves by at most the sum of the two
     /// coordinates' errors, so `6e-7 m` bounds the difference of any weight.

@@ -158,6 +158,17 @@ impl HemisphereGrid {
         1.0 - r2 / (2.0 / m as f64).powi(2)
     }
 
+    /// Every bin's [`Self::bin_mean_cosine`], in bin order. Each is an integral over 1,024
+    /// cells, and the light-moments resolve needs all of them on every call, so each grid
+    /// size's are computed once per process and shared.
+    pub fn mean_cosines(&self) -> std::sync::Arc<[f64]> {
+        use std::collections::HashMap;
+        use std::sync::{Arc, Mutex, OnceLock};
+        static KNOWN: OnceLock<Mutex<HashMap<u32, Arc<[f64]>>>> = OnceLock::new();
+        let mut known = KNOWN.get_or_init(Default::default).lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        known.entry(self.m).or_insert_with(|| (0..self.len() as u32).map(|j| self.bin_mean_cosine(j)).collect()).clone()
+    }
+
     /// Continuous grid coordinates of local direction `d` for bilinear interpolation between
     /// bin centres: `(x, y)` in `[0, m-1]` so that integer values are bin centres.
     /// Directions below the horizon are clamped onto it.
@@ -226,6 +237,10 @@ mod tests {
             let grid = HemisphereGrid::new(m);
             let s: f64 = (0..grid.len() as u32).map(|j| grid.bin_mean_cosine(j)).sum::<f64>() * grid.bin_solid_angle();
             assert!((s - PI).abs() < 1e-12, "m={m}: {s}");
+            // The shared table is the same numbers, computed once.
+            let table = grid.mean_cosines();
+            assert!((0..grid.len()).all(|j| table[j] == grid.bin_mean_cosine(j as u32)));
+            assert!(std::sync::Arc::ptr_eq(&table, &grid.mean_cosines()));
         }
     }
 

@@ -189,7 +189,7 @@ impl Btf {
         }
         let lg = light_bins(local_basis)?;
         let vg = view_grid(view_grid_m)?;
-        let cosbar: Vec<f64> = (0..lg.len() as u32).map(|j| lg.bin_mean_cosine(j)).collect();
+        let cosbar = lg.mean_cosines();
         let mut data = Vec::with_capacity(vg.len() * lg.len());
         for v in 0..vg.len() as u32 {
             let e = vg.bin_direction(v);

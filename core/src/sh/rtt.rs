@@ -186,13 +186,13 @@ pub fn lambertian_albedo(btf: &Btf) -> Option<Vec<[f32; 3]>> {
         return None;
     }
     let (m, omega) = (grid.len(), grid.bin_solid_angle());
-    let cosbar: Vec<f64> = (0..m as u32).map(|j| grid.bin_mean_cosine(j)).collect();
+    let cosbar = grid.mean_cosines();
     btf.data()
         .chunks(m)
         .map(|b| {
             let rho: [f64; 3] = std::array::from_fn(|c| b.iter().map(|v| v[c] as f64 * omega).sum());
             let max = b.iter().flatten().fold(0.0f32, |a, &x| a.max(x.abs())) as f64;
-            let fits = b.iter().zip(&cosbar).all(|(v, cb)| {
+            let fits = b.iter().zip(cosbar.iter()).all(|(v, cb)| {
                 (0..3).all(|c| (v[c] as f64 - rho[c] / std::f64::consts::PI * cb).abs() <= LAMBERTIAN_TOLERANCE * max)
             });
             fits.then(|| rho.map(|x| x as f32))

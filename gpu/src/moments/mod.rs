@@ -110,7 +110,7 @@ impl GpuMoments {
         ctx.check_buffer_size("the three moment lights (3 x N x RGB f32)", light_bytes)?;
         let frame_data: Vec<f32> =
             frames.iter().flat_map(|f| [f.tangent, f.bitangent, f.normal]).flat_map(|v| v.to_array()).collect();
-        let inv_cosine: Vec<f32> = (0..grid.len() as u32).map(|j| (1.0 / grid.bin_mean_cosine(j)) as f32).collect();
+        let inv_cosine: Vec<f32> = grid.mean_cosines().iter().map(|c| (1.0 / c) as f32).collect();
         let frames_buf = ctx.storage_buffer(
             "vertex frames (9 f32 each)",
             bytemuck::cast_slice(&frame_data),

@@ -36,6 +36,7 @@ struct ResolveParams {
 // L*': rows v * M + i, RGB interleaved.
 @group(0) @binding(6) var<storage, read_write> resolved: array<f32>;
 
+// `biscale_core::gather::moments::LUMINANCE` (Rec. 709).
 const LUMINANCE = vec3<f32>(0.2126, 0.7152, 0.0722);
 const FOUR_OVER_PI: f32 = 1.2732395447351628;
 const PI_OVER_4: f32 = 0.7853981633974483;

@@ -46,7 +46,7 @@ use biscale_compressors::sparse::Sparse;
 use biscale_compressors::testing::{bins, cubemap, random_light, random_transfer};
 use biscale_core::basis::LocalBasis;
 use biscale_core::compress::{CompressContext, CompressedForm, Compressor};
-use biscale_core::gather::moments::{gather_with_moments, resolve, LightMoments, Lobe};
+use biscale_core::gather::moments::{gather_with_moments, resolve, LightMoments, Lobe, LUMINANCE};
 use biscale_core::gather::{reference_product, LocalRadiance};
 use biscale_core::geometry::VertexFrame;
 use biscale_core::sampling::hemisphere::hemisphere_to_square;
@@ -57,7 +57,6 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 const U: f64 = f32::EPSILON as f64 / 2.0;
-const LUMINANCE: [f64; 3] = [0.2126, 0.7152, 0.0722];
 
 /// Random unit normals, half of the frames with a random tangent (`from_normal_tangent`).
 fn random_frames(n: usize, rng: &mut ChaCha8Rng) -> Vec<VertexFrame> {
@@ -109,7 +108,7 @@ fn side_bound(
 ) -> Vec<[f64; 3]> {
     let grid = along[0].basis().grid().unwrap();
     let (m, bins) = (grid.m as usize, grid.len());
-    let inv: Vec<f64> = (0..bins as u32).map(|i| 1.0 / grid.bin_mean_cosine(i)).collect();
+    let inv: Vec<f64> = grid.mean_cosines().iter().map(|c| 1.0 / c).collect();
     let mut out = vec![[0.0f64; 3]; cpu.values().len()];
     for (v, frame) in frames.iter().enumerate() {
         let [t, b, n] = [frame.tangent, frame.bitangent, frame.normal].map(|x| x.as_dvec3());

@@ -522,7 +522,7 @@ pub fn load_bonn(dir: &Path, opts: &BonnImport) -> Result<(Btf, BonnReport)> {
     }
 
     let light_centres: Vec<DVec3> = (0..m as u32).map(|j| bin_centre(light_grid, j)).collect();
-    let cosbar: Vec<f64> = (0..m as u32).map(|j| light_grid.bin_mean_cosine(j)).collect();
+    let cosbar = light_grid.mean_cosines();
     let scale = opts.scale as f64;
     let mut data: Vec<Rgb> = vec![[0.0; 3]; texels * v_count * m];
     let mut reference: Option<Reference> = None;
