@@ -599,6 +599,17 @@ mod tests {
         assert_eq!(super::subdivide_within(&bunny, 3, false, &out, &enough).unwrap().triangle_count(), 64 * 3674);
         // The written file is within the estimate's text and mesh allowance.
         assert!(std::fs::metadata(&out).unwrap().len() < needed);
+        // Unwelding adds three vertices, uvs and their text per triangle: what was enough for
+        // the welded mesh is refused, the estimate with the soup's share is not.
+        let soup = dir.path().join("soup.obj");
+        let e = super::subdivide_within(&bunny, 3, true, &soup, &enough).unwrap_err().to_string();
+        assert!(e.contains("3 levels of subdivision needs about"), "{e}");
+        assert!(!soup.exists());
+        let needed_soup = needed + crate::memory::unweld_bytes(64 * 3674);
+        let soup_enough = Available { bytes: needed_soup, source: "test" };
+        let mesh = super::subdivide_within(&bunny, 3, true, &soup, &soup_enough).unwrap();
+        assert_eq!(mesh.vertex_count(), 3 * 64 * 3674);
+        assert!(std::fs::metadata(&soup).unwrap().len() < needed_soup);
     }
 
     #[test]
