@@ -2,6 +2,7 @@
 //! per-vertex frames, and the BVH behind every ray query.
 
 pub mod bvh;
+mod bvh4;
 pub mod frames;
 pub mod mesh;
 pub mod placement;

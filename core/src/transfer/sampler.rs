@@ -4,10 +4,12 @@
 //! For a point with frame F and a coarse texel k whose centre `d_k` lies above F's tangent
 //! plane, the kernel traces k's `s x s` children of the visibility cubemap and emits the
 //! number that are unoccluded, with the local bin `j` of `F.to_local(d_k)`. Rays are grouped
-//! in tiles of nearby texels: a tile below the horizon is skipped, and otherwise one cone
-//! query lists the triangles its rays could hit, usually none or a few.
+//! in tiles of nearby texels (in Morton order within the tile): a tile below the horizon is
+//! skipped, and otherwise one cone query lists the triangles its rays could hit. A short list
+//! (usually none or a few) is tested eight triangles at a time; a tile with a long one traces
+//! its rays through the BVH in packets (`SceneBvh::occluded_packet`).
 
-use crate::geometry::bvh::{Cone, RayDir, TileTriangles};
+use crate::geometry::bvh::{Cone, RayDir, TileTriangles, PACKET};
 use crate::geometry::{SceneBvh, VertexFrame};
 use crate::sampling::{Cubemap, HemisphereGrid};
 use crate::transfer::TransferSettings;
@@ -41,7 +43,8 @@ const TILE_FINE: usize = 16;
 /// texels and a cap of 96 (the best before that test) against 16 and 192 took 70.6 / 66.0 s
 /// against 58.9 / 62.5 s on the 30k-vertex bunny at the reference settings, 2.39 against
 /// 2.01 s (1 thread) on the bunny; 16 with 96 and 384 were in between, and the tiny setting
-/// (one tile per face) is the same either way.
+/// (one tile per face) is the same either way. With the BVH path traced in packets, a cap of
+/// 96 was slower again (24.6 / 26.4 s against 23.2 / 24.4 s on the 30k-vertex bunny).
 const BRUTE_FORCE_MAX: usize = 192;
 
 /// Per-thread scratch state of [`VisibilitySampler::point_counts`], reset by every query (so
@@ -53,9 +56,16 @@ pub struct VisibilityScratch {
     /// Candidate occluders of the current tile, and the same prepared for its rays.
     candidates: Vec<u32>,
     tile: TileTriangles,
+    /// The current tile's rays above the horizon: (coarse texel, fine ray index).
+    tile_rays: Vec<(u32, u32)>,
     /// Tiles traced by brute force over their candidates / through the BVH (last query).
     #[cfg(test)]
     pub(crate) paths: [u32; 2],
+}
+
+/// The Z-order index of `(row, col)`: their bits interleaved.
+fn morton(row: usize, col: usize) -> u64 {
+    (0..32).map(|b| ((row as u64 >> b & 1) << (2 * b + 1)) | ((col as u64 >> b & 1) << (2 * b))).sum()
 }
 
 impl VisibilitySampler {
@@ -93,6 +103,12 @@ impl VisibilitySampler {
                                 fine_dirs[k * s * s..(k + 1) * s * s].iter().map(|d| d.as_dvec3()).sum::<glam::DVec3>();
                         }
                     }
+                    // Texels in Morton order within the tile, so consecutive texels (and the
+                    // packets of rays the BVH path cuts from them) are compact blocks.
+                    tile_texels[start..].sort_by_key(|&k| {
+                        let (_, row, col) = cubemap.texel_coords(k as usize);
+                        morton(row - r0, col - c0)
+                    });
                     let axis = sum.normalize();
                     let max_angle = tile_texels[start..]
                         .iter()
@@ -155,7 +171,7 @@ impl VisibilitySampler {
         {
             scratch.paths = [0, 0];
         }
-        let VisibilityScratch { visible, candidates, tile, .. } = scratch;
+        let VisibilityScratch { visible, candidates, tile, tile_rays, .. } = scratch;
         visible.clear();
         visible.resize(self.coarse_dirs.len(), 0);
         let mut rays = 0u64;
@@ -168,40 +184,50 @@ impl VisibilitySampler {
             if cone.axis.dot(n_a) < -cone.sin - 1e-6 {
                 continue;
             }
-            let mut queried = false;
-            let mut brute = true;
+            // The tile's rays above the horizon: (coarse texel, fine ray).
+            tile_rays.clear();
             for &k in &self.tile_texels[texels.clone()] {
                 let k = k as usize;
                 if self.coarse_dirs[k].dot(n) <= 0.0 {
                     continue;
                 }
-                let range = k * self.s2..(k + 1) * self.s2;
-                let mut count = 0u16;
-                for (c, ray) in self.fine_dirs[range.clone()].iter().zip(&self.fine_rays[range]) {
-                    if c.dot(n) <= 0.0 {
-                        continue;
+                for f in k * self.s2..(k + 1) * self.s2 {
+                    if self.fine_dirs[f].dot(n) > 0.0 {
+                        tile_rays.push((k as u32, f as u32));
                     }
-                    if !queried {
-                        candidates.clear();
-                        brute = bvh.cone_candidates(o, n_a, cone, candidates, BRUTE_FORCE_MAX);
-                        if brute {
-                            bvh.prepare_tile(o, candidates, tile);
-                        }
-                        queried = true;
-                        #[cfg(test)]
-                        {
-                            path_counts[!brute as usize] += 1;
-                        }
-                    }
-                    rays += 1;
-                    let occluded = if brute {
-                        !tile.is_empty() && bvh.occluded_in_tile(o, ray, tile, &mut cache)
-                    } else {
-                        bvh.occluded_cached(o, ray, &mut cache)
-                    };
-                    count += !occluded as u16;
                 }
-                visible[k] = count;
+            }
+            if tile_rays.is_empty() {
+                continue;
+            }
+            candidates.clear();
+            let brute = bvh.cone_candidates(o, n_a, cone, candidates, BRUTE_FORCE_MAX);
+            #[cfg(test)]
+            {
+                path_counts[!brute as usize] += 1;
+            }
+            rays += tile_rays.len() as u64;
+            if brute {
+                bvh.prepare_tile(o, candidates, tile);
+                if tile.is_empty() {
+                    for &(k, _) in tile_rays.iter() {
+                        visible[k as usize] += 1;
+                    }
+                    continue;
+                }
+                for &(k, f) in tile_rays.iter() {
+                    let occluded = bvh.occluded_in_tile(o, &self.fine_rays[f as usize], tile, &mut cache);
+                    visible[k as usize] += !occluded as u16;
+                }
+            } else {
+                for packet in tile_rays.chunks(PACKET) {
+                    let dirs: [&RayDir; PACKET] =
+                        std::array::from_fn(|i| &self.fine_rays[packet[i.min(packet.len() - 1)].1 as usize]);
+                    let occluded = bvh.occluded_packet(o, &dirs[..packet.len()], &mut cache);
+                    for (i, &(k, _)) in packet.iter().enumerate() {
+                        visible[k as usize] += (occluded >> i & 1 == 0) as u16;
+                    }
+                }
             }
         }
         for (k, &count) in visible.iter().enumerate() {
