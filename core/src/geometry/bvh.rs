@@ -121,8 +121,7 @@ impl SceneBvh {
         for (p, &i) in tri_ids.iter().enumerate() {
             bvh_index[i as usize] = p as u32;
         }
-        let by_mesh: Vec<RtTri> = soup.iter().map(RtTri::new).collect();
-        let wide = Bvh4::build(&bvh2, &by_mesh, &bvh_index);
+        let wide = Bvh4::build(&bvh2, &tris, &bvh_index);
         Self { bvh, tris, tri_ids, cones, wide }
     }
 
@@ -262,8 +261,9 @@ impl SceneBvh {
 
     /// [`Self::occluded_cached`] for up to [`PACKET`] rays from one origin at once: bit `i` of
     /// the result is set when ray `i` (`origin + t dirs[i]`, `t >= RAY_TMIN`) is occluded.
-    /// The answers are those of [`Self::occluded`] ray by ray; the rays share the BVH nodes
-    /// they visit (fetched once for the packet) and the one-entry occluder cache.
+    /// Each ray's answer is the triangle test's over every triangle (brute force; see the
+    /// module docs for where obvhs's [`Self::occluded`] can differ); the rays share the BVH
+    /// nodes they visit (fetched once for the packet) and the one-entry occluder cache.
     pub(crate) fn occluded_packet(&self, origin: Vec3A, dirs: &[&RayDir], cache: &mut u32) -> u32 {
         debug_assert!(dirs.len() <= PACKET);
         if dirs.is_empty() {
@@ -283,14 +283,14 @@ impl SceneBvh {
                 }
             }
         }
-        let all = if n == 32 { u32::MAX } else { (1u32 << n) - 1 };
+        let all = u32::MAX >> (u32::BITS as usize - n);
         if occluded == all {
             return occluded;
         }
         match &self.wide {
             Some(wide) => occluded | wide.occluded_packet(rays, all & !occluded, cache),
             None => {
-                for (i, d) in dirs.iter().enumerate() {
+                for (i, d) in dirs[..n].iter().enumerate() {
                     if occluded & 1 << i == 0 && self.occluded_cached(origin, d, cache) {
                         occluded |= 1 << i;
                     }
@@ -731,6 +731,33 @@ mod tests {
         assert!(cwbvh_depth(&bvh2_to_cwbvh(&b, 3, true, false)) <= 4);
     }
 
+    /// A closed unit sphere (shared edges) and `count` random triangles around it: centres
+    /// uniform in `[-half, half]^3`, corners offset by up to one of `sizes` per axis. Returns
+    /// the sphere's vertex count (its vertices come first), the positions and the triangles.
+    fn sphere_with_soup(
+        rng: &mut rand_chacha::ChaCha8Rng,
+        count: usize,
+        half: f32,
+        sizes: &[f32],
+    ) -> (usize, Vec<Vec3>, Vec<[u32; 3]>) {
+        use rand::Rng;
+        let sphere = crate::geometry::shapes::uv_sphere(Vec3::ZERO, 1.0, 10, 14);
+        let (mut positions, mut triangles) = (sphere.positions.clone(), sphere.triangles.clone());
+        let uniform = |rng: &mut rand_chacha::ChaCha8Rng, r: f32| {
+            Vec3::new(rng.gen_range(-r..r), rng.gen_range(-r..r), rng.gen_range(-r..r))
+        };
+        for _ in 0..count {
+            let base = positions.len() as u32;
+            let c = uniform(rng, half);
+            let size = sizes[rng.gen_range(0..sizes.len())];
+            for _ in 0..3 {
+                positions.push(c + uniform(rng, size));
+            }
+            triangles.push([base, base + 1, base + 2]);
+        }
+        (sphere.positions.len(), positions, triangles)
+    }
+
     /// The eight-lane tile test gives every triangle's answer of the one-at-a-time test, bit
     /// for bit: on a closed mesh (shared edges) and random triangles, from origins on and off
     /// the surface, for random rays and for rays aimed exactly at vertices and edge midpoints
@@ -739,18 +766,7 @@ mod tests {
     fn the_tile_test_matches_the_triangle_test_bit_for_bit() {
         use rand::{Rng, SeedableRng};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
-        let sphere = crate::geometry::shapes::uv_sphere(Vec3::ZERO, 1.0, 10, 14);
-        let mut positions = sphere.positions.clone();
-        let mut triangles = sphere.triangles.clone();
-        for _ in 0..60 {
-            let base = positions.len() as u32;
-            let c = Vec3::new(rng.gen_range(-2.0..2.0), rng.gen_range(-2.0..2.0), rng.gen_range(-2.0..2.0));
-            for _ in 0..3 {
-                positions
-                    .push(c + Vec3::new(rng.gen_range(-0.5..0.5), rng.gen_range(-0.5..0.5), rng.gen_range(-0.5..0.5)));
-            }
-            triangles.push([base, base + 1, base + 2]);
-        }
+        let (sphere_vertices, positions, triangles) = sphere_with_soup(&mut rng, 60, 2.0, &[0.5]);
         let bvh = SceneBvh::build(&positions, &triangles);
         let all: Vec<u32> = (0..bvh.len() as u32).collect();
         let mut tile = TileTriangles::default();
@@ -758,7 +774,7 @@ mod tests {
         for round in 0..40 {
             let origin = match round % 2 {
                 0 => Vec3A::new(rng.gen_range(-2.5..2.5), rng.gen_range(-2.5..2.5), rng.gen_range(-2.5..2.5)),
-                _ => Vec3A::from(positions[rng.gen_range(0..sphere.positions.len())]) * 1.0001,
+                _ => Vec3A::from(positions[rng.gen_range(0..sphere_vertices)]) * 1.0001,
             };
             let len = rng.gen_range(1..=all.len().min(120));
             let start = rng.gen_range(0..=all.len() - len);
@@ -813,20 +829,7 @@ mod tests {
     fn packets_answer_as_each_ray_alone() {
         use rand::{Rng, SeedableRng};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(31);
-        let sphere = crate::geometry::shapes::uv_sphere(Vec3::ZERO, 1.0, 10, 14);
-        let mut positions = sphere.positions.clone();
-        let mut triangles = sphere.triangles.clone();
-        for _ in 0..400 {
-            let base = positions.len() as u32;
-            let c = Vec3::new(rng.gen_range(-3.0..3.0), rng.gen_range(-3.0..3.0), rng.gen_range(-3.0..3.0));
-            let size = [0.02, 0.3, 1.0][rng.gen_range(0..3)];
-            for _ in 0..3 {
-                positions.push(
-                    c + size * Vec3::new(rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0)),
-                );
-            }
-            triangles.push([base, base + 1, base + 2]);
-        }
+        let (sphere_vertices, positions, triangles) = sphere_with_soup(&mut rng, 400, 3.0, &[0.02, 0.3, 1.0]);
         let (mut checked, mut hits) = (0usize, 0usize);
         for scene in 0..3 {
             let tris = match scene {
@@ -842,7 +845,7 @@ mod tests {
             for round in 0..300 {
                 let origin = match round % 3 {
                     0 => Vec3A::new(rng.gen_range(-3.5..3.5), rng.gen_range(-3.5..3.5), rng.gen_range(-3.5..3.5)),
-                    1 => Vec3A::from(positions[rng.gen_range(0..sphere.positions.len())]) * 1.0001,
+                    1 => Vec3A::from(positions[rng.gen_range(0..sphere_vertices)]) * 1.0001,
                     _ => Vec3A::ZERO,
                 };
                 let n = rng.gen_range(1..=PACKET);

@@ -24,13 +24,14 @@ use obvhs::bvh2::Bvh2;
 
 /// Rays of a packet ([`Bvh4::occluded_packet`]): the bits of a `u32`.
 pub(crate) const PACKET: usize = 32;
+const _: () = assert!(PACKET <= u32::BITS as usize);
 /// Quads of rays in a packet (one 4-lane slab test each).
 const QUADS: usize = PACKET / 4;
 /// Largest subtree (in triangles) kept as one leaf.
 const LEAF_MAX: u32 = 4;
 /// Deepest tree the fixed traversal stack serves: a pop pushes at most four children, so
 /// `3 * depth + 1` entries are enough.
-pub(crate) const MAX_DEPTH: usize = 80;
+const MAX_DEPTH: usize = 80;
 const STACK: usize = 3 * MAX_DEPTH + 1;
 /// Child codes: a node index, or a leaf (`LEAF | count << COUNT_SHIFT | first triangle`).
 const LEAF: u32 = 1 << 31;
@@ -62,24 +63,27 @@ pub(crate) struct Bvh4 {
     ids: Vec<u32>,
 }
 
-/// Bounds of one triangle, grown by the test's tolerance band and a margin.
-fn padded_box(t: &RtTri) -> (Vec3A, Vec3A) {
-    let (v1, v2) = (t.v0 + t.e1, t.v0 + t.e2);
-    let lo = t.v0.min(v1).min(v2);
-    let hi = t.v0.max(v1).max(v2);
-    // A hit with barycentrics down to -EDGE_TOLERANCE lies within EDGE_TOLERANCE * (|e1| +
-    // |e2|) per axis of the triangle; twice that, plus margins for the rounding of the box
-    // and the slab test.
-    let band = (t.e1.abs() + t.e2.abs()) * (2.0 * EDGE_TOLERANCE);
-    let pad = band + (lo.abs().max(hi.abs())) * 1e-6 + Vec3A::splat(1e-30);
+/// The box `lo..hi` grown by `band` (the triangle test's tolerance band) plus margins for
+/// the rounding of the box and of the slab test.
+fn grow(lo: Vec3A, hi: Vec3A, band: Vec3A) -> (Vec3A, Vec3A) {
+    let pad = band + lo.abs().max(hi.abs()) * 1e-6 + Vec3A::splat(1e-30);
     (lo - pad, hi + pad)
 }
 
+/// Bounds of one triangle, grown by the test's tolerance band and a margin.
+fn padded_box(t: &RtTri) -> (Vec3A, Vec3A) {
+    let (v1, v2) = (t.v0 + t.e1, t.v0 + t.e2);
+    // A hit with barycentrics down to -EDGE_TOLERANCE lies within EDGE_TOLERANCE * (|e1| +
+    // |e2|) per axis of the triangle: grown by twice that.
+    grow(t.v0.min(v1).min(v2), t.v0.max(v1).max(v2), (t.e1.abs() + t.e2.abs()) * (2.0 * EDGE_TOLERANCE))
+}
+
 impl Bvh4 {
-    /// Collapse `bvh2` (over `tris`, indexed as `bvh2.primitive_indices` names them) into
-    /// four-wide nodes whose occluders are reported as `id_of[triangle]`, or `None` if the result would be deeper than [`MAX_DEPTH`] or too large to
-    /// address (the caller then keeps obvhs's traversal).
-    pub(crate) fn build(bvh2: &Bvh2, tris: &[RtTri], id_of: &[u32]) -> Option<Self> {
+    /// Collapse `bvh2` into four-wide nodes over the caller's `tris`, where `bvh2`'s primitive
+    /// `p` (as `bvh2.primitive_indices` names it) is `tris[index_of[p]]` and occluders are
+    /// reported by that index; `None` if the result would be deeper than [`MAX_DEPTH`] or too
+    /// large to address (the caller then keeps obvhs's traversal).
+    pub(crate) fn build(bvh2: &Bvh2, tris: &[RtTri], index_of: &[u32]) -> Option<Self> {
         if bvh2.nodes.is_empty() || tris.is_empty() {
             return Some(Self::default());
         }
@@ -116,9 +120,9 @@ impl Bvh4 {
                 let n = &n2[j];
                 if n.is_leaf() {
                     for p in n.first_index..n.first_index + n.prim_count {
-                        let id = bvh2.primitive_indices[p as usize];
+                        let id = index_of[bvh2.primitive_indices[p as usize] as usize];
                         out.tris.push(tris[id as usize]);
-                        out.ids.push(id_of[id as usize]);
+                        out.ids.push(id);
                         let (l, h) = boxes[id as usize];
                         (lo, hi) = (lo.min(l), hi.max(h));
                     }
@@ -167,10 +171,8 @@ impl Bvh4 {
                     todo.push((k, child, depth + 1));
                     // obvhs's box, grown like the leaves' (it holds the unpadded triangles).
                     let b = n2[k].aabb();
-                    let pad = (b.max - b.min) * (2.0 * EDGE_TOLERANCE)
-                        + b.min.abs().max(b.max.abs()) * 1e-6
-                        + Vec3A::splat(1e-30);
-                    (child as u32, b.min - pad, b.max + pad)
+                    let (lo, hi) = grow(b.min, b.max, (b.max - b.min) * (2.0 * EDGE_TOLERANCE));
+                    (child as u32, lo, hi)
                 };
                 let node = &mut out.nodes[slot];
                 node.child[c] = code;
