@@ -28,9 +28,13 @@
 //! foreign key) is reported as a warning and rebuilt; failing to write the cache is a warning
 //! too, since the run has its result. Nothing read from the cache is trusted beyond what its
 //! loader checks.
+//!
+//! `biscale cache clean` removes a file only when its contents prove it biscale's (its header
+//! carries the key its name names, see [`list`]): a cache folder may hold a person's own
+//! files, and a name is never proof.
 
 use crate::pipeline::RunOptions;
-use biscale_core::artifact::{Artifact, Field};
+use biscale_core::artifact::{Artifact, Field, MAGIC};
 use biscale_core::compress::Compressor;
 use biscale_core::geometry::Mesh;
 use biscale_core::io::ContentHash;
@@ -396,7 +400,7 @@ pub fn default_dir() -> PathBuf {
 pub struct Entry {
     pub name: String,
     /// `transfer`, `form`, `sh`, `btf`, `lpca`, `temporary` (a write that never finished) or
-    /// `other` (not biscale's).
+    /// `other` (not proved biscale's by its contents, whatever its name).
     pub kind: &'static str,
     pub bytes: u64,
     pub modified: std::time::SystemTime,
@@ -404,25 +408,67 @@ pub struct Entry {
     pub inputs: Option<String>,
 }
 
-/// The kind of a cache file from its name.
-pub fn kind_of(name: &str) -> &'static str {
-    if name.starts_with('.') && name.contains(".tmp-") {
-        return "temporary";
-    }
-    let ext_ok = name.ends_with(".bsf") || name.ends_with(".btf");
-    match name.split('-').next() {
-        Some(k @ ("transfer" | "form" | "sh" | "btf" | "lpca")) if ext_ok => match k {
-            "transfer" => "transfer",
-            "form" => "form",
-            "sh" => "sh",
-            "btf" => "btf",
-            _ => "lpca",
-        },
-        _ => "other",
-    }
+/// The kind a cache file's name claims, with the key its name carries: `<kind>-<32 hex>.bsf`
+/// for `T`, `<kind>-<32 hex>-<rest>` for the others, `.bsf` for matrices and forms, `.btf` for
+/// BTFs. A name is only a claim: [`owned`] checks it against the file's own header.
+fn parse_name(name: &str) -> Option<(&'static str, &str)> {
+    let (kind, ext): (&'static str, &str) = match name.split('-').next()? {
+        "transfer" => ("transfer", ".bsf"),
+        "form" => ("form", ".bsf"),
+        "sh" => ("sh", ".bsf"),
+        "btf" => ("btf", ".btf"),
+        "lpca" => ("lpca", ".btf"),
+        _ => return None,
+    };
+    let rest = name.strip_prefix(kind)?.strip_prefix('-')?.strip_suffix(ext)?;
+    let hex = rest.get(..32)?;
+    let tail = &rest[32..];
+    let tail_ok = match kind {
+        "transfer" => tail.is_empty(),
+        _ => tail.len() > 1 && tail.starts_with('-'),
+    };
+    (hex.bytes().all(|b| b.is_ascii_hexdigit() && !b.is_ascii_uppercase()) && tail_ok).then_some((kind, hex))
 }
 
-/// Every file of the cache folder `dir`, by name (an absent folder is an empty cache).
+/// The kind of the cache file `name` in `dir`, proved from its contents, not taken from its
+/// name: a stage output is biscale's when its name parses ([`parse_name`]) and its header is a
+/// biscale artifact carrying the key its name names; a temporary (`.<name>.tmp-<pid>-<n>`, what
+/// an interrupted atomic write leaves) when the name it was written for parses, pid and counter
+/// are numbers, and its bytes begin as an artifact does (an empty one holds nothing of anyone).
+/// Everything else is `other`, and `biscale cache clean` never touches it, whatever its name.
+/// Returns the kind and, for a stage output, the inputs its key records.
+fn owned(dir: &Path, name: &str) -> (&'static str, Option<String>) {
+    if let Some((kind, hex)) = parse_name(name) {
+        if let Ok((_, fields)) = Artifact::peek(&dir.join(name)) {
+            if matches!(fields.get(KEY_FIELD), Some(Field::Str(k)) if k == hex) {
+                let inputs = match fields.get(INPUTS_FIELD) {
+                    Some(Field::Str(s)) => Some(s.clone()),
+                    _ => None,
+                };
+                return (kind, inputs);
+            }
+        }
+        return ("other", None);
+    }
+    let temporary = name.strip_prefix('.').and_then(|n| n.rsplit_once(".tmp-")).is_some_and(|(target, id)| {
+        let numbers = id
+            .split_once('-')
+            .is_some_and(|(pid, n)| [pid, n].iter().all(|s| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit())));
+        numbers && parse_name(target).is_some() && starts_like_an_artifact(&dir.join(name))
+    });
+    (if temporary { "temporary" } else { "other" }, None)
+}
+
+/// Whether the file's first bytes are (a prefix of) the artifact magic.
+fn starts_like_an_artifact(path: &Path) -> bool {
+    use std::io::Read;
+    let mut head = Vec::with_capacity(MAGIC.len());
+    let read = std::fs::File::open(path).and_then(|f| f.take(MAGIC.len() as u64).read_to_end(&mut head));
+    read.is_ok() && MAGIC.starts_with(&head)
+}
+
+/// Every file of the cache folder `dir`, by name (an absent folder is an empty cache), each
+/// with the kind its contents prove ([`owned`]).
 pub fn list(dir: &Path) -> std::io::Result<Vec<Entry>> {
     let read = match std::fs::read_dir(dir) {
         Ok(r) => r,
@@ -432,19 +478,13 @@ pub fn list(dir: &Path) -> std::io::Result<Vec<Entry>> {
     let mut out = vec![];
     for e in read {
         let e = e?;
-        let meta = e.metadata()?;
+        // Not followed: a link in the cache folder is not a file biscale wrote.
+        let meta = std::fs::symlink_metadata(e.path())?;
         if !meta.is_file() {
             continue;
         }
         let name = e.file_name().to_string_lossy().into_owned();
-        let kind = kind_of(&name);
-        let inputs = match kind {
-            "other" | "temporary" => None,
-            _ => Artifact::peek(&e.path()).ok().and_then(|(_, f)| match f.get(INPUTS_FIELD) {
-                Some(Field::Str(s)) => Some(s.clone()),
-                _ => None,
-            }),
-        };
+        let (kind, inputs) = owned(dir, &name);
         out.push(Entry { name, kind, bytes: meta.len(), modified: meta.modified()?, inputs });
     }
     out.sort_by(|a, b| a.name.cmp(&b.name));
@@ -481,6 +521,10 @@ pub fn clean(dir: &Path, filter: &CleanFilter, dry_run: bool) -> std::io::Result
 mod listing_tests {
     use super::*;
 
+    fn kinds(entries: &[Entry]) -> Vec<(String, &'static str)> {
+        entries.iter().map(|e| (e.name.clone(), e.kind)).collect()
+    }
+
     #[test]
     fn list_names_each_file_and_clean_removes_only_what_is_asked() {
         let dir = tempfile::tempdir().unwrap();
@@ -489,14 +533,14 @@ mod listing_tests {
         let artifact = Artifact::new("probe").with("n", Field::U64(1));
         cache.put(&cache.transfer_path(&key), &key, &artifact);
         cache.put(&cache.form_path(&key, "bicluster"), &key, &artifact);
-        std::fs::write(dir.path().join(".transfer-x.bsf.tmp-1-2"), b"half").unwrap();
+        let temp = format!(".transfer-{}.bsf.tmp-1-2", key.hex());
+        std::fs::write(dir.path().join(&temp), &MAGIC[..5]).unwrap();
         std::fs::write(dir.path().join("notes.txt"), b"mine").unwrap();
-        let kinds = |entries: &[Entry]| entries.iter().map(|e| (e.name.clone(), e.kind)).collect::<Vec<_>>();
         let all = list(dir.path()).unwrap();
         assert_eq!(
             kinds(&all),
             [
-                (".transfer-x.bsf.tmp-1-2".to_string(), "temporary"),
+                (temp.clone(), "temporary"),
                 (format!("form-{}-bicluster.bsf", key.hex()), "form"),
                 ("notes.txt".to_string(), "other"),
                 (format!("transfer-{}.bsf", key.hex()), "transfer"),
@@ -511,13 +555,71 @@ mod listing_tests {
         let temps = CleanFilter { kinds: vec!["temporary".into()], older_than: None };
         assert_eq!(clean(dir.path(), &temps, true).unwrap().len(), 1);
         assert_eq!(list(dir.path()).unwrap().len(), 4);
-        assert_eq!(
-            kinds(&clean(dir.path(), &temps, false).unwrap()),
-            [(".transfer-x.bsf.tmp-1-2".into(), "temporary")]
-        );
+        assert_eq!(kinds(&clean(dir.path(), &temps, false).unwrap()), [(temp, "temporary")]);
         // Everything of biscale's goes; the user's own file stays.
         assert_eq!(clean(dir.path(), &CleanFilter::default(), false).unwrap().len(), 2);
         assert_eq!(kinds(&list(dir.path()).unwrap()), [("notes.txt".to_string(), "other")]);
         assert!(list(&dir.path().join("absent")).unwrap().is_empty());
+    }
+
+    /// Issue class "cache clean deletes by file name": a cache folder that also holds a
+    /// person's files, named like biscale's (stage outputs, temporaries, keys of the right
+    /// length), keeps every one of them through `clean` of every kind; only the files whose
+    /// header carries the key their name names, and the temporaries that begin as an artifact
+    /// does, go.
+    #[test]
+    fn cache_clean_removes_only_files_whose_header_proves_them_biscales() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let cache = StageCache::in_dir(d);
+        let key = CacheKey::new(0x1234_5678_9abc_def0_1122_3344_5566_7788, "mesh m");
+        let other_key = CacheKey::new(0x42, "mesh n");
+        let artifact = Artifact::new("probe").with("n", Field::U64(1));
+        let hex = key.hex();
+        // biscale's own: two outputs and an interrupted write.
+        cache.put(&cache.transfer_path(&key), &key, &artifact);
+        cache.put(&cache.lpca_path(&key, "k4"), &key, &artifact);
+        let temp = format!(".form-{hex}-sparse.bsf.tmp-77-0");
+        std::fs::write(d.join(&temp), artifact.encode()[..30].to_vec()).unwrap();
+        // A person's files, every one named to look like biscale's.
+        let decoys: Vec<(String, Vec<u8>)> = vec![
+            ("btf-wool.btf".into(), b"measured wool".to_vec()),
+            (".thesis.tex.tmp-autosave".into(), b"\\chapter{}".to_vec()),
+            (format!("transfer-{hex}.bsf.bak"), artifact.encode()),
+            (format!("form-{hex}-notes.bsf"), b"my notes".to_vec()),
+            (format!("sh-{hex}-n4.bsf"), Vec::new()),
+            (format!("btf-{}-f16.btf", "A".repeat(32)), artifact.encode()),
+            // A biscale artifact, but its header names another key than its file name.
+            (format!("form-{hex}-copied.bsf"), artifact.encode_with(&other_key.fields())),
+            // Temporaries by name whose bytes are not an artifact's, or whose target is not a
+            // cache file's name.
+            (format!(".transfer-{hex}.bsf.tmp-1-2"), b"draft".to_vec()),
+            (".notes.txt.tmp-1-2".into(), Vec::new()),
+            (format!(".form-{hex}-x.bsf.tmp-a-b"), Vec::new()),
+        ];
+        for (name, bytes) in &decoys {
+            std::fs::write(d.join(name), bytes).unwrap();
+        }
+        let outside = tempfile::tempdir().unwrap();
+        std::fs::write(outside.path().join("thesis.tex"), b"x").unwrap();
+        std::os::unix::fs::symlink(
+            outside.path().join("thesis.tex"),
+            d.join(format!("transfer-{}.bsf", "0".repeat(32))),
+        )
+        .unwrap();
+
+        for (name, _) in &decoys {
+            let e = list(d).unwrap().into_iter().find(|e| &e.name == name).unwrap();
+            assert_eq!(e.kind, "other", "{name}");
+        }
+        let mut removed: Vec<String> =
+            clean(d, &CleanFilter::default(), false).unwrap().into_iter().map(|e| e.name).collect();
+        removed.sort();
+        assert_eq!(removed, [temp, format!("lpca-{hex}-k4.btf"), format!("transfer-{hex}.bsf")]);
+        for (name, bytes) in &decoys {
+            assert_eq!(&std::fs::read(d.join(name)).unwrap(), bytes, "{name} was changed");
+        }
+        assert!(outside.path().join("thesis.tex").exists());
+        assert!(d.join(format!("transfer-{}.bsf", "0".repeat(32))).is_symlink());
     }
 }

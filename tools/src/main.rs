@@ -261,7 +261,10 @@ enum Cache {
         #[arg(long)]
         cache_dir: Option<PathBuf>,
     },
-    /// Remove cache files (all of biscale's by default; never files that are not biscale's).
+    /// Remove cache files (all of biscale's by default). A file counts as biscale's only when
+    /// its own header proves it (a biscale artifact carrying the key its name names, or an
+    /// interrupted write that begins as one); files that merely look like biscale's by name
+    /// are listed as `other` and never removed.
     #[command(after_help = "Example: biscale cache clean --kind form --older-than-days 30 --dry-run")]
     Clean {
         /// Cache folder (default: $XDG_CACHE_HOME/biscale, else ~/.cache/biscale).
