@@ -94,16 +94,54 @@ fn killed_runs_leave_the_earlier_run_whole_and_nothing_beside_it() {
 }
 
 /// `--out` at a folder that is not a run's is refused, and the folder is left as it was (a
-/// run replaces its output folder whole, so it must never take over someone's files).
+/// run replaces its output folder whole, so it must never take over someone's files). Issue
+/// class "--out replaces a user's folder": a `plan.txt` is no proof; `--out .` is refused
+/// with nothing left beside it; a linked `--out` stays a link.
 #[test]
 fn out_at_a_folder_of_other_files_is_refused_and_left_alone() {
     let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("cache");
+    let cfg = config(dir.path(), "x", "[[compressors]]\nkind = \"sparse\"\n");
     let precious = dir.path().join("notes");
     std::fs::create_dir(&precious).unwrap();
     std::fs::write(precious.join("thesis.tex"), "x").unwrap();
-    let cfg = config(dir.path(), "x", "[[compressors]]\nkind = \"sparse\"\n");
-    let r = run(&cfg, &precious, &dir.path().join("cache"), None);
+    let r = run(&cfg, &precious, &cache, None);
     let stderr = String::from_utf8_lossy(&r.stderr);
     assert!(!r.status.success() && stderr.contains("not a biscale output folder"), "{stderr}");
+    std::fs::write(precious.join("plan.txt"), "notes").unwrap();
+    let r = run(&cfg, &precious, &cache, None);
+    let stderr = String::from_utf8_lossy(&r.stderr);
+    assert!(!r.status.success() && stderr.contains("not a biscale output folder"), "{stderr}");
+    assert_eq!(snapshot(&precious).len(), 2);
     assert_eq!(std::fs::read_to_string(precious.join("thesis.tex")).unwrap(), "x");
+
+    // `--out .` from inside a folder of one's work.
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_biscale"));
+    cmd.current_dir(&precious).args([
+        "run",
+        cfg.to_str().unwrap(),
+        "--out",
+        ".",
+        "--cache-dir",
+        cache.to_str().unwrap(),
+    ]);
+    let r = cmd.output().unwrap();
+    let stderr = String::from_utf8_lossy(&r.stderr);
+    assert!(!r.status.success() && stderr.contains("working in"), "{stderr}");
+    assert_eq!(snapshot(&precious).len(), 2);
+    let mut beside: Vec<String> =
+        std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    beside.sort();
+    assert_eq!(beside, ["notes", "x.toml"], "no staging folder left behind");
+
+    // A link to an output folder: the run lands there and the link stays.
+    let real = dir.path().join("real");
+    std::fs::create_dir(&real).unwrap();
+    let link = dir.path().join("link");
+    std::os::unix::fs::symlink(&real, &link).unwrap();
+    for _ in 0..2 {
+        let r = run(&cfg, &link, &cache, None);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    }
+    assert!(link.is_symlink() && real.join("metrics.json").is_file());
 }
