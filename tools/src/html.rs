@@ -133,11 +133,17 @@ const STYLE: &str = "body{font-family:sans-serif;max-width:1200px;margin:2em aut
 /// The report page: [`crate::report::document`] as HTML, with the images of `out_dir`
 /// embedded; `plots` are the plots written (PNG, caption).
 pub fn html(m: &Metrics, plan_text: &str, out_dir: &Path, plots: &[(String, String)]) -> String {
+    page(&m.experiment, crate::report::document(m, plan_text, plots), out_dir)
+}
+
+/// Blocks of the document model as one page titled `biscale: <title>`, with the images of
+/// `out_dir` embedded.
+pub fn page(title: &str, blocks: Vec<Block>, out_dir: &Path) -> String {
     let mut s = format!(
         "<!doctype html><html><head><meta charset=\"utf-8\"><title>biscale: {}</title><style>{STYLE}</style></head><body>",
-        escape(&m.experiment)
+        escape(title)
     );
-    for block in crate::report::document(m, plan_text, plots) {
+    for block in blocks {
         match block {
             Block::Heading(level, text) => {
                 let l = level.clamp(1, 6);

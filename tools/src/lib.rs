@@ -30,6 +30,7 @@ pub mod plan;
 pub mod plots;
 pub mod provenance;
 pub mod report;
+pub mod rerender;
 pub mod shard;
 pub mod staging;
 pub mod temple;

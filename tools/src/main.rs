@@ -107,6 +107,21 @@ enum Command {
         #[command(flatten)]
         cache: CacheArgs,
     },
+    /// Re-render a finished run's report (plots, report.md, report.html) from its metrics.json
+    /// and plan.txt, with no tracing: byte for byte what the run wrote, or today's layout of
+    /// it. Several runs with --out: one page setting their compressor rows side by side.
+    #[command(
+        after_help = "Example: biscale report out/bunny/metrics.json\n         biscale report out/bunny out/smoke --out out/compare"
+    )]
+    Report {
+        /// Runs: each an output folder or its metrics.json.
+        #[arg(required = true)]
+        runs: Vec<PathBuf>,
+        /// Folder to write into (replaced whole, as a run's is). One run: default its own
+        /// folder. Several runs: required.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// Pictures of the transfer matrix's structure: sparsity and biclusters of a patch of
     /// vertices, bicluster size and value histograms, per-vertex heat maps on the mesh.
     #[command(after_help = "Example: biscale viz configs/bunny.toml --out out/bunny-viz")]
@@ -463,6 +478,20 @@ fn run() -> anyhow::Result<()> {
             for w in &written {
                 println!("wrote {} ({})", w.path.display(), w.about);
             }
+        }
+        Command::Report { runs, out } => {
+            let loaded = runs
+                .iter()
+                .map(|r| {
+                    biscale::rerender::FinishedRun::load(r).with_context(|| format!("reading the run {}", r.display()))
+                })
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            let dir = match (&loaded[..], &out) {
+                ([one], _) => biscale::rerender::rerender(one, out.as_deref())?,
+                (_, Some(out)) => biscale::rerender::side_by_side(&loaded, out)?,
+                (_, None) => anyhow::bail!("several runs go side by side into one new folder: give --out DIR"),
+            };
+            println!("wrote {}", dir.join("report.html").display());
         }
         Command::Eval { config, lstar, form, name, out, cache } => {
             let exp = load(&config)?;

@@ -65,7 +65,7 @@ const BTF_BYTES_PER_VALUE: u64 = 12;
 pub const FALLBACK_AVAILABLE_BYTES: u64 = biscale_core::transfer::MAX_TRANSFER_BYTES;
 
 /// One named amount of memory.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
 pub struct Part {
     pub name: String,
     pub bytes: u64,

@@ -1,10 +1,10 @@
 //! The `metrics.json` schema (one file per run). Field names are stable: later issues add
 //! fields, never rename them. See the README's "Output folder" section.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct Metrics {
     /// [`crate::provenance::SCHEMA_VERSION`].
     pub schema_version: u32,
@@ -38,7 +38,7 @@ pub struct Metrics {
 
 /// The figures of the report's comparison section (`crate::inset`), one row per image: the
 /// uncompressed render, every compressor and method setting, the ground truth.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct ComparisonFigures {
     /// The inset region `[x, y, width, height]` in pixels of the render.
     pub inset: [u32; 4],
@@ -52,7 +52,7 @@ pub struct ComparisonFigures {
 }
 
 /// One row of [`ComparisonFigures`]; paths relative to the output folder.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct FigureRow {
     /// `uncompressed`, a setting's label, or `reference` (the ground truth).
     pub name: String,
@@ -65,7 +65,7 @@ pub struct FigureRow {
 }
 
 /// How a sharded precompute went (`crate::shard`).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct ShardedMetrics {
     pub shards: usize,
     /// Wall seconds of the shards, summed and the slowest (the array's critical path).
@@ -83,7 +83,7 @@ pub struct ShardedMetrics {
 
 /// The memory record of a run (`crate::memory`): the estimate made before tracing, beside
 /// the peak resident memory the run measured at its end.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct MemoryMetrics {
     /// Estimated peak bytes: the largest phase (`phases`), made before tracing.
     pub estimate_bytes: u64,
@@ -114,7 +114,7 @@ pub struct MemoryMetrics {
 /// method's; storage, flops and build time are those of its transfer's compressed form;
 /// `image.vs_uncompressed` is against the all-frequency uncompressed image) plus the method's
 /// own record.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct MethodRecord {
     #[serde(flatten)]
     pub record: CompressorRecord,
@@ -123,7 +123,7 @@ pub struct MethodRecord {
 }
 
 /// What the SH method measured beyond a compressor record.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct ShRecord {
     pub order: u32,
     pub rays: u32,
@@ -150,7 +150,7 @@ pub struct ShRecord {
 
 /// An SH setting with LPCA BTFs: `B = sum_v w_v sum_c a_c (E_kc(e_v) . M_p l)`, the dot
 /// products recomputed per vertex whenever the light changes.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct ShLpcaRecord {
     /// What a light change costs: the gather `M_p l` and the dot products (median ms).
     pub relight_ms: f64,
@@ -161,7 +161,7 @@ pub struct ShLpcaRecord {
     pub adaptive: Vec<AdaptiveRecord>,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct AdaptiveRecord {
     pub components: usize,
     pub relight_ms: f64,
@@ -170,7 +170,7 @@ pub struct AdaptiveRecord {
     pub vs_all_components: f64,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct ShTransferRecord {
     /// Seconds to build `M` (0 when it came from the cache).
     pub seconds: f64,
@@ -183,7 +183,7 @@ pub struct ShTransferRecord {
     pub from_t_stride: usize,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct RttRecord {
     /// Stored bytes of all RTT tables at f32 (the SH analogue of the BTF tables).
     pub bytes: u64,
@@ -193,7 +193,7 @@ pub struct RttRecord {
     pub quadrature_error: f64,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct SceneMetrics {
     pub mesh: String,
     pub vertices: usize,
@@ -213,7 +213,7 @@ pub struct SceneMetrics {
 /// One representation of one material's BTF (`representation` in its config entry): what it
 /// stores and loses, and (in the BTF study, when any setting is compressed) what it changes in
 /// the image and costs to shade.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct BtfRecord {
     pub material: String,
     /// `dense` or `lpca-k<clusters>-c<components>[-view][-f16|-u8]`.
@@ -235,7 +235,7 @@ pub struct BtfRecord {
 }
 
 /// One BTF setting shaded with the uncompressed `L*` (every other material dense).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct BtfStudyRecord {
     /// Against the same scene with every BTF dense: the BTF part of the error.
     pub vs_dense: ImageErrors,
@@ -259,7 +259,7 @@ pub struct BtfStudyRecord {
 }
 
 /// The fixed-light fast path of an LPCA setting.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct PrecomputedRecord {
     /// The dot-product tables.
     pub bytes: u64,
@@ -271,7 +271,7 @@ pub struct PrecomputedRecord {
     pub vs_direct: f64,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct LightingMetrics {
     pub source: String,
     pub cubemap_resolution: u32,
@@ -281,13 +281,13 @@ pub struct LightingMetrics {
     pub warnings: Vec<String>,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct ValueCount {
     pub value: f32,
     pub count: u64,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct TransferMetrics {
     pub rows: usize,
     pub cols: usize,
@@ -305,7 +305,7 @@ pub struct TransferMetrics {
     pub vertices_without_sky: usize,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct UncompressedMetrics {
     pub gather_ms: f64,
     pub shade_ms: f64,
@@ -319,10 +319,10 @@ pub struct UncompressedMetrics {
 
 /// The per-pixel reference image: always "ground truth (direct light)"
 /// (`biscale_shading::reference::ReferenceRule::GroundTruth`), whatever `light_moments` says.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct ReferenceMetrics {
     /// What the reference is: `"ground truth (direct light)"`.
-    pub kind: &'static str,
+    pub kind: String,
     pub width: u32,
     pub height: u32,
     pub seconds: f64,
@@ -339,14 +339,31 @@ pub struct ReferenceMetrics {
 /// each figure): HDR `rmse`, `psnr` (peak: the reference's largest value) and `rel_l2`; then
 /// after the report's tone map (`[report] exposure`, clamp, sRGB) `ldr_psnr` (peak 1), `ssim`
 /// (mean over R, G, B and the masked pixels) and `flip` (mean LDR FLIP).
-#[derive(Clone, Copy, Debug, Serialize)]
+///
+/// JSON has no infinities: a PSNR of identical images (infinite) is written `null` and read
+/// back as infinite; any other `null` figure is read back as NaN.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
 pub struct ImageErrors {
+    #[serde(deserialize_with = "nan_if_null")]
     pub rmse: f64,
+    #[serde(deserialize_with = "infinite_if_null")]
     pub psnr: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub rel_l2: f64,
+    #[serde(deserialize_with = "infinite_if_null")]
     pub ldr_psnr: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub ssim: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub flip: f64,
+}
+
+fn infinite_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::INFINITY))
+}
+
+fn nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 
 impl From<&biscale_shading::image::ImageMetrics> for ImageErrors {
@@ -355,7 +372,7 @@ impl From<&biscale_shading::image::ImageMetrics> for ImageErrors {
     }
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct ImageRecord {
     /// Against the render from the uncompressed `T` (the "compression" part of the error).
     pub vs_uncompressed: ImageErrors,
@@ -370,7 +387,7 @@ pub struct ImageRecord {
     pub error_max: Option<f32>,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct CompressorRecord {
     /// Setting label (`sparse`, `bicluster`, `cpca-k32-c8`, `haar-t12`, ...).
     pub name: String,
@@ -475,7 +492,7 @@ impl Metrics {
 }
 
 /// Gather and shade of one compressed form on the GPU, checked against the CPU.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct GpuRecord {
     pub adapter: String,
     /// `GpuTimestamps` or `WallClock`.

@@ -8,14 +8,14 @@
 //! ([`StageClock`]).
 
 use biscale_core::io::ContentHash;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::time::{Instant, SystemTime};
 
 /// Version of the `metrics.json` schema: 2 added `schema_version` and `run`.
 pub const SCHEMA_VERSION: u32 = 2;
 
 /// The provenance of one run.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct RunRecord {
     pub biscale_version: String,
     /// The commit of the checkout biscale was built from (absent outside a git checkout).
@@ -46,7 +46,7 @@ pub struct RunRecord {
     pub cpu_seconds: Option<f64>,
 }
 
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StageTime {
     pub stage: String,
     pub wall_seconds: f64,

@@ -256,8 +256,13 @@ pub fn svg_twin(png: &str) -> String {
 
 /// The run's Markdown report (`report.md`): [`document`] as Markdown.
 pub fn markdown(m: &Metrics, plan: &str, plots: &[(String, String)]) -> String {
+    markdown_of(document(m, plan, plots))
+}
+
+/// Blocks of the document model as Markdown.
+pub fn markdown_of(blocks: Vec<Block>) -> String {
     let mut s = String::new();
-    for block in document(m, plan, plots) {
+    for block in blocks {
         match block {
             Block::Heading(level, text) => {
                 let _ = writeln!(s, "{} {text}\n", "#".repeat(level.clamp(1, 6) as usize));
@@ -852,4 +857,121 @@ pub(crate) fn light_moments_summary(m: &Metrics) -> String {
         );
     }
     s
+}
+
+/// The documents of a run from its record alone: the plots ([`write_plots`]), `report.html`
+/// and `report.md`, written atomically into `out_dir`, which holds the run's `images/`. A run
+/// writes them so, and `biscale report` re-renders them so from a `metrics.json` and its
+/// `plan.txt`, with no tracing.
+pub fn write_documents(m: &Metrics, plan: &str, out_dir: &std::path::Path) -> Result<(), biscale_core::CoreError> {
+    use biscale_core::io::write_atomic_bytes;
+    let plots = write_plots(m, out_dir);
+    let html = crate::html::html(m, plan, out_dir, &plots);
+    write_atomic_bytes(&out_dir.join("report.html"), html.as_bytes())?;
+    let markdown = markdown(m, plan, &plots);
+    write_atomic_bytes(&out_dir.join("report.md"), markdown.as_bytes())?;
+    Ok(())
+}
+
+/// The comparison plots (only when there is something to compare); returns (path, caption).
+pub fn write_plots(m: &Metrics, out_dir: &std::path::Path) -> Vec<(String, String)> {
+    /// A plot's file stem, title, x-axis label and x value of a record.
+    type Plot = (&'static str, &'static str, &'static str, fn(&crate::metrics::CompressorRecord) -> f64);
+    let mut out = vec![];
+    let mut plot_with = |file: &str,
+                         title: &str,
+                         x_label: &str,
+                         y_label: &str,
+                         series: &[crate::plots::Series],
+                         guide: Option<&crate::plots::Guide>| {
+        let rel = format!("{file}.png");
+        match crate::plots::log_log_plot_with(&out_dir.join(&rel), title, x_label, y_label, series, guide) {
+            Ok(()) => out.push((rel, title.to_string())),
+            Err(e) => eprintln!("warning: plot {file}: {e}"),
+        }
+    };
+    if m.compressors.len() >= 2 {
+        let plots: [Plot; 2] = [
+            ("error_vs_time", "relative error of L* against gather time", "gather time (ms, CPU)", |r| r.gather_ms),
+            ("error_vs_storage", "relative error of L* against storage", "storage (MB)", |r| r.bytes as f64 / 1e6),
+        ];
+        // On the storage plot, the equal-quality storage of each kind at the report's target.
+        let guide = crate::plots::Guide {
+            y: m.target_error,
+            label: format!("target {:.1e}", m.target_error),
+            marks: crate::compare::by_kind(&m.compressors)
+                .into_iter()
+                .filter_map(|(kind, recs)| {
+                    let bytes = crate::compare::storage_for_error(&recs, m.target_error)?.bytes()?;
+                    Some((kind, bytes / 1e6))
+                })
+                .collect(),
+        };
+        for (file, title, x_label, x) in plots {
+            let series = crate::plots::series_by_kind(&m.compressors, x, |r| r.rel_error_lstar);
+            let guide = (file == "error_vs_storage").then_some(&guide);
+            plot_with(file, title, x_label, "relative L2 error of L*", &series, guide);
+        }
+    }
+    // The image error of every compressor and method (SH through its order sweep) against the
+    // storage of its transfer: where SH saturates and all-frequency transfer is needed. Against
+    // the reference when one was traced, else against the all-frequency uncompressed image.
+    if !m.methods.is_empty() {
+        let against_reference = m.reference.is_some();
+        let y = |r: &crate::metrics::CompressorRecord| match (against_reference, &r.image.vs_reference) {
+            (true, Some(e)) => e.rel_l2,
+            _ => r.image.vs_uncompressed.rel_l2,
+        };
+        let named = m.compressors.iter().map(|c| (c.kind.clone(), c)).chain(m.methods.iter().map(|r| {
+            let compressor = r.sh.as_ref().map_or("", |s| s.compressor.as_str());
+            let name = if compressor == "sparse" {
+                r.record.kind.clone()
+            } else {
+                format!("{} + {compressor}", r.record.kind)
+            };
+            (name, &r.record)
+        }));
+        let series = crate::plots::series_by(named, |r| r.bytes as f64 / 1e6, y);
+        let y_label = if against_reference {
+            "relative L2 image error vs ground truth"
+        } else {
+            "relative L2 image error vs all-frequency"
+        };
+        plot_with(
+            "image_error_vs_storage",
+            "image error against transfer storage",
+            "storage (MB)",
+            y_label,
+            &series,
+            None,
+        );
+    }
+    // BTF storage against the image error it adds (vs the all-dense image), one series per
+    // material; dense settings sit at error 0 (drawn at the plot's floor).
+    let mut by_material: std::collections::BTreeMap<&str, Vec<(f64, f64, String)>> = Default::default();
+    for b in &m.scene.btfs {
+        if let Some(st) = &b.study {
+            let point = (b.bytes as f64 / 1e6, st.vs_dense.rel_l2, b.representation.clone());
+            by_material.entry(&b.material).or_default().push(point);
+        }
+    }
+    if by_material.values().map(Vec::len).sum::<usize>() >= 2 {
+        let series: Vec<crate::plots::Series> = by_material
+            .into_iter()
+            .map(|(name, mut points)| {
+                points.sort_by(|a, b| a.0.total_cmp(&b.0));
+                let (points, labels) = points.into_iter().map(|(x, y, label)| ((x, y), label)).unzip();
+                crate::plots::Series { name: name.to_string(), points, labels }
+            })
+            .collect();
+        plot_with(
+            "btf_error_vs_storage",
+            "image error against BTF storage",
+            "BTF storage (MB)",
+            "relative L2 image error vs dense BTFs",
+            &series,
+            None,
+        );
+    }
+    out
 }

@@ -503,3 +503,72 @@ fn light_moments_are_measured_side_by_side_with_the_papers_cosine() {
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(report.contains("Cosine rule: light moments"), "{report}");
 }
+
+/// Every file under `dir` by relative path with its bytes, the run marker left out.
+fn files_of(dir: &Path) -> std::collections::BTreeMap<String, Vec<u8>> {
+    fn walk(base: &Path, dir: &Path, out: &mut std::collections::BTreeMap<String, Vec<u8>>) {
+        for e in std::fs::read_dir(dir).unwrap().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                walk(base, &p, out);
+            } else if e.file_name() != ".biscale-run" {
+                out.insert(p.strip_prefix(base).unwrap().to_string_lossy().into_owned(), std::fs::read(&p).unwrap());
+            }
+        }
+    }
+    let mut out = Default::default();
+    walk(dir, dir, &mut out);
+    out
+}
+
+/// `biscale report` re-renders a finished run's plots, report.md and report.html from its
+/// metrics.json and plan.txt alone, byte for byte what the run wrote (in place and into
+/// `--out`); several runs go side by side into one page; a file that is not a run's
+/// metrics.json is a located error.
+#[test]
+fn report_rerenders_a_finished_run_byte_for_byte() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let (cache, run) = (dir.path().join("cache"), dir.path().join("run"));
+    let (ok, _, err) = biscale(&["run", "-q", "configs/smoke.toml", "--cache-dir", &s(&cache), "--out", &s(&run)]);
+    assert!(ok, "{err}");
+    let written = files_of(&run);
+    for f in ["report.md", "report.html", "error_vs_storage.png", "error_vs_storage.svg", "error_vs_time.png"] {
+        assert!(written.contains_key(f), "{f}");
+    }
+    // Remove what is re-rendered, so the test sees it written again, not left.
+    for f in ["report.md", "report.html", "error_vs_storage.png", "error_vs_time.svg"] {
+        std::fs::remove_file(run.join(f)).unwrap();
+    }
+    let (ok, out, err) = biscale(&["report", &s(&run.join("metrics.json"))]);
+    assert!(ok && out.contains("report.html"), "{err}");
+    let again = files_of(&run);
+    assert_eq!(again.keys().collect::<Vec<_>>(), written.keys().collect::<Vec<_>>());
+    for (name, bytes) in &written {
+        assert!(&again[name] == bytes, "{name} differs from what the run wrote");
+    }
+    // The re-rendered folder is still provably biscale's: a run may replace it.
+    let copy = dir.path().join("copy");
+    let (ok, _, err) = biscale(&["report", &s(&run), "--out", &s(&copy)]);
+    assert!(ok, "{err}");
+    assert!(files_of(&copy) == written, "--out holds the run's files and the same documents");
+
+    let both = dir.path().join("both");
+    let (ok, _, err) = biscale(&["report", &s(&run), &s(&copy)]);
+    assert!(!ok && err.contains("--out"), "{err}");
+    let (ok, _, err) = biscale(&["report", &s(&run), &s(&copy), "--out", &s(&both)]);
+    assert!(ok, "{err}");
+    let md = std::fs::read_to_string(both.join("report.md")).unwrap();
+    assert!(md.contains("2 runs side by side"), "{md}");
+    for (label, setting) in [("run", "bicluster"), ("copy", "bicluster"), ("run", "haar-t8"), ("copy", "haar-t8")] {
+        assert!(md.contains(&format!("| {label} | {setting} |")), "{label} {setting}: {md}");
+    }
+    assert!(both.join("error_vs_storage.png").is_file() && both.join("report.html").is_file());
+
+    // Not a run's metrics.json: the file and the reason.
+    std::fs::write(dir.path().join("other.json"), "{\"experiment\": 3}").unwrap();
+    let (ok, _, err) = biscale(&["report", &s(&dir.path().join("other.json"))]);
+    assert!(!ok && err.contains("other.json") && err.contains("not a biscale metrics.json"), "{err}");
+    let (ok, _, err) = biscale(&["run", "-q", "configs/smoke.toml", "--cache-dir", &s(&cache), "--out", &s(&run)]);
+    assert!(ok, "a re-rendered run folder can be run into again: {err}");
+}
