@@ -41,9 +41,12 @@ fn smoke_config_runs_end_to_end_and_caches_the_transfer() {
     assert!(sparse.image.vs_uncompressed.rel_l2 < 1e-5);
     let reference = m.reference.as_ref().expect("smoke traces a reference");
     // Per-vertex sampling error of a 1839-vertex bunny against per-pixel visibility: small
-    // but not zero (a wrong convention would give O(1) errors).
-    assert!(reference.uncompressed_vs_reference.rel_l2 < 0.15, "{:?}", reference.uncompressed_vs_reference);
-    assert!(reference.uncompressed_vs_reference.rel_l2 > 1e-4);
+    // but not zero (a wrong convention would give O(1) errors). Every stage is deterministic
+    // (fixed sample positions and seeds), so the figure is pinned: 0.07163 measured, and a
+    // 10% band around it catches a regression of the transfer, the shade or the reference
+    // that the O(1) test alone would not.
+    let e = reference.uncompressed_vs_reference.rel_l2;
+    assert!((e - 0.07163).abs() < 0.1 * 0.07163, "{:?}", reference.uncompressed_vs_reference);
     for f in [
         "plan.txt",
         "metrics.json",
@@ -173,7 +176,8 @@ fn flat_white_lambertian_plane_under_constant_sky_is_albedo() {
     // An open plane sees the whole upper hemisphere: irradiance pi, radiance albedo.
     // Error sources: cubemap texels are binned by their centre into the 8x8 local bins, and
     // each bin uses its exact mean cosine, so a texel's cosine is replaced by its bin's mean;
-    // over the hemisphere this averages out to well below 1% (measured: see the assertion).
+    // over the hemisphere this averages out to below 1%: measured worst 6.1e-3 of the albedo
+    // over the covered pixels (printed with --nocapture).
     let img = constant_sky_image(
         &shapes::grid_plane(8, 2.0),
         0.5,
@@ -182,9 +186,9 @@ fn flat_white_lambertian_plane_under_constant_sky_is_albedo() {
     );
     let covered: Vec<f32> = img.pixels.iter().filter(|p| p[0] > 0.0).map(|p| p[1]).collect();
     assert!(covered.len() > 64 * 64 / 2, "the plane fills most of the view");
-    for v in covered {
-        assert!((v - 0.5).abs() < 0.5 * 0.01, "{v}");
-    }
+    let worst = covered.iter().map(|v| (v - 0.5).abs() / 0.5).fold(0.0f32, f32::max);
+    eprintln!("plane under a constant sky: worst relative deviation from the albedo {worst:.2e}");
+    assert!(worst < 0.01, "{worst}");
 }
 
 #[test]
