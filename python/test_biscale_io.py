@@ -6,7 +6,7 @@
 DIR is a `biscale export` folder (every kind: t, l, lstar, forms, btf). The test loads each
 kind, checks shapes, types and metadata against each other, checks that T @ L is the exported
 L* to float tolerance, and writes into DIR/py/ what `biscale eval` reads back (the Rust test
-`tools/tests/interop.rs` evaluates them):
+`tools/cli/tests/cli/interop.rs` evaluates them):
 
 * ``lstar_half.npz``   -- 0.5 x the exported L* (save_lstar, like=the export)
 * ``lstar_same.npy``   -- the exported L* as a bare (V, M, 3) float64 .npy

@@ -18,7 +18,7 @@ differ: scikit-learn clusters by Euclidean distance to the centroid once, then f
 biscale (Sloan et al. 2003) iterates assignment by reconstruction error and refitting.
 
     bash scripts/setup-python.sh
-    cargo build --release -p biscale
+    cargo build --release -p biscale-cli
     target/release/biscale export configs/bunny.toml --what t,l,lstar --out out/bunny-export
     .venv/bin/python scripts/cpca_sklearn.py out/bunny-export --clusters 32 --components 8 \\
         --eval configs/bunny.toml          # runs the two `biscale eval` commands too

@@ -20,7 +20,7 @@ cd "$(dirname "$0")/.."
 root=$PWD
 out=$root/out/moments
 mkdir -p "$out"
-cargo build --release --locked -p biscale --bin biscale
+cargo build --release --locked -p biscale-cli --bin biscale
 B=$root/target/release/biscale
 
 run_sky() { # NAME ENVMAP [SUN_BOOST]

@@ -6,7 +6,7 @@ On one exported T and L (`biscale export CONFIG --what t,l`), in one run:
 * SciPy CSR ``T @ L`` (float32; 1 channel and 3 channels; 1 thread, and 2 threads with T's
   rows split in two halves handed to a thread pool, SciPy's sparse product releasing the GIL),
   against biscale's RGB gathers of the sparse, bicluster, CPCA and Haar forms on 1 and 2
-  rayon threads (``tools/examples/peer_gather.rs``, which checks each gather against an f64
+  rayon threads (``tools/pipeline/examples/peer_gather.rs``, which checks each gather against an f64
   ``T L`` before timing it);
 * scikit-learn KMeans + PCA (32 clusters, 8 components: ``scripts/cpca_sklearn.py``'s fit)
   against biscale's CPCA build at the same K and C.

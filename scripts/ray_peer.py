@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """biscale's ray tracer side by side with Mitsuba 3's on the same mesh and the same rays.
 
-``tools/examples/ray_peer.rs`` writes the transfer stage's visibility rays as arrays (from
+``tools/pipeline/examples/ray_peer.rs`` writes the transfer stage's visibility rays as arrays (from
 every vertex, offset along its normal, one ray per texel centre of a 6 x R x R direction
 cube above the tangent plane, in the BVH's normalised space) and times them through biscale's
 BVH on 1 and 2 threads, and the transfer stage itself. This script traces the same rays with

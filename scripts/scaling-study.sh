@@ -20,7 +20,7 @@ root=$PWD
 out=$root/out/scaling
 mkdir -p "$out/meshes"
 jobs=${JOBS:-$(nproc)}
-cargo build --release --locked -p biscale --bin biscale
+cargo build --release --locked -p biscale-cli --bin biscale
 B=$root/target/release/biscale
 
 mesh_of() { # NAME -> path of the generated mesh

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Python for comparisons and for the NumPy interop test: a virtual environment in .venv with
 # NumPy, SciPy and scikit-learn (peer tools, never needed by the tests), or NumPy alone
-# (--numpy-only: what tools/tests/interop.rs needs for python/test_biscale_io.py; scripts/test.sh
+# (--numpy-only: what tools/cli/tests/cli/interop.rs needs for python/test_biscale_io.py; scripts/test.sh
 # runs it). Installs python3 and python3-venv first when they are missing (Debian). Idempotent.
 #
 #   scripts/setup-python.sh             NumPy, SciPy, scikit-learn

@@ -320,8 +320,8 @@ biscale_test() {
     else
         BISCALE="${CARGO_TARGET_DIR:-target}/debug/biscale"
         # A no-op when the binary is up to date (after scripts/test.sh it is).
-        log "cargo build -p biscale --locked --bin biscale"
-        cargo build -p biscale --locked --bin biscale
+        log "cargo build -p biscale-cli --locked --bin biscale"
+        cargo build -p biscale-cli --locked --bin biscale
     fi
     [ -x "$BISCALE" ] || die "BISCALE=$BISCALE is not an executable file"
     # Absolute, since everything below runs in $tmp/work; and first on PATH, for the

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The project's test command (the README's second command; CI runs it too).
 # Installs what the tests need (the software Vulkan driver, so wgpu runs without a GPU, and
-# NumPy in .venv for the Python round trip of tools/tests/interop.rs), then runs the whole
+# NumPy in .venv for the Python round trip of tools/cli/tests/cli/interop.rs), then runs the whole
 # workspace's tests.
 set -euo pipefail
 cd "$(dirname "$0")/.."

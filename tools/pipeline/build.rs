@@ -11,7 +11,7 @@ fn output(cmd: &mut Command) -> Option<String> {
 }
 
 fn main() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     let git = |args: &[&str]| output(Command::new("git").arg("-C").arg(&root).args(args));
     let commit = git(&["rev-parse", "HEAD"]).unwrap_or_default();
     let dirty = match commit.is_empty() {

@@ -12,8 +12,8 @@
 //! * [`low_frequency`]: the SH method end to end (an analytic scene, records, the GPU).
 //! * [`inputs`]: PLY meshes and cube-map skies (cross, six faces) through config, plan and run.
 //!
-//! Two suites stay in their own crates because they cannot share a process or a binary:
-//! `tools/tests/cli.rs` runs the `biscale` executable (only its own package's tests can), and
+//! Elsewhere: the `biscale` executable's tests are `biscale-cli`'s one test binary
+//! (`tools/cli/tests/cli/`: only the package that builds an executable can run it), and
 //! `gpu/tests/viewer.rs` opens a window (winit allows one event loop per process).
 
 mod bad_input;

@@ -25,9 +25,18 @@ struct Cli {
     /// Also print each stage's wall time as it ends.
     #[arg(short, long, global = true)]
     verbose: bool,
+    /// Override a config value without editing the file: KEY is a dotted path
+    /// (runtime.light_moments, compressors.1.terms), VALUE a TOML value (true, 8, [4, 8]
+    /// sweeps as in the file, "text"). Repeatable; for every command that reads a config;
+    /// recorded in metrics.json (the command line, and the config text as it ran).
+    #[arg(long = "set", value_name = "KEY=VALUE", global = true)]
+    set: Vec<String>,
     #[command(subcommand)]
     command: Command,
 }
+
+/// The `--set` overrides of this invocation, for [`load`].
+static OVERRIDES: std::sync::OnceLock<Vec<String>> = std::sync::OnceLock::new();
 
 #[derive(Subcommand)]
 enum Command {
@@ -157,8 +166,8 @@ enum Command {
         screenshot: Option<PathBuf>,
     },
     /// Open the interactive viewer: not in this build. Rebuild with the `viewer` feature:
-    /// `bash scripts/setup-viewer.sh && cargo install --path tools --features viewer` (or
-    /// `cargo run --release -p biscale --features viewer -- view CONFIG`).
+    /// `bash scripts/setup-viewer.sh && cargo install --path tools/cli --features viewer` (or
+    /// `cargo run --release -p biscale-cli --features viewer -- view CONFIG`).
     #[cfg(not(feature = "viewer"))]
     #[command(after_help = "Example: biscale view configs/bunny.toml (after rebuilding with --features viewer)")]
     View {
@@ -414,8 +423,18 @@ enum Generate {
     },
 }
 
+/// Read a config with this invocation's `--set` overrides applied.
 fn load(config: &Path) -> anyhow::Result<Experiment> {
-    Ok(Experiment::load(config)?)
+    Ok(Experiment::load_with(config, OVERRIDES.get().map_or(&[], Vec::as_slice))?)
+}
+
+/// Whether a command reads a config (and so takes `--set`).
+fn reads_config(c: &Command) -> bool {
+    match c {
+        Command::Shard { what } => matches!(what, Shard::Plan { .. }),
+        Command::Report { .. } | Command::Generate { .. } | Command::Cache { .. } | Command::Diff { .. } => false,
+        _ => true,
+    }
 }
 
 /// An error prints as one line of causes (`error: running x.toml: ...: ...`) and exits 1, with
@@ -441,6 +460,12 @@ fn run() -> anyhow::Result<()> {
         (_, true) => Verbosity::Verbose,
         _ => Verbosity::Normal,
     });
+    anyhow::ensure!(
+        cli.set.is_empty() || reads_config(&cli.command),
+        "--set {}: this command reads no config (--set overrides a config's values for run, plan, export, eval, viz, view, btf and shard plan)",
+        cli.set[0]
+    );
+    let _ = OVERRIDES.set(cli.set.clone());
     if let Some(n) = cli.threads {
         anyhow::ensure!(n >= 1, "--threads must be at least 1");
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("--threads")?;
@@ -527,7 +552,7 @@ fn run() -> anyhow::Result<()> {
         #[cfg(not(feature = "viewer"))]
         Command::View { .. } => anyhow::bail!(
             "this biscale was built without the viewer: rebuild it with `bash scripts/setup-viewer.sh && cargo install \
-             --path tools --features viewer` (or run `cargo run --release -p biscale --features viewer -- view CONFIG`)"
+             --path tools/cli --features viewer` (or run `cargo run --release -p biscale-cli --features viewer -- view CONFIG`)"
         ),
         #[cfg(feature = "viewer")]
         Command::View { config, method, screenshot } => {

@@ -565,7 +565,7 @@ mod tests {
     #[test]
     fn subdividing_past_the_triangle_limit_is_refused_up_front() {
         // Regression (hostile input): `generate subdivide --levels 9` ran to 15 GB.
-        let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/meshes/bunny.obj");
+        let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/meshes/bunny.obj");
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("dense.obj");
         let e = super::subdivide(&bunny, 9, false, &out).unwrap_err().to_string();
@@ -584,7 +584,7 @@ mod tests {
     #[test]
     fn subdividing_past_the_available_memory_is_refused_up_front() {
         use crate::memory::{subdivide_bytes, Available};
-        let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/meshes/bunny.obj");
+        let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/meshes/bunny.obj");
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("dense.obj");
         // Three levels (235,136 triangles) are well under the triangle limit; with less memory

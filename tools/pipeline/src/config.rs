@@ -23,9 +23,11 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 use toml::Spanned;
 
-/// A config error with its location, rendered like a compiler diagnostic.
+/// A config error with its location, rendered like a compiler diagnostic: `file:line:column:
+/// message` and the line with a caret, or `--set KEY: message` for a value set on the command
+/// line (`line` 0).
 #[derive(Debug, thiserror::Error)]
-#[error("{file}:{line}:{column}: {message}\n{snippet}")]
+#[error("{}", self.render())]
 pub struct ConfigError {
     pub file: String,
     pub line: usize,
@@ -35,6 +37,24 @@ pub struct ConfigError {
 }
 
 impl ConfigError {
+    fn render(&self) -> String {
+        match self.line {
+            0 => format!("{}: {}", self.file, self.message),
+            _ => format!("{}:{}:{}: {}\n{}", self.file, self.line, self.column, self.message, self.snippet),
+        }
+    }
+
+    /// An error of the value `--set KEY=...` gave.
+    fn of_override(key: &str, message: impl Into<String>) -> Self {
+        Self {
+            file: format!("--set {key}"),
+            line: 0,
+            column: 0,
+            message: cut_message(message.into()),
+            snippet: String::new(),
+        }
+    }
+
     /// An error at byte range `span` of `source`.
     pub fn at(file: &Path, source: &str, span: Range<usize>, message: impl Into<String>) -> Self {
         let start = span.start.min(source.len());
@@ -962,7 +982,10 @@ impl Default for ReportConfig {
 #[derive(Debug)]
 pub struct Experiment {
     pub config_path: PathBuf,
+    /// The config's text as it runs: the file's, with any `--set` overrides applied.
     pub source: String,
+    /// The `--set KEY=VALUE` overrides applied to the file (empty for the file as it is).
+    pub overrides: Vec<String>,
     pub file: ExperimentFile,
     pub mesh_path: PathBuf,
     pub env_path: Option<PathBuf>,
@@ -1052,9 +1075,22 @@ fn non_finite_literal(source: &str) -> Option<Range<usize>> {
 impl Experiment {
     /// Read, parse and validate a config file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        Self::load_with(path, &[])
+    }
+
+    /// [`Self::load`] with `--set KEY=VALUE` overrides applied to the file's text first
+    /// ([`apply_overrides`]); the experiment's `source` is the text with them, so a run's
+    /// provenance records the config it really ran.
+    pub fn load_with(path: &Path, overrides: &[String]) -> Result<Self, ConfigError> {
         let source = std::fs::read_to_string(path)
             .map_err(|e| ConfigError::whole_file(path, format!("cannot read config: {e}")))?;
-        Self::parse(path, source)
+        if overrides.is_empty() {
+            return Self::parse(path, source);
+        }
+        let source = apply_overrides(&source, overrides)?;
+        let mut exp = Self::parse(path, source).map_err(blame_override)?;
+        exp.overrides = overrides.to_vec();
+        Ok(exp)
     }
 
     /// Parse and validate config text (`path` is used for messages and relative paths).
@@ -1310,7 +1346,17 @@ impl Experiment {
                 }
             }
         }
-        Ok(Self { config_path: path.to_path_buf(), source, file, mesh_path, env_path, transfer, compressors, methods })
+        Ok(Self {
+            config_path: path.to_path_buf(),
+            source,
+            overrides: vec![],
+            file,
+            mesh_path,
+            env_path,
+            transfer,
+            compressors,
+            methods,
+        })
     }
 
     pub fn name(&self) -> &str {
@@ -1345,13 +1391,130 @@ impl Experiment {
     }
 }
 
+/// The comment that marks a line of the effective config as set by `--set KEY=...`.
+const SET_MARK: &str = "# --set ";
+
+/// The config text with each `--set KEY=VALUE` applied in order: `KEY` a dotted path of
+/// tables (`runtime.light_moments`; a number picks an entry of an array of tables,
+/// `compressors.1.terms`), created when missing; `VALUE` a TOML value (`true`, `8`,
+/// `[4, 8]` sweeps as in the file, `"text"`), or else taken as a string. Each set line carries
+/// a `# --set KEY` comment, so an error the config's checks find there is reported as
+/// `--set KEY: ...` ([`blame_override`]). A text the TOML parser refuses is returned as it is,
+/// for [`Experiment::parse`] to locate its error.
+pub fn apply_overrides(source: &str, overrides: &[String]) -> Result<String, ConfigError> {
+    let Ok(mut doc) = source.parse::<toml_edit::DocumentMut>() else {
+        return Ok(source.to_string());
+    };
+    for arg in overrides {
+        let (key, value) = arg
+            .split_once('=')
+            .ok_or_else(|| ConfigError::of_override(arg, "expected KEY=VALUE (a dotted key, then a TOML value)"))?;
+        let key = key.trim();
+        let segments: Vec<&str> = key.split('.').collect();
+        let bare = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-');
+        if !segments.iter().all(|s| bare(s)) {
+            return Err(ConfigError::of_override(key, "a key is names of letters, digits, `_` and `-` joined by dots"));
+        }
+        let value = value.trim();
+        let parsed: toml_edit::Value = value.parse().unwrap_or_else(|_| toml_edit::Value::from(value));
+        let parsed = parsed.decorated(" ", format!(" {SET_MARK}{key}"));
+        let (last, parents) = segments.split_last().expect("split yields at least one segment");
+        /// Where the walk down the key stands: in a table, or at a list of tables.
+        enum Cursor<'a> {
+            Table(&'a mut dyn toml_edit::TableLike),
+            List(&'a mut toml_edit::ArrayOfTables),
+        }
+        let mut cursor = Cursor::Table(doc.as_table_mut());
+        for (i, seg) in parents.iter().enumerate() {
+            let above = segments[..i].join(".");
+            cursor = match cursor {
+                Cursor::List(list) => {
+                    let n = list.len();
+                    let index: usize = seg.parse().map_err(|_| {
+                        ConfigError::of_override(key, format!("`{above}` is a list of tables: index it by number"))
+                    })?;
+                    let t = list.get_mut(index).ok_or_else(|| {
+                        ConfigError::of_override(
+                            key,
+                            format!("`{above}` has {n} entries, numbered 0 to {}", n.saturating_sub(1)),
+                        )
+                    })?;
+                    Cursor::Table(t)
+                }
+                Cursor::Table(t) => {
+                    if t.get(seg).is_none() {
+                        t.insert(seg, toml_edit::Item::Table(toml_edit::Table::new()));
+                    }
+                    match t.get_mut(seg).expect("inserted above") {
+                        toml_edit::Item::ArrayOfTables(list) => Cursor::List(list),
+                        other => Cursor::Table(other.as_table_like_mut().ok_or_else(|| {
+                            ConfigError::of_override(
+                                key,
+                                format!("`{}` is a value, not a table", segments[..=i].join(".")),
+                            )
+                        })?),
+                    }
+                }
+            };
+        }
+        match cursor {
+            // An existing key keeps its own decor (the comments above it); only its value changes.
+            Cursor::Table(table) => match table.get_mut(last) {
+                Some(item) => *item = toml_edit::Item::Value(parsed),
+                None => {
+                    table.insert(last, toml_edit::Item::Value(parsed));
+                }
+            },
+            Cursor::List(_) => {
+                return Err(ConfigError::of_override(
+                    key,
+                    format!(
+                        "`{}` is a list of tables: set a key of one entry (`{}.0.KEY`)",
+                        parents.join("."),
+                        parents.join(".")
+                    ),
+                ))
+            }
+        }
+    }
+    Ok(doc.to_string())
+}
+
+/// An error located on a line that `--set KEY` wrote becomes `--set KEY: message`.
+fn blame_override(e: ConfigError) -> ConfigError {
+    let line = e.snippet.lines().next().unwrap_or("");
+    match line.rfind(SET_MARK) {
+        Some(at) if e.line > 0 => ConfigError::of_override(line[at + SET_MARK.len()..].trim(), e.message),
+        _ => e,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
+    /// `--set` edits the file's own text: comments and layout stay, a value is replaced or
+    /// added (its tables made), a list of tables is indexed by number, and each set line is
+    /// marked with its key.
+    #[test]
+    fn overrides_edit_the_text_in_place() {
+        let source =
+            "# my notes\nname = \"x\"\n[transfer]\nlocal_grid = 8\n\n[[compressors]]\nkind = \"haar\"\nterms = [4, 8]\n";
+        let sets = ["transfer.local_grid=4", "runtime.light_moments=true", "compressors.0.terms=[12]", "name=y"]
+            .map(String::from);
+        let out = apply_overrides(source, &sets).unwrap();
+        let v: toml::Value = toml::from_str(&out).unwrap();
+        assert_eq!(v["transfer"]["local_grid"].as_integer(), Some(4));
+        assert_eq!(v["runtime"]["light_moments"].as_bool(), Some(true));
+        assert_eq!(v["compressors"][0]["terms"].as_array().unwrap().len(), 1);
+        assert_eq!(v["name"].as_str(), Some("y"), "a value TOML does not parse is taken as a string");
+        assert!(out.contains("# my notes\n") && out.contains("local_grid = 4 # --set transfer.local_grid"), "{out}");
+        assert_eq!(apply_overrides(source, &[]).unwrap(), source, "no override, the text as it was");
+    }
+
     fn parse(s: &str) -> Result<Experiment, ConfigError> {
         // Paths resolve against the workspace root's configs folder.
-        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/test.toml");
+        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/test.toml");
         Experiment::parse(&p, s.to_string())
     }
 
@@ -1457,7 +1620,7 @@ mod tests {
 
     #[test]
     fn every_bundled_config_loads() {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
         let mut n = 0;
         for e in std::fs::read_dir(&dir).unwrap().flatten() {
             if e.path().extension().is_some_and(|x| x == "toml") {

@@ -700,9 +700,7 @@ const TAKEN_NAMES: [&str; 5] = ["uncompressed", "uncompressed_paper", "reference
 /// reference, the masks), made by the same `pipeline::targets` as a run's. CPU only; the BTF study
 /// and `[[methods]]` are left out.
 pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
-    let config_text = std::fs::read_to_string(&exp.config_path)
-        .map_err(|source| PipelineError::Io { path: exp.config_path.clone(), source })?;
-    let mut clock = crate::provenance::StageClock::start(&config_text, exp.file.seed);
+    let mut clock = crate::provenance::StageClock::start(&exp.source, exp.file.seed);
     let path = input.path();
     let geometry = pipeline::load_geometry(exp)?;
     let want = exp.transfer_settings().shape(geometry.mesh.vertex_count());
@@ -842,7 +840,7 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
         (Loaded::Form(_), None) => unreachable!("a form has its compressor"),
     };
     clock.mark(format!("evaluate {name}"));
-    let mut metrics = Metrics::of_run(
+    let mut metrics = pipeline::metrics_of_run(
         exp,
         &geometry,
         &lighting,

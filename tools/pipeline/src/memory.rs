@@ -24,7 +24,6 @@ use crate::config::{Backend, Experiment, MaterialConfig, Setting};
 use crate::pipeline::{Geometry, Lighting, PipelineError};
 use biscale_core::transfer::{sample_nnz, NnzEstimate, TransferMemory, TransferSettings, NNZ_SAMPLE_VERTICES};
 use biscale_core::CoreError;
-use serde::Serialize;
 
 /// Resident memory of the `biscale` process before any stage's data: code, libraries, thread
 /// stacks, allocator arenas. Measured: 16 MiB at the peak of a run of the bunny at a 6x4x4
@@ -64,18 +63,7 @@ const BTF_BYTES_PER_VALUE: u64 = 12;
 /// the transfer build has always had.
 pub const FALLBACK_AVAILABLE_BYTES: u64 = biscale_core::transfer::MAX_TRANSFER_BYTES;
 
-/// One named amount of memory.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
-pub struct Part {
-    pub name: String,
-    pub bytes: u64,
-}
-
-impl Part {
-    fn new(name: impl Into<String>, bytes: u64) -> Self {
-        Self { name: name.into(), bytes }
-    }
-}
+pub use biscale_report::metrics::Part;
 
 /// A compressor setting's memory: its working set while it compresses (the form included)
 /// and its form alone (what the cache write copies and encodes).
@@ -711,7 +699,7 @@ mod tests {
 
     /// A one-compressor (sparse) config on the bunny at cubemap `r`, written into `dir`.
     fn smoke_at(dir: &std::path::Path, r: u32) -> std::path::PathBuf {
-        let bunny = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/meshes/bunny.obj");
+        let bunny = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/meshes/bunny.obj");
         let cfg = dir.join("x.toml");
         std::fs::write(
             &cfg,

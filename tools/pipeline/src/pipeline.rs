@@ -961,8 +961,8 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
 
 /// [`run`], with `T` and the separable forms taken from a sharded precompute when given.
 pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -> Result<(PathBuf, Metrics)> {
-    let config_text = std::fs::read_to_string(&exp.config_path).map_err(io_err(&exp.config_path))?;
-    let mut clock = crate::provenance::StageClock::start(&config_text, exp.file.seed);
+    // The text as it runs (with any `--set` applied), not the file's.
+    let mut clock = crate::provenance::StageClock::start(&exp.source, exp.file.seed);
     let plan = Plan::new(exp);
     eprint!("{plan}");
     if exp.file.runtime.backend == Backend::Gpu && !cfg!(feature = "gpu") {
@@ -1110,7 +1110,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
 
     let figures = comparison_figures(region, &records, &methods, &base, &view, reference.as_ref(), &out_dir)?;
     let mut metrics =
-        Metrics::of_run(exp, &geometry, &lighting, &materials, t.metrics, &base, reference.as_ref(), records, methods);
+        metrics_of_run(exp, &geometry, &lighting, &materials, t.metrics, &base, reference.as_ref(), records, methods);
     metrics.figures = Some(figures);
     metrics.memory = Some(memory.metrics(&available));
     metrics.sharded = sharded;
@@ -1122,71 +1122,69 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     Ok((out_dir, metrics))
 }
 
-impl Metrics {
-    /// The run's record from its stages' records.
-    #[allow(clippy::too_many_arguments)]
-    pub(crate) fn of_run(
-        exp: &Experiment,
-        geometry: &Geometry,
-        lighting: &Lighting,
-        materials: &SceneMaterials,
-        transfer: TransferMetrics,
-        base: &Baseline,
-        reference: Option<&Reference>,
-        compressors: Vec<CompressorRecord>,
-        methods: Vec<MethodRecord>,
-    ) -> Self {
-        Metrics {
-            schema_version: crate::provenance::SCHEMA_VERSION,
-            experiment: exp.name().to_string(),
-            config: exp.config_path.display().to_string(),
-            backend: format!("{:?}", exp.file.runtime.backend).to_lowercase(),
-            scene: SceneMetrics {
-                mesh: exp.mesh_path.display().to_string(),
-                vertices: geometry.mesh.vertex_count(),
-                triangles: geometry.mesh.triangle_count(),
-                repairs: geometry.repairs.clone(),
-                material: materials.summary(),
-                material_notes: materials.notes.clone(),
-                btf_bytes: materials.btfs.iter().filter(|b| b.primary).map(|b| b.dense_bytes).sum(),
-                btfs: materials.btfs.clone(),
-            },
-            lighting: LightingMetrics {
-                source: exp.env_path.as_ref().map_or("constant".into(), |p| p.display().to_string()),
-                cubemap_resolution: exp.transfer_settings().cubemap().resolution,
-                rotation_degrees: exp.file.lighting.rotation_degrees,
-                total_power: lighting.light.total(),
-                warnings: lighting.warnings.clone(),
-            },
-            transfer,
-            uncompressed: UncompressedMetrics {
-                gather_ms: base.gather_ms,
-                shade_ms: base.shade_ms,
-                light_moments: exp.file.runtime.light_moments,
-                // Same camera, same size: compare cannot fail here.
-                paper_vs_moments: base.paper.as_ref().and_then(|(_, paper)| {
-                    let exposure = exp.file.report.exposure;
-                    compare_exposed(&paper.image, &base.render.image, Some(&base.render.mask), exposure)
-                        .ok()
-                        .map(|m| errors(&m))
-                }),
-            },
-            reference: reference.map(|r| ReferenceMetrics {
-                kind: "ground truth (direct light)".into(),
-                width: r.render.image.width,
-                height: r.render.image.height,
-                seconds: r.seconds,
-                uncompressed_vs_reference: errors(&r.baseline_error),
-                uncompressed_paper_vs_reference: r.paper_baseline_error.as_ref().map(errors),
+/// The run's record from its stages' records.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn metrics_of_run(
+    exp: &Experiment,
+    geometry: &Geometry,
+    lighting: &Lighting,
+    materials: &SceneMaterials,
+    transfer: TransferMetrics,
+    base: &Baseline,
+    reference: Option<&Reference>,
+    compressors: Vec<CompressorRecord>,
+    methods: Vec<MethodRecord>,
+) -> Metrics {
+    Metrics {
+        schema_version: crate::provenance::SCHEMA_VERSION,
+        experiment: exp.name().to_string(),
+        config: exp.config_path.display().to_string(),
+        backend: format!("{:?}", exp.file.runtime.backend).to_lowercase(),
+        scene: SceneMetrics {
+            mesh: exp.mesh_path.display().to_string(),
+            vertices: geometry.mesh.vertex_count(),
+            triangles: geometry.mesh.triangle_count(),
+            repairs: geometry.repairs.clone(),
+            material: materials.summary(),
+            material_notes: materials.notes.clone(),
+            btf_bytes: materials.btfs.iter().filter(|b| b.primary).map(|b| b.dense_bytes).sum(),
+            btfs: materials.btfs.clone(),
+        },
+        lighting: LightingMetrics {
+            source: exp.env_path.as_ref().map_or("constant".into(), |p| p.display().to_string()),
+            cubemap_resolution: exp.transfer_settings().cubemap().resolution,
+            rotation_degrees: exp.file.lighting.rotation_degrees,
+            total_power: lighting.light.total(),
+            warnings: lighting.warnings.clone(),
+        },
+        transfer,
+        uncompressed: UncompressedMetrics {
+            gather_ms: base.gather_ms,
+            shade_ms: base.shade_ms,
+            light_moments: exp.file.runtime.light_moments,
+            // Same camera, same size: compare cannot fail here.
+            paper_vs_moments: base.paper.as_ref().and_then(|(_, paper)| {
+                let exposure = exp.file.report.exposure;
+                compare_exposed(&paper.image, &base.render.image, Some(&base.render.mask), exposure)
+                    .ok()
+                    .map(|m| errors(&m))
             }),
-            compressors,
-            methods,
-            target_error: exp.file.report.target_error,
-            memory: None,
-            sharded: None,
-            run: None,
-            figures: None,
-        }
+        },
+        reference: reference.map(|r| ReferenceMetrics {
+            kind: "ground truth (direct light)".into(),
+            width: r.render.image.width,
+            height: r.render.image.height,
+            seconds: r.seconds,
+            uncompressed_vs_reference: errors(&r.baseline_error),
+            uncompressed_paper_vs_reference: r.paper_baseline_error.as_ref().map(errors),
+        }),
+        compressors,
+        methods,
+        target_error: exp.file.report.target_error,
+        memory: None,
+        sharded: None,
+        run: None,
+        figures: None,
     }
 }
 

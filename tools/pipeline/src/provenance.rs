@@ -8,50 +8,9 @@
 //! ([`StageClock`]).
 
 use biscale_core::io::ContentHash;
-use serde::{Deserialize, Serialize};
 use std::time::{Instant, SystemTime};
 
-/// Version of the `metrics.json` schema: 2 added `schema_version` and `run`.
-pub const SCHEMA_VERSION: u32 = 2;
-
-/// The provenance of one run.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct RunRecord {
-    pub biscale_version: String,
-    /// The commit of the checkout biscale was built from (absent outside a git checkout).
-    pub git_commit: Option<String>,
-    /// Whether tracked files differed from that commit when biscale was built.
-    pub git_dirty: Option<bool>,
-    pub rustc: String,
-    /// The command line.
-    pub command: Vec<String>,
-    pub config_text: String,
-    /// XXH3-128 of `config_text`.
-    pub config_hash: String,
-    pub seed: u64,
-    /// UTC, RFC 3339.
-    pub started_at: String,
-    pub host: String,
-    pub cpu_model: String,
-    /// Logical CPUs the process may use.
-    pub cores: usize,
-    /// Rayon threads (`--threads`, `RAYON_NUM_THREADS`, or one per core).
-    pub threads: usize,
-    /// `/proc/loadavg`'s 1, 5 and 15 minute averages at the start and the end of the run.
-    pub load_average_start: Option<[f64; 3]>,
-    pub load_average_end: Option<[f64; 3]>,
-    /// Each stage's wall and CPU (user + system, all threads) seconds, in order.
-    pub stages: Vec<StageTime>,
-    pub wall_seconds: f64,
-    pub cpu_seconds: Option<f64>,
-}
-
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct StageTime {
-    pub stage: String,
-    pub wall_seconds: f64,
-    pub cpu_seconds: Option<f64>,
-}
+pub use biscale_report::metrics::{RunRecord, StageTime, SCHEMA_VERSION};
 
 /// Times the stages of a run: [`StageClock::mark`] closes the stage that ran since the last
 /// mark.
@@ -172,34 +131,6 @@ pub fn rfc3339_utc(t: SystemTime) -> String {
     let m = if mp < 10 { mp + 3 } else { mp - 9 };
     let y = yoe + era * 400 + (m <= 2) as i64;
     format!("{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z", rem / 3600, rem % 3600 / 60, rem % 60)
-}
-
-impl RunRecord {
-    /// One line for the report's header.
-    pub fn summary(&self) -> String {
-        let git = match (&self.git_commit, self.git_dirty) {
-            (Some(c), Some(true)) => format!(", git {} (dirty)", &c[..c.len().min(12)]),
-            (Some(c), _) => format!(", git {}", &c[..c.len().min(12)]),
-            _ => String::new(),
-        };
-        let load = |l: Option<[f64; 3]>| l.map_or("?".into(), |l| format!("{:.2}", l[0]));
-        format!(
-            "biscale {}{git}, {}; started {} on {} ({}, {} cores, threads {}), load {} at start and {} at end; \
-             {:.1} s wall, {} CPU; config hash {}",
-            self.biscale_version,
-            self.rustc,
-            self.started_at,
-            self.host,
-            self.cpu_model,
-            self.cores,
-            self.threads,
-            load(self.load_average_start),
-            load(self.load_average_end),
-            self.wall_seconds,
-            self.cpu_seconds.map_or("?".into(), |c| format!("{c:.1} s")),
-            self.config_hash
-        )
-    }
 }
 
 /// Hand the heap's freed pages back to the system at a stage boundary (glibc's

@@ -59,6 +59,10 @@ pub struct Manifest {
     pub config: PathBuf,
     /// XXH3-128 of the config's and the mesh file's bytes ([`config_hash`]).
     pub config_hash: String,
+    /// The `--set KEY=VALUE` overrides the plan was made with; every shard and the merge
+    /// apply them to the config too.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub overrides: Vec<String>,
     pub vertices: usize,
     /// `T`'s shape, for people.
     pub shape: String,
@@ -145,14 +149,16 @@ pub struct FileSum {
     pub xxh3: String,
 }
 
-/// XXH3-128 over the config's and the mesh file's bytes: what a shard's outputs depend on
-/// (the env map and the materials only enter after the merge).
+/// XXH3-128 over the config's text as it runs (the file's bytes, with any `--set` applied)
+/// and the mesh file's bytes: what a shard's outputs depend on (the env map and the
+/// materials only enter after the merge).
 pub fn config_hash(exp: &Experiment) -> Result<String> {
     let mut h = ContentHash::default();
     h.write_str("biscale shard config v1");
-    for path in [&exp.config_path, &exp.mesh_path] {
-        let bytes = std::fs::read(path).map_err(|source| PipelineError::Io { path: path.clone(), source })?;
-        h.write(&(bytes.len() as u64).to_le_bytes()).write(&bytes);
+    let mesh =
+        std::fs::read(&exp.mesh_path).map_err(|source| PipelineError::Io { path: exp.mesh_path.clone(), source })?;
+    for bytes in [exp.source.as_bytes(), &mesh] {
+        h.write(&(bytes.len() as u64).to_le_bytes()).write(bytes);
     }
     Ok(format!("{:032x}", h.finish128()))
 }
@@ -275,6 +281,7 @@ pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Man
         experiment: exp.name().to_string(),
         config: std::path::absolute(&exp.config_path).unwrap_or_else(|_| exp.config_path.clone()),
         config_hash: config_hash(exp)?,
+        overrides: exp.overrides.clone(),
         vertices,
         shape: shape.to_string(),
         seed: exp.file.seed,
@@ -322,7 +329,7 @@ impl Manifest {
 
     /// The experiment, checked to be the one that was planned.
     pub fn experiment(&self, path: &Path) -> Result<Experiment> {
-        let exp = Experiment::load(&self.config)?;
+        let exp = Experiment::load_with(&self.config, &self.overrides)?;
         let now = config_hash(&exp)?;
         if now != self.config_hash {
             return Err(invalid(

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 
 #[derive(Debug, Serialize, Deserialize)]
 pub struct Metrics {
-    /// [`crate::provenance::SCHEMA_VERSION`].
+    /// [`SCHEMA_VERSION`].
     pub schema_version: u32,
     pub experiment: String,
     pub config: String,
@@ -28,8 +28,8 @@ pub struct Metrics {
     /// Present when `T` came from a sharded precompute (`biscale shard merge`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sharded: Option<ShardedMetrics>,
-    /// How the run was made (`crate::provenance`).
-    pub run: Option<crate::provenance::RunRecord>,
+    /// How the run was made (the pipeline's `provenance`).
+    pub run: Option<RunRecord>,
     /// The report's comparison figures: the inset region and each row's thumbnail, inset and
     /// error against the ground truth.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -64,7 +64,7 @@ pub struct FigureRow {
     pub error_vs_reference_png: Option<String>,
 }
 
-/// How a sharded precompute went (`crate::shard`).
+/// How a sharded precompute went (the pipeline's `shard`).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct ShardedMetrics {
     pub shards: usize,
@@ -81,7 +81,7 @@ pub struct ShardedMetrics {
     pub merge_seconds: f64,
 }
 
-/// The memory record of a run (`crate::memory`): the estimate made before tracing, beside
+/// The memory record of a run (the pipeline's `memory`): the estimate made before tracing, beside
 /// the peak resident memory the run measured at its end.
 #[derive(Debug, Serialize, Deserialize)]
 pub struct MemoryMetrics {
@@ -105,9 +105,9 @@ pub struct MemoryMetrics {
     pub nnz_worst_case: u64,
     pub sample_seconds: f64,
     /// What is alive at once in each phase of the run.
-    pub phases: Vec<crate::memory::Part>,
+    pub phases: Vec<Part>,
     /// Every buffer the estimate counts.
-    pub parts: Vec<crate::memory::Part>,
+    pub parts: Vec<Part>,
 }
 
 /// One method setting: the fields of a compressor record (its `kind` and `params` are the
@@ -515,4 +515,88 @@ pub struct GpuRecord {
     pub differing_pixels: usize,
     /// Pixels the CPU render covers.
     pub covered_pixels: usize,
+}
+
+/// Version of the `metrics.json` schema: 2 added `schema_version` and `run`.
+pub const SCHEMA_VERSION: u32 = 2;
+
+/// The provenance of one run.
+/// (Made by the pipeline's `provenance::StageClock`.)
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct RunRecord {
+    pub biscale_version: String,
+    /// The commit of the checkout biscale was built from (absent outside a git checkout).
+    pub git_commit: Option<String>,
+    /// Whether tracked files differed from that commit when biscale was built.
+    pub git_dirty: Option<bool>,
+    pub rustc: String,
+    /// The command line.
+    pub command: Vec<String>,
+    pub config_text: String,
+    /// XXH3-128 of `config_text`.
+    pub config_hash: String,
+    pub seed: u64,
+    /// UTC, RFC 3339.
+    pub started_at: String,
+    pub host: String,
+    pub cpu_model: String,
+    /// Logical CPUs the process may use.
+    pub cores: usize,
+    /// Rayon threads (`--threads`, `RAYON_NUM_THREADS`, or one per core).
+    pub threads: usize,
+    /// `/proc/loadavg`'s 1, 5 and 15 minute averages at the start and the end of the run.
+    pub load_average_start: Option<[f64; 3]>,
+    pub load_average_end: Option<[f64; 3]>,
+    /// Each stage's wall and CPU (user + system, all threads) seconds, in order.
+    pub stages: Vec<StageTime>,
+    pub wall_seconds: f64,
+    pub cpu_seconds: Option<f64>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StageTime {
+    pub stage: String,
+    pub wall_seconds: f64,
+    pub cpu_seconds: Option<f64>,
+}
+
+impl RunRecord {
+    /// One line for the report's header.
+    pub fn summary(&self) -> String {
+        let git = match (&self.git_commit, self.git_dirty) {
+            (Some(c), Some(true)) => format!(", git {} (dirty)", &c[..c.len().min(12)]),
+            (Some(c), _) => format!(", git {}", &c[..c.len().min(12)]),
+            _ => String::new(),
+        };
+        let load = |l: Option<[f64; 3]>| l.map_or("?".into(), |l| format!("{:.2}", l[0]));
+        format!(
+            "biscale {}{git}, {}; started {} on {} ({}, {} cores, threads {}), load {} at start and {} at end; \
+             {:.1} s wall, {} CPU; config hash {}",
+            self.biscale_version,
+            self.rustc,
+            self.started_at,
+            self.host,
+            self.cpu_model,
+            self.cores,
+            self.threads,
+            load(self.load_average_start),
+            load(self.load_average_end),
+            self.wall_seconds,
+            self.cpu_seconds.map_or("?".into(), |c| format!("{c:.1} s")),
+            self.config_hash
+        )
+    }
+}
+
+/// One named amount of memory.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Part {
+    pub name: String,
+    pub bytes: u64,
+}
+
+impl Part {
+    pub fn new(name: impl Into<String>, bytes: u64) -> Self {
+        Self { name: name.into(), bytes }
+    }
 }

@@ -17,7 +17,7 @@ static FONT: Once = Once::new();
 
 pub(crate) fn register_font() {
     FONT.call_once(|| {
-        let bytes: &'static [u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
+        let bytes: &'static [u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
         plotters::style::register_font("sans-serif", FontStyle::Normal, bytes)
             .unwrap_or_else(|_| panic!("the bundled DejaVuSans.ttf is a valid font"));
     });

@@ -10,7 +10,7 @@ fn biscale(args: &[&str]) -> (bool, String, String) {
 }
 
 fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().parent().unwrap().to_path_buf()
 }
 
 #[test]
@@ -571,4 +571,50 @@ fn report_rerenders_a_finished_run_byte_for_byte() {
     assert!(!ok && err.contains("other.json") && err.contains("not a biscale metrics.json"), "{err}");
     let (ok, _, err) = biscale(&["run", "-q", "configs/smoke.toml", "--cache-dir", &s(&cache), "--out", &s(&run)]);
     assert!(ok, "a re-rendered run folder can be run into again: {err}");
+}
+
+/// `--set KEY=VALUE` overrides a config's values without editing it: the run uses them and
+/// records them (its command line and the config text as it ran, each set line marked); an
+/// error in a set value is reported as `--set KEY`, and a command without a config refuses it.
+#[test]
+fn set_overrides_a_config_value_and_errors_name_the_set() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let (cache, out) = (dir.path().join("cache"), dir.path().join("run"));
+    let (ok, _, err) = biscale(&[
+        "run",
+        "-q",
+        "configs/smoke.toml",
+        "--cache-dir",
+        &s(&cache),
+        "--out",
+        &s(&out),
+        "--set",
+        "runtime.light_moments=true",
+        "--set",
+        "compressors.3.terms=[4]",
+    ]);
+    assert!(ok, "{err}");
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
+    assert_eq!(m["uncompressed"]["light_moments"], serde_json::Value::Bool(true));
+    let names: Vec<&str> = m["compressors"].as_array().unwrap().iter().map(|c| c["name"].as_str().unwrap()).collect();
+    assert!(names.contains(&"haar-t4") && !names.contains(&"haar-t8"), "the sweep was replaced: {names:?}");
+    let text = m["run"]["config_text"].as_str().unwrap();
+    assert!(text.contains("light_moments = true # --set runtime.light_moments"), "{text}");
+    let command: Vec<&str> = m["run"]["command"].as_array().unwrap().iter().map(|c| c.as_str().unwrap()).collect();
+    assert!(command.contains(&"runtime.light_moments=true"), "{command:?}");
+
+    for (set, expect) in [
+        ("transfer.local_grd=4", "--set transfer.local_grd: unknown field `local_grd`"),
+        ("transfer.local_grid=abc", "--set transfer.local_grid: invalid type: string \"abc\""),
+        ("compressors.9.kind=\"haar\"", "--set compressors.9.kind: `compressors` has 4 entries"),
+        ("transfer.local_grid.x=1", "--set transfer.local_grid.x: `transfer.local_grid` is a value, not a table"),
+        ("runtime", "--set runtime: expected KEY=VALUE"),
+    ] {
+        let (ok, _, err) = biscale(&["plan", "configs/smoke.toml", "--set", set]);
+        assert!(!ok && err.contains(expect), "{set}: {err}");
+    }
+    let (ok, _, err) = biscale(&["cache", "list", "--cache-dir", &s(&cache), "--set", "a=1"]);
+    assert!(!ok && err.contains("reads no config"), "{err}");
 }

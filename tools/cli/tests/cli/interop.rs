@@ -14,7 +14,7 @@ use std::process::Command;
 const CONFIG: &str = "configs/tests/interop.toml";
 
 fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().parent().unwrap().to_path_buf()
 }
 
 fn biscale(args: &[&str]) -> (bool, String, String) {

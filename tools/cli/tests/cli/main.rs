@@ -1,0 +1,14 @@
+//! The `biscale` executable as a user meets it, one test binary with a module per concern:
+//!
+//! * [`commands`]: help text, plan, export, diff, viz, report, errors that name the file;
+//! * [`interop`]: `export` and `eval` with NumPy files, and the Python round trip;
+//! * [`memory`]: the memory estimate and the refusals made before anything is allocated;
+//! * [`shard`]: the sharded precompute (`shard plan`, `run`, `status`, `merge`, `sbatch`);
+//! * [`staging`]: output folders that a `kill -9` at any stage leaves whole, and never take
+//!   what is not theirs.
+
+mod commands;
+mod interop;
+mod memory;
+mod shard;
+mod staging;
