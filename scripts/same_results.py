@@ -6,7 +6,7 @@ provenance, exactly. What a refactor must leave unchanged:
     python3 scripts/same_results.py out/before/bunny out/after/bunny
 
 Exit status 0 when they agree, 1 with one line per difference otherwise, 2 on bad input.
-Left out of the comparison: every key ending in `_ms`, `seconds` or `_seconds`; `cached`;
+Left out of the comparison: every key ending in `_ms`, `seconds` or `per_second`; `cached`;
 `timing`; `adapter`; the `run` (provenance) and `memory` (measured peak) records; and the
 `figures` thumbnails' paths are compared like any other string. Python 3 standard library.
 """
@@ -19,7 +19,7 @@ SKIP_KEYS = {"run", "memory", "cached", "timing", "adapter"}
 
 
 def skipped(key):
-    return key in SKIP_KEYS or key.endswith("_ms") or key.endswith("seconds")
+    return key in SKIP_KEYS or key.endswith(("_ms", "seconds", "per_second"))
 
 
 def diff_json(a, b, path, out):

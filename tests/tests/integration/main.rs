@@ -3,6 +3,8 @@
 //!
 //! * [`end_to_end`]: the bundled smoke config, analytic scenes with closed-form radiance, the
 //!   stage cache, and the wgpu backend checked against the CPU.
+//! * [`golden`]: the smoke config's renders and figures against blessed PNGs
+//!   (`BISCALE_BLESS=1` re-blesses).
 //! * [`bad_input`]: every bad input is a typed error naming what and where, with nothing
 //!   half-written left behind.
 //! * [`fuzz_seeds`]: the fuzzing suite's committed seeds through its targets' bodies.
@@ -19,6 +21,7 @@
 mod bad_input;
 mod end_to_end;
 mod fuzz_seeds;
+mod golden;
 mod hostile;
 mod inputs;
 mod low_frequency;
