@@ -8,6 +8,7 @@
 //! `metrics.json` (`Compressor::params`).
 
 use biscale_core::compress::Compressor;
+use biscale_core::transfer::TransferSettings;
 use serde::de::DeserializeOwned;
 use serde_json::Value;
 
@@ -43,6 +44,65 @@ pub struct Kind {
     /// The compressor of one setting (cheap for built-ins: construction only; a plugin loads
     /// its library).
     pub build: fn(&Value) -> Result<Box<dyn Compressor>, BuildError>,
+    /// The limits a setting must meet on a transfer shape (more CPCA components than a unit
+    /// has values, more Haar terms than a row has), checked when the config is read so the
+    /// error names the entry before anything is traced. [`no_limits`] where there are none.
+    pub fits: fn(&Value, &TransferSettings) -> Result<(), String>,
+    /// The setting's memory on a transfer matrix ([`MemoryFacts`]): its working set while it
+    /// compresses, the form included, and the form alone. The run's memory estimate adds it
+    /// up; [`csr_copy_memory`] is what a kind that says nothing better is counted as.
+    pub memory: fn(&Value, &MemoryFacts) -> FormMemory,
+    /// The rows a form's `stats` (`CompressedForm`'s statistics, `metrics.json`'s `stats`)
+    /// contribute to the report's table of compressor statistics: a name and a value, in the
+    /// order to show them. Empty for a kind whose statistics the report need not show.
+    pub report: fn(&Value) -> Vec<(String, String)>,
+}
+
+/// What a kind's memory model knows of the transfer matrix it will compress.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MemoryFacts {
+    /// Light directions `N` (columns of `T`) and local directions `M` (rows per vertex).
+    pub light_dirs: u64,
+    pub local_dirs: u64,
+    pub vertices: u64,
+    pub nnz: u64,
+    /// Worker threads (blocks in flight).
+    pub threads: u64,
+}
+
+impl MemoryFacts {
+    pub fn rows(&self) -> u64 {
+        self.vertices * self.local_dirs
+    }
+
+    /// Bytes of `T` as a CSR with u32 indices and f32 values.
+    pub fn u32_csr_bytes(&self) -> u64 {
+        self.nnz * 8 + (self.rows() + 1) * 4
+    }
+}
+
+/// A setting's memory: the most it holds while compressing (its form included), and its
+/// form alone (what the cache write copies and encodes).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FormMemory {
+    pub working: u64,
+    pub form: u64,
+}
+
+/// [`Kind::fits`] of a kind with no shape limits.
+pub fn no_limits(_: &Value, _: &TransferSettings) -> Result<(), String> {
+    Ok(())
+}
+
+/// [`Kind::memory`] of a kind that says nothing better: a u32 CSR copy of `T` (what the
+/// plugin host hands a plugin) plus a form of the same size.
+pub fn csr_copy_memory(_: &Value, t: &MemoryFacts) -> FormMemory {
+    FormMemory { working: 2 * t.u32_csr_bytes(), form: t.u32_csr_bytes() }
+}
+
+/// [`Kind::report`] of a kind whose statistics the report does not show.
+pub fn no_rows(_: &Value) -> Vec<(String, String)> {
+    vec![]
 }
 
 /// Every compressor kind biscale knows, in report order.

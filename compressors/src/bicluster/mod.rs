@@ -84,7 +84,49 @@ pub const KIND: Kind = Kind {
     },
     check: |p| build(p).map(drop),
     build: |p| Ok(build(p)?),
+    fits: registry::no_limits,
+    memory,
+    report,
 };
+
+/// [`Kind::memory`]: the integer codes (u16 column, i8 code, usize row pointer); per block in
+/// flight its rows (8 bytes per non-zero) and column views (8, in vectors grown by doubling:
+/// 12 on average); the biclusters found (about 2% of the non-zeros, ~170 bytes each: 4 per
+/// non-zero); the form (about 1 byte per non-zero lossless: 2).
+fn memory(p: &serde_json::Value, t: &registry::MemoryFacts) -> registry::FormMemory {
+    let p: Bicluster = registry::parse(p).unwrap_or_default();
+    let (rows, vertices) = (t.rows(), t.vertices.max(1));
+    let codes = t.nnz * 3 + (rows + 1) * 8;
+    let block_vertices = if p.block_vertices == 0 { vertices } else { (p.block_vertices as u64).min(vertices) };
+    let blocks = vertices.div_ceil(block_vertices.max(1));
+    let in_flight = blocks.min(t.threads) * block_vertices * (t.nnz / vertices) * 20;
+    let form = t.nnz * 2 + (rows + 1) * 4;
+    registry::FormMemory { working: codes + in_flight + t.nnz * 4 + form, form }
+}
+
+/// [`Kind::report`]: how many biclusters, their mean size, the gather's flops against the
+/// CSR's, the error the budget bounds (`error.frobenius`, `||T - T'||_F / ||T||_F`) and the
+/// `L*` error it makes under a uniform white sky.
+fn report(stats: &serde_json::Value) -> Vec<(String, String)> {
+    let num = |path: &[&str]| path.iter().try_fold(stats, |v, k| v.get(*k)).and_then(serde_json::Value::as_f64);
+    let mut rows = vec![];
+    if let Some(b) = num(&["biclusters"]) {
+        rows.push(("biclusters".to_string(), format!("{b:.0}")));
+    }
+    if let (Some(r), Some(l)) = (num(&["r", "mean"]), num(&["l", "mean"])) {
+        rows.push(("mean bicluster size (rows x columns)".to_string(), format!("{r:.2} x {l:.2}")));
+    }
+    if let Some(f) = num(&["flops_ratio"]) {
+        rows.push(("gather flops / CSR's".to_string(), format!("{f:.3}")));
+    }
+    if let Some(e) = num(&["error", "frobenius"]) {
+        rows.push(("relative Frobenius error of T (the error budget's measure)".to_string(), format!("{e:.3e}")));
+    }
+    if let Some(e) = num(&["error", "sky"]) {
+        rows.push(("relative L* error under a uniform white sky".to_string(), format!("{e:.3e}")));
+    }
+    rows
+}
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;

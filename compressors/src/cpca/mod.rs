@@ -73,7 +73,51 @@ pub const KIND: Kind = Kind {
     },
     check: |p| build(p).map(drop),
     build: |p| Ok(build(p)?),
+    fits,
+    memory,
+    report: registry::no_rows,
 };
+
+/// [`Kind::fits`]: no more components than a clustered unit has values (`N` light
+/// directions times the unit's rows).
+fn fits(p: &serde_json::Value, t: &biscale_core::transfer::TransferSettings) -> Result<(), String> {
+    let p: Cpca = registry::parse(p)?;
+    let n = t.light_basis().len();
+    let unit_rows = match p.unit {
+        CpcaUnit::Row => 1,
+        CpcaUnit::Vertex => t.local_basis().len(),
+    };
+    if p.components > n * unit_rows {
+        return Err(format!(
+            "components = {} is more than the {} values of a clustered unit ({n} light directions x {unit_rows} \
+             rows at {}): at most {} components exist",
+            p.components,
+            n * unit_rows,
+            t.light_basis(),
+            n * unit_rows
+        ));
+    }
+    Ok(())
+}
+
+/// [`Kind::memory`]: the models' basis values (as `linalg::cpca::build_bytes` counts them, 16
+/// bytes each at the build's peak), held twice (assignment tables and refits), f64
+/// coefficients per unit, a vertex unit's gathered rows, and the form; saturating, since a
+/// setting too large to build is refused by the compressor with its own message.
+fn memory(p: &serde_json::Value, t: &registry::MemoryFacts) -> registry::FormMemory {
+    let p: Cpca = registry::parse(p).unwrap_or_default();
+    let (unit_rows, extra) = match p.unit {
+        CpcaUnit::Row => (1, 0),
+        CpcaUnit::Vertex => (t.local_dirs, t.nnz * 8 + (t.vertices + 1) * 8),
+    };
+    let (dim, units) = (t.light_dirs * unit_rows, t.rows() / unit_rows.max(1));
+    let c = (p.components as u64).min(dim);
+    let values = (p.clusters as u64).saturating_mul(c + 1).saturating_mul(dim);
+    let model = values.saturating_mul(biscale_core::linalg::cpca::BUILD_BYTES_PER_BASIS_VALUE);
+    let form = values.saturating_mul(4).saturating_add(units * (4 * c + 4));
+    let working = model.saturating_mul(2).saturating_add(units * (8 * c + 8) + extra).saturating_add(form);
+    registry::FormMemory { working, form }
+}
 
 impl Compressor for Cpca {
     registry::kind_and_params!();

@@ -95,7 +95,34 @@ pub const KIND: Kind = Kind {
     },
     check: |p| build(p).map(drop),
     build: |p| Ok(build(p)?),
+    fits,
+    memory,
+    report: registry::no_rows,
 };
+
+/// [`Kind::fits`]: no more terms than a row has coefficients (a count above that was once
+/// accepted and reported while the form held fewer).
+fn fits(p: &serde_json::Value, t: &biscale_core::transfer::TransferSettings) -> Result<(), String> {
+    let p: Haar = registry::parse(p)?;
+    let n = t.light_basis().len();
+    if p.terms > n {
+        return Err(format!(
+            "terms = {} is more than the {n} coefficients of a row at {}; terms = {n} keeps every row exactly",
+            p.terms,
+            t.light_basis()
+        ));
+    }
+    Ok(())
+}
+
+/// [`Kind::memory`]: per row its kept terms (u16 index, f32 value) in chunks, then the form
+/// again.
+fn memory(p: &serde_json::Value, t: &registry::MemoryFacts) -> registry::FormMemory {
+    let p: Haar = registry::parse(p).unwrap_or_default();
+    let kept = t.rows() * (p.terms as u64).min(t.light_dirs);
+    let form = kept * 6 + (t.rows() + 1) * 4;
+    registry::FormMemory { working: kept * 6 + t.rows() * 4 + form, form }
+}
 
 /// Rows per rayon task in the gather.
 const ROWS_PER_TASK: usize = 512;

@@ -135,6 +135,9 @@ pub const KIND: Kind = Kind {
         Ok(format!("plugin-{}{isolated}", stem.trim_start_matches("lib")))
     },
     check: |p| registry::parse::<PluginParams>(p)?.check(),
+    fits: registry::no_limits,
+    memory: registry::csr_copy_memory,
+    report: registry::no_rows,
     build: |p| {
         let p: PluginParams = registry::parse(p)?;
         p.check()?;

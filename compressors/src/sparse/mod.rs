@@ -35,6 +35,10 @@ pub const KIND: Kind = Kind {
     label: |p| registry::parse::<SparseParams>(p).map(|_| "sparse".into()),
     check: |p| build(p).map(drop),
     build: |p| Ok(build(p)?),
+    fits: registry::no_limits,
+    // The form is `T` itself as a u32 CSR, and compressing copies it once.
+    memory: |_, t| registry::FormMemory { working: t.u32_csr_bytes(), form: t.u32_csr_bytes() },
+    report: registry::no_rows,
 };
 
 /// The raw CSR baseline (no parameters).

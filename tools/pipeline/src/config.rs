@@ -94,49 +94,26 @@ impl ConfigError {
 }
 
 /// Settings that only make sense for some transfer shapes, checked at load (so `plan` reports
-/// them, not the compressor after the transfer is traced): CPCA cannot have more components
-/// than a clustered unit has values, and Haar cannot keep more coefficients per row than a
-/// row has (a count above that was accepted and reported while the form held fewer).
+/// them, not the compressor after the transfer is traced): each kind's own limits
+/// (`registry::Kind::fits`, e.g. CPCA's components and Haar's terms), named by the setting.
 fn check_against_transfer(
     setting: &Setting,
     transfer: &biscale_core::transfer::TransferSettings,
 ) -> std::result::Result<(), String> {
-    let n = transfer.light_basis().len();
-    match setting.kind.as_str() {
-        "cpca" => {
-            let p: biscale_compressors::cpca::Cpca =
-                serde_json::from_value(setting.params.clone()).map_err(|e| format!("{}: {e}", setting.label))?;
-            let unit_rows = match p.unit {
-                biscale_compressors::cpca::CpcaUnit::Row => 1,
-                biscale_compressors::cpca::CpcaUnit::Vertex => transfer.local_basis().len(),
-            };
-            if p.components > n * unit_rows {
-                return Err(format!(
-                    "{}: components = {} is more than the {} values of a clustered unit ({} light directions x {unit_rows}                      rows at {}): at most {} components exist",
-                    setting.label,
-                    p.components,
-                    n * unit_rows,
-                    n,
-                    transfer.light_basis(),
-                    n * unit_rows
-                ));
-            }
-        }
-        "haar" => {
-            let p: biscale_compressors::haar::Haar =
-                serde_json::from_value(setting.params.clone()).map_err(|e| format!("{}: {e}", setting.label))?;
-            if p.terms > n {
-                return Err(format!(
-                    "{}: terms = {} is more than the {n} coefficients of a row at {}; terms = {n} keeps every row exactly",
-                    setting.label,
-                    p.terms,
-                    transfer.light_basis()
-                ));
-            }
-        }
-        _ => {}
+    fits_of(biscale_compressors::registry::find(&setting.kind), setting, transfer)
+}
+
+/// [`check_against_transfer`] with the kind given (a kind the registry does not know has no
+/// limits here: building it fails with its own message).
+pub(crate) fn fits_of(
+    kind: Option<&biscale_compressors::registry::Kind>,
+    setting: &Setting,
+    transfer: &biscale_core::transfer::TransferSettings,
+) -> std::result::Result<(), String> {
+    match kind {
+        Some(kind) => (kind.fits)(&setting.params, transfer).map_err(|e| format!("{}: {e}", setting.label)),
+        None => Ok(()),
     }
-    Ok(())
 }
 
 /// Most characters of a config line an error shows.

@@ -341,9 +341,10 @@ fn btf_bytes(c: &MaterialConfig, m: u64) -> u64 {
     values * BTF_BYTES_PER_VALUE * (halves + 2 * lpca as u64) / 2
 }
 
-/// A compressor setting's working set and form on `T` with `nnz` non-zeros (module docs).
-/// Unknown kinds (plugins) are counted as a u32 CSR copy of `T` (what the host hands a plugin)
-/// plus a form of the same size.
+/// A compressor setting's working set and form on `T` with `nnz` non-zeros: its kind's own
+/// memory model (`registry::Kind::memory`), so a new kind is estimated by what its folder
+/// says; a kind the registry does not know is counted as a u32 CSR copy of `T` plus a form of
+/// that size (`registry::csr_copy_memory`).
 pub fn compressor_memory(
     s: &Setting,
     settings: &TransferSettings,
@@ -351,55 +352,29 @@ pub fn compressor_memory(
     nnz: u64,
     threads: u64,
 ) -> CompressorMemory {
-    use biscale_compressors::{bicluster::Bicluster, cpca::Cpca, cpca::CpcaUnit, haar::Haar};
-    let n = settings.light_basis().len() as u64;
-    let m = settings.local_basis().len() as u64;
-    let rows = vertices as u64 * m;
-    let u32_csr = nnz * 8 + (rows + 1) * 4;
-    let (working, form) = match s.kind.as_str() {
-        "sparse" => (u32_csr, u32_csr),
-        "bicluster" => {
-            let p: Bicluster = serde_json::from_value(s.params.clone()).unwrap_or_default();
-            // The integer codes (u16 column, i8 code, usize row pointer); per block in flight
-            // its rows (8 bytes per non-zero) and column views (8, in vectors grown by
-            // doubling: 12 on average); the biclusters found (about 2% of the non-zeros, ~170
-            // bytes each: 4 per non-zero); the form (about 1 byte per non-zero lossless: 2).
-            let codes = nnz * 3 + (rows + 1) * 8;
-            let block_vertices = (if p.block_vertices == 0 { vertices } else { p.block_vertices.min(vertices) }) as u64;
-            let blocks = (vertices as u64).div_ceil(block_vertices.max(1));
-            let per_vertex = nnz / (vertices.max(1) as u64);
-            let in_flight = blocks.min(threads) * block_vertices * per_vertex * 20;
-            let form = nnz * 2 + (rows + 1) * 4;
-            (codes + in_flight + nnz * 4 + form, form)
-        }
-        "cpca" => {
-            let p: Cpca = serde_json::from_value(s.params.clone()).unwrap_or_default();
-            let (unit_rows, extra) = match p.unit {
-                CpcaUnit::Row => (1, 0),
-                CpcaUnit::Vertex => (m, nnz * 8 + (vertices as u64 + 1) * 8),
-            };
-            let (dim, units) = (n * unit_rows, rows / unit_rows.max(1));
-            let c = (p.components as u64).min(dim);
-            // Basis values of the model (as `linalg::cpca::build_bytes` counts them, 16 bytes
-            // each at the build's peak), saturating: a setting too large to build is refused
-            // by the compressor with its own message, not here.
-            let values = (p.clusters as u64).saturating_mul(c + 1).saturating_mul(dim);
-            let model = values.saturating_mul(biscale_core::linalg::cpca::BUILD_BYTES_PER_BASIS_VALUE);
-            let form = values.saturating_mul(4).saturating_add(units * (4 * c + 4));
-            // The models twice (assignment tables and refits) and f64 coefficients per unit.
-            let working = model.saturating_mul(2).saturating_add(units * (8 * c + 8) + extra).saturating_add(form);
-            (working, form)
-        }
-        "haar" => {
-            let p: Haar = serde_json::from_value(s.params.clone()).unwrap_or_default();
-            let kept = rows * (p.terms as u64).min(n);
-            // Per row its kept terms (u16 index, f32 value) in chunks, then the form again.
-            let form = kept * 6 + (rows + 1) * 4;
-            (kept * 6 + rows * 4 + form, form)
-        }
-        _ => (2 * u32_csr, u32_csr),
+    memory_of(biscale_compressors::registry::find(&s.kind), s, settings, vertices, nnz, threads)
+}
+
+/// [`compressor_memory`] with the kind given.
+pub(crate) fn memory_of(
+    kind: Option<&biscale_compressors::registry::Kind>,
+    s: &Setting,
+    settings: &TransferSettings,
+    vertices: usize,
+    nnz: u64,
+    threads: u64,
+) -> CompressorMemory {
+    use biscale_compressors::registry;
+    let facts = registry::MemoryFacts {
+        light_dirs: settings.light_basis().len() as u64,
+        local_dirs: settings.local_basis().len() as u64,
+        vertices: vertices as u64,
+        nnz,
+        threads,
     };
-    CompressorMemory { label: s.label.clone(), working, form }
+    let model = kind.map_or(registry::csr_copy_memory as fn(&_, &_) -> _, |k| k.memory);
+    let m = model(&s.params, &facts);
+    CompressorMemory { label: s.label.clone(), working: m.working, form: m.form }
 }
 
 /// An SH method setting's matrices: per vertex an `n^2 x n^2` block, dense in f64 while it is
@@ -607,6 +582,38 @@ pub fn human(bytes: u64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The application knows no compressor by name: a toy kind declared as a compressor
+    /// folder declares its `KIND` is checked against the transfer shape and estimated by
+    /// what it says, and a kind the registry does not know is a u32 CSR copy.
+    #[test]
+    fn a_new_kind_is_validated_and_estimated_by_its_own_entry() {
+        use biscale_compressors::registry::{FormMemory, Kind, MemoryFacts};
+        const TOY: Kind = Kind {
+            name: "toy",
+            about: "a kind only this test knows",
+            label: |_| Ok("toy".into()),
+            check: |_| Ok(()),
+            build: |_| Err("a toy builds nothing".to_string().into()),
+            fits: |p, t| match p["k"].as_u64() {
+                Some(k) if k as usize > t.light_basis().len() => Err(format!("k = {k} is too many")),
+                _ => Ok(()),
+            },
+            memory: |_, t: &MemoryFacts| FormMemory { working: 3 * t.nnz + t.threads, form: t.rows() },
+            report: |_| vec![],
+        };
+        let settings = TransferSettings::new(4, 8, 2).unwrap();
+        let setting =
+            |k: u64| Setting { label: format!("toy-{k}"), kind: "toy".into(), params: serde_json::json!({ "k": k }) };
+        let e = crate::config::fits_of(Some(&TOY), &setting(1000), &settings).unwrap_err();
+        assert_eq!(e, "toy-1000: k = 1000 is too many");
+        crate::config::fits_of(Some(&TOY), &setting(3), &settings).unwrap();
+        let m = memory_of(Some(&TOY), &setting(3), &settings, 10, 1000, 2);
+        assert_eq!((m.working, m.form), (3002, 10 * 4));
+        let unknown = memory_of(None, &setting(3), &settings, 10, 1000, 2);
+        let csr = 1000 * 8 + (10 * 4 + 1) * 4;
+        assert_eq!((unknown.working, unknown.form), (2 * csr, csr));
+    }
 
     #[test]
     fn proc_fields_are_read_in_bytes() {

@@ -204,6 +204,10 @@ pub fn document(m: &Metrics, plan: &str, plots: &[(String, String)]) -> Vec<Bloc
     );
     d.push(Block::Table(compressor_table(m)));
     para(&mut d, LDR_NOTE.into());
+    if let Some(t) = statistics_table(m) {
+        d.push(Block::Heading(3, "What each compressor reports of its form".into()));
+        d.push(Block::Table(t));
+    }
     if let Some(g) = gpu_table(m) {
         d.push(Block::Heading(3, g.0));
         d.push(Block::Table(g.1));
@@ -701,6 +705,28 @@ pub fn ldr_cell(e: &crate::metrics::ImageErrors) -> String {
 }
 
 /// The compressor table of both reports: one row per setting.
+/// The rows each setting's kind draws from its form's `stats` (`registry::Kind::report`: the
+/// compressor, not the report, says what its statistics mean), one row per setting and
+/// figure; `None` when no kind has any.
+pub fn statistics_table(m: &Metrics) -> Option<Table> {
+    statistics_table_with(m, biscale_compressors::registry::find)
+}
+
+/// [`statistics_table`] with the kinds looked up by `find`.
+pub fn statistics_table_with<'k>(
+    m: &Metrics,
+    find: impl Fn(&str) -> Option<&'k biscale_compressors::registry::Kind>,
+) -> Option<Table> {
+    let mut t = Table::new(&["setting", "figure", "value"]);
+    for c in &m.compressors {
+        let (Some(stats), Some(kind)) = (&c.stats, find(&c.kind)) else { continue };
+        for (name, value) in (kind.report)(stats) {
+            t.text_row([c.name.clone(), name, value]);
+        }
+    }
+    (!t.rows.is_empty()).then_some(t)
+}
+
 pub fn compressor_table(m: &Metrics) -> Table {
     const HEADER: &[&str] = &[
         "setting",
