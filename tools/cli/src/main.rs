@@ -16,7 +16,8 @@ use std::path::{Path, PathBuf};
 #[command(name = "biscale", version, about, long_about)]
 struct Cli {
     /// Worker threads for tracing, compressing and gathering (default: RAYON_NUM_THREADS, or
-    /// one per core); recorded in metrics.json.
+    /// one per core); at most 4 per logical CPU (more is capped, with a note); recorded in
+    /// metrics.json.
     #[arg(long, global = true)]
     threads: Option<usize>,
     /// Print only warnings and errors: no progress, no notes (batch jobs that log elsewhere).
@@ -428,6 +429,33 @@ fn load(config: &Path) -> anyhow::Result<Experiment> {
     Ok(Experiment::load_with(config, OVERRIDES.get().map_or(&[], Vec::as_slice))?)
 }
 
+/// Most worker threads per logical CPU: past a few per core, threads only add contention
+/// (1000 threads made a 0.4 s job take 27.6 s, and 100,000 hung the machine for minutes).
+const THREADS_PER_CORE: usize = 4;
+
+/// The worker threads to start, when not rayon's default: `--threads`, else
+/// `RAYON_NUM_THREADS`, either capped at [`THREADS_PER_CORE`] per logical CPU with a note.
+fn worker_threads(flag: Option<usize>) -> anyhow::Result<Option<usize>> {
+    let (asked, from) = match flag {
+        Some(n) => (n, "--threads"),
+        None => match std::env::var("RAYON_NUM_THREADS").ok().and_then(|v| v.trim().parse::<usize>().ok()) {
+            // 0 is rayon's own "one per core".
+            Some(n) if n > 0 => (n, "RAYON_NUM_THREADS"),
+            _ => return Ok(None),
+        },
+    };
+    anyhow::ensure!(asked >= 1, "{from} must be at least 1");
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let cap = THREADS_PER_CORE * cores;
+    if asked > cap {
+        eprintln!(
+            "note: {from} = {asked} is more than {THREADS_PER_CORE} threads per logical CPU ({cores}); using {cap}"
+        );
+        return Ok(Some(cap));
+    }
+    Ok(Some(asked))
+}
+
 /// Whether a command reads a config (and so takes `--set`).
 fn reads_config(c: &Command) -> bool {
     match c {
@@ -466,8 +494,11 @@ fn run() -> anyhow::Result<()> {
         cli.set[0]
     );
     let _ = OVERRIDES.set(cli.set.clone());
-    if let Some(n) = cli.threads {
-        anyhow::ensure!(n >= 1, "--threads must be at least 1");
+    if let Some(n) = worker_threads(cli.threads)? {
+        // Pools that libraries build for themselves (the OpenEXR reader and writer make one
+        // per file) size by this variable: they get the same, capped count (100,000 threads
+        // per EXR file hung the machine). Set while this is the process's only thread.
+        std::env::set_var("RAYON_NUM_THREADS", n.to_string());
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("--threads")?;
     }
     match cli.command {

@@ -618,3 +618,25 @@ fn set_overrides_a_config_value_and_errors_name_the_set() {
     let (ok, _, err) = biscale(&["cache", "list", "--cache-dir", &s(&cache), "--set", "a=1"]);
     assert!(!ok && err.contains("reads no config"), "{err}");
 }
+
+/// Issue class "--threads 100000 hangs": more worker threads than 4 per logical CPU are
+/// capped with a note (from the flag or from RAYON_NUM_THREADS), so the run starts at once;
+/// 0 is refused.
+#[test]
+fn absurd_thread_counts_are_capped_with_a_note() {
+    let t = std::time::Instant::now();
+    let (ok, out, err) = biscale(&["plan", "configs/smoke.toml", "--threads", "100000"]);
+    assert!(ok && out.contains("plan"), "{err}");
+    assert!(err.contains("--threads = 100000 is more than 4 threads per logical CPU"), "{err}");
+    let out = Command::new(env!("CARGO_BIN_EXE_biscale"))
+        .args(["plan", "configs/smoke.toml"])
+        .env("RAYON_NUM_THREADS", "100000")
+        .current_dir(root())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && err.contains("RAYON_NUM_THREADS = 100000"), "{err}");
+    assert!(t.elapsed().as_secs() < 60, "capped runs start at once: {:?}", t.elapsed());
+    let (ok, _, err) = biscale(&["plan", "configs/smoke.toml", "--threads", "0"]);
+    assert!(!ok && err.contains("--threads must be at least 1"), "{err}");
+}
