@@ -41,6 +41,23 @@ use std::time::Instant;
 /// The manifest's `format` and current `version`.
 pub const MANIFEST_FORMAT: &str = "biscale-shard-manifest";
 pub const MANIFEST_VERSION: u32 = 1;
+/// Most shards a plan may have (a job array of more is no longer a plan a scheduler takes).
+pub const MAX_SHARDS: usize = 100_000;
+
+/// Whether `s` is a name a generated script may carry as it is: 1 to 100 letters, digits,
+/// `.`, `_`, `-`, not starting with `.` or `-` (an experiment's name, a shard's folder).
+pub fn is_plain_name(s: &str) -> bool {
+    (1..=100).contains(&s.len())
+        && !s.starts_with(['.', '-'])
+        && s.bytes().all(|b| b.is_ascii_alphanumeric() || matches!(b, b'.' | b'_' | b'-'))
+}
+
+/// The manifest's own checksum: XXH3-128 of its JSON with the checksum field empty.
+pub fn manifest_checksum(m: &Manifest) -> String {
+    let unsigned = Manifest { checksum: String::new(), ..m.clone() };
+    let json = serde_json::to_string(&unsigned).expect("manifest serializes");
+    format!("{:032x}", ContentHash::default().write(json.as_bytes()).finish128())
+}
 /// A finished shard's record (`done.json`).
 pub const DONE_FORMAT: &str = "biscale-shard-done";
 /// Environment variable naming shard indices (comma-separated) that fail on purpose after
@@ -63,6 +80,10 @@ pub struct Manifest {
     /// apply them to the config too.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub overrides: Vec<String>,
+    /// XXH3-128 of the manifest as `plan` wrote it ([`manifest_checksum`]): a manifest edited
+    /// since (a shard's range or folder, the experiment's name) is refused.
+    #[serde(default)]
+    pub checksum: String,
     pub vertices: usize,
     /// `T`'s shape, for people.
     pub shape: String,
@@ -199,8 +220,18 @@ fn lcm(a: usize, b: usize) -> Option<usize> {
 
 /// `shard plan`: the manifest of `exp` in `shards` shards (written to `out/manifest.json`).
 pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Manifest)> {
-    if shards == 0 {
-        return Err(invalid(out, "--shards must be at least 1"));
+    if shards == 0 || shards > MAX_SHARDS {
+        return Err(invalid(out, format!("--shards must be 1 to {MAX_SHARDS}, not {shards}")));
+    }
+    if !is_plain_name(exp.name()) {
+        return Err(invalid(
+            &exp.config_path,
+            format!(
+                "the experiment's name {:?} becomes a job name and a folder: use 1 to 100 letters, digits, `.`, `_` \
+                 or `-` (not first: `.` or `-`) to shard it",
+                exp.name()
+            ),
+        ));
     }
     let geometry = crate::pipeline::load_geometry(exp)?;
     let vertices = geometry.mesh.vertex_count();
@@ -290,7 +321,9 @@ pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Man
         in_merge,
         estimate,
         shards: specs,
+        checksum: String::new(),
     };
+    let manifest = Manifest { checksum: manifest_checksum(&manifest), ..manifest };
     std::fs::create_dir_all(out).map_err(|source| PipelineError::Io { path: out.to_path_buf(), source })?;
     let path = out.join("manifest.json");
     let json = serde_json::to_string_pretty(&manifest).expect("manifest serializes");
@@ -313,9 +346,24 @@ impl Manifest {
                 ),
             ));
         }
+        if m.checksum != manifest_checksum(&m) {
+            return Err(invalid(
+                path,
+                "the manifest was changed since `biscale shard plan` wrote it (its checksum does not match): plan again",
+            ));
+        }
+        if m.shards.is_empty() || m.shards.len() > MAX_SHARDS {
+            return Err(invalid(path, format!("{} shards: a plan has 1 to {MAX_SHARDS}", m.shards.len())));
+        }
+        if !is_plain_name(&m.experiment) {
+            return Err(invalid(path, format!("the experiment's name {:?} is not a plain name", m.experiment)));
+        }
         let mut at = 0;
         for (i, s) in m.shards.iter().enumerate() {
-            if s.index != i || s.first_vertex != at || s.end_vertex < s.first_vertex || s.dir.contains("..") {
+            // A shard's folder lies inside the plan's folder: relative, every part of it a
+            // plain name (never `..`, never absolute).
+            let plain_dir = !s.dir.starts_with('/') && s.dir.split('/').all(is_plain_name);
+            if s.index != i || s.first_vertex != at || s.end_vertex < s.first_vertex || !plain_dir {
                 return Err(invalid(path, format!("shard {i}'s entry is inconsistent (index, range or folder)")));
             }
             at = s.end_vertex;
@@ -688,6 +736,22 @@ fn mem_default(bytes: u64) -> String {
 /// beside the manifest; returns their paths.
 pub fn sbatch(path: &Path, o: &SbatchOptions) -> Result<Vec<PathBuf>> {
     let (m, root) = Manifest::load(path)?;
+    // Values that go onto `#SBATCH` lines, where shell quoting does not apply: Slurm's own
+    // characters only (no space, quote, newline or `$`).
+    for (flag, value) in
+        [("--partition", &o.partition), ("--time", &o.time), ("--mem", &o.mem), ("--merge-mem", &o.merge_mem)]
+    {
+        if let Some(v) = value {
+            let plain = (1..=100).contains(&v.len())
+                && v.bytes().all(|b| b.is_ascii_alphanumeric() || matches!(b, b'.' | b'_' | b'-' | b':' | b',' | b'+'));
+            if !plain {
+                return Err(invalid(
+                    path,
+                    format!("{flag} {v:?}: use letters, digits and `._-:,+` only (as Slurm writes it)"),
+                ));
+            }
+        }
+    }
     let abs = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
     let manifest = abs(path);
     let dir = abs(&root).join("slurm");
@@ -697,10 +761,11 @@ pub fn sbatch(path: &Path, o: &SbatchOptions) -> Result<Vec<PathBuf>> {
     let q = |p: &Path| sh_quote(&p.display().to_string());
     let header = |name: &str, mem: &str| {
         let mut h = format!(
-            "#!/bin/bash\n# Written by `biscale shard sbatch` for {}.\n#SBATCH --job-name=biscale-{}-{name}\n#SBATCH --cpus-per-task={}\n#SBATCH --mem={mem}\n",
+            "#!/bin/bash\n# Written by `biscale shard sbatch` for {}.\n#SBATCH --job-name=biscale-{}-{name}\n#SBATCH --cpus-per-task={}\n#SBATCH --mem={}\n",
             m.experiment,
             sh_quote(&m.experiment),
             o.cpus.max(1),
+            sh_quote(mem),
         );
         if let Some(p) = &o.partition {
             h += &format!("#SBATCH --partition={}\n", sh_quote(p));

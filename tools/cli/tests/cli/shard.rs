@@ -184,3 +184,73 @@ fn sbatch_writes_an_array_a_dependent_merge_and_a_submit_script() {
         assert!(check.success(), "{name} is not valid bash");
     }
 }
+
+/// Issue class "shard sbatch writes what the manifest says into a shell script": a manifest
+/// edited since `plan` (a newline and a command in its experiment's name, an absolute or
+/// escaping shard folder, no shards) is refused, even with its checksum recomputed for the
+/// edit; `#SBATCH` values that are not Slurm's own characters are refused; what is written
+/// is valid bash whose only commands are the ones biscale writes.
+#[test]
+fn hostile_manifests_and_options_never_reach_a_script() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let cfg = config(d);
+    ok(biscale(&["shard", "plan", s(&cfg), "--shards", "2", "--out", s(&d.join("plan"))], &[]));
+    let manifest = d.join("plan/manifest.json");
+    let good = std::fs::read_to_string(&manifest).unwrap();
+    let plan: biscale::shard::Manifest = serde_json::from_str(&good).unwrap();
+    let hostile: Vec<(&str, biscale::shard::Manifest)> = vec![
+        ("experiment", biscale::shard::Manifest { experiment: "x\ntouch /tmp/pwned\n#".into(), ..plan.clone() }),
+        ("experiment", biscale::shard::Manifest { experiment: "$(touch /tmp/pwned)".into(), ..plan.clone() }),
+        ("shard 1", {
+            let mut m = plan.clone();
+            m.shards[1].dir = "/tmp/elsewhere".into();
+            m
+        }),
+        ("shard 0", {
+            let mut m = plan.clone();
+            m.shards[0].dir = "shards/../../x".into();
+            m
+        }),
+        ("shards", biscale::shard::Manifest { shards: vec![], vertices: 0, ..plan.clone() }),
+    ];
+    for (what, m) in hostile {
+        // Edited by hand: the checksum no longer matches.
+        std::fs::write(
+            &manifest,
+            serde_json::to_string(&biscale::shard::Manifest { checksum: plan.checksum.clone(), ..m.clone() }).unwrap(),
+        )
+        .unwrap();
+        let e = failed(biscale(&["shard", "sbatch", s(&manifest)], &[]));
+        assert!(e.contains("checksum"), "{what}: {e}");
+        // Edited with the checksum recomputed: the field itself is refused.
+        let forged = biscale::shard::Manifest { checksum: biscale::shard::manifest_checksum(&m), ..m };
+        std::fs::write(&manifest, serde_json::to_string(&forged).unwrap()).unwrap();
+        let e = failed(biscale(&["shard", "sbatch", s(&manifest)], &[]));
+        assert!(e.contains(what), "{what}: {e}");
+        let e = failed(biscale(&["shard", "run", s(&manifest), "--index", "0"], &[]));
+        assert!(e.contains(what), "{what}: {e}");
+    }
+    assert!(!d.join("plan/slurm").exists(), "nothing was written");
+    assert!(!Path::new("/tmp/elsewhere").exists());
+
+    std::fs::write(&manifest, &good).unwrap();
+    for (flag, value) in
+        [("--partition", "a\ntouch /tmp/pwned"), ("--mem", "1G; touch /tmp/pwned"), ("--time", "$(id)")]
+    {
+        let e = failed(biscale(&["shard", "sbatch", s(&manifest), flag, value], &[]));
+        assert!(e.contains(flag) && e.contains("Slurm"), "{flag}: {e}");
+    }
+    ok(biscale(&["shard", "sbatch", s(&manifest), "--partition", "short", "--mem", "2G", "--time", "1-00:00:00"], &[]));
+    for name in ["shards.sbatch", "merge.sbatch", "submit.sh"] {
+        let path = d.join("plan/slurm").join(name);
+        assert!(Command::new("bash").arg("-n").arg(&path).status().unwrap().success(), "{name} is not valid bash");
+        // Every line is a comment, a directive, or one of the commands biscale writes.
+        let text = std::fs::read_to_string(&path).unwrap();
+        for line in text.lines().filter(|l| !l.starts_with('#') && !l.is_empty()) {
+            let known =
+                ["set -euo pipefail", "export RAYON_NUM_THREADS=", "exec ", "cd ", "shards=", "merge=", "echo "];
+            assert!(known.iter().any(|k| line.starts_with(k)), "{name}: unexpected line {line:?}");
+        }
+    }
+}
