@@ -500,16 +500,17 @@ pub fn btf(
     let cache = StageCache::new(opts, out);
     let local_basis = exp.transfer_settings().local_basis();
     let mut written = vec![];
+    let mut taken = Default::default();
     for cfg in chosen {
         let label = cfg.label();
+        let stem = crate::interop::material_stem(&label);
+        let path = out.join(format!("{stem}.btf"));
+        crate::interop::claim_stem(&mut taken, &stem, &label, &path)?;
         let (btf, origin) = crate::materials::material_btf(cfg, local_basis, cache.as_ref(), &label)?;
         let encoding = match cfg {
             MaterialConfig::Synthesized(s) => BtfEncoding::from_name(&s.encoding)?,
             _ => BtfEncoding::F32,
         };
-        let stem: String =
-            label.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' }).collect();
-        let path = out.join(format!("{stem}.btf"));
         save_btf(&btf, &path, encoding)?;
         let lights = btf.local_basis().grid().map_or(vec![0], |g| sweep_bins(&g));
         let views = btf.view_grid().as_ref().map_or(vec![0], sweep_bins);

@@ -130,6 +130,34 @@ fn file_stem(label: &str) -> String {
     label.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' }).collect()
 }
 
+/// A material's file-name stem that no other material's can be: [`file_stem`] where that
+/// keeps the label as it is, else the stem with 8 hex digits of the label's hash, so `a/b`
+/// and `a_b` (which both become `a_b`) name two files (`a_b-<hash>` and `a_b`).
+pub fn material_stem(label: &str) -> String {
+    let stem = file_stem(label);
+    match stem == label {
+        true => stem,
+        false => format!("{stem}-{:08x}", biscale_core::io::ContentHash::default().write_str(label).finish128() as u32),
+    }
+}
+
+/// Refuse a second material whose stem is taken (two labels that still name one file),
+/// naming both.
+pub fn claim_stem(
+    taken: &mut std::collections::BTreeMap<String, String>,
+    stem: &str,
+    label: &str,
+    path: &Path,
+) -> Result<()> {
+    match taken.insert(stem.to_string(), label.to_string()) {
+        Some(other) if other != label => Err(PipelineError::Mismatch {
+            path: path.to_path_buf(),
+            what: format!("materials `{other}` and `{label}` would both be written here; rename one of them"),
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// The metadata every file starts with.
 fn meta_header(exp: &Experiment, what: &str) -> serde_json::Map<String, Value> {
     let v = json!({
@@ -329,10 +357,13 @@ pub fn export(
             }
             (Item::Btf, _) => {
                 let local_basis = exp.transfer_settings().local_basis();
+                let mut taken = Default::default();
                 for cfg in exp.materials() {
                     let label = cfg.label();
+                    let stem = material_stem(&label);
+                    let path = dir.join(format!("btf-{stem}.npz"));
+                    claim_stem(&mut taken, &stem, &label, &path)?;
                     let (btf, _) = crate::materials::material_btf(&cfg, local_basis, cache.as_ref(), &label)?;
-                    let path = dir.join(format!("btf-{}.npz", file_stem(&label)));
                     write_btf(exp, &cfg, &label, &btf, &path)?;
                     let [w, h] = btf.spatial();
                     written.push(Written {
@@ -904,5 +935,16 @@ mod tests {
     fn labels_become_plain_file_names() {
         assert_eq!(file_stem("cpca-k4-c2"), "cpca-k4-c2");
         assert_eq!(file_stem("plugin:x/y z"), "plugin_x_y_z");
+        // Issue class "material names a/b and a_b collide": two labels, two files.
+        assert_eq!(material_stem("a_b"), "a_b");
+        let slash = material_stem("a/b");
+        assert!(slash.starts_with("a_b-") && slash.len() == 12, "{slash}");
+        assert_ne!(material_stem("a/b"), material_stem("a b"));
+        let mut taken = Default::default();
+        let p = Path::new("out/x.btf");
+        claim_stem(&mut taken, "a_b", "a_b", p).unwrap();
+        claim_stem(&mut taken, "a_b", "a_b", p).unwrap();
+        let e = claim_stem(&mut taken, "a_b", "other", p).unwrap_err().to_string();
+        assert!(e.contains("`a_b`") && e.contains("`other`") && e.contains("out/x.btf"), "{e}");
     }
 }
