@@ -580,7 +580,7 @@ mod listing_tests {
         cache.put(&cache.transfer_path(&key), &key, &artifact);
         cache.put(&cache.lpca_path(&key, "k4"), &key, &artifact);
         let temp = format!(".form-{hex}-sparse.bsf.tmp-77-0");
-        std::fs::write(d.join(&temp), artifact.encode()[..30].to_vec()).unwrap();
+        std::fs::write(d.join(&temp), &artifact.encode()[..30]).unwrap();
         // A person's files, every one named to look like biscale's.
         let decoys: Vec<(String, Vec<u8>)> = vec![
             ("btf-wool.btf".into(), b"measured wool".to_vec()),
