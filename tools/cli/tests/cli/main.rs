@@ -1,5 +1,6 @@
 //! The `biscale` executable as a user meets it, one test binary with a module per concern:
 //!
+//! * [`args`]: every argument has help and every command an example;
 //! * [`commands`]: help text, plan, export, diff, viz, report, errors that name the file;
 //! * [`interop`]: `export` and `eval` with NumPy files, and the Python round trip;
 //! * [`memory`]: the memory estimate and the refusals made before anything is allocated;
@@ -7,6 +8,7 @@
 //! * [`staging`]: output folders that a `kill -9` at any stage leaves whole, and never take
 //!   what is not theirs.
 
+mod args;
 mod commands;
 mod interop;
 mod memory;
