@@ -548,6 +548,20 @@ fn to_usize(x: u64, what: &str) -> Result<usize, String> {
     usize::try_from(x).map_err(|_| format!("{what} {x} is too large"))
 }
 
+/// The most bytes the members of one `.npz` may declare in all (and never more than the
+/// memory available, `memory::available`).
+const MAX_INFLATED_BYTES: u64 = 64 << 30;
+
+/// One central-directory entry of a zip archive.
+struct ZipEntry {
+    name: String,
+    method: u16,
+    crc: u32,
+    csize: u64,
+    usize_: u64,
+    offset: u64,
+}
+
 /// The members of a zip archive (name, uncompressed bytes), in central-directory order.
 fn zip_members(bytes: &[u8]) -> Result<Vec<(String, Vec<u8>)>, String> {
     // The end of central directory record: 22 bytes plus a comment of up to 64 KiB.
@@ -580,7 +594,11 @@ fn zip_members(bytes: &[u8]) -> Result<Vec<(String, Vec<u8>)>, String> {
         return Err(format!("the central directory ({cd_size} bytes at {cd_offset}) lies past the end of the file"));
     }
     let mut c = Cursor::at(bytes, to_usize(cd_offset, "central directory offset")?);
-    let mut out = vec![];
+    // Every entry is read first and checked as a whole before anything is inflated (issue
+    // class "a 1.5 MB .npz makes eval allocate 1.5 GB"): names are unique (NumPy would read
+    // the last of two, this reader the first), no two entries share a member's bytes, and the
+    // sizes they declare fit in the memory there is.
+    let mut entries = vec![];
     for i in 0..count {
         if c.u32()? != 0x0201_4b50 {
             return Err(format!("central directory entry {i} has a wrong signature"));
@@ -615,6 +633,29 @@ fn zip_members(bytes: &[u8]) -> Result<Vec<(String, Vec<u8>)>, String> {
         if flags & 1 != 0 {
             return Err(format!("member '{name}' is encrypted"));
         }
+        entries.push(ZipEntry { name, method, crc, csize, usize_, offset });
+    }
+    let mut names = std::collections::BTreeSet::new();
+    let mut offsets = std::collections::BTreeSet::new();
+    for e in &entries {
+        if !names.insert(e.name.as_str()) {
+            return Err(format!("member '{}' appears twice (which one is meant is ambiguous)", e.name));
+        }
+        if !offsets.insert(e.offset) {
+            return Err(format!("member '{}' shares its bytes with another entry (a crafted archive)", e.name));
+        }
+    }
+    let declared = entries.iter().try_fold(0u64, |sum, e| sum.checked_add(e.usize_)).unwrap_or(u64::MAX);
+    let limit = MAX_INFLATED_BYTES.min(crate::memory::available().map_or(MAX_INFLATED_BYTES, |a| a.bytes));
+    if declared > limit {
+        return Err(format!(
+            "its members declare {declared} bytes in all ({:.2} GB) where {limit} bytes are available to read them \
+             into: refused before inflating",
+            declared as f64 / 1e9
+        ));
+    }
+    let mut out = vec![];
+    for ZipEntry { name, method, crc, csize, usize_, offset } in entries {
         let mut l = Cursor::at(bytes, to_usize(offset, "local header offset")?);
         if l.u32()? != 0x0403_4b50 {
             return Err(format!("member '{name}': no local header at offset {offset}"));
@@ -627,7 +668,8 @@ fn zip_members(bytes: &[u8]) -> Result<Vec<(String, Vec<u8>)>, String> {
         let data = match method {
             0 => raw.to_vec(),
             8 => {
-                let mut data = Vec::with_capacity(expected.min(1 << 30));
+                // Grown as it inflates: the declared size is checked against what comes out.
+                let mut data = Vec::with_capacity(expected.min(1 << 26));
                 flate2::read::DeflateDecoder::new(raw)
                     .take(usize_ + 1)
                     .read_to_end(&mut data)
@@ -960,6 +1002,56 @@ mod tests {
         for cut in [0, 10, 30, zip.len() - 30, zip.len() - 1] {
             assert!(zip_members(&zip[..cut]).is_err(), "{cut}");
         }
+    }
+
+    /// Issue class "a 1.5 MB .npz makes eval allocate 1.5 GB": two entries of one name, two
+    /// entries over one member's bytes, and a member declaring a terabyte are refused from
+    /// the central directory, before anything is inflated or allocated.
+    #[test]
+    fn crafted_archives_are_refused_before_inflating() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.npz");
+        let one = [1u8, 2, 3];
+        let good = |zip64: bool| {
+            let members = [("a", ArrayRef::flat(Elements::U8(&one))), ("b", ArrayRef::flat(Elements::U8(&one)))];
+            write_npz_with(&p, &members, zip64).unwrap();
+            std::fs::read(&p).unwrap()
+        };
+        // The central-directory entry of `b.npy`: the last place its name stands, less the
+        // entry's fixed 46 bytes.
+        let entry_of_b = |bytes: &[u8]| bytes.windows(5).rposition(|w| w == b"b.npy").unwrap() - 46;
+        let read = |bytes: Vec<u8>| {
+            std::fs::write(&p, bytes).unwrap();
+            read_npz(&p).unwrap_err().to_string()
+        };
+        assert_eq!(
+            read_npz(&{
+                std::fs::write(&p, good(false)).unwrap();
+                p.clone()
+            })
+            .unwrap()
+            .len(),
+            2
+        );
+
+        let mut twice = good(false);
+        let at = entry_of_b(&twice) + 46;
+        twice[at] = b'a';
+        let e = read(twice);
+        assert!(e.contains("member 'a.npy' appears twice"), "{e}");
+
+        let mut shared = good(false);
+        let at = entry_of_b(&shared) + 42;
+        shared[at..at + 4].copy_from_slice(&0u32.to_le_bytes());
+        let e = read(shared);
+        assert!(e.contains("shares its bytes"), "{e}");
+
+        // ZIP64: the extra field's first value is the uncompressed size.
+        let mut huge = good(true);
+        let at = entry_of_b(&huge) + 46 + 5 + 4;
+        huge[at..at + 8].copy_from_slice(&(1u64 << 40).to_le_bytes());
+        let e = read(huge);
+        assert!(e.contains("refused before inflating") && e.contains("x.npz"), "{e}");
     }
 
     #[test]
