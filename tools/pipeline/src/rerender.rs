@@ -12,7 +12,7 @@
 //! folder is only ever replaced when its marker proves it biscale's.
 
 use crate::metrics::{CompressorRecord, Metrics};
-use crate::pipeline::{PipelineError, Result};
+use crate::pipeline::{io_err, PipelineError, Result};
 use crate::report::{Block, Table};
 use crate::staging::{StagedDir, MARKER};
 use std::path::{Path, PathBuf};
@@ -25,10 +25,6 @@ pub struct FinishedRun {
     pub metrics: Metrics,
     /// The text of its `plan.txt`.
     pub plan: String,
-}
-
-fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> PipelineError + '_ {
-    move |source| PipelineError::Io { path: path.to_path_buf(), source }
 }
 
 /// The largest `metrics.json` read back (a run's is tens of kilobytes).
