@@ -228,7 +228,7 @@ fn btfs(dir: &Path) {
 /// (the `npz` target's well-formed-archive input: see `npz` in `fuzz/src/lib.rs`).
 fn npzs(dir: &Path, t: &TransferMatrix) {
     use biscale::interop::META;
-    use biscale::npy::{self, ArrayRef, Elements};
+    use biscale::interop::npy::{self, ArrayRef, Elements};
     let tmp = tempfile::tempdir().expect("a temporary folder");
     let shape = serde_json::json!({
         "vertices": 3, "local_basis": t.local_basis().tag(), "light_basis": t.light_basis().tag(),

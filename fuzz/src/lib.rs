@@ -14,7 +14,7 @@
 //! This file is compiled in both places, so it is one module without submodules, and it uses
 //! only crates both depend on.
 
-use biscale::config::Experiment;
+use biscale::experiment::config::Experiment;
 use biscale_compressors::registry;
 use biscale_core::artifact::Artifact;
 use biscale_core::basis::LightBasis;
@@ -556,7 +556,7 @@ fn holds(check: &FormCheck, form: &Probe) -> bool {
     }
 }
 
-/// A `.npz` (or `.npy`) for `biscale eval`: the zip and `.npy` readers (`biscale::npy`), then
+/// A `.npz` (or `.npy`) for `biscale eval`: the zip and `.npy` readers (`biscale::interop::npy`), then
 /// what `eval` makes of the arrays (`interop::read_lstar`, `interop::read_form`).
 ///
 /// Two kinds of input. Raw bytes are the file itself. Bytes starting with `NPZ:` are a recipe
@@ -565,7 +565,7 @@ fn holds(check: &FormCheck, form: &Probe) -> bool {
 /// `name=` followed by a `.npy` file's bytes (chunks that do not parse are dropped); the
 /// archive is written with `npy::write_npz`.
 pub fn npz(data: &[u8]) {
-    use biscale::npy;
+    use biscale::interop::npy;
     let dir = tempfile::Builder::new().prefix("fuzz-npz").tempdir().expect("a temporary folder");
     let path = dir.path().join("fuzz-input.npz");
     match data.strip_prefix(b"NPZ:") {

@@ -1,8 +1,10 @@
 //! Bad input gives a clear error that names what and where, never a panic, and never a
 //! half-written output file.
 
-use biscale::config::Experiment;
-use biscale::pipeline::{run, PipelineError, RunOptions};
+use biscale::error::PipelineError;
+use biscale::experiment::config::Experiment;
+use biscale::run::run;
+use biscale::store::RunOptions;
 use biscale_core::scene::HdrImage;
 use biscale_core::CoreError;
 use biscale_tests::{workspace_root, write_config};

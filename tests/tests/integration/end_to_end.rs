@@ -1,8 +1,9 @@
 //! End-to-end runs of the pipeline: the bundled smoke config, and analytic scenes whose
 //! radiance is known in closed form.
 
-use biscale::config::Experiment;
-use biscale::pipeline::{run, RunOptions};
+use biscale::experiment::config::Experiment;
+use biscale::run::run;
+use biscale::store::RunOptions;
 use biscale_core::geometry::shapes;
 use biscale_core::scene::HdrImage;
 use biscale_tests::{workspace_root, write_config, write_obj};
@@ -275,7 +276,7 @@ fn gpu_backend_run(extra: &str) -> Option<biscale::metrics::Metrics> {
     let opts = RunOptions { out_dir: Some(dir.path().join("out")), cache_dir: None, no_cache: true };
     match run(&exp, &opts) {
         Ok((_, m)) => Some(m),
-        Err(biscale::pipeline::PipelineError::Gpu(biscale_gpu::GpuError::NoAdapter(e)))
+        Err(biscale::error::PipelineError::Gpu(biscale_gpu::GpuError::NoAdapter(e)))
             if std::env::var("BISCALE_REQUIRE_GPU").as_deref() != Ok("1") =>
         {
             eprintln!("SKIPPING the gpu backend test: no adapter ({e})");

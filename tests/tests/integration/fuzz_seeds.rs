@@ -9,7 +9,7 @@
 #[path = "../../../fuzz/src/lib.rs"]
 mod bodies;
 
-use biscale::config::Experiment;
+use biscale::experiment::config::Experiment;
 use biscale_compressors::registry;
 use biscale_core::artifact::Artifact;
 use biscale_core::compress::CompressedForm;

@@ -16,8 +16,9 @@
 //! git diff --stat tests/golden
 //! ```
 
-use biscale::config::Experiment;
-use biscale::pipeline::{run, RunOptions};
+use biscale::experiment::config::Experiment;
+use biscale::run::run;
+use biscale::store::RunOptions;
 use biscale_tests::workspace_root;
 use std::path::{Path, PathBuf};
 

@@ -2,8 +2,9 @@
 //! scales, a camera that sees nothing, and cache files that belong to another input. Each
 //! test is named after the class of input it closes.
 
-use biscale::config::Experiment;
-use biscale::pipeline::{run, RunOptions};
+use biscale::experiment::config::Experiment;
+use biscale::run::run;
+use biscale::store::RunOptions;
 use biscale_core::geometry::Mesh;
 use biscale_core::scene::HdrImage;
 use biscale_tests::{workspace_root, write_config};
@@ -125,9 +126,9 @@ fn stale_foreign_caches_are_never_trusted() {
     // The cache file of each run, by its key.
     let path_of = |cfg: &Path| {
         let exp = Experiment::load(cfg).unwrap();
-        let mesh = biscale::pipeline::load_geometry(&exp).unwrap().mesh;
-        let key = biscale::cache::transfer_key(&mesh, &exp.transfer_settings());
-        biscale::cache::StageCache::in_dir(&cache).transfer_path(&key)
+        let mesh = biscale::stages::scene::load_geometry(&exp).unwrap().mesh;
+        let key = biscale::store::cache::transfer_key(&mesh, &exp.transfer_settings());
+        biscale::store::cache::StageCache::in_dir(&cache).transfer_path(&key)
     };
     let (file_a, file_b) = (path_of(&a), path_of(&b));
     assert!(file_a.exists() && file_b.exists() && file_a != file_b);

@@ -2,8 +2,9 @@
 //! face files) go through config, plan, run and the mesh commands exactly as their OBJ and
 //! cross twins do.
 
-use biscale::config::Experiment;
-use biscale::pipeline::{run, RunOptions};
+use biscale::experiment::config::Experiment;
+use biscale::run::run;
+use biscale::store::RunOptions;
 use biscale_core::geometry::{shapes, Mesh};
 use biscale_core::scene::HdrImage;
 use biscale_tests::{write_config, write_obj};
@@ -91,12 +92,12 @@ fn a_ply_mesh_under_six_sky_faces_runs_exactly_as_its_obj_under_the_cross() {
     let a = config(d, "obj_cross", "m.obj", "cross.exr");
     let b = config(d, "ply_faces", "m.ply", "sky_{face}.exr");
     // plan: the memory estimate loads the mesh and the sky (and keys T by the PLY's content).
-    let opts = biscale::pipeline::RunOptions { out_dir: None, cache_dir: Some(d.join("cache")), no_cache: false };
-    let plan = biscale::plan::Plan::new(&b).with_estimates(&b, &opts).unwrap().to_string();
+    let opts = biscale::store::RunOptions { out_dir: None, cache_dir: Some(d.join("cache")), no_cache: false };
+    let plan = biscale::experiment::plan::Plan::new(&b).with_estimates(&b, &opts).unwrap().to_string();
     assert!(plan.contains("build transfer   T"), "{plan}");
     assert!(plan.contains("sky_{face}.exr"), "{plan}");
-    let la = biscale::pipeline::load_lighting(&a).unwrap();
-    let lb = biscale::pipeline::load_lighting(&b).unwrap();
+    let la = biscale::stages::scene::load_lighting(&a).unwrap();
+    let lb = biscale::stages::scene::load_lighting(&b).unwrap();
     assert_eq!(la.light, lb.light);
     assert!(la.warnings.is_empty(), "{:?}", la.warnings);
     // The light holds the sky's power (the gradient averages to its constant term, and the spot).

@@ -2,8 +2,9 @@
 //! derived tolerance, the records beside the compressors, and the wgpu backend against the
 //! CPU.
 
-use biscale::config::Experiment;
-use biscale::pipeline::{run, RunOptions};
+use biscale::experiment::config::Experiment;
+use biscale::run::run;
+use biscale::store::RunOptions;
 use biscale_core::geometry::shapes;
 use biscale_core::sampling::hemisphere::square_to_hemisphere;
 use biscale_core::scene::HdrImage;
@@ -85,7 +86,7 @@ fn a_white_lambertian_sphere_under_a_constant_sky_shades_to_its_albedo() {
     // The run's own light (a constant map integrated over the cubemap: each texel gathers whole
     // sub-pixels of the map, so its power is the texel's solid angle up to that splatting).
     let exp = Experiment::load(&cfg).unwrap();
-    let light = biscale::pipeline::load_lighting(&exp).unwrap().light;
+    let light = biscale::stages::scene::load_lighting(&exp).unwrap().light;
     let cubemap = biscale_core::sampling::Cubemap::new(16);
     let sh_light = biscale_core::sh::ShProjection::new(cubemap, order, biscale_core::sh::light::LIGHT_SUBTEXELS)
         .project(&light)

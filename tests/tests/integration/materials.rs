@@ -1,8 +1,9 @@
 //! Several materials per scene, synthesized BTFs through a config, and the temple example:
 //! end to end through `biscale run`, checked against closed-form radiance where there is one.
 
-use biscale::config::Experiment;
-use biscale::pipeline::{run, RunOptions};
+use biscale::experiment::config::Experiment;
+use biscale::run::run;
+use biscale::store::RunOptions;
 use biscale_core::geometry::{shapes, MaterialIds, Mesh};
 use biscale_core::scene::HdrImage;
 use biscale_tests::{workspace_root, write_config, write_obj};
@@ -62,7 +63,7 @@ fn each_half_of_a_plane_shows_its_own_material_under_a_constant_sky() {
     assert!(!notes.contains("material ids: left out"), "two materials need ids: {notes}");
     let img = HdrImage::read_exr(&out.join("images/uncompressed.exr")).unwrap().0;
     let exp = Experiment::load(&cfg).unwrap();
-    let camera = biscale::pipeline::camera(&exp, &split_plane("dark", "light"), 1);
+    let camera = biscale::stages::scene::camera(&exp, &split_plane("dark", "light"), 1);
     let (mut dark, mut light) = (0, 0);
     for y in 0..64 {
         for x in 0..64 {
@@ -128,10 +129,11 @@ fn the_bundled_temple_is_the_generators_and_names_every_configured_material() {
     assert_eq!(bundled.mesh.positions.len(), generated.positions.len(), "regenerate assets/meshes/temple.obj");
     assert_eq!(bundled.mesh.materials, generated.materials);
     let exp = Experiment::load(&root.join("configs/temple.toml")).unwrap();
-    let map =
-        biscale::materials::assign(&bundled.mesh, &exp.mesh_path, &exp.materials()).unwrap().expect("per-name map");
+    let map = biscale::stages::materials::assign(&bundled.mesh, &exp.mesh_path, &exp.materials())
+        .unwrap()
+        .expect("per-name map");
     assert_eq!(map.len(), 5);
-    let plan = biscale::plan::Plan::new(&exp).to_string();
+    let plan = biscale::experiment::plan::Plan::new(&exp).to_string();
     assert!(plan.contains("marble: ray tracing of a flat patch"), "{plan}");
     assert!(plan.contains("ground: synthesize 16x16 texels x no view axis"), "{plan}");
     assert!(plan.contains("material ids per triangle (5 materials)"), "{plan}");
@@ -164,7 +166,7 @@ fn btf_command_writes_tables_and_contact_sheets() {
     // Only one, by name; an unknown name is an error listing the names.
     assert_eq!(biscale::commands::btf(&exp, &out, Some("b"), false, &opts).unwrap().len(), 1);
     let e = biscale::commands::btf(&exp, &out, Some("c"), false, &opts).err().unwrap();
-    let biscale::pipeline::PipelineError::Mismatch { path, what } = &e else { panic!("{e}") };
+    let biscale::error::PipelineError::Mismatch { path, what } = &e else { panic!("{e}") };
     assert!(path == &exp.config_path && what.contains("no material named \"c\"") && what.contains("a, b"), "{e}");
 }
 
@@ -320,7 +322,7 @@ fn a_measured_btf_in_the_bonn_layout_renders_as_the_material_it_measured() {
     let measured = config("measured", "kind = \"bonn\"\npath = \"sample\"\nresolution = 2\nview_grid = 2");
     let analytic = config("analytic", &format!("kind = \"lambertian\"\nalbedo = {albedo:?}"));
     let exp = Experiment::load(&measured).unwrap();
-    let plan = biscale::plan::Plan::new(&exp).to_string();
+    let plan = biscale::experiment::plan::Plan::new(&exp).to_string();
     assert!(
         plan.contains("resample the measured BTF in") && plan.contains("2x2 texels x 2x2 views x 4x4 lights"),
         "{plan}"

@@ -5,8 +5,8 @@
 //! form lets the tests (`tests/cli/`, one binary) check the argument definitions too.
 
 use anyhow::Context;
-use biscale::config::Experiment;
-use biscale::pipeline::RunOptions;
+use biscale::experiment::config::Experiment;
+use biscale::store::RunOptions;
 use clap::{Parser, Subcommand};
 use std::path::{Path, PathBuf};
 
@@ -508,11 +508,11 @@ fn run() -> anyhow::Result<()> {
     match cli.command {
         Command::Run { config, output } => {
             let exp = load(&config)?;
-            biscale::pipeline::run(&exp, &output.options()).with_context(|| format!("running {}", config.display()))?;
+            biscale::run::run(&exp, &output.options()).with_context(|| format!("running {}", config.display()))?;
         }
         Command::Plan { config, cache } => {
             let exp = load(&config)?;
-            print!("{}", biscale::plan::Plan::new(&exp).with_estimates(&exp, &cache.options(None))?);
+            print!("{}", biscale::experiment::plan::Plan::new(&exp).with_estimates(&exp, &cache.options(None))?);
         }
         Command::ExportMatrix { config, out, cache } => {
             let exp = load(&config)?;
@@ -609,10 +609,10 @@ fn run() -> anyhow::Result<()> {
             let opts = cache.options(Some(out.clone()));
             for w in biscale::commands::btf(&exp, &out, material.as_deref(), preview, &opts)? {
                 let how = match &w.origin {
-                    biscale::materials::Origin::Analytic => "analytic".to_string(),
-                    biscale::materials::Origin::Synthesized { seconds } => format!("synthesized in {seconds:.1} s"),
-                    biscale::materials::Origin::Cached(p) => format!("from cache {}", p.display()),
-                    biscale::materials::Origin::Measured(r, seconds) => format!(
+                    biscale::stages::materials::Origin::Analytic => "analytic".to_string(),
+                    biscale::stages::materials::Origin::Synthesized { seconds } => format!("synthesized in {seconds:.1} s"),
+                    biscale::stages::materials::Origin::Cached(p) => format!("from cache {}", p.display()),
+                    biscale::stages::materials::Origin::Measured(r, seconds) => format!(
                         "resampled from {} views x {} lights in {seconds:.1} s, bins up to {:.1} deg from a measurement",
                         r.views, r.lights, r.max_interpolation_angle_deg
                     ),
@@ -666,7 +666,7 @@ fn shard(what: Shard) -> anyhow::Result<()> {
             let exp = load(&config)?;
             let (path, m) =
                 shard::plan(&exp, shards, &out).with_context(|| format!("planning {}", config.display()))?;
-            let available = biscale::memory::available().ok();
+            let available = biscale::estimate::available().ok();
             print!("{}", shard::describe(&m, &path, available.as_ref()));
         }
         Shard::Run { manifest, index } => {
@@ -700,8 +700,8 @@ fn shard(what: Shard) -> anyhow::Result<()> {
 }
 
 fn cache(what: Cache) -> anyhow::Result<()> {
-    use biscale::cache;
-    use biscale::memory::human;
+    use biscale::estimate::human;
+    use biscale::store::cache;
     let age = |m: std::time::SystemTime| {
         let s = std::time::SystemTime::now().duration_since(m).unwrap_or_default().as_secs_f64();
         match s {

@@ -10,7 +10,7 @@
 //! ```
 
 use anyhow::{bail, Context, Result};
-use biscale::npy::{self, NpyArray, NpyData};
+use biscale::interop::npy::{self, NpyArray, NpyData};
 use biscale_compressors::registry;
 use biscale_core::basis::{LightBasis, LocalBasis};
 use biscale_core::compress::CompressContext;

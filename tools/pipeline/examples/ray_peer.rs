@@ -17,7 +17,7 @@
 //! ```
 
 use anyhow::Result;
-use biscale::npy::{self, ArrayRef, Elements};
+use biscale::interop::npy::{self, ArrayRef, Elements};
 use biscale_core::geometry::Mesh;
 use biscale_core::sampling::Cubemap;
 use biscale_core::stats::median;

@@ -2,26 +2,25 @@
 //! `diff` (image error between two EXR files), `btf` (synthesize a config's materials),
 //! `generate`, `viz` and `view`.
 
-use crate::cache::StageCache;
-use crate::config::Experiment;
-use crate::pipeline::{self, PipelineError, Result, RunOptions};
-use biscale_core::io::write_atomic;
+use crate::error::{PipelineError, Result};
+use crate::experiment::config::Experiment;
+use crate::store::cache::StageCache;
+use crate::store::RunOptions;
 use biscale_core::sampling::LightVector;
 use biscale_core::scene::image::write_rgb8_png;
 use biscale_core::scene::HdrImage;
 use biscale_core::transfer::TransferMatrix;
 use biscale_shading::image::{compare_exposed, error_image as error_image_of, resample, ImageMetrics, Resampling};
-use std::io::Write;
 use std::path::Path;
 
 /// Write `T.mtx` (coordinate, real, general; 1-based) and `L.mtx` (array N x 3, column-major)
 /// into `dir`, both readable by `scipy.io.mmread`.
 pub fn export_matrix(exp: &Experiment, dir: &Path, opts: &RunOptions) -> Result<(TransferMatrix, LightVector)> {
     std::fs::create_dir_all(dir).map_err(|source| PipelineError::Io { path: dir.into(), source })?;
-    let geometry = pipeline::load_geometry(exp)?;
-    let lighting = pipeline::load_lighting(exp)?;
-    let t = pipeline::transfer_matrix(exp, &geometry, StageCache::new(opts, dir).as_ref())?.matrix;
-    write_mtx(&t, &lighting.light, dir)?;
+    let geometry = crate::stages::scene::load_geometry(exp)?;
+    let lighting = crate::stages::scene::load_lighting(exp)?;
+    let t = crate::stages::transfer::transfer_matrix(exp, &geometry, StageCache::new(opts, dir).as_ref())?.matrix;
+    crate::interop::mtx::write_mtx(&t, &lighting.light, dir)?;
     write_scene(exp, &geometry, dir)?;
     write_irradiance(&t, &lighting.light, geometry.transfer.frames(), dir)?;
     Ok((t, lighting.light))
@@ -69,7 +68,7 @@ fn write_irradiance(
 /// vertex `i`), each vertex's `vn` the normal T was traced with and faces `f a//a b//b c//c`,
 /// so a reader that keeps indices needs no re-indexing; and the run's camera (full
 /// resolution, in the mesh's coordinates) with the lighting's source.
-fn write_scene(exp: &Experiment, geometry: &pipeline::Geometry, dir: &Path) -> Result<()> {
+fn write_scene(exp: &Experiment, geometry: &crate::stages::scene::Geometry, dir: &Path) -> Result<()> {
     use std::fmt::Write as _;
     let mesh = &geometry.mesh;
     let mut obj = String::from("# biscale's mesh: vertex i is T's vertex i, vn its traced normal\n");
@@ -108,56 +107,6 @@ fn write_scene(exp: &Experiment, geometry: &pipeline::Geometry, dir: &Path) -> R
     let text = serde_json::to_string_pretty(&view).expect("plain JSON");
     biscale_core::io::write_atomic_bytes(&view_path, text.as_bytes())?;
     Ok(())
-}
-
-pub fn write_mtx(t: &TransferMatrix, light: &LightVector, dir: &Path) -> Result<()> {
-    write_t_mtx(t, dir)?;
-    write_l_mtx(light, dir)?;
-    Ok(())
-}
-
-/// `T.mtx` in `dir` (coordinate, real, general; 1-based): its path.
-pub fn write_t_mtx(t: &TransferMatrix, dir: &Path) -> Result<std::path::PathBuf> {
-    let tp = dir.join("T.mtx");
-    write_atomic(&tp, |f| {
-        (|| -> std::io::Result<()> {
-            writeln!(f, "%%MatrixMarket matrix coordinate real general")?;
-            writeln!(
-                f,
-                "% biscale transfer matrix: row = vertex * M + j (M = {}), column = cubemap texel",
-                t.local_dirs()
-            )?;
-            writeln!(f, "{} {} {}", t.rows(), t.cols(), t.nnz())?;
-            for (r, row) in t.csr().outer_iterator().enumerate() {
-                for (c, v) in row.iter() {
-                    writeln!(f, "{} {} {}", r + 1, c + 1, v)?;
-                }
-            }
-            Ok(())
-        })()
-        .map_err(|e| e.to_string())
-    })?;
-    Ok(tp)
-}
-
-/// `L.mtx` in `dir` (array N x 3, column-major): its path.
-pub fn write_l_mtx(light: &LightVector, dir: &Path) -> Result<std::path::PathBuf> {
-    let lp = dir.join("L.mtx");
-    write_atomic(&lp, |f| {
-        (|| -> std::io::Result<()> {
-            writeln!(f, "%%MatrixMarket matrix array real general")?;
-            writeln!(f, "% biscale light vector: power per cubemap texel (radiance x solid angle), RGB columns")?;
-            writeln!(f, "{} 3", light.len())?;
-            for c in 0..3 {
-                for p in &light.power {
-                    writeln!(f, "{:e}", p[c])?;
-                }
-            }
-            Ok(())
-        })()
-        .map_err(|e| e.to_string())
-    })?;
-    Ok(lp)
 }
 
 /// What `biscale diff` compares and writes besides the two images.
@@ -257,17 +206,17 @@ pub const MAX_GENERATED_TRIANGLES: u64 = 1 << 25;
 /// soup (`shapes::unweld`: three vertices per triangle, no shared edge). Refused up front
 /// beyond [`MAX_GENERATED_TRIANGLES`] or when its memory estimate exceeds the available memory.
 pub fn subdivide(input: &Path, levels: u32, unweld: bool, out: &Path) -> Result<biscale_core::geometry::Mesh> {
-    subdivide_within(input, levels, unweld, out, &crate::memory::available()?)
+    subdivide_within(input, levels, unweld, out, &crate::estimate::available()?)
 }
 
 /// [`subdivide`] with `available` bytes of memory: refused when
-/// [`crate::memory::subdivide_bytes`] is more.
+/// [`crate::estimate::subdivide_bytes`] is more.
 pub fn subdivide_within(
     input: &Path,
     levels: u32,
     unweld: bool,
     out: &Path,
-    available: &crate::memory::Available,
+    available: &crate::estimate::Available,
 ) -> Result<biscale_core::geometry::Mesh> {
     let mut mesh = biscale_core::geometry::Mesh::load(input)?.mesh;
     // Each level quadruples the triangles: refuse up front what would not fit, with the
@@ -281,13 +230,13 @@ pub fn subdivide_within(
             triangles as f64 * 36.0 / 1e9
         ))));
     }
-    let estimate = crate::memory::subdivide_bytes(
+    let estimate = crate::estimate::subdivide_bytes(
         mesh.triangle_count() as u64,
         mesh.vertex_count() as u64,
         mesh.uvs.is_some(),
         levels,
-    ) + if unweld { crate::memory::unweld_bytes(triangles as u64) } else { 0 };
-    crate::memory::refuse(
+    ) + if unweld { crate::estimate::unweld_bytes(triangles as u64) } else { 0 };
+    crate::estimate::refuse(
         &format!("{}: {levels} levels of subdivision", input.display()),
         estimate,
         &format!(" ({triangles} triangles and their OBJ text)"),
@@ -331,8 +280,8 @@ pub fn viz(
     let cerr = |source| PipelineError::Compress { name: "bicluster".into(), source };
     use biscale_core::compress::{CompressContext, Compressor};
     std::fs::create_dir_all(out).map_err(|source| PipelineError::Io { path: out.into(), source })?;
-    let geometry = pipeline::load_geometry(exp)?;
-    let t = pipeline::transfer_matrix(exp, &geometry, StageCache::new(opts, out).as_ref())?.matrix;
+    let geometry = crate::stages::scene::load_geometry(exp)?;
+    let t = crate::stages::transfer::transfer_matrix(exp, &geometry, StageCache::new(opts, out).as_ref())?.matrix;
     let form =
         Bicluster::default().compress(&t, &CompressContext { seed: exp.file.seed, progress: None }).map_err(cerr)?;
     let count = count.clamp(1, t.vertices().max(1));
@@ -382,7 +331,7 @@ pub fn view(
     opts: &RunOptions,
 ) -> Result<()> {
     use biscale_gpu::{Screenshot, ViewerForm, ViewerSetup};
-    let plan = crate::plan::Plan::new(exp);
+    let plan = crate::experiment::plan::Plan::new(exp);
     let method = match method {
         Some(label) => {
             let settings = exp.method_settings();
@@ -398,17 +347,16 @@ pub fn view(
         None => None,
     };
     let out = opts.out_dir.clone().unwrap_or_else(|| Path::new("out").join(exp.name()));
-    let geometry = pipeline::load_geometry(exp)?;
-    let lighting = pipeline::load_lighting(exp)?;
+    let geometry = crate::stages::scene::load_geometry(exp)?;
+    let lighting = crate::stages::scene::load_lighting(exp)?;
     let cache = StageCache::new(opts, &out);
-    let t = pipeline::transfer_matrix(exp, &geometry, cache.as_ref())?;
-    let (scene, _) = pipeline::shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
+    let t = crate::stages::transfer::transfer_matrix(exp, &geometry, cache.as_ref())?;
+    let (scene, _) = crate::stages::scene::shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
     let mut forms = vec![];
     let (scene, light_basis) = match method {
         Some(setting) => {
-            let src =
-                crate::methods::sh::MethodScene { exp, geometry: &geometry, scene: &scene, cache: cache.as_ref() };
-            let p = crate::methods::sh::prepare(setting, &src, None)?;
+            let src = crate::stages::sh::MethodScene { exp, geometry: &geometry, scene: &scene, cache: cache.as_ref() };
+            let p = crate::stages::sh::prepare(setting, &src, None)?;
             let kernels = p
                 .compressor
                 .kernels(&p.form)
@@ -420,9 +368,15 @@ pub fn view(
         None => (scene, t.matrix.light_basis()),
     };
     for setting in plan.compressors.iter().filter(|_| method.is_none()) {
-        let c = pipeline::build_compressor(setting)?;
-        let (form, _) =
-            pipeline::compressed_form(setting, c.as_ref(), &t.matrix, &t.key, exp.file.seed, cache.as_ref())?;
+        let c = crate::stages::transfer::build_compressor(setting)?;
+        let (form, _) = crate::stages::transfer::compressed_form(
+            setting,
+            c.as_ref(),
+            &t.matrix,
+            &t.key,
+            exp.file.seed,
+            cache.as_ref(),
+        )?;
         let kernels =
             c.kernels(&form).map_err(|source| PipelineError::Compress { name: setting.label.clone(), source })?;
         forms.push(ViewerForm { label: setting.label.clone(), form, kernels });
@@ -453,7 +407,7 @@ pub struct BtfWritten {
     pub label: String,
     pub path: std::path::PathBuf,
     pub preview: Option<std::path::PathBuf>,
-    pub origin: crate::materials::Origin,
+    pub origin: crate::stages::materials::Origin,
     pub bytes: u64,
     /// With `preview`, one sheet per compressed representation of the material: dense,
     /// compressed and |error| side by side.
@@ -485,7 +439,7 @@ pub fn btf(
     preview: bool,
     opts: &RunOptions,
 ) -> Result<Vec<BtfWritten>> {
-    use crate::config::MaterialConfig;
+    use crate::experiment::config::MaterialConfig;
     use biscale_shading::synth::{save_btf, save_contact_sheet, BtfEncoding};
     let configs = exp.materials();
     let chosen: Vec<&MaterialConfig> = configs.iter().filter(|c| only.is_none_or(|n| c.name() == Some(n))).collect();
@@ -506,7 +460,7 @@ pub fn btf(
         let stem = crate::interop::material_stem(&label);
         let path = out.join(format!("{stem}.btf"));
         crate::interop::claim_stem(&mut taken, &stem, &label, &path)?;
-        let (btf, origin) = crate::materials::material_btf(cfg, local_basis, cache.as_ref(), &label)?;
+        let (btf, origin) = crate::stages::materials::material_btf(cfg, local_basis, cache.as_ref(), &label)?;
         let encoding = match cfg {
             MaterialConfig::Synthesized(s) => BtfEncoding::from_name(&s.encoding)?,
             _ => BtfEncoding::F32,
@@ -519,10 +473,11 @@ pub fn btf(
             let p = out.join(format!("{stem}_preview.png"));
             save_contact_sheet(&btf, &lights, &views, &p)?;
             for &repr in cfg.representations().all() {
-                if repr == crate::config::BtfRepresentation::Dense {
+                if repr == crate::experiment::config::BtfRepresentation::Dense {
                     continue;
                 }
-                let (r, record) = crate::materials::represent(&btf, repr, exp.file.seed, cache.as_ref(), &label)?;
+                let (r, record) =
+                    crate::stages::materials::represent(&btf, repr, exp.file.seed, cache.as_ref(), &label)?;
                 let decoded = r.to_dense()?;
                 let (img, error_gain) = biscale_shading::synth::comparison_sheet(&btf, &decoded, &lights, &views)?;
                 let path = out.join(format!("{stem}_{}_compare.png", record.representation));
@@ -584,7 +539,7 @@ mod tests {
 
     #[test]
     fn subdividing_past_the_available_memory_is_refused_up_front() {
-        use crate::memory::{subdivide_bytes, Available};
+        use crate::estimate::{subdivide_bytes, Available};
         let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/meshes/bunny.obj");
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("dense.obj");
@@ -606,7 +561,7 @@ mod tests {
         let e = super::subdivide_within(&bunny, 3, true, &soup, &enough).unwrap_err().to_string();
         assert!(e.contains("3 levels of subdivision needs about"), "{e}");
         assert!(!soup.exists());
-        let needed_soup = needed + crate::memory::unweld_bytes(64 * 3674);
+        let needed_soup = needed + crate::estimate::unweld_bytes(64 * 3674);
         let soup_enough = Available { bytes: needed_soup, source: "test" };
         let mesh = super::subdivide_within(&bunny, 3, true, &soup, &soup_enough).unwrap();
         assert_eq!(mesh.vertex_count(), 3 * 64 * 3674);

@@ -8,13 +8,13 @@
 //! * **Several runs** ([`side_by_side`]): one page that sets every run's compressor and method
 //!   rows side by side (a table and the storage and time plots, one curve per run and kind).
 //!
-//! Both write through a staged folder (`crate::staging`), so a report is replaced whole, and a
+//! Both write through a staged folder (`crate::store::staging`), so a report is replaced whole, and a
 //! folder is only ever replaced when its marker proves it biscale's.
 
+use crate::error::{io_err, PipelineError, Result};
 use crate::metrics::{CompressorRecord, Metrics};
-use crate::pipeline::{io_err, PipelineError, Result};
 use crate::report::{Block, Table};
-use crate::staging::{StagedDir, MARKER};
+use crate::store::staging::{StagedDir, MARKER};
 use std::path::{Path, PathBuf};
 
 /// A finished run as `biscale report` reads it back.

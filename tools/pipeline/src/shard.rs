@@ -19,7 +19,7 @@
 //! * **merge** checks every shard (missing, stale or corrupt ones are listed with the command
 //!   that reruns them), stacks `T`, merges the parts' forms
 //!   ([`biscale_core::compress::Compressor::merge_parts`]), and runs the rest of the
-//!   pipeline ([`crate::pipeline::run_with`]): the compressors that need all of `T` (CPCA's
+//!   pipeline ([`crate::run::run_with`]): the compressors that need all of `T` (CPCA's
 //!   global k-means), gathers, shading and the report. `T`, the forms and the images are
 //!   byte-identical to `biscale run` of the same config (only timings differ).
 //! * **sbatch** writes a job-array script over the shards, a merge script and `submit.sh`,
@@ -28,9 +28,11 @@
 //! No scheduler, queue or protocol of our own: Slurm places and retries the shards; the
 //! shared file system carries everything.
 
-use crate::config::{CompressorSetting, Experiment};
-use crate::memory::{human, Available};
-use crate::pipeline::{build_compressor, PipelineError, Precomputed, Result, RunOptions};
+use crate::error::{PipelineError, Result};
+use crate::estimate::{human, Available};
+use crate::experiment::config::{CompressorSetting, Experiment};
+use crate::stages::transfer::{build_compressor, Precomputed};
+use crate::store::RunOptions;
 use biscale_core::compress::{CompressContext, CompressedForm, Compressor, Separability};
 use biscale_core::io::{write_atomic_bytes, ContentHash};
 use biscale_core::transfer::{self, TransferMatrix};
@@ -112,7 +114,7 @@ pub struct MergeSetting {
     pub why: String,
 }
 
-/// Estimates made at plan time from a sample of traced vertices (`crate::memory`).
+/// Estimates made at plan time from a sample of traced vertices (`crate::estimate`).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct ShardEstimate {
     /// Non-zeros of `T` per vertex (upper estimate of the sample).
@@ -233,14 +235,14 @@ pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Man
             ),
         ));
     }
-    let geometry = crate::pipeline::load_geometry(exp)?;
+    let geometry = crate::stages::scene::load_geometry(exp)?;
     let vertices = geometry.mesh.vertex_count();
     let settings = exp.transfer_settings();
     let shape = settings.shape(vertices);
     let mut separable = vec![];
     let mut in_merge = vec![];
     let mut multiple = 1usize;
-    for s in &crate::plan::Plan::new(exp).compressors {
+    for s in &crate::experiment::plan::Plan::new(exp).compressors {
         let c = build_compressor(s)?;
         match c.separability(shape) {
             Separability::Rows { vertex_multiple } => {
@@ -279,22 +281,22 @@ pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Man
         })
         .collect();
 
-    // Estimates: the run's model (crate::memory) at the largest shard's vertex count.
-    let lighting = crate::pipeline::load_lighting(exp)?;
-    let run = crate::memory::estimate(exp, &geometry, &lighting, true);
+    // Estimates: the run's model (crate::estimate) at the largest shard's vertex count.
+    let lighting = crate::stages::scene::load_lighting(exp)?;
+    let run = crate::estimate::estimate(exp, &geometry, &lighting, true);
     let per_vertex = run.nnz.upper as f64 / vertices.max(1) as f64;
     let largest = specs.iter().map(|s| s.end_vertex - s.first_vertex).max().unwrap_or(0);
     let shard_nnz = (per_vertex * largest as f64).ceil() as u64;
     let threads = rayon::current_num_threads();
     let t = transfer::TransferMemory::new(&settings, largest, shard_nnz, threads);
-    let common = crate::memory::PROCESS_BASELINE_BYTES
-        + geometry.mesh.triangle_count() as u64 * crate::memory::GEOMETRY_BYTES_PER_TRIANGLE
-        + vertices as u64 * crate::memory::GEOMETRY_BYTES_PER_VERTEX;
-    let plan_settings: Vec<CompressorSetting> = crate::plan::Plan::new(exp).compressors;
+    let common = crate::estimate::PROCESS_BASELINE_BYTES
+        + geometry.mesh.triangle_count() as u64 * crate::estimate::GEOMETRY_BYTES_PER_TRIANGLE
+        + vertices as u64 * crate::estimate::GEOMETRY_BYTES_PER_VERTEX;
+    let plan_settings: Vec<CompressorSetting> = crate::experiment::plan::Plan::new(exp).compressors;
     let parts: Vec<_> = plan_settings
         .iter()
         .filter(|s| separable.iter().any(|p| p.label == s.label))
-        .map(|s| crate::memory::compressor_memory(s, &settings, largest, shard_nnz, threads as u64))
+        .map(|s| crate::estimate::compressor_memory(s, &settings, largest, shard_nnz, threads as u64))
         .collect();
     let compress_peak = parts.iter().map(|c| c.working + c.form).max().unwrap_or(0);
     let estimate = ShardEstimate {
@@ -404,7 +406,7 @@ impl Manifest {
 
     /// The compressor of the separable setting `label`, built from the config.
     fn compressor(&self, exp: &Experiment, label: &str, path: &Path) -> Result<Box<dyn Compressor>> {
-        let setting = crate::plan::Plan::new(exp)
+        let setting = crate::experiment::plan::Plan::new(exp)
             .compressors
             .into_iter()
             .find(|c| c.label == label)
@@ -460,7 +462,7 @@ pub fn run(path: &Path, index: usize) -> Result<ShardDone> {
         m.experiment,
         rayon::current_num_threads()
     );
-    let geometry = crate::pipeline::load_geometry(&exp)?;
+    let geometry = crate::stages::scene::load_geometry(&exp)?;
     if geometry.mesh.vertex_count() != m.vertices {
         return Err(invalid(
             path,
@@ -515,7 +517,7 @@ pub fn run(path: &Path, index: usize) -> Result<ShardDone> {
         compressor_seconds,
         seconds: start.elapsed().as_secs_f64(),
         cpu_seconds: crate::provenance::process_cpu_seconds(),
-        peak_rss_bytes: crate::memory::peak_rss(),
+        peak_rss_bytes: crate::estimate::peak_rss(),
         threads: rayon::current_num_threads(),
         host: std::fs::read_to_string("/proc/sys/kernel/hostname").map(|h| h.trim().to_string()).unwrap_or_default(),
     };
@@ -695,7 +697,7 @@ pub fn merge(path: &Path, opts: &RunOptions) -> Result<(PathBuf, crate::metrics:
         forms,
         sharded,
     };
-    let (out, mut metrics) = crate::pipeline::run_with(&exp, opts, Some(pre))?;
+    let (out, mut metrics) = crate::run::run_with(&exp, opts, Some(pre))?;
     if let Some(s) = &mut metrics.sharded {
         s.merge_seconds = start.elapsed().as_secs_f64();
     }

@@ -6,7 +6,7 @@
 //! `.venv/bin/python`, else `python3`) imports NumPy; with `BISCALE_REQUIRE_PYTHON=1` (CI,
 //! `scripts/test.sh` installs NumPy into `.venv`) a missing NumPy fails the test instead.
 
-use biscale::npy::{self, ArrayRef, Elements, NpyArray, NpyData};
+use biscale::interop::npy::{self, ArrayRef, Elements, NpyArray, NpyData};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -61,7 +61,6 @@ fn f32s(a: &NpyArray) -> &[f32] {
 
 #[test]
 fn export_writes_every_kind_and_reads_back_exactly() {
-    use biscale::pipeline;
     let dir = tempfile::tempdir().unwrap();
     let (out, cache) = (dir.path().join("export"), dir.path().join("cache"));
     let stdout = ok(&["export", CONFIG, "--out", s(&out), "--cache-dir", s(&cache)]);
@@ -70,10 +69,10 @@ fn export_writes_every_kind_and_reads_back_exactly() {
     }
 
     // The same stages in memory, without the cache: T traced again, forms compressed again.
-    let exp = biscale::config::Experiment::load(&root().join(CONFIG)).unwrap();
-    let geometry = pipeline::load_geometry(&exp).unwrap();
-    let lighting = pipeline::load_lighting(&exp).unwrap();
-    let t = pipeline::transfer_matrix(&exp, &geometry, None).unwrap();
+    let exp = biscale::experiment::config::Experiment::load(&root().join(CONFIG)).unwrap();
+    let geometry = biscale::stages::scene::load_geometry(&exp).unwrap();
+    let lighting = biscale::stages::scene::load_lighting(&exp).unwrap();
+    let t = biscale::stages::transfer::transfer_matrix(&exp, &geometry, None).unwrap();
     let csr = t.matrix.csr();
 
     let a = npz(&out.join("t.npz"));
@@ -117,9 +116,16 @@ fn export_writes_every_kind_and_reads_back_exactly() {
     assert_eq!((meta(&a)["product"].as_str(), &meta(&a)["shape"]), (Some("paper"), shape));
 
     for setting in exp.compressor_settings() {
-        let compressor = pipeline::build_compressor(setting).unwrap();
-        let (form, _) =
-            pipeline::compressed_form(setting, compressor.as_ref(), &t.matrix, &t.key, exp.file.seed, None).unwrap();
+        let compressor = biscale::stages::transfer::build_compressor(setting).unwrap();
+        let (form, _) = biscale::stages::transfer::compressed_form(
+            setting,
+            compressor.as_ref(),
+            &t.matrix,
+            &t.key,
+            exp.file.seed,
+            None,
+        )
+        .unwrap();
         let a = npz(&out.join(format!("form-{}.npz", setting.label)));
         assert_eq!(a.len(), form.arrays.len() + 1, "{}", setting.label);
         for (named, (name, array)) in form.arrays.iter().zip(&a) {
@@ -150,7 +156,7 @@ fn export_writes_every_kind_and_reads_back_exactly() {
 
     let a = npz(&out.join("btf-phong.npz"));
     let cfg = &exp.materials()[0];
-    let (btf, _) = biscale::materials::material_btf(cfg, t.matrix.local_basis(), None, "phong").unwrap();
+    let (btf, _) = biscale::stages::materials::material_btf(cfg, t.matrix.local_basis(), None, "phong").unwrap();
     assert_eq!(member(&a, "data").shape, [1, 1, 9, 16, 3]);
     assert_eq!(f32s(member(&a, "data")), btf.data().as_flattened());
     assert_eq!(member(&a, "view_directions").shape, [9, 3]);

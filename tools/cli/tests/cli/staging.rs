@@ -1,7 +1,7 @@
 //! `kill -9` at any stage of a run leaves the output folder holding one whole run: the earlier
 //! one, or after the swap the new one, never a mix, and no temporary file survives the next
 //! run. The `biscale` executable is killed with SIGKILL at each of five points through its
-//! fault-injection variable (`BISCALE_FAULT_KILL_AT`, see `biscale::staging`).
+//! fault-injection variable (`BISCALE_FAULT_KILL_AT`, see `biscale::store::staging`).
 
 use std::collections::BTreeMap;
 use std::os::unix::process::ExitStatusExt;

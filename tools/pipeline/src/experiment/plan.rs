@@ -3,10 +3,10 @@
 //! `biscale plan` adds the run's estimated peak memory and, stage by stage, what the cache
 //! already holds and how big each output it would write is ([`Plan::with_estimates`]).
 
-use crate::cache::StageCache;
-use crate::config::{CompressorSetting, Experiment, MaterialConfig};
-use crate::memory::human;
-use crate::pipeline::RunOptions;
+use crate::estimate::human;
+use crate::experiment::config::{CompressorSetting, Experiment, MaterialConfig};
+use crate::store::cache::StageCache;
+use crate::store::RunOptions;
 use biscale_shading::synth::BtfEncoding;
 use std::fmt;
 use std::path::PathBuf;
@@ -30,7 +30,7 @@ pub struct Plan {
     pub compressors: Vec<CompressorSetting>,
     pub reference: bool,
     /// The estimated memory of the run and the memory available, when asked for.
-    pub memory: Option<(crate::memory::RunMemory, crate::memory::Available)>,
+    pub memory: Option<(crate::estimate::RunMemory, crate::estimate::Available)>,
     /// What the stage cache holds of this run's outputs, when asked for.
     pub cache: CacheReport,
 }
@@ -152,7 +152,7 @@ impl Plan {
             }
             let all = m.representations().all();
             for (i, r) in all.iter().enumerate() {
-                if let crate::config::BtfRepresentation::Lpca { clusters, components, .. } = *r {
+                if let crate::experiment::config::BtfRepresentation::Lpca { clusters, components, .. } = *r {
                     let role = if i == 0 { "evaluated directly by every shader" } else { "compared in the BTF study" };
                     step(
                         "btf",
@@ -164,7 +164,7 @@ impl Plan {
                     );
                 }
             }
-            if all.iter().any(|r| *r != crate::config::BtfRepresentation::Dense) {
+            if all.iter().any(|r| *r != crate::experiment::config::BtfRepresentation::Dense) {
                 step(
                     "btf",
                     format!(
@@ -192,7 +192,7 @@ impl Plan {
         // The diffuse special case, as far as the config tells (the run checks the tables).
         let diffuse = materials.iter().all(lambertian_config);
         for m in exp.method_settings() {
-            let Ok(p) = crate::methods::sh::ShParams::parse(&m.params) else { continue };
+            let Ok(p) = crate::experiment::methods::sh::ShParams::parse(&m.params) else { continue };
             let n2 = p.order * p.order;
             let bounces = match p.bounces {
                 0 => String::new(),
@@ -252,14 +252,14 @@ impl Plan {
         Plan { steps, compressors, reference, memory: None, cache: CacheReport::NotChecked }
     }
 
-    /// This plan with the run's memory estimate (`crate::memory`) and what the stage cache
+    /// This plan with the run's memory estimate (`crate::estimate`) and what the stage cache
     /// of `opts` holds of its outputs: loads the mesh and the light and traces the sample of
     /// vertices, as `biscale run` does before it starts.
-    pub fn with_estimates(mut self, exp: &Experiment, opts: &RunOptions) -> crate::pipeline::Result<Plan> {
-        let geometry = crate::pipeline::load_geometry(exp)?;
-        let lighting = crate::pipeline::load_lighting(exp)?;
+    pub fn with_estimates(mut self, exp: &Experiment, opts: &RunOptions) -> crate::error::Result<Plan> {
+        let geometry = crate::stages::scene::load_geometry(exp)?;
+        let lighting = crate::stages::scene::load_lighting(exp)?;
         let cache = StageCache::new(opts, std::path::Path::new("."));
-        let memory = crate::memory::estimate(exp, &geometry, &lighting, cache.is_some());
+        let memory = crate::estimate::estimate(exp, &geometry, &lighting, cache.is_some());
         self.cache = match &cache {
             None => CacheReport::Off,
             Some(c) => CacheReport::Dir {
@@ -267,7 +267,7 @@ impl Plan {
                 outputs: cached_outputs(exp, &geometry.mesh, &self.compressors, &memory, c)?,
             },
         };
-        self.memory = Some((memory, crate::memory::available()?));
+        self.memory = Some((memory, crate::estimate::available()?));
         Ok(self)
     }
 }
@@ -279,12 +279,12 @@ fn cached_outputs(
     exp: &Experiment,
     mesh: &biscale_core::geometry::Mesh,
     compressors: &[CompressorSetting],
-    memory: &crate::memory::RunMemory,
+    memory: &crate::estimate::RunMemory,
     cache: &StageCache,
-) -> crate::pipeline::Result<Vec<CachedOutput>> {
+) -> crate::error::Result<Vec<CachedOutput>> {
     let mut out = vec![];
     let settings = exp.transfer_settings();
-    let t_key = crate::cache::transfer_key(mesh, &settings);
+    let t_key = crate::store::cache::transfer_key(mesh, &settings);
     out.push(CachedOutput {
         stage: "transfer",
         what: format!("T (about {} non-zeros)", memory.nnz.expected),
@@ -294,7 +294,7 @@ fn cached_outputs(
     for m in exp.materials() {
         let label = m.label();
         if let MaterialConfig::Synthesized(s) = &m {
-            let key = crate::materials::synth_key(s, local)?;
+            let key = crate::stages::materials::synth_key(s, local)?;
             let bytes = BtfEncoding::from_name(&s.encoding).map_or(4, BtfEncoding::value_bytes);
             let views = (s.view_grid as u64 * s.view_grid as u64).max(1);
             let values = s.resolution as u64 * s.resolution as u64 * views * local.len() as u64;
@@ -305,7 +305,7 @@ fn cached_outputs(
             });
         }
         for r in m.representations().all() {
-            if let crate::config::BtfRepresentation::Lpca { .. } = r {
+            if let crate::experiment::config::BtfRepresentation::Lpca { .. } = r {
                 out.push(CachedOutput {
                     stage: "btf",
                     what: format!("{label}: local-PCA fit {}", r.label()),
@@ -315,19 +315,19 @@ fn cached_outputs(
         }
     }
     for (setting, mem) in compressors.iter().zip(&memory.compressors) {
-        let compressor = crate::pipeline::build_compressor(setting)?;
-        let state = match crate::cache::form_key(&t_key, compressor.as_ref(), exp.file.seed) {
+        let compressor = crate::stages::transfer::build_compressor(setting)?;
+        let state = match crate::store::cache::form_key(&t_key, compressor.as_ref(), exp.file.seed) {
             Some(key) => CacheState::of(cache.form_path(&key, &setting.label), Some(mem.form)),
             None => CacheState::KeyLater("this build cannot identify itself, so forms are not cached".into()),
         };
         out.push(CachedOutput { stage: "compress", what: setting.label.clone(), state });
     }
     for m in exp.method_settings() {
-        let Ok(p) = crate::methods::sh::ShParams::parse(&m.params) else { continue };
+        let Ok(p) = crate::experiment::methods::sh::ShParams::parse(&m.params) else { continue };
         let Ok(sh) = biscale_core::transfer::sh::ShTransferSettings::new(p.order, p.rays, exp.file.seed) else {
             continue;
         };
-        let key = crate::cache::sh_transfer_key(mesh, &sh, 0, 0);
+        let key = crate::store::cache::sh_transfer_key(mesh, &sh, 0, 0);
         // The file holds the CSR of the dense n^2 x n^2 blocks, laid out as T's file.
         let n2 = (p.order * p.order) as u64;
         let rows = mesh.vertex_count() as u64 * n2;
@@ -395,7 +395,7 @@ fn lambertian_config(m: &MaterialConfig) -> bool {
         MaterialConfig::Lambertian { .. } => true,
         MaterialConfig::Phong { .. } | MaterialConfig::Bonn(_) => false,
         MaterialConfig::Synthesized(s) => {
-            s.amplitude == 0.0 && matches!(s.brdf, crate::config::BrdfConfig::Lambertian { .. })
+            s.amplitude == 0.0 && matches!(s.brdf, crate::experiment::config::BrdfConfig::Lambertian { .. })
         }
     }
 }

@@ -646,7 +646,7 @@ fn zip_members(bytes: &[u8]) -> Result<Vec<(String, Vec<u8>)>, String> {
         }
     }
     let declared = entries.iter().try_fold(0u64, |sum, e| sum.checked_add(e.usize_)).unwrap_or(u64::MAX);
-    let limit = MAX_INFLATED_BYTES.min(crate::memory::available().map_or(MAX_INFLATED_BYTES, |a| a.bytes));
+    let limit = MAX_INFLATED_BYTES.min(crate::estimate::available().map_or(MAX_INFLATED_BYTES, |a| a.bytes));
     if declared > limit {
         return Err(format!(
             "its members declare {declared} bytes in all ({:.2} GB) where {limit} bytes are available to read them \

@@ -20,8 +20,9 @@
 //!   peak resident memory (VmHWM) of runs on the 2-core Linux test machine (dev profile):
 //!   BENCHMARKS.md "Memory estimate" has the runs and the estimate against the measurement.
 
-use crate::config::{Backend, Experiment, MaterialConfig, Setting};
-use crate::pipeline::{Geometry, Lighting, PipelineError};
+use crate::error::PipelineError;
+use crate::experiment::config::{Backend, Experiment, MaterialConfig, Setting};
+use crate::stages::scene::{Geometry, Lighting};
 use biscale_core::transfer::{sample_nnz, NnzEstimate, TransferMemory, TransferSettings, NNZ_SAMPLE_VERTICES};
 use biscale_core::CoreError;
 
@@ -337,7 +338,7 @@ fn btf_bytes(c: &MaterialConfig, m: u64) -> u64 {
             (b.resolution as u64 * b.resolution as u64 * views * m, 5)
         }
     };
-    let lpca = c.representations().all().iter().any(|r| *r != crate::config::BtfRepresentation::Dense);
+    let lpca = c.representations().all().iter().any(|r| *r != crate::experiment::config::BtfRepresentation::Dense);
     values * BTF_BYTES_PER_VALUE * (halves + 2 * lpca as u64) / 2
 }
 
@@ -382,7 +383,7 @@ pub(crate) fn memory_of(
 /// (12 + 8), with the cache on the form's copy and encoding as well (+ 16); one more CSR with
 /// bounces (+ 12).
 fn method_bytes(s: &Setting, vertices: usize, cache: bool) -> u64 {
-    let Ok(p) = crate::methods::sh::ShParams::parse(&s.params) else { return 0 };
+    let Ok(p) = crate::experiment::methods::sh::ShParams::parse(&s.params) else { return 0 };
     let n2 = p.order as u64 * p.order as u64;
     let values = vertices as u64 * n2 * n2;
     let per_value = 20 + if cache { 16 } else { 0 } + if p.bounces > 0 { 12 } else { 0 };
@@ -605,9 +606,9 @@ mod tests {
         let settings = TransferSettings::new(4, 8, 2).unwrap();
         let setting =
             |k: u64| Setting { label: format!("toy-{k}"), kind: "toy".into(), params: serde_json::json!({ "k": k }) };
-        let e = crate::config::fits_of(Some(&TOY), &setting(1000), &settings).unwrap_err();
+        let e = crate::experiment::config::fits_of(Some(&TOY), &setting(1000), &settings).unwrap_err();
         assert_eq!(e, "toy-1000: k = 1000 is too many");
-        crate::config::fits_of(Some(&TOY), &setting(3), &settings).unwrap();
+        crate::experiment::config::fits_of(Some(&TOY), &setting(3), &settings).unwrap();
         let m = memory_of(Some(&TOY), &setting(3), &settings, 10, 1000, 2);
         assert_eq!((m.working, m.form), (3002, 10 * 4));
         let unknown = memory_of(None, &setting(3), &settings, 10, 1000, 2);
@@ -644,7 +645,7 @@ mod tests {
     #[test]
     fn a_run_over_the_available_memory_is_refused_with_the_setting_to_change() {
         let dir = tempfile::tempdir().unwrap();
-        let exp = crate::config::Experiment::load(&smoke_at(dir.path(), 32)).unwrap();
+        let exp = crate::experiment::config::Experiment::load(&smoke_at(dir.path(), 32)).unwrap();
         let shape = RunShape { vertices: 1839, triangles: 3674, env_pixels: 0, cache: true, threads: 2 };
         let nnz = NnzEstimate::exact(1839, 5_000_000, &exp.transfer_settings());
         let m = RunMemory::new(&exp, &shape, nnz);
@@ -665,7 +666,7 @@ mod tests {
         // non-zero over the rest, more than the build (4 + 12) and T's own cache write
         // (12 + 6 + 6).
         let dir = tempfile::tempdir().unwrap();
-        let exp = crate::config::Experiment::load(&smoke_at(dir.path(), 32)).unwrap();
+        let exp = crate::experiment::config::Experiment::load(&smoke_at(dir.path(), 32)).unwrap();
         let shape = RunShape { vertices: 1000, triangles: 2000, env_pixels: 0, cache: true, threads: 2 };
         let settings = exp.transfer_settings();
         let at = |nnz| RunMemory::new(&exp, &shape, NnzEstimate::exact(1000, nnz, &settings));

@@ -19,17 +19,22 @@
 //! `flops_per_gather`, `build_seconds` and the array order, so `eval --form` rebuilds the
 //! very `CompressedForm` the run gathered.
 
-use crate::cache::StageCache;
-use crate::config::{CompressorSetting, Experiment, MaterialConfig};
+pub mod mtx;
+pub mod npy;
+
+use crate::error::{PipelineError, Result};
+use crate::experiment::config::{CompressorSetting, Experiment, MaterialConfig};
+use crate::experiment::plan::Plan;
 use crate::metrics::{CompressorRecord, Metrics};
-use crate::npy::{self, ArrayRef, Elements, NpyArray, NpyData, NpyError};
-use crate::pipeline::{self, Evaluation, PipelineError, Result, RunOptions, View};
-use crate::plan::Plan;
-use crate::staging::StagedDir;
+use crate::stages::evaluate::{Evaluation, View};
+use crate::store::cache::StageCache;
+use crate::store::staging::StagedDir;
+use crate::store::RunOptions;
 use biscale_core::basis::{LightBasis, LocalBasis, TransferShape};
 use biscale_core::compress::{ArrayData, CompressedForm, NamedArray};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::io::write_atomic_bytes;
+use npy::{ArrayRef, Elements, NpyArray, NpyData, NpyError};
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 
@@ -220,26 +225,26 @@ pub fn export(
     let cache = StageCache::new(opts, dir);
     let mut written = vec![];
     let needs_t = items.iter().any(|i| matches!(i, Item::T | Item::Lstar | Item::Forms));
-    let geometry = if needs_t { Some(pipeline::load_geometry(exp)?) } else { None };
+    let geometry = if needs_t { Some(crate::stages::scene::load_geometry(exp)?) } else { None };
     let lighting = if items.iter().any(|i| matches!(i, Item::L | Item::Lstar)) {
-        Some(pipeline::load_lighting(exp)?)
+        Some(crate::stages::scene::load_lighting(exp)?)
     } else {
         None
     };
     let transfer = match &geometry {
-        Some(g) => Some(pipeline::transfer_matrix(exp, g, cache.as_ref())?),
+        Some(g) => Some(crate::stages::transfer::transfer_matrix(exp, g, cache.as_ref())?),
         None => None,
     };
     for &item in items {
         match (item, format) {
             (Item::T, ExportFormat::Mtx) => {
                 let t = &transfer.as_ref().expect("loaded for t").matrix;
-                let path = crate::commands::write_t_mtx(t, dir)?;
+                let path = mtx::write_t_mtx(t, dir)?;
                 written.push(Written { path, about: format!("T, {} x {}, {} non-zeros", t.rows(), t.cols(), t.nnz()) });
             }
             (Item::L, ExportFormat::Mtx) => {
                 let l = &lighting.as_ref().expect("loaded for l").light;
-                let path = crate::commands::write_l_mtx(l, dir)?;
+                let path = mtx::write_l_mtx(l, dir)?;
                 written.push(Written { path, about: format!("L, {} x 3", l.len()) });
             }
             (Item::T, ExportFormat::Npz) => {
@@ -314,7 +319,7 @@ pub fn export(
                 let light = &lighting.as_ref().expect("loaded for lstar").light;
                 let moments = exp.file.runtime.light_moments;
                 let frames = geometry.as_ref().expect("loaded for lstar").transfer.frames();
-                let exact = pipeline::uncompressed_product(t, light, moments.then_some(frames))?;
+                let exact = crate::stages::evaluate::uncompressed_product(t, light, moments.then_some(frames))?;
                 let lstar = LocalRadiance::from_f64(t.local_basis(), t.vertices(), &exact)?;
                 let path = dir.join("lstar.npz");
                 write_lstar(exp, &lstar, t.light_basis(), moments, &path)?;
@@ -332,8 +337,8 @@ pub fn export(
             (Item::Forms, _) => {
                 let t = transfer.as_ref().expect("loaded for forms");
                 for setting in exp.compressor_settings() {
-                    let compressor = pipeline::build_compressor(setting)?;
-                    let (form, _) = pipeline::compressed_form(
+                    let compressor = crate::stages::transfer::build_compressor(setting)?;
+                    let (form, _) = crate::stages::transfer::compressed_form(
                         setting,
                         compressor.as_ref(),
                         &t.matrix,
@@ -363,7 +368,7 @@ pub fn export(
                     let stem = material_stem(&label);
                     let path = dir.join(format!("btf-{stem}.npz"));
                     claim_stem(&mut taken, &stem, &label, &path)?;
-                    let (btf, _) = crate::materials::material_btf(&cfg, local_basis, cache.as_ref(), &label)?;
+                    let (btf, _) = crate::stages::materials::material_btf(&cfg, local_basis, cache.as_ref(), &label)?;
                     write_btf(exp, &cfg, &label, &btf, &path)?;
                     let [w, h] = btf.spatial();
                     written.push(Written {
@@ -728,12 +733,12 @@ const TAKEN_NAMES: [&str; 5] = ["uncompressed", "uncompressed_paper", "reference
 /// folder (default `out/<name>-eval-<NAME>/`, replaced whole as a run's is): `metrics.json`
 /// and `metrics.csv` with one record in `compressors`, `images/` (the setting's image, its
 /// error figure, the uncompressed render (and the paper product's, with light moments), the
-/// reference, the masks), made by the same `pipeline::targets` as a run's. CPU only; the BTF study
+/// reference, the masks), made by the same `crate::stages::evaluate::targets` as a run's. CPU only; the BTF study
 /// and `[[methods]]` are left out.
 pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     let mut clock = crate::provenance::StageClock::start(&exp.source, exp.file.seed);
     let path = input.path();
-    let geometry = pipeline::load_geometry(exp)?;
+    let geometry = crate::stages::scene::load_geometry(exp)?;
     let want = exp.transfer_settings().shape(geometry.mesh.vertex_count());
     // Read and check the input before any heavy work.
     enum Loaded {
@@ -832,14 +837,14 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
     let images_dir = out_dir.join("images");
     std::fs::create_dir_all(&images_dir).map_err(|source| PipelineError::Io { path: images_dir.clone(), source })?;
 
-    let lighting = pipeline::load_lighting(exp)?;
-    let t = pipeline::transfer_matrix(exp, &geometry, cache.as_ref())?;
+    let lighting = crate::stages::scene::load_lighting(exp)?;
+    let t = crate::stages::transfer::transfer_matrix(exp, &geometry, cache.as_ref())?;
     clock.mark("transfer");
-    let (scene, materials) = pipeline::shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
+    let (scene, materials) = crate::stages::scene::shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
     let repeats = exp.file.runtime.repeats;
     let exposure = exp.file.report.exposure;
     let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
-    let pipeline::Targets { moments, base, reference } = pipeline::targets(
+    let crate::stages::evaluate::Targets { moments, base, reference } = crate::stages::evaluate::targets(
         exp,
         &geometry,
         &lighting,
@@ -871,7 +876,7 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
         (Loaded::Form(_), None) => unreachable!("a form has its compressor"),
     };
     clock.mark(format!("evaluate {name}"));
-    let mut metrics = pipeline::metrics_of_run(
+    let mut metrics = crate::run::metrics_of_run(
         exp,
         &geometry,
         &lighting,

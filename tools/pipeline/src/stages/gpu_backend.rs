@@ -3,8 +3,8 @@
 //! (submit-to-idle wall clock on a CPU adapter), and checked against the CPU results of the
 //! same run.
 
+use crate::error::Result;
 use crate::metrics::{GpuRecord, ImageErrors};
-use crate::pipeline::Result;
 use biscale_core::compress::CompressedForm;
 use biscale_core::gather::moments::LightMoments;
 use biscale_core::gather::relative_l2_error;

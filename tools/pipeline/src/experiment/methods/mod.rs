@@ -33,21 +33,6 @@ pub fn find(name: &str) -> Option<&'static MethodKind> {
     KINDS.iter().find(|k| k.name == name)
 }
 
-/// Run one method setting against the all-frequency run's inputs (dispatch on its kind).
-pub(crate) fn evaluate(
-    setting: &crate::config::MethodSetting,
-    inputs: &sh::MethodInputs<'_>,
-    gpu: Option<&crate::pipeline::GpuBackend>,
-) -> crate::pipeline::Result<crate::metrics::MethodRecord> {
-    match setting.kind.as_str() {
-        "sh" => sh::evaluate(setting, inputs, gpu),
-        other => Err(crate::pipeline::PipelineError::Mismatch {
-            path: inputs.exp.config_path.clone(),
-            what: format!("method kind {other} has no evaluation in this build"),
-        }),
-    }
-}
-
 /// The names of every kind, for messages.
 pub fn names() -> Vec<&'static str> {
     KINDS.iter().map(|k| k.name).collect()

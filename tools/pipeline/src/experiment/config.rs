@@ -150,7 +150,7 @@ pub struct ExperimentFile {
     #[serde(default)]
     pub compressors: Vec<Spanned<CompressorTable>>,
     /// `[[methods]]` entries: rendering methods beside the all-frequency one (`kind = "sh"`
-    /// plus the method's keys, swept like a compressor's; see `crate::methods`).
+    /// plus the method's keys, swept like a compressor's; see `crate::experiment::methods`).
     #[serde(default)]
     pub methods: Vec<Spanned<CompressorTable>>,
     #[serde(default)]
@@ -798,7 +798,7 @@ fn compressor_kinds() -> Vec<KindRef> {
 
 /// The method kinds as the expansion sees them.
 fn method_kinds() -> Vec<KindRef> {
-    crate::methods::KINDS.iter().map(|k| KindRef { name: k.name, check: k.check, label: k.label }).collect()
+    crate::experiment::methods::KINDS.iter().map(|k| KindRef { name: k.name, check: k.check, label: k.label }).collect()
 }
 
 #[derive(Debug, Deserialize)]

@@ -18,11 +18,11 @@
 //!   axis; a flat patch with an analytic BRDF is tabulated without ray tracing. Each such
 //!   decision is a line in [`SceneMaterials::notes`], printed with the plan.
 
-use crate::cache::{CacheKey, StageCache};
-use crate::config::{
+use crate::error::{PipelineError, Result};
+use crate::experiment::config::{
     BrdfConfig, BtfRepresentation, Experiment, LpcaQuantizeConfig, LpcaUnitConfig, MaterialConfig, SynthesizedConfig,
 };
-use crate::pipeline::{PipelineError, Result};
+use crate::store::cache::{CacheKey, StageCache};
 use crate::util::progress_bar;
 use biscale_core::artifact::Artifact;
 use biscale_core::basis::LocalBasis;

@@ -33,7 +33,7 @@
 //! carries the key its name names, see [`list`]): a cache folder may hold a person's own
 //! files, and a name is never proof.
 
-use crate::pipeline::RunOptions;
+use crate::store::RunOptions;
 use biscale_core::artifact::{Artifact, Field, MAGIC};
 use biscale_core::compress::Compressor;
 use biscale_core::geometry::Mesh;

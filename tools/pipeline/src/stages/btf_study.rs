@@ -6,9 +6,10 @@
 //! each setting changes one material and leaves the others dense, so a row is that material's
 //! own effect.
 
-use crate::materials::SceneMaterials;
+use crate::error::Result;
 use crate::metrics::{BtfRecord, BtfStudyRecord, PrecomputedRecord};
-use crate::pipeline::{errors, timed, Reference, Result, View};
+use crate::stages::evaluate::{errors, timed, Reference, View};
+use crate::stages::materials::SceneMaterials;
 use biscale_core::gather::LocalRadiance;
 use biscale_core::scene::{BtfRepresentation, Render, ShadeScene};
 use biscale_shading::image::{compare, compare_exposed};
@@ -131,7 +132,7 @@ pub(crate) fn run(materials: &SceneMaterials, inp: &StudyInputs<'_>) -> Result<V
         let png = format!("images/{stem}.png");
         render.image.write_png(&images.join(format!("{stem}.png")), inp.exposure)?;
         let error_png = format!("images/{stem}_error.png");
-        let (error_scale, _) = crate::pipeline::write_error_figure(
+        let (error_scale, _) = crate::stages::figures::write_error_figure(
             &render.image,
             &dense.image,
             "all-dense BTFs",

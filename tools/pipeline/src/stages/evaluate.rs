@@ -1,0 +1,420 @@
+//! The evaluation stage: what every form is measured against (the f64 product `T L`, the
+//! uncompressed baseline image, the reference) and the measurement of one form.
+
+use crate::error::{PipelineError, Result};
+use crate::experiment::config::{CompressorSetting, Experiment};
+use crate::metrics::*;
+use crate::stages::figures::{error_extent, save_images, write_error_figure};
+use crate::stages::scene::{Geometry, Lighting};
+use crate::store::staging::fault_point;
+use crate::util::progress_bar;
+use biscale_core::compress::{CompressedForm, Compressor};
+use biscale_core::gather::moments::{exact_moments_product, gather_with_moments, LightMoments, Lobe};
+use biscale_core::gather::{reference_product, relative_l2_error, LocalRadiance};
+use biscale_core::geometry::VertexFrame;
+use biscale_core::sampling::LightVector;
+use biscale_core::scene::{Background, Camera, HdrImage, Render, ShadeScene};
+use biscale_core::transfer::{TransferMatrix, VisibilitySampler};
+use biscale_shading::cpu::shade;
+use biscale_shading::image::{compare_exposed, ImageMetrics};
+use std::path::Path;
+use std::time::Instant;
+
+pub(crate) fn errors(m: &ImageMetrics) -> ImageErrors {
+    ImageErrors::from(m)
+}
+
+/// The uncompressed baseline: the f64 product `T L` (the reference for `L*` errors) and,
+/// rounded to f32, the image every compressor is compared with. With light moments the
+/// product weights every texel by its own cosine and moves the BRDF to each bin's mean light
+/// direction ([`exact_moments_product`]), and the paper's
+/// bin-mean-cosine `L*` is kept beside it so the report measures both side by side.
+pub struct Baseline {
+    pub exact: Vec<[f64; 3]>,
+    pub lstar: LocalRadiance,
+    pub render: Render,
+    pub gather_ms: f64,
+    pub shade_ms: f64,
+    /// With light moments: the paper's `L*` and its image.
+    pub paper: Option<(LocalRadiance, Render)>,
+}
+
+/// The uncompressed product in f64: `T L`, or with light moments (`moments`: the frames `T`
+/// was traced with) the moments' product ([`exact_moments_product`]). Rounded to f32 it is the
+/// uncompressed `L*` a run renders (`biscale export` writes it as `lstar.npz`).
+pub(crate) fn uncompressed_product(
+    t: &TransferMatrix,
+    light: &LightVector,
+    moments: Option<&[VertexFrame]>,
+) -> Result<Vec<[f64; 3]>> {
+    match moments {
+        None => Ok(reference_product(t, light)),
+        // LightMoments::new's lobe: the BRDF at each bin's mean direction.
+        Some(frames) => Ok(exact_moments_product(t, light, frames, Lobe::MeanDirection)?),
+    }
+}
+
+/// What every compressor setting is scored against, made the same way for `run` and `eval`.
+pub(crate) struct Targets {
+    /// The light's direction moments, with `runtime.light_moments`.
+    pub moments: Option<LightMoments>,
+    pub base: Baseline,
+    /// The ground-truth reference, when the plan traces one.
+    pub reference: Option<Reference>,
+}
+
+/// The [`Targets`] of `t` in `view`, their images written into `images_dir` (`uncompressed`,
+/// with moments also `uncompressed_paper`, `mask`, and with `trace_reference` `reference` and
+/// `reference_mask`). Refuses a camera that sees none of the mesh: every score would be empty.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn targets(
+    exp: &Experiment,
+    geometry: &Geometry,
+    lighting: &Lighting,
+    t: &TransferMatrix,
+    view: &View<'_>,
+    images_dir: &Path,
+    trace_reference: bool,
+    clock: &mut crate::provenance::StageClock,
+) -> Result<Targets> {
+    let moments = match exp.file.runtime.light_moments {
+        true => Some(LightMoments::new(&lighting.light)?),
+        false => None,
+    };
+    let frames = geometry.transfer.frames();
+    let base = baseline(t, lighting, moments.as_ref().map(|_| frames), view, exp.file.runtime.repeats)?;
+    if !base.render.mask.iter().any(|&hit| hit) {
+        return Err(PipelineError::Mismatch {
+            path: exp.config_path.clone(),
+            what: format!(
+                "the camera sees none of the mesh (no pixel of the {}x{} image hits it): check [runtime.camera] \
+                 (position, target, azimuth, elevation, fov) against the mesh's bounds {:?}",
+                view.camera.width,
+                view.camera.height,
+                geometry.mesh.bounds()
+            ),
+        });
+    }
+    let exposure = exp.file.report.exposure;
+    save_images(&base.render.image, images_dir, "uncompressed", exposure)?;
+    if let Some((_, paper)) = &base.paper {
+        save_images(&paper.image, images_dir, "uncompressed_paper", exposure)?;
+    }
+    base.render.write_mask_png(&images_dir.join("mask.png"))?;
+    clock.mark("uncompressed baseline");
+    fault_point("images");
+    let reference = match trace_reference {
+        true => {
+            let r = reference(exp, geometry, view, lighting, &base)?;
+            save_images(&r.render.image, images_dir, "reference", exposure)?;
+            r.render.write_mask_png(&images_dir.join("reference_mask.png"))?;
+            clock.mark("reference");
+            Some(r)
+        }
+        false => None,
+    };
+    Ok(Targets { moments, base, reference })
+}
+
+pub(crate) fn baseline(
+    t: &TransferMatrix,
+    lighting: &Lighting,
+    moments: Option<&[VertexFrame]>,
+    view: &View<'_>,
+    repeats: usize,
+) -> Result<Baseline> {
+    let (exact, gather_ms) = timed(repeats, || uncompressed_product(t, &lighting.light, moments))?;
+    let lstar = LocalRadiance::from_f64(t.local_basis(), t.vertices(), &exact)?;
+    let (render, shade_ms) = view.timed_render(&lstar, repeats)?;
+    let paper = match moments {
+        None => None,
+        Some(_) => {
+            let lstar = LocalRadiance::from_f64(t.local_basis(), t.vertices(), &reference_product(t, &lighting.light))?;
+            let render = view.render(&lstar, &view.camera)?;
+            Some((lstar, render))
+        }
+    };
+    Ok(Baseline { exact, lstar, render, gather_ms, shade_ms, paper })
+}
+
+/// What every render of the run shares: the scene, the camera and the background.
+pub(crate) struct View<'a> {
+    pub scene: &'a ShadeScene,
+    pub camera: Camera,
+    pub background: Background<'a>,
+}
+
+impl View<'_> {
+    /// The image of `lstar` with the background behind it.
+    pub(crate) fn render(&self, lstar: &LocalRadiance, camera: &Camera) -> Result<Render> {
+        Ok(shade(self.scene, lstar, camera)?.with_background(camera, &self.background))
+    }
+
+    /// [`Self::render`] at the run's camera, `repeats` times: the image and the median ms.
+    pub(crate) fn timed_render(&self, lstar: &LocalRadiance, repeats: usize) -> Result<(Render, f64)> {
+        timed(repeats, || self.render(lstar, &self.camera))
+    }
+}
+
+/// Run `f` `repeats` times (at least once): its last result and the median wall time (ms).
+pub(crate) fn timed<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(T, f64)> {
+    let mut samples = vec![];
+    let mut last = None;
+    for _ in 0..repeats.max(1) {
+        let start = Instant::now();
+        last = Some(f()?);
+        samples.push(start.elapsed().as_secs_f64() * 1e3);
+    }
+    Ok((last.expect("at least one run"), biscale_core::stats::median(&samples)))
+}
+
+/// The ground truth (direct light), ray-traced per pixel at the reference resolution
+/// ([`biscale_shading::reference::ReferenceRule::GroundTruth`]), and the baseline's error against it.
+pub struct Reference {
+    pub render: Render,
+    pub camera: Camera,
+    pub seconds: f64,
+    pub baseline_error: ImageMetrics,
+    /// With light moments: the paper-mode baseline's error against the same reference.
+    pub paper_baseline_error: Option<ImageMetrics>,
+    /// Every setting's render at the reference's camera, by name, kept as it is scored
+    /// ([`Evaluation::score`]) for its error figure against the reference, which
+    /// [`comparison_figures`] draws once every setting is in, at one scale for all.
+    pub(crate) scored: std::sync::Mutex<Vec<(String, HdrImage)>>,
+}
+
+pub(crate) fn reference(
+    exp: &Experiment,
+    geometry: &Geometry,
+    view: &View<'_>,
+    lighting: &Lighting,
+    baseline: &Baseline,
+) -> Result<Reference> {
+    let camera = geometry.camera(exp, *exp.file.report.reference_downscale.get_ref());
+    let sampler = VisibilitySampler::new(&exp.transfer_settings());
+    let pb = progress_bar(camera.height as u64, "reference");
+    let tick = |rows: usize| pb.set_position(rows as u64);
+    let start = Instant::now();
+    let render = biscale_shading::reference::render_reference(
+        view.scene,
+        &lighting.light,
+        &geometry.transfer,
+        &sampler,
+        &camera,
+        biscale_shading::reference::ReferenceRule::GroundTruth,
+        Some(&tick),
+    )?
+    .with_background(&camera, &view.background);
+    let seconds = start.elapsed().as_secs_f64();
+    pb.finish_and_clear();
+    let small = view.render(&baseline.lstar, &camera)?;
+    let exposure = exp.file.report.exposure;
+    let baseline_error = compare_exposed(&small.image, &render.image, Some(&render.mask), exposure)?;
+    let paper_baseline_error = match &baseline.paper {
+        Some((lstar, _)) => {
+            let small = view.render(lstar, &camera)?;
+            Some(compare_exposed(&small.image, &render.image, Some(&render.mask), exposure)?)
+        }
+        None => None,
+    };
+    crate::note!("reference: traced {}x{} in {seconds:.1} s", camera.width, camera.height);
+    Ok(Reference { render, camera, seconds, baseline_error, paper_baseline_error, scored: Default::default() })
+}
+
+#[cfg(feature = "gpu")]
+pub(crate) use crate::stages::gpu_backend::GpuBackend;
+
+/// Without the `gpu` feature there is no wgpu backend: this type has no values, so the
+/// pipeline's code is the same with and without it.
+#[cfg(not(feature = "gpu"))]
+pub(crate) enum GpuBackend {}
+
+#[cfg(not(feature = "gpu"))]
+impl GpuBackend {
+    pub(crate) fn new(_: &ShadeScene, _: &Camera) -> Result<Self> {
+        Err(no_gpu_feature())
+    }
+
+    pub(crate) fn for_scene(&self, _: &ShadeScene, _: &Camera) -> Result<Self> {
+        match *self {}
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn run(
+        &mut self,
+        _: &CompressedForm,
+        _: &biscale_kernels::KernelDesc,
+        _: &LightVector,
+        _: Option<(&LightMoments, &[VertexFrame])>,
+        _: &[[f64; 3]],
+        _: &Render,
+        _: &Background<'_>,
+        _: usize,
+    ) -> Result<GpuRecord> {
+        match *self {}
+    }
+}
+
+pub(crate) fn no_gpu_feature() -> PipelineError {
+    PipelineError::Feature { what: "runtime.backend = \"gpu\"".into(), feature: "gpu" }
+}
+
+/// What every compressed form is measured against: the matrix it compresses and the light it
+/// is gathered with, the f64 product `T L` (the reference for `L*`), the uncompressed
+/// all-frequency image (the baseline), the reference and the view it is shaded in.
+pub(crate) struct Evaluation<'a> {
+    pub t: &'a TransferMatrix,
+    pub light: &'a LightVector,
+    /// With light moments: the light's moments and the vertex frames `T` was traced with;
+    /// every form is then gathered three times and resolved ([`gather_with_moments`]).
+    pub moments: Option<(&'a LightMoments, &'a [VertexFrame])>,
+    pub exact: &'a [[f64; 3]],
+    pub baseline: &'a Render,
+    pub view: &'a View<'a>,
+    pub reference: Option<&'a Reference>,
+    pub repeats: usize,
+    pub exposure: f32,
+    pub out_dir: &'a Path,
+    /// The error figure waits for the run's shared scale ([`share_error_scale`] draws it once
+    /// every compressor is measured); otherwise it is drawn at its own scale right away.
+    pub shared_error_scale: bool,
+}
+
+/// Relative L* error above which a form's `lossless` claim is refused. f32 gathers of lossless
+/// forms measure at most 2e-7 on the bundled scenes; the worst-case f32 bound for a row of
+/// N = 6144 non-negative terms is (N + 2) 2^-24 = 3.7e-4. Anything past 1e-3 is not rounding.
+pub const LOSSLESS_CLAIM_TOLERANCE: f64 = 1e-3;
+
+impl Evaluation<'_> {
+    /// Gather and shade `form` (and on the GPU backend when given), compare it with the
+    /// baseline and the reference, write its images: its record.
+    pub(crate) fn record(
+        &self,
+        setting: &CompressorSetting,
+        compressor: &dyn Compressor,
+        form: &CompressedForm,
+        cached: bool,
+        gpu: Option<&mut GpuBackend>,
+    ) -> Result<(CompressorRecord, Render)> {
+        let (view, repeats) = (self.view, self.repeats);
+        let cerr = |source| PipelineError::Compress { name: setting.label.clone(), source };
+        let (lstar, gather_ms) = timed(repeats, || {
+            match self.moments {
+                None => compressor.gather(form, self.light),
+                Some((moments, frames)) => gather_with_moments(compressor, form, moments, frames),
+            }
+            .map_err(cerr)
+        })?;
+        let (mut record, render) = self.score(&setting.label, &lstar, gather_ms)?;
+        let gpu = match gpu {
+            Some(g) => {
+                let kernels = compressor.kernels(form).map_err(cerr)?;
+                Some(g.run(form, &kernels, self.light, self.moments, self.exact, &render, &view.background, repeats)?)
+            }
+            None => None,
+        };
+        let name = &setting.label;
+        if let Some(g) = &gpu {
+            crate::note!(
+                "{name} on the gpu: gather {:.2} ms, shade {:.2} ms ({}), rel. error of L* {:.2e}, image vs cpu rel. L2 {:.2e} ({} of {} pixels differ by > 1e-3)",
+                g.gather_ms, g.shade_ms, g.timing, g.rel_error_lstar, g.image_vs_cpu.rel_l2, g.differing_pixels, g.covered_pixels
+            );
+        }
+        let name = &name.replace(':', "-");
+        let rel_error_lstar = record.rel_error_lstar;
+        crate::note!(
+            "{name}: {:.2} MB, {:.2} Mflop/gather, built in {:.2} s{}, gather {gather_ms:.2} ms, rel. error of L* {rel_error_lstar:.2e}",
+            form.bytes() as f64 / 1e6,
+            form.flops_per_gather as f64 / 1e6,
+            form.build_seconds,
+            if cached { " (cached)" } else { "" },
+        );
+        // The host checks a lossless claim (a plugin's, or our own) against its f64 product.
+        let lossless = form.lossless && rel_error_lstar <= LOSSLESS_CLAIM_TOLERANCE;
+        if form.lossless && !lossless {
+            eprintln!(
+                "warning: {name}: the form claims to be lossless, but its L* is {rel_error_lstar:.2e} from the f64 \
+                 product T L (more than f32 rounding explains, {LOSSLESS_CLAIM_TOLERANCE:.0e}); reported as lossy"
+            );
+        }
+        record.kind = compressor.kind().to_string();
+        record.params = compressor.params();
+        record.lossless = lossless;
+        record.bytes = form.bytes();
+        record.bytes_by_array = form.bytes_by_array();
+        record.bytes_per_nnz = form.bytes() as f64 / self.t.nnz().max(1) as f64;
+        record.flops_per_gather = form.flops_per_gather;
+        record.build_seconds = form.build_seconds;
+        record.cached = cached;
+        record.stats = compressor.stats(form, self.t);
+        record.gpu = gpu;
+        Ok((record, render))
+    }
+
+    /// Shade `lstar` (gathered in `gather_ms`), compare it with the baseline and the reference
+    /// and write its images as `images/<name>.*`: a record whose form fields (kind, params,
+    /// storage, flops, build, stats, GPU) are empty for the caller to fill in ([`Self::record`]
+    /// for a compressed form, `crate::interop::eval` for an external `L*`).
+    pub(crate) fn score(
+        &self,
+        name: &str,
+        lstar: &LocalRadiance,
+        gather_ms: f64,
+    ) -> Result<(CompressorRecord, Render)> {
+        let (view, repeats) = (self.view, self.repeats);
+        let rel_error_lstar = relative_l2_error(lstar.values(), self.exact);
+        let (render, shade_ms) = view.timed_render(lstar, repeats)?;
+        let vs_uncompressed =
+            errors(&compare_exposed(&render.image, &self.baseline.image, Some(&self.baseline.mask), self.exposure)?);
+        let vs_reference = match self.reference {
+            Some(r) => {
+                let small = view.render(lstar, &r.camera)?;
+                let e = errors(&compare_exposed(&small.image, &r.render.image, Some(&r.render.mask), self.exposure)?);
+                r.scored.lock().unwrap_or_else(|p| p.into_inner()).push((name.replace(':', "-"), small.image));
+                Some(e)
+            }
+            None => None,
+        };
+        let name = &name.replace(':', "-");
+        let images_dir = self.out_dir.join("images");
+        let (png, exr) = save_images(&render.image, &images_dir, name, self.exposure)?;
+        let error_rel = format!("images/{name}_error.png");
+        let (error_scale, error_max) = match self.shared_error_scale {
+            true => error_extent(&render.image, &self.baseline.image)?,
+            false => write_error_figure(
+                &render.image,
+                &self.baseline.image,
+                "uncompressed",
+                None,
+                &self.out_dir.join(&error_rel),
+            )?,
+        };
+        let record = CompressorRecord {
+            name: name.clone(),
+            kind: String::new(),
+            params: serde_json::Value::Null,
+            lossless: false,
+            bytes: 0,
+            bytes_by_array: Default::default(),
+            bytes_per_nnz: 0.0,
+            flops_per_gather: 0,
+            build_seconds: 0.0,
+            cached: false,
+            gather_ms,
+            shade_ms,
+            rel_error_lstar,
+            image: ImageRecord {
+                vs_uncompressed,
+                vs_reference,
+                png,
+                exr,
+                error_png: Some(error_rel),
+                error_scale: Some(error_scale),
+                error_max: Some(error_max),
+            },
+            stats: None,
+            gpu: None,
+        };
+        Ok((record, render))
+    }
+}

@@ -1,0 +1,19 @@
+//! Where a run writes: the output folder and cache folder a command is given ([`RunOptions`]),
+//! the stage cache ([`cache`]) and output folders swapped in whole and owned by proof
+//! ([`staging`]).
+
+pub mod cache;
+pub mod staging;
+
+use std::path::PathBuf;
+
+/// Options of `biscale run`.
+#[derive(Clone, Debug, Default)]
+pub struct RunOptions {
+    /// Output folder (default `out/<name>/`).
+    pub out_dir: Option<PathBuf>,
+    /// Cache folder for stage outputs (default [`crate::store::cache::default_dir`]); `None` with
+    /// `no_cache` disables caching.
+    pub cache_dir: Option<PathBuf>,
+    pub no_cache: bool,
+}
