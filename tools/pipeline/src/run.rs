@@ -10,22 +10,79 @@ use crate::error::{io_err, PipelineError, Result};
 use crate::experiment::config::{Backend, CompressorSetting, Experiment};
 use crate::experiment::plan::Plan;
 use crate::metrics::*;
-use crate::stages::evaluate::{
-    errors, no_gpu_feature, targets, Baseline, Evaluation, GpuBackend, Reference, Targets, View,
-};
+use crate::provenance::StageClock;
+use crate::stages::evaluate::{errors, no_gpu_feature, targets, Baseline, Evaluation, GpuBackend, Reference, View};
 use crate::stages::figures::{comparison_figures, inset_region, share_error_scale};
 use crate::stages::materials::SceneMaterials;
 use crate::stages::scene::{load_geometry, load_lighting, shade_scene, Geometry, Lighting};
 use crate::stages::transfer::{
-    build_compressor, compressed_form, precomputed_transfer, sky_warning, transfer_matrix, Precomputed,
+    build_compressor, compressed_form, precomputed_transfer, sky_warning, transfer_matrix, Precomputed, Transfer,
 };
-use crate::store::cache::StageCache;
+use crate::store::cache::{form_key, StageCache};
 use crate::store::staging::{fault_point, StagedDir};
 use crate::store::RunOptions;
-use biscale_core::compress::Compressor;
+use biscale_core::compress::{CompressedForm, Compressor};
 use biscale_core::io::write_atomic_bytes;
+use biscale_core::scene::Render;
 use biscale_shading::image::compare_exposed;
 use std::path::{Path, PathBuf};
+
+/// What `run`, `eval` and `shard merge` (through [`run_with`]) share around their stages: the
+/// output folder being written (a staging folder that replaces the target whole on
+/// [`RunContext::commit`], [`crate::store::staging`]), the stage cache, and the clock that
+/// records each stage's time in `metrics.json`.
+pub struct RunContext {
+    pub clock: StageClock,
+    pub cache: Option<StageCache>,
+    staged: StagedDir,
+}
+
+impl RunContext {
+    /// Begin writing `biscale <command> <inputs>`'s output: `--out`, else `default_target`.
+    /// Refuses a cache folder inside the output folder (each command replaces it whole).
+    pub fn begin(
+        opts: &RunOptions,
+        default_target: PathBuf,
+        command: &str,
+        inputs: &str,
+        clock: StageClock,
+    ) -> Result<Self> {
+        let target = opts.out_dir.clone().unwrap_or(default_target);
+        let cache = StageCache::new(opts, &target);
+        if let Some(c) = &cache {
+            let inside = |d: &Path| std::path::absolute(d).unwrap_or_else(|_| d.to_path_buf());
+            if inside(c.dir()).starts_with(inside(&target)) {
+                return Err(PipelineError::Mismatch {
+                    path: c.dir().to_path_buf(),
+                    what: format!(
+                        "the cache folder lies inside the output folder {}, which each {command} replaces whole; put it elsewhere",
+                        target.display()
+                    ),
+                });
+            }
+        }
+        let staged = StagedDir::begin(&target, &format!("biscale {command} {inputs}"))?;
+        let images = staged.path().join("images");
+        std::fs::create_dir_all(&images).map_err(io_err(&images))?;
+        Ok(Self { clock, cache, staged })
+    }
+
+    /// The folder being written (the staging folder until [`Self::commit`]).
+    pub fn out_dir(&self) -> &Path {
+        self.staged.path()
+    }
+
+    pub fn images_dir(&self) -> PathBuf {
+        self.out_dir().join("images")
+    }
+
+    /// Swap the finished folder in; returns its final path.
+    pub fn commit(self) -> Result<PathBuf> {
+        let out_dir = self.staged.commit()?;
+        crate::note!("wrote {}", out_dir.display());
+        Ok(out_dir)
+    }
+}
 
 /// Run the whole experiment; returns the metrics that were written.
 pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
@@ -35,42 +92,24 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
 /// [`run`], with `T` and the separable forms taken from a sharded precompute when given.
 pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -> Result<(PathBuf, Metrics)> {
     // The text as it runs (with any `--set` applied), not the file's.
-    let mut clock = crate::provenance::StageClock::start(&exp.source, exp.file.seed);
+    let clock = StageClock::start(&exp.source, exp.file.seed);
     let plan = Plan::new(exp);
     eprint!("{plan}");
     if exp.file.runtime.backend == Backend::Gpu && !cfg!(feature = "gpu") {
         return Err(no_gpu_feature());
     }
-
-    let target = opts.out_dir.clone().unwrap_or_else(|| Path::new("out").join(exp.name()));
-    let cache = StageCache::new(opts, &target);
-    if let Some(c) = &cache {
-        let inside = |d: &Path| std::path::absolute(d).unwrap_or_else(|_| d.to_path_buf());
-        if inside(c.dir()).starts_with(inside(&target)) {
-            return Err(PipelineError::Mismatch {
-                path: c.dir().to_path_buf(),
-                what: format!(
-                    "the cache folder lies inside the output folder {}, which each run replaces whole; put it elsewhere",
-                    target.display()
-                ),
-            });
-        }
-    }
-    // Everything is written into a staging folder that replaces the output folder whole
-    // when the run is complete (crate::store::staging).
-    let staged = StagedDir::begin(&target, &format!("biscale run {}", exp.config_path.display()))?;
-    let out_dir = staged.path().to_path_buf();
-    let images_dir = out_dir.join("images");
-    std::fs::create_dir_all(&images_dir).map_err(io_err(&images_dir))?;
+    let default_target = Path::new("out").join(exp.name());
+    let mut ctx = RunContext::begin(opts, default_target, "run", &exp.config_path.display().to_string(), clock)?;
+    let out_dir = ctx.out_dir().to_path_buf();
     write_atomic_bytes(&out_dir.join("plan.txt"), plan.to_string().as_bytes())?;
 
     // Compressors are constructed first so a bad setting fails before any heavy work.
     let compressors: Vec<(CompressorSetting, Box<dyn Compressor>)> =
         plan.compressors.iter().map(|s| build_compressor(s).map(|c| (s.clone(), c))).collect::<Result<_>>()?;
 
-    clock.mark("setup");
+    ctx.clock.mark("setup");
     let geometry = load_geometry(exp)?;
-    clock.mark("geometry");
+    ctx.clock.mark("geometry");
     for r in &geometry.repairs {
         eprintln!("warning: {}: {r}", exp.mesh_path.display());
     }
@@ -78,85 +117,55 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     for w in &lighting.warnings {
         eprintln!("warning: {w}");
     }
-    clock.mark("lighting");
-    let (memory, available) = crate::estimate::check_run(exp, &geometry, &lighting, cache.is_some())?;
-    clock.mark("memory estimate");
-    let (t, mut pre_forms, sharded) = match pre {
+    ctx.clock.mark("lighting");
+    let (memory, available) = crate::estimate::check_run(exp, &geometry, &lighting, ctx.cache.is_some())?;
+    ctx.clock.mark("memory estimate");
+    let (t, pre_forms, sharded) = match pre {
         Some(p) => {
-            let t = precomputed_transfer(p.matrix, p.rays_traced, p.transfer_seconds, exp, &geometry, cache.as_ref())?;
+            let t =
+                precomputed_transfer(p.matrix, p.rays_traced, p.transfer_seconds, exp, &geometry, ctx.cache.as_ref())?;
             (t, p.forms, Some(p.sharded))
         }
-        None => (transfer_matrix(exp, &geometry, cache.as_ref())?, Default::default(), None),
+        None => (transfer_matrix(exp, &geometry, ctx.cache.as_ref())?, Default::default(), None),
     };
-    clock.mark(if sharded.is_some() { "transfer (stacked from the shards)" } else { "transfer" });
+    ctx.clock.mark(if sharded.is_some() { "transfer (stacked from the shards)" } else { "transfer" });
     fault_point("transfer");
     if let Some(w) = sky_warning(&t.metrics, t.matrix.vertices()) {
         eprintln!("warning: {w}");
     }
-    let (scene, mut materials) = shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
+    let (scene, mut materials) = shade_scene(exp, &geometry, &t.matrix, ctx.cache.as_ref())?;
     for n in &materials.notes {
         crate::note!("materials: {n}");
     }
-    clock.mark("materials");
-    let repeats = exp.file.runtime.repeats;
+    ctx.clock.mark("materials");
     let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
-    let Targets { moments, base, reference } =
-        targets(exp, &geometry, &lighting, &t.matrix, &view, &images_dir, plan.reference, &mut clock)?;
-    let frames = geometry.transfer.frames();
-    let exposure = exp.file.report.exposure;
+    let targets =
+        targets(exp, &geometry, &lighting, &t.matrix, &view, &ctx.images_dir(), plan.reference, &mut ctx.clock)?;
+    let (base, reference) = (&targets.base, targets.reference.as_ref());
 
     let study = crate::stages::btf_study::StudyInputs {
         view: &view,
         lstar: &base.lstar,
-        reference: reference.as_ref(),
-        repeats,
-        exposure,
+        reference,
+        repeats: exp.file.runtime.repeats,
+        exposure: exp.file.report.exposure,
         out_dir: &out_dir,
     };
     materials.btfs = crate::stages::btf_study::run(&materials, &study)?;
-    clock.mark("btf study");
+    ctx.clock.mark("btf study");
 
     let mut gpu = match exp.file.runtime.backend {
         Backend::Gpu => Some(GpuBackend::new(&scene, &view.camera)?),
         Backend::Cpu => None,
     };
     if gpu.is_some() {
-        clock.mark("gpu setup");
+        ctx.clock.mark("gpu setup");
     }
-    let eval = Evaluation {
-        t: &t.matrix,
-        light: &lighting.light,
-        moments: moments.as_ref().map(|m| (m, frames)),
-        exact: &base.exact,
-        baseline: &base.render,
-        view: &view,
-        reference: reference.as_ref(),
-        repeats,
-        exposure,
-        out_dir: &out_dir,
-        shared_error_scale: true,
-    };
-    let (mut records, mut renders) = (vec![], vec![]);
-    for (setting, compressor) in &compressors {
-        let (form, cached) = match pre_forms.remove(&setting.label) {
-            Some(form) => {
-                if let Some((c, key)) =
-                    cache.as_ref().zip(crate::store::cache::form_key(&t.key, compressor.as_ref(), exp.file.seed))
-                {
-                    c.put(&c.form_path(&key, &setting.label), &key, &form.to_artifact());
-                }
-                (form, false)
-            }
-            None => compressed_form(setting, compressor.as_ref(), &t.matrix, &t.key, exp.file.seed, cache.as_ref())?,
-        };
-        let (record, render) = eval.record(setting, compressor.as_ref(), &form, cached, gpu.as_mut())?;
-        records.push(record);
-        renders.push(render);
-        clock.mark(format!("compressor {}", setting.label));
-        fault_point("compression");
-    }
+    let eval = Evaluation::new(exp, &t.matrix, &lighting, &geometry, &targets, &view, &out_dir, true);
+    let forms = Forms { exp, t: &t, cache: ctx.cache.as_ref(), precomputed: pre_forms };
+    let (mut records, renders) = forms.evaluate(&compressors, &eval, gpu.as_mut(), &mut ctx.clock)?;
     share_error_scale(&mut records, &renders, &base.render, exp.file.report.error_scale, &out_dir)?;
-    let region = inset_region(exp, &records, &renders, &base);
+    let region = inset_region(exp, &records, &renders, base);
     drop(renders);
     let inputs = crate::stages::sh::MethodInputs {
         exp,
@@ -166,10 +175,10 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
         scene: &scene,
         baseline: &base.render,
         view: &view,
-        reference: reference.as_ref(),
-        cache: cache.as_ref(),
-        repeats,
-        exposure,
+        reference,
+        cache: ctx.cache.as_ref(),
+        repeats: exp.file.runtime.repeats,
+        exposure: exp.file.report.exposure,
         out_dir: &out_dir,
     };
     let methods = exp
@@ -178,21 +187,58 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
         .map(|m| crate::stages::evaluate_method(m, &inputs, gpu.as_ref()))
         .collect::<Result<Vec<_>>>()?;
     if !methods.is_empty() {
-        clock.mark("methods");
+        ctx.clock.mark("methods");
     }
 
-    let figures = comparison_figures(region, &records, &methods, &base, &view, reference.as_ref(), &out_dir)?;
+    let figures = comparison_figures(region, &records, &methods, base, &view, reference, &out_dir)?;
     let mut metrics =
-        metrics_of_run(exp, &geometry, &lighting, &materials, t.metrics, &base, reference.as_ref(), records, methods);
+        metrics_of_run(exp, &geometry, &lighting, &materials, t.metrics, base, reference, records, methods);
     metrics.figures = Some(figures);
     metrics.memory = Some(memory.metrics(&available));
     metrics.sharded = sharded;
-    metrics.run = Some(clock.finish());
+    metrics.run = Some(ctx.clock.finish());
     write_report(&metrics, &plan, &out_dir)?;
     fault_point("report");
-    let out_dir = staged.commit()?;
-    crate::note!("wrote {}", out_dir.display());
-    Ok((out_dir, metrics))
+    Ok((ctx.commit()?, metrics))
+}
+
+/// Each compressor setting's form of `T` (from the shards when a sharded precompute made it,
+/// else from the cache or built) measured by the run's [`Evaluation`].
+struct Forms<'a> {
+    exp: &'a Experiment,
+    t: &'a Transfer,
+    cache: Option<&'a StageCache>,
+    precomputed: std::collections::BTreeMap<String, CompressedForm>,
+}
+
+impl Forms<'_> {
+    fn evaluate(
+        mut self,
+        compressors: &[(CompressorSetting, Box<dyn Compressor>)],
+        eval: &Evaluation<'_>,
+        mut gpu: Option<&mut GpuBackend>,
+        clock: &mut StageClock,
+    ) -> Result<(Vec<CompressorRecord>, Vec<Render>)> {
+        let (exp, t, cache) = (self.exp, self.t, self.cache);
+        let (mut records, mut renders) = (vec![], vec![]);
+        for (setting, compressor) in compressors {
+            let (form, cached) = match self.precomputed.remove(&setting.label) {
+                Some(form) => {
+                    if let Some((c, key)) = cache.zip(form_key(&t.key, compressor.as_ref(), exp.file.seed)) {
+                        c.put(&c.form_path(&key, &setting.label), &key, &form.to_artifact());
+                    }
+                    (form, false)
+                }
+                None => compressed_form(setting, compressor.as_ref(), &t.matrix, &t.key, exp.file.seed, cache)?,
+            };
+            let (record, render) = eval.record(setting, compressor.as_ref(), &form, cached, gpu.as_deref_mut())?;
+            records.push(record);
+            renders.push(render);
+            clock.mark(format!("compressor {}", setting.label));
+            fault_point("compression");
+        }
+        Ok((records, renders))
+    }
 }
 
 /// The run's record from its stages' records.

@@ -26,9 +26,11 @@ use crate::error::{PipelineError, Result};
 use crate::experiment::config::{CompressorSetting, Experiment, MaterialConfig};
 use crate::experiment::plan::Plan;
 use crate::metrics::{CompressorRecord, Metrics};
-use crate::stages::evaluate::{Evaluation, View};
+use crate::run::{metrics_of_run, RunContext};
+use crate::stages::evaluate::{targets, Evaluation, View};
+use crate::stages::scene::{load_geometry, load_lighting, shade_scene};
+use crate::stages::transfer::transfer_matrix;
 use crate::store::cache::StageCache;
-use crate::store::staging::StagedDir;
 use crate::store::RunOptions;
 use biscale_core::basis::{LightBasis, LocalBasis, TransferShape};
 use biscale_core::compress::{ArrayData, CompressedForm, NamedArray};
@@ -225,7 +227,7 @@ pub fn export(
     let cache = StageCache::new(opts, dir);
     let mut written = vec![];
     let needs_t = items.iter().any(|i| matches!(i, Item::T | Item::Lstar | Item::Forms));
-    let geometry = if needs_t { Some(crate::stages::scene::load_geometry(exp)?) } else { None };
+    let geometry = if needs_t { Some(load_geometry(exp)?) } else { None };
     let lighting = if items.iter().any(|i| matches!(i, Item::L | Item::Lstar)) {
         Some(crate::stages::scene::load_lighting(exp)?)
     } else {
@@ -738,7 +740,7 @@ const TAKEN_NAMES: [&str; 5] = ["uncompressed", "uncompressed_paper", "reference
 pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     let mut clock = crate::provenance::StageClock::start(&exp.source, exp.file.seed);
     let path = input.path();
-    let geometry = crate::stages::scene::load_geometry(exp)?;
+    let geometry = load_geometry(exp)?;
     let want = exp.transfer_settings().shape(geometry.mesh.vertex_count());
     // Read and check the input before any heavy work.
     enum Loaded {
@@ -818,56 +820,20 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
     };
     clock.mark("input");
 
-    let target = opts.out_dir.clone().unwrap_or_else(|| Path::new("out").join(format!("{}-eval-{name}", exp.name())));
-    let cache = StageCache::new(opts, &target);
-    if let Some(c) = &cache {
-        let inside = |d: &Path| std::path::absolute(d).unwrap_or_else(|_| d.to_path_buf());
-        if inside(c.dir()).starts_with(inside(&target)) {
-            return Err(PipelineError::Mismatch {
-                path: c.dir().to_path_buf(),
-                what: format!(
-                    "the cache folder lies inside the output folder {}, which eval replaces whole; put it elsewhere",
-                    target.display()
-                ),
-            });
-        }
-    }
-    let staged = StagedDir::begin(&target, &format!("biscale eval {} {}", exp.config_path.display(), path.display()))?;
-    let out_dir = staged.path().to_path_buf();
-    let images_dir = out_dir.join("images");
-    std::fs::create_dir_all(&images_dir).map_err(|source| PipelineError::Io { path: images_dir.clone(), source })?;
+    let default_target = Path::new("out").join(format!("{}-eval-{name}", exp.name()));
+    let inputs = format!("{} {}", exp.config_path.display(), path.display());
+    let mut ctx = RunContext::begin(opts, default_target, "eval", &inputs, clock)?;
+    let out_dir = ctx.out_dir().to_path_buf();
 
-    let lighting = crate::stages::scene::load_lighting(exp)?;
-    let t = crate::stages::transfer::transfer_matrix(exp, &geometry, cache.as_ref())?;
-    clock.mark("transfer");
-    let (scene, materials) = crate::stages::scene::shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
-    let repeats = exp.file.runtime.repeats;
-    let exposure = exp.file.report.exposure;
+    let lighting = load_lighting(exp)?;
+    let (memory, available) = crate::estimate::check_run(exp, &geometry, &lighting, ctx.cache.is_some())?;
+    let t = transfer_matrix(exp, &geometry, ctx.cache.as_ref())?;
+    ctx.clock.mark("transfer");
+    let (scene, materials) = shade_scene(exp, &geometry, &t.matrix, ctx.cache.as_ref())?;
     let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
-    let crate::stages::evaluate::Targets { moments, base, reference } = crate::stages::evaluate::targets(
-        exp,
-        &geometry,
-        &lighting,
-        &t.matrix,
-        &view,
-        &images_dir,
-        Plan::new(exp).reference,
-        &mut clock,
-    )?;
-    let frames = geometry.transfer.frames();
-    let evaluation = Evaluation {
-        t: &t.matrix,
-        light: &lighting.light,
-        moments: moments.as_ref().map(|m| (m, frames)),
-        exact: &base.exact,
-        baseline: &base.render,
-        view: &view,
-        reference: reference.as_ref(),
-        repeats,
-        exposure,
-        out_dir: &out_dir,
-        shared_error_scale: false,
-    };
+    let reference = Plan::new(exp).reference;
+    let targets = targets(exp, &geometry, &lighting, &t.matrix, &view, &ctx.images_dir(), reference, &mut ctx.clock)?;
+    let evaluation = Evaluation::new(exp, &t.matrix, &lighting, &geometry, &targets, &view, &out_dir, false);
     let record = match (loaded, compressor) {
         (Loaded::Form(f), Some((setting, compressor))) => {
             evaluation.record(&setting, compressor.as_ref(), &f.form, false, None)?.0
@@ -875,25 +841,16 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
         (Loaded::Lstar(lstar, about), _) => score_lstar(&evaluation, &name, &lstar, about, t.matrix.nnz())?,
         (Loaded::Form(_), None) => unreachable!("a form has its compressor"),
     };
-    clock.mark(format!("evaluate {name}"));
-    let mut metrics = crate::run::metrics_of_run(
-        exp,
-        &geometry,
-        &lighting,
-        &materials,
-        t.metrics,
-        &base,
-        reference.as_ref(),
-        vec![record],
-        vec![],
-    );
-    metrics.run = Some(clock.finish());
+    ctx.clock.mark(format!("evaluate {name}"));
+    let (base, reference) = (&targets.base, targets.reference.as_ref());
+    let mut metrics =
+        metrics_of_run(exp, &geometry, &lighting, &materials, t.metrics, base, reference, vec![record], vec![]);
+    metrics.memory = Some(memory.metrics(&available));
+    metrics.run = Some(ctx.clock.finish());
     let json = serde_json::to_string_pretty(&metrics).expect("metrics serialize");
     write_atomic_bytes(&out_dir.join("metrics.json"), json.as_bytes())?;
     write_atomic_bytes(&out_dir.join("metrics.csv"), metrics.to_csv().as_bytes())?;
-    let out_dir = staged.commit()?;
-    crate::note!("wrote {}", out_dir.display());
-    Ok((out_dir, metrics))
+    Ok((ctx.commit()?, metrics))
 }
 
 /// The record of an external `L*`: scored by [`Evaluation::score`]; no gather (it was read),

@@ -280,6 +280,35 @@ pub(crate) struct Evaluation<'a> {
     pub shared_error_scale: bool,
 }
 
+impl<'a> Evaluation<'a> {
+    /// The evaluation of forms of `t` against the [`Targets`] made for it in `view`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        exp: &Experiment,
+        t: &'a TransferMatrix,
+        lighting: &'a Lighting,
+        geometry: &'a Geometry,
+        targets: &'a Targets,
+        view: &'a View<'a>,
+        out_dir: &'a Path,
+        shared_error_scale: bool,
+    ) -> Self {
+        Evaluation {
+            t,
+            light: &lighting.light,
+            moments: targets.moments.as_ref().map(|m| (m, geometry.transfer.frames())),
+            exact: &targets.base.exact,
+            baseline: &targets.base.render,
+            view,
+            reference: targets.reference.as_ref(),
+            repeats: exp.file.runtime.repeats,
+            exposure: exp.file.report.exposure,
+            out_dir,
+            shared_error_scale,
+        }
+    }
+}
+
 /// Relative L* error above which a form's `lossless` claim is refused. f32 gathers of lossless
 /// forms measure at most 2e-7 on the bundled scenes; the worst-case f32 bound for a row of
 /// N = 6144 non-negative terms is (N + 2) 2^-24 = 3.7e-4. Anything past 1e-3 is not rounding.
