@@ -56,6 +56,38 @@ pub struct Kind {
     /// contribute to the report's table of compressor statistics: a name and a value, in the
     /// order to show them. Empty for a kind whose statistics the report need not show.
     pub report: fn(&Value) -> Vec<(String, String)>,
+    /// The part the kind plays where the application needs one kind of a sort: the raw
+    /// matrix, the paper's compressor, or one loaded from outside ([`Role`]).
+    pub role: Role,
+}
+
+/// The part a kind plays in a run beside being one compressor among others. The application
+/// asks for a kind by its role, never by its name, so a new kind is its folder plus one line
+/// of [`KINDS`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Role {
+    /// The uncompressed matrix itself: the storage and error every compressed form is set
+    /// against (Table I's all-frequency row), and the default compressor of a transfer that
+    /// names none (the SH method's `M_p`).
+    Raw,
+    /// The paper's compressor (radiance transfer biclustering): Table I's compressed row, and
+    /// the storage budget of the equal-storage comparison.
+    Paper,
+    /// Loaded from a shared library: not offered where a built-in kind is required (`eval
+    /// --form`, the SH transfer, the cache listing's built-in kinds).
+    External,
+    /// Any other compressor.
+    Other,
+}
+
+/// The kind that plays `role` (the first, in [`KINDS`] order).
+pub fn by_role(role: Role) -> Option<&'static Kind> {
+    KINDS.iter().find(|k| k.role == role)
+}
+
+/// The role of the kind called `name` ([`Role::Other`] for a name no kind has).
+pub fn role_of(name: &str) -> Role {
+    find(name).map_or(Role::Other, |k| k.role)
 }
 
 /// What a kind's memory model knows of the transfer matrix it will compress.

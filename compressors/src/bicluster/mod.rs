@@ -87,6 +87,7 @@ pub const KIND: Kind = Kind {
     fits: registry::no_limits,
     memory,
     report,
+    role: registry::Role::Paper,
 };
 
 /// [`Kind::memory`]: the integer codes (u16 column, i8 code, usize row pointer); per block in

@@ -76,6 +76,7 @@ pub const KIND: Kind = Kind {
     fits,
     memory,
     report: registry::no_rows,
+    role: registry::Role::Other,
 };
 
 /// [`Kind::fits`]: no more components than a clustered unit has values (`N` light

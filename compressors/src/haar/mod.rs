@@ -98,6 +98,7 @@ pub const KIND: Kind = Kind {
     fits,
     memory,
     report: registry::no_rows,
+    role: registry::Role::Other,
 };
 
 /// [`Kind::fits`]: no more terms than a row has coefficients (a count above that was once

@@ -148,6 +148,7 @@ pub const KIND: Kind = Kind {
         }
         Ok(Box::new(PluginCompressor::load(&p.path, p.params)?))
     },
+    role: registry::Role::External,
 };
 
 /// Upper bounds on what a plugin may return (far above any real use; they keep a garbage

@@ -39,6 +39,7 @@ pub const KIND: Kind = Kind {
     // The form is `T` itself as a u32 CSR, and compressing copies it once.
     memory: |_, t| registry::FormMemory { working: t.u32_csr_bytes(), form: t.u32_csr_bytes() },
     report: registry::no_rows,
+    role: registry::Role::Raw,
 };
 
 /// The raw CSR baseline (no parameters).

@@ -5,6 +5,7 @@
 //! numbers. Readable without the program.
 
 use crate::metrics::{Metrics, TransferMetrics};
+use biscale_compressors::registry::{self, Role};
 use std::fmt::Write;
 
 /// One piece of a table cell.
@@ -594,7 +595,7 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
     let seconds = |s: f64, cached: bool| if cached { "cached".to_string() } else { format!("{s:.2}") };
     // The all-frequency side: the raw matrix (or the f64 product when sparse did not run), and
     // the paper's compressed form.
-    match m.compressors.iter().find(|c| c.kind == "sparse") {
+    match m.compressors.iter().find(|c| registry::role_of(&c.kind) == Role::Raw) {
         Some(c) => rows.push(vec![
             format!("all-frequency, {}", c.name),
             mb(c.bytes),
@@ -620,7 +621,7 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
             "-".into(),
         ]),
     }
-    for c in m.compressors.iter().filter(|c| c.kind == "bicluster") {
+    for c in m.compressors.iter().filter(|c| registry::role_of(&c.kind) == Role::Paper) {
         rows.push(vec![
             format!("all-frequency, {}", c.name),
             mb(c.bytes),
@@ -777,7 +778,9 @@ pub fn compressor_table(m: &Metrics) -> Table {
 /// when it ran (the paper compares at the size biclustering needs), else the median.
 pub fn storage_budget(m: &Metrics) -> Option<(u64, String)> {
     // The lossless biclustering when it ran (the paper's storage), else the first bicluster.
-    let bicluster = |lossless: bool| m.compressors.iter().find(|c| c.kind == "bicluster" && (c.lossless || !lossless));
+    let bicluster = |lossless: bool| {
+        m.compressors.iter().find(|c| registry::role_of(&c.kind) == Role::Paper && (c.lossless || !lossless))
+    };
     if let Some(b) = bicluster(true).or_else(|| bicluster(false)) {
         return Some((b.bytes, format!("the storage of {}", b.name)));
     }
@@ -950,7 +953,7 @@ pub fn write_plots(m: &Metrics, out_dir: &std::path::Path) -> Vec<(String, Strin
         };
         let named = m.compressors.iter().map(|c| (c.kind.clone(), c)).chain(m.methods.iter().map(|r| {
             let compressor = r.sh.as_ref().map_or("", |s| s.compressor.as_str());
-            let name = if compressor == "sparse" {
+            let name = if registry::role_of(compressor) == Role::Raw {
                 r.record.kind.clone()
             } else {
                 format!("{} + {compressor}", r.record.kind)

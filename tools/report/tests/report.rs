@@ -21,6 +21,7 @@ const TOY: Kind = Kind {
     fits: |_, _| Err("never fits".into()),
     memory: |_, t: &MemoryFacts| FormMemory { working: t.nnz, form: 1 },
     report: |stats: &Value| vec![("toy figure".into(), stats["answer"].to_string())],
+    role: registry::Role::Other,
 };
 
 #[test]

@@ -17,6 +17,7 @@
 //! kind = "sparse"
 //! ```
 
+use biscale_compressors::registry::Role;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::ops::Range;
@@ -691,6 +692,8 @@ struct KindRef {
     name: &'static str,
     check: fn(&serde_json::Value) -> Result<(), String>,
     label: fn(&serde_json::Value) -> Result<String, String>,
+    /// A compressor loaded from a library, whose `path` is resolved against the config.
+    external: bool,
 }
 
 /// The settings of one `[[compressors]]` or `[[methods]]` entry (see [`CompressorTable`]);
@@ -721,7 +724,7 @@ fn expand_settings(
             toml::Value::Array(a) => a.clone(),
             one => vec![one.clone()],
         };
-        if what == "compressor" && kind.name == "plugin" && k.get_ref() == "path" {
+        if kind.external && k.get_ref() == "path" {
             // Resolved against the config's folder and made absolute, so the loader opens
             // exactly this file (a bare file name would be searched for on the library path).
             for p in &mut values {
@@ -792,13 +795,16 @@ fn expand_settings(
 fn compressor_kinds() -> Vec<KindRef> {
     biscale_compressors::registry::KINDS
         .iter()
-        .map(|k| KindRef { name: k.name, check: k.check, label: k.label })
+        .map(|k| KindRef { name: k.name, check: k.check, label: k.label, external: k.role == Role::External })
         .collect()
 }
 
 /// The method kinds as the expansion sees them.
 fn method_kinds() -> Vec<KindRef> {
-    crate::experiment::methods::KINDS.iter().map(|k| KindRef { name: k.name, check: k.check, label: k.label }).collect()
+    crate::experiment::methods::KINDS
+        .iter()
+        .map(|k| KindRef { name: k.name, check: k.check, label: k.label, external: false })
+        .collect()
 }
 
 #[derive(Debug, Deserialize)]

@@ -184,7 +184,7 @@ impl Plan {
         for c in &compressors {
             step("compress", c.label.clone(), Action::Run);
         }
-        for kind in biscale_compressors::registry::KINDS.iter().map(|k| k.name).filter(|&k| k != "plugin") {
+        for kind in biscale_compressors::registry::KINDS.iter().filter(|k| k.role != biscale_compressors::registry::Role::External).map(|k| k.name) {
             if !compressors.iter().any(|c| c.kind == kind) {
                 step("compress", kind.into(), Action::LeftOut("not named in the config".into()));
             }

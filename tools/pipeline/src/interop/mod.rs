@@ -22,6 +22,7 @@
 pub mod mtx;
 pub mod npy;
 
+use biscale_compressors::registry::Role;
 use crate::error::{PipelineError, Result};
 use crate::experiment::config::{CompressorSetting, Experiment, MaterialConfig};
 use crate::experiment::plan::Plan;
@@ -782,10 +783,10 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
         Loaded::Lstar(..) => None,
         Loaded::Form(f) => {
             let kind = f.form.kind.as_str();
-            let builtin = biscale_compressors::registry::find(kind).filter(|k| k.name != "plugin");
+            let builtin = biscale_compressors::registry::find(kind).filter(|k| k.role != Role::External);
             if builtin.is_none() {
                 let names: Vec<&str> =
-                    biscale_compressors::registry::names().into_iter().filter(|k| *k != "plugin").collect();
+                    (biscale_compressors::registry::KINDS.iter()).filter(|k| k.role != Role::External).map(|k| k.name).collect();
                 return Err(PipelineError::Mismatch {
                     path: path.into(),
                     what: format!(

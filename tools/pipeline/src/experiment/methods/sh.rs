@@ -62,7 +62,7 @@ impl ShParams {
             let (kind, params) = compressor_parts(c)?;
             let k = registry::find(&kind)
                 .ok_or_else(|| format!("unknown compressor kind `{kind}`, expected one of {:?}", registry::names()))?;
-            if k.name == "plugin" {
+            if k.role == registry::Role::External {
                 return Err("a plugin cannot compress the SH transfer (give sparse or cpca)".into());
             }
             (k.check)(&params).map_err(|e| format!("compressor: {e}"))?;
@@ -74,9 +74,14 @@ impl ShParams {
     pub fn compressor(&self) -> (String, Value) {
         match &self.compressor {
             Some(c) => compressor_parts(c).expect("checked when the config was read"),
-            None => ("sparse".into(), Value::Object(Default::default())),
+            None => (raw_kind().into(), Value::Object(Default::default())),
         }
     }
+}
+
+/// The kind of the raw matrices, the default compressor of `M_p`.
+fn raw_kind() -> &'static str {
+    registry::by_role(registry::Role::Raw).expect("the registry has a raw kind").name
 }
 
 /// `kind` and the other keys of a compressor table given as JSON.
