@@ -553,30 +553,7 @@ fn run() -> anyhow::Result<()> {
             };
             println!("wrote {}", dir.join("report.html").display());
         }
-        Command::Eval { config, lstar, form, name, out, cache } => {
-            let exp = load(&config)?;
-            let input = match (lstar, form) {
-                (Some(p), None) => biscale::interop::EvalInput::Lstar(p),
-                (None, Some(p)) => biscale::interop::EvalInput::Form(p),
-                _ => anyhow::bail!("give one of --lstar FILE or --form FILE"),
-            };
-            let (dir, metrics) = biscale::interop::eval(&exp, &input, name.as_deref(), &cache.options(out))
-                .with_context(|| format!("evaluating {} for {}", input.path().display(), config.display()))?;
-            let r = &metrics.compressors[0];
-            let img = &r.image.vs_uncompressed;
-            println!("{}: rel. error of L* {:.3e}", r.name, r.rel_error_lstar);
-            println!(
-                "  image vs uncompressed: rel. L2 {:.3e}, PSNR {:.2} dB, SSIM {:.4}",
-                img.rel_l2, img.psnr, img.ssim
-            );
-            if let Some(e) = &r.image.vs_reference {
-                println!(
-                    "  image vs reference:    rel. L2 {:.3e}, PSNR {:.2} dB, SSIM {:.4}",
-                    e.rel_l2, e.psnr, e.ssim
-                );
-            }
-            println!("wrote {}", dir.join("metrics.json").display());
-        }
+        Command::Eval { config, lstar, form, name, out, cache } => eval(config, lstar, form, name, out, cache)?,
         Command::Viz { config, out, first, count, cache } => {
             let exp = load(&config)?;
             let opts = cache.options(Some(out.clone()));
@@ -604,57 +581,99 @@ fn run() -> anyhow::Result<()> {
             };
             println!("wrote {} ({} vertices, {} triangles)", out.display(), mesh.positions.len(), mesh.triangles.len());
         }
-        Command::Btf { config, material, out, preview, cache } => {
-            let exp = load(&config)?;
-            let opts = cache.options(Some(out.clone()));
-            for w in biscale::commands::btf(&exp, &out, material.as_deref(), preview, &opts)? {
-                let how = match &w.origin {
-                    biscale::stages::materials::Origin::Analytic => "analytic".to_string(),
-                    biscale::stages::materials::Origin::Synthesized { seconds } => format!("synthesized in {seconds:.1} s"),
-                    biscale::stages::materials::Origin::Cached(p) => format!("from cache {}", p.display()),
-                    biscale::stages::materials::Origin::Measured(r, seconds) => format!(
-                        "resampled from {} views x {} lights in {seconds:.1} s, bins up to {:.1} deg from a measurement",
-                        r.views, r.lights, r.max_interpolation_angle_deg
-                    ),
-                };
-                println!("{}: wrote {} ({:.2} MB, {how})", w.label, w.path.display(), w.bytes as f64 / 1e6);
-                if let Some(p) = &w.preview {
-                    println!("{}: wrote {}", w.label, p.display());
-                }
-                for c in &w.comparisons {
-                    println!(
-                        "{}: wrote {} (dense | {} | |error| x{:.1}; table rel. RMS error {:.2}%)",
-                        w.label,
-                        c.path.display(),
-                        c.representation,
-                        c.error_gain,
-                        100.0 * c.relative_rms_error
-                    );
-                }
-            }
-        }
+        Command::Btf { config, material, out, preview, cache } => btf(config, material, out, preview, cache)?,
         Command::Shard { what } => shard(what)?,
         Command::Cache { what } => cache(what)?,
-        Command::Diff { a, b, mask, error_image, json, exposure } => {
-            let opts =
-                biscale::commands::DiffOptions { mask: mask.as_deref(), error_image: error_image.as_deref(), exposure };
-            let m = biscale::commands::diff(&a, &b, opts, &mut |w| eprintln!("warning: {w}"))?;
-            if json {
-                let v = serde_json::json!({
-                    "rmse": m.rmse,
-                    "psnr": m.psnr.is_finite().then_some(m.psnr),
-                    "rel_l2": m.rel_l2,
-                    "pixels": m.pixels,
-                    "ldr_psnr": m.ldr_psnr.is_finite().then_some(m.ldr_psnr),
-                    "ssim": m.ssim,
-                    "flip": m.flip,
-                });
-                println!("{v}");
-            } else {
-                println!("rmse {:.6e}\npsnr {:.3} dB\nrel_l2 {:.6e}\npixels {}", m.rmse, m.psnr, m.rel_l2, m.pixels);
-                println!("ldr_psnr {:.3} dB\nssim {:.6}\nflip {:.6}", m.ldr_psnr, m.ssim, m.flip);
-            }
+        Command::Diff { a, b, mask, error_image, json, exposure } => diff(a, b, mask, error_image, json, exposure)?,
+    }
+    Ok(())
+}
+
+/// `biscale eval`: score an outside L* or form and print its errors.
+fn eval(
+    config: PathBuf,
+    lstar: Option<PathBuf>,
+    form: Option<PathBuf>,
+    name: Option<String>,
+    out: Option<PathBuf>,
+    cache: CacheArgs,
+) -> anyhow::Result<()> {
+    let exp = load(&config)?;
+    let input = match (lstar, form) {
+        (Some(p), None) => biscale::interop::EvalInput::Lstar(p),
+        (None, Some(p)) => biscale::interop::EvalInput::Form(p),
+        _ => anyhow::bail!("give one of --lstar FILE or --form FILE"),
+    };
+    let (dir, metrics) = biscale::interop::eval(&exp, &input, name.as_deref(), &cache.options(out))
+        .with_context(|| format!("evaluating {} for {}", input.path().display(), config.display()))?;
+    let r = &metrics.compressors[0];
+    let img = &r.image.vs_uncompressed;
+    println!("{}: rel. error of L* {:.3e}", r.name, r.rel_error_lstar);
+    println!("  image vs uncompressed: rel. L2 {:.3e}, PSNR {:.2} dB, SSIM {:.4}", img.rel_l2, img.psnr, img.ssim);
+    if let Some(e) = &r.image.vs_reference {
+        println!("  image vs reference:    rel. L2 {:.3e}, PSNR {:.2} dB, SSIM {:.4}", e.rel_l2, e.psnr, e.ssim);
+    }
+    println!("wrote {}", dir.join("metrics.json").display());
+    Ok(())
+}
+
+/// `biscale btf`: build the config's BTFs and say where each came from.
+fn btf(config: PathBuf, material: Option<String>, out: PathBuf, preview: bool, cache: CacheArgs) -> anyhow::Result<()> {
+    let exp = load(&config)?;
+    let opts = cache.options(Some(out.clone()));
+    for w in biscale::commands::btf(&exp, &out, material.as_deref(), preview, &opts)? {
+        let how = match &w.origin {
+            biscale::stages::materials::Origin::Analytic => "analytic".to_string(),
+            biscale::stages::materials::Origin::Synthesized { seconds } => format!("synthesized in {seconds:.1} s"),
+            biscale::stages::materials::Origin::Cached(p) => format!("from cache {}", p.display()),
+            biscale::stages::materials::Origin::Measured(r, seconds) => format!(
+                "resampled from {} views x {} lights in {seconds:.1} s, bins up to {:.1} deg from a measurement",
+                r.views, r.lights, r.max_interpolation_angle_deg
+            ),
+        };
+        println!("{}: wrote {} ({:.2} MB, {how})", w.label, w.path.display(), w.bytes as f64 / 1e6);
+        if let Some(p) = &w.preview {
+            println!("{}: wrote {}", w.label, p.display());
         }
+        for c in &w.comparisons {
+            println!(
+                "{}: wrote {} (dense | {} | |error| x{:.1}; table rel. RMS error {:.2}%)",
+                w.label,
+                c.path.display(),
+                c.representation,
+                c.error_gain,
+                100.0 * c.relative_rms_error
+            );
+        }
+    }
+    Ok(())
+}
+
+/// `biscale diff`: two EXR images compared, as text or JSON.
+fn diff(
+    a: PathBuf,
+    b: PathBuf,
+    mask: Option<PathBuf>,
+    error_image: Option<PathBuf>,
+    json: bool,
+    exposure: f32,
+) -> anyhow::Result<()> {
+    let opts = biscale::commands::DiffOptions { mask: mask.as_deref(), error_image: error_image.as_deref(), exposure };
+    let m = biscale::commands::diff(&a, &b, opts, &mut |w| eprintln!("warning: {w}"))?;
+    if json {
+        let v = serde_json::json!({
+            "rmse": m.rmse,
+            "psnr": m.psnr.is_finite().then_some(m.psnr),
+            "rel_l2": m.rel_l2,
+            "pixels": m.pixels,
+            "ldr_psnr": m.ldr_psnr.is_finite().then_some(m.ldr_psnr),
+            "ssim": m.ssim,
+            "flip": m.flip,
+        });
+        println!("{v}");
+    } else {
+        println!("rmse {:.6e}\npsnr {:.3} dB\nrel_l2 {:.6e}\npixels {}", m.rmse, m.psnr, m.rel_l2, m.pixels);
+        println!("ldr_psnr {:.3} dB\nssim {:.6}\nflip {:.6}", m.ldr_psnr, m.ssim, m.flip);
     }
     Ok(())
 }

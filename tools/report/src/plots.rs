@@ -391,27 +391,13 @@ fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, f: &Figure<'_>) -> Re
     if let Some(g) = f.guide.filter(|g| g.y > y0 && g.y < y1) {
         names.push(&g.label);
     }
-    let text_w = names.iter().map(|n| text_size(n, TICK_FONT).0).fold(0.0, f64::max);
-    let (lw, lh) =
-        (text_w + 30.0 + 20.0 + 4.0, (names.len() as f64 - 1.0).max(0.0) * 1.25 * TICK_FONT as f64 + 18.0 + 20.0);
     let anchors: Vec<(f64, f64)> = f
         .series
         .iter()
         .flat_map(|s| s.points.iter().map(|p| chart.backend_coord(p)))
         .map(|(x, y)| (x as f64, y as f64))
         .collect();
-    let corners = [
-        (area.x1 - lw - 5.0, area.y0 + 5.0),
-        (area.x0 + 5.0, area.y0 + 5.0),
-        (area.x1 - lw - 5.0, area.y1 - lh - 5.0),
-        (area.x0 + 5.0, area.y1 - lh - 5.0),
-    ];
-    let covered = |r: &Rect| {
-        let near = |&(x, y): &(f64, f64)| r.overlaps(&Rect::new(x - 12.0, y - 12.0, 24.0, 24.0));
-        anchors.iter().filter(|p| near(p)).count()
-    };
-    let legend =
-        corners.iter().map(|&(x, y)| Rect::new(x, y, lw, lh)).min_by_key(|r| covered(r)).expect("four corners");
+    let legend = legend_rect(area, &names, &anchors);
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::Coordinate((legend.x0 - area.x0) as i32, (legend.y0 - area.y0) as i32))
@@ -427,19 +413,10 @@ fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, f: &Figure<'_>) -> Re
     let mut obstacles = vec![legend];
     obstacles.extend(crosses.iter().map(|&(x, y)| Rect::new(x as f64 - 8.0, y as f64 - 8.0, 16.0, 16.0)));
     // The curves, as small boxes every few pixels along each segment, and the guide's line.
-    let mut soft = vec![];
-    for s in &f.series {
-        let px: Vec<(f64, f64)> =
-            s.points.iter().map(|p| chart.backend_coord(p)).map(|(x, y)| (x as f64, y as f64)).collect();
-        for w in px.windows(2) {
-            let steps = ((w[1].0 - w[0].0).hypot(w[1].1 - w[0].1) / 4.0).ceil().max(1.0) as usize;
-            for i in 0..=steps {
-                let t = i as f64 / steps as f64;
-                let (x, y) = (w[0].0 + t * (w[1].0 - w[0].0), w[0].1 + t * (w[1].1 - w[0].1));
-                soft.push(Rect::new(x - 1.5, y - 1.5, 3.0, 3.0));
-            }
-        }
-    }
+    let curves: Vec<Vec<(f64, f64)>> = (f.series.iter())
+        .map(|s| s.points.iter().map(|p| chart.backend_coord(p)).map(|(x, y)| (x as f64, y as f64)).collect())
+        .collect();
+    let mut soft = curve_boxes(&curves);
     if let Some(g) = f.guide.filter(|g| g.y > y0 && g.y < y1) {
         let y = chart.backend_coord(&(x0, g.y)).1 as f64;
         soft.push(Rect { x0: area.x0, y0: y - 1.0, x1: area.x1, y1: y + 1.0 });
@@ -453,6 +430,42 @@ fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, f: &Figure<'_>) -> Re
         root.draw(&Text::new(text.to_string(), (r.x0.round() as i32, r.y0.round() as i32), style)).map_err(e)?;
     }
     Ok(())
+}
+
+/// The legend's box: in the corner of the plotting `area` with the fewest of the points
+/// (`anchors`, in pixels) under it, sized for `names`.
+fn legend_rect(area: Rect, names: &[&str], anchors: &[(f64, f64)]) -> Rect {
+    let text_w = names.iter().map(|n| text_size(n, TICK_FONT).0).fold(0.0, f64::max);
+    let (lw, lh) =
+        (text_w + 30.0 + 20.0 + 4.0, (names.len() as f64 - 1.0).max(0.0) * 1.25 * TICK_FONT as f64 + 18.0 + 20.0);
+    let corners = [
+        (area.x1 - lw - 5.0, area.y0 + 5.0),
+        (area.x0 + 5.0, area.y0 + 5.0),
+        (area.x1 - lw - 5.0, area.y1 - lh - 5.0),
+        (area.x0 + 5.0, area.y1 - lh - 5.0),
+    ];
+    let covered = |r: &Rect| {
+        let near = |&(x, y): &(f64, f64)| r.overlaps(&Rect::new(x - 12.0, y - 12.0, 24.0, 24.0));
+        anchors.iter().filter(|p| near(p)).count()
+    };
+    corners.iter().map(|&(x, y)| Rect::new(x, y, lw, lh)).min_by_key(|r| covered(r)).expect("four corners")
+}
+
+/// Small boxes every few pixels along each curve's segments (pixel coordinates): what a
+/// point's label should avoid covering.
+fn curve_boxes(curves: &[Vec<(f64, f64)>]) -> Vec<Rect> {
+    let mut soft = vec![];
+    for px in curves {
+        for w in px.windows(2) {
+            let steps = ((w[1].0 - w[0].0).hypot(w[1].1 - w[0].1) / 4.0).ceil().max(1.0) as usize;
+            for i in 0..=steps {
+                let t = i as f64 / steps as f64;
+                let (x, y) = (w[0].0 + t * (w[1].0 - w[0].0), w[0].1 + t * (w[1].1 - w[0].1));
+                soft.push(Rect::new(x - 1.5, y - 1.5, 3.0, 3.0));
+            }
+        }
+    }
+    soft
 }
 
 /// Whether `text` is XML whose elements nest: every opened tag closed in order, comments,

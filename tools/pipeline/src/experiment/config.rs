@@ -1086,249 +1086,12 @@ impl Experiment {
         let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
         let err = |span: Range<usize>, msg: String| ConfigError::at(path, &source, span, msg);
 
-        let resolve = |p: &Spanned<PathBuf>, what: &str| -> Result<PathBuf, ConfigError> {
-            let full = dir.join(p.get_ref());
-            if !full.is_file() {
-                return Err(err(p.span(), format!("{what} file not found: {}", full.display())));
-            }
-            Ok(full)
-        };
-        if file.name.get_ref().trim().is_empty()
-            || file.name.get_ref().contains(['/', '\\'])
-            || file.name.get_ref().starts_with('.')
-        {
-            return Err(err(file.name.span(), "name must be a plain folder name (no slashes, not empty)".into()));
-        }
-        // File kinds are checked here, before `run` traces anything (`plan` checks them too).
-        let kind_of = |p: &Spanned<PathBuf>, what: &str, allowed: &[&str]| -> Result<(), ConfigError> {
-            let ext = p.get_ref().extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
-            if allowed.contains(&ext.as_str()) {
-                return Ok(());
-            }
-            let want: Vec<String> = allowed.iter().map(|a| format!(".{a}")).collect();
-            Err(err(p.span(), format!("{what} must be a {} file, got '{}'", want.join(" or "), p.get_ref().display())))
-        };
-        kind_of(&file.scene.mesh, "scene.mesh", &["obj", "ply"])?;
-        if let Some(p) = &file.lighting.env_map {
-            kind_of(p, "lighting.env_map", &["exr", "hdr"])?;
-        }
-        let mesh_path = resolve(&file.scene.mesh, "mesh")?;
-        let env_path = match (&file.lighting.env_map, &file.lighting.constant) {
-            (Some(p), None) => match biscale_core::sampling::cube_env::face_paths(&dir.join(p.get_ref())) {
-                // Six cube faces: each must be there (the pattern itself is no file).
-                Some(faces) => {
-                    for (face, tag) in faces.iter().zip(biscale_core::sampling::cube_env::FACE_TAGS) {
-                        if !face.is_file() {
-                            return Err(err(
-                                p.span(),
-                                format!("env map cube face `{tag}` not found: {}", face.display()),
-                            ));
-                        }
-                    }
-                    Some(dir.join(p.get_ref()))
-                }
-                None => Some(resolve(p, "env map")?),
-            },
-            (None, Some(c)) => {
-                if c.iter().any(|v| !v.is_finite() || *v < 0.0) {
-                    return Err(ConfigError::whole_file(path, "lighting.constant must be finite and >= 0"));
-                }
-                None
-            }
-            (Some(p), Some(_)) => {
-                return Err(err(p.span(), "give either lighting.env_map or lighting.constant, not both".into()))
-            }
-            (None, None) => {
-                return Err(ConfigError::whole_file(path, "[lighting] needs env_map = \"...\" or constant = [r, g, b]"))
-            }
-        };
-        if let Some(b) = &file.lighting.sun_boost {
-            if !(b.get_ref().is_finite() && *b.get_ref() > 0.0) {
-                return Err(err(b.span(), "sun_boost must be a positive finite factor".into()));
-            }
-        }
-
-        let t = &file.transfer;
-        let range = |v: &Spanned<u32>, lo: u32, hi: u32, what: &str| -> Result<(), ConfigError> {
-            if *v.get_ref() < lo || *v.get_ref() > hi {
-                return Err(err(v.span(), format!("{what} must be in {lo}..={hi}, got {}", v.get_ref())));
-            }
-            Ok(())
-        };
-        range(&t.cubemap_resolution, 1, 104, "transfer.cubemap_resolution (N = 6 R^2 must fit 16-bit indices)")?;
-        range(&t.visibility_resolution, 1, 1024, "transfer.visibility_resolution")?;
-        range(&t.local_grid, 1, 64, "transfer.local_grid")?;
-        if !t.visibility_resolution.get_ref().is_multiple_of(*t.cubemap_resolution.get_ref()) {
-            return Err(err(
-                t.visibility_resolution.span(),
-                format!(
-                    "transfer.visibility_resolution ({}) must be a multiple of cubemap_resolution ({})",
-                    t.visibility_resolution.get_ref(),
-                    t.cubemap_resolution.get_ref()
-                ),
-            ));
-        }
-        let s = t.visibility_resolution.get_ref() / t.cubemap_resolution.get_ref();
-        if s as u64 * s as u64 > u16::MAX as u64 {
-            return Err(err(
-                t.visibility_resolution.span(),
-                format!(
-                    "transfer.visibility_resolution / cubemap_resolution = {s} gives {} visibility samples per texel, \
-                     over {} (counts are 16-bit)",
-                    s as u64 * s as u64,
-                    u16::MAX
-                ),
-            ));
-        }
-        // The one place the transfer keys become bases: everything downstream (the light
-        // vector, T, the BTFs) takes them from these settings.
-        let transfer = biscale_core::transfer::TransferSettings::new(
-            *t.cubemap_resolution.get_ref(),
-            *t.visibility_resolution.get_ref(),
-            *t.local_grid.get_ref(),
-        )
-        .map_err(|e| err(t.local_grid.span(), e.to_string()))?;
-        range(&file.runtime.width, 1, 16384, "runtime.width")?;
-        range(&file.runtime.height, 1, 16384, "runtime.height")?;
-        if let Some(s) = &file.runtime.samples_per_pixel {
-            if let Err(what) = biscale_core::scene::camera::samples_per_axis_of(*s.get_ref()) {
-                return Err(err(s.span(), format!("runtime.samples_per_pixel {what}")));
-            }
-        }
-        range(&file.report.reference_downscale, 1, 64, "report.reference_downscale")?;
-        if let Some(inset) = &file.report.inset {
-            let [x, y, w, h] = *inset.get_ref();
-            let (width, height) = (*file.runtime.width.get_ref(), *file.runtime.height.get_ref());
-            if w == 0 || h == 0 || x as u64 + w as u64 > width as u64 || y as u64 + h as u64 > height as u64 {
-                return Err(err(
-                    inset.span(),
-                    format!(
-                        "report.inset = [x, y, width, height] must be a non-empty region inside the {width}x{height} \
-                         render (x + width <= {width}, y + height <= {height}), got [{x}, {y}, {w}, {h}]"
-                    ),
-                ));
-            }
-        }
-        if let Some(e) = file.report.error_scale.filter(|e| !(*e > 0.0 && e.is_finite())) {
-            return Err(ConfigError::whole_file(
-                path,
-                format!("report.error_scale must be a positive number, got {e}"),
-            ));
-        }
-        if !(file.report.target_error > 0.0 && file.report.target_error.is_finite()) {
-            return Err(ConfigError::whole_file(path, "report.target_error must be a positive number"));
-        }
-        if file.runtime.repeats == 0 || file.runtime.repeats > MAX_REPEATS {
-            return Err(ConfigError::whole_file(
-                path,
-                format!(
-                    "runtime.repeats must be in 1..={MAX_REPEATS} (timed gathers per setting), got {}",
-                    file.runtime.repeats
-                ),
-            ));
-        }
-        let cam = &file.runtime.camera;
-        if !(cam.fov_y_degrees > 0.0 && cam.fov_y_degrees < 180.0) {
-            return Err(ConfigError::whole_file(
-                path,
-                format!("runtime.camera.fov_y_degrees must be in (0, 180), got {}", cam.fov_y_degrees),
-            ));
-        }
-        if !(cam.elevation_degrees > -90.0 && cam.elevation_degrees < 90.0) {
-            return Err(ConfigError::whole_file(
-                path,
-                format!(
-                    "runtime.camera.elevation_degrees must be in (-90, 90) (at the poles the view has no up), got {}",
-                    cam.elevation_degrees
-                ),
-            ));
-        }
-        if let (Some(p), Some(t)) = (cam.position, cam.target) {
-            if p == t {
-                return Err(ConfigError::whole_file(
-                    path,
-                    format!("runtime.camera.position and target are the same point {p:?}: the camera looks nowhere"),
-                ));
-            }
-        }
-        let pixels = *file.runtime.width.get_ref() as u64 * *file.runtime.height.get_ref() as u64;
-        if pixels > MAX_PIXELS {
-            return Err(err(
-                file.runtime.width.span(),
-                format!(
-                    "runtime.width x height = {pixels} pixels is over the limit of {MAX_PIXELS} ({:.1} GB of f32 RGB per \
-                     image, one per setting plus the uncompressed one); make the image smaller",
-                    pixels as f64 * 12.0 / 1e9
-                ),
-            ));
-        }
+        let (mesh_path, env_path) = scene_files(&file, path, &dir, &err)?;
+        let transfer = transfer_of(&file, &err)?;
+        check_runtime(&file, path, &err)?;
+        let (compressors, methods) = settings_of(&file, &dir, &transfer, &err)?;
         let mut file = file;
-        // Compressor and method settings share one label space (file names, report rows).
-        let (mut compressors, mut methods): (Vec<Setting>, Vec<Setting>) = (vec![], vec![]);
-        let mut labels: Vec<String> = vec![];
-        for (entries, what, kinds, out) in [
-            (&file.compressors, "compressor", compressor_kinds(), &mut compressors),
-            (&file.methods, "method", method_kinds(), &mut methods),
-        ] {
-            for c in entries {
-                for setting in expand_settings(c, &dir, &err, what, &kinds)? {
-                    if labels.contains(&setting.label) {
-                        return Err(err(
-                            c.span(),
-                            format!(
-                                "setting {} appears twice (its images and report rows would collide)",
-                                setting.label
-                            ),
-                        ));
-                    }
-                    if what == "compressor" {
-                        check_against_transfer(&setting, &transfer).map_err(|m| err(c.span(), m))?;
-                    }
-                    labels.push(setting.label.clone());
-                    out.push(setting);
-                }
-            }
-        }
-        if let (Some(_), Some(first)) = (&file.scene.material, file.scene.materials.first()) {
-            return Err(err(first.span(), "give either [scene.material] or [[scene.materials]], not both".into()));
-        }
-        let mut seen_names: Vec<String> = vec![];
-        let several = file.scene.materials.len() > 1;
-        for m in file.scene.material.iter_mut().chain(file.scene.materials.iter_mut()) {
-            let span = m.span();
-            check_material(m.get_ref()).map_err(|e| err(span.clone(), format!("material: {e}")))?;
-            match m.get_ref().name() {
-                Some(n) if seen_names.iter().any(|s| s == n) => {
-                    return Err(err(span, format!("material name {n:?} is used twice")));
-                }
-                Some(n) => seen_names.push(n.to_string()),
-                None if several => {
-                    return Err(err(
-                        span,
-                        "with several [[scene.materials]], each needs a name (its OBJ usemtl or group)".into(),
-                    ));
-                }
-                None => {}
-            }
-            if let MaterialConfig::Bonn(b) = m.get_mut() {
-                let full = dir.join(&b.path);
-                if !full.is_dir() {
-                    return Err(err(span.clone(), format!("bonn sample folder not found: {}", full.display())));
-                }
-                b.path = full;
-            }
-            if let MaterialConfig::Synthesized(syn) = m.get_mut() {
-                for (file_ref, what) in [(&mut syn.height_map, "height_map"), (&mut syn.albedo_map, "albedo_map")] {
-                    if let Some(p) = file_ref {
-                        let full = dir.join(&*p);
-                        if !full.is_file() {
-                            return Err(err(span.clone(), format!("{what} file not found: {}", full.display())));
-                        }
-                        *p = full;
-                    }
-                }
-            }
-        }
+        resolve_materials(&mut file, &dir, &err)?;
         Ok(Self {
             config_path: path.to_path_buf(),
             source,
@@ -1372,6 +1135,282 @@ impl Experiment {
     pub fn transfer_settings(&self) -> biscale_core::transfer::TransferSettings {
         self.transfer
     }
+}
+
+/// How a config's checks locate an error: a span of the file's text and a message.
+type Locate<'a> = dyn Fn(Range<usize>, String) -> ConfigError + 'a;
+
+/// `v` within `lo..=hi`, else an error located at it.
+fn in_range(v: &Spanned<u32>, lo: u32, hi: u32, what: &str, err: &Locate<'_>) -> Result<(), ConfigError> {
+    if *v.get_ref() < lo || *v.get_ref() > hi {
+        return Err(err(v.span(), format!("{what} must be in {lo}..={hi}, got {}", v.get_ref())));
+    }
+    Ok(())
+}
+
+/// The experiment's name, and its mesh and light files resolved against the config's folder.
+fn scene_files(
+    file: &ExperimentFile,
+    path: &Path,
+    dir: &Path,
+    err: &Locate<'_>,
+) -> Result<(PathBuf, Option<PathBuf>), ConfigError> {
+    let resolve = |p: &Spanned<PathBuf>, what: &str| -> Result<PathBuf, ConfigError> {
+        let full = dir.join(p.get_ref());
+        if !full.is_file() {
+            return Err(err(p.span(), format!("{what} file not found: {}", full.display())));
+        }
+        Ok(full)
+    };
+    if file.name.get_ref().trim().is_empty()
+        || file.name.get_ref().contains(['/', '\\'])
+        || file.name.get_ref().starts_with('.')
+    {
+        return Err(err(file.name.span(), "name must be a plain folder name (no slashes, not empty)".into()));
+    }
+    // File kinds are checked here, before `run` traces anything (`plan` checks them too).
+    let kind_of = |p: &Spanned<PathBuf>, what: &str, allowed: &[&str]| -> Result<(), ConfigError> {
+        let ext = p.get_ref().extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+        if allowed.contains(&ext.as_str()) {
+            return Ok(());
+        }
+        let want: Vec<String> = allowed.iter().map(|a| format!(".{a}")).collect();
+        Err(err(p.span(), format!("{what} must be a {} file, got '{}'", want.join(" or "), p.get_ref().display())))
+    };
+    kind_of(&file.scene.mesh, "scene.mesh", &["obj", "ply"])?;
+    if let Some(p) = &file.lighting.env_map {
+        kind_of(p, "lighting.env_map", &["exr", "hdr"])?;
+    }
+    let mesh_path = resolve(&file.scene.mesh, "mesh")?;
+    let env_path = match (&file.lighting.env_map, &file.lighting.constant) {
+        (Some(p), None) => match biscale_core::sampling::cube_env::face_paths(&dir.join(p.get_ref())) {
+            // Six cube faces: each must be there (the pattern itself is no file).
+            Some(faces) => {
+                for (face, tag) in faces.iter().zip(biscale_core::sampling::cube_env::FACE_TAGS) {
+                    if !face.is_file() {
+                        return Err(err(p.span(), format!("env map cube face `{tag}` not found: {}", face.display())));
+                    }
+                }
+                Some(dir.join(p.get_ref()))
+            }
+            None => Some(resolve(p, "env map")?),
+        },
+        (None, Some(c)) => {
+            if c.iter().any(|v| !v.is_finite() || *v < 0.0) {
+                return Err(ConfigError::whole_file(path, "lighting.constant must be finite and >= 0"));
+            }
+            None
+        }
+        (Some(p), Some(_)) => {
+            return Err(err(p.span(), "give either lighting.env_map or lighting.constant, not both".into()))
+        }
+        (None, None) => {
+            return Err(ConfigError::whole_file(path, "[lighting] needs env_map = \"...\" or constant = [r, g, b]"))
+        }
+    };
+    if let Some(b) = &file.lighting.sun_boost {
+        if !(b.get_ref().is_finite() && *b.get_ref() > 0.0) {
+            return Err(err(b.span(), "sun_boost must be a positive finite factor".into()));
+        }
+    }
+    Ok((mesh_path, env_path))
+}
+
+/// The transfer table's keys as the bases everything downstream takes them from.
+fn transfer_of(
+    file: &ExperimentFile,
+    err: &Locate<'_>,
+) -> Result<biscale_core::transfer::TransferSettings, ConfigError> {
+    let t = &file.transfer;
+    in_range(&t.cubemap_resolution, 1, 104, "transfer.cubemap_resolution (N = 6 R^2 must fit 16-bit indices)", err)?;
+    in_range(&t.visibility_resolution, 1, 1024, "transfer.visibility_resolution", err)?;
+    in_range(&t.local_grid, 1, 64, "transfer.local_grid", err)?;
+    if !t.visibility_resolution.get_ref().is_multiple_of(*t.cubemap_resolution.get_ref()) {
+        return Err(err(
+            t.visibility_resolution.span(),
+            format!(
+                "transfer.visibility_resolution ({}) must be a multiple of cubemap_resolution ({})",
+                t.visibility_resolution.get_ref(),
+                t.cubemap_resolution.get_ref()
+            ),
+        ));
+    }
+    let s = t.visibility_resolution.get_ref() / t.cubemap_resolution.get_ref();
+    if s as u64 * s as u64 > u16::MAX as u64 {
+        return Err(err(
+            t.visibility_resolution.span(),
+            format!(
+                "transfer.visibility_resolution / cubemap_resolution = {s} gives {} visibility samples per texel, \
+                 over {} (counts are 16-bit)",
+                s as u64 * s as u64,
+                u16::MAX
+            ),
+        ));
+    }
+    // The one place the transfer keys become bases: everything downstream (the light
+    // vector, T, the BTFs) takes them from these settings.
+    biscale_core::transfer::TransferSettings::new(
+        *t.cubemap_resolution.get_ref(),
+        *t.visibility_resolution.get_ref(),
+        *t.local_grid.get_ref(),
+    )
+    .map_err(|e| err(t.local_grid.span(), e.to_string()))
+}
+
+/// The `[runtime]` and `[report]` values: sizes, counts and the camera.
+fn check_runtime(file: &ExperimentFile, path: &Path, err: &Locate<'_>) -> Result<(), ConfigError> {
+    in_range(&file.runtime.width, 1, 16384, "runtime.width", err)?;
+    in_range(&file.runtime.height, 1, 16384, "runtime.height", err)?;
+    if let Some(s) = &file.runtime.samples_per_pixel {
+        if let Err(what) = biscale_core::scene::camera::samples_per_axis_of(*s.get_ref()) {
+            return Err(err(s.span(), format!("runtime.samples_per_pixel {what}")));
+        }
+    }
+    in_range(&file.report.reference_downscale, 1, 64, "report.reference_downscale", err)?;
+    if let Some(inset) = &file.report.inset {
+        let [x, y, w, h] = *inset.get_ref();
+        let (width, height) = (*file.runtime.width.get_ref(), *file.runtime.height.get_ref());
+        if w == 0 || h == 0 || x as u64 + w as u64 > width as u64 || y as u64 + h as u64 > height as u64 {
+            return Err(err(
+                inset.span(),
+                format!(
+                    "report.inset = [x, y, width, height] must be a non-empty region inside the {width}x{height} \
+                     render (x + width <= {width}, y + height <= {height}), got [{x}, {y}, {w}, {h}]"
+                ),
+            ));
+        }
+    }
+    if let Some(e) = file.report.error_scale.filter(|e| !(*e > 0.0 && e.is_finite())) {
+        return Err(ConfigError::whole_file(path, format!("report.error_scale must be a positive number, got {e}")));
+    }
+    if !(file.report.target_error > 0.0 && file.report.target_error.is_finite()) {
+        return Err(ConfigError::whole_file(path, "report.target_error must be a positive number"));
+    }
+    if file.runtime.repeats == 0 || file.runtime.repeats > MAX_REPEATS {
+        return Err(ConfigError::whole_file(
+            path,
+            format!(
+                "runtime.repeats must be in 1..={MAX_REPEATS} (timed gathers per setting), got {}",
+                file.runtime.repeats
+            ),
+        ));
+    }
+    let cam = &file.runtime.camera;
+    if !(cam.fov_y_degrees > 0.0 && cam.fov_y_degrees < 180.0) {
+        return Err(ConfigError::whole_file(
+            path,
+            format!("runtime.camera.fov_y_degrees must be in (0, 180), got {}", cam.fov_y_degrees),
+        ));
+    }
+    if !(cam.elevation_degrees > -90.0 && cam.elevation_degrees < 90.0) {
+        return Err(ConfigError::whole_file(
+            path,
+            format!(
+                "runtime.camera.elevation_degrees must be in (-90, 90) (at the poles the view has no up), got {}",
+                cam.elevation_degrees
+            ),
+        ));
+    }
+    if let (Some(p), Some(t)) = (cam.position, cam.target) {
+        if p == t {
+            return Err(ConfigError::whole_file(
+                path,
+                format!("runtime.camera.position and target are the same point {p:?}: the camera looks nowhere"),
+            ));
+        }
+    }
+    let pixels = *file.runtime.width.get_ref() as u64 * *file.runtime.height.get_ref() as u64;
+    if pixels > MAX_PIXELS {
+        return Err(err(
+            file.runtime.width.span(),
+            format!(
+                "runtime.width x height = {pixels} pixels is over the limit of {MAX_PIXELS} ({:.1} GB of f32 RGB per \
+                 image, one per setting plus the uncompressed one); make the image smaller",
+                pixels as f64 * 12.0 / 1e9
+            ),
+        ));
+    }
+
+    Ok(())
+}
+
+/// The `[[compressors]]` and `[[methods]]` settings after sweep expansion, each label once,
+/// each compressor checked against the transfer shape.
+fn settings_of(
+    file: &ExperimentFile,
+    dir: &Path,
+    transfer: &biscale_core::transfer::TransferSettings,
+    err: &Locate<'_>,
+) -> Result<(Vec<Setting>, Vec<Setting>), ConfigError> {
+    // Compressor and method settings share one label space (file names, report rows).
+    let (mut compressors, mut methods): (Vec<Setting>, Vec<Setting>) = (vec![], vec![]);
+    let mut labels: Vec<String> = vec![];
+    for (entries, what, kinds, out) in [
+        (&file.compressors, "compressor", compressor_kinds(), &mut compressors),
+        (&file.methods, "method", method_kinds(), &mut methods),
+    ] {
+        for c in entries {
+            for setting in expand_settings(c, dir, &err, what, &kinds)? {
+                if labels.contains(&setting.label) {
+                    return Err(err(
+                        c.span(),
+                        format!("setting {} appears twice (its images and report rows would collide)", setting.label),
+                    ));
+                }
+                if what == "compressor" {
+                    check_against_transfer(&setting, transfer).map_err(|m| err(c.span(), m))?;
+                }
+                labels.push(setting.label.clone());
+                out.push(setting);
+            }
+        }
+    }
+    Ok((compressors, methods))
+}
+
+/// The materials checked, named once each, their files resolved against the config's folder.
+fn resolve_materials(file: &mut ExperimentFile, dir: &Path, err: &Locate<'_>) -> Result<(), ConfigError> {
+    if let (Some(_), Some(first)) = (&file.scene.material, file.scene.materials.first()) {
+        return Err(err(first.span(), "give either [scene.material] or [[scene.materials]], not both".into()));
+    }
+    let mut seen_names: Vec<String> = vec![];
+    let several = file.scene.materials.len() > 1;
+    for m in file.scene.material.iter_mut().chain(file.scene.materials.iter_mut()) {
+        let span = m.span();
+        check_material(m.get_ref()).map_err(|e| err(span.clone(), format!("material: {e}")))?;
+        match m.get_ref().name() {
+            Some(n) if seen_names.iter().any(|s| s == n) => {
+                return Err(err(span, format!("material name {n:?} is used twice")));
+            }
+            Some(n) => seen_names.push(n.to_string()),
+            None if several => {
+                return Err(err(
+                    span,
+                    "with several [[scene.materials]], each needs a name (its OBJ usemtl or group)".into(),
+                ));
+            }
+            None => {}
+        }
+        if let MaterialConfig::Bonn(b) = m.get_mut() {
+            let full = dir.join(&b.path);
+            if !full.is_dir() {
+                return Err(err(span.clone(), format!("bonn sample folder not found: {}", full.display())));
+            }
+            b.path = full;
+        }
+        if let MaterialConfig::Synthesized(syn) = m.get_mut() {
+            for (file_ref, what) in [(&mut syn.height_map, "height_map"), (&mut syn.albedo_map, "albedo_map")] {
+                if let Some(p) = file_ref {
+                    let full = dir.join(&*p);
+                    if !full.is_file() {
+                        return Err(err(span.clone(), format!("{what} file not found: {}", full.display())));
+                    }
+                    *p = full;
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The comment that marks a line of the effective config as set by `--set KEY=...`.

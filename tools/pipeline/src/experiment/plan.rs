@@ -81,9 +81,9 @@ impl Plan {
     pub fn new(exp: &Experiment) -> Plan {
         let f = &exp.file;
         let mut steps = vec![];
-        let mut step = |stage, what: String, action| steps.push(Step { stage, what, action });
         let t = exp.transfer_settings();
-        step(
+        push(
+            &mut steps,
             "sampling",
             match &exp.env_path {
                 Some(p) => format!("light vector L from {} (6x{r}x{r})", p.display(), r = t.cubemap().resolution),
@@ -91,7 +91,8 @@ impl Plan {
             },
             Action::Run,
         );
-        step(
+        push(
+            &mut steps,
             "transfer",
             format!(
                 "T: visibility 6x{v}x{v} box-filtered to 6x{r}x{r}, local grid {m}x{m} (cached by content)",
@@ -103,126 +104,33 @@ impl Plan {
         );
         let materials = exp.materials();
         for m in &materials {
-            let label = m.label();
-            match m {
-                MaterialConfig::Lambertian { .. } => step(
-                    "btf",
-                    format!("{label}: view axis of the lambertian BTF"),
-                    Action::LeftOut("a diffuse BTF is view-independent".into()),
-                ),
-                MaterialConfig::Phong { view_grid, .. } => {
-                    step("btf", format!("{label}: phong BTF with {view_grid}x{view_grid} view directions"), Action::Run)
-                }
-                MaterialConfig::Bonn(b) => {
-                    let views = match b.view_grid {
-                        0 => "the view nearest the normal (no view axis)".to_string(),
-                        v => format!("{v}x{v} views"),
-                    };
-                    step(
-                        "btf",
-                        format!(
-                            "{label}: resample the measured BTF in {} to {r}x{r} texels x {views} x {m}x{m} lights",
-                            b.path.display(),
-                            r = b.resolution,
-                            m = t.local_grid().m
-                        ),
-                        Action::Run,
-                    )
-                }
-                MaterialConfig::Synthesized(s) if s.amplitude == 0.0 && s.albedo_map.is_none() => step(
-                    "btf",
-                    format!("{label}: ray tracing of a flat patch"),
-                    Action::LeftOut("tabulated analytically from the BRDF".into()),
-                ),
-                MaterialConfig::Synthesized(s) => {
-                    let views = match s.view_grid {
-                        0 => "no view axis (diffuse special case)".to_string(),
-                        v => format!("{v}x{v} views"),
-                    };
-                    step(
-                        "btf",
-                        format!(
-                            "{label}: synthesize {r}x{r} texels x {views} x {m}x{m} lights (cached by content)",
-                            r = s.resolution,
-                            m = t.local_grid().m
-                        ),
-                        Action::Run,
-                    )
-                }
-            }
-            let all = m.representations().all();
-            for (i, r) in all.iter().enumerate() {
-                if let crate::experiment::config::BtfRepresentation::Lpca { clusters, components, .. } = *r {
-                    let role = if i == 0 { "evaluated directly by every shader" } else { "compared in the BTF study" };
-                    step(
-                        "btf",
-                        format!(
-                            "{label}: local-PCA compression {} ({clusters} clusters x {components} eigen-BRDFs, cached by content); {role}",
-                            r.label()
-                        ),
-                        Action::Run,
-                    );
-                }
-            }
-            if all.iter().any(|r| *r != crate::experiment::config::BtfRepresentation::Dense) {
-                step(
-                    "btf",
-                    format!(
-                        "{label}: BTF study of {} setting(s): image error against dense BTFs and the reference, shade time, precomputed dot products",
-                        all.len()
-                    ),
-                    Action::Run,
-                );
-            }
+            material_steps(m, &t, &mut steps);
         }
         if materials.len() == 1 {
-            step("btf", "material-id buffer".into(), Action::LeftOut("the scene has one material".into()));
+            push(&mut steps, "btf", "material-id buffer".into(), Action::LeftOut("the scene has one material".into()));
         } else {
-            step("btf", format!("material ids per triangle ({} materials)", materials.len()), Action::Run);
+            push(&mut steps, "btf", format!("material ids per triangle ({} materials)", materials.len()), Action::Run);
         }
         let compressors: Vec<CompressorSetting> = exp.compressor_settings().to_vec();
         for c in &compressors {
-            step("compress", c.label.clone(), Action::Run);
+            push(&mut steps, "compress", c.label.clone(), Action::Run);
         }
-        for kind in biscale_compressors::registry::KINDS.iter().filter(|k| k.role != biscale_compressors::registry::Role::External).map(|k| k.name) {
+        for kind in biscale_compressors::registry::KINDS
+            .iter()
+            .filter(|k| k.role != biscale_compressors::registry::Role::External)
+            .map(|k| k.name)
+        {
             if !compressors.iter().any(|c| c.kind == kind) {
-                step("compress", kind.into(), Action::LeftOut("not named in the config".into()));
+                push(&mut steps, "compress", kind.into(), Action::LeftOut("not named in the config".into()));
             }
         }
         // The diffuse special case, as far as the config tells (the run checks the tables).
         let diffuse = materials.iter().all(lambertian_config);
         for m in exp.method_settings() {
-            let Ok(p) = crate::experiment::methods::sh::ShParams::parse(&m.params) else { continue };
-            let n2 = p.order * p.order;
-            let bounces = match p.bounces {
-                0 => String::new(),
-                b => format!(", {b} interreflection bounce(s)"),
-            };
-            step(
-                "method",
-                format!(
-                    "{}: light in order-{} SH, M_p {n2}x{n2} per vertex by {} rays{bounces} (cached by content)",
-                    m.label, p.order, p.rays
-                ),
-                Action::Run,
-            );
-            if diffuse {
-                step(
-                    "method",
-                    format!("{}: {n2}x{n2} transfer matrices and per-pixel RTT lookups", m.label),
-                    Action::LeftOut(format!(
-                        "every material is Lambertian: shadowed diffuse PRT, a {n2}-vector per vertex"
-                    )),
-                );
-            } else {
-                step(
-                    "method",
-                    format!("{}: radiance transfer texture per material (the BTFs on order-{} SH)", m.label, p.order),
-                    Action::Run,
-                );
-            }
+            method_steps(m, diffuse, &mut steps);
         }
-        step(
+        push(
+            &mut steps,
             "gather",
             format!(
                 "{} gather(s) on the {:?} backend",
@@ -232,8 +140,14 @@ impl Plan {
             .to_lowercase(),
             Action::Run,
         );
-        step("gather", "re-gathers for changing light".into(), Action::LeftOut("the light does not change".into()));
-        step(
+        push(
+            &mut steps,
+            "gather",
+            "re-gathers for changing light".into(),
+            Action::LeftOut("the light does not change".into()),
+        );
+        push(
+            &mut steps,
             "shade",
             format!(
                 "{}x{} image per compressor plus the uncompressed T",
@@ -243,12 +157,13 @@ impl Plan {
             Action::Run,
         );
         let reference = f.report.reference;
-        step(
+        push(
+            &mut steps,
             "reference",
             "ray-traced per-pixel visibility image".into(),
             if reference { Action::Run } else { Action::LeftOut("report.reference = false".into()) },
         );
-        step("report", "metrics.json, report.md, images".into(), Action::Run);
+        push(&mut steps, "report", "metrics.json, report.md, images".into(), Action::Run);
         Plan { steps, compressors, reference, memory: None, cache: CacheReport::NotChecked }
     }
 
@@ -269,6 +184,125 @@ impl Plan {
         };
         self.memory = Some((memory, crate::estimate::available()?));
         Ok(self)
+    }
+}
+
+fn push(steps: &mut Vec<Step>, stage: &'static str, what: String, action: Action) {
+    steps.push(Step { stage, what, action });
+}
+
+/// The steps that build material `m`'s BTF (and its local-PCA forms and study).
+fn material_steps(m: &MaterialConfig, t: &biscale_core::transfer::TransferSettings, steps: &mut Vec<Step>) {
+    let label = m.label();
+    match m {
+        MaterialConfig::Lambertian { .. } => push(
+            steps,
+            "btf",
+            format!("{label}: view axis of the lambertian BTF"),
+            Action::LeftOut("a diffuse BTF is view-independent".into()),
+        ),
+        MaterialConfig::Phong { view_grid, .. } => {
+            push(steps, "btf", format!("{label}: phong BTF with {view_grid}x{view_grid} view directions"), Action::Run)
+        }
+        MaterialConfig::Bonn(b) => {
+            let views = match b.view_grid {
+                0 => "the view nearest the normal (no view axis)".to_string(),
+                v => format!("{v}x{v} views"),
+            };
+            push(
+                steps,
+                "btf",
+                format!(
+                    "{label}: resample the measured BTF in {} to {r}x{r} texels x {views} x {m}x{m} lights",
+                    b.path.display(),
+                    r = b.resolution,
+                    m = t.local_grid().m
+                ),
+                Action::Run,
+            )
+        }
+        MaterialConfig::Synthesized(s) if s.amplitude == 0.0 && s.albedo_map.is_none() => push(
+            steps,
+            "btf",
+            format!("{label}: ray tracing of a flat patch"),
+            Action::LeftOut("tabulated analytically from the BRDF".into()),
+        ),
+        MaterialConfig::Synthesized(s) => {
+            let views = match s.view_grid {
+                0 => "no view axis (diffuse special case)".to_string(),
+                v => format!("{v}x{v} views"),
+            };
+            push(
+                steps,
+                "btf",
+                format!(
+                    "{label}: synthesize {r}x{r} texels x {views} x {m}x{m} lights (cached by content)",
+                    r = s.resolution,
+                    m = t.local_grid().m
+                ),
+                Action::Run,
+            )
+        }
+    }
+    let all = m.representations().all();
+    for (i, r) in all.iter().enumerate() {
+        if let crate::experiment::config::BtfRepresentation::Lpca { clusters, components, .. } = *r {
+            let role = if i == 0 { "evaluated directly by every shader" } else { "compared in the BTF study" };
+            push(
+                steps,
+                "btf",
+                format!(
+                    "{label}: local-PCA compression {} ({clusters} clusters x {components} eigen-BRDFs, cached by content); {role}",
+                    r.label()
+                ),
+                Action::Run,
+            );
+        }
+    }
+    if all.iter().any(|r| *r != crate::experiment::config::BtfRepresentation::Dense) {
+        push(
+            steps,
+            "btf",
+            format!(
+                "{label}: BTF study of {} setting(s): image error against dense BTFs and the reference, shade time, precomputed dot products",
+                all.len()
+            ),
+            Action::Run,
+        );
+    }
+}
+
+/// The steps of one `[[methods]]` setting; `diffuse` when every material is Lambertian.
+fn method_steps(m: &crate::experiment::config::Setting, diffuse: bool, steps: &mut Vec<Step>) {
+    let Ok(p) = crate::experiment::methods::sh::ShParams::parse(&m.params) else { return };
+    let n2 = p.order * p.order;
+    let bounces = match p.bounces {
+        0 => String::new(),
+        b => format!(", {b} interreflection bounce(s)"),
+    };
+    push(
+        steps,
+        "method",
+        format!(
+            "{}: light in order-{} SH, M_p {n2}x{n2} per vertex by {} rays{bounces} (cached by content)",
+            m.label, p.order, p.rays
+        ),
+        Action::Run,
+    );
+    if diffuse {
+        push(
+            steps,
+            "method",
+            format!("{}: {n2}x{n2} transfer matrices and per-pixel RTT lookups", m.label),
+            Action::LeftOut(format!("every material is Lambertian: shadowed diffuse PRT, a {n2}-vector per vertex")),
+        );
+    } else {
+        push(
+            steps,
+            "method",
+            format!("{}: radiance transfer texture per material (the BTFs on order-{} SH)", m.label, p.order),
+            Action::Run,
+        );
     }
 }
 

@@ -22,7 +22,6 @@
 pub mod mtx;
 pub mod npy;
 
-use biscale_compressors::registry::Role;
 use crate::error::{PipelineError, Result};
 use crate::experiment::config::{CompressorSetting, Experiment, MaterialConfig};
 use crate::experiment::plan::Plan;
@@ -33,6 +32,7 @@ use crate::stages::scene::{load_geometry, load_lighting, shade_scene};
 use crate::stages::transfer::transfer_matrix;
 use crate::store::cache::StageCache;
 use crate::store::RunOptions;
+use biscale_compressors::registry::Role;
 use biscale_core::basis::{LightBasis, LocalBasis, TransferShape};
 use biscale_core::compress::{ArrayData, CompressedForm, NamedArray};
 use biscale_core::gather::LocalRadiance;
@@ -252,70 +252,10 @@ pub fn export(
             }
             (Item::T, ExportFormat::Npz) => {
                 let t = &transfer.as_ref().expect("loaded for t").matrix;
-                let settings = exp.transfer_settings();
-                let csr = t.csr();
-                let indptr: Vec<i64> = csr.indptr().raw_storage().iter().map(|&x| x as i64).collect();
-                let indices: Vec<i32> = csr.indices().iter().map(|&x| x as i32).collect();
-                let shape = [t.rows() as i64, t.cols() as i64];
-                let meta = merge(
-                    meta_header(exp, "t"),
-                    json!({
-                        "shape": shape_meta(t.shape()),
-                        "nnz": t.nnz(),
-                        "visibility_resolution": settings.visibility_resolution(),
-                        "rows_are": "row v*M + j: vertex v (mesh order), local direction j of the local basis",
-                        "cols_are": "column k: cubemap texel k = face*R*R + row*R + col, faces +X -X +Y -Y +Z -Z",
-                        "values_are": "T[v*M+j, k]: the unoccluded fraction of texel k's visibility children seen through local bin j of vertex v",
-                    }),
-                );
-                let path = dir.join("t.npz");
-                npy::write_npz(
-                    &path,
-                    &[
-                        ("indptr", ArrayRef::flat(Elements::I64(&indptr))),
-                        ("indices", ArrayRef::flat(Elements::I32(&indices))),
-                        ("data", ArrayRef::flat(Elements::F32(csr.data()))),
-                        ("shape", ArrayRef::flat(Elements::I64(&shape))),
-                        (META, ArrayRef::string(&meta)),
-                    ],
-                )?;
-                written.push(Written {
-                    path,
-                    about: format!("T as CSR, {} x {}, {} non-zeros", t.rows(), t.cols(), t.nnz()),
-                });
+                written.push(write_t_npz(exp, t, dir)?);
             }
             (Item::L, ExportFormat::Npz) => {
-                let lighting = lighting.as_ref().expect("loaded for l");
-                let l = &lighting.light;
-                let cube = l.cubemap();
-                let directions: Vec<f32> = cube
-                    .map_or(vec![], |c| (0..c.texel_count()).flat_map(|k| c.texel_direction(k).to_array()).collect());
-                let solid_angles = cube.map_or(vec![], |c| c.solid_angles());
-                let meta = merge(
-                    meta_header(exp, "l"),
-                    json!({
-                        "light_basis": l.basis().tag(),
-                        "light_basis_about": l.basis().to_string(),
-                        "n": l.len(),
-                        "units": "power per cubemap texel: radiance integrated over the texel's solid angle (divide by solid_angles for the mean radiance)",
-                        "channels": "linear RGB",
-                        "env_map": exp.env_path.as_ref().map(|p| p.display().to_string()),
-                        "constant": exp.file.lighting.constant,
-                        "rotation_degrees": exp.file.lighting.rotation_degrees,
-                        "total_power": l.total(),
-                        "warnings": lighting.warnings,
-                    }),
-                );
-                let path = dir.join("l.npz");
-                let n = l.len();
-                let mut members = vec![("l", ArrayRef::new(&[n, 3], Elements::F32(l.power.as_flattened())))];
-                if cube.is_some() {
-                    members.push(("directions", ArrayRef::new(&[n, 3], Elements::F32(&directions))));
-                    members.push(("solid_angles", ArrayRef::flat(Elements::F64(&solid_angles))));
-                }
-                members.push((META, ArrayRef::string(&meta)));
-                npy::write_npz(&path, &members)?;
-                written.push(Written { path, about: format!("L, {n} x 3 ({})", l.basis()) });
+                written.push(write_l_npz(exp, lighting.as_ref().expect("loaded for l"), dir)?);
             }
             (Item::Lstar, _) => {
                 let t = &transfer.as_ref().expect("loaded for lstar").matrix;
@@ -387,6 +327,72 @@ pub fn export(
         }
     }
     Ok(written)
+}
+
+/// `t.npz`: `T` as CSR with its meta.
+fn write_t_npz(exp: &Experiment, t: &biscale_core::transfer::TransferMatrix, dir: &Path) -> Result<Written> {
+    let settings = exp.transfer_settings();
+    let csr = t.csr();
+    let indptr: Vec<i64> = csr.indptr().raw_storage().iter().map(|&x| x as i64).collect();
+    let indices: Vec<i32> = csr.indices().iter().map(|&x| x as i32).collect();
+    let shape = [t.rows() as i64, t.cols() as i64];
+    let meta = merge(
+        meta_header(exp, "t"),
+        json!({
+            "shape": shape_meta(t.shape()),
+            "nnz": t.nnz(),
+            "visibility_resolution": settings.visibility_resolution(),
+            "rows_are": "row v*M + j: vertex v (mesh order), local direction j of the local basis",
+            "cols_are": "column k: cubemap texel k = face*R*R + row*R + col, faces +X -X +Y -Y +Z -Z",
+            "values_are": "T[v*M+j, k]: the unoccluded fraction of texel k's visibility children seen through local bin j of vertex v",
+        }),
+    );
+    let path = dir.join("t.npz");
+    npy::write_npz(
+        &path,
+        &[
+            ("indptr", ArrayRef::flat(Elements::I64(&indptr))),
+            ("indices", ArrayRef::flat(Elements::I32(&indices))),
+            ("data", ArrayRef::flat(Elements::F32(csr.data()))),
+            ("shape", ArrayRef::flat(Elements::I64(&shape))),
+            (META, ArrayRef::string(&meta)),
+        ],
+    )?;
+    Ok(Written { path, about: format!("T as CSR, {} x {}, {} non-zeros", t.rows(), t.cols(), t.nnz()) })
+}
+
+/// `l.npz`: the light vector with its texel directions and solid angles.
+fn write_l_npz(exp: &Experiment, lighting: &crate::stages::scene::Lighting, dir: &Path) -> Result<Written> {
+    let l = &lighting.light;
+    let cube = l.cubemap();
+    let directions: Vec<f32> =
+        cube.map_or(vec![], |c| (0..c.texel_count()).flat_map(|k| c.texel_direction(k).to_array()).collect());
+    let solid_angles = cube.map_or(vec![], |c| c.solid_angles());
+    let meta = merge(
+        meta_header(exp, "l"),
+        json!({
+            "light_basis": l.basis().tag(),
+            "light_basis_about": l.basis().to_string(),
+            "n": l.len(),
+            "units": "power per cubemap texel: radiance integrated over the texel's solid angle (divide by solid_angles for the mean radiance)",
+            "channels": "linear RGB",
+            "env_map": exp.env_path.as_ref().map(|p| p.display().to_string()),
+            "constant": exp.file.lighting.constant,
+            "rotation_degrees": exp.file.lighting.rotation_degrees,
+            "total_power": l.total(),
+            "warnings": lighting.warnings,
+        }),
+    );
+    let path = dir.join("l.npz");
+    let n = l.len();
+    let mut members = vec![("l", ArrayRef::new(&[n, 3], Elements::F32(l.power.as_flattened())))];
+    if cube.is_some() {
+        members.push(("directions", ArrayRef::new(&[n, 3], Elements::F32(&directions))));
+        members.push(("solid_angles", ArrayRef::flat(Elements::F64(&solid_angles))));
+    }
+    members.push((META, ArrayRef::string(&meta)));
+    npy::write_npz(&path, &members)?;
+    Ok(Written { path, about: format!("L, {n} x 3 ({})", l.basis()) })
 }
 
 /// `lstar.npz`: `L*` as (V*M) x 3 float32 rows `v*M + j`, with the local basis's directions.
@@ -785,8 +791,10 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
             let kind = f.form.kind.as_str();
             let builtin = biscale_compressors::registry::find(kind).filter(|k| k.role != Role::External);
             if builtin.is_none() {
-                let names: Vec<&str> =
-                    (biscale_compressors::registry::KINDS.iter()).filter(|k| k.role != Role::External).map(|k| k.name).collect();
+                let names: Vec<&str> = (biscale_compressors::registry::KINDS.iter())
+                    .filter(|k| k.role != Role::External)
+                    .map(|k| k.name)
+                    .collect();
                 return Err(PipelineError::Mismatch {
                     path: path.into(),
                     what: format!(

@@ -49,30 +49,7 @@ pub(crate) fn run(materials: &SceneMaterials, inp: &StudyInputs<'_>) -> Result<V
         .iter()
         .map(|v| scene_of(materials.with_variant(v)))
         .collect::<std::result::Result<_, _>>()?;
-    // The precomputed dot products of every compressed setting whose table fits.
-    let mut dots = vec![];
-    let mut notes = vec![];
-    for (scene, variant) in scenes.iter().zip(&materials.variants) {
-        let compressed = !matches!(scene.materials()[variant.material].btf, BtfRepresentation::Dense(_));
-        let need = LightDots::bytes_needed(scene);
-        let (d, note) = match (compressed, need <= MAX_PRECOMPUTED_BYTES) {
-            (false, _) => (None, Some("dense: nothing to precompute".to_string())),
-            (true, false) => (
-                None,
-                Some(format!(
-                    "not measured: the dot products would take {:.0} MB (limit {:.0} MB); per-view units need V times less",
-                    need as f64 * 1e-6,
-                    MAX_PRECOMPUTED_BYTES as f64 * 1e-6
-                )),
-            ),
-            (true, true) => {
-                let (d, ms) = timed(1, || Ok(LightDots::new(scene, inp.lstar, MAX_PRECOMPUTED_BYTES)?))?;
-                (Some((d, ms)), None)
-            }
-        };
-        dots.push(d);
-        notes.push(note);
-    }
+    let (dots, mut notes) = precomputed_dots(&scenes, materials, inp.lstar)?;
     // Every image of the study, timed in interleaved rounds (so that load changes during the
     // run touch every setting alike): the primary rays and background alone, the all-dense
     // scene, each setting directly, and each precomputed setting.
@@ -89,17 +66,8 @@ pub(crate) fn run(materials: &SceneMaterials, inp: &StudyInputs<'_>) -> Result<V
         }
     }
     let rounds = inp.repeats.max(1);
-    let mut samples = vec![vec![]; jobs.len()];
-    let mut last: Vec<Option<Render>> = (0..jobs.len()).map(|_| None).collect();
-    for _ in 0..rounds {
-        for (i, job) in jobs.iter().enumerate() {
-            let start = std::time::Instant::now();
-            last[i] = Some(job()?);
-            samples[i].push(start.elapsed().as_secs_f64() * 1e3);
-        }
-    }
-    let ms: Vec<f64> = samples.iter().map(|s| biscale_core::stats::median(s)).collect();
-    let mut renders = last.into_iter().map(|r| r.expect("every job ran"));
+    let (ms, renders) = interleaved(&jobs, rounds)?;
+    let mut renders = renders.into_iter();
     let (_, dense) = (renders.next(), renders.next().expect("the dense job"));
     let (rays_ms, dense_ms) = (ms[0], ms[1]);
     crate::note!(
@@ -166,4 +134,54 @@ pub(crate) fn run(materials: &SceneMaterials, inp: &StudyInputs<'_>) -> Result<V
         });
     }
     Ok(records)
+}
+
+/// The precomputed dot products of every compressed setting whose table fits (with the time
+/// each took), and a note for each setting that has none.
+#[allow(clippy::type_complexity)]
+fn precomputed_dots(
+    scenes: &[ShadeScene],
+    materials: &SceneMaterials,
+    lstar: &LocalRadiance,
+) -> Result<(Vec<Option<(LightDots, f64)>>, Vec<Option<String>>)> {
+    let mut dots = vec![];
+    let mut notes = vec![];
+    for (scene, variant) in scenes.iter().zip(&materials.variants) {
+        let compressed = !matches!(scene.materials()[variant.material].btf, BtfRepresentation::Dense(_));
+        let need = LightDots::bytes_needed(scene);
+        let (d, note) = match (compressed, need <= MAX_PRECOMPUTED_BYTES) {
+            (false, _) => (None, Some("dense: nothing to precompute".to_string())),
+            (true, false) => (
+                None,
+                Some(format!(
+                    "not measured: the dot products would take {:.0} MB (limit {:.0} MB); per-view units need V times less",
+                    need as f64 * 1e-6,
+                    MAX_PRECOMPUTED_BYTES as f64 * 1e-6
+                )),
+            ),
+            (true, true) => {
+                let (d, ms) = timed(1, || Ok(LightDots::new(scene, lstar, MAX_PRECOMPUTED_BYTES)?))?;
+                (Some((d, ms)), None)
+            }
+        };
+        dots.push(d);
+        notes.push(note);
+    }
+    Ok((dots, notes))
+}
+
+/// Run every job `rounds` times in interleaved rounds: the median time of each (ms) and its
+/// last render.
+fn interleaved(jobs: &[Box<dyn Fn() -> Result<Render> + '_>], rounds: usize) -> Result<(Vec<f64>, Vec<Render>)> {
+    let mut samples = vec![vec![]; jobs.len()];
+    let mut last: Vec<Option<Render>> = (0..jobs.len()).map(|_| None).collect();
+    for _ in 0..rounds {
+        for (i, job) in jobs.iter().enumerate() {
+            let start = std::time::Instant::now();
+            last[i] = Some(job()?);
+            samples[i].push(start.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    let ms: Vec<f64> = samples.iter().map(|s| biscale_core::stats::median(s)).collect();
+    Ok((ms, last.into_iter().map(|r| r.expect("every job ran")).collect()))
 }
