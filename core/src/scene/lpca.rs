@@ -47,8 +47,9 @@ pub const MAX_LPCA_BYTES: u64 = crate::linalg::cpca::MAX_BUILD_BYTES;
 /// last rounds move few texels.
 pub const DEFAULT_LPCA_ITERATIONS: usize = 6;
 
-/// What one clustered vector is.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+/// What one clustered vector is (`unit = "texel"` or `"view"` in a config).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
 pub enum LpcaUnit {
     /// A texel's whole apparent BRDF over views and lights, `3 V M` values (Müller et al.).
     #[default]
@@ -58,8 +59,9 @@ pub enum LpcaUnit {
     View,
 }
 
-/// How the eigen-BRDFs and weights are stored.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+/// How the eigen-BRDFs and weights are stored (`quantize = "f32"`, `"f16"` or `"u8"`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
 pub enum LpcaQuantize {
     #[default]
     F32,
@@ -90,18 +92,30 @@ impl LpcaQuantize {
     }
 }
 
-/// The settings of a local-PCA BTF.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// The settings of a local-PCA BTF; a config's `representation = { kind = "lpca", ... }`
+/// table deserializes into it, every key optional ([`LpcaSettings::default`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct LpcaSettings {
-    /// Clusters `k_B` of texels (1..=texels, at most 65534).
+    /// Clusters `k_B` of texels (1..=texels, at most 65534); 16 by default.
     pub clusters: usize,
-    /// Principal components `c_B` per cluster besides the mean (1..=D).
+    /// Principal components `c_B` per cluster besides the mean (1..=D); 4 by default.
     pub components: usize,
     /// Assignment/refit rounds of the clustered PCA (at most; it stops when no unit changes
     /// cluster). [`DEFAULT_LPCA_ITERATIONS`] by default.
     pub iterations: usize,
+    /// `texel` (default: a texel's table over views and lights is one vector) or `view`
+    /// (each texel's view is one vector over the lights).
     pub unit: LpcaUnit,
+    /// Storage of the eigen-BRDFs and weights: `f32` (default), `f16` or `u8`.
     pub quantize: LpcaQuantize,
+}
+
+impl Default for LpcaSettings {
+    /// 16 clusters of 4 components, texel units, f32, [`DEFAULT_LPCA_ITERATIONS`] rounds.
+    fn default() -> Self {
+        Self::new(16, 4)
+    }
 }
 
 impl LpcaSettings {

@@ -17,8 +17,10 @@ use biscale_core::Rgb;
 use glam::DVec3;
 use std::f64::consts::PI;
 
-/// A meso-scale BRDF (see the module docs).
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// A meso-scale BRDF (see the module docs); a config's `brdf = { kind = "phong", ... }` table
+/// deserializes into it.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Brdf {
     /// `f = albedo / pi`.
     Lambertian { albedo: Rgb },

@@ -473,7 +473,7 @@ pub fn btf(
             let p = out.join(format!("{stem}_preview.png"));
             save_contact_sheet(&btf, &lights, &views, &p)?;
             for &repr in cfg.representations().all() {
-                if repr == crate::experiment::config::BtfRepresentation::Dense {
+                if repr == crate::experiment::config::RepresentationSetting::Dense {
                     continue;
                 }
                 let (r, record) =

@@ -338,7 +338,7 @@ fn btf_bytes(c: &MaterialConfig, m: u64) -> u64 {
             (b.resolution as u64 * b.resolution as u64 * views * m, 5)
         }
     };
-    let lpca = c.representations().all().iter().any(|r| *r != crate::experiment::config::BtfRepresentation::Dense);
+    let lpca = c.representations().all().iter().any(|r| *r != crate::experiment::config::RepresentationSetting::Dense);
     values * BTF_BYTES_PER_VALUE * (halves + 2 * lpca as u64) / 2
 }
 

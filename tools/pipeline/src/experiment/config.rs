@@ -18,6 +18,8 @@
 //! ```
 
 use biscale_compressors::registry::Role;
+use biscale_core::scene::{LpcaQuantize, LpcaSettings, LpcaUnit};
+use biscale_shading::synth::Brdf;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::ops::Range;
@@ -284,67 +286,52 @@ pub struct SynthesizedConfig {
     #[serde(default = "default_encoding")]
     pub encoding: String,
     /// The meso-scale BRDF.
-    pub brdf: BrdfConfig,
+    pub brdf: Brdf,
     /// How the table is held for shading: `dense` (default) or `lpca`; a list compares
     /// several (the first is the one every compressor is shaded with).
     #[serde(default)]
     pub representation: Representations,
 }
 
-/// How a material's BTF is represented for shading (`representation = { kind = "lpca", ... }`).
+/// Which representation of a material's BTF to build and shade with (`representation = {
+/// kind = "lpca", ... }`): the setting, where [`biscale_core::scene::RepresentationSetting`] is
+/// the table built from it.
 #[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq, Default)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
-pub enum BtfRepresentation {
+pub enum RepresentationSetting {
     /// The table as tabulated, `[texel][view][light]`.
     #[default]
     Dense,
     /// Local PCA (Müller et al. 2004): `clusters` texel clusters of a mean and `components`
-    /// eigen-BRDFs each (`biscale_core::scene::lpca`).
-    Lpca {
-        #[serde(default = "default_lpca_clusters")]
-        clusters: usize,
-        #[serde(default = "default_lpca_components")]
-        components: usize,
-        /// `texel` (default: a texel's table over views and lights is one vector) or `view`
-        /// (each texel's view is one vector over the lights).
-        #[serde(default)]
-        unit: LpcaUnitConfig,
-        /// Storage of the eigen-BRDFs and weights: `f32` (default), `f16` or `u8` (8-bit codes
-        /// with four category scales).
-        #[serde(default)]
-        quantize: LpcaQuantizeConfig,
-        /// Assignment/refit rounds of the build, at most (default 6; more rounds lower the
-        /// error a little and cost proportionally more).
-        #[serde(default = "default_lpca_iterations")]
-        iterations: usize,
-    },
+    /// eigen-BRDFs each (`biscale_core::scene::lpca`); every key optional.
+    Lpca(LpcaSettings),
 }
 
 /// One representation or a list of them (`representation = { .. }` or `[{ .. }, { .. }]`):
 /// the first is the material's own (every compressor and method is shaded with it), the others
 /// are compared with it in the BTF study of the run. Never empty.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize)]
-pub struct Representations(Vec<BtfRepresentation>);
+pub struct Representations(Vec<RepresentationSetting>);
 
 impl Default for Representations {
     fn default() -> Self {
-        Self(vec![BtfRepresentation::Dense])
+        Self(vec![RepresentationSetting::Dense])
     }
 }
 
-impl From<BtfRepresentation> for Representations {
-    fn from(r: BtfRepresentation) -> Self {
+impl From<RepresentationSetting> for Representations {
+    fn from(r: RepresentationSetting) -> Self {
         Self(vec![r])
     }
 }
 
 impl Representations {
     /// The material's own representation (the first).
-    pub fn primary(&self) -> BtfRepresentation {
+    pub fn primary(&self) -> RepresentationSetting {
         self.0[0]
     }
 
-    pub fn all(&self) -> &[BtfRepresentation] {
+    pub fn all(&self) -> &[RepresentationSetting] {
         &self.0
     }
 }
@@ -360,11 +347,11 @@ impl<'de> Deserialize<'de> for Representations {
                 f.write_str("a representation table or a non-empty array of them")
             }
             fn visit_map<A: serde::de::MapAccess<'de>>(self, map: A) -> Result<Self::Value, A::Error> {
-                BtfRepresentation::deserialize(serde::de::value::MapAccessDeserializer::new(map)).map(Into::into)
+                RepresentationSetting::deserialize(serde::de::value::MapAccessDeserializer::new(map)).map(Into::into)
             }
             fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
                 let mut all = vec![];
-                while let Some(r) = seq.next_element::<BtfRepresentation>()? {
+                while let Some(r) = seq.next_element::<RepresentationSetting>()? {
                     all.push(r);
                 }
                 if all.is_empty() {
@@ -377,78 +364,28 @@ impl<'de> Deserialize<'de> for Representations {
     }
 }
 
-/// The config form of `biscale_core::scene::LpcaQuantize`.
-#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum LpcaQuantizeConfig {
-    #[default]
-    F32,
-    F16,
-    U8,
-}
-
-/// The config form of `biscale_core::scene::LpcaUnit`.
-#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum LpcaUnitConfig {
-    #[default]
-    Texel,
-    View,
-}
-
-fn default_lpca_clusters() -> usize {
-    16
-}
-fn default_lpca_components() -> usize {
-    4
-}
-fn default_lpca_iterations() -> usize {
-    biscale_core::scene::DEFAULT_LPCA_ITERATIONS
-}
-
-impl BtfRepresentation {
+impl RepresentationSetting {
     /// The label in messages and metrics: `dense`, `lpca-k16-c4`.
     pub fn label(&self) -> String {
         match self {
             Self::Dense => "dense".into(),
-            Self::Lpca { clusters, components, unit, quantize, iterations } => {
+            Self::Lpca(LpcaSettings { clusters, components, unit, quantize, iterations }) => {
                 let mut label = format!("lpca-k{clusters}-c{components}");
-                if *iterations != default_lpca_iterations() {
+                if *iterations != biscale_core::scene::DEFAULT_LPCA_ITERATIONS {
                     label += &format!("-i{iterations}");
                 }
-                if *unit == LpcaUnitConfig::View {
+                if *unit == LpcaUnit::View {
                     label += "-view";
                 }
                 match quantize {
-                    LpcaQuantizeConfig::F32 => {}
-                    LpcaQuantizeConfig::F16 => label += "-f16",
-                    LpcaQuantizeConfig::U8 => label += "-u8",
+                    LpcaQuantize::F32 => {}
+                    LpcaQuantize::F16 => label += "-f16",
+                    LpcaQuantize::U8 => label += "-u8",
                 }
                 label
             }
         }
     }
-}
-
-/// A meso-scale BRDF of a synthesized material.
-#[derive(Clone, Debug, Deserialize, PartialEq)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
-pub enum BrdfConfig {
-    Lambertian {
-        albedo: [f32; 3],
-    },
-    Phong {
-        kd: [f32; 3],
-        ks: [f32; 3],
-        exponent: f32,
-    },
-    /// Anisotropic: `nu` along the tangent, `nv` along the bitangent.
-    AshikhminShirley {
-        rd: [f32; 3],
-        rs: [f32; 3],
-        nu: f32,
-        nv: f32,
-    },
 }
 
 fn default_view_grid() -> u32 {
@@ -495,7 +432,7 @@ impl MaterialConfig {
     }
 
     /// How the entry's BTF is represented for shading (the first of its list).
-    pub fn representation(&self) -> BtfRepresentation {
+    pub fn representation(&self) -> RepresentationSetting {
         self.representations().primary()
     }
 
@@ -548,7 +485,7 @@ fn check_material(m: &MaterialConfig) -> Result<(), String> {
     }
     let all = m.representations().all();
     for (i, r) in all.iter().enumerate() {
-        if let BtfRepresentation::Lpca { clusters, components, iterations, .. } = *r {
+        if let RepresentationSetting::Lpca(LpcaSettings { clusters, components, iterations, .. }) = *r {
             if clusters == 0 || clusters > u16::MAX as usize - 1 {
                 return Err(format!("lpca clusters = {clusters} must be in 1..=65534"));
             }
@@ -602,7 +539,7 @@ fn check_material(m: &MaterialConfig) -> Result<(), String> {
             if s.view_grid > 64 {
                 return Err(format!("view_grid must be in 0..=64 (0: no view axis), got {}", s.view_grid));
             }
-            if s.view_grid == 0 && !matches!(s.brdf, BrdfConfig::Lambertian { .. }) {
+            if s.view_grid == 0 && !matches!(s.brdf, Brdf::Lambertian { .. }) {
                 return Err("view_grid = 0 (no view axis) needs a lambertian brdf".into());
             }
             if !["f32", "f16", "u8"].contains(&s.encoding.as_str()) {
@@ -1664,13 +1601,13 @@ mod tests {
         let r = e.materials()[0].representation();
         assert_eq!(
             r,
-            BtfRepresentation::Lpca {
+            RepresentationSetting::Lpca(LpcaSettings {
                 clusters: 8,
                 components: 4,
-                unit: LpcaUnitConfig::View,
-                quantize: LpcaQuantizeConfig::F32,
+                unit: LpcaUnit::View,
+                quantize: LpcaQuantize::F32,
                 iterations: 6
-            }
+            })
         );
         let e = parse(&body("{ kind = \"lpca\", quantize = \"u8\" }")).unwrap();
         assert_eq!(e.materials()[0].representation().label(), "lpca-k16-c4-u8");

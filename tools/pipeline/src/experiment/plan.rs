@@ -246,7 +246,12 @@ fn material_steps(m: &MaterialConfig, t: &biscale_core::transfer::TransferSettin
     }
     let all = m.representations().all();
     for (i, r) in all.iter().enumerate() {
-        if let crate::experiment::config::BtfRepresentation::Lpca { clusters, components, .. } = *r {
+        if let crate::experiment::config::RepresentationSetting::Lpca(biscale_core::scene::LpcaSettings {
+            clusters,
+            components,
+            ..
+        }) = *r
+        {
             let role = if i == 0 { "evaluated directly by every shader" } else { "compared in the BTF study" };
             push(
                 steps,
@@ -259,7 +264,7 @@ fn material_steps(m: &MaterialConfig, t: &biscale_core::transfer::TransferSettin
             );
         }
     }
-    if all.iter().any(|r| *r != crate::experiment::config::BtfRepresentation::Dense) {
+    if all.iter().any(|r| *r != crate::experiment::config::RepresentationSetting::Dense) {
         push(
             steps,
             "btf",
@@ -339,7 +344,7 @@ fn cached_outputs(
             });
         }
         for r in m.representations().all() {
-            if let crate::experiment::config::BtfRepresentation::Lpca { .. } = r {
+            if let crate::experiment::config::RepresentationSetting::Lpca(_) = r {
                 out.push(CachedOutput {
                     stage: "btf",
                     what: format!("{label}: local-PCA fit {}", r.label()),
@@ -429,7 +434,7 @@ fn lambertian_config(m: &MaterialConfig) -> bool {
         MaterialConfig::Lambertian { .. } => true,
         MaterialConfig::Phong { .. } | MaterialConfig::Bonn(_) => false,
         MaterialConfig::Synthesized(s) => {
-            s.amplitude == 0.0 && matches!(s.brdf, crate::experiment::config::BrdfConfig::Lambertian { .. })
+            s.amplitude == 0.0 && matches!(s.brdf, biscale_shading::synth::Brdf::Lambertian { .. })
         }
     }
 }

@@ -19,9 +19,7 @@
 //!   decision is a line in [`SceneMaterials::notes`], printed with the plan.
 
 use crate::error::{PipelineError, Result};
-use crate::experiment::config::{
-    BrdfConfig, BtfRepresentation, Experiment, LpcaQuantizeConfig, LpcaUnitConfig, MaterialConfig, SynthesizedConfig,
-};
+use crate::experiment::config::{Experiment, MaterialConfig, RepresentationSetting, SynthesizedConfig};
 use crate::store::cache::{CacheKey, StageCache};
 use crate::util::progress_bar;
 use biscale_core::artifact::Artifact;
@@ -111,15 +109,6 @@ fn shading_err(label: &str) -> impl Fn(biscale_shading::ShadingError) -> Pipelin
     move |source| PipelineError::Material { label: label.to_string(), source }
 }
 
-/// The BRDF of a synthesized entry.
-pub fn brdf(cfg: &BrdfConfig) -> Brdf {
-    match *cfg {
-        BrdfConfig::Lambertian { albedo } => Brdf::Lambertian { albedo },
-        BrdfConfig::Phong { kd, ks, exponent } => Brdf::Phong { kd, ks, exponent },
-        BrdfConfig::AshikhminShirley { rd, rs, nu, nv } => Brdf::AshikhminShirley { rd, rs, nu, nv },
-    }
-}
-
 /// The generator's input for a synthesized entry on `local_basis` (paths already resolved
 /// by the config).
 pub fn synth_spec(cfg: &SynthesizedConfig, local_basis: LocalBasis, label: &str) -> Result<BtfSpec> {
@@ -153,7 +142,7 @@ pub fn synth_spec(cfg: &SynthesizedConfig, local_basis: LocalBasis, label: &str)
             Some(n) => format!("{n}: {}", describe(cfg)),
             None => describe(cfg),
         },
-        ..BtfSpec::new(height_field, brdf(&cfg.brdf))
+        ..BtfSpec::new(height_field, cfg.brdf)
     };
     spec.validate().map_err(&err)?;
     Ok(spec)
@@ -169,9 +158,9 @@ fn describe(cfg: &SynthesizedConfig) -> String {
         _ => String::new(),
     };
     let brdf = match &cfg.brdf {
-        BrdfConfig::Lambertian { .. } => "lambertian".to_string(),
-        BrdfConfig::Phong { exponent, .. } => format!("phong n={exponent}"),
-        BrdfConfig::AshikhminShirley { nu, nv, .. } => format!("ashikhmin-shirley {nu}/{nv}"),
+        Brdf::Lambertian { .. } => "lambertian".to_string(),
+        Brdf::Phong { exponent, .. } => format!("phong n={exponent}"),
+        Brdf::AshikhminShirley { nu, nv, .. } => format!("ashikhmin-shirley {nu}/{nv}"),
     };
     format!("{shape}, {brdf}, {r}x{r}", r = cfg.resolution)
 }
@@ -359,7 +348,7 @@ pub fn load_materials(
             if btf.texel_count() == 1 && s.albedo_map.is_none() {
                 notes.push(format!("material {label}: flat patch, tabulated analytically (no ray tracing)"));
             }
-            if matches!(s.brdf, BrdfConfig::AshikhminShirley { .. }) && mesh.uvs.is_none() {
+            if matches!(s.brdf, Brdf::AshikhminShirley { .. }) && mesh.uvs.is_none() {
                 notes.push(format!(
                     "material {label}: anisotropic BRDF on a mesh without texture coordinates: tangents come from the \
                      fixed-axis field (smooth, but the anisotropy direction is not authored)"
@@ -411,7 +400,7 @@ pub fn load_materials(
 /// costs and loses.
 pub(crate) fn represent(
     btf: &Btf,
-    repr: BtfRepresentation,
+    repr: RepresentationSetting,
     seed: u64,
     cache: Option<&StageCache>,
     label: &str,
@@ -428,24 +417,14 @@ pub(crate) fn represent(
         primary: false,
         study: None,
     };
-    let BtfRepresentation::Lpca { clusters, components, unit, quantize, iterations } = repr else {
+    let RepresentationSetting::Lpca(asked) = repr else {
         return Ok((btf.clone().into(), record));
     };
     let err = shading_err(label);
-    let settings = match unit {
-        LpcaUnitConfig::Texel => LpcaSettings::new(clusters, components),
-        LpcaUnitConfig::View => LpcaSettings::new(clusters, components).per_view(),
-    };
-    let settings = LpcaSettings { iterations, ..settings };
-    let q = match quantize {
-        LpcaQuantizeConfig::F32 => LpcaQuantize::F32,
-        LpcaQuantizeConfig::F16 => LpcaQuantize::F16,
-        LpcaQuantizeConfig::U8 => LpcaQuantize::U8,
-    };
     // One f32 fit per setting serves every storage width (cached under the f32 label);
     // quantizing it is cheap.
-    let f32_label =
-        BtfRepresentation::Lpca { clusters, components, unit, quantize: LpcaQuantizeConfig::F32, iterations }.label();
+    let (settings, q) = (LpcaSettings { quantize: LpcaQuantize::F32, ..asked }, asked.quantize);
+    let f32_label = RepresentationSetting::Lpca(settings).label();
     let key = lpca_key(btf, &settings, seed);
     let path = cache.map(|c| c.lpca_path(&key, &f32_label));
     let cached = match (cache, &path) {
