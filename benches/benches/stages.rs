@@ -1,7 +1,7 @@
 //! One divan group per pipeline stage, on the fixed inputs of `biscale_benches` (the bunny and
 //! the sunset sky): transfer (tiny and reference settings), each compressor's build, each
 //! form's gather (plain, and with light moments), and the CPU shader. Run with
-//! `cargo bench -p biscale-benches [-- FILTER]`; the figures are in BENCHMARKS.md.
+//! `cargo bench -p biscale-benches --bench stages [-- FILTER]`; the figures are in BENCHMARKS.md.
 
 use biscale_benches::{bunny, compressor, form, frames, light, reference_t, tiny_settings, SETTINGS};
 use biscale_core::basis::LocalBasis;

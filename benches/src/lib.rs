@@ -4,11 +4,14 @@
 //! 5.1 M non-zeros) for everything after it.
 //!
 //! ```sh
-//! cargo bench -p biscale-benches                    # every group
-//! cargo bench -p biscale-benches -- gather          # one group (divan's filter)
-//! DIVAN_THREADS=1 cargo bench -p biscale-benches    # divan runs each benchmark on 1 thread
-//! RAYON_NUM_THREADS=1 cargo bench -p biscale-benches  # the stages themselves on 1 thread
+//! cargo bench -p biscale-benches --bench stages                    # every group
+//! cargo bench -p biscale-benches --bench stages -- gather          # one group (divan's filter)
+//! DIVAN_THREADS=1 cargo bench -p biscale-benches --bench stages    # divan runs each benchmark on 1 thread
+//! RAYON_NUM_THREADS=1 cargo bench -p biscale-benches --bench stages  # the stages themselves on 1 thread
 //! ```
+//!
+//! `benches/synth.rs` (`--bench synth`) measures the synthesized BTFs on inputs of its own;
+//! `cargo bench -p biscale-benches` with no `--bench` runs both.
 
 use biscale_compressors::registry;
 use biscale_core::compress::{CompressContext, CompressedForm, Compressor};

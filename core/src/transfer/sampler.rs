@@ -31,6 +31,10 @@ pub struct VisibilitySampler {
     /// their children's directions, and their texels in `tile_texels[range]`.
     tiles: Vec<(Cone, std::ops::Range<usize>)>,
     tile_texels: Vec<u32>,
+    /// The longest candidate list a tile tests directly ([`BRUTE_FORCE_MAX`]); a longer one
+    /// traces the tile's rays through the BVH. Both paths give the same answers: the tests
+    /// set 0 or `usize::MAX` to send every tile with candidates down one of them.
+    pub(crate) brute_force_max: usize,
 }
 
 /// Side of a tile in fine texels (about): tiles of `16 / s` coarse texels, 256 rays (at most
@@ -58,9 +62,6 @@ pub struct VisibilityScratch {
     tile: TileTriangles,
     /// The current tile's rays above the horizon: (coarse texel, fine ray index).
     tile_rays: Vec<(u32, u32)>,
-    /// Tiles traced by brute force over their candidates / through the BVH (last query).
-    #[cfg(test)]
-    pub(crate) paths: [u32; 2],
 }
 
 /// The Z-order index of `(row, col)`: their bits interleaved.
@@ -125,6 +126,7 @@ impl VisibilitySampler {
         Self {
             tiles,
             tile_texels,
+            brute_force_max: BRUTE_FORCE_MAX,
             settings: *settings,
             cubemap,
             grid: settings.local_grid(),
@@ -167,17 +169,11 @@ impl VisibilitySampler {
         let n = frame.normal;
         let n_a = Vec3A::from(n);
         let o = Vec3A::from(origin);
-        #[cfg(test)]
-        {
-            scratch.paths = [0, 0];
-        }
-        let VisibilityScratch { visible, candidates, tile, tile_rays, .. } = scratch;
+        let VisibilityScratch { visible, candidates, tile, tile_rays } = scratch;
         visible.clear();
         visible.resize(self.coarse_dirs.len(), 0);
         let mut rays = 0u64;
         let mut cache = u32::MAX;
-        #[cfg(test)]
-        let mut path_counts = [0u32; 2];
         for (cone, texels) in &self.tiles {
             // All directions of the tile are within the cone's angle of its axis: if the
             // axis is more than 90 degrees + that angle from n, all are below the horizon.
@@ -201,11 +197,7 @@ impl VisibilitySampler {
                 continue;
             }
             candidates.clear();
-            let brute = bvh.cone_candidates(o, n_a, cone, candidates, BRUTE_FORCE_MAX);
-            #[cfg(test)]
-            {
-                path_counts[!brute as usize] += 1;
-            }
+            let brute = bvh.cone_candidates(o, n_a, cone, candidates, self.brute_force_max);
             rays += tile_rays.len() as u64;
             if brute {
                 bvh.prepare_tile(o, candidates, tile);
@@ -238,10 +230,6 @@ impl VisibilitySampler {
                 continue;
             };
             emit(j, k as u32, count as u32);
-        }
-        #[cfg(test)]
-        {
-            scratch.paths = path_counts;
         }
         rays
     }

@@ -9,7 +9,6 @@ use biscale_core::compress::ArrayData;
 use biscale_core::sampling::HemisphereGrid;
 use biscale_core::scene::Btf;
 use half::f16;
-use rand::{Rng, SeedableRng};
 use std::f64::consts::PI;
 
 fn spec(hf: HeightField, brdf: Brdf, res: u32, m: u32, v: Option<u32>) -> BtfSpec {
@@ -516,64 +515,6 @@ fn contact_sheets_lay_tiles_out_with_gaps() {
     assert_eq!(image::open(&p).unwrap().to_rgb8(), img);
 }
 
-/// The speed target and the encodings' measured accuracy; run with
-/// `cargo test -p biscale-shading --release synth::tests::benchmark -- --ignored --nocapture`.
-#[test]
-#[ignore]
-fn benchmark() {
-    use std::time::Instant;
-    for (name, brdf, inter) in [
-        ("lambertian", LAMBERT, false),
-        ("phong", PHONG, false),
-        ("ashikhmin-shirley", ASHIKHMIN, false),
-        ("lambertian+bounce", LAMBERT, true),
-    ] {
-        let hf = HeightField::procedural(&Recipe::new(Pattern::Bumps, 0.06, 4, 1), 128).unwrap();
-        let s = BtfSpec { interreflection: inter, ..spec(hf, brdf, 64, 8, Some(12)) };
-        // The machine is shared: report the process's CPU time too (Linux /proc, clock ticks
-        // of 10 ms), which is what two idle cores would divide between them.
-        let cpu = || {
-            let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-            let fields: Vec<&str> = stat.rsplit(')').next().unwrap_or("").split_whitespace().collect();
-            let tick = |k: usize| fields.get(k).and_then(|v| v.parse::<f64>().ok()).unwrap_or(f64::NAN);
-            (tick(11) + tick(12)) / 100.0
-        };
-        let (t, c) = (Instant::now(), cpu());
-        let btf = synthesize(&s, None).unwrap();
-        println!(
-            "{name}: 64x64 texels x 12x12 views x 8x8 lights, 2x2 supersampling: {:.2} s wall, {:.1} s CPU",
-            t.elapsed().as_secs_f64(),
-            cpu() - c
-        );
-        if name == "phong" {
-            for enc in [BtfEncoding::F16, BtfEncoding::U8] {
-                let bytes = encode_btf(&btf, enc).unwrap();
-                let dir = tempfile::tempdir().unwrap();
-                let p = dir.path().join("b.btf");
-                std::fs::write(&p, &bytes).unwrap();
-                let q = load_btf(&p).unwrap();
-                let (mut num, mut den, mut max_rel_texel) = (0.0f64, 0.0f64, 0.0f64);
-                let per = btf.view_count() * btf.light_count();
-                for (ta, tb) in btf.data().chunks(per).zip(q.data().chunks(per)) {
-                    let max = ta.iter().flatten().copied().fold(0.0f32, f32::max) as f64;
-                    for (a, b) in ta.iter().flatten().zip(tb.iter().flatten()) {
-                        num += ((a - b) as f64).powi(2);
-                        den += (*a as f64).powi(2);
-                        max_rel_texel = max_rel_texel.max((a - b).abs() as f64 / max.max(1e-30));
-                    }
-                }
-                println!(
-                    "  {}: {} bytes, relative RMS error {:.2e}, max error / texel max {:.2e}",
-                    enc.name(),
-                    bytes.len(),
-                    (num / den).sqrt(),
-                    max_rel_texel
-                );
-            }
-        }
-    }
-}
-
 /// A synthesized BTF with every component its clusters can hold: the LPCA reconstruction is
 /// exact to rounding (the rank test of `core::scene::lpca` on a real table).
 #[test]
@@ -592,95 +533,4 @@ fn lpca_of_a_synthesized_btf_with_full_components_is_exact() {
     // And fewer components do lose something on this table.
     let (_, r) = LpcaBtf::compress(&btf, &LpcaSettings::new(1, 2), 5).unwrap();
     assert!(r.relative_rms_error > 1e-3, "{r:?}");
-}
-
-/// `cargo test -p biscale-shading --release synth::tests::lpca_benchmark -- --ignored --nocapture`:
-/// local-PCA compression of the bundled bunny's BTF (bumps, Phong, 32x32 texels x 12x12 views
-/// x 8x8 lights) and of a 64x64-texel one: ratio, error and build time per setting, and the
-/// cost of one evaluation (a texel's 64 light values at a view) dense against LPCA.
-#[test]
-#[ignore]
-fn lpca_benchmark() {
-    use biscale_core::scene::{LpcaBtf, LpcaSettings};
-    use std::time::Instant;
-    let bunny = Brdf::Phong { kd: [0.55, 0.50, 0.45], ks: [0.25, 0.25, 0.25], exponent: 24.0 };
-    // BISCALE_LPCA_BENCH_RES=64 runs one patch size only (for profiling).
-    let only: Option<u32> = std::env::var("BISCALE_LPCA_BENCH_RES").ok().and_then(|v| v.parse().ok());
-    for (res, samples) in [(32, 64), (64, 128)] {
-        if only.is_some_and(|r| r != res) {
-            continue;
-        }
-        let hf = HeightField::procedural(&Recipe::new(Pattern::Bumps, 0.06, 4, 1), samples).unwrap();
-        let btf = synthesize(&spec(hf, bunny, res, 8, Some(12)), None).unwrap();
-        let values = btf.data().len() * 3;
-        println!(
-            "{res}x{res} texels x 144 views x 64 lights: dense {:.1} MB f32, {:.1} MB f16",
-            values as f64 * 4e-6,
-            values as f64 * 2e-6
-        );
-        // Per view, a setting has 144x as many units: only small ones are timed.
-        let settings: &[(usize, usize, bool)] = match res {
-            32 => &[
-                (1, 4, false),
-                (8, 4, false),
-                (16, 4, false),
-                (32, 8, false),
-                (16, 4, true),
-                (32, 4, true),
-                (64, 4, true),
-            ],
-            _ => &[(8, 4, false), (16, 4, false), (16, 4, true)],
-        };
-        for &(k, c, per_view) in settings {
-            let t = Instant::now();
-            let s = if per_view { LpcaSettings::new(k, c).per_view() } else { LpcaSettings::new(k, c) };
-            let (lpca, r) = LpcaBtf::compress(&btf, &s, 1).unwrap();
-            let s = t.elapsed().as_secs_f64();
-            println!(
-                "  k{k} c{c}{}: {:.2} MB, ratio 1:{:.0} (f32) 1:{:.0} (f16), rel. RMS {:.2}%, max abs {:.3e}, build {s:.2} s",
-                if per_view { " per view" } else { "" },
-                lpca.bytes() as f64 * 1e-6,
-                values as f64 * 4.0 / lpca.bytes() as f64,
-                values as f64 * 2.0 / lpca.bytes() as f64,
-                100.0 * r.relative_rms_error,
-                r.max_abs_error
-            );
-            if (k, c) == (16, 4) {
-                let label = if per_view { "lpca k16 c4 per view" } else { "lpca k16 c4" };
-                let mut out = vec![[0.0f32; 3]; 64];
-                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-                let q: Vec<(glam::Vec2, glam::Vec3)> = (0..100_000)
-                    .map(|_| {
-                        let uv = glam::Vec2::new(rng.gen(), rng.gen());
-                        let e = glam::Vec3::new(
-                            rng.gen_range(-1.0..1.0),
-                            rng.gen_range(-1.0..1.0),
-                            rng.gen_range(0.1..1.0),
-                        );
-                        (uv, e.normalize())
-                    })
-                    .collect();
-                let time = |f: &mut dyn FnMut(glam::Vec2, glam::Vec3)| {
-                    let mut runs: Vec<f64> = (0..5)
-                        .map(|_| {
-                            let t = Instant::now();
-                            q.iter().for_each(|&(uv, e)| f(uv, e));
-                            t.elapsed().as_secs_f64() * 1e9 / q.len() as f64
-                        })
-                        .collect();
-                    runs.sort_by(f64::total_cmp);
-                    runs[2]
-                };
-                let dense_ns = time(&mut |uv, e| {
-                    btf.eval_into(uv, e, &mut out);
-                    std::hint::black_box(&out);
-                });
-                let lpca_ns = time(&mut |uv, e| {
-                    lpca.eval_into(uv, e, &mut out);
-                    std::hint::black_box(&out);
-                });
-                println!("    one lookup (64 lights, bilinear views), median of 5 x 100k: dense {dense_ns:.0} ns, {label} {lpca_ns:.0} ns");
-            }
-        }
-    }
 }
