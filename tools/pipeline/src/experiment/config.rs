@@ -928,68 +928,52 @@ pub const MAX_REPEATS: usize = 10_000;
 /// Most pixels of one image (`runtime.width x height`): 8192 x 8192, 0.8 GB of f32 RGB.
 pub const MAX_PIXELS: u64 = 8192 * 8192;
 
-/// Refuse a config that holds a non-finite number anywhere (`nan`, `inf`, or a literal too big
-/// for f64): such a value would flow into the light, the camera or the tone map and give NaN
-/// or black images with exit 0. Names the key and, where the literal can be found, its
-/// line and column.
-fn check_finite(path: &Path, source: &str) -> Result<(), ConfigError> {
-    fn walk(v: &toml::Value, at: &str, out: &mut Option<(String, f64)>) {
-        if out.is_some() {
-            return;
-        }
+/// The first non-finite number of a TOML text: its dotted key, its value and the byte range
+/// of its literal (`None` for text that is not TOML: the parse reports that).
+fn first_non_finite(source: &str) -> Option<(String, f64, Option<Range<usize>>)> {
+    use toml_edit::{Item, Value};
+    fn value(v: &Value, at: String) -> Option<(String, f64, Option<Range<usize>>)> {
         match v {
-            toml::Value::Float(x) if !x.is_finite() => *out = Some((at.to_string(), *x)),
-            toml::Value::Array(a) => a.iter().enumerate().for_each(|(i, x)| walk(x, &format!("{at}[{i}]"), out)),
-            toml::Value::Table(t) => {
-                t.iter().for_each(|(k, x)| walk(x, &if at.is_empty() { k.clone() } else { format!("{at}.{k}") }, out))
-            }
-            _ => {}
+            Value::Float(x) if !x.value().is_finite() => Some((at, *x.value(), x.span())),
+            Value::Array(a) => a.iter().enumerate().find_map(|(i, x)| value(x, format!("{at}[{i}]"))),
+            Value::InlineTable(t) => t.iter().find_map(|(k, x)| value(x, join(&at, k))),
+            _ => None,
         }
     }
-    let Ok(value) = source.parse::<toml::Value>() else { return Ok(()) };
-    let mut found = None;
-    walk(&value, "", &mut found);
-    let Some((key, x)) = found else { return Ok(()) };
+    fn item(v: &Item, at: String) -> Option<(String, f64, Option<Range<usize>>)> {
+        match v {
+            Item::Value(x) => value(x, at),
+            Item::Table(t) => t.iter().find_map(|(k, x)| item(x, join(&at, k))),
+            Item::ArrayOfTables(a) => a
+                .iter()
+                .enumerate()
+                .find_map(|(i, t)| t.iter().find_map(|(k, x)| item(x, join(&format!("{at}[{i}]"), k)))),
+            Item::None => None,
+        }
+    }
+    fn join(at: &str, k: &str) -> String {
+        if at.is_empty() {
+            k.to_string()
+        } else {
+            format!("{at}.{k}")
+        }
+    }
+    // The document keeps every value's byte span, so the literal is located by the parser
+    // itself, not by a second reading of the text.
+    let Ok(doc) = toml_edit::ImDocument::parse(source) else { return None };
+    item(doc.as_item(), String::new())
+}
+
+/// Refuse a config that holds a non-finite number anywhere (`nan`, `inf`, or a literal too big
+/// for f64): such a value would flow into the light, the camera or the tone map and give NaN
+/// or black images with exit 0. Names the key and the literal's line and column.
+fn check_finite(path: &Path, source: &str) -> Result<(), ConfigError> {
+    let Some((key, x, span)) = first_non_finite(source) else { return Ok(()) };
     let message = format!("{key} = {x}: every number in a config must be finite");
-    Err(match non_finite_literal(source) {
+    Err(match span {
         Some(span) => ConfigError::at(path, source, span, message),
         None => ConfigError::whole_file(path, message),
     })
-}
-
-/// The byte range of the first `nan` / `inf` literal (optionally signed) of a TOML text,
-/// outside strings and comments.
-fn non_finite_literal(source: &str) -> Option<Range<usize>> {
-    let b = source.as_bytes();
-    let mut i = 0;
-    while i < b.len() {
-        match b[i] {
-            b'#' => i = source[i..].find('\n').map_or(b.len(), |n| i + n),
-            q @ (b'"' | b'\'') => {
-                let triple = b.len() >= i + 3 && b[i + 1] == q && b[i + 2] == q;
-                // Bytes, not `str` slices: the scan steps through multi-byte characters.
-                let close = if triple { &b[i..i + 3] } else { &b[i..i + 1] };
-                let mut j = i + close.len();
-                while j < b.len() && !b[j..].starts_with(close) {
-                    j += if q == b'"' && b[j] == b'\\' { 2 } else { 1 };
-                }
-                i = (j + close.len()).min(b.len());
-            }
-            c if c.is_ascii_alphanumeric() || c == b'+' || c == b'-' || c == b'_' || c == b'.' => {
-                let start = i;
-                while i < b.len() && (b[i].is_ascii_alphanumeric() || matches!(b[i], b'+' | b'-' | b'_' | b'.')) {
-                    i += 1;
-                }
-                let word = source[start..i].trim_start_matches(['+', '-']);
-                let is_key = source[i..].trim_start_matches([' ', '\t']).starts_with('=');
-                if (word == "nan" || word == "inf") && !is_key {
-                    return Some(start..i);
-                }
-            }
-            _ => i += 1,
-        }
-    }
-    None
 }
 
 impl Experiment {
@@ -1658,8 +1642,8 @@ mod tests {
             }
         }
         // A string that says nan is not a number.
-        assert!(non_finite_literal("name = \"nan\" # inf\nx = 'inf'\n").is_none());
-        assert_eq!(non_finite_literal("a = [1.0, -nan]"), Some(10..14));
+        assert!(first_non_finite("name = \"nan\" # inf\nx = 'inf'\n").is_none());
+        assert_eq!(first_non_finite("a = [1.0, -nan]").and_then(|f| f.2), Some(10..14));
     }
 
     #[test]
@@ -1671,9 +1655,12 @@ mod tests {
         let e = parse(&text).unwrap_err();
         assert!(e.message.contains("lighting.rotation_degrees = NaN"), "{e}");
         assert_eq!((e.line, e.column), (5, 20), "{e}");
-        for s in ["\"Нн\" = nan", "'''ё'''\nx = inf", "\"\\Ж\" = -inf", "x = \"ё"] {
-            let want = s.find("nan").or_else(|| s.find("-inf")).or_else(|| s.find("inf"));
-            assert_eq!(non_finite_literal(s).map(|r| r.start), want, "{s}");
+        for s in ["\"Нн\" = nan", "x = \'\'\'ё\'\'\'\ny = inf", "\"\\Ж\" = -inf", "\"\\\\Ж\" = -inf", "x = \"ё"] {
+            // Text that is not TOML has no values (its parse error is reported first).
+            let want = toml_edit::ImDocument::parse(s)
+                .ok()
+                .and_then(|_| s.find("nan").or_else(|| s.find("-inf")).or_else(|| s.find("inf")));
+            assert_eq!(first_non_finite(s).and_then(|f| f.2).map(|r| r.start), want, "{s}");
         }
     }
 
