@@ -469,6 +469,48 @@ fn reads_config(c: &Command) -> bool {
     }
 }
 
+/// The pipeline's `log` events on stderr, as the CLI prints them: a note (`info`) as it is, a
+/// stage's time (`debug`) with `-v`, warnings and errors always (`warning: `, `error: `).
+/// Only biscale's own crates are heard: wgpu and the other libraries stay quiet.
+struct StderrLog {
+    level: log::LevelFilter,
+}
+
+impl StderrLog {
+    fn install(verbosity: biscale::util::Verbosity) {
+        use biscale::util::Verbosity;
+        let level = match verbosity {
+            Verbosity::Quiet => log::LevelFilter::Warn,
+            Verbosity::Normal => log::LevelFilter::Info,
+            Verbosity::Verbose => log::LevelFilter::Debug,
+        };
+        static LOG: std::sync::OnceLock<StderrLog> = std::sync::OnceLock::new();
+        let logger = LOG.get_or_init(|| StderrLog { level });
+        if log::set_logger(logger).is_ok() {
+            log::set_max_level(level);
+        }
+    }
+}
+
+impl log::Log for StderrLog {
+    fn enabled(&self, m: &log::Metadata<'_>) -> bool {
+        m.level() <= self.level && m.target().starts_with("biscale")
+    }
+
+    fn log(&self, r: &log::Record<'_>) {
+        if !self.enabled(r.metadata()) {
+            return;
+        }
+        match r.level() {
+            log::Level::Error => eprintln!("error: {}", r.args()),
+            log::Level::Warn => eprintln!("warning: {}", r.args()),
+            _ => eprintln!("{}", r.args()),
+        }
+    }
+
+    fn flush(&self) {}
+}
+
 /// An error prints as one line of causes (`error: running x.toml: ...: ...`) and exits 1, with
 /// no backtrace even under `RUST_BACKTRACE=1`: that variable is for panics, and a config typo
 /// is not one.
@@ -487,11 +529,13 @@ pub fn main() -> std::process::ExitCode {
 fn run() -> anyhow::Result<()> {
     let cli = Cli::parse();
     use biscale::util::{set_verbosity, Verbosity};
-    set_verbosity(match (cli.quiet, cli.verbose) {
+    let verbosity = match (cli.quiet, cli.verbose) {
         (true, _) => Verbosity::Quiet,
         (_, true) => Verbosity::Verbose,
         _ => Verbosity::Normal,
-    });
+    };
+    set_verbosity(verbosity);
+    StderrLog::install(verbosity);
     anyhow::ensure!(
         cli.set.is_empty() || reads_config(&cli.command),
         "--set {}: this command reads no config (--set overrides a config's values for run, plan, export, eval, viz, view, btf and shard plan)",

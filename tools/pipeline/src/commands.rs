@@ -164,7 +164,7 @@ pub fn diff(a: &Path, b: &Path, opts: DiffOptions<'_>, warn: &mut dyn FnMut(Stri
     if let Some(p) = opts.error_image {
         let (img, scale) = error_image_of(&ia, &ib, None)?;
         write_rgb8_png(&img, p)?;
-        crate::note!("wrote {} (full scale = luminance error {scale:.4e})", p.display());
+        log::info!("wrote {} (full scale = luminance error {scale:.4e})", p.display());
     }
     Ok(m)
 }

@@ -65,9 +65,9 @@ impl StageClock {
             wall_seconds: (now - self.last).as_secs_f64(),
             cpu_seconds: cpu.zip(self.last_cpu).map(|(b, a)| round_ms(b - a)),
         };
-        if crate::util::verbosity() == crate::util::Verbosity::Verbose {
+        if log::log_enabled!(log::Level::Debug) {
             let cpu = stage.cpu_seconds.map_or(String::new(), |c| format!(", {c:.1} s CPU"));
-            eprintln!("stage {}: {:.2} s wall{cpu}", stage.stage, stage.wall_seconds);
+            log::debug!("stage {}: {:.2} s wall{cpu}", stage.stage, stage.wall_seconds);
         }
         self.record.stages.push(stage);
         (self.last, self.last_cpu) = (now, cpu);

@@ -79,7 +79,7 @@ impl RunContext {
     /// Swap the finished folder in; returns its final path.
     pub fn commit(self) -> Result<PathBuf> {
         let out_dir = self.staged.commit()?;
-        crate::note!("wrote {}", out_dir.display());
+        log::info!("wrote {}", out_dir.display());
         Ok(out_dir)
     }
 }
@@ -135,7 +135,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     }
     let (scene, mut materials) = shade_scene(exp, &geometry, &t.matrix, ctx.cache.as_ref())?;
     for n in &materials.notes {
-        crate::note!("materials: {n}");
+        log::info!("materials: {n}");
     }
     ctx.clock.mark("materials");
     let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };

@@ -4,9 +4,12 @@
 //! log, a pipe), the bar would print nothing, so a line is printed instead at most every
 //! [`PROGRESS_SECONDS_VAR`] seconds (default 10): how far, how long, and about how long is left.
 //!
-//! [`Verbosity`] (`-q` / `-v` on the command line) decides what reaches stderr besides
-//! warnings and errors, which always do: `-q` drops progress and the per-stage notes
-//! ([`note!`](crate::note)), `-v` adds each stage's wall time as it ends.
+//! [`Verbosity`] (`-q` / `-v` on the command line) decides whether progress is shown. What a
+//! stage did is a `log` event, not a print: `log::info!` for the notes, `log::debug!` for each
+//! stage's wall time, `log::warn!`-level lines stay `eprintln!("warning: ...")` where a user
+//! must see them whatever the logger. The CLI installs the logger that prints them
+//! (`biscale-cli`'s `StderrLog`: `-q` keeps warnings only, `-v` adds the stage times); a
+//! program using this crate as a library hears nothing unless it installs its own.
 
 use indicatif::{ProgressBar, ProgressStyle};
 use std::io::IsTerminal;
@@ -38,17 +41,6 @@ pub fn verbosity() -> Verbosity {
         1 => Verbosity::Normal,
         _ => Verbosity::Verbose,
     }
-}
-
-/// `eprintln!` unless the commands were asked to be quiet (`-q`): for notes on what a stage
-/// did, not for warnings or errors.
-#[macro_export]
-macro_rules! note {
-    ($($arg:tt)*) => {
-        if $crate::util::verbosity() != $crate::util::Verbosity::Quiet {
-            eprintln!($($arg)*);
-        }
-    };
 }
 
 /// Environment variable: seconds between progress lines when stderr is not a terminal.

@@ -878,7 +878,7 @@ fn score_lstar(
     record.bytes = bytes;
     record.bytes_by_array = [("lstar".to_string(), bytes)].into();
     record.bytes_per_nnz = bytes as f64 / nnz.max(1) as f64;
-    crate::note!("{name}: external L*, rel. error of L* {:.2e}", record.rel_error_lstar);
+    log::info!("{name}: external L*, rel. error of L* {:.2e}", record.rel_error_lstar);
     Ok(record)
 }
 

@@ -70,7 +70,7 @@ pub(crate) fn run(materials: &SceneMaterials, inp: &StudyInputs<'_>) -> Result<V
     let mut renders = renders.into_iter();
     let (_, dense) = (renders.next(), renders.next().expect("the dense job"));
     let (rays_ms, dense_ms) = (ms[0], ms[1]);
-    crate::note!(
+    log::info!(
         "btf study ({rounds} interleaved rounds): all-dense image {dense_ms:.1} ms, of which {rays_ms:.1} ms primary rays and background"
     );
     let direct: Vec<Render> = renders.by_ref().take(scenes.len()).collect();
@@ -107,7 +107,7 @@ pub(crate) fn run(materials: &SceneMaterials, inp: &StudyInputs<'_>) -> Result<V
             None,
             &inp.out_dir.join(&error_png),
         )?;
-        crate::note!(
+        log::info!(
             "btf study: {} {}: image vs dense rel. L2 {:.2e}{}, shade {shade_ms:.1} ms (dense {dense_ms:.1} ms){}",
             record.material,
             record.representation,

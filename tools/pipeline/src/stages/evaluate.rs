@@ -217,7 +217,7 @@ pub(crate) fn reference(
         }
         None => None,
     };
-    crate::note!("reference: traced {}x{} in {seconds:.1} s", camera.width, camera.height);
+    log::info!("reference: traced {}x{} in {seconds:.1} s", camera.width, camera.height);
     Ok(Reference { render, camera, seconds, baseline_error, paper_baseline_error, scored: Default::default() })
 }
 
@@ -344,14 +344,14 @@ impl Evaluation<'_> {
         };
         let name = &setting.label;
         if let Some(g) = &gpu {
-            crate::note!(
+            log::info!(
                 "{name} on the gpu: gather {:.2} ms, shade {:.2} ms ({}), rel. error of L* {:.2e}, image vs cpu rel. L2 {:.2e} ({} of {} pixels differ by > 1e-3)",
                 g.gather_ms, g.shade_ms, g.timing, g.rel_error_lstar, g.image_vs_cpu.rel_l2, g.differing_pixels, g.covered_pixels
             );
         }
         let name = &name.replace(':', "-");
         let rel_error_lstar = record.rel_error_lstar;
-        crate::note!(
+        log::info!(
             "{name}: {:.2} MB, {:.2} Mflop/gather, built in {:.2} s{}, gather {gather_ms:.2} ms, rel. error of L* {rel_error_lstar:.2e}",
             form.bytes() as f64 / 1e6,
             form.flops_per_gather as f64 / 1e6,

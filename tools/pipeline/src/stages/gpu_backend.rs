@@ -30,7 +30,7 @@ impl GpuBackend {
         let a = ctx.adapter();
         let adapter = format!("{} ({:?}, {})", a.name, a.backend, a.driver);
         let shader = GpuShader::new(&ctx, scene, camera)?;
-        crate::note!("gpu: {adapter}");
+        log::info!("gpu: {adapter}");
         Ok(Self { ctx, shader, camera: *camera, adapter })
     }
 

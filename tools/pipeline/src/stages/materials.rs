@@ -330,9 +330,9 @@ pub fn load_materials(
         let (btf, origin) = material_btf(cfg, local_basis, cache, &label)?;
         match &origin {
             Origin::Analytic => {}
-            Origin::Synthesized { seconds } => crate::note!("btf {label}: synthesized in {seconds:.1} s"),
-            Origin::Cached(p) => crate::note!("btf {label}: loaded from cache {}", p.display()),
-            Origin::Measured(r, seconds) => crate::note!(
+            Origin::Synthesized { seconds } => log::info!("btf {label}: synthesized in {seconds:.1} s"),
+            Origin::Cached(p) => log::info!("btf {label}: loaded from cache {}", p.display()),
+            Origin::Measured(r, seconds) => log::info!(
                 "btf {label}: resampled {} views x {} lights of {}x{} images in {seconds:.1} s (farthest bin centre {:.1} deg from a measured direction)",
                 r.views,
                 r.lights,
@@ -449,7 +449,7 @@ pub(crate) fn represent(
     record.compression_ratio = dense_bytes as f64 / lpca.bytes().max(1) as f64;
     record.relative_rms_error = lpca.table_error(btf).0;
     record.build_seconds = seconds;
-    crate::note!(
+    log::info!(
         "btf {label}: {} {how}: {:.2} MB of {:.2} MB (1:{:.0}), relative RMS error {:.2}%",
         record.representation,
         record.bytes as f64 * 1e-6,

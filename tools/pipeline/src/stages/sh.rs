@@ -107,7 +107,7 @@ pub(crate) fn prepare(setting: &MethodSetting, src: &MethodScene<'_>, t: Option<
         false => (m, key),
     };
     if diffuse {
-        crate::note!("{label}: every material is Lambertian: shadowed diffuse PRT, a transfer vector per vertex");
+        log::info!("{label}: every material is Lambertian: shadowed diffuse PRT, a transfer vector per vertex");
     }
     let (ckind, cparams) = params.compressor();
     let compressor_setting = Setting { label: label.clone(), kind: ckind, params: cparams };
@@ -156,7 +156,7 @@ fn sh_transfer(
     let tick = |done: usize| pb.set_position(done as u64);
     let build = build_sh(&inp.geometry.transfer, settings, 0..vertices, Some(&tick))?;
     pb.finish_and_clear();
-    crate::note!(
+    log::info!(
         "{label}: SH transfer {} x {} ({} rays per vertex) in {:.2} s ({:.1} M rays/s)",
         build.matrix.rows(),
         build.matrix.cols(),
@@ -187,7 +187,7 @@ fn cached_sh(
         false => Err(format!("{}: holds {}, this run needs {shape}", path.display(), m.shape())),
     };
     let m = c.get(&path, key, TransferMatrix::from_artifact, accept)?;
-    crate::note!("{label}: SH transfer loaded from cache {}", path.display());
+    log::info!("{label}: SH transfer loaded from cache {}", path.display());
     Some(m)
 }
 
@@ -233,7 +233,7 @@ fn bounced(
     let start = std::time::Instant::now();
     let m = add_bounces(&inp.geometry.transfer, &inp.geometry.mesh.triangles, settings, &direct, &albedo, bounces)?;
     let seconds = start.elapsed().as_secs_f64();
-    crate::note!("{label}: {bounces} interreflection bounce(s) in {seconds:.2} s");
+    log::info!("{label}: {bounces} interreflection bounce(s) in {seconds:.2} s");
     record.seconds += seconds;
     record.cached = false;
     record.nnz = m.nnz();
@@ -351,7 +351,7 @@ pub(crate) fn evaluate(
     let negative =
         render.image.pixels.iter().zip(&render.mask).filter(|(px, &c)| c && px.iter().any(|&x| x < 0.0)).count();
     let negative_pixels = negative as f64 / covered.max(1) as f64;
-    crate::note!(
+    log::info!(
         "{label}: light projection error {light_projection_error:.2e}, RTT projection error {:.2e}, M from T vs traced {:.2e}, {:.2}% negative pixels",
         rtt.projection_error,
         transfer.from_t_difference,
@@ -404,7 +404,7 @@ fn lpca_runtime(
     let Some(most) = most else { return Ok(None) };
     let limit = crate::stages::btf_study::MAX_PRECOMPUTED_BYTES;
     if LightDots::bytes_needed(scene) > limit {
-        crate::note!("{label}: LPCA dot products over {} MB, not measured", limit >> 20);
+        log::info!("{label}: LPCA dot products over {} MB, not measured", limit >> 20);
         return Ok(None);
     }
     let cerr = |source| PipelineError::Compress { name: label.to_string(), source };
@@ -451,7 +451,7 @@ fn lpca_runtime(
             vs_all_components,
         });
     }
-    crate::note!(
+    log::info!(
         "{label}: LPCA lit by SH from precomputed dot products: relight {relight_ms:.1} ms, shade {shade_ms:.1} ms, vs direct {vs_direct:.1e}; fewer components: {}",
         adaptive
             .iter()

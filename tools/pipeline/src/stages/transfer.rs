@@ -31,7 +31,7 @@ pub fn transfer_matrix(exp: &Experiment, geometry: &Geometry, cache: Option<&Sta
             false => Err(format!("{}: holds {}, this run needs {shape}", path.display(), t.shape())),
         };
         if let Some(matrix) = c.get(&path, &key, TransferMatrix::from_artifact, accept) {
-            crate::note!("transfer: loaded from cache {}", path.display());
+            log::info!("transfer: loaded from cache {}", path.display());
             let metrics = transfer_metrics(&matrix, 0.0, 0, 0.0, true, &settings);
             return Ok(Transfer { matrix, metrics, key });
         }
@@ -45,7 +45,7 @@ pub fn transfer_matrix(exp: &Experiment, geometry: &Geometry, cache: Option<&Sta
     build.stats.seconds = start.elapsed().as_secs_f64();
     build.stats.rays_per_second = build.stats.rays_traced as f64 / build.stats.seconds.max(1e-12);
     pb.finish_and_clear();
-    crate::note!("transfer: {build}");
+    log::info!("transfer: {build}");
     if let Some(c) = cache {
         c.put_with(&c.transfer_path(&key), &key, || build.matrix.to_artifact());
     }
@@ -80,7 +80,7 @@ pub fn compressed_form(
             )),
         };
         if let Some(form) = c.get(path, key, CompressedForm::from_artifact, accept) {
-            crate::note!("{name}: loaded from cache {}", path.display());
+            log::info!("{name}: loaded from cache {}", path.display());
             return Ok((form, true));
         }
     }
@@ -187,7 +187,7 @@ pub(crate) fn precomputed_transfer(
         c.put_with(&c.transfer_path(&key), &key, || matrix.to_artifact());
     }
     let metrics = transfer_metrics(&matrix, seconds, rays, rays as f64 / seconds.max(1e-12), false, &settings);
-    crate::note!("transfer: {} x {} from the shards, {} non-zeros", matrix.rows(), matrix.cols(), matrix.nnz());
+    log::info!("transfer: {} x {} from the shards, {} non-zeros", matrix.rows(), matrix.cols(), matrix.nnz());
     Ok(Transfer { matrix, metrics, key })
 }
 
