@@ -10,16 +10,20 @@
 //!   (`<Un`, UTF-32), and read those plus big-endian and native byte orders, booleans (as
 //!   `u8`), byte strings (`|Sn`), format versions 1 to 3 and Fortran-ordered arrays
 //!   (reordered to C order).
-//! * **`.npz`**: a zip archive, member `name.npy` per array. We write stored (uncompressed)
-//!   members with fixed timestamps, so equal arrays give equal files, and ZIP64 records only
-//!   where a size or an offset passes 4 GiB; we read stored and deflated members (what
-//!   `numpy.savez_compressed` writes) with or without ZIP64 (`numpy.savez` always writes
-//!   ZIP64 extra fields), checking every CRC.
+//! * **`.npz`**: a zip archive, member `name.npy` per array, through the `zip` crate. We write
+//!   stored (uncompressed) members with a fixed timestamp, system and permissions, so equal
+//!   arrays give equal files, and ZIP64 records only where a size or an offset passes 4 GiB;
+//!   we read stored and deflated members (what `numpy.savez_compressed` writes) with or
+//!   without ZIP64 (`numpy.savez` always writes ZIP64 extra fields), checking every CRC, and
+//!   check the archive as a whole before inflating anything ([`read_npz`]).
 //!
 //! Every read is bounds-checked: a truncated or inconsistent file is an [`NpyError`] naming
-//! the file, the member and what is wrong, never a panic.
+//! the file, the member and what is wrong, never a panic. The `.npy` codec is our own because
+//! of that: the crate for it (npyz 0.9) parses the header dict with a grammar whose time nearly
+//! doubles with each nested bracket (25 levels, a 120-byte header, take over a minute) and
+//! panics on a shape whose element count overflows.
 
-use std::io::{Read, Write};
+use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 /// Why a NumPy file could not be written or read; each names the file (and the member of an
@@ -327,35 +331,6 @@ pub fn write_npy(path: &Path, a: &ArrayRef<'_>) -> Result<(), NpyError> {
     .map_err(|e| format_err(path, e.to_string()))
 }
 
-/// A writer that counts what passes through.
-struct Counting<W> {
-    inner: W,
-    count: u64,
-}
-
-impl<W: Write> Write for Counting<W> {
-    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        let n = self.inner.write(buf)?;
-        self.count += n as u64;
-        Ok(n)
-    }
-    fn flush(&mut self) -> std::io::Result<()> {
-        self.inner.flush()
-    }
-}
-
-/// One member's place in the archive, for the central directory.
-struct Entry {
-    name: String,
-    crc: u32,
-    size: u64,
-    offset: u64,
-}
-
-const U32_MAX: u64 = 0xFFFF_FFFF;
-/// The DOS date of every member: 1980-01-01, 00:00 (fixed, so equal arrays give equal files).
-const DOS_DATE: u16 = (1 << 5) | 1;
-
 /// Write `members` (name without `.npy`, array) as a `.npz` archive, atomically. Names must
 /// be plain (`[A-Za-z0-9_.-]`, not empty) and distinct.
 pub fn write_npz(path: &Path, members: &[(&str, ArrayRef<'_>)]) -> Result<(), NpyError> {
@@ -379,118 +354,25 @@ pub fn write_npz_with(path: &Path, members: &[(&str, ArrayRef<'_>)], force_zip64
         .map_err(|e| format_err(path, e.to_string()))
 }
 
-fn write_zip(f: &mut dyn Write, members: &[(&str, ArrayRef<'_>)], force_zip64: bool) -> std::io::Result<()> {
-    let mut out = Counting { inner: f, count: 0 };
-    let mut entries = vec![];
+/// The archive: one stored member per array, in the given order. Every field the `zip` crate
+/// would otherwise take from the clock or the host (time, system, permissions) is fixed, so
+/// equal arrays give equal files on every machine.
+fn write_zip<W: Write + Seek>(f: W, members: &[(&str, ArrayRef<'_>)], force_zip64: bool) -> zip::result::ZipResult<()> {
+    let mut zip = zip::ZipWriter::new(f);
     for (name, a) in members {
         let header = npy_header(a);
-        // First pass: the CRC of the member (the local header comes before the data).
-        let mut crc = flate2::CrcWriter::new(std::io::sink());
-        crc.write_all(&header)?;
-        a.elements.write_to(&mut crc)?;
         let size = header.len() as u64 + a.elements.data_bytes();
-        let entry = Entry { name: format!("{name}.npy"), crc: crc.crc().sum(), size, offset: out.count };
-        let zip64 = force_zip64 || size >= U32_MAX;
-        let mut local = vec![];
-        local.extend_from_slice(&0x0403_4b50u32.to_le_bytes());
-        local.extend_from_slice(&(if zip64 { 45u16 } else { 20 }).to_le_bytes());
-        local.extend_from_slice(&0u16.to_le_bytes()); // flags
-        local.extend_from_slice(&0u16.to_le_bytes()); // stored
-        local.extend_from_slice(&0u16.to_le_bytes()); // time
-        local.extend_from_slice(&DOS_DATE.to_le_bytes());
-        local.extend_from_slice(&entry.crc.to_le_bytes());
-        let small = if zip64 { U32_MAX as u32 } else { size as u32 };
-        local.extend_from_slice(&small.to_le_bytes());
-        local.extend_from_slice(&small.to_le_bytes());
-        local.extend_from_slice(&(entry.name.len() as u16).to_le_bytes());
-        local.extend_from_slice(&(if zip64 { 20u16 } else { 0 }).to_le_bytes());
-        local.extend_from_slice(entry.name.as_bytes());
-        if zip64 {
-            local.extend_from_slice(&1u16.to_le_bytes());
-            local.extend_from_slice(&16u16.to_le_bytes());
-            local.extend_from_slice(&size.to_le_bytes());
-            local.extend_from_slice(&size.to_le_bytes());
-        }
-        out.write_all(&local)?;
-        out.write_all(&header)?;
-        a.elements.write_to(&mut out)?;
-        entries.push(entry);
+        let options = zip::write::SimpleFileOptions::default()
+            .compression_method(zip::CompressionMethod::Stored)
+            .last_modified_time(zip::DateTime::default())
+            .system(zip::System::Unix)
+            .unix_permissions(0o644)
+            .large_file(force_zip64 || size >= zip::ZIP64_BYTES_THR);
+        zip.start_file(format!("{name}.npy"), options)?;
+        zip.write_all(&header)?;
+        a.elements.write_to(&mut zip)?;
     }
-    let cd_offset = out.count;
-    let mut any_zip64 = force_zip64 || entries.len() >= 0xFFFF;
-    for e in &entries {
-        let (big_size, big_offset) = (force_zip64 || e.size >= U32_MAX, force_zip64 || e.offset >= U32_MAX);
-        let mut extra = vec![];
-        if big_size {
-            extra.extend_from_slice(&e.size.to_le_bytes());
-            extra.extend_from_slice(&e.size.to_le_bytes());
-        }
-        if big_offset {
-            extra.extend_from_slice(&e.offset.to_le_bytes());
-        }
-        let zip64 = !extra.is_empty();
-        any_zip64 |= zip64;
-        let mut c = vec![];
-        c.extend_from_slice(&0x0201_4b50u32.to_le_bytes());
-        let version: u16 = if zip64 { 45 } else { 20 };
-        c.extend_from_slice(&version.to_le_bytes()); // made by
-        c.extend_from_slice(&version.to_le_bytes()); // needed
-        c.extend_from_slice(&0u16.to_le_bytes());
-        c.extend_from_slice(&0u16.to_le_bytes());
-        c.extend_from_slice(&0u16.to_le_bytes());
-        c.extend_from_slice(&DOS_DATE.to_le_bytes());
-        c.extend_from_slice(&e.crc.to_le_bytes());
-        let size = if big_size { U32_MAX as u32 } else { e.size as u32 };
-        c.extend_from_slice(&size.to_le_bytes());
-        c.extend_from_slice(&size.to_le_bytes());
-        c.extend_from_slice(&(e.name.len() as u16).to_le_bytes());
-        c.extend_from_slice(&(if zip64 { extra.len() as u16 + 4 } else { 0 }).to_le_bytes());
-        c.extend_from_slice(&0u16.to_le_bytes()); // comment
-        c.extend_from_slice(&0u16.to_le_bytes()); // disk
-        c.extend_from_slice(&0u16.to_le_bytes()); // internal attributes
-        c.extend_from_slice(&0u32.to_le_bytes()); // external attributes
-        let offset = if big_offset { U32_MAX as u32 } else { e.offset as u32 };
-        c.extend_from_slice(&offset.to_le_bytes());
-        c.extend_from_slice(e.name.as_bytes());
-        if zip64 {
-            c.extend_from_slice(&1u16.to_le_bytes());
-            c.extend_from_slice(&(extra.len() as u16).to_le_bytes());
-            c.extend_from_slice(&extra);
-        }
-        out.write_all(&c)?;
-    }
-    let cd_size = out.count - cd_offset;
-    any_zip64 |= cd_offset >= U32_MAX || cd_size >= U32_MAX;
-    let n = entries.len() as u64;
-    let mut end = vec![];
-    if any_zip64 {
-        let record = out.count;
-        end.extend_from_slice(&0x0606_4b50u32.to_le_bytes());
-        end.extend_from_slice(&44u64.to_le_bytes());
-        end.extend_from_slice(&45u16.to_le_bytes());
-        end.extend_from_slice(&45u16.to_le_bytes());
-        end.extend_from_slice(&0u32.to_le_bytes());
-        end.extend_from_slice(&0u32.to_le_bytes());
-        end.extend_from_slice(&n.to_le_bytes());
-        end.extend_from_slice(&n.to_le_bytes());
-        end.extend_from_slice(&cd_size.to_le_bytes());
-        end.extend_from_slice(&cd_offset.to_le_bytes());
-        end.extend_from_slice(&0x0706_4b50u32.to_le_bytes());
-        end.extend_from_slice(&0u32.to_le_bytes());
-        end.extend_from_slice(&record.to_le_bytes());
-        end.extend_from_slice(&1u32.to_le_bytes());
-    }
-    let clamp16 = |x: u64| if any_zip64 { 0xFFFF } else { x as u16 };
-    let clamp32 = |x: u64| if any_zip64 { U32_MAX as u32 } else { x as u32 };
-    end.extend_from_slice(&0x0605_4b50u32.to_le_bytes());
-    end.extend_from_slice(&0u16.to_le_bytes());
-    end.extend_from_slice(&0u16.to_le_bytes());
-    end.extend_from_slice(&clamp16(n).to_le_bytes());
-    end.extend_from_slice(&clamp16(n).to_le_bytes());
-    end.extend_from_slice(&clamp32(cd_size).to_le_bytes());
-    end.extend_from_slice(&clamp32(cd_offset).to_le_bytes());
-    end.extend_from_slice(&0u16.to_le_bytes());
-    out.write_all(&end)?;
+    zip.finish()?;
     Ok(())
 }
 
@@ -500,11 +382,13 @@ pub fn read_npy(path: &Path) -> Result<NpyArray, NpyError> {
     parse_npy(&bytes).map_err(|what| format_err(path, what))
 }
 
-/// Read every array of a `.npz` file, in the archive's order, named without `.npy`.
+/// Read every array of a `.npz` file, in the archive's order, named without `.npy`. A crafted
+/// archive (two members of one name or over one member's bytes, more bytes declared than there
+/// is memory for) is refused before anything is inflated.
 pub fn read_npz(path: &Path) -> Result<Vec<(String, NpyArray)>, NpyError> {
-    let bytes = std::fs::read(path).map_err(|source| NpyError::Io { path: path.into(), source })?;
-    let members =
-        zip_members(&bytes).map_err(|what| format_err(path, format!("not a readable .npz archive: {what}")))?;
+    let file = std::fs::File::open(path).map_err(|source| NpyError::Io { path: path.into(), source })?;
+    let members = zip_members(std::io::BufReader::new(file))
+        .map_err(|what| format_err(path, format!("not a readable .npz archive: {what}")))?;
     let mut out = vec![];
     for (name, data) in members {
         let Some(stem) = name.strip_suffix(".npy") else {
@@ -539,9 +423,6 @@ impl<'a> Cursor<'a> {
     fn u32(&mut self) -> Result<u32, String> {
         Ok(u32::from_le_bytes(self.take(4)?.try_into().expect("4 bytes")))
     }
-    fn u64(&mut self) -> Result<u64, String> {
-        Ok(u64::from_le_bytes(self.take(8)?.try_into().expect("8 bytes")))
-    }
 }
 
 fn to_usize(x: u64, what: &str) -> Result<usize, String> {
@@ -549,103 +430,39 @@ fn to_usize(x: u64, what: &str) -> Result<usize, String> {
 }
 
 /// The most bytes the members of one `.npz` may declare in all (and never more than the
-/// memory available, `memory::available`).
+/// memory available, `estimate::available`).
 const MAX_INFLATED_BYTES: u64 = 64 << 30;
 
-/// One central-directory entry of a zip archive.
-struct ZipEntry {
-    name: String,
-    method: u16,
-    crc: u32,
-    csize: u64,
-    usize_: u64,
-    offset: u64,
-}
-
 /// The members of a zip archive (name, uncompressed bytes), in central-directory order.
-fn zip_members(bytes: &[u8]) -> Result<Vec<(String, Vec<u8>)>, String> {
-    // The end of central directory record: 22 bytes plus a comment of up to 64 KiB.
-    let lowest = bytes.len().saturating_sub(22 + 65535);
-    let eocd = (lowest..=bytes.len().saturating_sub(22))
-        .rev()
-        .find(|&i| bytes[i..].starts_with(&0x0605_4b50u32.to_le_bytes()))
-        .ok_or("no end of central directory record")?;
-    let mut c = Cursor::at(bytes, eocd + 10);
-    let (mut count, mut cd_size, mut cd_offset) = (c.u16()? as u64, c.u32()? as u64, c.u32()? as u64);
-    if count == 0xFFFF || cd_size == U32_MAX || cd_offset == U32_MAX {
-        let locator = eocd.checked_sub(20).ok_or("a ZIP64 end record is announced but missing")?;
-        let mut l = Cursor::at(bytes, locator);
-        if l.u32()? != 0x0706_4b50 {
-            return Err("a ZIP64 end record is announced but its locator is missing".into());
-        }
-        l.u32()?;
-        let record = to_usize(l.u64()?, "ZIP64 end record offset")?;
-        let mut r = Cursor::at(bytes, record);
-        if r.u32()? != 0x0606_4b50 {
-            return Err("the ZIP64 end record's signature is wrong".into());
-        }
-        r.take(8 + 2 + 2 + 4 + 4 + 8)?;
-        count = r.u64()?;
-        cd_size = r.u64()?;
-        cd_offset = r.u64()?;
+///
+/// The `zip` crate reads the container (end records, ZIP64, central directory, local headers)
+/// and inflates, failing a member whose output passes its declared size or whose CRC-32 is
+/// wrong. Before anything is inflated or allocated, the archive is checked as a whole here
+/// (issue class "a 1.5 MB .npz makes eval allocate 1.5 GB"): names are unique (NumPy would
+/// read the last of two), no two members' bytes overlap, only stored and deflated members, and
+/// the sizes they declare fit in the memory there is. A member's buffer then grows as it
+/// inflates, read through a `take` of its declared size (plus one byte, to see a longer one).
+fn zip_members<R: Read + Seek>(reader: R) -> Result<Vec<(String, Vec<u8>)>, String> {
+    let mut zip = zip::ZipArchive::new(reader).map_err(|e| e.to_string())?;
+    if zip.has_duplicate_names() {
+        let start = zip.central_directory_start();
+        let name = first_repeated_name(zip.into_inner(), start).unwrap_or_else(|| "?".into());
+        return Err(format!("member '{name}' appears twice (which one is meant is ambiguous)"));
     }
-    let cd_end = cd_offset.checked_add(cd_size).filter(|&e| e <= bytes.len() as u64);
-    if cd_end.is_none() {
-        return Err(format!("the central directory ({cd_size} bytes at {cd_offset}) lies past the end of the file"));
-    }
-    let mut c = Cursor::at(bytes, to_usize(cd_offset, "central directory offset")?);
-    // Every entry is read first and checked as a whole before anything is inflated (issue
-    // class "a 1.5 MB .npz makes eval allocate 1.5 GB"): names are unique (NumPy would read
-    // the last of two, this reader the first), no two entries share a member's bytes, and the
-    // sizes they declare fit in the memory there is.
-    let mut entries = vec![];
-    for i in 0..count {
-        if c.u32()? != 0x0201_4b50 {
-            return Err(format!("central directory entry {i} has a wrong signature"));
-        }
-        c.take(4)?; // versions
-        let flags = c.u16()?;
-        let method = c.u16()?;
-        c.take(4)?; // time, date
-        let crc = c.u32()?;
-        let (mut csize, mut usize_) = (c.u32()? as u64, c.u32()? as u64);
-        let (name_len, extra_len, comment_len) = (c.u16()? as usize, c.u16()? as usize, c.u16()? as usize);
-        c.take(8)?; // disk, attributes
-        let mut offset = c.u32()? as u64;
-        let name = String::from_utf8_lossy(c.take(name_len)?).into_owned();
-        let mut extra = Cursor::at(c.take(extra_len)?, 0);
-        c.take(comment_len)?;
-        while extra.pos + 4 <= extra.bytes.len() {
-            let (id, len) = (extra.u16()?, extra.u16()? as usize);
-            let mut field = Cursor::at(extra.take(len)?, 0);
-            if id == 1 {
-                if usize_ == U32_MAX {
-                    usize_ = field.u64()?;
-                }
-                if csize == U32_MAX {
-                    csize = field.u64()?;
-                }
-                if offset == U32_MAX {
-                    offset = field.u64()?;
-                }
-            }
-        }
-        if flags & 1 != 0 {
+    let (mut names, mut declared) = (vec![], 0u64);
+    for i in 0..zip.len() {
+        let e = zip.by_index_data(i).map_err(|e| format!("central directory entry {i}: {e}"))?;
+        let name = String::from_utf8_lossy(e.name_raw()).into_owned();
+        if e.encrypted() {
             return Err(format!("member '{name}' is encrypted"));
         }
-        entries.push(ZipEntry { name, method, crc, csize, usize_, offset });
-    }
-    let mut names = std::collections::BTreeSet::new();
-    let mut offsets = std::collections::BTreeSet::new();
-    for e in &entries {
-        if !names.insert(e.name.as_str()) {
-            return Err(format!("member '{}' appears twice (which one is meant is ambiguous)", e.name));
+        match e.compression() {
+            zip::CompressionMethod::Stored | zip::CompressionMethod::Deflated => {}
+            m => return Err(format!("member '{name}': compression method {m} (only stored and deflate are read)")),
         }
-        if !offsets.insert(e.offset) {
-            return Err(format!("member '{}' shares its bytes with another entry (a crafted archive)", e.name));
-        }
+        declared = declared.saturating_add(e.size());
+        names.push(name);
     }
-    let declared = entries.iter().try_fold(0u64, |sum, e| sum.checked_add(e.usize_)).unwrap_or(u64::MAX);
     let limit = MAX_INFLATED_BYTES.min(crate::estimate::available().map_or(MAX_INFLATED_BYTES, |a| a.bytes));
     if declared > limit {
         return Err(format!(
@@ -654,41 +471,56 @@ fn zip_members(bytes: &[u8]) -> Result<Vec<(String, Vec<u8>)>, String> {
             declared as f64 / 1e9
         ));
     }
+    // Each member's bytes, local header to end of data (its local header read, nothing
+    // inflated): two entries over one member's bytes are a crafted archive.
+    let mut spans = vec![];
+    for (i, name) in names.iter().enumerate() {
+        let file = zip.by_index_raw(i).map_err(|e| format!("member '{name}': {e}"))?;
+        let start = file.header_start();
+        let end = file.data_start().unwrap_or(start).saturating_add(file.compressed_size());
+        spans.push((start, end, name));
+    }
+    spans.sort();
+    if let Some(w) = spans.windows(2).find(|w| w[1].0 < w[0].1) {
+        return Err(format!("member '{}' shares its bytes with member '{}' (a crafted archive)", w[1].2, w[0].2));
+    }
     let mut out = vec![];
-    for ZipEntry { name, method, crc, csize, usize_, offset } in entries {
-        let mut l = Cursor::at(bytes, to_usize(offset, "local header offset")?);
-        if l.u32()? != 0x0403_4b50 {
-            return Err(format!("member '{name}': no local header at offset {offset}"));
-        }
-        l.take(22)?;
-        let (n, e) = (l.u16()? as usize, l.u16()? as usize);
-        l.take(n + e)?;
-        let raw = l.take(to_usize(csize, "compressed size")?).map_err(|e| format!("member '{name}': {e}"))?;
-        let expected = to_usize(usize_, "size")?;
-        let data = match method {
-            0 => raw.to_vec(),
-            8 => {
-                // Grown as it inflates: the declared size is checked against what comes out.
-                let mut data = Vec::with_capacity(expected.min(1 << 26));
-                flate2::read::DeflateDecoder::new(raw)
-                    .take(usize_ + 1)
-                    .read_to_end(&mut data)
-                    .map_err(|e| format!("member '{name}': deflate: {e}"))?;
-                data
-            }
-            m => return Err(format!("member '{name}': compression method {m} (only stored and deflate are read)")),
-        };
-        if data.len() != expected {
+    for (i, name) in names.iter().enumerate() {
+        let mut file = zip.by_index(i).map_err(|e| format!("member '{name}': {e}"))?;
+        let expected = file.size();
+        let mut data = Vec::with_capacity(to_usize(expected.min(1 << 26), "size")?);
+        (&mut file)
+            .take(expected.saturating_add(1))
+            .read_to_end(&mut data)
+            .map_err(|e| format!("member '{name}': {e}"))?;
+        if data.len() as u64 != expected {
             return Err(format!("member '{name}' holds {} bytes, its directory entry says {expected}", data.len()));
         }
-        let mut hasher = flate2::Crc::new();
-        hasher.update(&data);
-        if hasher.sum() != crc {
-            return Err(format!("member '{name}': CRC mismatch (the file is corrupt)"));
-        }
-        out.push((name, data));
+        out.push((name.clone(), data));
     }
     Ok(out)
+}
+
+/// The first name the central directory at `start` lists twice, for the error message alone
+/// (`ZipArchive` keeps one entry per name). `None` where the walk finds none.
+fn first_repeated_name<R: Read + Seek>(mut r: R, start: u64) -> Option<String> {
+    r.seek(SeekFrom::Start(start)).ok()?;
+    let mut seen = std::collections::BTreeSet::new();
+    loop {
+        let mut fixed = [0u8; 46];
+        r.read_exact(&mut fixed).ok()?;
+        if fixed[..4] != 0x0201_4b50u32.to_le_bytes() {
+            return None;
+        }
+        let len = |at: usize| u16::from_le_bytes([fixed[at], fixed[at + 1]]);
+        let mut name = vec![0; len(28).into()];
+        r.read_exact(&mut name).ok()?;
+        let name = String::from_utf8_lossy(&name).into_owned();
+        if !seen.insert(name.clone()) {
+            return Some(name);
+        }
+        r.seek(SeekFrom::Current(i64::from(len(30)) + i64::from(len(32)))).ok()?;
+    }
 }
 
 /// The element type of a `descr`: (kind letter, byte width, big-endian).
@@ -903,6 +735,77 @@ mod tests {
         ]
     }
 
+    fn crc_of(bytes: &[u8]) -> u32 {
+        let mut crc = flate2::Crc::new();
+        crc.update(bytes);
+        crc.sum()
+    }
+
+    fn deflate(bytes: &[u8]) -> Vec<u8> {
+        let mut enc = flate2::write::DeflateEncoder::new(vec![], flate2::Compression::default());
+        enc.write_all(bytes).unwrap();
+        enc.finish().unwrap()
+    }
+
+    /// A member of an archive built by hand, independently of the `zip` crate: method 0
+    /// (stored) or 8 (deflated), and the CRC and size its headers declare.
+    struct Hand<'a> {
+        name: &'a [u8],
+        method: u16,
+        crc: u32,
+        packed: &'a [u8],
+        size: u32,
+    }
+
+    /// A member's local header and data.
+    fn local(m: &Hand<'_>) -> Vec<u8> {
+        let mut b = 0x0403_4b50u32.to_le_bytes().to_vec();
+        b.extend_from_slice(&[20, 0, 0, 0]);
+        b.extend_from_slice(&m.method.to_le_bytes());
+        b.extend_from_slice(&[0, 0, 0, 0]);
+        b.extend_from_slice(&m.crc.to_le_bytes());
+        b.extend_from_slice(&(m.packed.len() as u32).to_le_bytes());
+        b.extend_from_slice(&m.size.to_le_bytes());
+        b.extend_from_slice(&(m.name.len() as u16).to_le_bytes());
+        b.extend_from_slice(&0u16.to_le_bytes());
+        b.extend_from_slice(m.name);
+        b.extend_from_slice(m.packed);
+        b
+    }
+
+    /// A zip archive of `members` (local headers back to back, then the central directory);
+    /// `at[i]`, where given, is the local header offset member `i`'s directory entry claims.
+    fn hand_zip(members: &[Hand<'_>], at: &[Option<u32>]) -> Vec<u8> {
+        let mut zip = vec![];
+        let mut offsets = vec![];
+        for (m, at) in members.iter().zip(at) {
+            offsets.push(at.unwrap_or(zip.len() as u32));
+            zip.extend_from_slice(&local(m));
+        }
+        let cd = zip.len() as u32;
+        for (m, offset) in members.iter().zip(offsets) {
+            zip.extend_from_slice(&0x0201_4b50u32.to_le_bytes());
+            zip.extend_from_slice(&[20, 0, 20, 0, 0, 0]);
+            zip.extend_from_slice(&m.method.to_le_bytes());
+            zip.extend_from_slice(&[0, 0, 0, 0]);
+            zip.extend_from_slice(&m.crc.to_le_bytes());
+            zip.extend_from_slice(&(m.packed.len() as u32).to_le_bytes());
+            zip.extend_from_slice(&m.size.to_le_bytes());
+            zip.extend_from_slice(&(m.name.len() as u16).to_le_bytes());
+            zip.extend_from_slice(&[0u8; 12]);
+            zip.extend_from_slice(&offset.to_le_bytes());
+            zip.extend_from_slice(m.name);
+        }
+        let cd_size = zip.len() as u32 - cd;
+        let n = (members.len() as u16).to_le_bytes();
+        zip.extend_from_slice(&0x0605_4b50u32.to_le_bytes());
+        zip.extend_from_slice(&[0, 0, 0, 0, n[0], n[1], n[0], n[1]]);
+        zip.extend_from_slice(&cd_size.to_le_bytes());
+        zip.extend_from_slice(&cd.to_le_bytes());
+        zip.extend_from_slice(&0u16.to_le_bytes());
+        zip
+    }
+
     #[test]
     fn npz_round_trips_every_type_with_and_without_zip64() {
         let dir = tempfile::tempdir().unwrap();
@@ -961,46 +864,18 @@ mod tests {
             write_npy(&p, &ArrayRef::flat(Elements::F32(&[1.0, 2.0, 3.0]))).unwrap();
             std::fs::read(p).unwrap()
         };
-        let mut enc = flate2::write::DeflateEncoder::new(vec![], flate2::Compression::default());
-        enc.write_all(&payload).unwrap();
-        let packed = enc.finish().unwrap();
-        let mut crc = flate2::Crc::new();
-        crc.update(&payload);
-        let mut zip = vec![];
-        let name = b"a.npy";
-        zip.extend_from_slice(&0x0403_4b50u32.to_le_bytes());
-        zip.extend_from_slice(&[20, 0, 0, 0, 8, 0, 0, 0, 0, 0]);
-        zip.extend_from_slice(&crc.sum().to_le_bytes());
-        zip.extend_from_slice(&(packed.len() as u32).to_le_bytes());
-        zip.extend_from_slice(&(payload.len() as u32).to_le_bytes());
-        zip.extend_from_slice(&(name.len() as u16).to_le_bytes());
-        zip.extend_from_slice(&0u16.to_le_bytes());
-        zip.extend_from_slice(name);
-        zip.extend_from_slice(&packed);
-        let cd = zip.len() as u32;
-        zip.extend_from_slice(&0x0201_4b50u32.to_le_bytes());
-        zip.extend_from_slice(&[20, 0, 20, 0, 0, 0, 8, 0, 0, 0, 0, 0]);
-        zip.extend_from_slice(&crc.sum().to_le_bytes());
-        zip.extend_from_slice(&(packed.len() as u32).to_le_bytes());
-        zip.extend_from_slice(&(payload.len() as u32).to_le_bytes());
-        zip.extend_from_slice(&(name.len() as u16).to_le_bytes());
-        zip.extend_from_slice(&[0u8; 12]);
-        zip.extend_from_slice(&0u32.to_le_bytes());
-        zip.extend_from_slice(name);
-        let cd_size = zip.len() as u32 - cd;
-        zip.extend_from_slice(&0x0605_4b50u32.to_le_bytes());
-        zip.extend_from_slice(&[0, 0, 0, 0, 1, 0, 1, 0]);
-        zip.extend_from_slice(&cd_size.to_le_bytes());
-        zip.extend_from_slice(&cd.to_le_bytes());
-        zip.extend_from_slice(&0u16.to_le_bytes());
-        let members = zip_members(&zip).unwrap();
+        let packed = deflate(&payload);
+        let a = Hand { name: b"a.npy", method: 8, crc: crc_of(&payload), packed: &packed, size: payload.len() as u32 };
+        let zip = hand_zip(&[a], &[None]);
+        let members_of = |bytes: &[u8]| zip_members(std::io::Cursor::new(bytes.to_vec()));
+        let members = members_of(&zip).unwrap();
         assert_eq!(members, vec![("a.npy".to_string(), payload)]);
         // A flipped byte is a CRC error, a cut file a located error, never a panic.
         let mut bad = zip.clone();
         bad[40] ^= 0xff;
-        assert!(zip_members(&bad).is_err());
+        assert!(members_of(&bad).is_err());
         for cut in [0, 10, 30, zip.len() - 30, zip.len() - 1] {
-            assert!(zip_members(&zip[..cut]).is_err(), "{cut}");
+            assert!(members_of(&zip[..cut]).is_err(), "{cut}");
         }
     }
 
@@ -1052,6 +927,105 @@ mod tests {
         huge[at..at + 8].copy_from_slice(&(1u64 << 40).to_le_bytes());
         let e = read(huge);
         assert!(e.contains("refused before inflating") && e.contains("x.npz"), "{e}");
+    }
+
+    /// A member inside another member's bytes (the overlapping-files zip bomb), a deflated
+    /// member that inflates past its declared size, and one shorter than it: errors that name
+    /// the member, with buffers bounded by the declared sizes.
+    #[test]
+    fn overlapping_and_lying_members_are_refused() {
+        let members_of = |bytes: &[u8]| zip_members(std::io::Cursor::new(bytes.to_vec()));
+        let payload = b"the inner member".as_slice();
+        let b = Hand { name: b"b.npy", method: 0, crc: crc_of(payload), packed: payload, size: payload.len() as u32 };
+        let inner = local(&b);
+        let a = Hand { name: b"a.npy", method: 0, crc: crc_of(&inner), packed: &inner, size: inner.len() as u32 };
+        // Each member is whole and its CRC right; b's directory entry points into a's data.
+        let nested = hand_zip(&[a, b], &[None, Some(30 + 5)]);
+        let e = members_of(&nested).unwrap_err();
+        assert!(e.contains("member 'b.npy' shares its bytes with member 'a.npy'"), "{e}");
+
+        let zeros = vec![0u8; 1 << 22];
+        let packed = deflate(&zeros);
+        let bomb = Hand { name: b"a.npy", method: 8, crc: crc_of(&zeros), packed: &packed, size: 1000 };
+        let e = members_of(&hand_zip(&[bomb], &[None])).unwrap_err();
+        assert!(e.starts_with("member 'a.npy'") && e.contains("declared"), "{e}");
+
+        let short = Hand { name: b"a.npy", method: 0, crc: crc_of(payload), packed: payload, size: 1000 };
+        let e = members_of(&hand_zip(&[short], &[None])).unwrap_err();
+        assert!(e.contains("member 'a.npy' holds 16 bytes, its directory entry says 1000"), "{e}");
+    }
+
+    /// Hostile bytes (a written archive, flipped, overwritten with extreme values, cut) are
+    /// an error or an archive, never a panic; through `read_npz` every error names the file.
+    #[test]
+    fn mangled_archives_are_errors_never_panics() {
+        let dir = tempfile::tempdir().unwrap();
+        let arrays = sample();
+        let members: Vec<(&str, ArrayRef<'_>)> = arrays.iter().map(|(n, a)| (n.as_str(), a.as_ref())).collect();
+        let mut seeds = vec![];
+        for zip64 in [false, true] {
+            let p = dir.path().join("seed.npz");
+            write_npz_with(&p, &members[..3], zip64).unwrap();
+            seeds.push(std::fs::read(&p).unwrap());
+        }
+        let payload = b"\x93NUMPY".as_slice();
+        let packed = deflate(payload);
+        let a = Hand { name: b"a.npy", method: 8, crc: crc_of(payload), packed: &packed, size: payload.len() as u32 };
+        seeds.push(hand_zip(&[a], &[None]));
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = |n: usize| {
+            state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+            (state >> 33) as usize % n.max(1)
+        };
+        let p = dir.path().join("x.npz");
+        for round in 0..3000 {
+            let mut bytes = seeds[round % seeds.len()].clone();
+            for _ in 0..1 + next(3) {
+                if bytes.is_empty() {
+                    break;
+                }
+                // Half the time in the central directory and end records, at the end.
+                let at = if next(2) == 0 { bytes.len().saturating_sub(1 + next(400)) } else { next(bytes.len()) };
+                match next(4) {
+                    0 => bytes[at] ^= 1 << next(8),
+                    1 => bytes[at] = [0, 0xff, 0x7f, 0x80][next(4)],
+                    2 => {
+                        let value = [0u32, 0xffff_ffff, 0x7fff_ffff, 1 << 20][next(4)].to_le_bytes();
+                        let end = (at + 4).min(bytes.len());
+                        bytes[at..end].copy_from_slice(&value[..end - at]);
+                    }
+                    _ => bytes.truncate(at),
+                }
+            }
+            match zip_members(std::io::Cursor::new(bytes.clone())) {
+                Ok(members) => members.iter().for_each(|(_, data)| drop(parse_npy(data))),
+                Err(e) => assert!(!e.is_empty()),
+            }
+            if round % 10 == 0 {
+                std::fs::write(&p, &bytes).unwrap();
+                if let Err(e) = read_npz(&p) {
+                    assert!(e.to_string().contains("x.npz"), "{e}");
+                }
+            }
+        }
+    }
+
+    /// The bytes of a small archive, pinned: equal arrays give equal files on every machine
+    /// and with every version of the `zip` crate (an upgrade that changes them changes what
+    /// `export` writes, so this pin moves only on purpose).
+    #[test]
+    fn npz_bytes_are_pinned() {
+        let dir = tempfile::tempdir().unwrap();
+        let arrays = sample();
+        let members: Vec<(&str, ArrayRef<'_>)> = arrays.iter().map(|(n, a)| (n.as_str(), a.as_ref())).collect();
+        let mut pins = vec![];
+        for zip64 in [false, true] {
+            let p = dir.path().join("x.npz");
+            write_npz_with(&p, &members, zip64).unwrap();
+            let bytes = std::fs::read(&p).unwrap();
+            pins.push((bytes.len(), format!("{:08x}", crc_of(&bytes))));
+        }
+        assert_eq!(pins, [(2535, "016c06bb".to_string()), (2975, "56c11242".to_string())]);
     }
 
     #[test]
