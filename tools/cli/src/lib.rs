@@ -1,6 +1,7 @@
 //! # biscale-cli: the `biscale` command
 //!
-//! The arguments ([`Cli`], clap), the small commands' printing, progress and verbosity; all
+//! The arguments ([`Cli`], clap), the small commands' printing, progress, verbosity and the
+//! logger that prints the pipeline's `log` events (`StderrLog`); all
 //! work is the pipeline's (`biscale`). `src/main.rs` is one call to [`main`]; the library
 //! form lets the tests (`tests/cli/`, one binary) check the argument definitions too.
 
