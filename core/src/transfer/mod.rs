@@ -24,8 +24,8 @@ mod scene;
 pub mod sh;
 
 pub use build::{
-    build, build_range, sample_nnz, worst_case_bytes, NnzEstimate, TransferBuild, TransferMemory, TransferStats,
-    BYTES_PER_NONZERO, MAX_TRANSFER_BYTES, NNZ_MARGIN_SIGMAS, NNZ_SAMPLE_VERTICES,
+    build, build_range, nnz_strata, sample_nnz, worst_case_bytes, NnzEstimate, NnzStratum, TransferBuild,
+    TransferMemory, TransferStats, BYTES_PER_NONZERO, MAX_TRANSFER_BYTES, NNZ_MARGIN_SIGMAS, NNZ_SAMPLE_VERTICES,
 };
 pub use sampler::{VisibilitySampler, VisibilityScratch};
 pub use scene::{TransferScene, BVH_DIAGONAL, ORIGIN_OFFSET};

@@ -7,21 +7,27 @@
 //!   BVHs, the environment map, `T` in each form it takes ([`TransferMemory`]: the build's
 //!   staging, the CSR, the cache file's arrays and encoded bytes), the BTFs, the images, the
 //!   per-row vectors (`T L` in f64, `L*`), each compressor's working set and form (and their
-//!   cache write: the form's arrays copied, then encoded whole), each SH method's matrices, and
-//!   the wgpu instance's buffers.
+//!   cache write: the form's arrays copied, then encoded whole), each SH method's matrices, the
+//!   wgpu instance's buffers, and every BTF representation a material lists
+//!   ([`RepresentationMemory`]: each local-PCA table, its build, and the BTF study's scene,
+//!   dot products and images per setting).
 //! * **Phases.** Buffers that are never alive together are not added: the estimate is the
-//!   largest of the run's phases (transfer build, cache write, baseline, each compressor, each
-//!   method), each the sum of what is alive in it.
-//! * **Non-zeros.** `T`'s size is not known before tracing; [`estimate`] traces a spread
-//!   sample of vertices first ([`sample_nnz`]) and uses its upper bound (the sampled total plus
-//!   [`biscale_core::transfer::NNZ_MARGIN_SIGMAS`] standard errors); the worst case (`N / 2`
-//!   per vertex) is reported beside it.
+//!   largest of the run's phases (transfer build, cache write, the local-PCA builds, baseline,
+//!   BTF study, each compressor, each method), each the sum of what is alive in it.
+//! * **Non-zeros.** `T`'s size is not known before tracing; [`estimate`] traces a sample of
+//!   vertices first ([`sample_nnz`]: drawn by the experiment's seed in strata of every
+//!   connected component, so no part of a mesh can hide from it) and uses its upper bound (the
+//!   stratified total plus [`biscale_core::transfer::NNZ_MARGIN_SIGMAS`] standard errors); the
+//!   worst case (`N / 2` per vertex) is reported beside it.
+//! * **As it goes.** `biscale run` checks its own peak (VmHWM) between its heavy stages
+//!   ([`check_peak`]) and stops with the estimate and the limit when the peak has passed the
+//!   available memory, instead of growing on until it is killed.
 //! * **Constants.** The per-triangle, per-pixel and baseline figures below were measured as
 //!   peak resident memory (VmHWM) of runs on the 2-core Linux test machine (dev profile):
 //!   BENCHMARKS.md "Memory estimate" has the runs and the estimate against the measurement.
 
 use crate::error::PipelineError;
-use crate::experiment::config::{Backend, Experiment, MaterialConfig, Setting};
+use crate::experiment::config::{Backend, Experiment, MaterialConfig, RepresentationSetting, Setting};
 use crate::stages::scene::{Geometry, Lighting};
 use biscale_core::transfer::{sample_nnz, NnzEstimate, TransferMemory, TransferSettings, NNZ_SAMPLE_VERTICES};
 use biscale_core::CoreError;
@@ -60,6 +66,22 @@ pub const GPU_BYTES_PER_ROW: u64 = 32;
 /// Bytes per stored BTF value (RGB f32).
 const BTF_BYTES_PER_VALUE: u64 = 12;
 
+/// What each scene of the BTF study copies per vertex and per triangle (`ShadeScene::
+/// with_materials`): the position (12), the UV (8) and the frame (36); the triangle (12), its
+/// material id (2) and its compact material index (4).
+pub const SCENE_BYTES_PER_VERTEX: u64 = 56;
+pub const SCENE_BYTES_PER_TRIANGLE: u64 = 18;
+
+/// Per unit (texel, or texel and view) of a local-PCA build besides its model
+/// ([`biscale_core::linalg::cpca::build_bytes`]): the clustered PCA's row list, squared norms,
+/// assignments and errors (old and new), seeding distances and member lists (about 60 bytes),
+/// each unit's coefficient vector while it is accumulated (a `Vec` with its allocation, 56),
+/// the stored cluster ids (u32, then u16); and per component its f32 coefficient (twice:
+/// accumulated and stored) and the refit's f64 projection (`LPCA_BYTES_PER_UNIT_COMPONENT`,
+/// plus 4 oversampling columns counted in the 144).
+const LPCA_BYTES_PER_UNIT: u64 = 144;
+const LPCA_BYTES_PER_UNIT_COMPONENT: u64 = 16;
+
 /// Where the available memory comes from when `/proc/meminfo` cannot be read: the fixed limit
 /// the transfer build has always had.
 pub const FALLBACK_AVAILABLE_BYTES: u64 = biscale_core::transfer::MAX_TRANSFER_BYTES;
@@ -95,6 +117,8 @@ pub struct RunMemory {
     pub gpu: u64,
     pub compressors: Vec<CompressorMemory>,
     pub methods: Vec<Part>,
+    /// The materials' BTF representations: local-PCA tables, builds and the BTF study.
+    pub representations: RepresentationMemory,
     /// What is alive at once in each phase of the run, in run order.
     pub phases: Vec<Part>,
     /// The peak with every vertex at the worst case of `N / 2` non-zeros.
@@ -141,7 +165,8 @@ impl RunMemory {
         };
         let kept = pixels * KEPT_RENDER_BYTES_PER_PIXEL * exp.compressor_settings().len() as u64;
         let images = pixels * IMAGE_BYTES_PER_PIXEL + reference_pixels * REFERENCE_BYTES_PER_PIXEL + kept;
-        let btfs = exp.materials().iter().map(|c| btf_bytes(c, m)).sum();
+        let btfs: u64 = exp.materials().iter().map(|c| btf_bytes(c, m)).sum();
+        let representations = RepresentationMemory::new(exp, shape, m, pixels);
         let vectors = rows * VECTOR_BYTES_PER_ROW + n * 16;
         let gpu_on = f.runtime.backend == Backend::Gpu;
         let gpu = if gpu_on { GPU_BASELINE_BYTES } else { 0 };
@@ -162,8 +187,15 @@ impl RunMemory {
         if shape.cache {
             phases.push(Part::new("transfer cache write", common + transfer.save_peak()));
         }
-        let after = common + transfer.csr + btfs + images + vectors;
+        let materials = (common + transfer.csr + btfs).saturating_add(representations.tables);
+        if let Some(b) = &representations.largest_build {
+            phases.push(Part::new(format!("materials: local-PCA build {}", b.name), materials.saturating_add(b.bytes)));
+        }
+        let after = materials.saturating_add(images + vectors);
         phases.push(Part::new("materials, baseline and reference", after));
+        if representations.study > 0 {
+            phases.push(Part::new("btf study", after.saturating_add(representations.study)));
+        }
         for c in &compressors {
             let cache_write = if shape.cache { c.form.saturating_mul(2) } else { 0 };
             let upload =
@@ -186,6 +218,7 @@ impl RunMemory {
             gpu,
             compressors,
             methods,
+            representations,
             phases,
             worst_case_peak: 0,
         }
@@ -223,6 +256,16 @@ impl RunMemory {
         for p in &self.methods {
             parts.push(Part::new(format!("method {}", p.name), p.bytes));
         }
+        let r = &self.representations;
+        if r.lpca_settings > 0 {
+            parts.push(Part::new(format!("BTF local-PCA tables ({} settings)", r.lpca_settings), r.tables));
+        }
+        if let Some(b) = &r.largest_build {
+            parts.push(Part::new(format!("local-PCA build {} (the largest)", b.name), b.bytes));
+        }
+        if r.study > 0 {
+            parts.push(Part::new("BTF study: scenes, dot products and images", r.study));
+        }
         parts
     }
 
@@ -232,6 +275,14 @@ impl RunMemory {
         let peak = self.peak();
         let transfer =
             "lower [transfer] cubemap_resolution or visibility_resolution, or use a mesh with fewer vertices";
+        if peak.name == "btf study" || peak.name.starts_with("materials: local-PCA build") {
+            let most = self.representations.longest_list.as_ref();
+            let which = most.map_or(String::new(), |(label, n)| format!(" (material {label} lists {n})"));
+            return format!(
+                "list fewer BTF representations{which} or smaller local-PCA settings (clusters, components, \
+                 unit = \"view\"), or {transfer}"
+            );
+        }
         if let Some(label) = peak.name.strip_prefix("compress ") {
             let c = self.compressors.iter().find(|c| c.label == label);
             if c.is_some_and(|c| c.working > self.transfer.csr) {
@@ -342,6 +393,143 @@ fn btf_bytes(c: &MaterialConfig, m: u64) -> u64 {
     values * BTF_BYTES_PER_VALUE * (halves + 2 * lpca as u64) / 2
 }
 
+/// Texels and views of a material entry's BTF (an upper bound: a flat synthesized patch is
+/// tabulated as one texel).
+fn btf_shape(c: &MaterialConfig) -> (u64, u64) {
+    let grid = |g: u32| (g as u64 * g as u64).max(1);
+    match c {
+        MaterialConfig::Lambertian { .. } => (1, 1),
+        MaterialConfig::Phong { view_grid, .. } => (1, grid(*view_grid)),
+        MaterialConfig::Synthesized(s) => (s.resolution as u64 * s.resolution as u64, grid(s.view_grid)),
+        MaterialConfig::Bonn(b) => (b.resolution as u64 * b.resolution as u64, grid(b.view_grid)),
+    }
+}
+
+/// One local-PCA setting of a BTF on `m` light directions: the table it keeps, the peak of its
+/// build and its precomputed dot products in the BTF study.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LpcaMemory {
+    /// The table as held (the values dequantized to f32 whatever the storage): `K (C + 1) D`
+    /// basis values, `C` weights and a u16 cluster per unit.
+    pub table: u64,
+    /// Its build: the clustered PCA's model ([`biscale_core::linalg::cpca::build_bytes`]), its
+    /// per-unit state ([`LPCA_BYTES_PER_UNIT`]), each thread's subspace iteration, the table,
+    /// and its quantized copy and cache encoding where they are made.
+    pub build: u64,
+    /// The BTF study's dot products for one `L*` (`LightDots`): `K (C + 1) S` RGB f32 per
+    /// vertex (`S` the views for texel units, 1 for view units) and a u32 row per vertex, at
+    /// most the study's limit (a larger table is not built).
+    pub dots: u64,
+}
+
+impl LpcaMemory {
+    pub fn new(s: &biscale_core::scene::LpcaSettings, texels: u64, views: u64, m: u64, shape: &RunShape) -> Self {
+        use biscale_core::scene::{LpcaQuantize, LpcaUnit};
+        let (units, d, segments) = match s.unit {
+            LpcaUnit::Texel => (texels, views.saturating_mul(3 * m), views),
+            LpcaUnit::View => (texels.saturating_mul(views), 3 * m, 1),
+        };
+        let k = (s.clusters as u64).min(units).min(u16::MAX as u64 - 1).max(1);
+        let c = (s.components as u64).min(d);
+        let basis = k.saturating_mul(c + 1).saturating_mul(d);
+        let table = basis.saturating_mul(4).saturating_add(units.saturating_mul(c * 4 + 2));
+        let model = basis.saturating_mul(biscale_core::linalg::cpca::BUILD_BYTES_PER_BASIS_VALUE);
+        let per_unit = units.saturating_mul(LPCA_BYTES_PER_UNIT + LPCA_BYTES_PER_UNIT_COMPONENT * c);
+        // Per thread: the subspace and its product (d x (C + 4) f64 each) and a block of 8 rows'
+        // dot products with every model.
+        let per_thread = d.saturating_mul(16 * (c + 4)).saturating_add(k.saturating_mul(c + 1) * 32);
+        let copies = 1 + (s.quantize != LpcaQuantize::F32) as u64 + if shape.cache { 2 } else { 0 };
+        let build = model
+            .saturating_add(per_unit)
+            .saturating_add(per_thread.saturating_mul(shape.threads.max(1) as u64))
+            .saturating_add(table.saturating_mul(copies));
+        let vertices = shape.vertices as u64;
+        let dots = vertices
+            .saturating_mul(k.saturating_mul(c + 1).saturating_mul(segments))
+            .saturating_mul(12)
+            .saturating_add(4 * vertices)
+            .min(crate::stages::btf_study::MAX_PRECOMPUTED_BYTES);
+        Self { table, build, dots }
+    }
+}
+
+/// The memory of the materials' BTF representations (`representation = [...]`): every
+/// local-PCA table is kept for the whole run (a material's own one twice: the materials' and
+/// the shade scene's), each is built in turn, and when any is listed the BTF study holds at
+/// once, per setting, a copy of the scene (mesh, frames, every other material's dense table,
+/// the setting's table), its dot products and its images.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct RepresentationMemory {
+    /// Local-PCA settings over every material.
+    pub lpca_settings: usize,
+    /// The local-PCA tables held.
+    pub tables: u64,
+    /// The largest build, by its setting's label.
+    pub largest_build: Option<Part>,
+    /// The BTF study (0 when every setting is dense: there is none).
+    pub study: u64,
+    /// The material with the longest list, and its length.
+    pub longest_list: Option<(String, usize)>,
+}
+
+impl RepresentationMemory {
+    /// The representations of `exp`'s materials on `m` light directions, for a mesh of `shape`
+    /// and images of `pixels`.
+    pub fn new(exp: &Experiment, shape: &RunShape, m: u64, pixels: u64) -> Self {
+        let materials = exp.materials();
+        let dense: Vec<u64> = materials
+            .iter()
+            .map(|c| {
+                let (texels, views) = btf_shape(c);
+                texels.saturating_mul(views).saturating_mul(m).saturating_mul(BTF_BYTES_PER_VALUE)
+            })
+            .collect();
+        let all_dense = dense.iter().fold(0u64, |a, &b| a.saturating_add(b));
+        let mut out = Self::default();
+        let (mut variants, mut scene_tables, mut dots) = (0u64, 0u64, 0u64);
+        for (c, own_dense) in materials.iter().zip(&dense) {
+            let (texels, views) = btf_shape(c);
+            let list = c.representations().all();
+            if out.longest_list.as_ref().is_none_or(|(_, n)| list.len() > *n) {
+                out.longest_list = Some((c.label(), list.len()));
+            }
+            for (i, r) in list.iter().enumerate() {
+                variants += 1;
+                let table = match r {
+                    RepresentationSetting::Dense => *own_dense,
+                    RepresentationSetting::Lpca(s) => {
+                        let l = LpcaMemory::new(s, texels, views, m, shape);
+                        out.lpca_settings += 1;
+                        let copies = if i == 0 { 2 } else { 1 };
+                        out.tables = out.tables.saturating_add(l.table.saturating_mul(copies));
+                        if out.largest_build.as_ref().is_none_or(|b| l.build > b.bytes) {
+                            out.largest_build = Some(Part::new(r.label(), l.build));
+                        }
+                        dots = dots.saturating_add(l.dots);
+                        l.table
+                    }
+                };
+                scene_tables = scene_tables.saturating_add(all_dense - own_dense).saturating_add(table);
+            }
+        }
+        if out.lpca_settings > 0 {
+            let scene =
+                shape.vertices as u64 * SCENE_BYTES_PER_VERTEX + shape.triangles as u64 * SCENE_BYTES_PER_TRIANGLE;
+            // The all-dense scene and one per setting; every job's last image (the primary rays,
+            // the all-dense image, each setting's, each precomputed one).
+            let renders =
+                (2 + variants + out.lpca_settings as u64).saturating_mul(pixels * KEPT_RENDER_BYTES_PER_PIXEL);
+            out.study = (variants + 1)
+                .saturating_mul(scene)
+                .saturating_add(all_dense)
+                .saturating_add(scene_tables)
+                .saturating_add(dots)
+                .saturating_add(renders);
+        }
+        out
+    }
+}
+
 /// A compressor setting's working set and form on `T` with `nnz` non-zeros: its kind's own
 /// memory model (`registry::Kind::memory`), so a new kind is estimated by what its folder
 /// says; a kind the registry does not know is counted as a u32 CSR copy of `T` plus a form of
@@ -394,7 +582,7 @@ fn method_bytes(s: &Setting, vertices: usize, cache: bool) -> u64 {
 /// vertices (well under a second), then counts every buffer.
 pub fn estimate(exp: &Experiment, geometry: &Geometry, lighting: &Lighting, cache: bool) -> RunMemory {
     let settings = exp.transfer_settings();
-    let nnz = sample_nnz(&geometry.transfer, &settings, NNZ_SAMPLE_VERTICES);
+    let nnz = sample_nnz(&geometry.transfer, &geometry.mesh.triangles, &settings, NNZ_SAMPLE_VERTICES, exp.file.seed);
     let shape = RunShape {
         vertices: geometry.mesh.vertex_count(),
         triangles: geometry.mesh.triangle_count(),
@@ -427,6 +615,50 @@ pub fn check_run(
     );
     refuse_over(&format!("{}: this run", exp.config_path.display()), &memory, &available)?;
     Ok((memory, available))
+}
+
+/// Check this run's own peak so far (VmHWM) against the memory that was available when it
+/// started: `biscale run` calls it after each heavy stage (`after` names the stage), so a run
+/// the estimate let through but that grew past the limit stops there with the peak, the
+/// limit, the estimate and the setting to change, instead of growing on until it is killed.
+/// A peak more than a quarter over the estimate (but within the limit) is a warning, once per
+/// process: the estimate is off. Nothing is checked where `/proc/self/status` cannot be read.
+pub fn check_peak(memory: &RunMemory, available: &Available, after: &str) -> Result<(), PipelineError> {
+    check_peak_at(peak_rss(), memory, available, after)
+}
+
+/// [`check_peak`] with the peak given.
+fn check_peak_at(
+    peak: Option<u64>,
+    memory: &RunMemory,
+    available: &Available,
+    after: &str,
+) -> Result<(), PipelineError> {
+    static WARNED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+    let Some(peak) = peak else { return Ok(()) };
+    let estimate = memory.peak();
+    if peak > available.bytes {
+        return Err(PipelineError::Core(CoreError::TooLarge(format!(
+            "this run's resident memory reached {} by the end of {after}, more than the {} available ({}); \
+             it was estimated at {} (peak in: {}), so it was stopped here rather than left to be killed; {}",
+            human(peak),
+            human(available.bytes),
+            available.source,
+            human(estimate.bytes),
+            estimate.name,
+            memory.advice()
+        ))));
+    }
+    let over = estimate.bytes.saturating_add(estimate.bytes / 4);
+    if peak > over && !WARNED.swap(true, std::sync::atomic::Ordering::Relaxed) {
+        log::warn!(
+            "memory: this run's peak reached {} by the end of {after}, over its estimate of {} (peak in: {})",
+            human(peak),
+            human(estimate.bytes),
+            estimate.name
+        );
+    }
+    Ok(())
 }
 
 /// Err when `memory`'s peak is over `available`: the estimate, its phase, the available
@@ -704,6 +936,141 @@ mod tests {
         let values = 4 * 3 * 6144;
         assert_eq!(c.form, values * 4 + 640 * 12);
         assert_eq!(c.working, 2 * values * 16 + 640 * 24 + c.form);
+    }
+
+    /// A config on the bunny with a Phong material `glossy` (4 x 4 views, on 4 x 4 light bins)
+    /// whose `representation` is `list`, written into `dir`.
+    fn listing(dir: &std::path::Path, list: &str) -> std::path::PathBuf {
+        let bunny = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/meshes/bunny.obj");
+        let cfg = dir.join("x.toml");
+        std::fs::write(
+            &cfg,
+            format!(
+                "name = \"x\"\n[scene]\nmesh = \"{}\"\n[scene.material]\nname = \"glossy\"\nkind = \"phong\"\n\
+                 kd = [0.5, 0.5, 0.5]\nks = [0.3, 0.3, 0.3]\nexponent = 20.0\nview_grid = 4\nrepresentation = [{list}]\n\
+                 [lighting]\nconstant = [1.0, 1.0, 1.0]\n[transfer]\ncubemap_resolution = 8\nvisibility_resolution = 8\n\
+                 local_grid = 4\n[[compressors]]\nkind = \"sparse\"\n[runtime]\nwidth = 64\nheight = 48\n",
+                bunny.display()
+            ),
+        )
+        .unwrap();
+        cfg
+    }
+
+    /// Issue 36: a material's `representation` list of 400 local-PCA settings was neither
+    /// capped nor estimated (40 MiB estimated, 4.9 GiB used). A list is capped like a sweep,
+    /// at the material; and every setting's table, build and BTF-study share (a copy of the
+    /// scene, its dot products, its images) is estimated. Against the run's own data: the
+    /// tables the materials stage builds and the dot-product tables the study allocates per
+    /// setting (`LightDots::bytes_needed` of each study scene). The table model is exact (a
+    /// setting keeps `K (C + 1) D` basis values, C weights and a cluster per unit), so within
+    /// 1%. The study's estimate is checked against the sum of what the study holds, counted
+    /// from the run's own arrays (the dot products, 90% of it here, a copy of the mesh and
+    /// frames per scene, the tables, and an f32 RGB image per job): at least that, and within
+    /// 5% (the model's images also count their mask and coverage, 17 bytes a pixel, not 12).
+    #[test]
+    fn lpca_representation_lists_are_capped_and_estimated() {
+        let dir = tempfile::tempdir().unwrap();
+        let lpca =
+            |k: usize, c: usize| format!("{{ kind = \"lpca\", clusters = {k}, components = {c}, unit = \"view\" }}");
+        // 16 views of 16 bins: at most 16 clusters of 48 values.
+        let settings: Vec<String> = (1..=16).flat_map(|k| (1..=25).map(move |c| lpca(k, c))).collect();
+        assert_eq!(settings.len(), 400);
+
+        // The cap is checked at load (the sizes at the build): any 1001 distinct settings.
+        let over: Vec<String> = (1..=1001).map(|c| lpca(1, c)).collect();
+        let e = Experiment::load(&listing(dir.path(), &over.join(", "))).unwrap_err().to_string();
+        assert!(
+            e.contains(
+                "x.toml:4:1: material: the representation list of glossy has 1001 settings, over the limit of 1000"
+            ),
+            "located at the material: {e}"
+        );
+        Experiment::load(&listing(dir.path(), &over[..1000].join(", "))).unwrap();
+
+        let exp = Experiment::load(&listing(dir.path(), &settings.join(", "))).unwrap();
+        let geometry = crate::stages::scene::load_geometry(&exp).unwrap();
+        let mesh = &geometry.mesh;
+        let shape = RunShape {
+            vertices: mesh.vertex_count(),
+            triangles: mesh.triangle_count(),
+            env_pixels: 0,
+            cache: false,
+            threads: 2,
+        };
+        let m = RunMemory::new(&exp, &shape, NnzEstimate::exact(shape.vertices, 100_000, &exp.transfer_settings()));
+        let r = &m.representations;
+        assert_eq!((r.lpca_settings, r.longest_list.clone()), (400, Some(("glossy".to_string(), 400))));
+
+        // What the run builds and allocates.
+        let materials =
+            crate::stages::materials::load_materials(&exp, mesh, exp.transfer_settings().local_basis(), None).unwrap();
+        let held = |b: &biscale_core::scene::BtfRepresentation| match b {
+            biscale_core::scene::BtfRepresentation::Lpca(l) => {
+                (l.basis_values().len() * 4 + l.weight_values().len() * 4 + l.cluster_ids().len() * 2) as u64
+            }
+            biscale_core::scene::BtfRepresentation::Dense(_) => 0,
+        };
+        let own = held(&materials.materials[0].btf);
+        let others: u64 = materials.variants.iter().filter_map(|v| v.representation.as_ref()).map(held).sum();
+        let tables = others + 2 * own;
+        assert!(r.tables >= tables && (r.tables as f64) < 1.01 * tables as f64, "{} {tables}", r.tables);
+        let dots: u64 = materials
+            .variants
+            .iter()
+            .map(|v| {
+                let scene = biscale_core::scene::ShadeScene::new(
+                    mesh.clone(),
+                    geometry.transfer.frames().to_vec(),
+                    materials.with_variant(v),
+                    materials.triangle_materials.clone(),
+                )
+                .unwrap();
+                biscale_shading::precomputed::LightDots::bytes_needed(&scene)
+            })
+            .sum();
+        assert!(dots > 900 << 20, "the study's dot products alone: {}", human(dots));
+        // Besides, the study holds a copy of the scene's mesh and frames for the all-dense
+        // image and each setting, each setting's table, and every job's last image (the
+        // primary rays, the all-dense image, each setting's direct and precomputed image:
+        // 12 bytes of f32 RGB per pixel at least).
+        let scene = (mesh.positions.len() * 12
+            + mesh.uvs.as_ref().map_or(0, |u| u.len() * 8)
+            + mesh.triangles.len() * 12
+            + std::mem::size_of_val(geometry.transfer.frames())) as u64;
+        let images = (2 + 2 * 400) * 64 * 48 * 12;
+        let study = dots + 401 * scene + (others + own) + images;
+        assert!(r.study >= study && (r.study as f64) < 1.05 * study as f64, "{} {study}", r.study);
+
+        // Refused up front, in the study, naming the material.
+        assert_eq!(m.peak().name, "btf study");
+        let e = refuse_over("x", &m, &Available { bytes: 1 << 30, source: "test" }).unwrap_err().to_string();
+        assert!(e.contains("(peak in: btf study)") && e.contains("material glossy lists 400"), "{e}");
+    }
+
+    /// Issue 36: the run's own peak is checked against the limit between its stages, and a run
+    /// past it stops with a clear error (the peak, the limit, the estimate and the advice).
+    #[test]
+    fn the_runs_own_peak_is_checked_against_the_limit() {
+        let dir = tempfile::tempdir().unwrap();
+        let exp = crate::experiment::config::Experiment::load(&smoke_at(dir.path(), 32)).unwrap();
+        let shape = RunShape { vertices: 1839, triangles: 3674, env_pixels: 0, cache: true, threads: 2 };
+        let m = RunMemory::new(&exp, &shape, NnzEstimate::exact(1839, 5_000_000, &exp.transfer_settings()));
+        let limit = Available { bytes: 1 << 30, source: "BISCALE_MEMORY_LIMIT" };
+        check_peak_at(Some(1 << 30), &m, &limit, "the transfer stage").unwrap();
+        check_peak_at(None, &m, &limit, "the transfer stage").unwrap();
+        let e = check_peak_at(Some((1 << 30) + 1), &m, &limit, "the BTF study").unwrap_err().to_string();
+        assert!(
+            e.contains(
+                "reached 1.00 GiB by the end of the BTF study, more than the 1.00 GiB available (BISCALE_MEMORY_LIMIT)"
+            ) && e.contains(&format!("estimated at {} (peak in: {})", human(m.peak().bytes), m.peak().name))
+                && e.contains("stopped here"),
+            "{e}"
+        );
+        // This process, now: its own peak is read and is within a generous limit.
+        check_peak(&m, &Available { bytes: u64::MAX, source: "test" }, "now").unwrap();
+        let tiny = Available { bytes: 1 << 20, source: "test" };
+        assert!(check_peak(&m, &tiny, "now").is_err(), "this process is over 1 MiB");
     }
 
     /// A one-compressor (sparse) config on the bunny at cubemap `r`, written into `dir`.

@@ -130,6 +130,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     };
     ctx.clock.mark(if sharded.is_some() { "transfer (stacked from the shards)" } else { "transfer" });
     fault_point("transfer");
+    crate::estimate::check_peak(&memory, &available, "the transfer stage")?;
     if let Some(w) = sky_warning(&t.metrics, t.matrix.vertices()) {
         eprintln!("warning: {w}");
     }
@@ -138,6 +139,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
         log::info!("materials: {n}");
     }
     ctx.clock.mark("materials");
+    crate::estimate::check_peak(&memory, &available, "the materials")?;
     let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
     let targets =
         targets(exp, &geometry, &lighting, &t.matrix, &view, &ctx.images_dir(), plan.reference, &mut ctx.clock)?;
@@ -153,6 +155,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     };
     materials.btfs = crate::stages::btf_study::run(&materials, &study)?;
     ctx.clock.mark("btf study");
+    crate::estimate::check_peak(&memory, &available, "the BTF study")?;
 
     let mut gpu = match exp.file.runtime.backend {
         Backend::Gpu => Some(GpuBackend::new(&scene, &view.camera)?),
@@ -164,6 +167,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     let eval = Evaluation::new(exp, &t.matrix, &lighting, &geometry, &targets, &view, &out_dir, true);
     let forms = Forms { exp, t: &t, cache: ctx.cache.as_ref(), precomputed: pre_forms };
     let (mut records, renders) = forms.evaluate(&compressors, &eval, gpu.as_mut(), &mut ctx.clock)?;
+    crate::estimate::check_peak(&memory, &available, "the compressors")?;
     share_error_scale(&mut records, &renders, &base.render, exp.file.report.error_scale, &out_dir)?;
     let region = inset_region(exp, &records, &renders, base);
     drop(renders);
@@ -189,6 +193,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     if !methods.is_empty() {
         ctx.clock.mark("methods");
     }
+    crate::estimate::check_peak(&memory, &available, "the methods")?;
 
     let figures = comparison_figures(region, &records, &methods, base, &view, reference, &out_dir)?;
     let mut metrics =

@@ -484,6 +484,16 @@ fn check_material(m: &MaterialConfig) -> Result<(), String> {
         }
     }
     let all = m.representations().all();
+    // Each setting is a local-PCA build, a copy of the scene with its own dot products and
+    // images in the BTF study: a list is capped like a sweep.
+    if all.len() > MAX_SWEEP_SETTINGS {
+        return Err(format!(
+            "the representation list of {} has {} settings, over the limit of {MAX_SWEEP_SETTINGS} settings of one \
+             entry; split the study or shorten the list",
+            m.label(),
+            all.len()
+        ));
+    }
     for (i, r) in all.iter().enumerate() {
         if let RepresentationSetting::Lpca(LpcaSettings { clusters, components, iterations, .. }) = *r {
             if clusters == 0 || clusters > u16::MAX as usize - 1 {
@@ -917,8 +927,8 @@ pub struct Experiment {
     methods: Vec<MethodSetting>,
 }
 
-/// Most settings one `[[compressors]]` or `[[methods]]` entry may sweep: each is a
-/// compression, a gather and an image.
+/// Most settings one `[[compressors]]` or `[[methods]]` entry may sweep (each is a
+/// compression, a gather and an image), and most BTF representations one material may list.
 pub const MAX_SWEEP_SETTINGS: usize = 1000;
 
 /// Most timed gathers per setting (`runtime.repeats`): medians settle long before this, and
