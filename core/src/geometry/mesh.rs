@@ -13,7 +13,10 @@
 //!   exactly duplicated vertices (same position and same uv bits) are welded, degenerate
 //!   triangles (a repeated vertex, or area `<= 1e-12 * diagonal^2`: zero-area and slivers)
 //!   are dropped, then unreferenced vertices are dropped and the rest renumbered in their
-//!   original order.
+//!   original order;
+//! * and, changing nothing, checks the winding ([`super::winding`]): when faces look reversed
+//!   (wound against their edge-neighbours, or a closed part inside out) the last line of
+//!   `repairs` says how many, in how many connected components, and what to do.
 //!
 //! Materials: [`Mesh::load_obj`] records each triangle's `usemtl` name (or, in a file without
 //! `usemtl`, its `g`/`o` group name) in [`Mesh::materials`]; the `.mtl` library itself is
@@ -24,7 +27,7 @@
 //! noise to the area-weighted vertex normals and dead weight to the BVH; duplicated vertices
 //! split the smooth normal of a surface into several frames (visible seams in `T`).
 
-use super::polygon;
+use super::{polygon, winding};
 use crate::error::{CoreError, Result};
 use glam::{DVec3, Vec2, Vec3};
 use std::collections::HashMap;
@@ -90,6 +93,8 @@ impl MaterialIds {
 #[derive(Clone, Debug)]
 pub struct MeshLoad {
     pub mesh: Mesh,
+    /// One line per kind of repair, then, when faces look reversed, a warning about their
+    /// winding (the faces are left as they are; see the module docs).
     pub repairs: Vec<String>,
 }
 
@@ -551,7 +556,11 @@ fn validate_and_repair(
     if unreferenced > 0 {
         repairs.push(format!("dropped {unreferenced} unreferenced vertices"));
     }
-    let triangles = kept.into_iter().map(|t| t.map(|i| new_index[i as usize])).collect();
+    let triangles: Vec<[u32; 3]> = kept.into_iter().map(|t| t.map(|i| new_index[i as usize])).collect();
+    // 5. Check the winding, change nothing (a line when faces look reversed).
+    if let Some(w) = winding::warning(&out_positions, &triangles) {
+        repairs.push(w);
+    }
     let materials = match (materials, kept_materials) {
         (Some(m), Some(per_triangle)) => Some(MaterialIds { names: m.names, per_triangle }),
         _ => None,
@@ -901,6 +910,39 @@ mod tests {
             area += z / 2.0;
         }
         assert!((area - 8.0).abs() < 1e-5, "covered {area} of the polygon's 8");
+    }
+
+    #[test]
+    fn a_partly_inside_out_mesh_loads_unchanged_with_a_winding_warning() {
+        // Regression (issue 36): with 40% of a closed sphere's faces reversed, 37% of the
+        // vertices rendered black and nothing was said. Now the load says so, and changes
+        // nothing (no face is flipped).
+        let sphere = crate::geometry::shapes::uv_sphere(Vec3::ZERO, 1.0, 12, 16);
+        let mut bad = sphere.clone();
+        let n = bad.triangles.len();
+        for (i, t) in bad.triangles.iter_mut().enumerate() {
+            // 40%, scattered (7919 is prime: i -> 7919 i mod n is a permutation).
+            if (i * 7919) % n < 2 * n / 5 {
+                t.swap(1, 2);
+            }
+        }
+        let reversed = bad.triangles.iter().zip(&sphere.triangles).filter(|(a, b)| a != b).count();
+        assert_eq!(reversed, 2 * n / 5);
+        let load = Mesh::from_parts(bad.positions.clone(), None, bad.triangles.clone(), "sphere").unwrap();
+        assert_eq!(load.mesh, bad, "the mesh is left as it came");
+        assert_eq!(load.repairs.len(), 1, "{:?}", load.repairs);
+        let line = &load.repairs[0];
+        assert!(line.starts_with(&format!("{reversed} of {n} faces (")) && line.contains("look reversed"), "{line}");
+        assert!(line.contains("in 1 of 1 connected components") && line.contains("re-orient"), "{line}");
+        // Through an OBJ file too, and nothing for the sphere as it is.
+        let back = Mesh::load_obj(&write_obj("partly-inside-out", &bad.to_obj())).unwrap();
+        assert_eq!(back.repairs, load.repairs);
+        // (The OBJ loader numbers vertices in order of first use: compare corners.)
+        let corners =
+            |m: &Mesh| -> Vec<[Vec3; 3]> { m.triangles.iter().map(|t| t.map(|i| m.positions[i as usize])).collect() };
+        assert_eq!(corners(&back.mesh), corners(&bad));
+        let good = Mesh::from_parts(sphere.positions.clone(), None, sphere.triangles.clone(), "sphere").unwrap();
+        assert!(good.repairs.is_empty(), "{:?}", good.repairs);
     }
 
     fn asset(name: &str) -> PathBuf {

@@ -9,6 +9,7 @@ pub mod placement;
 mod ply;
 pub mod polygon;
 pub mod shapes;
+pub mod winding;
 
 pub use bvh::{Hit, SceneBvh};
 pub use frames::{vertex_frames, VertexFrame};
