@@ -56,6 +56,10 @@ pub struct Kind {
     /// contribute to the report's table of compressor statistics: a name and a value, in the
     /// order to show them. Empty for a kind whose statistics the report need not show.
     pub report: fn(&Value) -> Vec<(String, String)>,
+    /// The flops of one gather of a form of this kind, counted from the form's own arrays and
+    /// meta (what `eval --form` reports instead of what a file claims); `None` where the kind
+    /// cannot say. Equals what the compressor reported when it built the form.
+    pub flops: fn(&biscale_core::compress::CompressedForm) -> Option<u64>,
     /// The part the kind plays where the application needs one kind of a sort: the raw
     /// matrix, the paper's compressor, or one loaded from outside ([`Role`]).
     pub role: Role,

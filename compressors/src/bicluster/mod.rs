@@ -88,7 +88,20 @@ pub const KIND: Kind = Kind {
     memory,
     report,
     role: registry::Role::Paper,
+    flops: form_flops,
 };
+
+/// The flops of one gather of `form`, counted from its own arrays (`eval --form` reports this,
+/// not what a file claims).
+/// The light's prescale (N) plus `W(B) = r + 2l - 1` per bicluster: the row lists hold
+/// every r, the column lists every l, and `bc_col_ptr` has one entry per bicluster more.
+fn form_flops(form: &CompressedForm) -> Option<u64> {
+    let len = |name: &str| form.array(name).ok().map(|a| a.len() as u64);
+    let cols = form.cols() as u64;
+    let biclusters = len("bc_col_ptr")?.saturating_sub(1);
+    let sum = cols.saturating_add(len("row_bc")?).saturating_add(len("bc_cols")?.saturating_mul(2));
+    Some(sum.saturating_sub(biclusters))
+}
 
 /// [`Kind::memory`]: the integer codes (u16 column, i8 code, usize row pointer); per block in
 /// flight its rows (8 bytes per non-zero) and column views (8, in vectors grown by doubling:

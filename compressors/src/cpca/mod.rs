@@ -77,7 +77,22 @@ pub const KIND: Kind = Kind {
     memory,
     report: registry::no_rows,
     role: registry::Role::Other,
+    flops: form_flops,
 };
+
+/// The flops of one gather of `form`, counted from its own arrays (`eval --form` reports this,
+/// not what a file claims).
+/// Projection of the light on every basis vector, `2 N U K (C + 1)`, then `2 C` per
+/// row of each unit that is not all zero (cluster id below K; K is the zero sentinel).
+fn form_flops(form: &CompressedForm) -> Option<u64> {
+    let meta = |key: &str| form.meta.get(key).copied();
+    let cols = form.cols() as u64;
+    let (k, c, unit_rows) = (meta("clusters")?, meta("components")?, meta("unit_rows")?);
+    let nonzero = form.u16s("cluster").ok()?.iter().filter(|&&id| u64::from(id) < k).count() as u64;
+    let project = cols.saturating_mul(unit_rows).saturating_mul(k).saturating_mul(c.saturating_add(1));
+    let rows = c.saturating_mul(nonzero).saturating_mul(unit_rows);
+    Some(project.saturating_add(rows).saturating_mul(2))
+}
 
 /// [`Kind::fits`]: no more components than a clustered unit has values (`N` light
 /// directions times the unit's rows).

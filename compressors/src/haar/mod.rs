@@ -99,7 +99,19 @@ pub const KIND: Kind = Kind {
     memory,
     report: registry::no_rows,
     role: registry::Role::Other,
+    flops: form_flops,
 };
+
+/// The flops of one gather of `form`, counted from its own arrays (`eval --form` reports this,
+/// not what a file claims).
+/// The light's Haar transform (12 per 2x2 block, `(R^2 - 1) / 3` blocks on each of 6
+/// faces) plus 2 per stored term.
+fn form_flops(form: &CompressedForm) -> Option<u64> {
+    let len = |name: &str| form.array(name).ok().map(|a| a.len() as u64);
+    let r = u64::from(form.light_basis().cubemap_layout()?.resolution);
+    let transform = 6 * 12 * ((r * r).saturating_sub(1) / 3);
+    Some(transform.saturating_add(len("coeff_idx")?.saturating_mul(2)))
+}
 
 /// [`Kind::fits`]: no more terms than a row has coefficients (a count above that was once
 /// accepted and reported while the form held fewer).

@@ -149,6 +149,7 @@ pub const KIND: Kind = Kind {
         Ok(Box::new(PluginCompressor::load(&p.path, p.params)?))
     },
     role: registry::Role::External,
+    flops: |_| None,
 };
 
 /// Upper bounds on what a plugin may return (far above any real use; they keep a garbage

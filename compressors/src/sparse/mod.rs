@@ -40,7 +40,16 @@ pub const KIND: Kind = Kind {
     memory: |_, t| registry::FormMemory { working: t.u32_csr_bytes(), form: t.u32_csr_bytes() },
     report: registry::no_rows,
     role: registry::Role::Raw,
+    flops: form_flops,
 };
+
+/// The flops of one gather of `form`, counted from its own arrays (`eval --form` reports this,
+/// not what a file claims).
+/// One multiply and one add per stored non-zero.
+fn form_flops(form: &CompressedForm) -> Option<u64> {
+    let len = |name: &str| form.array(name).ok().map(|a| a.len() as u64);
+    Some(len("values")?.saturating_mul(2))
+}
 
 /// The raw CSR baseline (no parameters).
 #[derive(Clone, Copy, Debug, Default)]

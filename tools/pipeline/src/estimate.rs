@@ -835,6 +835,7 @@ mod tests {
             memory: |_, t: &MemoryFacts| FormMemory { working: 3 * t.nnz + t.threads, form: t.rows() },
             report: |_| vec![],
             role: biscale_compressors::registry::Role::Other,
+            flops: |_| None,
         };
         let settings = TransferSettings::new(4, 8, 2).unwrap();
         let setting =

@@ -22,6 +22,7 @@ const TOY: Kind = Kind {
     memory: |_, t: &MemoryFacts| FormMemory { working: t.nnz, form: 1 },
     report: |stats: &Value| vec![("toy figure".into(), stats["answer"].to_string())],
     role: registry::Role::Other,
+    flops: |_| None,
 };
 
 #[test]

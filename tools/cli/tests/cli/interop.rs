@@ -266,10 +266,18 @@ fn eval_reproduces_the_runs_own_numbers_and_the_python_round_trip() {
             "bytes_per_nnz",
             "flops_per_gather",
             "rel_error_lstar",
-            "stats",
         ] {
             assert_eq!(r[key], want[key], "{label}: {key}");
         }
+        // The statistics too, but the build time: eval built nothing (issue 36), so where the
+        // statistics carry it (biclustering's Table I) it is 0, and so is the record's.
+        let (mut stats, mut want_stats) = (r["stats"].clone(), want["stats"].clone());
+        if let (Some(s), Some(w)) = (stats.as_object_mut(), want_stats.as_object_mut()) {
+            assert_eq!(s.remove("build_seconds").and_then(|b| b.as_f64()), Some(0.0), "{label}");
+            w.remove("build_seconds");
+        }
+        assert_eq!(stats, want_stats, "{label}: stats");
+        assert_eq!(r["build_seconds"].as_f64(), Some(0.0), "{label}");
         for key in ["vs_uncompressed", "vs_reference"] {
             assert_eq!(r["image"][key], want["image"][key], "{label}: {key}");
         }
@@ -397,4 +405,63 @@ fn bad_exports_and_inputs_are_located_errors() {
     let p = form("broken.npz", serde_json::json!({"what": "form", "kind": "sparse", "shape": shape("bins:4")}));
     let err = eval_err(&["--form", s(&p)]);
     assert!(err.contains("malformed sparse form"), "{err}");
+}
+
+/// Issue class "eval reports the statistics a form file claims" (issue 36): a form whose
+/// metadata claims absurd flops and a negative build time is scored with the flops its arrays
+/// give (the compressor's own count, which `export` wrote) and a build time of 0, for every
+/// built-in kind; the claim is named in a warning. A form saved without either (as a Python
+/// writer may) gets the same true count.
+#[test]
+fn eval_reports_a_forms_own_flops_not_the_flops_and_build_time_its_file_claims() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (exp, cache) = (d.join("export"), d.join("cache"));
+    ok(&["export", CONFIG, "--what", "forms", "--out", s(&exp), "--cache-dir", s(&cache)]);
+    let mut forms: Vec<PathBuf> = std::fs::read_dir(&exp).unwrap().map(|e| e.unwrap().path()).collect();
+    forms.sort();
+    assert_eq!(forms.len(), 4, "one form per built-in kind: {forms:?}");
+    // `meta` rewritten: the arrays as they are, the metadata replaced.
+    let rewrite = |from: &Path, to: &Path, edit: &dyn Fn(&mut serde_json::Map<String, Value>)| {
+        let arrays = npz(from);
+        let Value::Object(mut m) = meta(&arrays) else { panic!("metadata is not an object") };
+        edit(&mut m);
+        let text = Value::Object(m).to_string();
+        let members: Vec<(&str, ArrayRef<'_>)> = arrays
+            .iter()
+            .map(|(n, a)| (n.as_str(), if n == biscale::interop::META { ArrayRef::string(&text) } else { a.as_ref() }))
+            .collect();
+        npy::write_npz(to, &members).unwrap();
+    };
+    for (i, form) in forms.iter().enumerate() {
+        let truth = meta(&npz(form))["flops_per_gather"].as_u64().unwrap();
+        assert!(truth > 0 && truth < 1 << 40, "{}: {truth}", form.display());
+        let lying = d.join(format!("lying-{i}.npz"));
+        rewrite(form, &lying, &|m| {
+            m.insert("flops_per_gather".into(), Value::from(u64::MAX));
+            m.insert("build_seconds".into(), Value::from(-5.0));
+        });
+        let out = d.join(format!("ev-lying-{i}"));
+        let args = ["eval", CONFIG, "--form", s(&lying), "--out", s(&out), "--cache-dir", s(&cache)];
+        let (success, _, err) = biscale(&args);
+        assert!(success, "biscale {}:\n{err}", args.join(" "));
+        let r = &read_json(&out.join("metrics.json"))["compressors"][0];
+        assert_eq!(
+            (r["flops_per_gather"].as_u64(), r["build_seconds"].as_f64()),
+            (Some(truth), Some(0.0)),
+            "{}: {r}",
+            form.display()
+        );
+        let csv = std::fs::read_to_string(out.join("metrics.csv")).unwrap();
+        assert!(!csv.contains(&u64::MAX.to_string()) && !csv.contains("-5e0"), "{csv}");
+        assert!(err.contains(&format!("metadata flops_per_gather is {}", u64::MAX)), "{err}");
+    }
+    // No claim at all: the same count.
+    let bare = d.join("bare.npz");
+    rewrite(&forms[0], &bare, &|m| {
+        m.remove("flops_per_gather");
+        m.remove("build_seconds");
+    });
+    let r = eval(&["--form", s(&bare)], &d.join("ev-bare"), &cache);
+    assert_eq!(r["flops_per_gather"].as_u64(), meta(&npz(&forms[0]))["flops_per_gather"].as_u64(), "{r}");
 }

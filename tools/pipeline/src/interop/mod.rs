@@ -17,7 +17,9 @@
 //! A form's [`META`] holds `kind`, `label`, `params`, the shape (`vertices`, `local_basis`,
 //! `light_basis`, `rows`, `cols`), `meta` (the form's integer parameters), `lossless`,
 //! `flops_per_gather`, `build_seconds` and the array order, so `eval --form` rebuilds the
-//! very `CompressedForm` the run gathered.
+//! very `CompressedForm` the run gathered. Its statistics are the file's claims, which `eval`
+//! does not report: the flops are counted again from the form's own arrays ([`form_flops`]) and
+//! the build time is 0 (nothing was built by `eval`).
 
 pub mod mtx;
 pub mod npy;
@@ -661,9 +663,20 @@ pub fn read_lstar(path: &Path, want: TransferShape, light_moments: bool) -> Resu
 
 /// A compressed form read from `.npz`, with the label and parameters its metadata gives.
 pub struct ReadForm {
+    /// The form; its `flops_per_gather` counted from its own arrays ([`form_flops`], 0 for a
+    /// kind it does not know) and its `build_seconds` 0, whatever the file claims.
     pub form: CompressedForm,
     pub label: Option<String>,
     pub params: Option<Value>,
+    /// The metadata's `flops_per_gather` as the file states it (not trusted: `eval` warns when
+    /// it is not what the form's arrays give).
+    pub claimed_flops: Option<Value>,
+}
+
+/// The flops of one gather of `form`, counted from its own arrays by its kind's registry
+/// entry (`Kind::flops`); `None` for a kind that cannot say (a plugin's).
+pub fn form_flops(form: &CompressedForm) -> Option<u64> {
+    biscale_compressors::registry::find(&form.kind).and_then(|k| (k.flops)(form))
 }
 
 /// Read a compressed form written by `export` (or `biscale_io.save_form`) and check its shape
@@ -693,8 +706,6 @@ pub fn read_form(path: &Path, want: TransferShape) -> Result<ReadForm> {
         }
     }
     form.lossless = meta.get("lossless").and_then(Value::as_bool).unwrap_or(false);
-    form.flops_per_gather = meta.get("flops_per_gather").and_then(Value::as_u64).unwrap_or(0);
-    form.build_seconds = meta.get("build_seconds").and_then(Value::as_f64).unwrap_or(0.0);
     let data: Vec<&(String, NpyArray)> = arrays.iter().filter(|(n, _)| n != META).collect();
     let order: Vec<String> = match meta.get("arrays").and_then(Value::as_array) {
         Some(list) => list
@@ -728,9 +739,14 @@ pub fn read_form(path: &Path, want: TransferShape) -> Result<ReadForm> {
         };
         form.arrays.push(NamedArray { name: name.clone(), data: d });
     }
+    // The file's `flops_per_gather` and `build_seconds` are claims about a build elsewhere:
+    // the flops are counted from the arrays just read, and nothing was built here.
+    form.flops_per_gather = form_flops(&form).unwrap_or(0);
+    form.build_seconds = 0.0;
     let label = meta.get("label").and_then(Value::as_str).map(str::to_string);
     let params = meta.get("params").filter(|p| p.is_object()).cloned();
-    Ok(ReadForm { form, label, params })
+    let claimed_flops = meta.get("flops_per_gather").cloned();
+    Ok(ReadForm { form, label, params, claimed_flops })
 }
 
 /// Names the run's own images take, which an evaluated setting may not.
@@ -743,7 +759,9 @@ const TAKEN_NAMES: [&str; 5] = ["uncompressed", "uncompressed_paper", "reference
 /// and `metrics.csv` with one record in `compressors`, `images/` (the setting's image, its
 /// error figure, the uncompressed render (and the paper product's, with light moments), the
 /// reference, the masks), made by the same `crate::stages::evaluate::targets` as a run's. CPU only; the BTF study
-/// and `[[methods]]` are left out.
+/// and `[[methods]]` are left out. A form's record reports what `eval` measures, not what the
+/// file claims: `flops_per_gather` counted from the form's arrays ([`form_flops`]) and
+/// `build_seconds` 0 (`eval` builds nothing; `run.command` shows the form came from a file).
 pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
     let mut clock = crate::provenance::StageClock::start(&exp.source, exp.file.seed);
     let path = input.path();
@@ -824,6 +842,16 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
                 name: format!("{name} ({})", path.display()),
                 source: e.into(),
             })?;
+            // The record's flops are the form's own count, whatever the file claims.
+            let flops = f.form.flops_per_gather;
+            if form_flops(&f.form).is_none() {
+                eprintln!("warning: {}: the flops of a {kind} form are not counted; reported as 0", path.display());
+            } else if let Some(claim) = f.claimed_flops.as_ref().filter(|c| c.as_u64() != Some(flops)) {
+                eprintln!(
+                    "warning: {}: metadata flops_per_gather is {claim}, the form's arrays give {flops}; {flops} is reported",
+                    path.display()
+                );
+            }
             Some((CompressorSetting { label: name.clone(), kind: kind.to_string(), params }, compressor))
         }
     };
@@ -838,6 +866,7 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
     let (memory, available) = crate::estimate::check_run(exp, &geometry, &lighting, ctx.cache.is_some())?;
     let t = transfer_matrix(exp, &geometry, ctx.cache.as_ref())?;
     ctx.clock.mark("transfer");
+    crate::estimate::check_peak(&memory, &available, "the transfer stage")?;
     let (scene, materials) = shade_scene(exp, &geometry, &t.matrix, ctx.cache.as_ref())?;
     let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
     let reference = Plan::new(exp).reference;
@@ -900,6 +929,48 @@ mod tests {
         assert_eq!(e, "--what: unknown item 'lstr' (known: t, l, lstar, forms, btf)");
         let e = Item::parse_list(&s(&["t,forms"]), ExportFormat::Mtx).unwrap_err();
         assert!(e.contains("--format mtx writes t and l only"), "{e}");
+    }
+
+    /// Issue class "eval reports a form file's claimed flops": [`form_flops`] counts every
+    /// built-in kind's forms exactly as its compressor does, whole and merged from vertex
+    /// ranges, lossless and lossy (a new built-in kind fails here until it is counted).
+    #[test]
+    fn form_flops_is_the_compressors_own_count() {
+        use biscale_compressors::registry;
+        use biscale_core::compress::{CompressContext, Separability};
+        let t = biscale_compressors::testing::random_transfer(12, 2, 2, 0.4, 3);
+        let ctx = CompressContext::default();
+        let settings = [
+            ("sparse", json!({})),
+            ("bicluster", json!({})),
+            ("bicluster", json!({"block_vertices": 2})),
+            ("bicluster", json!({"block_vertices": 2, "error_budget": 0.3})),
+            ("cpca", json!({"clusters": 3, "components": 2})),
+            ("cpca", json!({"clusters": 2, "components": 3, "unit": "vertex"})),
+            ("haar", json!({"terms": 5})),
+            ("haar", json!({"terms": 3, "f16_values": true})),
+        ];
+        for kind in registry::KINDS.iter().filter(|k| k.role != Role::External) {
+            assert!(settings.iter().any(|(k, _)| *k == kind.name), "form_flops is not tested on {} forms", kind.name);
+        }
+        for (kind, params) in settings {
+            let c = registry::build(kind, &params).unwrap();
+            let form = c.compress(&t, &ctx).unwrap();
+            assert_eq!(form_flops(&form), Some(form.flops_per_gather), "{kind} {params}");
+            if let Separability::Rows { vertex_multiple } = c.separability(t.shape()) {
+                let cut = vertex_multiple * (5 / vertex_multiple).max(1);
+                if cut >= t.vertices() {
+                    continue;
+                }
+                let parts = [0..cut, cut..t.vertices()]
+                    .map(|r| c.compress_part(&t.vertex_rows(r.clone()).unwrap(), r.start, &ctx).unwrap());
+                let merged = c.merge_parts(t.shape(), parts.into()).unwrap();
+                assert_eq!(form_flops(&merged), Some(merged.flops_per_gather), "{kind} {params}, merged");
+            }
+        }
+        let mut other = CompressedForm::new("plugin:x", t.shape());
+        other.flops_per_gather = 7;
+        assert_eq!(form_flops(&other), None);
     }
 
     #[test]
