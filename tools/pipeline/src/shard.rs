@@ -729,8 +729,10 @@ fn sh_quote(s: &str) -> String {
     }
 }
 
+/// The `--mem` of a job whose estimate is `bytes`: a quarter more, at least 1 GiB (saturating:
+/// a manifest's estimate is read from a file and may be absurd; Slurm refuses what no node has).
 fn mem_default(bytes: u64) -> String {
-    let mib = (bytes + bytes / 4).div_ceil(1 << 20).max(1024);
+    let mib = bytes.saturating_add(bytes / 4).div_ceil(1 << 20).max(1024);
     format!("{mib}M")
 }
 
@@ -866,4 +868,18 @@ pub fn describe(m: &Manifest, path: &Path, available: Option<&Available>) -> Str
         p = path.display()
     );
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_absurd_memory_estimate_gives_a_saturated_mem_not_an_overflow() {
+        // Regression (hostile manifest): `bytes + bytes / 4` overflowed (a panic in debug, a
+        // wrong `--mem` in release) on an estimate of 2^64 - 1 bytes.
+        assert_eq!(mem_default(u64::MAX), format!("{}M", u64::MAX.div_ceil(1 << 20)));
+        assert_eq!(mem_default(0), "1024M");
+        assert_eq!(mem_default(4 << 30), "5120M");
+    }
 }
