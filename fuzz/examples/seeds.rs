@@ -2,12 +2,15 @@
 //! OBJ files and form-check scripts, are written by hand, and so are the PLY files, the two
 //! binary tetrahedra and their truncation included): small valid EXR and HDR env maps, a
 //! transfer matrix, a compressed form of each built-in compressor, dense and local-PCA BTFs,
-//! `.npz` files and recipes for `biscale eval` (an `L*` and forms of that matrix), and hostile
-//! variants of each (a header claiming a huge image, lying lengths under a valid
-//! checksum, truncation). Deterministic, so re-running it leaves the committed files unchanged:
+//! `.npz` files and recipes for `biscale eval` (an `L*` and forms of that matrix), shard
+//! manifests, and hostile variants of each (a header claiming a huge image, lying lengths under
+//! a valid checksum, truncation, a manifest forged with its checksum made right).
+//! Deterministic, so re-running it leaves the committed files unchanged; target names after
+//! `--` write only those targets' seeds:
 //!
 //! ```sh
 //! cargo run --manifest-path fuzz/Cargo.toml --example seeds
+//! cargo run --manifest-path fuzz/Cargo.toml --example seeds -- shard_manifest
 //! ```
 
 use biscale_compressors::registry;
@@ -22,11 +25,22 @@ use std::path::{Path, PathBuf};
 
 fn main() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("seeds");
-    envmaps(&root.join("envmap"));
-    let t = transfer(&root.join("transfer"));
-    forms(&root.join("form"), &t);
-    btfs(&root.join("btf"));
-    npzs(&root.join("npz"), &t);
+    let only: Vec<String> = std::env::args().skip(1).collect();
+    let wanted = |target: &str| only.is_empty() || only.iter().any(|o| o == target);
+    if wanted("envmap") {
+        envmaps(&root.join("envmap"));
+    }
+    if ["transfer", "form", "npz"].iter().any(|t| wanted(t)) {
+        let t = transfer(&root.join("transfer"));
+        forms(&root.join("form"), &t);
+        npzs(&root.join("npz"), &t);
+    }
+    if wanted("btf") {
+        btfs(&root.join("btf"));
+    }
+    if wanted("shard_manifest") {
+        manifests(&root.join("shard_manifest"));
+    }
 }
 
 /// A small deterministic pseudo-random stream (seeds must not change from run to run).
@@ -227,8 +241,8 @@ fn btfs(dir: &Path) {
 /// `L*` and two forms; the ZIP64 layout too), a bare `.npy`, and each as an `NPZ:` recipe
 /// (the `npz` target's well-formed-archive input: see `npz` in `fuzz/src/lib.rs`).
 fn npzs(dir: &Path, t: &TransferMatrix) {
-    use biscale::interop::META;
     use biscale::interop::npy::{self, ArrayRef, Elements};
+    use biscale::interop::META;
     let tmp = tempfile::tempdir().expect("a temporary folder");
     let shape = serde_json::json!({
         "vertices": 3, "local_basis": t.local_basis().tag(), "light_basis": t.light_basis().tag(),
@@ -283,4 +297,87 @@ fn npzs(dir: &Path, t: &TransferMatrix) {
         write(dir, &format!("form_{kind}.npz"), &archive(&arrays, &meta, false));
         write(dir, &format!("form_{kind}.recipe"), &recipe(&meta, &arrays));
     }
+}
+
+/// Shard manifests: a valid plan of two shards (of a config that need not exist: the reader
+/// does not load it), the same with a wrong checksum, and hostile plans forged with their
+/// checksum made right (as the CLI's test of them does): a newline and a command in the
+/// experiment's name, no shards, a shard index and a vertex count of 2^64 - 1, absolute and
+/// escaping shard folders, memory estimates of 2^64 - 1, quoted and unquoted `4G`.
+fn manifests(dir: &Path) {
+    use biscale::shard::{manifest_checksum, Manifest, ShardEstimate, ShardSpec, ShardedSetting};
+    use biscale::shard::{MergeSetting, MANIFEST_FORMAT, MANIFEST_VERSION};
+    let spec = |index: usize, first_vertex: usize, end_vertex: usize| ShardSpec {
+        index,
+        first_vertex,
+        end_vertex,
+        dir: format!("shards/{index:04}"),
+        outputs: vec!["t.bsf".into(), "form-sparse.bsf".into()],
+    };
+    let plan = Manifest {
+        format: MANIFEST_FORMAT.into(),
+        version: MANIFEST_VERSION,
+        created_by: "biscale 0.1.0".into(),
+        experiment: "smoke".into(),
+        config: "/home/user/biscale/configs/smoke.toml".into(),
+        config_hash: "0123456789abcdef0123456789abcdef".into(),
+        overrides: vec!["runtime.repeats=1".into()],
+        checksum: String::new(),
+        vertices: 1839,
+        shape: "29424 x 384".into(),
+        seed: 7,
+        vertex_multiple: 1024,
+        separable: vec![
+            ShardedSetting { label: "sparse".into(), kind: "sparse".into(), vertex_multiple: 1 },
+            ShardedSetting { label: "bicluster".into(), kind: "bicluster".into(), vertex_multiple: 1024 },
+        ],
+        in_merge: vec![MergeSetting {
+            label: "cpca-k4-c2".into(),
+            kind: "cpca".into(),
+            why: "k-means clusters the units of every vertex together".into(),
+        }],
+        estimate: ShardEstimate {
+            nnz_per_vertex: 1234.5,
+            shard_peak_bytes: 50 << 20,
+            shard_output_bytes: 20 << 20,
+            merge_peak_bytes: 200 << 20,
+            transfer_cpu_seconds: 12.5,
+        },
+        shards: vec![spec(0, 0, 1024), spec(1, 1024, 1839)],
+    };
+    let sealed = |m: Manifest| {
+        let m = Manifest { checksum: manifest_checksum(&m), ..m };
+        serde_json::to_string_pretty(&m).expect("a manifest serializes")
+    };
+    let good = sealed(plan.clone());
+    write(dir, "plan_2_shards.json", good.as_bytes());
+    write(dir, "checksum_wrong.json", good.replace("\"smoke\"", "\"smoka\"").as_bytes());
+    let forged = |name: &str, edit: &dyn Fn(&mut Manifest)| {
+        let mut m = plan.clone();
+        edit(&mut m);
+        write(dir, name, sealed(m).as_bytes());
+    };
+    forged("experiment_newline.json", &|m| m.experiment = "x\ntouch /tmp/pwned\n#".into());
+    forged("experiment_command.json", &|m| m.experiment = "$(touch /tmp/pwned)".into());
+    forged("shards_0.json", &|m| {
+        m.shards.clear();
+        m.vertices = 0;
+    });
+    forged("shard_index_max.json", &|m| m.shards[1].index = usize::MAX);
+    forged("vertices_max.json", &|m| {
+        m.shards[1].end_vertex = usize::MAX;
+        m.vertices = usize::MAX;
+    });
+    forged("shard_dir_absolute.json", &|m| m.shards[1].dir = "/tmp/elsewhere".into());
+    forged("shard_dir_dotdot.json", &|m| m.shards[0].dir = "shards/../../x".into());
+    forged("shard_dir_parent.json", &|m| m.shards[0].dir = "..".into());
+    forged("mem_max.json", &|m| {
+        m.estimate.shard_peak_bytes = u64::MAX;
+        m.estimate.merge_peak_bytes = u64::MAX;
+        m.estimate.shard_output_bytes = u64::MAX;
+    });
+    let mem = format!("\"shard_peak_bytes\": {}", 50u64 << 20);
+    assert!(good.contains(&mem), "the estimate's field in the manifest's text");
+    write(dir, "mem_unquoted.json", good.replace(&mem, "\"shard_peak_bytes\": 4G").as_bytes());
+    write(dir, "mem_quoted.json", good.replace(&mem, "\"shard_peak_bytes\": \"4G\"").as_bytes());
 }

@@ -8,8 +8,10 @@
 //! Beyond "no panic", each body checks what its reader promises: an error names the input's
 //! file, a mesh that loads (OBJ or PLY) is valid, an env map that loads is finite and lat-long
 //! or cube shaped, an artifact re-encodes to itself, a form that passes its compressor's checks
-//! gathers without a panic, and a passing [`FormCheck`] means what it says (checked against a plain
-//! re-statement of each check below, in wide integers).
+//! gathers without a panic, a passing [`FormCheck`] means what it says (checked against a plain
+//! re-statement of each check below, in wide integers), a config that loads with its `--set`
+//! overrides records them, and a shard manifest that loads keeps the promises its readers rely
+//! on.
 //!
 //! This file is compiled in both places, so it is one module without submodules, and it uses
 //! only crates both depend on.
@@ -43,6 +45,8 @@ pub const TARGETS: &[(&str, Body)] = &[
     ("form", form),
     ("form_check", form_check),
     ("npz", npz),
+    ("config_set", config_set),
+    ("shard_manifest", shard_manifest),
 ];
 
 /// The shape the `npz` target reads `L*` and forms for: 3 vertices, 2x2 local bins, a 6x2x2
@@ -84,6 +88,126 @@ pub fn config(data: &[u8]) {
     let path = repo_root().join("configs").join("fuzz-input.toml");
     if let Err(e) = Experiment::parse(&path, text.to_string()) {
         assert_names(&e, "fuzz-input.toml");
+    }
+}
+
+/// A config file and `--set KEY=VALUE` overrides, as every command that reads a config takes
+/// them: `Experiment::load_with`, which applies the overrides to the file's text
+/// (`apply_overrides`), parses the result and blames an error on a set line on its `--set`.
+///
+/// The input: the file's bytes up to the first NUL byte, then each NUL-separated chunk one
+/// `--set` argument (as on a command line: never a NUL inside, newlines allowed; bytes that
+/// are not UTF-8 read lossily, where the command line's parser would refuse them). A seed
+/// without a NUL is a config alone. The file is written as `configs/fuzz-input.toml` of a
+/// temporary folder whose `assets` links to the repository's, so the bundled configs'
+/// `../assets/...` paths resolve and valid seeds parse.
+///
+/// Beyond "no panic": an error names the file or the `--set` it comes from, and an experiment
+/// that loads records its overrides and a config text (`source`, what a run's provenance
+/// keeps as the config it ran) that parses again on its own.
+pub fn config_set(data: &[u8]) {
+    let input = load_config_set(data);
+    match &input.loaded {
+        Err(e) => {
+            let message = e.to_string();
+            assert!(
+                message.contains("fuzz-input.toml") || message.starts_with("--set "),
+                "the error names neither the file nor a --set: {message}"
+            );
+        }
+        Ok(exp) => {
+            assert_eq!(exp.overrides, input.sets, "the experiment does not record its overrides");
+            if let Err(e) = Experiment::parse(&input.path(), exp.source.clone()) {
+                panic!("the config text an experiment records does not parse again: {e}\n{}", exp.source);
+            }
+        }
+    }
+}
+
+/// A [`config_set`] input loaded as the command line loads a config and its `--set`s.
+pub struct ConfigSetInput {
+    /// The temporary folder: `configs/fuzz-input.toml`, and `assets` linked to the repository's.
+    pub dir: tempfile::TempDir,
+    /// The `--set` arguments.
+    pub sets: Vec<String>,
+    pub loaded: Result<Experiment, biscale::experiment::config::ConfigError>,
+}
+
+impl ConfigSetInput {
+    /// The config file.
+    pub fn path(&self) -> PathBuf {
+        self.dir.path().join("configs").join("fuzz-input.toml")
+    }
+}
+
+/// Split a [`config_set`] input into the file and its `--set` arguments, write the file and
+/// load it with them (`Experiment::load_with`).
+pub fn load_config_set(data: &[u8]) -> ConfigSetInput {
+    let mut chunks = data.split(|&b| b == 0);
+    let text = chunks.next().unwrap_or_default();
+    let sets: Vec<String> = chunks.map(|c| String::from_utf8_lossy(c).into_owned()).collect();
+    let dir = tempfile::Builder::new().prefix("fuzz-config").tempdir().expect("a temporary folder");
+    std::fs::create_dir(dir.path().join("configs")).expect("make the configs folder");
+    std::os::unix::fs::symlink(repo_root().join("assets"), dir.path().join("assets")).expect("link the assets");
+    let path = dir.path().join("configs").join("fuzz-input.toml");
+    std::fs::write(&path, text).expect("write the temporary file");
+    let loaded = Experiment::load_with(&path, &sets);
+    ConfigSetInput { dir, sets, loaded }
+}
+
+/// A shard manifest (`manifest.json`) as `shard run`, `status`, `merge` and `sbatch` read it,
+/// `Manifest::load`, twice: as it is, and resealed (parsed as a manifest and its checksum made
+/// right, as a forger would), because a mutation almost never keeps the checksum valid and the
+/// checks behind it would otherwise see few inputs. Every error names the file; a manifest that
+/// loads keeps every promise its readers rely on (what goes into file names and generated
+/// scripts is plain, each shard folder lies inside the plan's, the ranges tile the vertices),
+/// and its summary and its first shards' states are read as `shard plan` and `status` do.
+pub fn shard_manifest(data: &[u8]) {
+    use biscale::shard::{self, Manifest};
+    let dir = tempfile::Builder::new().prefix("fuzz-manifest").tempdir().expect("a temporary folder");
+    let path = dir.path().join("manifest.json");
+    let check = |bytes: &[u8]| {
+        std::fs::write(&path, bytes).expect("write the temporary file");
+        match Manifest::load(&path) {
+            Err(e) => assert_names(&e, "manifest.json"),
+            Ok((m, root)) => check_manifest(&m, &root, &path),
+        }
+    };
+    check(data);
+    if let Ok(mut m) = serde_json::from_slice::<Manifest>(data) {
+        m.checksum = shard::manifest_checksum(&m);
+        check(&serde_json::to_vec(&m).expect("a manifest serializes"));
+    }
+}
+
+/// What a loaded manifest promises (`Manifest::load`'s checks, restated), then its summary
+/// and the state of its first shards (none has run: missing).
+fn check_manifest(m: &biscale::shard::Manifest, root: &Path, path: &Path) {
+    use biscale::shard::{self, ShardState};
+    assert_eq!(root, path.parent().unwrap(), "the plan's folder is not the manifest's");
+    assert_eq!((m.format.as_str(), m.version), (shard::MANIFEST_FORMAT, shard::MANIFEST_VERSION));
+    assert_eq!(m.checksum, shard::manifest_checksum(m), "a manifest with a wrong checksum loaded");
+    assert!((1..=shard::MAX_SHARDS).contains(&m.shards.len()), "a plan of {} shards loaded", m.shards.len());
+    let plain = |s: &str| {
+        (1..=100).contains(&s.len())
+            && !s.starts_with(['.', '-'])
+            && s.bytes().all(|b| b.is_ascii_alphanumeric() || b"._-".contains(&b))
+    };
+    assert!(plain(&m.experiment), "the experiment's name {:?} loaded", m.experiment);
+    let mut at = 0;
+    for (i, s) in m.shards.iter().enumerate() {
+        assert_eq!((s.index, s.first_vertex), (i, at), "shard {i} is out of place");
+        assert!(s.end_vertex >= s.first_vertex, "shard {i} ends before it starts");
+        let inside = Path::new(&s.dir).components().all(|c| matches!(c, std::path::Component::Normal(_)));
+        assert!(inside && s.dir.split('/').all(plain), "shard {i}'s folder {:?} loaded", s.dir);
+        at = s.end_vertex;
+    }
+    assert_eq!(at, m.vertices, "the shards do not cover the vertices");
+    let summary = shard::describe(m, path, None);
+    assert!(summary.contains(&format!("in {} shards", m.shards.len())), "{summary}");
+    for spec in m.shards.iter().take(8) {
+        let state = shard::state(m, root, spec);
+        assert!(matches!(state, ShardState::Missing), "shard {} of an empty folder: {state:?}", spec.index);
     }
 }
 
@@ -638,6 +762,10 @@ pub fn npz(data: &[u8]) {
         Err(e) => assert_names(&e, "fuzz-input.npz"),
         Ok(read) => {
             let form = read.form;
+            // Issue 36: the statistics are the form's own, never the metadata's claims.
+            let counted = biscale::interop::form_flops(&form).unwrap_or(0);
+            assert_eq!(form.flops_per_gather, counted, "a form's flops are not counted from its arrays");
+            assert_eq!(form.build_seconds, 0.0, "a form read from a file claims a build time");
             let Some(kind) = registry::KINDS.iter().find(|k| k.name == form.kind && k.name != "plugin") else { return };
             let compressor = (kind.build)(&serde_json::json!({})).expect("a built-in builds with its defaults");
             let Ok(kernels) = compressor.kernels(&form) else { return };

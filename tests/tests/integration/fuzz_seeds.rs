@@ -103,6 +103,18 @@ fn the_valid_seeds_still_load() {
         let c = registry::build(kind, &serde_json::json!({})).unwrap();
         c.kernels(&form).unwrap().check_form(&form).unwrap();
     }
+    // The smoke config with the README's `--set`s (and a name): each applied.
+    let input = bodies::load_config_set(&seed("config_set", "smoke_sets.bin").1);
+    let exp = input.loaded.unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!((exp.name(), exp.overrides.len(), exp.file.runtime.light_moments), ("smoke-sets", 4, true));
+    assert_eq!(exp.transfer_settings().local_basis(), biscale_core::basis::LocalBasis::bins(2).unwrap());
+    let haar: Vec<&serde_json::Value> =
+        exp.compressor_settings().iter().filter(|s| s.kind == "haar").map(|s| &s.params["terms"]).collect();
+    assert_eq!(haar, [4, 8, 16]);
+    // A plan of two shards.
+    let (path, _) = seed("shard_manifest", "plan_2_shards.json");
+    let (m, dir) = biscale::shard::Manifest::load(&path).unwrap();
+    assert_eq!((m.shards.len(), m.vertices, dir.as_path()), (2, 1839, path.parent().unwrap()));
 }
 
 /// The hostile seeds the suite was asked for are refused, each for its own reason.
@@ -146,6 +158,55 @@ fn the_hostile_seeds_are_refused_for_what_they_are() {
     ] {
         let (path, bytes) = seed("transfer", name);
         let e = Artifact::decode(&bytes, &path).and_then(TransferMatrix::from_artifact).unwrap_err().to_string();
+        assert!(e.contains(needle) && e.contains(name), "{name}: {e}");
+    }
+    // `--set`s of every hostile class: refused, each naming its `--set` (or, for the file's own
+    // error, the file's line), and a value with newlines stays one string value.
+    for (name, needles) in [
+        ("set_nan.bin", &["--set runtime.width: ", "NaN"][..]),
+        ("set_inf_in_sweep.bin", &["--set compressors.3.terms: compressors[3].terms[1] = -inf"]),
+        ("set_inf_exposure.bin", &["--set report.exposure: report.exposure = inf"]),
+        ("file_nan_with_set.bin", &["fuzz-input.toml:6:11: scene.material.albedo[0] = NaN"]),
+        ("set_non_ascii_key.bin", &["--set tränsfer.local_grid: a key is names of letters"]),
+        ("set_non_ascii_kind.bin", &["--set compressors.0.kind: unknown compressor kind \"ハール\""]),
+        ("set_huge_integer.bin", &["--set runtime.width: ", "18446744073709551616"]),
+        ("set_i64_max.bin", &["--set transfer.cubemap_resolution: invalid value"]),
+        ("set_huge_float.bin", &["--set compressors.2.clusters: "]),
+        ("set_negative_seed.bin", &["--set seed: invalid value: integer `-1`"]),
+        ("set_sweep_bomb.bin", &["sweeps 2048 settings", "over the limit of 1000"]),
+        ("set_unknown_key.bin", &["--set runtime.no_such_key: unknown field `no_such_key`"]),
+        ("set_unknown_table.bin", &["unknown field `nonexistent`"]),
+        ("set_index_past_end.bin", &["--set compressors.9.terms: `compressors` has 4 entries"]),
+        ("set_list_unindexed.bin", &["--set compressors.terms: `compressors` is a list of tables"]),
+        ("set_sweep_of_tables.bin", &["--set compressors.1: `compressors` is a list of tables"]),
+        ("set_list_replaced.bin", &["--set compressors: invalid type"]),
+        ("set_into_value.bin", &["--set name.inner: `name` is a value, not a table"]),
+        ("set_not_key_value.bin", &["--set novalue: expected KEY=VALUE"]),
+        ("set_empty_key.bin", &["--set : a key is names"]),
+        ("set_empty_segment.bin", &["--set a..b: a key is names"]),
+        ("set_newline_table_injection.bin", &["string \"4\\n[evil]\\nx=1\", expected u32"]),
+        ("set_newline_list_injection.bin", &["unknown compressor kind", "[[compressors]]\nkind=\"haar"]),
+        ("set_newline_comment.bin", &["string \"1 # x\\nname = \\\"other\\\"\", expected usize"]),
+    ] {
+        let input = bodies::load_config_set(&seed("config_set", name).1);
+        let e = input.loaded.err().unwrap_or_else(|| panic!("{name} loaded")).to_string();
+        assert!(needles.iter().all(|n| e.contains(n)), "{name}: {e}");
+    }
+    // Manifests forged with their checksum made right are refused for the field itself.
+    for (name, needle) in [
+        ("checksum_wrong.json", "its checksum does not match"),
+        ("experiment_newline.json", "the experiment's name \"x\\ntouch /tmp/pwned\\n#\" is not a plain name"),
+        ("experiment_command.json", "is not a plain name"),
+        ("shards_0.json", "0 shards: a plan has 1 to 100000"),
+        ("shard_index_max.json", "shard 1's entry is inconsistent"),
+        ("shard_dir_absolute.json", "shard 1's entry is inconsistent"),
+        ("shard_dir_dotdot.json", "shard 0's entry is inconsistent"),
+        ("shard_dir_parent.json", "shard 0's entry is inconsistent"),
+        ("mem_unquoted.json", "not a shard manifest"),
+        ("mem_quoted.json", "invalid type: string \"4G\", expected u64"),
+    ] {
+        let (path, _) = seed("shard_manifest", name);
+        let e = biscale::shard::Manifest::load(&path).err().unwrap_or_else(|| panic!("{name} loaded")).to_string();
         assert!(e.contains(needle) && e.contains(name), "{name}: {e}");
     }
     let (path, bytes) = seed("form", "sparse_col_idx_out_of_range.bsf");
