@@ -145,3 +145,213 @@ fn out_at_a_folder_of_other_files_is_refused_and_left_alone() {
     }
     assert!(link.is_symlink() && real.join("metrics.json").is_file());
 }
+
+/// What a decoy is: a file's bytes, a folder, or a link's target (never followed).
+#[derive(Debug, PartialEq)]
+enum Entry {
+    File(Vec<u8>),
+    Folder,
+    Link(PathBuf),
+}
+
+/// Every entry under `dir` (links not followed), by path relative to it.
+fn entries(dir: &Path) -> BTreeMap<String, Entry> {
+    fn walk(base: &Path, dir: &Path, out: &mut BTreeMap<String, Entry>) {
+        for e in std::fs::read_dir(dir).unwrap().flatten() {
+            let p = e.path();
+            let name = p.strip_prefix(base).unwrap().to_string_lossy().into_owned();
+            let kind = std::fs::symlink_metadata(&p).unwrap().file_type();
+            if kind.is_symlink() {
+                out.insert(name, Entry::Link(std::fs::read_link(&p).unwrap()));
+            } else if kind.is_dir() {
+                out.insert(name, Entry::Folder);
+                walk(base, &p, out);
+            } else {
+                out.insert(name, Entry::File(std::fs::read(&p).unwrap()));
+            }
+        }
+    }
+    let mut out = BTreeMap::new();
+    walk(dir, dir, &mut out);
+    out
+}
+
+/// The decoys of `decoys` (paths relative to `base`) that are gone or not as they were.
+fn changed(base: &Path, decoys: &BTreeMap<String, Entry>) -> Vec<String> {
+    decoys
+        .iter()
+        .filter(|(name, was)| {
+            let p = base.join(name);
+            let now = match std::fs::symlink_metadata(&p) {
+                Err(_) => return true,
+                Ok(m) if m.file_type().is_symlink() => Entry::Link(std::fs::read_link(&p).unwrap()),
+                Ok(m) if m.is_dir() => Entry::Folder,
+                Ok(_) => Entry::File(std::fs::read(&p).unwrap()),
+            };
+            now != **was
+        })
+        .map(|(name, _)| name.clone())
+        .collect()
+}
+
+/// Whether a command is expected to do its work, or to refuse (an output aimed at a folder
+/// that is not biscale's, a file path that is a folder).
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Expect {
+    Writes,
+    Refuses,
+}
+
+/// A folder of a user's files (`work/`) and one outside it that links point into, then every
+/// command that writes or cleans aimed at the folder or at a new name inside it, on the smoke
+/// config with its own cache: after each command every decoy is still there, byte for byte,
+/// links still links to the same place, whether the command wrote or refused. `extra` adds
+/// decoys (relative path, contents) to the folder.
+fn no_command_touches_a_decoy(extra: &[(&str, &str)]) {
+    let dir = tempfile::tempdir().unwrap();
+    let (work, elsewhere, cache) = (dir.path().join("work"), dir.path().join("elsewhere"), dir.path().join("cache"));
+    let w = |name: &str| work.join(name).to_str().unwrap().to_string();
+    let wd = work.to_str().unwrap();
+    let write = |p: PathBuf, text: &str| {
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        std::fs::write(p, text).unwrap();
+    };
+    write(elsewhere.join("data.txt"), "data kept elsewhere\n");
+    write(elsewhere.join("results/table.csv"), "a,b\n1,2\n");
+    for (name, text) in [
+        ("thesis.tex", "\\documentclass{book}\n"),
+        ("plan.txt", "my plan, not biscale's\n"),
+        ("metrics.json", "{\"mine\": true}\n"),
+        ("report.md", "# notes\n"),
+        ("btf-wool.btf", "wool measurements\n"),
+        // Named as the stage cache names its files, contents of someone else.
+        ("transfer-0123456789abcdef0123456789abcdef.bsf", "not an artifact\n"),
+        ("form-0123456789abcdef0123456789abcdef-sparse.bsf", "BSF"),
+        // Named as the staging and set-aside folders of runs into `work/out`: one of a live
+        // process (pid 1), ones of a dead process with a hand-written marker.
+        (".out.staging-1-1/thesis.tex", "draft\n"),
+        (".out.staging-999999-1/notes.txt", "notes\n"),
+        (
+            ".out.staging-999999-1/.biscale-run",
+            "{\"run_id\": \"0\", \"proof\": \"0\", \"about\": \"\", \"files\": {}, \"folders\": []}",
+        ),
+        (".out.old-999999-2/notes.txt", "older notes\n"),
+        ("images/figure.png", "not a png\n"),
+    ]
+    .iter()
+    .chain(extra)
+    {
+        write(work.join(name), text);
+    }
+    std::fs::create_dir(work.join("empty")).unwrap();
+    std::os::unix::fs::symlink("../elsewhere/data.txt", work.join("data.lnk")).unwrap();
+    std::os::unix::fs::symlink("../elsewhere/results", work.join("results")).unwrap();
+    let decoys = entries(&work);
+    let outside = entries(&elsewhere);
+
+    let cache_dir = ["--cache-dir", cache.to_str().unwrap()];
+    let cfg = "configs/smoke.toml";
+    let biscale = |expect: Expect, args: &[&str]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_biscale"))
+            .args(args)
+            .current_dir(root())
+            .env_remove("BISCALE_FAULT_KILL_AT")
+            .env_remove("BISCALE_SHARD_FAIL")
+            .env_remove("SLURM_ARRAY_TASK_ID")
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        let got = if out.status.success() { Expect::Writes } else { Expect::Refuses };
+        assert_eq!(got, expect, "biscale {}:\n{stderr}", args.join(" "));
+        assert!(!stderr.contains("panicked"), "biscale {}:\n{stderr}", args.join(" "));
+        let (here, there) = (changed(&work, &decoys), changed(&elsewhere, &outside));
+        assert!(here.is_empty() && there.is_empty(), "biscale {} changed {here:?} {there:?}", args.join(" "));
+    };
+    fn with<'a>(args: &[&'a str], extra: &[&'a str]) -> Vec<&'a str> {
+        [args, extra].concat()
+    }
+    use Expect::{Refuses, Writes};
+
+    // Run folders (staged, replaced whole): the folder itself, the links, a new subfolder
+    // whose name the decoy staging folders carry (twice: the second replaces the first).
+    biscale(Refuses, &with(&["-q", "run", cfg, "--out", wd], &cache_dir));
+    biscale(Refuses, &with(&["-q", "run", cfg, "--out", &w("data.lnk")], &cache_dir));
+    biscale(Refuses, &with(&["-q", "run", cfg, "--out", &w("results")], &cache_dir));
+    biscale(Refuses, &with(&["-q", "run", cfg, "--out", &w("images")], &cache_dir));
+    biscale(Writes, &with(&["-q", "run", cfg, "--out", &w("out")], &cache_dir));
+    biscale(Writes, &with(&["-q", "run", cfg, "--out", &w("out")], &cache_dir));
+    // Exports and pictures into the folder itself and beside the decoys.
+    biscale(Writes, &with(&["-q", "export", cfg, "--what", "t,l,lstar", "--out", wd], &cache_dir));
+    biscale(Writes, &with(&["-q", "export", cfg, "--format", "mtx", "--out", &w("exp")], &cache_dir));
+    biscale(Writes, &with(&["-q", "export-matrix", cfg, "--out", wd], &cache_dir));
+    biscale(Writes, &with(&["-q", "btf", cfg, "--preview", "--out", wd], &cache_dir));
+    biscale(Writes, &with(&["-q", "viz", cfg, "--count", "4", "--out", wd], &cache_dir));
+    // eval and report write run folders: refused at the folder, written beside it.
+    let lstar = w("lstar.npz");
+    biscale(Refuses, &with(&["-q", "eval", cfg, "--lstar", &lstar, "--out", wd], &cache_dir));
+    biscale(Writes, &with(&["-q", "eval", cfg, "--lstar", &lstar, "--out", &w("eval")], &cache_dir));
+    biscale(Refuses, &["-q", "report", &w("out"), "--out", wd]);
+    biscale(Refuses, &["-q", "report", &w("out"), &w("eval"), "--out", wd]);
+    biscale(Refuses, &["-q", "report", wd]);
+    biscale(Writes, &["-q", "report", &w("out")]);
+    biscale(Writes, &["-q", "report", &w("out"), "--out", &w("report")]);
+    // The sharded precompute planned into the folder: its shards, a merge refused at the
+    // folder and written beside it.
+    biscale(Writes, &["-q", "shard", "plan", cfg, "--shards", "2", "--out", wd]);
+    let manifest = w("manifest.json");
+    for index in ["0", "1"] {
+        biscale(Writes, &["-q", "shard", "run", &manifest, "--index", index]);
+    }
+    biscale(Writes, &["-q", "shard", "status", &manifest]);
+    biscale(Writes, &["-q", "shard", "sbatch", &manifest]);
+    biscale(Refuses, &with(&["-q", "shard", "merge", &manifest, "--out", wd], &cache_dir));
+    biscale(Writes, &with(&["-q", "shard", "merge", &manifest, "--out", &w("merged")], &cache_dir));
+    // The folder as a stage cache: filled, listed, cleaned (biscale's own files only).
+    let here = ["--cache-dir", wd];
+    biscale(Writes, &with(&["-q", "export", cfg, "--what", "forms", "--out", &w("forms")], &here));
+    for clean in [&[][..], &["--kind", "temporary"], &["--older-than-days", "0"], &["--dry-run"]] {
+        biscale(Writes, &with(&["-q", "cache", "clean"], &[&here[..], clean].concat()));
+    }
+    biscale(Writes, &with(&["-q", "cache", "list"], &here));
+    // Single files: a path that is the folder is refused, a new name in it written.
+    biscale(Refuses, &["-q", "generate", "scene", "plane-sphere", "--out", wd]);
+    biscale(Writes, &["-q", "generate", "scene", "plane-sphere", "--out", &w("scene.obj")]);
+    biscale(Refuses, &["-q", "generate", "uv", &w("scene.obj"), "--out", wd]);
+    biscale(Writes, &["-q", "generate", "uv", &w("scene.obj"), "--out", &w("scene_uv.obj")]);
+    let (a, b) = (w("out/images/sparse.exr"), w("out/images/haar-t4.exr"));
+    biscale(Refuses, &["-q", "diff", &a, &b, "--error-image", wd]);
+    biscale(Writes, &["-q", "diff", &a, &b, "--error-image", &w("diff.png")]);
+
+    // The decoys' folder holds what the commands wrote beside them (so they did run).
+    for f in ["out/metrics.json", "eval/metrics.json", "report/report.md", "merged/metrics.json", "T.mtx", "t.npz"] {
+        assert!(work.join(f).is_file(), "{f}");
+    }
+    for f in ["sparsity_panels.png", "lambertian.btf", "scene_uv.obj", "diff.png", "shards/0000/done.json"] {
+        assert!(work.join(f).is_file(), "{f}");
+    }
+}
+
+/// Issue class "a command removes or replaces a file it did not write": see
+/// [`no_command_touches_a_decoy`].
+#[test]
+fn no_command_removes_or_replaces_a_file_it_did_not_write() {
+    no_command_touches_a_decoy(&[]);
+}
+
+/// The same with decoys named as the files the commands that write into a folder (not a staged
+/// run folder) write there: `export`'s `l.npz`, `export-matrix`'s `T.mtx` and `view.json`,
+/// `btf`'s `lambertian.btf`, `viz`'s `sparsity_panels.png`, `shard plan`'s `manifest.json`.
+/// Ignored: today those commands overwrite such a file (they write into the folder in place,
+/// with no proof of what is theirs); run with `--ignored` once they refuse or stage.
+#[test]
+#[ignore = "export, export-matrix, btf, viz and shard plan overwrite a same-named file they did not write"]
+fn no_command_replaces_a_file_named_like_its_output() {
+    no_command_touches_a_decoy(&[
+        ("l.npz", "my L\n"),
+        ("T.mtx", "my matrix\n"),
+        ("view.json", "{\"mine\": true}\n"),
+        ("lambertian.btf", "my BTF\n"),
+        ("sparsity_panels.png", "my picture\n"),
+        ("manifest.json", "{\"mine\": true}\n"),
+    ]);
+}
