@@ -277,7 +277,7 @@ pub fn viz(
 ) -> Result<Vec<std::path::PathBuf>> {
     use crate::viz::{self, HeatmapOptions, PatchLayout, PatchView};
     use biscale_compressors::bicluster::{analysis, Bicluster};
-    let cerr = |source| PipelineError::Compress { name: "bicluster".into(), source };
+    let cerr = |source| PipelineError::Compress { name: biscale_compressors::bicluster::KIND.name.into(), source };
     use biscale_core::compress::{CompressContext, Compressor};
     std::fs::create_dir_all(out).map_err(|source| PipelineError::Io { path: out.into(), source })?;
     let geometry = crate::stages::scene::load_geometry(exp)?;

@@ -800,60 +800,9 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
             what: format!("--name {name}: the run's own images are called so; choose another name"),
         });
     }
-    // The compressor of a form: a built-in kind, with the config's parameters for that label
-    // when it has them, else the file's, else the kind's defaults (a gather reads the form's
-    // own arrays and meta, not the parameters).
     let compressor = match &loaded {
         Loaded::Lstar(..) => None,
-        Loaded::Form(f) => {
-            let kind = f.form.kind.as_str();
-            let builtin = biscale_compressors::registry::find(kind).filter(|k| k.role != Role::External);
-            if builtin.is_none() {
-                let names: Vec<&str> = (biscale_compressors::registry::KINDS.iter())
-                    .filter(|k| k.role != Role::External)
-                    .map(|k| k.name)
-                    .collect();
-                return Err(PipelineError::Mismatch {
-                    path: path.into(),
-                    what: format!(
-                        "a form of kind '{kind}': eval --form gathers built-in kinds only ({})",
-                        names.join(", ")
-                    ),
-                });
-            }
-            let from_config = exp
-                .compressor_settings()
-                .iter()
-                .find(|s| s.kind == kind && f.label.as_deref() == Some(s.label.as_str()))
-                .map(|s| s.params.clone());
-            let candidates = [from_config, f.params.clone(), Some(json!({}))];
-            let (params, compressor) = candidates
-                .into_iter()
-                .flatten()
-                .find_map(|p| biscale_compressors::registry::build(kind, &p).ok().map(|c| (p, c)))
-                .ok_or_else(|| PipelineError::Mismatch {
-                    path: path.into(),
-                    what: format!("the {kind} compressor could not be built"),
-                })?;
-            let kernels = compressor
-                .kernels(&f.form)
-                .map_err(|source| PipelineError::Compress { name: format!("{name} ({})", path.display()), source })?;
-            kernels.check_form(&f.form).map_err(|e| PipelineError::Compress {
-                name: format!("{name} ({})", path.display()),
-                source: e.into(),
-            })?;
-            // The record's flops are the form's own count, whatever the file claims.
-            let flops = f.form.flops_per_gather;
-            if form_flops(&f.form).is_none() {
-                eprintln!("warning: {}: the flops of a {kind} form are not counted; reported as 0", path.display());
-            } else if let Some(claim) = f.claimed_flops.as_ref().filter(|c| c.as_u64() != Some(flops)) {
-                eprintln!(
-                    "warning: {}: metadata flops_per_gather is {claim}, the form's arrays give {flops}; {flops} is reported",
-                    path.display()
-                );
-            }
-            Some((CompressorSetting { label: name.clone(), kind: kind.to_string(), params }, compressor))
-        }
+        Loaded::Form(f) => Some(form_compressor(exp, f, &name, path)?),
     };
     clock.mark("input");
 
@@ -889,6 +838,61 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
     write_atomic_bytes(&out_dir.join("metrics.json"), json.as_bytes())?;
     write_atomic_bytes(&out_dir.join("metrics.csv"), metrics.to_csv().as_bytes())?;
     Ok((ctx.commit()?, metrics))
+}
+
+/// The compressor of a form read by `eval --form`: a built-in kind, with the config's
+/// parameters for that label when it has them, else the file's, else the kind's defaults (a
+/// gather reads the form's own arrays and meta, not the parameters); its kernels checked
+/// against the form.
+fn form_compressor(
+    exp: &Experiment,
+    f: &ReadForm,
+    name: &str,
+    path: &Path,
+) -> Result<(CompressorSetting, Box<dyn biscale_core::compress::Compressor>)> {
+    let kind = f.form.kind.as_str();
+    let builtin = biscale_compressors::registry::find(kind).filter(|k| k.role != Role::External);
+    if builtin.is_none() {
+        let names: Vec<&str> = (biscale_compressors::registry::KINDS.iter())
+            .filter(|k| k.role != Role::External)
+            .map(|k| k.name)
+            .collect();
+        return Err(PipelineError::Mismatch {
+            path: path.into(),
+            what: format!("a form of kind '{kind}': eval --form gathers built-in kinds only ({})", names.join(", ")),
+        });
+    }
+    let from_config = exp
+        .compressor_settings()
+        .iter()
+        .find(|s| s.kind == kind && f.label.as_deref() == Some(s.label.as_str()))
+        .map(|s| s.params.clone());
+    let candidates = [from_config, f.params.clone(), Some(json!({}))];
+    let (params, compressor) = candidates
+        .into_iter()
+        .flatten()
+        .find_map(|p| biscale_compressors::registry::build(kind, &p).ok().map(|c| (p, c)))
+        .ok_or_else(|| PipelineError::Mismatch {
+            path: path.into(),
+            what: format!("the {kind} compressor could not be built"),
+        })?;
+    let kernels = compressor
+        .kernels(&f.form)
+        .map_err(|source| PipelineError::Compress { name: format!("{name} ({})", path.display()), source })?;
+    kernels
+        .check_form(&f.form)
+        .map_err(|e| PipelineError::Compress { name: format!("{name} ({})", path.display()), source: e.into() })?;
+    // The record's flops are the form's own count, whatever the file claims.
+    let flops = f.form.flops_per_gather;
+    if form_flops(&f.form).is_none() {
+        eprintln!("warning: {}: the flops of a {kind} form are not counted; reported as 0", path.display());
+    } else if let Some(claim) = f.claimed_flops.as_ref().filter(|c| c.as_u64() != Some(flops)) {
+        eprintln!(
+            "warning: {}: metadata flops_per_gather is {claim}, the form's arrays give {flops}; {flops} is reported",
+            path.display()
+        );
+    }
+    Ok((CompressorSetting { label: name.to_string(), kind: kind.to_string(), params }, compressor))
 }
 
 /// The record of an external `L*`: scored by [`Evaluation::score`]; no gather (it was read),
