@@ -57,6 +57,11 @@ pub struct Marker {
     pub files: BTreeMap<String, FileSum>,
     /// Every folder the run made, the same way.
     pub folders: Vec<String>,
+    /// The name of the staging folder the marker was written into
+    /// (`.<out>.staging-<pid>-<nanos>`): a killed run's folder is removed as a leftover only
+    /// under this name, so a marker copied into a person's folder does not make it one.
+    #[serde(default)]
+    pub staging: String,
 }
 
 impl Marker {
@@ -69,7 +74,14 @@ impl Marker {
             .write(&COUNTER.fetch_add(1, std::sync::atomic::Ordering::Relaxed).to_le_bytes())
             .write(&entropy());
         let run_id = format!("{:032x}", h.finish128());
-        Self { proof: Self::proof_of(&run_id), run_id, about: about.into(), files: BTreeMap::new(), folders: vec![] }
+        Self {
+            proof: Self::proof_of(&run_id),
+            run_id,
+            about: about.into(),
+            files: BTreeMap::new(),
+            folders: vec![],
+            staging: String::new(),
+        }
     }
 
     /// The proof that goes with a run id.
@@ -272,7 +284,9 @@ impl StagedDir {
         let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
         let staging = sibling(&target, &format!("staging-{}-{nanos}", std::process::id()));
         std::fs::create_dir(&staging).map_err(io(&staging))?;
-        let staged = Self { staging, target, marker: Marker::new(about) };
+        let mut marker = Marker::new(about);
+        marker.staging = staging.file_name().map_or(String::new(), |n| n.to_string_lossy().into_owned());
+        let staged = Self { staging, target, marker };
         // From here on, dropping `staged` removes the staging folder.
         staged.marker.write(&staged.staging)?;
         Ok(staged)
@@ -381,7 +395,16 @@ fn remove_leftovers(target: &Path) {
         let pid: Option<u32> = id.split('-').next().and_then(|p| p.parse().ok());
         let alive = pid.is_some_and(|p| p != std::process::id() && Path::new(&format!("/proc/{p}")).exists());
         let folder = std::fs::symlink_metadata(e.path()).is_ok_and(|m| m.is_dir());
-        if pid.is_some() && !alive && folder && Marker::read(&e.path()).is_some() {
+        // Biscale's by proof: a finished run's folder (an `.old-` one) holds nothing its marker
+        // does not list; a killed run's staging folder (its marker lists nothing yet) bears the
+        // name its marker was written for.
+        let owned = || {
+            Marker::read(&e.path()).is_some_and(|m| match m.files.is_empty() && m.folders.is_empty() {
+                true => m.staging == file,
+                false => matches!(m.stranger_in(&e.path()), Ok(None)),
+            })
+        };
+        if pid.is_some() && !alive && folder && owned() {
             let _ = std::fs::remove_dir_all(e.path());
         }
     }
@@ -473,7 +496,9 @@ mod tests {
     /// A folder with a verifying marker and nothing else: what a killed run leaves.
     fn leftover(path: &Path) {
         std::fs::create_dir(path).unwrap();
-        Marker::new("killed").write(path).unwrap();
+        let mut m = Marker::new("killed");
+        m.staging = path.file_name().unwrap().to_string_lossy().into_owned();
+        m.write(path).unwrap();
         std::fs::write(path.join("half.exr"), "x").unwrap();
     }
 
@@ -507,6 +532,36 @@ mod tests {
                 .collect::<Vec<_>>()
         );
         assert!(root.path().join(".run.staging-999999-1/thesis.tex").exists());
+    }
+
+    /// Issue class "--out replaces a user's folder" (leftovers): a marker copied from a run
+    /// into a person's folder named like a leftover does not make it one, whether the marker
+    /// is a killed run's (bound to another folder name) or a finished run's (which does not
+    /// list the person's files).
+    #[test]
+    fn a_copied_marker_does_not_make_a_persons_folder_a_leftover() {
+        let root = tempfile::tempdir().unwrap();
+        let out = root.path().join("run");
+        // A finished run's marker, copied beside a person's notes.
+        let done = StagedDir::begin(&root.path().join("done"), "done").unwrap();
+        std::fs::write(done.path().join("a.txt"), "1").unwrap();
+        let done = done.commit().unwrap();
+        let finished = root.path().join(".run.old-0-7");
+        std::fs::create_dir(&finished).unwrap();
+        std::fs::copy(done.join(MARKER), finished.join(MARKER)).unwrap();
+        std::fs::write(finished.join("notes.txt"), "mine").unwrap();
+        // A killed run's marker (bound to its own folder), copied into another folder.
+        leftover(&root.path().join(".run.staging-0-8"));
+        let copied = root.path().join(".run.staging-0-9");
+        std::fs::create_dir(&copied).unwrap();
+        std::fs::copy(root.path().join(".run.staging-0-8").join(MARKER), copied.join(MARKER)).unwrap();
+        std::fs::write(copied.join("notes.txt"), "mine").unwrap();
+        let s = StagedDir::begin(&out, "x").unwrap();
+        drop(s);
+        assert_eq!(std::fs::read_to_string(finished.join("notes.txt")).unwrap(), "mine");
+        assert_eq!(std::fs::read_to_string(copied.join("notes.txt")).unwrap(), "mine");
+        // The genuine leftover, under the name its marker names, is gone.
+        assert!(!root.path().join(".run.staging-0-8").exists());
     }
 
     /// Issue class "--out replaces a user's folder": a folder is replaced only when it proves
