@@ -1096,8 +1096,12 @@ fn scene_files(
     if file.name.get_ref().trim().is_empty()
         || file.name.get_ref().contains(['/', '\\'])
         || file.name.get_ref().starts_with('.')
+        || file.name.get_ref().chars().any(char::is_control)
     {
-        return Err(err(file.name.span(), "name must be a plain folder name (no slashes, not empty)".into()));
+        return Err(err(
+            file.name.span(),
+            "name must be a plain folder name (no slashes or control characters, not empty)".into(),
+        ));
     }
     // File kinds are checked here, before `run` traces anything (`plan` checks them too).
     let kind_of = |p: &Spanned<PathBuf>, what: &str, allowed: &[&str]| -> Result<(), ConfigError> {
@@ -1472,6 +1476,22 @@ mod tests {
     }
 
     const OK: &str = "name = \"t\"\n[scene]\nmesh = \"../assets/meshes/bunny.obj\"\n[lighting]\nconstant = [1, 1, 1]\n";
+
+    /// Issue class "--set of a value with a newline": `--set name=$'x\ny'` became the name of
+    /// the output folder and of every report, with a newline in it.
+    #[test]
+    fn an_experiment_name_with_a_control_character_is_refused() {
+        let set = ["name=x\ny".to_string()];
+        let text = apply_overrides(OK, &set).unwrap();
+        let e = parse(&text).unwrap_err();
+        assert!(e.message.contains("plain folder name") && e.message.contains("control"), "{e}");
+        // TOML escapes: a tab, DEL, a carriage return.
+        for name in [r#""a\tb""#, r#""a\u007Fb""#, r#""a\rb""#] {
+            let e = parse(&OK.replace("\"t\"", name)).unwrap_err();
+            assert!(e.message.contains("plain folder name"), "{name}: {e}");
+        }
+        assert!(parse(&OK.replace("\"t\"", "\"bunny-é_1.5\"")).is_ok());
+    }
 
     /// A 50 MB line made a 50 MB error message: the snippet is a window around the error and
     /// the message is cut in the middle, while short lines are shown whole.
