@@ -1002,7 +1002,7 @@ impl Experiment {
             return Self::parse(path, source);
         }
         let source = apply_overrides(&source, overrides)?;
-        let mut exp = Self::parse(path, source).map_err(blame_override)?;
+        let mut exp = Self::parse(path, source.clone()).map_err(|e| blame_override(e, &source))?;
         exp.overrides = overrides.to_vec();
         Ok(exp)
     }
@@ -1374,6 +1374,8 @@ pub fn apply_overrides(source: &str, overrides: &[String]) -> Result<String, Con
         }
         let value = value.trim();
         let parsed: toml_edit::Value = value.parse().unwrap_or_else(|_| toml_edit::Value::from(value));
+        // On one line, so the line an error is found on carries the mark.
+        let parsed: toml_edit::Value = one_line(&parsed).parse().expect("one_line writes a TOML value");
         let parsed = parsed.decorated(" ", format!(" {SET_MARK}{key}"));
         let (last, parents) = segments.split_last().expect("split yields at least one segment");
         /// Where the walk down the key stands: in a table, or at a list of tables.
@@ -1400,7 +1402,11 @@ pub fn apply_overrides(source: &str, overrides: &[String]) -> Result<String, Con
                 }
                 Cursor::Table(t) => {
                     if t.get(seg).is_none() {
-                        t.insert(seg, toml_edit::Item::Table(toml_edit::Table::new()));
+                        // A table `--set` makes carries the mark on its header line, where an
+                        // error about its name is found.
+                        let mut new = toml_edit::Table::new();
+                        new.decor_mut().set_suffix(format!(" {SET_MARK}{key}"));
+                        t.insert(seg, toml_edit::Item::Table(new));
                     }
                     match t.get_mut(seg).expect("inserted above") {
                         toml_edit::Item::ArrayOfTables(list) => Cursor::List(list),
@@ -1437,12 +1443,50 @@ pub fn apply_overrides(source: &str, overrides: &[String]) -> Result<String, Con
     Ok(doc.to_string())
 }
 
-/// An error located on a line that `--set KEY` wrote becomes `--set KEY: message`.
-fn blame_override(e: ConfigError) -> ConfigError {
-    let line = e.snippet.lines().next().unwrap_or("");
+/// An error located on a line that `--set KEY` wrote (in `source`, the text with the
+/// overrides) becomes `--set KEY: message`.
+fn blame_override(e: ConfigError, source: &str) -> ConfigError {
+    let line = e.line.checked_sub(1).and_then(|n| source.lines().nth(n)).unwrap_or("");
     match line.rfind(SET_MARK) {
-        Some(at) if e.line > 0 => ConfigError::of_override(line[at + SET_MARK.len()..].trim(), e.message),
-        _ => e,
+        Some(at) => ConfigError::of_override(line[at + SET_MARK.len()..].trim(), e.message),
+        None => e,
+    }
+}
+
+/// `v` as TOML text on one line: strings as basic strings with escapes (a newline as `\n`),
+/// arrays and inline tables with their items so, other values as written.
+fn one_line(v: &toml_edit::Value) -> String {
+    use std::fmt::Write as _;
+    use toml_edit::Value;
+    match v {
+        Value::String(s) => {
+            let mut out = String::from("\"");
+            for c in s.value().chars() {
+                match c {
+                    '"' => out.push_str("\\\""),
+                    '\\' => out.push_str("\\\\"),
+                    '\n' => out.push_str("\\n"),
+                    '\t' => out.push_str("\\t"),
+                    '\r' => out.push_str("\\r"),
+                    c if c.is_control() => {
+                        let _ = write!(out, "\\u{:04X}", c as u32);
+                    }
+                    c => out.push(c),
+                }
+            }
+            out.push('"');
+            out
+        }
+        Value::Array(a) => format!("[{}]", a.iter().map(one_line).collect::<Vec<_>>().join(", ")),
+        Value::InlineTable(t) => {
+            let items: Vec<String> =
+                t.iter().map(|(k, v)| format!("{} = {}", toml_edit::Key::new(k).display_repr(), one_line(v))).collect();
+            format!("{{ {} }}", items.join(", "))
+        }
+        Value::Integer(f) => f.display_repr().into_owned(),
+        Value::Float(f) => f.display_repr().into_owned(),
+        Value::Boolean(f) => f.display_repr().into_owned(),
+        Value::Datetime(f) => f.display_repr().into_owned(),
     }
 }
 
@@ -1491,6 +1535,37 @@ mod tests {
             assert!(e.message.contains("plain folder name"), "{name}: {e}");
         }
         assert!(parse(&OK.replace("\"t\"", "\"bunny-é_1.5\"")).is_ok());
+    }
+
+    /// Issue class "a `--set` error located on a config line": a value with a newline, a set
+    /// that makes a table, and a long value are all reported as `--set KEY`, not as a line of
+    /// the file the user never wrote.
+    #[test]
+    fn set_errors_name_the_set_even_where_it_spans_lines_or_makes_a_table() {
+        let smoke = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/smoke.toml");
+        let cases = [
+            ("name=x\ny", "--set name"),
+            ("nonexistent.key=1", "--set nonexistent.key"),
+            ("a.b.c=1", "--set a.b.c"),
+            ("transfer.nonexistent=1", "--set transfer.nonexistent"),
+            ("transfer.local_grid=\"\"\"4\n5\"\"\"", "--set transfer.local_grid"),
+            ("transfer.local_grid=[1,\n2]", "--set transfer.local_grid"),
+        ];
+        for (set, want) in cases {
+            let e = Experiment::load_with(&smoke, &[set.to_string()]).unwrap_err();
+            assert_eq!((e.file.as_str(), e.line), (want, 0), "{set:?}: {e}");
+        }
+        let long = format!("transfer.local_grid={}", "x".repeat(100_000));
+        let e = Experiment::load_with(&smoke, &[long]).unwrap_err();
+        assert_eq!(e.file, "--set transfer.local_grid", "{e}");
+        assert!(e.to_string().len() < 2_000, "{}", e.to_string().len());
+        // The values themselves survive the one-line rewrite.
+        let text =
+            apply_overrides(OK, &["name=\"q\\\"uote\\ttab\"".into(), "x.y={ a = [1, \"b\\n\"] }".into()]).unwrap();
+        let v: toml::Value = toml::from_str(&text).unwrap();
+        assert_eq!(v["name"].as_str(), Some("q\"uote\ttab"));
+        assert_eq!(v["x"]["y"]["a"][1].as_str(), Some("b\n"));
+        assert_eq!(text.lines().filter(|l| l.contains(SET_MARK)).count(), 3, "{text}");
     }
 
     /// A 50 MB line made a 50 MB error message: the snippet is a window around the error and
