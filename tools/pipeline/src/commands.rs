@@ -5,6 +5,7 @@
 use crate::error::{PipelineError, Result};
 use crate::experiment::config::Experiment;
 use crate::store::cache::StageCache;
+use crate::store::shared::SharedFolder;
 use crate::store::RunOptions;
 use biscale_core::sampling::LightVector;
 use biscale_core::scene::image::write_rgb8_png;
@@ -15,14 +16,20 @@ use std::path::Path;
 
 /// Write `T.mtx` (coordinate, real, general; 1-based) and `L.mtx` (array N x 3, column-major)
 /// into `dir`, both readable by `scipy.io.mmread`.
+/// Other files in `dir` are left alone; one of these names that biscale did not write there is
+/// an error before any work ([`SharedFolder`]).
 pub fn export_matrix(exp: &Experiment, dir: &Path, opts: &RunOptions) -> Result<(TransferMatrix, LightVector)> {
-    std::fs::create_dir_all(dir).map_err(|source| PipelineError::Io { path: dir.into(), source })?;
+    let about = format!("biscale export-matrix {}", exp.config_path.display());
+    let names = ["T.mtx", "L.mtx", "mesh.obj", "view.json", "irradiance.csv"];
+    let shared = SharedFolder::begin(dir, &about, &names)?;
+    let staged = shared.path();
     let geometry = crate::stages::scene::load_geometry(exp)?;
     let lighting = crate::stages::scene::load_lighting(exp)?;
     let t = crate::stages::transfer::transfer_matrix(exp, &geometry, StageCache::new(opts, dir).as_ref())?.matrix;
-    crate::interop::mtx::write_mtx(&t, &lighting.light, dir)?;
-    write_scene(exp, &geometry, dir)?;
-    write_irradiance(&t, &lighting.light, geometry.transfer.frames(), dir)?;
+    crate::interop::mtx::write_mtx(&t, &lighting.light, staged)?;
+    write_scene(exp, &geometry, staged)?;
+    write_irradiance(&t, &lighting.light, geometry.transfer.frames(), staged)?;
+    shared.publish()?;
     Ok((t, lighting.light))
 }
 
@@ -279,9 +286,13 @@ pub fn viz(
     use biscale_compressors::bicluster::{analysis, Bicluster};
     let cerr = |source| PipelineError::Compress { name: biscale_compressors::bicluster::KIND.name.into(), source };
     use biscale_core::compress::{CompressContext, Compressor};
-    std::fs::create_dir_all(out).map_err(|source| PipelineError::Io { path: out.into(), source })?;
+    let about = format!("biscale viz {}", exp.config_path.display());
+    let names = VIZ_FILES.map(|(name, _)| name);
+    let shared = SharedFolder::begin(out, &about, &names)?;
+    let cache = StageCache::new(opts, out);
+    let out = shared.path();
     let geometry = crate::stages::scene::load_geometry(exp)?;
-    let t = crate::stages::transfer::transfer_matrix(exp, &geometry, StageCache::new(opts, out).as_ref())?.matrix;
+    let t = crate::stages::transfer::transfer_matrix(exp, &geometry, cache.as_ref())?.matrix;
     let form =
         Bicluster::default().compress(&t, &CompressContext { seed: exp.file.seed, progress: None }).map_err(cerr)?;
     let count = count.clamp(1, t.vertices().max(1));
@@ -316,8 +327,20 @@ pub fn viz(
         &heat,
         &out.join("heat_nnz.png"),
     )?);
-    Ok(written)
+    debug_assert!(written.iter().all(|p| names.iter().any(|n| p.ends_with(n))), "VIZ_FILES lists {written:?}");
+    let published = shared.publish()?;
+    Ok(written.iter().map(|p| published.path(p)).collect())
 }
+
+/// The files `biscale viz` writes, with what each shows.
+pub const VIZ_FILES: [(&str, &str); 6] = [
+    ("sparsity_panels.png", "T's non-zeros over a window of vertices, as cube-map panels"),
+    ("biclusters_panels.png", "the same window, coloured by bicluster"),
+    ("bicluster_sizes.png", "histograms of bicluster rows and columns"),
+    ("values.png", "histograms of T's values and the biclusters' values"),
+    ("heat_gather_cost.png", "gather flops per vertex, on the mesh"),
+    ("heat_nnz.png", "non-zeros of T per vertex, on the mesh"),
+];
 
 /// `biscale view`: open the interactive viewer on a config's scene with every compressor it
 /// names (feature `viewer`), or with the `[[methods]]` setting labelled `method` (the
@@ -450,8 +473,12 @@ pub fn btf(
             what: format!("no material named {:?} (materials: {})", only.unwrap_or_default(), named.join(", ")),
         });
     }
-    std::fs::create_dir_all(out).map_err(|source| PipelineError::Io { path: out.into(), source })?;
+    let about = format!("biscale btf {}", exp.config_path.display());
+    let names: Vec<String> =
+        chosen.iter().map(|c| format!("{}.btf", crate::interop::material_stem(&c.label()))).collect();
+    let shared = SharedFolder::begin(out, &about, &names.iter().map(String::as_str).collect::<Vec<_>>())?;
     let cache = StageCache::new(opts, out);
+    let out = shared.path();
     let local_basis = exp.transfer_settings().local_basis();
     let mut written = vec![];
     let mut taken = Default::default();
@@ -495,6 +522,14 @@ pub fn btf(
         };
         let bytes = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
         written.push(BtfWritten { label, path, preview: preview_path, origin, bytes, comparisons });
+    }
+    let published = shared.publish()?;
+    for w in &mut written {
+        w.path = published.path(&w.path);
+        w.preview = w.preview.as_deref().map(|p| published.path(p));
+        for c in &mut w.comparisons {
+            c.path = published.path(&c.path);
+        }
     }
     Ok(written)
 }

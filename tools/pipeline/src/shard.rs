@@ -326,10 +326,14 @@ pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Man
         checksum: String::new(),
     };
     let manifest = Manifest { checksum: manifest_checksum(&manifest), ..manifest };
-    std::fs::create_dir_all(out).map_err(|source| PipelineError::Io { path: out.to_path_buf(), source })?;
-    let path = out.join("manifest.json");
+    // Beside a person's files, never over them (a `manifest.json` biscale did not write is an
+    // error naming it).
+    let about = format!("biscale shard plan {}", exp.config_path.display());
+    let shared = crate::store::shared::SharedFolder::begin(out, &about, &["manifest.json"])?;
+    let staged = shared.path().join("manifest.json");
     let json = serde_json::to_string_pretty(&manifest).expect("manifest serializes");
-    write_atomic_bytes(&path, json.as_bytes())?;
+    write_atomic_bytes(&staged, json.as_bytes())?;
+    let path = shared.publish()?.path(&staged);
     Ok((path, manifest))
 }
 

@@ -33,6 +33,7 @@ use crate::stages::evaluate::{targets, Evaluation, View};
 use crate::stages::scene::{load_geometry, load_lighting, shade_scene};
 use crate::stages::transfer::transfer_matrix;
 use crate::store::cache::StageCache;
+use crate::store::shared::SharedFolder;
 use crate::store::RunOptions;
 use biscale_compressors::registry::Role;
 use biscale_core::basis::{LightBasis, LocalBasis, TransferShape};
@@ -217,7 +218,8 @@ fn local_directions(basis: LocalBasis) -> (Vec<f32>, Vec<f64>) {
 }
 
 /// `biscale export`: write `items` of `exp` into `dir` (created if needed; other files there
-/// are left alone, each file is written atomically). `T` comes from the stage cache or is
+/// are left alone, and a file of the same name replaced only when biscale wrote it there, see
+/// [`SharedFolder`]; all files land once all are written). `T` comes from the stage cache or is
 /// traced, as `run` does; forms likewise.
 pub fn export(
     exp: &Experiment,
@@ -226,8 +228,21 @@ pub fn export(
     items: &[Item],
     opts: &RunOptions,
 ) -> Result<Vec<Written>> {
-    std::fs::create_dir_all(dir).map_err(|source| PipelineError::Io { path: dir.into(), source })?;
+    let fixed: Vec<&str> = items
+        .iter()
+        .filter_map(|i| match (i, format) {
+            (Item::T, ExportFormat::Mtx) => Some("T.mtx"),
+            (Item::L, ExportFormat::Mtx) => Some("L.mtx"),
+            (Item::T, ExportFormat::Npz) => Some("t.npz"),
+            (Item::L, ExportFormat::Npz) => Some("l.npz"),
+            (Item::Lstar, _) => Some("lstar.npz"),
+            (Item::Forms | Item::Btf, _) => None,
+        })
+        .collect();
+    let about = format!("biscale export {}", exp.config_path.display());
+    let shared = SharedFolder::begin(dir, &about, &fixed)?;
     let cache = StageCache::new(opts, dir);
+    let dir = shared.path();
     let mut written = vec![];
     let needs_t = items.iter().any(|i| matches!(i, Item::T | Item::Lstar | Item::Forms));
     let geometry = if needs_t { Some(load_geometry(exp)?) } else { None };
@@ -327,6 +342,10 @@ pub fn export(
                 }
             }
         }
+    }
+    let published = shared.publish()?;
+    for w in &mut written {
+        w.path = published.path(&w.path);
     }
     Ok(written)
 }

@@ -1,8 +1,10 @@
 //! Where a run writes: the output folder and cache folder a command is given ([`RunOptions`]),
-//! the stage cache ([`cache`]) and output folders swapped in whole and owned by proof
-//! ([`staging`]).
+//! the stage cache ([`cache`]), output folders swapped in whole and owned by proof
+//! ([`staging`]), and files written into a folder of other files without touching them
+//! ([`shared`]).
 
 pub mod cache;
+pub mod shared;
 pub mod staging;
 
 use std::path::PathBuf;

@@ -65,7 +65,7 @@ pub struct Marker {
 }
 
 impl Marker {
-    fn new(about: &str) -> Self {
+    pub(super) fn new(about: &str) -> Self {
         static COUNTER: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
         let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
         let mut h = ContentHash::default();
@@ -100,7 +100,7 @@ impl Marker {
         (m.run_id.len() == 32 && m.proof == Self::proof_of(&m.run_id)).then_some(m)
     }
 
-    fn write(&self, dir: &Path) -> Result<(), StagingError> {
+    pub(super) fn write(&self, dir: &Path) -> Result<(), StagingError> {
         let path = dir.join(MARKER);
         let mut text = serde_json::to_string_pretty(self).expect("a marker serialises");
         text.push('\n');
@@ -162,7 +162,7 @@ pub struct FileSum {
 }
 
 impl FileSum {
-    fn of(path: &Path) -> Result<Self, StagingError> {
+    pub(super) fn of(path: &Path) -> Result<Self, StagingError> {
         use std::io::Read;
         let mut file = std::fs::File::open(path).map_err(io(path))?;
         let mut h = ContentHash::default();
@@ -181,7 +181,7 @@ impl FileSum {
 }
 
 /// What [`entries`] finds.
-enum Entry {
+pub(super) enum Entry {
     File(FileSum),
     Folder,
     /// A link or anything else that is neither a plain file nor a folder.
@@ -189,7 +189,7 @@ enum Entry {
 }
 
 /// Every entry under `dir` but its marker, by `/`-separated relative path, links not followed.
-fn entries(dir: &Path) -> Result<Vec<(String, Entry)>, StagingError> {
+pub(super) fn entries(dir: &Path) -> Result<Vec<(String, Entry)>, StagingError> {
     fn walk(base: &Path, dir: &Path, out: &mut Vec<(String, Entry)>) -> Result<(), StagingError> {
         for e in std::fs::read_dir(dir).map_err(io(dir))? {
             let e = e.map_err(io(dir))?;
@@ -231,6 +231,10 @@ pub enum StagingError {
     NotAnOutputFolder { path: PathBuf },
     #[error("{}: a biscale output folder, but it now holds {stranger}, which the run that wrote it did not write (or not with these contents); biscale never replaces what it did not write: move it out or choose another --out", path.display())]
     ForeignEntry { path: PathBuf, stranger: String },
+    #[error("{}: exists and biscale did not write it (or it has changed since biscale did); biscale never overwrites a file it cannot prove is its own: move it or choose another --out", path.display())]
+    ForeignFile { path: PathBuf },
+    #[error("{}: holds a {MARKER} that biscale did not write (or one of an older biscale), so biscale cannot record what it writes there: choose another --out", path.display())]
+    ForeignMarker { path: PathBuf },
     #[error("{}: the output must be a folder, and this is a file", path.display())]
     NotAFolder { path: PathBuf },
     #[error("{}: {why}; choose another --out", path.display())]
@@ -239,7 +243,7 @@ pub enum StagingError {
     Io { path: PathBuf, source: std::io::Error },
 }
 
-fn io(path: &Path) -> impl FnOnce(std::io::Error) -> StagingError + '_ {
+pub(super) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> StagingError + '_ {
     move |source| StagingError::Io { path: path.to_path_buf(), source }
 }
 
