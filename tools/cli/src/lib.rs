@@ -332,7 +332,8 @@ enum Shard {
     Run {
         /// The shard plan's manifest.json (`biscale shard plan` wrote it).
         manifest: PathBuf,
-        /// The shard (default: $SLURM_ARRAY_TASK_ID).
+        /// The shard (default: the array task's index: $SLURM_ARRAY_TASK_ID,
+        /// $AWS_BATCH_JOB_ARRAY_INDEX or $JOB_COMPLETION_INDEX, which must agree when several are set).
         #[arg(long)]
         index: Option<usize>,
     },
@@ -380,6 +381,82 @@ enum Shard {
         #[arg(long)]
         out: Option<PathBuf>,
         /// The merge's cache folder.
+        #[arg(long)]
+        cache_dir: Option<PathBuf>,
+    },
+    /// Write k8s/shards.yaml (a Kubernetes indexed Job: one completion per shard, the index from
+    /// $JOB_COMPLETION_INDEX), k8s/merge.yaml (the merge Job), k8s/README.txt and k8s/submit.sh
+    /// (the shards, then the merge once they completed) beside the manifest. The YAML is JSON
+    /// (YAML 1.2). Every pod needs the plan's folder at its planned path: a hostPath of it (nodes
+    /// that mount the shared file system there), or --claim.
+    #[command(
+        after_help = "Example: biscale shard k8s out/bunny-shards/manifest.json --image ghcr.io/you/biscale:0.1.0 --cpus 4 --claim scratch && bash out/bunny-shards/k8s/submit.sh"
+    )]
+    K8s {
+        /// The shard plan's manifest.json (`biscale shard plan` wrote it).
+        manifest: PathBuf,
+        /// Container image with `biscale` on its PATH (default: biscale:<this version>).
+        #[arg(long)]
+        image: Option<String>,
+        /// CPUs of every pod (requests and limits); the shards' threads follow it.
+        #[arg(long, default_value_t = 1)]
+        cpus: usize,
+        /// Memory of a shard's pod (a Kubernetes quantity, e.g. 4Gi; default: the plan's
+        /// estimate + 25%, at least 1024Mi).
+        #[arg(long)]
+        mem: Option<String>,
+        /// Memory of the merge's pod (default: the plan's estimate + 25%, at least 1024Mi).
+        #[arg(long)]
+        merge_mem: Option<String>,
+        /// Namespace of the Jobs (default: kubectl's current one).
+        #[arg(long)]
+        namespace: Option<String>,
+        /// A persistentVolumeClaim holding the plan's folder, mounted at the folder's absolute
+        /// path (default: hostPath volumes of the same paths).
+        #[arg(long)]
+        claim: Option<String>,
+        /// Shard pods running at once (default: every shard).
+        #[arg(long)]
+        parallelism: Option<usize>,
+        /// The merge's output folder (default: the plan's folder/merged).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// The merge's cache folder (default: the plan's folder/cache).
+        #[arg(long)]
+        cache_dir: Option<PathBuf>,
+    },
+    /// Write batch/shards.json (an AWS Batch SubmitJob request: an array job over the shards,
+    /// the index from $AWS_BATCH_JOB_ARRAY_INDEX), batch/merge.json (the merge, depending on
+    /// it), batch/README.txt, batch/submit.sh and, with --image, batch/job-definition.json
+    /// beside the manifest. The job definition must mount the plan's folder at its planned path.
+    #[command(
+        after_help = "Example: biscale shard batch out/bunny-shards/manifest.json --job-queue cpu --image 123456789012.dkr.ecr.us-east-1.amazonaws.com/biscale:0.1.0 --cpus 4 && bash out/bunny-shards/batch/submit.sh"
+    )]
+    Batch {
+        /// The shard plan's manifest.json (`biscale shard plan` wrote it).
+        manifest: PathBuf,
+        /// Job queue, by name or ARN (default: biscale).
+        #[arg(long)]
+        job_queue: Option<String>,
+        /// Job definition, by name, name:revision or ARN (default: biscale-<experiment>).
+        #[arg(long)]
+        job_definition: Option<String>,
+        /// Also write batch/job-definition.json, registering a definition that runs this image.
+        #[arg(long)]
+        image: Option<String>,
+        /// vCPUs of every job; the shards' threads follow it.
+        #[arg(long, default_value_t = 1)]
+        cpus: usize,
+        /// MiB of a shard's job (default: the plan's estimate + 25%, at least 1024).
+        #[arg(long)]
+        mem: Option<u64>,
+        /// MiB of the merge's job (default: the plan's estimate + 25%, at least 1024).
+        #[arg(long)]
+        merge_mem: Option<u64>,
+        /// The merge's output folder (default: the plan's folder/merged).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// The merge's cache folder (default: the plan's folder/cache).
         #[arg(long)]
         cache_dir: Option<PathBuf>,
     },
@@ -724,7 +801,7 @@ fn diff(
 }
 
 fn shard(what: Shard) -> anyhow::Result<()> {
-    use biscale::shard;
+    use biscale::{scheduler, shard};
     match what {
         Shard::Plan { config, shards, out } => {
             let exp = load(&config)?;
@@ -734,7 +811,7 @@ fn shard(what: Shard) -> anyhow::Result<()> {
             print!("{}", shard::describe(&m, &path, available.as_ref()));
         }
         Shard::Run { manifest, index } => {
-            let index = shard::index_from(index)?;
+            let index = scheduler::index_from(index)?;
             shard::run(&manifest, index).with_context(|| format!("shard {index} of {}", manifest.display()))?;
         }
         Shard::Status { manifest } => {
@@ -744,7 +821,7 @@ fn shard(what: Shard) -> anyhow::Result<()> {
             shard::merge(&manifest, &output.options()).with_context(|| format!("merging {}", manifest.display()))?;
         }
         Shard::Sbatch { manifest, partition, time, mem, merge_mem, cpus, out, cache_dir } => {
-            let o = shard::SbatchOptions {
+            let o = scheduler::SbatchOptions {
                 partition,
                 time,
                 mem,
@@ -753,14 +830,51 @@ fn shard(what: Shard) -> anyhow::Result<()> {
                 merge_out: out,
                 merge_cache_dir: cache_dir,
             };
-            let files = shard::sbatch(&manifest, &o)?;
+            let files = scheduler::sbatch(&manifest, &o)?;
             for f in &files {
                 println!("wrote {}", f.display());
             }
             println!("submit with: bash {}", files[2].display());
         }
+        Shard::K8s { manifest, image, cpus, mem, merge_mem, namespace, claim, parallelism, out, cache_dir } => {
+            let o = scheduler::K8sOptions {
+                image,
+                cpus,
+                mem,
+                merge_mem,
+                namespace,
+                claim,
+                parallelism,
+                merge_out: out,
+                merge_cache_dir: cache_dir,
+            };
+            print_job_files(&scheduler::k8s(&manifest, &o)?);
+        }
+        Shard::Batch { manifest, job_queue, job_definition, image, cpus, mem, merge_mem, out, cache_dir } => {
+            let o = scheduler::BatchOptions {
+                job_queue,
+                job_definition,
+                image,
+                cpus,
+                mem_mib: mem,
+                merge_mem_mib: merge_mem,
+                merge_out: out,
+                merge_cache_dir: cache_dir,
+            };
+            print_job_files(&scheduler::batch(&manifest, &o)?);
+        }
     }
     Ok(())
+}
+
+fn print_job_files(j: &biscale::scheduler::JobFiles) {
+    for f in &j.files {
+        println!("wrote {}", f.display());
+    }
+    for n in &j.notes {
+        println!("note: {n}");
+    }
+    println!("submit with: bash {}", j.submit.display());
 }
 
 fn cache(what: Cache) -> anyhow::Result<()> {

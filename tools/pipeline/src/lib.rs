@@ -16,7 +16,8 @@
 //! | [`run`] | the script of a run and the [`run::RunContext`] that `run`, `eval` and `shard merge` share |
 //! | [`store`] | the stage cache, and output folders swapped in whole and owned by proof |
 //! | [`estimate`], [`provenance`] | the memory estimate and guard; how a run was made, stage by stage |
-//! | [`shard`] | the sharded precompute (`shard plan`, `run`, `merge`, `sbatch`) |
+//! | [`shard`] | the sharded precompute (`shard plan`, `run`, `status`, `merge`) |
+//! | [`scheduler`] | its job files (`shard sbatch`, `k8s`, `batch`: Slurm, Kubernetes, AWS Batch) and the task's index |
 //! | [`interop`] | NumPy files in and out (`export`, `eval`), with its `.npy`/`.npz` codec |
 //! | [`rerender`] | `biscale report`: a finished run's report from its record alone |
 //! | [`commands`], [`temple`] | the smaller commands (`export-matrix`, `diff`, `btf`, `generate`, `viz`, `view`) |
@@ -38,6 +39,7 @@ pub mod interop;
 pub mod provenance;
 pub mod rerender;
 pub mod run;
+pub mod scheduler;
 pub mod shard;
 pub mod stages;
 pub mod store;

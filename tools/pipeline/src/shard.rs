@@ -24,6 +24,7 @@
 //!   byte-identical to `biscale run` of the same config (only timings differ).
 //! * **sbatch** writes a job-array script over the shards, a merge script and `submit.sh`,
 //!   which submits the merge with `--dependency=afterok` on the array.
+//! * **k8s**, **batch**: the same for Kubernetes and AWS Batch (all the writers: [`crate::scheduler`]).
 //!
 //! No scheduler, queue or protocol of our own: Slurm places and retries the shards; the
 //! shared file system carries everything.
@@ -424,23 +425,6 @@ impl Manifest {
     }
 }
 
-/// The shard index from `--index`, else from `SLURM_ARRAY_TASK_ID`.
-pub fn index_from(arg: Option<usize>) -> Result<usize> {
-    if let Some(i) = arg {
-        return Ok(i);
-    }
-    match std::env::var("SLURM_ARRAY_TASK_ID") {
-        Ok(v) => v
-            .trim()
-            .parse()
-            .map_err(|_| invalid(Path::new("SLURM_ARRAY_TASK_ID"), format!("is '{v}', not a shard index"))),
-        Err(_) => Err(invalid(
-            Path::new("--index"),
-            "no shard index: pass --index I, or run as a Slurm array task (SLURM_ARRAY_TASK_ID)",
-        )),
-    }
-}
-
 /// `shard run`: build and write shard `index` of the manifest at `path`.
 pub fn run(path: &Path, index: usize) -> Result<ShardDone> {
     let start = Instant::now();
@@ -708,127 +692,6 @@ pub fn merge(path: &Path, opts: &RunOptions) -> Result<(PathBuf, crate::metrics:
     Ok((out, metrics))
 }
 
-/// Options of `shard sbatch`: Slurm's own, passed through as `#SBATCH` lines.
-#[derive(Clone, Debug, Default)]
-pub struct SbatchOptions {
-    pub partition: Option<String>,
-    /// `--time` (minutes, or Slurm's `D-HH:MM:SS`).
-    pub time: Option<String>,
-    /// `--mem` per shard (default: the plan's estimate with a quarter more, at least 1 GiB).
-    pub mem: Option<String>,
-    /// `--mem` of the merge job (default: the plan's estimate with a quarter more).
-    pub merge_mem: Option<String>,
-    pub cpus: usize,
-    /// Arguments of the merge (`--out`, `--cache-dir`), as `biscale shard merge` takes them.
-    pub merge_out: Option<PathBuf>,
-    pub merge_cache_dir: Option<PathBuf>,
-}
-
-/// A shell word: single-quoted unless plainly safe.
-fn sh_quote(s: &str) -> String {
-    if !s.is_empty() && s.chars().all(|c| c.is_ascii_alphanumeric() || "-_./=:,+@%".contains(c)) {
-        s.to_string()
-    } else {
-        format!("'{}'", s.replace('\'', r"'\''"))
-    }
-}
-
-/// The `--mem` of a job whose estimate is `bytes`: a quarter more, at least 1 GiB (saturating:
-/// a manifest's estimate is read from a file and may be absurd; Slurm refuses what no node has).
-fn mem_default(bytes: u64) -> String {
-    let mib = bytes.saturating_add(bytes / 4).div_ceil(1 << 20).max(1024);
-    format!("{mib}M")
-}
-
-/// `shard sbatch`: write `slurm/shards.sbatch`, `slurm/merge.sbatch` and `slurm/submit.sh`
-/// beside the manifest; returns their paths.
-pub fn sbatch(path: &Path, o: &SbatchOptions) -> Result<Vec<PathBuf>> {
-    let (m, root) = Manifest::load(path)?;
-    // Values that go onto `#SBATCH` lines, where shell quoting does not apply: Slurm's own
-    // characters only (no space, quote, newline or `$`).
-    for (flag, value) in
-        [("--partition", &o.partition), ("--time", &o.time), ("--mem", &o.mem), ("--merge-mem", &o.merge_mem)]
-    {
-        if let Some(v) = value {
-            let plain = (1..=100).contains(&v.len())
-                && v.bytes().all(|b| b.is_ascii_alphanumeric() || matches!(b, b'.' | b'_' | b'-' | b':' | b',' | b'+'));
-            if !plain {
-                return Err(invalid(
-                    path,
-                    format!("{flag} {v:?}: use letters, digits and `._-:,+` only (as Slurm writes it)"),
-                ));
-            }
-        }
-    }
-    let abs = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
-    let manifest = abs(path);
-    let dir = abs(&root).join("slurm");
-    let logs = dir.join("logs");
-    std::fs::create_dir_all(&logs).map_err(|source| PipelineError::Io { path: logs.clone(), source })?;
-    let exe = std::env::current_exe().map_err(|source| PipelineError::Io { path: "biscale".into(), source })?;
-    let q = |p: &Path| sh_quote(&p.display().to_string());
-    let header = |name: &str, mem: &str| {
-        let mut h = format!(
-            "#!/bin/bash\n# Written by `biscale shard sbatch` for {}.\n#SBATCH --job-name=biscale-{}-{name}\n#SBATCH --cpus-per-task={}\n#SBATCH --mem={}\n",
-            m.experiment,
-            sh_quote(&m.experiment),
-            o.cpus.max(1),
-            sh_quote(mem),
-        );
-        if let Some(p) = &o.partition {
-            h += &format!("#SBATCH --partition={}\n", sh_quote(p));
-        }
-        if let Some(t) = &o.time {
-            h += &format!("#SBATCH --time={}\n", sh_quote(t));
-        }
-        h
-    };
-    let shard_mem = o.mem.clone().unwrap_or_else(|| mem_default(m.estimate.shard_peak_bytes));
-    let merge_mem = o.merge_mem.clone().unwrap_or_else(|| mem_default(m.estimate.merge_peak_bytes));
-    let threads = "export RAYON_NUM_THREADS=\"${SLURM_CPUS_PER_TASK:-1}\"\n";
-    let shards = format!(
-        "{}#SBATCH --array=0-{}\n#SBATCH --output={}\nset -euo pipefail\n{threads}exec {} shard run {}\n",
-        header("shards", &shard_mem),
-        m.shards.len() - 1,
-        q(&logs.join("shard-%A_%a.out")),
-        q(&exe),
-        q(&manifest),
-    );
-    let mut merge_args = String::new();
-    if let Some(out) = &o.merge_out {
-        merge_args += &format!(" --out {}", q(&abs(out)));
-    }
-    if let Some(c) = &o.merge_cache_dir {
-        merge_args += &format!(" --cache-dir {}", q(&abs(c)));
-    }
-    let merge = format!(
-        "{}#SBATCH --output={}\nset -euo pipefail\n{threads}exec {} shard merge {}{merge_args}\n",
-        header("merge", &merge_mem),
-        q(&logs.join("merge-%j.out")),
-        q(&exe),
-        q(&manifest),
-    );
-    let submit = "#!/bin/bash\n# Submit the shards as a job array, then the merge once every shard succeeded.\n\
-        # Prints `shards <job id>` and `merge <job id>`. A failed shard leaves the merge pending\n\
-        # (DependencyNeverSatisfied): scancel it, rerun the shard with\n\
-        # `sbatch --array=<i> shards.sbatch`, then `sbatch merge.sbatch`.\n\
-        set -euo pipefail\ncd \"$(dirname \"$0\")\"\n\
-        shards=$(sbatch --parsable shards.sbatch)\nshards=${shards%%;*}\n\
-        merge=$(sbatch --parsable --dependency=afterok:\"$shards\" merge.sbatch)\nmerge=${merge%%;*}\n\
-        echo \"shards $shards\"\necho \"merge $merge\"\n"
-        .to_string();
-    let mut written = vec![];
-    for (name, text) in [("shards.sbatch", shards), ("merge.sbatch", merge), ("submit.sh", submit)] {
-        let p = dir.join(name);
-        write_atomic_bytes(&p, text.as_bytes())?;
-        use std::os::unix::fs::PermissionsExt;
-        std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o755))
-            .map_err(|source| PipelineError::Io { path: p.clone(), source })?;
-        written.push(p);
-    }
-    Ok(written)
-}
-
 /// The plan's summary for people: shards, what runs where, estimates, how to run it.
 pub fn describe(m: &Manifest, path: &Path, available: Option<&Available>) -> String {
     let sizes: Vec<usize> = m.shards.iter().map(|s| s.end_vertex - s.first_vertex).collect();
@@ -872,18 +735,4 @@ pub fn describe(m: &Manifest, path: &Path, available: Option<&Available>) -> Str
         p = path.display()
     );
     s
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn an_absurd_memory_estimate_gives_a_saturated_mem_not_an_overflow() {
-        // Regression (hostile manifest): `bytes + bytes / 4` overflowed (a panic in debug, a
-        // wrong `--mem` in release) on an estimate of 2^64 - 1 bytes.
-        assert_eq!(mem_default(u64::MAX), format!("{}M", u64::MAX.div_ceil(1 << 20)));
-        assert_eq!(mem_default(0), "1024M");
-        assert_eq!(mem_default(4 << 30), "5120M");
-    }
 }

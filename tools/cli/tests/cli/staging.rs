@@ -319,6 +319,8 @@ fn no_command_touches_a_decoy(extra: &[(&str, &str)]) {
     }
     biscale(Writes, &["-q", "shard", "status", &manifest]);
     biscale(Writes, &["-q", "shard", "sbatch", &manifest]);
+    biscale(Writes, &["-q", "shard", "k8s", &manifest]);
+    biscale(Writes, &["-q", "shard", "batch", &manifest]);
     biscale(Refuses, &with(&["-q", "shard", "merge", &manifest, "--out", wd], &cache_dir));
     biscale(Writes, &with(&["-q", "shard", "merge", &manifest, "--out", &w("merged")], &cache_dir));
     // The folder as a stage cache: filled, listed, cleaned (biscale's own files only).
