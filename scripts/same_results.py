@@ -6,20 +6,23 @@ provenance, exactly. What a refactor must leave unchanged:
     python3 scripts/same_results.py out/before/bunny out/after/bunny
 
 Exit status 0 when they agree, 1 with one line per difference otherwise, 2 on bad input.
-Left out of the comparison: every key ending in `_ms`, `seconds` or `per_second`; `cached`;
-`timing`; `adapter`; the `run` (provenance) and `memory` (measured peak) records; and the
-`figures` thumbnails' paths are compared like any other string. Python 3 standard library.
+Left out of the comparison: every key ending in `_ms`, `seconds` or `per_second`; every
+`*_timing` record (a timed step's repeats: `gather_timing`, `shade_timing`); `cached`;
+`timing`; `adapter`; the `run` (provenance), `memory` (measured peak) and `load` (the load
+average around the timed steps) records; and the `figures` thumbnails' paths are compared like
+any other string. A key left out may be present in one run and absent in the other (a run
+made before the key existed). Python 3 standard library.
 """
 import argparse
 import json
 import os
 import sys
 
-SKIP_KEYS = {"run", "memory", "cached", "timing", "adapter"}
+SKIP_KEYS = {"run", "memory", "load", "cached", "timing", "adapter"}
 
 
 def skipped(key):
-    return key in SKIP_KEYS or key.endswith(("_ms", "seconds", "per_second"))
+    return key in SKIP_KEYS or key.endswith(("_ms", "_timing", "seconds", "per_second"))
 
 
 def diff_json(a, b, path, out):

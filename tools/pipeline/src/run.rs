@@ -11,7 +11,9 @@ use crate::experiment::config::{Backend, CompressorSetting, Experiment};
 use crate::experiment::plan::Plan;
 use crate::metrics::*;
 use crate::provenance::StageClock;
-use crate::stages::evaluate::{errors, no_gpu_feature, targets, Baseline, Evaluation, GpuBackend, Reference, View};
+use crate::stages::evaluate::{
+    cpus_online, errors, load_average_1min, no_gpu_feature, targets, Baseline, Evaluation, GpuBackend, Reference, View,
+};
 use crate::stages::figures::{comparison_figures, inset_region, share_error_scale};
 use crate::stages::materials::SceneMaterials;
 use crate::stages::scene::{load_geometry, load_lighting, shade_scene, Geometry, Lighting};
@@ -141,6 +143,8 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     ctx.clock.mark("materials");
     crate::estimate::check_peak(&memory, &available, "the materials")?;
     let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
+    // The machine's load around the timed steps: from the uncompressed gather to the last method.
+    let load_before = load_average_1min();
     let targets =
         targets(exp, &geometry, &lighting, &t.matrix, &view, &ctx.images_dir(), plan.reference, &mut ctx.clock)?;
     let (base, reference) = (&targets.base, targets.reference.as_ref());
@@ -193,6 +197,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     if !methods.is_empty() {
         ctx.clock.mark("methods");
     }
+    let load_after = load_average_1min();
     crate::estimate::check_peak(&memory, &available, "the methods")?;
 
     let figures = comparison_figures(region, &records, &methods, base, &view, reference, &out_dir)?;
@@ -202,6 +207,14 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     metrics.memory = Some(memory.metrics(&available));
     metrics.sharded = sharded;
     metrics.run = Some(ctx.clock.finish());
+    metrics.load = (load_before.is_some() || load_after.is_some()).then(|| LoadRecord {
+        load_before,
+        load_after,
+        cpus_online: cpus_online(),
+    });
+    if let Some(w) = crate::report::timing_warning(&metrics) {
+        log::warn!("{w}");
+    }
     write_report(&metrics, &plan, &out_dir)?;
     fault_point("report");
     Ok((ctx.commit()?, metrics))
@@ -283,8 +296,10 @@ pub(crate) fn metrics_of_run(
         },
         transfer,
         uncompressed: UncompressedMetrics {
-            gather_ms: base.gather_ms,
-            shade_ms: base.shade_ms,
+            gather_ms: base.gather_timing.median_ms,
+            shade_ms: base.shade_timing.median_ms,
+            gather_timing: Some(base.gather_timing),
+            shade_timing: Some(base.shade_timing),
             light_moments: exp.file.runtime.light_moments,
             // Same camera, same size: compare cannot fail here.
             paper_vs_moments: base.paper.as_ref().and_then(|(_, paper)| {
@@ -309,6 +324,7 @@ pub(crate) fn metrics_of_run(
         sharded: None,
         run: None,
         figures: None,
+        load: None,
     }
 }
 

@@ -111,6 +111,8 @@ mod tests {
             cached: false,
             gather_ms: 0.0,
             shade_ms: 0.0,
+            gather_timing: None,
+            shade_timing: None,
             rel_error_lstar: err,
             image: ImageRecord {
                 vs_uncompressed: e,

@@ -34,6 +34,119 @@ pub struct Metrics {
     /// error against the ground truth.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub figures: Option<ComparisonFigures>,
+    /// The machine's load around the timed steps (absent in older records and off Linux).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub load: Option<LoadRecord>,
+}
+
+/// The machine's load while a run timed its steps (`metrics.json`'s `load`): the 1-minute
+/// load average of `/proc/loadavg` just before the first timed step (the uncompressed gather)
+/// and just after the last (the last method setting), and the CPUs it is spread over.
+///
+/// The load average counts runnable threads of the whole machine, this run's own included,
+/// so it is compared with the machine's online CPUs (`cpus_online`), not with the CPUs this
+/// process may use (`run.cores`, smaller under an affinity mask or a batch allocation). A run
+/// cannot push it past `cpus_online` on its own (its rayon threads are at most one per CPU):
+/// a load above it means other work competed for the CPUs while the steps were timed.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LoadRecord {
+    /// 1-minute load average before the timed steps; `None` where `/proc/loadavg` cannot be read.
+    pub load_before: Option<f64>,
+    /// 1-minute load average after the timed steps.
+    pub load_after: Option<f64>,
+    /// CPUs online on the machine.
+    pub cpus_online: usize,
+}
+
+impl LoadRecord {
+    /// The larger of the two readings, when either was made.
+    pub fn peak(&self) -> Option<f64> {
+        match (self.load_before, self.load_after) {
+            (Some(a), Some(b)) => Some(a.max(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
+    /// True when the load average exceeded the online CPUs before or after the timed steps:
+    /// some repeats then waited for a CPU, and their times measure the queue as well as the
+    /// step.
+    pub fn overloaded(&self) -> bool {
+        self.peak().is_some_and(|l| l > self.cpus_online as f64)
+    }
+}
+
+/// One timed step (a gather or a shade) over its `repeats` (`runtime.repeats`): the fastest,
+/// the median and the slowest wall-clock time, and how much the repeats disagree (`spread`).
+/// `median_ms` is the figure the step's `*_ms` field reports (`gather_ms`, `shade_ms`).
+///
+/// `spread` is the interquartile range over the median, `(q3 - q1) / median_ms`, with the
+/// quartiles interpolated linearly between the sorted samples (NumPy's default percentile);
+/// 0 for a single repeat. It is robust on purpose: one slow repeat (a first-touch page fault,
+/// a cold cache, a context switch) moves neither the median nor the quartiles, so the spread
+/// only grows when the repeats as a body disagree, which is when the median itself is in
+/// doubt. The single slow repeat still shows in `max_ms`. See [`Timing::noisy`].
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Timing {
+    pub min_ms: f64,
+    pub median_ms: f64,
+    pub max_ms: f64,
+    pub repeats: usize,
+    /// `(q3 - q1) / median_ms` (0 for one repeat or a zero median).
+    pub spread: f64,
+}
+
+/// [`Timing::spread`] above which a step's timing is called noisy in the report and the log.
+///
+/// An interquartile range of a quarter of the median means the middle half of the repeats
+/// disagree by 25%: with the usual 5 repeats the median is then uncertain by about 10% (the
+/// standard error of a median of n samples is about `1.25 sigma / sqrt(n)`, with `sigma` about
+/// `IQR / 1.35`), so two settings within 1.3x of each other cannot be ranked by speed. On a
+/// quiet machine the repeats of a gather agree within a few percent.
+pub const NOISY_SPREAD: f64 = 0.25;
+
+impl Timing {
+    /// The timing of `samples` (ms, one per repeat); every figure NaN when there are none.
+    pub fn from_samples(samples: &[f64]) -> Self {
+        let mut s = samples.to_vec();
+        s.sort_by(f64::total_cmp);
+        let n = s.len();
+        // The median exactly as every `*_ms` field has always been computed.
+        let median_ms = biscale_core::stats::median(&s);
+        let quantile = |p: f64| {
+            let x = p * (n - 1) as f64;
+            let (i, f) = (x.floor() as usize, x.fract());
+            match s.get(i + 1) {
+                Some(&next) => s[i] + f * (next - s[i]),
+                None => s[i],
+            }
+        };
+        let spread = match n {
+            0 => f64::NAN,
+            _ if median_ms > 0.0 => (quantile(0.75) - quantile(0.25)) / median_ms,
+            _ => 0.0,
+        };
+        Timing {
+            min_ms: s.first().copied().unwrap_or(f64::NAN),
+            median_ms,
+            max_ms: s.last().copied().unwrap_or(f64::NAN),
+            repeats: n,
+            spread,
+        }
+    }
+
+    /// True when the repeats disagree by more than [`NOISY_SPREAD`].
+    pub fn noisy(&self) -> bool {
+        self.spread > NOISY_SPREAD
+    }
+
+    /// `median (min-max)` at `decimals` decimals, as the report's tables print a timing; the
+    /// median alone for a single repeat (its range is itself).
+    pub fn median_range(&self, decimals: usize) -> String {
+        match self.repeats > 1 {
+            true => format!("{:.decimals$} ({:.decimals$}-{:.decimals$})", self.median_ms, self.min_ms, self.max_ms),
+            false => format!("{:.decimals$}", self.median_ms),
+        }
+    }
 }
 
 /// The figures of the report's comparison section (`crate::inset`), one row per image: the
@@ -309,6 +422,11 @@ pub struct TransferMetrics {
 pub struct UncompressedMetrics {
     pub gather_ms: f64,
     pub shade_ms: f64,
+    /// The repeats behind `gather_ms` and `shade_ms` (absent in older records).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gather_timing: Option<Timing>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shade_timing: Option<Timing>,
     /// `[runtime] light_moments`: every `L*` of the run weights texels by their own cosine.
     pub light_moments: bool,
     /// With light moments: the paper's (bin-mean-cosine) uncompressed image against the
@@ -400,13 +518,22 @@ pub struct CompressorRecord {
     pub bytes_per_nnz: f64,
     /// Monochrome gather flops (an RGB gather does three times the multiply-adds).
     pub flops_per_gather: u64,
-    /// Seconds the compressor took (for a form from the cache: when it was built).
+    /// Seconds the compressor took (for a form from the cache: when it was built, by an
+    /// earlier run whose machine and load the cache does not record).
     pub build_seconds: f64,
     /// True when the form was loaded from the stage cache.
     pub cached: bool,
     /// Median wall-clock of the RGB gather over `runtime.repeats` runs.
     pub gather_ms: f64,
+    /// Median wall-clock of the CPU shade over `runtime.repeats` runs.
     pub shade_ms: f64,
+    /// The repeats behind `gather_ms` (absent in older records, and for an `L*` the run did
+    /// not gather: `biscale eval --lstar`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gather_timing: Option<Timing>,
+    /// The repeats behind `shade_ms` (absent in older records).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shade_timing: Option<Timing>,
     /// Relative L2 error of `L*` against the f64 product `T L`.
     pub rel_error_lstar: f64,
     pub image: ImageRecord,
@@ -502,6 +629,11 @@ pub struct GpuRecord {
     pub gather_ms: f64,
     /// Median GPU time of the shade (visibility buffer + compute pass).
     pub shade_ms: f64,
+    /// The repeats behind `gather_ms` and `shade_ms` (absent in older records).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gather_timing: Option<Timing>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shade_timing: Option<Timing>,
     /// Relative L2 error of the GPU's `L*` against the f64 product.
     pub rel_error_lstar: f64,
     /// The GPU image against the CPU image of the same form, over the pixels the CPU covers
@@ -598,5 +730,84 @@ pub struct Part {
 impl Part {
     pub fn new(name: impl Into<String>, bytes: u64) -> Self {
         Self { name: name.into(), bytes }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_timing_keeps_the_fastest_the_median_and_the_slowest_repeat() {
+        let t = Timing::from_samples(&[5.0, 1.0, 3.0, 2.0, 4.0]);
+        assert_eq!((t.min_ms, t.median_ms, t.max_ms, t.repeats), (1.0, 3.0, 5.0, 5));
+        // Quartiles 2 and 4 (linear interpolation between the sorted samples): (4 - 2) / 3.
+        assert_eq!(t.spread, 2.0 / 3.0);
+        // An even count: median 2.5, quartiles at 0.75 and 2.25 of the way, 1.75 and 3.25.
+        let t = Timing::from_samples(&[4.0, 3.0, 2.0, 1.0]);
+        assert_eq!((t.min_ms, t.median_ms, t.max_ms, t.repeats), (1.0, 2.5, 4.0, 4));
+        assert_eq!(t.spread, 1.5 / 2.5);
+        // The median is the one every `*_ms` field always held, to the bit.
+        let samples = [0.1, 0.7, 0.3, 0.2];
+        assert_eq!(Timing::from_samples(&samples).median_ms, biscale_core::stats::median(&samples));
+    }
+
+    #[test]
+    fn one_repeat_has_no_spread_and_none_has_no_figures() {
+        let t = Timing::from_samples(&[7.25]);
+        assert_eq!((t.min_ms, t.median_ms, t.max_ms, t.repeats, t.spread), (7.25, 7.25, 7.25, 1, 0.0));
+        assert!(!t.noisy());
+        assert_eq!(t.median_range(2), "7.25");
+        let t = Timing::from_samples(&[]);
+        assert_eq!(t.repeats, 0);
+        assert!(t.min_ms.is_nan() && t.median_ms.is_nan() && t.max_ms.is_nan() && !t.noisy());
+        // A zero median (a step below the clock's resolution) is not called noisy.
+        assert_eq!(Timing::from_samples(&[0.0, 0.0, 0.0]).spread, 0.0);
+    }
+
+    #[test]
+    fn a_timing_is_noisy_past_a_quarter_of_its_median_and_not_for_one_slow_repeat() {
+        // Interquartile range 1.125 - 0.875 = 0.25 of a median of 1: at the threshold, quiet.
+        let at = Timing::from_samples(&[0.5, 0.875, 1.0, 1.125, 2.0]);
+        assert_eq!(at.spread, NOISY_SPREAD);
+        assert!(!at.noisy());
+        let past = Timing::from_samples(&[0.5, 0.875, 1.0, 1.25, 2.0]);
+        assert_eq!(past.spread, 0.375);
+        assert!(past.noisy());
+        // One slow repeat (a cold first run) moves neither the median nor the quartiles...
+        let one_slow = Timing::from_samples(&[36.0, 6.4, 6.5, 6.6, 6.7]);
+        assert!(!one_slow.noisy(), "{one_slow:?}");
+        assert_eq!(one_slow.median_range(1), "6.6 (6.4-36.0)");
+        // ...but repeats that disagree as a body do.
+        let body = Timing::from_samples(&[6.4, 6.5, 6.6, 30.0, 36.0]);
+        assert!(body.noisy(), "{body:?}");
+    }
+
+    #[test]
+    fn the_load_is_too_high_only_past_the_online_cpus() {
+        let load = |before, after| LoadRecord { load_before: before, load_after: after, cpus_online: 2 };
+        assert!(load(Some(1.0), Some(2.5)).overloaded());
+        assert!(load(Some(3.1), None).overloaded());
+        assert_eq!(load(Some(3.1), None).peak(), Some(3.1));
+        // Exactly one runnable thread per CPU (the run's own, at full tilt) is not overload.
+        assert!(!load(Some(2.0), Some(2.0)).overloaded());
+        assert!(!load(None, None).overloaded());
+        assert_eq!(load(None, None).peak(), None);
+    }
+
+    #[test]
+    fn a_record_without_timings_or_load_still_reads_and_writes_none_back() {
+        let old = r#"{"gather_ms": 6.4, "shade_ms": 12.0, "light_moments": false}"#;
+        let u: UncompressedMetrics = serde_json::from_str(old).unwrap();
+        assert_eq!((u.gather_ms, u.gather_timing, u.shade_timing), (6.4, None, None));
+        let back = serde_json::to_value(&u).unwrap();
+        assert!(back.get("gather_timing").is_none(), "absent, not null: {back}");
+        // A timing round-trips with the keys the README lists.
+        let t = Timing::from_samples(&[1.0, 2.0, 4.0]);
+        let v = serde_json::to_value(t).unwrap();
+        let mut keys: Vec<&str> = v.as_object().unwrap().keys().map(String::as_str).collect();
+        keys.sort();
+        assert_eq!(keys, ["max_ms", "median_ms", "min_ms", "repeats", "spread"]);
+        assert_eq!(serde_json::from_value::<Timing>(v).unwrap(), t);
     }
 }

@@ -4,7 +4,7 @@
 //! table of both files is a [`Table`] (header and rows of cells), so the two print the same
 //! numbers. Readable without the program.
 
-use crate::metrics::{Metrics, TransferMetrics};
+use crate::metrics::{CompressorRecord, Metrics, Timing, TransferMetrics, NOISY_SPREAD};
 use biscale_compressors::registry::{self, Role};
 use std::fmt::Write;
 
@@ -151,6 +151,9 @@ pub fn document(m: &Metrics, plan: &str, plots: &[(String, String)]) -> Vec<Bloc
     let para = |d: &mut Vec<Block>, s: String| d.push(Block::Para(s));
     d.push(Block::Heading(1, format!("biscale run: {}", m.experiment)));
     para(&mut d, format!("Config `{}`, backend {}.", m.config, m.backend));
+    if let Some(w) = timing_warning(m) {
+        para(&mut d, format!("Warning: {w}."));
+    }
     if let Some(r) = &m.run {
         para(&mut d, format!("Run: {}.", r.summary()));
         let mut t = Table::new(&["stage", "wall s", "CPU s"]);
@@ -196,11 +199,14 @@ pub fn document(m: &Metrics, plan: &str, plots: &[(String, String)]) -> Vec<Bloc
     d.push(Block::Table(hist));
 
     d.push(Block::Heading(2, "Compressors".into()));
+    let u = &m.uncompressed;
     para(
         &mut d,
         format!(
-            "Uncompressed `T L`: gather {:.2} ms (f64 reference), shade {:.1} ms.",
-            m.uncompressed.gather_ms, m.uncompressed.shade_ms
+            "Uncompressed `T L`: gather {} ms (f64 reference), shade {} ms. {}",
+            timing_cell(u.gather_ms, u.gather_timing.as_ref(), 2),
+            timing_cell(u.shade_ms, u.shade_timing.as_ref(), 1),
+            timing_note(m)
         ),
     );
     d.push(Block::Table(compressor_table(m)));
@@ -311,10 +317,11 @@ pub fn markdown_of(blocks: Vec<Block>) -> String {
 /// The wgpu table: its heading and table, when the run used the GPU backend.
 fn gpu_table(m: &Metrics) -> Option<(String, Table)> {
     let adapter = m.compressors.iter().find_map(|c| c.gpu.as_ref())?.adapter.clone();
+    let ranged = m.compressors.iter().filter_map(|c| c.gpu.as_ref()).any(|g| ranged(&[&g.gather_timing]));
     let mut t = Table::new(&[
         "setting",
-        "gather ms",
-        "shade ms",
+        ms_header("gather", ranged),
+        ms_header("shade", ranged),
         "timing",
         "rel. err L*",
         "image rel. L2 vs CPU",
@@ -324,8 +331,8 @@ fn gpu_table(m: &Metrics) -> Option<(String, Table)> {
         if let Some(g) = &c.gpu {
             t.text_row([
                 c.name.clone(),
-                format!("{:.2}", g.gather_ms),
-                format!("{:.2}", g.shade_ms),
+                timing_cell(g.gather_ms, g.gather_timing.as_ref(), 2),
+                timing_cell(g.shade_ms, g.shade_timing.as_ref(), 2),
                 g.timing.clone(),
                 format!("{:.2e}", g.rel_error_lstar),
                 format!("{:.2e}", g.image_vs_cpu.rel_l2),
@@ -573,13 +580,16 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
     if m.methods.is_empty() {
         return None;
     }
-    const HEADER: &[&str] = &[
+    let records = m.compressors.iter().chain(m.methods.iter().map(|r| &r.record));
+    let ranged = ranged(&[&m.uncompressed.gather_timing, &m.uncompressed.shade_timing])
+        || records.into_iter().any(|c| ranged(&[&c.gather_timing, &c.shade_timing]));
+    let header = &[
         "method",
         "transfer MB",
         "meso MB",
         "precompute s",
-        "gather ms",
-        "shade ms",
+        ms_header("gather", ranged),
+        ms_header("shade", ranged),
         "rel. L2 vs ground truth",
         "LDR PSNR / SSIM / FLIP vs ground truth",
         "rel. L2 vs all-frequency",
@@ -592,7 +602,16 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
     let mut rows = vec![];
     let mut figures = vec![];
     let t = &m.transfer;
-    let seconds = |s: f64, cached: bool| if cached { "cached".to_string() } else { format!("{s:.2}") };
+    // Precompute: the transfer's build plus its form's; `cached` when the transfer came from the
+    // cache (nothing was built), and the sum marked when only the form did (its build time is
+    // the earlier run's that built it).
+    let seconds = |s: f64, cached: bool, form_cached: bool| match (cached, form_cached) {
+        (true, _) => "cached".to_string(),
+        (false, true) => format!("{s:.2} (form cached)"),
+        (false, false) => format!("{s:.2}"),
+    };
+    let gather = |c: &CompressorRecord| timing_cell(c.gather_ms, c.gather_timing.as_ref(), 2);
+    let shade = |c: &CompressorRecord| timing_cell(c.shade_ms, c.shade_timing.as_ref(), 1);
     // The all-frequency side: the raw matrix (or the f64 product when sparse did not run), and
     // the paper's compressed form.
     match m.compressors.iter().find(|c| registry::role_of(&c.kind) == Role::Raw) {
@@ -600,9 +619,9 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
             format!("all-frequency, {}", c.name),
             mb(c.bytes),
             mb(m.scene.btf_bytes),
-            seconds(t.build_seconds, t.cached),
-            format!("{:.2}", c.gather_ms),
-            format!("{:.1}", c.shade_ms),
+            seconds(t.build_seconds, t.cached, false),
+            gather(c),
+            shade(c),
             err(c),
             ldr(c),
             "0 (itself)".into(),
@@ -612,9 +631,9 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
             "all-frequency, uncompressed".into(),
             mb(4 * (t.rows as u64 + 1) + 8 * t.nnz as u64),
             mb(m.scene.btf_bytes),
-            seconds(t.build_seconds, t.cached),
-            format!("{:.2}", m.uncompressed.gather_ms),
-            format!("{:.1}", m.uncompressed.shade_ms),
+            seconds(t.build_seconds, t.cached, false),
+            timing_cell(m.uncompressed.gather_ms, m.uncompressed.gather_timing.as_ref(), 2),
+            timing_cell(m.uncompressed.shade_ms, m.uncompressed.shade_timing.as_ref(), 1),
             m.reference.as_ref().map_or("-".into(), |r| format!("{:.4}", r.uncompressed_vs_reference.rel_l2)),
             m.reference.as_ref().map_or("-".into(), |r| ldr_cell(&r.uncompressed_vs_reference)),
             "0 (itself)".into(),
@@ -626,9 +645,9 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
             format!("all-frequency, {}", c.name),
             mb(c.bytes),
             mb(m.scene.btf_bytes),
-            seconds(t.build_seconds + c.build_seconds, t.cached),
-            format!("{:.2}", c.gather_ms),
-            format!("{:.1}", c.shade_ms),
+            seconds(t.build_seconds + c.build_seconds, t.cached, c.cached),
+            gather(c),
+            shade(c),
             err(c),
             ldr(c),
             format!("{:.2e}", c.image.vs_uncompressed.rel_l2),
@@ -641,10 +660,10 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
         let (meso, pre, neg) = match &r.sh {
             Some(sh) => (
                 mb(sh.rtt.bytes),
-                seconds(sh.transfer.seconds + c.build_seconds, sh.transfer.cached),
+                seconds(sh.transfer.seconds + c.build_seconds, sh.transfer.cached, c.cached),
                 format!("{:.2}%", 100.0 * sh.negative_pixels),
             ),
-            None => ("-".into(), format!("{:.2}", c.build_seconds), "-".into()),
+            None => ("-".into(), seconds(c.build_seconds, false, c.cached), "-".into()),
         };
         rows.push(vec![
             format!(
@@ -655,8 +674,8 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
             mb(c.bytes),
             meso,
             pre,
-            format!("{:.2}", c.gather_ms),
-            format!("{:.1}", c.shade_ms),
+            gather(c),
+            shade(c),
             err(c),
             ldr(c),
             format!("{:.4}", c.image.vs_uncompressed.rel_l2),
@@ -671,7 +690,7 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
     if m.reference.is_some() {
         figures.push(Figure::new("images/reference.png", "ground truth (direct light)"));
     }
-    let mut table = Table::new(HEADER);
+    let mut table = Table::new(header);
     for row in rows {
         table.text_row(row);
     }
@@ -693,6 +712,134 @@ fn low_vs_all_blocks(m: &Metrics) -> Vec<Block> {
     d.push(Block::Table(l.table));
     d.push(Block::Figures { figures: l.figures, wide: false });
     d
+}
+
+/// How the report prints a timed step (both reports): the median over the repeats, with the
+/// fastest and slowest in brackets; and, when a form came from the stage cache, whose its build
+/// time is.
+pub fn timing_note(m: &Metrics) -> String {
+    let mut s = match m.uncompressed.gather_timing.map(|t| t.repeats) {
+        Some(1) => "Times are the wall clock of a single repeat (`[runtime] repeats = 1`): nothing shows how much \
+                    they vary."
+            .to_string(),
+        repeats => format!(
+            "Times are the median wall clock over {}, with the fastest and slowest repeat in brackets: \
+             `median (min-max)`.",
+            repeats.map_or("`[runtime] repeats`".to_string(), |n| format!("{n} repeats"))
+        ),
+    };
+    if m.compressors.iter().chain(m.methods.iter().map(|r| &r.record)).any(|c| c.cached) {
+        s += " A form marked `cached` came from the stage cache: its build time is the one measured by the earlier \
+              run that built it, on a machine and under a load the cache does not record.";
+    }
+    s
+}
+
+/// A timed step's table cell: `median (min-max)` at `decimals` decimals when its repeats are
+/// recorded ([`Timing::median_range`]), else the median (`median_ms`, an older record's only
+/// figure).
+pub fn timing_cell(median_ms: f64, timing: Option<&Timing>, decimals: usize) -> String {
+    timing.map_or_else(|| format!("{median_ms:.decimals$}"), |t| t.median_range(decimals))
+}
+
+/// Whether any of these timings has more than one repeat (its cells then show a range).
+fn ranged(timings: &[&Option<Timing>]) -> bool {
+    timings.iter().any(|t| t.is_some_and(|t| t.repeats > 1))
+}
+
+/// A timing column's header: `gather ms`, or `gather ms, median (min-max)` when its cells show
+/// ranges.
+fn ms_header(step: &str, ranged: bool) -> &'static str {
+    match (step, ranged) {
+        ("gather", false) => "gather ms",
+        ("gather", true) => "gather ms, median (min-max)",
+        ("shade", false) => "shade ms",
+        ("shade", true) => "shade ms, median (min-max)",
+        _ => unreachable!("a timing column is a gather or a shade"),
+    }
+}
+
+/// Every timed step of a run whose repeats are recorded, named as the report's warning names
+/// it (`gather of uncompressed T`, `shade of `sparse``, `GPU gather of `haar-t4``), in the
+/// order the run timed them.
+pub fn timed_steps(m: &Metrics) -> Vec<(String, Timing)> {
+    let mut steps = vec![];
+    let mut push = |what: String, t: &Option<Timing>| {
+        if let Some(t) = t {
+            steps.push((what, *t));
+        }
+    };
+    push("gather of uncompressed `T`".into(), &m.uncompressed.gather_timing);
+    push("shade of uncompressed `T`".into(), &m.uncompressed.shade_timing);
+    for c in m.compressors.iter().chain(m.methods.iter().map(|r| &r.record)) {
+        push(format!("gather of `{}`", c.name), &c.gather_timing);
+        push(format!("shade of `{}`", c.name), &c.shade_timing);
+        if let Some(g) = &c.gpu {
+            push(format!("GPU gather of `{}`", c.name), &g.gather_timing);
+            push(format!("GPU shade of `{}`", c.name), &g.shade_timing);
+        }
+    }
+    steps
+}
+
+/// Most noisy steps the warning names; the rest are counted.
+const NAMED_NOISY_STEPS: usize = 3;
+
+/// The one-line warning of both reports and the run's log, when any timed step is noisy
+/// ([`Timing::noisy`]: its repeats' interquartile range is over [`NOISY_SPREAD`] of its
+/// median) or the machine's load average exceeded its CPUs while the steps were timed
+/// ([`crate::metrics::LoadRecord::overloaded`]); `None` when the timings look trustworthy.
+/// The noisiest steps come first.
+pub fn timing_warning(m: &Metrics) -> Option<String> {
+    let mut noisy: Vec<(String, Timing)> = timed_steps(m).into_iter().filter(|(_, t)| t.noisy()).collect();
+    let overloaded = m.load.is_some_and(|l| l.overloaded());
+    if noisy.is_empty() && !overloaded {
+        return None;
+    }
+    let load = m.load.and_then(|l| l.peak().map(|p| format!("load {p:.1} on {} CPUs", l.cpus_online)));
+    let advice = "treat speed ratios with care";
+    if noisy.is_empty() {
+        let load = load.expect("an overloaded record has a reading");
+        return Some(format!("the machine was busy while the run timed its steps ({load}); {advice}"));
+    }
+    noisy.sort_by(|a, b| b.1.spread.total_cmp(&a.1.spread));
+    let named: Vec<String> = noisy
+        .iter()
+        .take(NAMED_NOISY_STEPS)
+        .map(|(what, t)| {
+            format!(
+                "{what} ranged {}-{} ms over {} repeats (median {}, spread {:.2})",
+                short_ms(t.min_ms),
+                short_ms(t.max_ms),
+                t.repeats,
+                short_ms(t.median_ms),
+                t.spread
+            )
+        })
+        .collect();
+    let more = match noisy.len().saturating_sub(NAMED_NOISY_STEPS) {
+        0 => String::new(),
+        n => format!(" and {n} more step{}", if n == 1 { "" } else { "s" }),
+    };
+    let load = match (load, overloaded) {
+        (Some(l), true) => format!("; the machine was busy ({l})"),
+        (Some(l), false) => format!(" ({l})"),
+        (None, _) => String::new(),
+    };
+    Some(format!(
+        "timings are noisy (interquartile range over {NOISY_SPREAD} of the median): {}{more}{load}; {advice}",
+        named.join(", ")
+    ))
+}
+
+/// Milliseconds to two or three significant figures, for a sentence.
+fn short_ms(ms: f64) -> String {
+    match ms.abs() {
+        x if x >= 100.0 => format!("{ms:.0}"),
+        x if x >= 10.0 => format!("{ms:.1}"),
+        x if x >= 0.1 => format!("{ms:.2}"),
+        _ => format!("{ms:.3}"),
+    }
 }
 
 /// What the tables' LDR figures are (both reports).
@@ -729,15 +876,16 @@ pub fn statistics_table_with<'k>(
 }
 
 pub fn compressor_table(m: &Metrics) -> Table {
-    const HEADER: &[&str] = &[
+    let ranged = m.compressors.iter().any(|c| ranged(&[&c.gather_timing, &c.shade_timing]));
+    let header = &[
         "setting",
         "lossless",
         "MB",
         "bytes/nnz",
         "Mflop/gather",
         "build s",
-        "gather ms",
-        "shade ms",
+        ms_header("gather", ranged),
+        ms_header("shade", ranged),
         "rel. err L*",
         "RMSE vs uncompressed",
         "PSNR vs uncompressed",
@@ -756,8 +904,8 @@ pub fn compressor_table(m: &Metrics) -> Table {
                 format!("{:.3}", c.bytes_per_nnz),
                 format!("{:.3}", c.flops_per_gather as f64 / 1e6),
                 format!("{:.2}{}", c.build_seconds, if c.cached { " (cached)" } else { "" }),
-                format!("{:.2}", c.gather_ms),
-                format!("{:.1}", c.shade_ms),
+                timing_cell(c.gather_ms, c.gather_timing.as_ref(), 2),
+                timing_cell(c.shade_ms, c.shade_timing.as_ref(), 1),
                 format!("{:.2e}", c.rel_error_lstar),
                 format!("{:.3e}", c.image.vs_uncompressed.rmse),
                 format!("{:.2}", c.image.vs_uncompressed.psnr),
@@ -767,7 +915,7 @@ pub fn compressor_table(m: &Metrics) -> Table {
             ]
         })
         .collect::<Vec<Vec<String>>>();
-    let mut table = Table::new(HEADER);
+    let mut table = Table::new(header);
     for row in rows {
         table.text_row(row);
     }

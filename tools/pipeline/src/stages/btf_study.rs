@@ -160,8 +160,8 @@ fn precomputed_dots(
                 )),
             ),
             (true, true) => {
-                let (d, ms) = timed(1, || Ok(LightDots::new(scene, lstar, MAX_PRECOMPUTED_BYTES)?))?;
-                (Some((d, ms)), None)
+                let (d, once) = timed(1, || Ok(LightDots::new(scene, lstar, MAX_PRECOMPUTED_BYTES)?))?;
+                (Some((d, once.median_ms)), None)
             }
         };
         dots.push(d);

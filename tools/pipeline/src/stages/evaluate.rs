@@ -33,8 +33,10 @@ pub struct Baseline {
     pub exact: Vec<[f64; 3]>,
     pub lstar: LocalRadiance,
     pub render: Render,
-    pub gather_ms: f64,
-    pub shade_ms: f64,
+    /// The uncompressed gather's and shade's repeats (their medians are `metrics.json`'s
+    /// `uncompressed.gather_ms` and `shade_ms`).
+    pub gather_timing: Timing,
+    pub shade_timing: Timing,
     /// With light moments: the paper's `L*` and its image.
     pub paper: Option<(LocalRadiance, Render)>,
 }
@@ -123,9 +125,9 @@ pub(crate) fn baseline(
     view: &View<'_>,
     repeats: usize,
 ) -> Result<Baseline> {
-    let (exact, gather_ms) = timed(repeats, || uncompressed_product(t, &lighting.light, moments))?;
+    let (exact, gather_timing) = timed(repeats, || uncompressed_product(t, &lighting.light, moments))?;
     let lstar = LocalRadiance::from_f64(t.local_basis(), t.vertices(), &exact)?;
-    let (render, shade_ms) = view.timed_render(&lstar, repeats)?;
+    let (render, shade_timing) = view.timed_render(&lstar, repeats)?;
     let paper = match moments {
         None => None,
         Some(_) => {
@@ -134,7 +136,7 @@ pub(crate) fn baseline(
             Some((lstar, render))
         }
     };
-    Ok(Baseline { exact, lstar, render, gather_ms, shade_ms, paper })
+    Ok(Baseline { exact, lstar, render, gather_timing, shade_timing, paper })
 }
 
 /// What every render of the run shares: the scene, the camera and the background.
@@ -150,14 +152,15 @@ impl View<'_> {
         Ok(shade(self.scene, lstar, camera)?.with_background(camera, &self.background))
     }
 
-    /// [`Self::render`] at the run's camera, `repeats` times: the image and the median ms.
-    pub(crate) fn timed_render(&self, lstar: &LocalRadiance, repeats: usize) -> Result<(Render, f64)> {
+    /// [`Self::render`] at the run's camera, `repeats` times: the image and its [`Timing`].
+    pub(crate) fn timed_render(&self, lstar: &LocalRadiance, repeats: usize) -> Result<(Render, Timing)> {
         timed(repeats, || self.render(lstar, &self.camera))
     }
 }
 
-/// Run `f` `repeats` times (at least once): its last result and the median wall time (ms).
-pub(crate) fn timed<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(T, f64)> {
+/// Run `f` `repeats` times (at least once): its last result and the wall time of the repeats
+/// (fastest, median, slowest, spread: [`Timing`]; its `median_ms` is what `*_ms` fields report).
+pub(crate) fn timed<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(T, Timing)> {
     let mut samples = vec![];
     let mut last = None;
     for _ in 0..repeats.max(1) {
@@ -165,7 +168,23 @@ pub(crate) fn timed<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Resu
         last = Some(f()?);
         samples.push(start.elapsed().as_secs_f64() * 1e3);
     }
-    Ok((last.expect("at least one run"), biscale_core::stats::median(&samples)))
+    Ok((last.expect("at least one run"), Timing::from_samples(&samples)))
+}
+
+/// The machine's 1-minute load average (`/proc/loadavg`), `None` where it cannot be read (off
+/// Linux): taken before and after the run's timed steps ([`LoadRecord`]).
+pub(crate) fn load_average_1min() -> Option<f64> {
+    std::fs::read_to_string("/proc/loadavg").ok()?.split_whitespace().next()?.parse().ok()
+}
+
+/// The CPUs online on the machine, what its load average is spread over (at least 1).
+pub(crate) fn cpus_online() -> usize {
+    // SAFETY: sysconf only reads a system constant.
+    let n = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) };
+    match usize::try_from(n) {
+        Ok(n) if n > 0 => n,
+        _ => std::thread::available_parallelism().map_or(1, |n| n.get()),
+    }
 }
 
 /// The ground truth (direct light), ray-traced per pixel at the reference resolution
@@ -327,14 +346,14 @@ impl Evaluation<'_> {
     ) -> Result<(CompressorRecord, Render)> {
         let (view, repeats) = (self.view, self.repeats);
         let cerr = |source| PipelineError::Compress { name: setting.label.clone(), source };
-        let (lstar, gather_ms) = timed(repeats, || {
+        let (lstar, gather_timing) = timed(repeats, || {
             match self.moments {
                 None => compressor.gather(form, self.light),
                 Some((moments, frames)) => gather_with_moments(compressor, form, moments, frames),
             }
             .map_err(cerr)
         })?;
-        let (mut record, render) = self.score(&setting.label, &lstar, gather_ms)?;
+        let (mut record, render) = self.score_timed(&setting.label, &lstar, Some(gather_timing))?;
         let gpu = match gpu {
             Some(g) => {
                 let kernels = compressor.kernels(form).map_err(cerr)?;
@@ -345,18 +364,21 @@ impl Evaluation<'_> {
         let name = &setting.label;
         if let Some(g) = &gpu {
             log::info!(
-                "{name} on the gpu: gather {:.2} ms, shade {:.2} ms ({}), rel. error of L* {:.2e}, image vs cpu rel. L2 {:.2e} ({} of {} pixels differ by > 1e-3)",
-                g.gather_ms, g.shade_ms, g.timing, g.rel_error_lstar, g.image_vs_cpu.rel_l2, g.differing_pixels, g.covered_pixels
+                "{name} on the gpu: gather {} ms, shade {} ms ({}), rel. error of L* {:.2e}, image vs cpu rel. L2 {:.2e} ({} of {} pixels differ by > 1e-3)",
+                g.gather_timing.map_or(format!("{:.2}", g.gather_ms), |t| t.median_range(2)),
+                g.shade_timing.map_or(format!("{:.2}", g.shade_ms), |t| t.median_range(2)),
+                g.timing, g.rel_error_lstar, g.image_vs_cpu.rel_l2, g.differing_pixels, g.covered_pixels
             );
         }
         let name = &name.replace(':', "-");
         let rel_error_lstar = record.rel_error_lstar;
         log::info!(
-            "{name}: {:.2} MB, {:.2} Mflop/gather, built in {:.2} s{}, gather {gather_ms:.2} ms, rel. error of L* {rel_error_lstar:.2e}",
+            "{name}: {:.2} MB, {:.2} Mflop/gather, built in {:.2} s{}, gather {} ms, rel. error of L* {rel_error_lstar:.2e}",
             form.bytes() as f64 / 1e6,
             form.flops_per_gather as f64 / 1e6,
             form.build_seconds,
             if cached { " (cached)" } else { "" },
+            gather_timing.median_range(2),
         );
         // The host checks a lossless claim (a plugin's, or our own) against its f64 product.
         let lossless = form.lossless && rel_error_lstar <= LOSSLESS_CLAIM_TOLERANCE;
@@ -380,19 +402,31 @@ impl Evaluation<'_> {
         Ok((record, render))
     }
 
-    /// Shade `lstar` (gathered in `gather_ms`), compare it with the baseline and the reference
-    /// and write its images as `images/<name>.*`: a record whose form fields (kind, params,
-    /// storage, flops, build, stats, GPU) are empty for the caller to fill in ([`Self::record`]
-    /// for a compressed form, `crate::interop::eval` for an external `L*`).
+    /// Shade `lstar` (gathered in `gather_ms`, not timed here: no `gather_timing`), compare it
+    /// with the baseline and the reference and write its images as `images/<name>.*`: a record
+    /// whose form fields (kind, params, storage, flops, build, stats, GPU) are empty for the
+    /// caller to fill in (`crate::interop::eval` for an external `L*`).
     pub(crate) fn score(
         &self,
         name: &str,
         lstar: &LocalRadiance,
         gather_ms: f64,
     ) -> Result<(CompressorRecord, Render)> {
+        let (mut record, render) = self.score_timed(name, lstar, None)?;
+        record.gather_ms = gather_ms;
+        Ok((record, render))
+    }
+
+    /// [`Self::score`] of an `L*` whose gather was timed (`gather_timing`, [`Self::record`]).
+    fn score_timed(
+        &self,
+        name: &str,
+        lstar: &LocalRadiance,
+        gather_timing: Option<Timing>,
+    ) -> Result<(CompressorRecord, Render)> {
         let (view, repeats) = (self.view, self.repeats);
         let rel_error_lstar = relative_l2_error(lstar.values(), self.exact);
-        let (render, shade_ms) = view.timed_render(lstar, repeats)?;
+        let (render, shade_timing) = view.timed_render(lstar, repeats)?;
         let vs_uncompressed =
             errors(&compare_exposed(&render.image, &self.baseline.image, Some(&self.baseline.mask), self.exposure)?);
         let vs_reference = match self.reference {
@@ -429,8 +463,10 @@ impl Evaluation<'_> {
             flops_per_gather: 0,
             build_seconds: 0.0,
             cached: false,
-            gather_ms,
-            shade_ms,
+            gather_ms: gather_timing.map_or(0.0, |t| t.median_ms),
+            shade_ms: shade_timing.median_ms,
+            gather_timing,
+            shade_timing: Some(shade_timing),
             rel_error_lstar,
             image: ImageRecord {
                 vs_uncompressed,
@@ -445,5 +481,33 @@ impl Evaluation<'_> {
             gpu: None,
         };
         Ok((record, render))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn timed_keeps_every_repeat_and_the_last_result() {
+        let mut calls = 0;
+        let (last, t) = timed(4, || {
+            calls += 1;
+            Ok(calls)
+        })
+        .unwrap();
+        assert_eq!((last, calls, t.repeats), (4, 4, 4));
+        assert!(t.min_ms <= t.median_ms && t.median_ms <= t.max_ms && t.spread >= 0.0, "{t:?}");
+        // Zero repeats still run once.
+        let (_, t) = timed(0, || Ok(())).unwrap();
+        assert_eq!((t.repeats, t.spread), (1, 0.0));
+    }
+
+    #[test]
+    fn the_load_is_read_on_linux_and_the_cpus_are_counted() {
+        assert!(cpus_online() >= 1);
+        if cfg!(target_os = "linux") {
+            assert!(load_average_1min().is_some_and(|l| l >= 0.0));
+        }
     }
 }

@@ -4,7 +4,7 @@
 //! same run.
 
 use crate::error::Result;
-use crate::metrics::{GpuRecord, ImageErrors};
+use crate::metrics::{GpuRecord, ImageErrors, Timing};
 use biscale_core::compress::CompressedForm;
 use biscale_core::gather::moments::LightMoments;
 use biscale_core::gather::relative_l2_error;
@@ -64,19 +64,21 @@ impl GpuBackend {
         repeats: usize,
     ) -> Result<GpuRecord> {
         let mut gather = GpuGather::new(&self.ctx, form, kernels)?;
-        let (gather_timing, shade_timing, lstar, gpu) = match moments {
+        let ((method, gather_timing), (_, shade_timing), lstar, gpu) = match moments {
             None => {
-                let timing = gather.time_gather(light, repeats)?;
+                let timing = repeated(repeats, || gather.time_gather(light, 1))?;
                 gather.gather(light)?;
                 let render = self.shader.shade(&gather)?;
-                (timing, self.shader.time_shade(&gather, repeats)?, gather.read_lstar()?, render)
+                let shade = repeated(repeats, || self.shader.time_shade(&gather, 1))?;
+                (timing, shade, gather.read_lstar()?, render)
             }
             Some((m, frames)) => {
                 let mut moments = GpuMoments::new(gather, frames)?;
-                let timing = moments.time_gather(m, repeats)?;
+                let timing = repeated(repeats, || moments.time_gather(m, 1))?;
                 moments.gather(m)?;
                 let render = self.shader.shade(&moments)?;
-                (timing, self.shader.time_shade(&moments, repeats)?, moments.read_lstar()?, render)
+                let shade = repeated(repeats, || self.shader.time_shade(&moments, 1))?;
+                (timing, shade, moments.read_lstar()?, render)
             }
         };
         let gpu = gpu.with_background(&self.camera, background);
@@ -107,9 +109,11 @@ impl GpuBackend {
             .count();
         Ok(GpuRecord {
             adapter: self.adapter.clone(),
-            timing: format!("{:?}", gather_timing.method),
+            timing: format!("{method:?}"),
             gather_ms: gather_timing.median_ms,
             shade_ms: shade_timing.median_ms,
+            gather_timing: Some(gather_timing),
+            shade_timing: Some(shade_timing),
             rel_error_lstar: relative_l2_error(lstar.values(), exact),
             image_vs_cpu: ImageErrors::from(&m),
             coverage_mismatch,
@@ -117,4 +121,23 @@ impl GpuBackend {
             covered_pixels: cpu.mask.iter().filter(|&&c| c).count(),
         })
     }
+}
+
+/// A GPU stage timed `repeats` times (at least once), one measurement of one repetition each:
+/// `biscale_gpu`'s own repetitions keep only their median, and the report wants the fastest and
+/// slowest too. The samples are the same passes (GPU timestamps) or the same submit-to-idle
+/// wall clock as one measurement of `repeats` repetitions, except that with the wall clock each
+/// repetition now also carries the stage's small upload (the light vector) its call queues.
+fn repeated(
+    repeats: usize,
+    mut once: impl FnMut() -> biscale_gpu::Result<biscale_gpu::Timing>,
+) -> Result<(biscale_gpu::TimingMethod, Timing)> {
+    let mut samples = vec![];
+    let mut method = biscale_gpu::TimingMethod::WallClock;
+    for _ in 0..repeats.max(1) {
+        let t = once()?;
+        method = t.method;
+        samples.push(t.median_ms);
+    }
+    Ok((method, Timing::from_samples(&samples)))
 }

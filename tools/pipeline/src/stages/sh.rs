@@ -427,15 +427,15 @@ fn lpca_runtime(
     for n in (1..=most).rev() {
         let s = if n == most { None } else { Some(truncated(n)?) };
         let s = s.as_ref().unwrap_or(scene);
-        let ((lstar, dots), relight_ms) = timed(repeats, || {
+        let ((lstar, dots), relight) = timed(repeats, || {
             let lstar = compressor.gather(form, light).map_err(cerr)?;
             let dots = LightDots::new(s, &lstar, limit)?;
             Ok((lstar, dots))
         })?;
-        let (render, shade_ms) = timed(repeats, || {
+        let (render, shade) = timed(repeats, || {
             Ok(shade_precomputed(s, &dots, &lstar, camera)?.with_background(camera, &view.background))
         })?;
-        runs.push((n, relight_ms, shade_ms, render, dots.bytes()));
+        runs.push((n, relight.median_ms, shade.median_ms, render, dots.bytes()));
     }
     let (_, relight_ms, shade_ms, full, bytes) = &runs[0];
     let vs_direct = compare(&full.image, &direct.image, Some(&direct.mask))?.rel_l2;
