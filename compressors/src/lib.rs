@@ -12,6 +12,7 @@
 //! * [`bicluster`]: lossless greedy constant-column biclustering (Sun et al.), block-parallel.
 //! * [`cpca`]: clustered principal components (Sloan et al. 2003), lossy.
 //! * [`haar`]: non-linear Haar wavelet approximation per row (Ng et al. 2003), lossy.
+//! * [`hosted`]: a compressor the program running biscale supplies (a Python object).
 //!
 //! ```
 //! use biscale_compressors::sparse::Sparse;
@@ -28,6 +29,7 @@
 pub mod bicluster;
 pub mod cpca;
 pub mod haar;
+pub mod hosted;
 #[cfg(feature = "plugin")]
 pub mod plugin;
 pub mod registry;

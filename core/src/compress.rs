@@ -356,6 +356,17 @@ pub trait Compressor: Send + Sync {
     fn code_identity(&self) -> Option<u64> {
         None
     }
+    /// Whether this compressor's forms may be kept in the stage cache and reused. A compressor
+    /// whose code biscale cannot identify (one a host program supplies at run time, such as a
+    /// Python object) says no, so a form is never reused after that code changes.
+    fn cacheable(&self) -> bool {
+        true
+    }
+    /// Whether [`Self::kernels`] describes a GPU gather. A compressor without one (a hosted
+    /// one, whose gather is its host's code) is gathered on the CPU only.
+    fn has_kernels(&self) -> bool {
+        true
+    }
     /// Whether a form of `T` can be built from forms of its vertex ranges (a sharded
     /// precompute: [`Self::compress_part`] per shard, [`Self::merge_parts`] at the end).
     /// Whole by default: a compressor says it separates only when its merge reproduces

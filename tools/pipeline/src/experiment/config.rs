@@ -1056,6 +1056,40 @@ impl Experiment {
         &self.compressors
     }
 
+    /// Add a compressor setting made by a program rather than read from the file (a hosted
+    /// compressor, `biscale_compressors::hosted`), after the file's: its kind must know it
+    /// (the registry's check) and its label must be new and a plain file name.
+    pub fn add_compressor(&mut self, setting: CompressorSetting) -> Result<(), ConfigError> {
+        let fail = |what: String| {
+            Err(ConfigError {
+                file: format!("compressor `{}`", setting.label),
+                line: 0,
+                column: 0,
+                message: cut_message(what),
+                snippet: String::new(),
+            })
+        };
+        let Some(kind) = biscale_compressors::registry::find(&setting.kind) else {
+            return fail(format!("no compressor kind `{}`", setting.kind));
+        };
+        if let Err(e) = (kind.check)(&setting.params) {
+            return fail(e);
+        }
+        let plain = !setting.label.is_empty()
+            && setting.label.len() <= 100
+            && setting.label.chars().all(|c| c.is_ascii_alphanumeric() || "-_.+".contains(c))
+            && !setting.label.starts_with('.');
+        if !plain {
+            return fail("a label is 1 to 100 letters, digits and `-_.+`, not starting with `.`".into());
+        }
+        let taken = self.compressors.iter().chain(&self.methods).any(|s| s.label == setting.label);
+        if taken {
+            return fail("this label is taken by another setting of the experiment".into());
+        }
+        self.compressors.push(setting);
+        Ok(())
+    }
+
     /// Every method setting (`[[methods]]`), in config order with sweeps expanded.
     pub fn method_settings(&self) -> &[MethodSetting] {
         &self.methods

@@ -354,7 +354,8 @@ impl Evaluation<'_> {
             .map_err(cerr)
         })?;
         let (mut record, render) = self.score_timed(&setting.label, &lstar, Some(gather_timing))?;
-        let gpu = match gpu {
+        // A compressor without a GPU gather (a hosted one) is gathered on the CPU only.
+        let gpu = match gpu.filter(|_| compressor.has_kernels()) {
             Some(g) => {
                 let kernels = compressor.kernels(form).map_err(cerr)?;
                 Some(g.run(form, &kernels, self.light, self.moments, self.exact, &render, &view.background, repeats)?)

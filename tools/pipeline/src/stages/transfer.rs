@@ -65,7 +65,9 @@ pub fn compressed_form(
     cache: Option<&StageCache>,
 ) -> Result<(CompressedForm, bool)> {
     let name = &setting.label;
+    // A compressor whose code biscale cannot identify (a hosted one) is never cached.
     let cached = cache
+        .filter(|_| compressor.cacheable())
         .zip(crate::store::cache::form_key(t_key, compressor, seed))
         .map(|(c, key)| (c, c.form_path(&key, name), key));
     if let Some((c, path, key)) = &cached {

@@ -313,17 +313,43 @@ pub fn form_key(transfer: &CacheKey, compressor: &dyn Compressor, seed: u64) -> 
     ))
 }
 
-/// The running executable's path, size and modification time, hashed once.
+/// The path, size and modification time of the file holding this code, hashed once: the
+/// executable, or the shared library biscale is linked into (the Python module, whose process's
+/// executable is the interpreter, which says nothing of biscale's code).
 fn build_identity() -> Option<u128> {
     static ID: OnceLock<Option<u128>> = OnceLock::new();
     *ID.get_or_init(|| {
-        let exe = std::env::current_exe().ok()?;
+        let exe = code_file()?;
         let meta = std::fs::metadata(&exe).ok()?;
         let modified = meta.modified().ok()?.duration_since(std::time::UNIX_EPOCH).ok()?;
         let mut h = ContentHash::default();
         h.write_str(&exe.to_string_lossy()).write(&meta.len().to_le_bytes()).write(&modified.as_nanos().to_le_bytes());
         Some(h.finish128())
     })
+}
+
+/// The file this code was loaded from: `dladdr` of one of its functions, where that is a
+/// shared library; else the running executable.
+fn code_file() -> Option<PathBuf> {
+    let exe = std::env::current_exe().ok()?;
+    #[cfg(unix)]
+    {
+        use std::os::unix::ffi::OsStrExt;
+        // SAFETY: `dladdr` only reads the address (a function of this crate) and fills `info`;
+        // `dli_fname`, when set, points at a NUL-terminated path the loader keeps alive.
+        let mut info: libc::Dl_info = unsafe { std::mem::zeroed() };
+        let found = unsafe { libc::dladdr(code_file as *const libc::c_void, &mut info) } != 0;
+        if found && !info.dli_fname.is_null() {
+            let name = unsafe { std::ffi::CStr::from_ptr(info.dli_fname) };
+            let path = PathBuf::from(std::ffi::OsStr::from_bytes(name.to_bytes()));
+            let library =
+                std::fs::canonicalize(&path).ok().filter(|p| std::fs::canonicalize(&exe).ok().as_ref() != Some(p));
+            if let Some(library) = library.filter(|_| path.is_absolute()) {
+                return Some(library);
+            }
+        }
+    }
+    Some(exe)
 }
 
 #[cfg(test)]
@@ -333,6 +359,14 @@ mod tests {
 
     fn artifact() -> Artifact {
         Artifact::new("probe").with("n", Field::U64(3)).with_array("v", ArrayData::F32(vec![1.0, 2.0]))
+    }
+
+    /// A test executable is its own code file (the module's case, a library, is tested by
+    /// python/tests: its forms are cached under keys of its own).
+    #[test]
+    fn the_code_of_an_executable_is_the_executable() {
+        assert_eq!(code_file(), std::env::current_exe().ok());
+        assert!(build_identity().is_some());
     }
 
     fn decode(a: Artifact) -> Result<Artifact, String> {
