@@ -2,7 +2,7 @@
 # The project's test command (the README's second command; CI runs it too).
 # Installs what the tests need (the software Vulkan driver, so wgpu runs without a GPU, and
 # NumPy in .venv for the Python round trip of tools/cli/tests/cli/interop.rs), then runs the whole
-# workspace's tests.
+# workspace's tests, then the Python module's (scripts/test-python.sh: pytest on python/tests).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -17,3 +17,5 @@ else
     echo "test.sh: warning: no NumPy (scripts/setup-python.sh --numpy-only failed); the Python round trip will be skipped" >&2
 fi
 cargo test --workspace --locked "$@"
+# The Python module's tests (pytest; builds the module into .venv first).
+bash scripts/test-python.sh

@@ -1,0 +1,256 @@
+"""biscale: all-frequency bi-scale precomputed radiance transfer, from Python.
+
+The pipeline of the ``biscale`` command line as a module, with the same semantics: a config
+loaded with the same overrides runs the same stages, writes the same output folder and
+returns the same ``metrics.json`` record. Your own compressor (NumPy, PyTorch, ...) runs beside
+the built-in ones in the same run, and is gathered, imaged, timed and reported like them::
+
+    import biscale
+    exp = biscale.Experiment.load("configs/smoke.toml", set={"runtime.repeats": 1})
+    metrics = exp.run(out="out/smoke-py")              # the record metrics.json holds
+    T, L = exp.transfer(), exp.light()                  # T (CSR arrays, .to_scipy()), L (N x 3)
+    form = biscale.compress(T, "bicluster")             # a built-in kind's form
+    lstar = form.gather(L)                              # L* = T L, rows x 3
+
+A Python compressor is any object with ``compress(T, context)`` that returns a form with
+``gather(L)``, ``flops_per_gather`` and, for its storage, ``arrays`` (see
+:class:`PythonCompressor`); pass it as ``exp.run(compressors=[obj])``.
+
+Long calls release the GIL. Errors are :class:`BiscaleError` (a config's located message,
+``configs/x.toml:14:1: unknown field ...``, is a :class:`ConfigError`). Progress goes to the
+``logging`` logger ``biscale`` (``logging.basicConfig(level=logging.INFO)`` to see it).
+
+``biscale_io`` (beside this package in the source tree) is the NumPy-only reader of the
+``.npz`` files ``biscale export`` writes; it needs no compiled code.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any, Dict, Iterable, List, Mapping, Optional, Protocol, Sequence, Union, runtime_checkable
+
+import numpy as np
+
+from . import _native
+from ._native import BiscaleError, ConfigError
+
+__all__ = [
+    "BiscaleError",
+    "ConfigError",
+    "Experiment",
+    "Form",
+    "PythonCompressor",
+    "PythonForm",
+    "Transfer",
+    "compress",
+]
+__version__ = _native.__version__
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+def _toml_value(v: Any) -> str:
+    """``v`` as a TOML value for ``--set KEY=VALUE``."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
+        f = float(v)
+        if f != f or f in (float("inf"), float("-inf")):
+            raise ConfigError(f"{v!r}: a config value must be finite")
+        return repr(f)
+    if isinstance(v, str):
+        return json.dumps(v)  # a JSON string is a TOML basic string
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, Mapping):
+        return "{ " + ", ".join(f"{json.dumps(str(k))} = {_toml_value(x)}" for k, x in v.items()) + " }"
+    raise ConfigError(f"{v!r}: a config value is a bool, number, string, list or dict, not {type(v).__name__}")
+
+
+def _overrides(set: Optional[Mapping[str, Any]]) -> List[str]:
+    if set is None:
+        return []
+    if not isinstance(set, Mapping):
+        raise ConfigError("set= takes a dict of dotted keys to values, e.g. {'runtime.repeats': 1}")
+    return [f"{k}={_toml_value(v)}" for k, v in set.items()]
+
+
+def _light_array(L: Any) -> np.ndarray:
+    """``L`` as the C-contiguous float32 N x 3 array the native calls take."""
+    a = np.asarray(L)
+    if a.dtype != np.float32:
+        if not np.issubdtype(a.dtype, np.floating):
+            raise BiscaleError(f"L has dtype {a.dtype}; a light is float32 (or float64, converted)")
+        a = a.astype(np.float32)
+    return np.ascontiguousarray(a)
+
+
+class Transfer:
+    """The transfer matrix ``T``: rows ``v*M + j`` (vertex ``v``, local direction ``j``),
+    columns the light's cubemap texels. ``indptr``/``indices``/``data`` are its CSR arrays
+    (copies); ``to_scipy()`` builds a ``scipy.sparse.csr_array``."""
+
+    def __init__(self, native: "_native.Transfer") -> None:
+        self._t = native
+
+    shape = property(lambda self: self._t.shape, doc="(rows, cols)")
+    nnz = property(lambda self: self._t.nnz, doc="stored non-zeros")
+    vertices = property(lambda self: self._t.vertices, doc="mesh vertices V")
+    local_dirs = property(lambda self: self._t.local_dirs, doc="local directions per vertex M")
+    local_basis = property(lambda self: self._t.local_basis, doc="e.g. 'bins:8'")
+    light_basis = property(lambda self: self._t.light_basis, doc="e.g. 'cubemap:32'")
+    indptr = property(lambda self: self._t.indptr(), doc="int64, rows + 1")
+    indices = property(lambda self: self._t.indices(), doc="int32, nnz")
+    data = property(lambda self: self._t.data(), doc="float32, nnz")
+
+    def product(self, L: Any) -> np.ndarray:
+        """``T L`` in float64 (rows x 3): the exact product a lossless gather reproduces."""
+        return self._t.product(_light_array(L))
+
+    def to_scipy(self) -> Any:
+        """``T`` as a ``scipy.sparse.csr_array`` (needs SciPy)."""
+        import scipy.sparse
+
+        return scipy.sparse.csr_array((self.data, self.indices, self.indptr), shape=self.shape)
+
+    def __repr__(self) -> str:
+        r, c = self.shape
+        return f"<biscale.Transfer {r} x {c}, {self.nnz} non-zeros, {self.local_basis} x {self.light_basis}>"
+
+
+class Form:
+    """A built-in compressor's form of a :class:`Transfer` (:func:`compress`)."""
+
+    def __init__(self, native: "_native.Form") -> None:
+        self._f = native
+
+    kind = property(lambda self: self._f.kind, doc="the compressor kind")
+    nbytes = property(lambda self: self._f.nbytes, doc="storage of the form's arrays, bytes")
+    flops_per_gather = property(lambda self: self._f.flops_per_gather, doc="flops of one monochrome gather")
+    lossless = property(lambda self: self._f.lossless, doc="whether the gather reproduces T L up to rounding")
+    build_seconds = property(lambda self: self._f.build_seconds, doc="seconds the compressor took")
+
+    @property
+    def arrays(self) -> Dict[str, np.ndarray]:
+        """The form's arrays by name, at their stored widths (copies)."""
+        return self._f.arrays()
+
+    def gather(self, L: Any) -> np.ndarray:
+        """``L*`` of the light ``L`` (N x 3): rows x 3 float32, the form's own CPU gather."""
+        return self._f.gather(_light_array(L))
+
+    def __repr__(self) -> str:
+        return f"<biscale.Form {self.kind}, {self.nbytes} bytes, {self.flops_per_gather} flops/gather>"
+
+
+def compress(T: Transfer, kind: str, *, seed: int = 0, **params: Any) -> Form:
+    """Compress ``T`` with the built-in kind ``kind`` (``sparse``, ``bicluster``, ``cpca``,
+    ``haar``) and its parameters as a config's ``[[compressors]]`` entry names them, e.g.
+    ``compress(T, "cpca", clusters=8, components=4)``."""
+    if not isinstance(T, Transfer):
+        raise BiscaleError(f"compress takes a biscale.Transfer (Experiment.transfer()), not {type(T).__name__}")
+    return Form(_native.compress(T._t, kind, json.dumps(params), seed))
+
+
+@runtime_checkable
+class PythonForm(Protocol):
+    """What a Python compressor's ``compress`` returns.
+
+    ``gather(L)`` takes ``L`` (N x 3 float32, the light's power per texel) and returns ``L*``
+    (rows x 3, float32 or float64, row ``v*M + j``); it is checked (shape, finite values) before
+    it is scored. ``flops_per_gather`` is the flops of one monochrome gather (your count; the
+    report shows it as given). ``arrays`` (a dict of NumPy arrays of float32, uint32, uint16,
+    int16, uint8 or int8) is the form's storage: the bytes biscale reports are what it holds,
+    and an ``nbytes`` attribute, if given, must agree. ``lossless = True`` is a claim biscale
+    checks against the f64 product."""
+
+    flops_per_gather: int
+
+    def gather(self, L: np.ndarray) -> np.ndarray: ...
+
+
+@runtime_checkable
+class PythonCompressor(Protocol):
+    """A compressor written in Python: ``compress(T, context)`` with ``T`` a :class:`Transfer`
+    (a copy of the run's) and ``context`` a dict (``seed``: the run's seed). Optional:
+    ``label`` (the setting's label in the report; default the class name in lower case) and
+    ``params`` (a JSON-able dict recorded in metrics.json)."""
+
+    def compress(self, T: Any, context: Dict[str, Any]) -> PythonForm: ...
+
+
+def _label(c: Any) -> str:
+    label = getattr(c, "label", None) or type(c).__name__.lower()
+    return str(label)
+
+
+class Experiment:
+    """A config, loaded as ``biscale run CONFIG --set KEY=VALUE ...`` loads it."""
+
+    def __init__(self, native: "_native.Experiment") -> None:
+        self._e = native
+        self.out_dir: Optional[str] = None
+
+    @staticmethod
+    def load(path: PathLike, set: Optional[Mapping[str, Any]] = None) -> "Experiment":
+        """Load the config at ``path`` with ``set`` applied (dotted keys to values, as ``--set``)."""
+        return Experiment(_native.Experiment.load(os.fspath(path), _overrides(set)))
+
+    name = property(lambda self: self._e.name, doc="the experiment's name")
+    source = property(lambda self: self._e.source, doc="the config text as it runs")
+    seed = property(lambda self: self._e.seed, doc="the seed every compressor of a run is given")
+
+    @property
+    def compressor_settings(self) -> List[Dict[str, Any]]:
+        """The config's compressor settings in run order: ``{"label", "kind", "params"}`` each
+        (``compress(T, s["kind"], seed=exp.seed, **s["params"])`` builds the run's form)."""
+        return [{"label": l, "kind": k, "params": json.loads(p)} for l, k, p in self._e.compressor_settings]
+
+    @property
+    def compressor_labels(self) -> List[str]:
+        """The labels of the config's compressor settings, in run order."""
+        return [s["label"] for s in self.compressor_settings]
+
+    def plan(self, *, cache_dir: Optional[PathLike] = None, no_cache: bool = False) -> str:
+        """What ``biscale plan`` prints."""
+        return self._e.plan(None if cache_dir is None else os.fspath(cache_dir), no_cache)
+
+    def run(
+        self,
+        out: Optional[PathLike] = None,
+        *,
+        cache_dir: Optional[PathLike] = None,
+        no_cache: bool = False,
+        compressors: Sequence[PythonCompressor] = (),
+    ) -> Dict[str, Any]:
+        """Run the experiment (output folder ``out``, default ``out/<name>``) with each Python
+        compressor in ``compressors`` as one more setting; returns the metrics record
+        (``metrics.json``). ``self.out_dir`` is the folder written."""
+        objs = list(compressors)
+        for c in objs:
+            if not callable(getattr(c, "compress", None)):
+                raise BiscaleError(f"{c!r} has no compress(T, context) method (see biscale.PythonCompressor)")
+        labels = [_label(c) for c in objs]
+        out_dir, text = self._e.run(
+            None if out is None else os.fspath(out),
+            None if cache_dir is None else os.fspath(cache_dir),
+            no_cache,
+            objs,
+            labels,
+        )
+        self.out_dir = out_dir
+        return json.loads(text)
+
+    def light(self) -> np.ndarray:
+        """The light vector ``L``: power per cubemap texel, N x 3 float32."""
+        return self._e.light()
+
+    def transfer(self, *, cache_dir: Optional[PathLike] = None, no_cache: bool = False) -> Transfer:
+        """``T`` from the stage cache, or traced (as ``biscale run`` gets it)."""
+        return Transfer(self._e.transfer(None if cache_dir is None else os.fspath(cache_dir), no_cache))
+
+    def __repr__(self) -> str:
+        return f"<biscale.Experiment {self.name!r}>"
