@@ -244,6 +244,45 @@ class Experiment:
         self.out_dir = out_dir
         return json.loads(text)
 
+    def evaluate(
+        self,
+        lstar: Any,
+        *,
+        name: str = "python",
+        out: Optional[PathLike] = None,
+        cache_dir: Optional[PathLike] = None,
+        no_cache: bool = False,
+    ) -> Dict[str, Any]:
+        """Score an ``L*`` you computed (rows x 3, float32 or float64; rows ``v*M + j``) as a run
+        scores a compressor: images against the uncompressed render and the reference, errors,
+        a report in ``out`` (default ``out/<name>-eval-<name>``). Returns the record ``biscale
+        eval`` writes. ``lstar`` may also be a path to a ``.npy``/``.npz`` file (as ``--lstar``
+        takes it); an array is passed through a temporary ``.npy``, which the record's
+        ``params.file`` names. To score a compressor with its storage and timings, pass it to
+        :meth:`run` instead."""
+        import tempfile
+
+        if isinstance(lstar, Form):
+            raise BiscaleError("evaluate takes an L* array; a form is scored by run(compressors=[...]) or form.gather(L)")
+        if isinstance(lstar, (str, os.PathLike)):
+            # A file, as `biscale eval --lstar FILE` takes it.
+            out_dir, text = self._e.evaluate(
+                os.fspath(lstar), name, None if out is None else os.fspath(out), None if cache_dir is None else os.fspath(cache_dir), no_cache
+            )
+            self.out_dir = out_dir
+            return json.loads(text)
+        a = np.asarray(lstar)
+        if a.dtype not in (np.float32, np.float64):
+            raise BiscaleError(f"L* has dtype {a.dtype}; it is float32 or float64")
+        with tempfile.TemporaryDirectory(prefix="biscale-eval-") as d:
+            path = os.path.join(d, "lstar.npy")
+            np.save(path, np.ascontiguousarray(a))
+            out_dir, text = self._e.evaluate(
+                path, name, None if out is None else os.fspath(out), None if cache_dir is None else os.fspath(cache_dir), no_cache
+            )
+        self.out_dir = out_dir
+        return json.loads(text)
+
     def light(self) -> np.ndarray:
         """The light vector ``L``: power per cubemap texel, N x 3 float32."""
         return self._e.light()

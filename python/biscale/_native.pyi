@@ -34,6 +34,14 @@ class Experiment:
         compressors: Sequence[Any] = ...,
         labels: Sequence[str] = ...,
     ) -> Tuple[str, str]: ...
+    def evaluate(
+        self,
+        lstar: str,
+        name: Optional[str] = None,
+        out: Optional[str] = None,
+        cache_dir: Optional[str] = None,
+        no_cache: bool = False,
+    ) -> Tuple[str, str]: ...
     def light(self) -> npt.NDArray[np.float32]: ...
     def transfer(self, cache_dir: Optional[str] = None, no_cache: bool = False) -> "Transfer": ...
 

@@ -152,6 +152,27 @@ impl Experiment {
         Ok((dir.display().to_string(), json))
     }
 
+    /// Score an `L*` saved at `lstar` (`.npy`/`.npz`, as `biscale eval --lstar` reads it) as a
+    /// run scores a compressor setting: images, errors, report. Returns the output folder and
+    /// `metrics.json`'s text.
+    #[pyo3(signature = (lstar, name = None, out = None, cache_dir = None, no_cache = false))]
+    fn evaluate(
+        &self,
+        py: Python<'_>,
+        lstar: PathBuf,
+        name: Option<String>,
+        out: Option<PathBuf>,
+        cache_dir: Option<PathBuf>,
+        no_cache: bool,
+    ) -> PyResult<(String, String)> {
+        let opts = options(out, cache_dir, no_cache);
+        let input = biscale::interop::EvalInput::Lstar(lstar);
+        let (dir, metrics) =
+            py.detach(|| biscale::interop::eval(&self.exp, &input, name.as_deref(), &opts)).map_err(err)?;
+        let json = serde_json::to_string(&metrics).map_err(err)?;
+        Ok((dir.display().to_string(), json))
+    }
+
     /// The light vector `L` of the config's lighting: power per texel, N x 3 float32.
     fn light<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let lighting = py.detach(|| biscale::stages::scene::load_lighting(&self.exp)).map_err(err)?;

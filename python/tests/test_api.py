@@ -145,6 +145,29 @@ def test_compress_builds_the_runs_forms(exp, runs, cache):
         assert rel == pytest.approx(r["rel_error_lstar"], rel=1e-9, abs=1e-12), s
 
 
+def test_evaluate_is_the_clis_eval(exp, exported, cache, tmp_path):
+    """An L* scored from Python gives the record `biscale eval --lstar` writes for the same
+    array; the exact product scores as the uncompressed render."""
+    T, L = exp.transfer(cache_dir=cache), exp.light()
+    lstar = (T.product(L) * 0.9).astype(np.float32)
+    path = tmp_path / "lstar.npy"
+    np.save(path, lstar)
+    run_cli("eval", SMOKE, "--set", "runtime.repeats=1", "--lstar", path, "--name", "darker", "--out", tmp_path / "cli", "--cache-dir", cache)
+    ours = exp.evaluate(path, name="darker", out=tmp_path / "py", cache_dir=cache)
+    assert exp.evaluate(lstar, name="darker", out=tmp_path / "array", cache_dir=cache)["compressors"][0]["image"] == ours["compressors"][0]["image"]
+    same = subprocess.run([sys.executable, str(ROOT / "scripts" / "same_results.py"), str(tmp_path / "cli"), str(tmp_path / "py")], capture_output=True, text=True)
+    assert same.returncode == 0, same.stdout + same.stderr
+    rec = ours["compressors"][0]
+    assert rec["rel_error_lstar"] == pytest.approx(0.1, rel=1e-5)
+    exact = exp.evaluate(T.product(L), out=tmp_path / "exact", cache_dir=cache)["compressors"][0]
+    assert exact["rel_error_lstar"] < 1e-7 and exact["image"]["vs_uncompressed"]["rel_l2"] < 1e-6
+    with pytest.raises(biscale.BiscaleError, match="dtype"):
+        exp.evaluate(lstar.astype(np.int32), out=tmp_path / "bad")
+    with pytest.raises(biscale.BiscaleError):
+        exp.evaluate(lstar[:100], out=tmp_path / "short")
+    assert not (tmp_path / "bad").exists() and not (tmp_path / "short").exists()
+
+
 def test_plan_is_the_clis(exp, runs, cache):
     # The same text but for what is measured as it runs: the estimate's seconds, free memory.
     seconds = lambda plan: re.sub(r"\d+\.\d+ (s\b|GiB available)", r"<x> \1", plan)
