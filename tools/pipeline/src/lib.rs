@@ -20,6 +20,7 @@
 //! | [`scheduler`] | its job files (`shard sbatch`, `k8s`, `batch`: Slurm, Kubernetes, AWS Batch) and the task's index |
 //! | [`interop`] | NumPy files in and out (`export`, `eval`), with its `.npy`/`.npz` codec |
 //! | [`rerender`] | `biscale report`: a finished run's report from its record alone |
+//! | [`reproduce`] | `biscale reproduce`: the paper's Tables I and II and its comparisons beside our runs' figures |
 //! | [`commands`], [`temple`] | the smaller commands (`export-matrix`, `diff`, `btf`, `generate`, `viz`, `view`) |
 //! | [`util`] | verbosity, notes and progress bars |
 //!
@@ -37,6 +38,7 @@ pub mod estimate;
 pub mod experiment;
 pub mod interop;
 pub mod provenance;
+pub mod reproduce;
 pub mod rerender;
 pub mod run;
 pub mod scheduler;

@@ -1,0 +1,278 @@
+//! `biscale reproduce --quick`: every item at small sizes into a fresh folder, then checked from
+//! the outside: the files exist and parse, every "ours" figure of `numbers.csv` is what its
+//! run's `metrics.json` says (re-read here, by this file's own definitions), every published
+//! figure the tables quote has its row, and a rerun with the same cache takes `T` from it and
+//! keeps the precomputation time the first run measured.
+
+use serde_json::Value;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().parent().unwrap().to_path_buf()
+}
+
+fn biscale(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_biscale")).args(args).current_dir(root()).output().expect("run biscale");
+    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+}
+
+/// One line of `numbers.csv`, by column name.
+type Line = BTreeMap<String, String>;
+
+/// RFC 4180 fields (quotes doubled inside quoted fields); no field spans lines here.
+fn fields(line: &str) -> Vec<String> {
+    let (mut out, mut cur, mut quoted, mut chars) = (vec![], String::new(), false, line.chars().peekable());
+    while let Some(c) = chars.next() {
+        match (c, quoted) {
+            ('"', true) if chars.peek() == Some(&'"') => {
+                cur.push('"');
+                chars.next();
+            }
+            ('"', _) => quoted = !quoted,
+            (',', false) => out.push(std::mem::take(&mut cur)),
+            _ => cur.push(c),
+        }
+    }
+    out.push(cur);
+    out
+}
+
+fn read_csv(path: &Path) -> Vec<Line> {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let header = fields(lines.next().unwrap());
+    assert_eq!(header, ["item", "row", "column", "ours", "paper", "ratio", "unit", "source", "note"]);
+    lines
+        .map(|l| {
+            let f = fields(l);
+            assert_eq!(f.len(), header.len(), "{l}");
+            header.iter().cloned().zip(f).collect()
+        })
+        .collect()
+}
+
+fn num(s: &str) -> Option<f64> {
+    (!s.is_empty()).then(|| s.parse::<f64>().unwrap_or_else(|e| panic!("{s}: {e}")))
+}
+
+fn close(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1e-300)
+}
+
+fn f(v: &Value, path: &str) -> f64 {
+    path.split('.').fold(v, |v, k| &v[k]).as_f64().unwrap_or_else(|| panic!("{path} in a metrics.json"))
+}
+
+/// A `[runtime]` integer of the config a run ran, read off its text.
+fn runtime_value(m: &Value, key: &str) -> f64 {
+    let text = m["run"]["config_text"].as_str().unwrap();
+    let mut in_runtime = false;
+    for line in text.lines() {
+        let l = line.trim();
+        if l.starts_with('[') {
+            in_runtime = l == "[runtime]";
+        } else if in_runtime && l.starts_with(key) {
+            let value = l.split('=').nth(1).unwrap().split('#').next().unwrap().trim();
+            return value.parse().unwrap();
+        }
+    }
+    panic!("no runtime.{key} in the run's config")
+}
+
+/// This file's own definition of each Table I / II figure, from a run's `metrics.json`.
+fn expected(m: &Value, row: &str) -> f64 {
+    let b = m["compressors"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["kind"] == "bicluster" && c["lossless"] == true)
+        .expect("a lossless bicluster record");
+    let vertices = f(m, "scene.vertices");
+    match row {
+        "width" => runtime_value(m, "width"),
+        "height" => runtime_value(m, "height"),
+        "vertices" => vertices,
+        "btfs" => m["scene"]["btfs"].as_array().unwrap().iter().filter(|b| b["primary"] == true).count() as f64,
+        "btf_size" => f(m, "scene.btf_bytes") / 1e6,
+        "nnz" => f(m, "transfer.nnz") / 1e6,
+        "nnz_per_vertex" => f(m, "transfer.nnz") / vertices,
+        "mflops" => 2.0 * f(b, "stats.nnz") / 1e6,
+        "reduced_mflops" => f(b, "stats.mflops_biclustered"),
+        "computation" => 100.0 * f(b, "stats.mflops_biclustered") / (2.0 * f(b, "stats.nnz") / 1e6),
+        "data_size" => f(m, "transfer.rows") * f(m, "transfer.cols") / 1e6,
+        "reduced_size" => f(b, "bytes") / 1e6,
+        "data_size_pct" => 100.0 * f(b, "bytes") / (f(m, "transfer.rows") * f(m, "transfer.cols")),
+        "precompute" => {
+            assert_eq!(m["transfer"]["cached"], false, "a fresh cache traces T");
+            (f(m, "transfer.build_seconds") + f(b, "build_seconds")) / 60.0
+        }
+        "fps_fixed_light" => 1000.0 / f(b, "shade_ms"),
+        "fps_moving_light" => 1000.0 / (f(b, "gather_ms") + f(b, "shade_ms")),
+        other => panic!("a row this test has no definition of: {other}"),
+    }
+}
+
+/// The equal-storage and equal-quality rows against the comparison run's records.
+fn check_comparison(line: &Line, m: &Value) {
+    let records = m["compressors"].as_array().unwrap();
+    let of_kind: Vec<&Value> = records.iter().filter(|r| r["kind"] == line["column"].as_str()).collect();
+    assert!(!of_kind.is_empty(), "{line:?}");
+    let ours = num(&line["ours"]).unwrap_or_else(|| panic!("{line:?}"));
+    let named = |l: &Line| {
+        let name = l["note"].strip_prefix("ours: ").unwrap_or_else(|| panic!("{l:?}"));
+        *of_kind.iter().find(|r| r["name"] == name).unwrap_or_else(|| panic!("{name}"))
+    };
+    match line["row"].as_str() {
+        "equal_storage_mb" => assert!(close(ours, f(named(line), "bytes") / 1e6), "{line:?}"),
+        "equal_storage_ratio" | "equal_storage_error_pct" | "equal_storage_build_s" => {}
+        row if row.starts_with("equal_quality_mb_") => {
+            let bytes: Vec<f64> = of_kind.iter().map(|r| f(r, "bytes") / 1e6).collect();
+            let (lo, hi) = bytes.iter().fold((f64::MAX, 0f64), |(a, b), &x| (a.min(x), b.max(x)));
+            assert!(ours >= lo * (1.0 - 1e-12) && ours <= hi * (1.0 + 1e-12), "{line:?}: outside {lo}..{hi}");
+        }
+        other => panic!("a comparison row this test does not know: {other}"),
+    }
+}
+
+#[test]
+fn reproduce_quick_sets_each_runs_figures_beside_the_papers_and_a_rerun_reuses_the_cache() {
+    let dir = tempfile::tempdir().unwrap();
+    let (out, cache) = (dir.path().join("paper"), dir.path().join("cache"));
+    let (out_s, cache_s) = (out.to_str().unwrap(), cache.to_str().unwrap());
+    let (ok, stdout, err) = biscale(&["reproduce", "--quick", "--out", out_s, "--cache-dir", cache_s]);
+    assert!(ok, "{err}");
+    assert!(err.contains("reproduce: run 1/5 `bunny`"), "a progress line per run: {err}");
+    assert!(stdout.contains("numbers.csv") && stdout.contains("index.html"), "{stdout}");
+
+    // Every file, and each table in LaTeX with booktabs and a caption.
+    for t in ["table1", "table2", "equal_quality"] {
+        let tex = std::fs::read_to_string(out.join("tables").join(format!("{t}.tex"))).unwrap();
+        for must in ["\\begin{tabular}", "\\toprule", "\\midrule", "\\bottomrule", "\\caption{", "\\end{table*}"] {
+            assert!(tex.contains(must), "{t}.tex lacks {must}");
+        }
+        assert_eq!(tex.matches('{').count(), tex.matches('}').count(), "{t}.tex: unbalanced braces");
+        assert!(tex.contains("quick"), "{t}.tex says it is a quick run");
+    }
+    let html = std::fs::read_to_string(out.join("index.html")).unwrap();
+    assert!(html.starts_with("<!DOCTYPE html>") && html.trim_end().ends_with("</html>"));
+    assert!(!html.contains("<script") && !html.contains("<link"), "self-contained");
+    for must in ["Table I", "Table II", "equal-quality", "<caption>", "Not reproduced yet", "Machine:"] {
+        assert!(html.contains(must), "index.html lacks {must}");
+    }
+    let provenance: Value = serde_json::from_slice(&std::fs::read(out.join("reproduce.json")).unwrap()).unwrap();
+    assert_eq!(provenance["quick"], true);
+    assert!(provenance["run"]["started_at"].is_string() && provenance["run"]["host"].is_string());
+    let mut metrics = BTreeMap::new();
+    for run in ["bunny", "bunny-l1", "bunny-l2", "temple", "equal-quality"] {
+        let path = out.join("runs").join(run).join("metrics.json");
+        let m: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+        assert!(out.join("runs").join(run).join("report.html").is_file());
+        metrics.insert(format!("runs/{run}"), m);
+    }
+    // The bunny grows by subdivision, about 4x a level.
+    let v = |r: &str| f(&metrics[r], "scene.vertices");
+    assert!(v("runs/bunny-l1") > 3.5 * v("runs/bunny") && v("runs/bunny-l2") > 3.5 * v("runs/bunny-l1"));
+
+    // Every "ours" figure is its run's, by this file's definitions; every ratio is ours / paper.
+    let lines = read_csv(&out.join("numbers.csv"));
+    let mut checked = 0;
+    for l in &lines {
+        if let (Some(o), Some(p)) = (num(&l["ours"]), num(&l["paper"])) {
+            assert!(close(num(&l["ratio"]).unwrap(), o / p), "{l:?}");
+        } else {
+            assert!(l["ratio"].is_empty(), "{l:?}");
+        }
+        let Some(ours) = num(&l["ours"]) else {
+            assert!(!l["note"].is_empty(), "a figure left out says why: {l:?}");
+            continue;
+        };
+        let m = &metrics[&l["source"]];
+        match l["item"].as_str() {
+            "table1" | "table2" => assert!(close(ours, expected(m, &l["row"])), "{l:?}: {}", expected(m, &l["row"])),
+            "equal-quality" => check_comparison(l, m),
+            other => panic!("an item this test does not know: {other}"),
+        }
+        checked += 1;
+    }
+    assert!(checked > 80, "{checked} figures checked");
+
+    // Every published figure the tables quote has its row, with the paper's value.
+    let published = biscale::reproduce::published::Published::get();
+    let paper = |item: &str, row: &str, column: &str| -> Option<f64> {
+        let l = lines.iter().find(|l| l["item"] == item && l["row"] == row && l["column"] == column);
+        num(&l.unwrap_or_else(|| panic!("no row {item} {row} {column}"))["paper"])
+    };
+    for s in &published.table1 {
+        let quoted = [
+            ("vertices", s.vertices as f64),
+            ("btfs", s.btfs as f64),
+            ("btf_size", s.btf_mb),
+            ("nnz", s.nnz_m),
+            ("mflops", s.mflops),
+            ("reduced_mflops", s.reduced_mflops),
+            ("computation", s.computation_pct),
+            ("data_size", s.data_mb),
+            ("reduced_size", s.reduced_mb),
+            ("data_size_pct", s.data_pct),
+            ("precompute", s.precompute_min),
+            ("fps_fixed_light", s.fps_fixed_light),
+            ("fps_moving_light", s.fps_moving_light),
+            ("width", s.width as f64),
+            ("height", s.height as f64),
+        ];
+        for (row, value) in quoted {
+            assert_eq!(paper("table1", row, &s.scene), Some(value), "{} {row}", s.scene);
+        }
+    }
+    for c in &published.table2 {
+        let column = format!("bunny {}", c.vertices);
+        let quoted = [
+            ("vertices", c.vertices as f64),
+            ("nnz", c.nnz_m),
+            ("mflops", c.mflops),
+            ("reduced_mflops", c.reduced_mflops),
+            ("computation", c.computation_pct),
+            ("data_size", c.data_mb),
+            ("reduced_size", c.reduced_mb),
+            ("data_size_pct", c.data_pct),
+            ("precompute", c.precompute_min),
+            ("fps_fixed_light", c.fps_fixed_light),
+            ("fps_moving_light", c.fps_moving_light),
+        ];
+        for (row, value) in quoted {
+            assert_eq!(paper("table2", row, &column), Some(value), "{column} {row}");
+        }
+    }
+    for (kind, mb) in &published.fig6.storage_mb {
+        assert_eq!(paper("equal-quality", "equal_storage_mb", kind), Some(*mb), "{kind}");
+    }
+    // Armor and Chair are listed, not run.
+    for scene in ["Armor", "Chair"] {
+        let l = lines.iter().find(|l| l["row"] == "nnz" && l["column"] == scene).unwrap();
+        assert!(l["ours"].is_empty() && l["note"].starts_with("not reproduced"), "{l:?}");
+    }
+
+    // A rerun with the same cache: T from the cache, and the precomputation is the first run's.
+    let (ok, _, err) = biscale(&["-q", "reproduce", "--quick", "--out", out_s, "--cache-dir", cache_s]);
+    assert!(ok, "{err}");
+    let again = read_csv(&out.join("numbers.csv"));
+    let m: Value = serde_json::from_slice(&std::fs::read(out.join("runs/bunny/metrics.json")).unwrap()).unwrap();
+    assert_eq!(m["transfer"]["cached"], true);
+    let precompute = |ls: &[Line]| -> Vec<String> {
+        ls.iter().filter(|l| l["row"] == "precompute" && !l["source"].is_empty()).map(|l| l["ours"].clone()).collect()
+    };
+    assert_eq!(precompute(&again), precompute(&lines));
+    assert!(again.iter().any(|l| l["row"] == "precompute" && l["note"].contains("earlier reproduce")));
+}
+
+#[test]
+fn reproduce_names_the_items_when_only_names_another() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("paper");
+    let (ok, _, err) = biscale(&["reproduce", "--quick", "--only", "table3", "--out", out.to_str().unwrap()]);
+    assert!(!ok);
+    assert!(err.contains("--only") && err.contains("table1, table2, equal-quality"), "{err}");
+    assert!(!out.exists(), "nothing is written");
+}

@@ -1,0 +1,152 @@
+//! The "ours" figures: each one read off a run's `metrics.json` record ([`Metrics`]) by one
+//! definition, the one the tables' captions state. Nothing here is measured or assumed: a
+//! figure the record cannot give is an error saying why, which the tables print instead.
+
+use crate::metrics::{CompressorRecord, Metrics};
+use biscale_compressors::registry::{self, Role};
+
+/// A figure of Tables I and II.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Figure {
+    Width,
+    Height,
+    Vertices,
+    Btfs,
+    BtfMb,
+    NnzM,
+    NnzPerVertex,
+    Mflops,
+    ReducedMflops,
+    ComputationPct,
+    DataMb,
+    ReducedMb,
+    DataPct,
+    PrecomputeMin,
+    FpsFixedLight,
+    FpsMovingLight,
+}
+
+impl Figure {
+    /// `numbers.csv`'s row key, the tables' label, unit and decimals.
+    pub fn describe(self) -> (&'static str, &'static str, &'static str, usize) {
+        use Figure::*;
+        match self {
+            Width => ("width", "image width", "px", 0),
+            Height => ("height", "image height", "px", 0),
+            Vertices => ("vertices", "vertices", "", 0),
+            Btfs => ("btfs", "BTFs", "", 0),
+            BtfMb => ("btf_size", "BTF size", "MB", 1),
+            NnzM => ("nnz", "nnz(T)", "M", 2),
+            NnzPerVertex => ("nnz_per_vertex", "nnz(T) per vertex", "", 0),
+            Mflops => ("mflops", "MFLOPs", "M", 2),
+            ReducedMflops => ("reduced_mflops", "reduced to", "M", 2),
+            ComputationPct => ("computation", "computation", "%", 1),
+            DataMb => ("data_size", "data size", "MB", 0),
+            ReducedMb => ("reduced_size", "reduced to", "MB", 2),
+            DataPct => ("data_size_pct", "data size", "%", 2),
+            PrecomputeMin => ("precompute", "precomputation", "min", 2),
+            FpsFixedLight => ("fps_fixed_light", "fps, fixed light, moving view", "fps", 1),
+            FpsMovingLight => ("fps_moving_light", "fps, moving light and view", "fps", 1),
+        }
+    }
+}
+
+/// Where a run's precomputation time comes from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum TransferTime {
+    /// This run traced `T` in this many seconds.
+    Measured(f64),
+    /// `T` came from the stage cache; an earlier `biscale reproduce` into the same folder
+    /// traced it in this many seconds, at `measured_at` (`precompute.json`).
+    Earlier { seconds: f64, measured_at: String },
+    /// `T` came from the stage cache and no earlier trace of it is known.
+    Unknown,
+}
+
+impl TransferTime {
+    pub fn seconds(&self) -> Option<f64> {
+        match self {
+            Self::Measured(s) | Self::Earlier { seconds: s, .. } => Some(*s),
+            Self::Unknown => None,
+        }
+    }
+}
+
+/// A run's record and how long its `T` took to trace.
+pub struct RunFacts<'a> {
+    pub metrics: &'a Metrics,
+    pub transfer: TransferTime,
+}
+
+impl RunFacts<'_> {
+    /// The lossless setting of the paper's compressor (lossless biclustering).
+    pub fn paper_form(&self) -> Option<&CompressorRecord> {
+        self.metrics.compressors.iter().find(|c| registry::role_of(&c.kind) == Role::Paper && c.lossless)
+    }
+
+    fn stat(&self, key: &str) -> Result<f64, String> {
+        let form = self.paper_form().ok_or("no lossless biclustering ran")?;
+        form.stats
+            .as_ref()
+            .and_then(|s| s.get(key))
+            .and_then(serde_json::Value::as_f64)
+            .ok_or_else(|| format!("{}'s record has no stats.{key}", form.name))
+    }
+
+    /// A setting of the config the run ran (`run.config_text`), when it sets it.
+    fn config_u64(&self, table: &str, key: &str) -> Option<u64> {
+        let text = &self.metrics.run.as_ref()?.config_text;
+        let v: toml::Value = toml::from_str(text).ok()?;
+        v.get(table)?.get(key)?.as_integer().and_then(|i| u64::try_from(i).ok())
+    }
+
+    /// The figure, by the definition the captions state.
+    pub fn value(&self, f: Figure) -> Result<f64, String> {
+        use Figure::*;
+        let m = self.metrics;
+        let form = || self.paper_form().ok_or_else(|| "no lossless biclustering ran".to_string());
+        Ok(match f {
+            // The config's [runtime] size (biscale's defaults, 640x480, when it does not set it).
+            Width => self.config_u64("runtime", "width").unwrap_or(640) as f64,
+            Height => self.config_u64("runtime", "height").unwrap_or(480) as f64,
+            Vertices => m.scene.vertices as f64,
+            Btfs => m.scene.btfs.iter().filter(|b| b.primary).count() as f64,
+            BtfMb => m.scene.btf_bytes as f64 / 1e6,
+            NnzM => m.transfer.nnz as f64 / 1e6,
+            NnzPerVertex => m.transfer.nnz as f64 / (m.scene.vertices.max(1)) as f64,
+            Mflops => self.stat("mflops_raw")?,
+            ReducedMflops => self.stat("mflops_biclustered")?,
+            ComputationPct => 100.0 * self.stat("flops_ratio")?,
+            DataMb => self.stat("dense_bytes")? / 1e6,
+            ReducedMb => form()?.bytes as f64 / 1e6,
+            DataPct => 100.0 * form()?.bytes as f64 / self.stat("dense_bytes")?,
+            PrecomputeMin => {
+                let t = self.transfer.seconds().ok_or(
+                    "T came from the stage cache and its trace time is not recorded (run with a fresh --cache-dir)",
+                )?;
+                (t + form()?.build_seconds) / 60.0
+            }
+            FpsFixedLight => 1000.0 / form()?.shade_ms,
+            FpsMovingLight => {
+                let b = form()?;
+                1000.0 / (b.gather_ms + b.shade_ms)
+            }
+        })
+    }
+
+    /// What a reader must know of a figure beside its value (the precomputation of a run
+    /// whose `T` or form came from the cache).
+    pub fn note(&self, f: Figure) -> Option<String> {
+        if f != Figure::PrecomputeMin {
+            return None;
+        }
+        let mut notes = vec![];
+        if let TransferTime::Earlier { measured_at, .. } = &self.transfer {
+            notes.push(format!("T from the stage cache; traced by the earlier reproduce of {measured_at}"));
+        }
+        if let Some(b) = self.paper_form().filter(|b| b.cached) {
+            notes.push(format!("{} from the stage cache; its build time as measured when it was built", b.name));
+        }
+        (!notes.is_empty()).then(|| notes.join("; "))
+    }
+}

@@ -1,0 +1,406 @@
+//! The tables of `biscale reproduce` as one model ([`PaperTable`]: columns, rows, each cell an
+//! "ours" and a "paper" figure) written three ways: LaTeX with booktabs ([`latex`]), the rows
+//! of `numbers.csv` ([`csv`]) and HTML ([`html`]). Captions are plain text in which
+//! `` `code` `` is marked, so one caption serves the page and the paper.
+
+use std::fmt::Write;
+
+/// An "ours" figure that is a bound rather than a value (the equal-quality read-off).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Bound {
+    #[default]
+    Exact,
+    /// At most this (the cheapest setting measured already meets the target).
+    AtMost,
+    /// More than this (no setting measured meets the target).
+    MoreThan,
+}
+
+/// One column's pair of figures.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Cell {
+    pub ours: Option<f64>,
+    pub bound: Bound,
+    pub paper: Option<f64>,
+    /// Shown instead of the number (a text row: a setting's name).
+    pub ours_text: Option<String>,
+    pub paper_text: Option<String>,
+    /// Why a figure is missing, or what to know of it (`numbers.csv`'s note).
+    pub note: Option<String>,
+    /// The run folder the "ours" figure comes from, relative to the output folder.
+    pub source: Option<String>,
+}
+
+impl Cell {
+    /// `ours / paper`, when both are there.
+    pub fn ratio(&self) -> Option<f64> {
+        match (self.ours, self.paper) {
+            (Some(o), Some(p)) if p != 0.0 => Some(o / p),
+            _ => None,
+        }
+    }
+}
+
+/// One row: a figure in every column.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Row {
+    /// `numbers.csv`'s row key.
+    pub key: String,
+    pub label: String,
+    pub unit: String,
+    pub decimals: usize,
+    /// A row of names, not numbers: shown in the tables, left out of `numbers.csv`.
+    pub text: bool,
+    pub cells: Vec<Cell>,
+}
+
+/// A column: a scene or a size, its "ours" and "paper" side by side.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Column {
+    /// `numbers.csv`'s column key and the heading over the pair.
+    pub name: String,
+    /// Under the heading: what "ours" is here (`ours, 1,879 v.`).
+    pub ours_head: String,
+    pub paper_head: String,
+}
+
+/// One table of the paper with our figures beside its own.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PaperTable {
+    /// The item (`--only`'s name).
+    pub item: String,
+    /// `tables/<file>.tex`.
+    pub file: String,
+    pub title: String,
+    pub caption: String,
+    pub columns: Vec<Column>,
+    pub rows: Vec<Row>,
+}
+
+/// `numbers.csv`'s header.
+pub const CSV_HEADER: &str = "item,row,column,ours,paper,ratio,unit,source,note";
+
+/// A figure as the tables print it: `decimals` places, thousands grouped with commas.
+pub fn number(x: f64, decimals: usize) -> String {
+    if !x.is_finite() {
+        return "--".into();
+    }
+    let s = format!("{:.decimals$}", x.abs());
+    let (int, frac) = s.split_once('.').map_or((s.as_str(), None), |(i, f)| (i, Some(f)));
+    let mut grouped = String::new();
+    for (i, ch) in int.chars().enumerate() {
+        if i > 0 && (int.len() - i) % 3 == 0 {
+            grouped.push(',');
+        }
+        grouped.push(ch);
+    }
+    let sign = if x < 0.0 && s.chars().any(|c| c.is_ascii_digit() && c != '0') { "-" } else { "" };
+    match frac {
+        Some(f) => format!("{sign}{grouped}.{f}"),
+        None => format!("{sign}{grouped}"),
+    }
+}
+
+/// A published figure as the paper printed it (the shortest form of its value, `10.6`, `12`,
+/// `0.62`, thousands grouped), or at `decimals` places when it has more than two (a figure
+/// derived from published ones, such as non-zeros per vertex).
+pub fn as_printed(x: f64, decimals: usize) -> String {
+    let shortest = format!("{x}");
+    match shortest.split_once('.') {
+        Some((_, frac)) if frac.len() > 2 => number(x, decimals),
+        Some((_, frac)) => number(x, frac.len()),
+        None => number(x, 0),
+    }
+}
+
+/// A cell's "ours" and "paper" text (`--` where there is no figure).
+fn shown(c: &Cell, decimals: usize) -> (String, String) {
+    let ours = match (&c.ours_text, c.ours) {
+        (Some(t), _) => t.clone(),
+        (None, Some(x)) => {
+            let prefix = match c.bound {
+                Bound::Exact => "",
+                Bound::AtMost => "<= ",
+                Bound::MoreThan => "> ",
+            };
+            format!("{prefix}{}", number(x, decimals))
+        }
+        (None, None) => "--".into(),
+    };
+    let paper = match (&c.paper_text, c.paper) {
+        (Some(t), _) => t.clone(),
+        (None, Some(x)) => as_printed(x, decimals),
+        (None, None) => "--".into(),
+    };
+    (ours, paper)
+}
+
+/// A number for `numbers.csv`: Rust's shortest round-trip form, so a reader gets the very f64.
+fn csv_number(x: Option<f64>) -> String {
+    x.filter(|x| x.is_finite()).map_or(String::new(), |x| format!("{x}"))
+}
+
+fn csv_field(s: &str) -> String {
+    match s.contains([',', '"', '\n']) {
+        true => format!("\"{}\"", s.replace('"', "\"\"")),
+        false => s.to_string(),
+    }
+}
+
+/// `numbers.csv`: [`CSV_HEADER`], then one line per numeric figure of every table.
+pub fn csv(tables: &[PaperTable]) -> String {
+    let mut s = format!("{CSV_HEADER}\n");
+    for t in tables {
+        for r in t.rows.iter().filter(|r| !r.text) {
+            for (col, c) in t.columns.iter().zip(&r.cells) {
+                let mut note = c.note.clone().unwrap_or_default();
+                let bound = match c.bound {
+                    Bound::Exact => "",
+                    Bound::AtMost => "an upper bound: the cheapest setting measured already meets the target",
+                    Bound::MoreThan => "a lower bound: no setting measured meets the target",
+                };
+                if !bound.is_empty() && c.ours.is_some() {
+                    note = if note.is_empty() { bound.into() } else { format!("{bound}; {note}") };
+                }
+                let fields = [
+                    csv_field(&t.item),
+                    csv_field(&r.key),
+                    csv_field(&col.name),
+                    csv_number(c.ours),
+                    csv_number(c.paper),
+                    csv_number(c.ratio()),
+                    csv_field(&r.unit),
+                    csv_field(c.source.as_deref().unwrap_or("")),
+                    csv_field(&note),
+                ];
+                let _ = writeln!(s, "{}", fields.join(","));
+            }
+        }
+    }
+    s
+}
+
+/// Text escaped for LaTeX.
+pub fn latex_escape(s: &str) -> String {
+    let mut out = String::new();
+    for ch in s.chars() {
+        match ch {
+            '\\' => out.push_str("\\textbackslash{}"),
+            '&' | '%' | '$' | '#' | '_' | '{' | '}' => {
+                out.push('\\');
+                out.push(ch);
+            }
+            '~' => out.push_str("\\textasciitilde{}"),
+            '^' => out.push_str("\\textasciicircum{}"),
+            '<' => out.push_str("$<$"),
+            '>' => out.push_str("$>$"),
+            _ => out.push(ch),
+        }
+    }
+    out
+}
+
+/// Caption text as LaTeX: `` `code` `` as `\texttt`, the rest escaped.
+fn latex_text(s: &str) -> String {
+    s.split('`')
+        .enumerate()
+        .map(|(i, part)| match i % 2 {
+            1 => format!("\\texttt{{{}}}", latex_escape(part)),
+            _ => part.split("<=").map(latex_escape).collect::<Vec<_>>().join("$\\le$"),
+        })
+        .collect()
+}
+
+/// A cell's figure as LaTeX (`<=` and `>` as math, `--` as an en dash).
+fn latex_figure(s: &str) -> String {
+    match s {
+        "--" => "--".into(),
+        _ => match (s.strip_prefix("<= "), s.strip_prefix("> ")) {
+            (Some(x), _) => format!("$\\le$ {}", latex_escape(x)),
+            (_, Some(x)) => format!("$>$ {}", latex_escape(x)),
+            _ => latex_escape(s),
+        },
+    }
+}
+
+/// The table as a LaTeX `table` float (booktabs: `\toprule`, `\midrule`, `\bottomrule`), a
+/// pair of columns per scene, "ours" left of "paper".
+pub fn latex(t: &PaperTable) -> String {
+    let mut s = String::new();
+    let n = t.columns.len();
+    let _ = writeln!(s, "% Written by `biscale reproduce`; needs \\usepackage{{booktabs}}.");
+    let _ = writeln!(s, "\\begin{{table*}}[t]\n\\centering\n\\small");
+    let _ = writeln!(s, "\\caption{{{}: {}}}", latex_text(&t.title), latex_text(&t.caption));
+    let _ = writeln!(s, "\\label{{tab:reproduce-{}}}", t.file.replace('_', "-"));
+    let _ = writeln!(s, "\\begin{{tabular}}{{ll{}}}", "rr".repeat(n));
+    let _ = writeln!(s, "\\toprule");
+    let heads: Vec<String> =
+        t.columns.iter().map(|c| format!("\\multicolumn{{2}}{{c}}{{{}}}", latex_escape(&c.name))).collect();
+    let _ = writeln!(s, " & & {} \\\\", heads.join(" & "));
+    let rules: Vec<String> = (0..n).map(|i| format!("\\cmidrule(lr){{{}-{}}}", 3 + 2 * i, 4 + 2 * i)).collect();
+    let _ = writeln!(s, "{}", rules.join(" "));
+    let sub: Vec<String> =
+        t.columns.iter().map(|c| format!("{} & {}", latex_escape(&c.ours_head), latex_escape(&c.paper_head))).collect();
+    let _ = writeln!(s, " & unit & {} \\\\", sub.join(" & "));
+    let _ = writeln!(s, "\\midrule");
+    for r in &t.rows {
+        let cells: Vec<String> = r
+            .cells
+            .iter()
+            .map(|c| {
+                let (o, p) = shown(c, r.decimals);
+                format!("{} & {}", latex_figure(&o), latex_figure(&p))
+            })
+            .collect();
+        let _ = writeln!(s, "{} & {} & {} \\\\", latex_escape(&r.label), latex_escape(&r.unit), cells.join(" & "));
+    }
+    let _ = writeln!(s, "\\bottomrule\n\\end{{tabular}}\n\\end{{table*}}");
+    s
+}
+
+/// Text escaped for HTML.
+pub fn html_escape(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+}
+
+/// Caption text as HTML: `` `code` `` as `<code>`, the rest escaped.
+pub fn html_text(s: &str) -> String {
+    s.split('`')
+        .enumerate()
+        .map(|(i, part)| match i % 2 {
+            1 => format!("<code>{}</code>", html_escape(part)),
+            _ => html_escape(part),
+        })
+        .collect()
+}
+
+/// The table as an HTML `<table>` with its caption, each cell's note as its title.
+pub fn html(t: &PaperTable) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "<h2 id=\"{}\">{}</h2>", html_escape(&t.file), html_escape(&t.title));
+    let _ = writeln!(s, "<table>\n<caption>{}</caption>", html_text(&t.caption));
+    let heads: String =
+        t.columns.iter().map(|c| format!("<th colspan=\"2\" class=\"pair\">{}</th>", html_escape(&c.name))).collect();
+    let _ = writeln!(s, "<tr><th></th><th></th>{heads}</tr>");
+    let sub: String = t
+        .columns
+        .iter()
+        .map(|c| {
+            format!("<th class=\"pair\">{}</th><th>{}</th>", html_escape(&c.ours_head), html_escape(&c.paper_head))
+        })
+        .collect();
+    let _ = writeln!(s, "<tr><th>figure</th><th>unit</th>{sub}</tr>");
+    for r in &t.rows {
+        let cells: String = r
+            .cells
+            .iter()
+            .map(|c| {
+                let (o, p) = shown(c, r.decimals);
+                let mut title = c.note.clone().unwrap_or_default();
+                if let Some(x) = c.ratio() {
+                    title = format!("ours / paper = {x:.3}{}{title}", if title.is_empty() { "" } else { "; " });
+                }
+                let attr = if title.is_empty() { String::new() } else { format!(" title=\"{}\"", html_escape(&title)) };
+                format!("<td class=\"pair\"{attr}>{}</td><td>{}</td>", html_escape(&o), html_escape(&p))
+            })
+            .collect();
+        let _ = writeln!(s, "<tr><td>{}</td><td>{}</td>{cells}</tr>", html_escape(&r.label), html_escape(&r.unit));
+    }
+    let _ = writeln!(s, "</table>");
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn table() -> PaperTable {
+        let cell = |ours, paper| Cell { ours, paper, source: Some("runs/bunny".into()), ..Cell::default() };
+        PaperTable {
+            item: "table1".into(),
+            file: "table1".into(),
+            title: "Table I".into(),
+            caption: "Ours from `runs/bunny`, 50% of the paper's & more".into(),
+            columns: vec![
+                Column { name: "Bunny".into(), ours_head: "ours".into(), paper_head: "paper".into() },
+                Column { name: "Armor".into(), ours_head: "ours".into(), paper_head: "paper".into() },
+            ],
+            rows: vec![
+                Row {
+                    key: "data_size".into(),
+                    label: "data size".into(),
+                    unit: "MB".into(),
+                    decimals: 0,
+                    text: false,
+                    cells: vec![
+                        cell(Some(1292.107776), Some(1400.0)),
+                        Cell { note: Some("not reproduced: no mesh".into()), ..cell(None, Some(9500.0)) },
+                    ],
+                },
+                Row {
+                    key: "setting".into(),
+                    label: "setting".into(),
+                    unit: String::new(),
+                    decimals: 0,
+                    text: true,
+                    cells: vec![
+                        Cell { ours_text: Some("cpca-k32-c8".into()), ..Cell::default() },
+                        Cell { bound: Bound::AtMost, ..cell(Some(5.5), None) },
+                    ],
+                },
+            ],
+        }
+    }
+
+    #[test]
+    fn numbers_are_grouped_and_rounded() {
+        assert_eq!(number(1292.107776, 0), "1,292");
+        assert_eq!(number(18858.6, 0), "18,859");
+        assert_eq!(number(0.6234, 2), "0.62");
+        assert_eq!(number(123456.789, 1), "123,456.8");
+        assert_eq!(number(-1234.5, 1), "-1,234.5");
+        assert_eq!(number(f64::NAN, 1), "--");
+        assert_eq!(as_printed(10.6, 2), "10.6");
+        assert_eq!(as_printed(1400.0, 2), "1,400");
+        assert_eq!(as_printed(0.62, 1), "0.62");
+        assert_eq!(as_printed(3225.8064516129034, 0), "3,226");
+    }
+
+    #[test]
+    fn latex_has_booktabs_rules_pairs_and_escapes() {
+        let tex = latex(&table());
+        for rule in ["\\toprule", "\\midrule", "\\bottomrule", "\\cmidrule(lr){3-4}", "\\cmidrule(lr){5-6}"] {
+            assert!(tex.contains(rule), "{rule}: {tex}");
+        }
+        assert!(tex.contains("\\begin{tabular}{llrrrr}"), "{tex}");
+        assert!(tex.contains("data size & MB & 1,292 & 1,400 & -- & 9,500 \\\\"), "{tex}");
+        assert!(tex.contains("\\texttt{runs/bunny}, 50\\% of the paper's \\& more"), "{tex}");
+        assert!(tex.contains("cpca-k32-c8 & -- & $\\le$ 6 & --"), "{tex}");
+        assert_eq!(latex_escape("a_b#c~<"), "a\\_b\\#c\\textasciitilde{}$<$");
+        assert_eq!(latex_text("at most (<=) or `a_b`"), "at most ($\\le$) or \\texttt{a\\_b}");
+    }
+
+    #[test]
+    fn csv_has_a_line_per_numeric_figure_with_the_ratio() {
+        let csv = csv(&[table()]);
+        let lines: Vec<&str> = csv.lines().collect();
+        assert_eq!(lines[0], CSV_HEADER);
+        assert_eq!(lines.len(), 3, "{csv}");
+        assert_eq!(
+            lines[1],
+            format!("table1,data_size,Bunny,1292.107776,1400,{},MB,runs/bunny,", 1292.107776 / 1400.0)
+        );
+        assert_eq!(lines[2], "table1,data_size,Armor,,9500,,MB,runs/bunny,not reproduced: no mesh");
+    }
+
+    #[test]
+    fn html_escapes_and_titles_cells_with_the_ratio() {
+        let h = html(&table());
+        assert!(
+            h.contains("<caption>Ours from <code>runs/bunny</code>, 50% of the paper's &amp; more</caption>"),
+            "{h}"
+        );
+        assert!(h.contains("title=\"ours / paper = 0.923\""), "{h}");
+        assert!(h.contains("&lt;= 6"), "{h}");
+    }
+}
