@@ -41,6 +41,10 @@ pub enum ReferenceRule {
 /// `progress`, if given, is called once per finished row with the number of rows finished so
 /// far; calls come from worker threads and may arrive out of order (use the maximum, or treat
 /// each call as an increment of one).
+///
+/// The pipeline caches this image by the content of its inputs (`reference_key` in
+/// `tools/pipeline/src/store/cache.rs`), not of this code: any change here, or in what it calls,
+/// that can change the image for the same inputs must bump `REFERENCE_VERSION` there.
 pub fn render_reference(
     scene: &ShadeScene,
     light: &LightVector,

@@ -327,7 +327,7 @@ enum Cache {
         /// Cache folder (default: $XDG_CACHE_HOME/biscale, else ~/.cache/biscale).
         #[arg(long)]
         cache_dir: Option<PathBuf>,
-        /// Only files of these kinds (transfer, form, sh, btf, lpca, temporary).
+        /// Only files of these kinds (transfer, form, sh, btf, lpca, reference, temporary).
         #[arg(long, value_delimiter = ',')]
         kind: Vec<String>,
         /// Only files last written at least this many days ago.
@@ -942,9 +942,8 @@ fn cache(what: Cache) -> anyhow::Result<()> {
             }
         }
         Cache::Clean { cache_dir, kind, older_than_days, dry_run } => {
-            let known = ["transfer", "form", "sh", "btf", "lpca", "temporary"];
-            if let Some(k) = kind.iter().find(|k| !known.contains(&k.as_str())) {
-                anyhow::bail!("--kind {k}: not a kind of cache file (one of {})", known.join(", "));
+            if let Some(k) = kind.iter().find(|k| !cache::KINDS.contains(&k.as_str())) {
+                anyhow::bail!("--kind {k}: not a kind of cache file (one of {})", cache::KINDS.join(", "));
             }
             anyhow::ensure!(
                 older_than_days.is_none_or(|d| d.is_finite() && d >= 0.0),

@@ -145,8 +145,8 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
     // The machine's load around the timed steps: from the uncompressed gather to the last method.
     let load_before = load_average_1min();
-    let targets =
-        targets(exp, &geometry, &lighting, &t.matrix, &view, &ctx.images_dir(), plan.reference, &mut ctx.clock)?;
+    let (images, cache) = (ctx.images_dir(), ctx.cache.as_ref());
+    let targets = targets(exp, &geometry, &lighting, &t.matrix, &view, &images, plan.reference, cache, &mut ctx.clock)?;
     let (base, reference) = (&targets.base, targets.reference.as_ref());
 
     let study = crate::stages::btf_study::StudyInputs {
@@ -314,6 +314,7 @@ pub(crate) fn metrics_of_run(
             width: r.render.image.width,
             height: r.render.image.height,
             seconds: r.seconds,
+            cached: r.cached,
             uncompressed_vs_reference: errors(&r.baseline_error),
             uncompressed_paper_vs_reference: r.paper_baseline_error.as_ref().map(errors),
         }),

@@ -443,7 +443,12 @@ pub struct ReferenceMetrics {
     pub kind: String,
     pub width: u32,
     pub height: u32,
+    /// The trace's wall time (of a `cached` reference: measured by the earlier run that traced it).
     pub seconds: f64,
+    /// Whether the reference image came from the stage cache (`reference-<key>.bsf`) instead of
+    /// a trace; absent (false) in records written before the reference was cached.
+    #[serde(default)]
+    pub cached: bool,
     /// Error of the per-vertex (uncompressed) render against the reference: the
     /// "per-vertex sampling" part of the error.
     pub uncompressed_vs_reference: ImageErrors,

@@ -223,12 +223,13 @@ pub fn document(m: &Metrics, plan: &str, plots: &[(String, String)]) -> Vec<Bloc
         para(
             &mut d,
             format!(
-                "Ground truth (direct light) traced per pixel at {}x{} in {:.1} s (each pixel's own visibility, each \
+                "Ground truth (direct light) traced per pixel at {}x{} in {:.1} s{} (each pixel's own visibility, each \
                  texel's own cosine, the BRDF at each texel's own direction). Uncompressed vertex render against it: \
                  RMSE {:.4}, PSNR {:.2} dB, rel. L2 {:.4}; LDR PSNR / SSIM / FLIP {}.",
                 r.width,
                 r.height,
                 r.seconds,
+                if r.cached { " (cached)" } else { "" },
                 r.uncompressed_vs_reference.rmse,
                 r.uncompressed_vs_reference.psnr,
                 r.uncompressed_vs_reference.rel_l2,

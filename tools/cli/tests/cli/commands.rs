@@ -46,7 +46,7 @@ fn plan_says_what_the_cache_holds_and_how_big_each_output_is() {
         ["transfer   T", "compress   sparse", "compress   bicluster", "compress   cpca", "compress   haar-t4"];
     let (ok, out, err) = biscale(&["plan", "configs/smoke.toml", "--cache-dir", cache_arg]);
     assert!(ok, "{err}");
-    assert!(out.contains("(0 of 6 outputs cached, 0.0 MiB)"), "{out}");
+    assert!(out.contains("(0 of 7 outputs cached, 0.0 MiB)"), "{out}");
     for o in outputs {
         assert!(out.contains(&format!("build {o}")), "{o}: {out}");
     }
@@ -58,7 +58,7 @@ fn plan_says_what_the_cache_holds_and_how_big_each_output_is() {
     // size is its file's.
     let (ok, out, err) = biscale(&["plan", "configs/smoke.toml", "--cache-dir", cache_arg]);
     assert!(ok, "{err}");
-    assert!(out.contains("(6 of 6 outputs cached"), "{out}");
+    assert!(out.contains("(7 of 7 outputs cached"), "{out}");
     for o in outputs {
         let line = out.lines().find(|l| l.contains(&format!("load  {o}"))).unwrap_or_else(|| panic!("{o}: {out}"));
         let file = line.split_whitespace().last().unwrap();
@@ -446,14 +446,14 @@ fn every_command_shares_one_default_cache_that_cache_lists_and_cleans() {
     run(&["run", "configs/smoke.toml", "--out", out.to_str().unwrap()]);
     let cache = xdg.join("biscale");
     let listed = run(&["cache", "list"]);
-    assert!(listed.starts_with(&format!("{}: 6 files", cache.display())), "{listed}");
+    assert!(listed.starts_with(&format!("{}: 7 files", cache.display())), "{listed}");
     assert!(listed.contains("transfer ") && listed.contains("of the mesh of 1839 vertices"), "{listed}");
     // Another command finds T there (the cache is shared, not beside each output folder).
     let export = run(&["export-matrix", "configs/smoke.toml", "--out", dir.path().join("mtx").to_str().unwrap()]);
     assert!(export.contains("transfer: loaded from cache"), "{export}");
     let cleaned = run(&["cache", "clean", "--kind", "form"]);
     assert!(cleaned.contains("removed 5 files"), "{cleaned}");
-    assert!(run(&["cache", "list"]).starts_with(&format!("{}: 1 files", cache.display())));
+    assert!(run(&["cache", "list"]).starts_with(&format!("{}: 2 files", cache.display())));
     run(&["cache", "clean"]);
     assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 0);
 }

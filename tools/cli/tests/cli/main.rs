@@ -13,6 +13,7 @@ mod args;
 mod commands;
 mod interop;
 mod memory;
+mod reference_cache;
 mod reproduce;
 mod shard;
 mod staging;

@@ -160,7 +160,7 @@ impl Plan {
         push(
             &mut steps,
             "reference",
-            "ray-traced per-pixel visibility image".into(),
+            "ray-traced per-pixel visibility image (cached by content)".into(),
             if reference { Action::Run } else { Action::LeftOut("report.reference = false".into()) },
         );
         push(&mut steps, "report", "metrics.json, report.md, images".into(), Action::Run);
@@ -179,7 +179,7 @@ impl Plan {
             None => CacheReport::Off,
             Some(c) => CacheReport::Dir {
                 dir: c.dir().to_path_buf(),
-                outputs: cached_outputs(exp, &geometry.mesh, &self.compressors, &memory, c)?,
+                outputs: cached_outputs(exp, &geometry, &lighting, &self.compressors, self.reference, &memory, c)?,
             },
         };
         self.memory = Some((memory, crate::estimate::available()?));
@@ -312,15 +312,20 @@ fn method_steps(m: &crate::experiment::config::Setting, diffuse: bool, steps: &m
 }
 
 /// Each output of the run that the stage cache keys, in run order: `T`, the synthesized
-/// BTFs and their local-PCA fits, each compressed form, each SH method's direct transfer.
-/// Keys are computed exactly as the run computes them, so "cached" means the run loads it.
+/// BTFs and their local-PCA fits, the reference (with `reference`), each compressed form,
+/// each SH method's direct transfer. Keys are computed exactly as the run computes them, so
+/// "cached" means the run loads it.
+#[allow(clippy::too_many_arguments)]
 fn cached_outputs(
     exp: &Experiment,
-    mesh: &biscale_core::geometry::Mesh,
+    geometry: &crate::stages::scene::Geometry,
+    lighting: &crate::stages::scene::Lighting,
     compressors: &[CompressorSetting],
+    reference: bool,
     memory: &crate::estimate::RunMemory,
     cache: &StageCache,
 ) -> crate::error::Result<Vec<CachedOutput>> {
+    let mesh = &geometry.mesh;
     let mut out = vec![];
     let settings = exp.transfer_settings();
     let t_key = crate::store::cache::transfer_key(mesh, &settings);
@@ -353,6 +358,9 @@ fn cached_outputs(
             }
         }
     }
+    if reference {
+        out.push(reference_output(exp, geometry, lighting, cache)?);
+    }
     for (setting, mem) in compressors.iter().zip(&memory.compressors) {
         let compressor = crate::stages::transfer::build_compressor(setting)?;
         let state = match crate::store::cache::form_key(&t_key, compressor.as_ref(), exp.file.seed) {
@@ -378,6 +386,45 @@ fn cached_outputs(
         });
     }
     Ok(out)
+}
+
+/// The reference image as the cache holds it. Its key hashes the materials' tables as the run
+/// shades them, so it is computed here only where they are analytic (Lambertian and Phong,
+/// held dense: tabulated in no time, nothing built or written); otherwise it is known once the
+/// run has built them.
+fn reference_output(
+    exp: &Experiment,
+    geometry: &crate::stages::scene::Geometry,
+    lighting: &crate::stages::scene::Lighting,
+    cache: &StageCache,
+) -> crate::error::Result<CachedOutput> {
+    use crate::experiment::config::RepresentationSetting;
+    let (w, h) = {
+        let camera = geometry.camera(exp, *exp.file.report.reference_downscale.get_ref());
+        (camera.width, camera.height)
+    };
+    let what = format!("ground truth {w}x{h}");
+    let analytic = exp.materials().iter().all(|m| {
+        matches!(m, MaterialConfig::Lambertian { .. } | MaterialConfig::Phong { .. })
+            && m.representations().all().iter().all(|r| *r == RepresentationSetting::Dense)
+    });
+    if !analytic {
+        let why = "keyed by the materials' tables, known once they are built";
+        return Ok(CachedOutput { stage: "reference", what, state: CacheState::KeyLater(why.into()) });
+    }
+    let local = exp.transfer_settings().local_basis();
+    let materials = crate::stages::materials::load_materials(exp, &geometry.mesh, local, None)?;
+    let scene = biscale_core::scene::ShadeScene::new(
+        geometry.mesh.clone(),
+        geometry.transfer.frames().to_vec(),
+        materials.materials,
+        materials.triangle_materials,
+    )?;
+    let (camera, key) = crate::stages::evaluate::reference_key_of(exp, geometry, lighting, &scene);
+    // f32 RGB, a byte of mask and with several samples an f32 of coverage per pixel.
+    let pixels = camera.width as u64 * camera.height as u64;
+    let estimate = pixels * (12 + 1 + if camera.samples_per_pixel > 1 { 4 } else { 0 }) + 512;
+    Ok(CachedOutput { stage: "reference", what, state: CacheState::of(cache.reference_path(&key), Some(estimate)) })
 }
 
 impl fmt::Display for Plan {

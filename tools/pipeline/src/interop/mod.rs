@@ -838,7 +838,8 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
     let (scene, materials) = shade_scene(exp, &geometry, &t.matrix, ctx.cache.as_ref())?;
     let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
     let reference = Plan::new(exp).reference;
-    let targets = targets(exp, &geometry, &lighting, &t.matrix, &view, &ctx.images_dir(), reference, &mut ctx.clock)?;
+    let (images, cache) = (ctx.images_dir(), ctx.cache.as_ref());
+    let targets = targets(exp, &geometry, &lighting, &t.matrix, &view, &images, reference, cache, &mut ctx.clock)?;
     let evaluation = Evaluation::new(exp, &t.matrix, &lighting, &geometry, &targets, &view, &out_dir, false);
     let record = match (loaded, compressor) {
         (Loaded::Form(f), Some((setting, compressor))) => {

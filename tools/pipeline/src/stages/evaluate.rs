@@ -6,9 +6,11 @@ use crate::experiment::config::{CompressorSetting, Experiment};
 use crate::metrics::*;
 use crate::stages::figures::{error_extent, save_images, write_error_figure};
 use crate::stages::scene::{Geometry, Lighting};
+use crate::store::cache::{reference_key, CacheKey, StageCache};
 use crate::store::staging::fault_point;
 use crate::util::progress_bar;
-use biscale_core::compress::{CompressedForm, Compressor};
+use biscale_core::artifact::{Artifact, ArtifactError, Field};
+use biscale_core::compress::{ArrayData, CompressedForm, Compressor};
 use biscale_core::gather::moments::{exact_moments_product, gather_with_moments, LightMoments, Lobe};
 use biscale_core::gather::{reference_product, relative_l2_error, LocalRadiance};
 use biscale_core::geometry::VertexFrame;
@@ -17,6 +19,7 @@ use biscale_core::scene::{Background, Camera, HdrImage, Render, ShadeScene};
 use biscale_core::transfer::{TransferMatrix, VisibilitySampler};
 use biscale_shading::cpu::shade;
 use biscale_shading::image::{compare_exposed, ImageMetrics};
+use biscale_shading::reference::ReferenceRule;
 use std::path::Path;
 use std::time::Instant;
 
@@ -67,7 +70,8 @@ pub(crate) struct Targets {
 
 /// The [`Targets`] of `t` in `view`, their images written into `images_dir` (`uncompressed`,
 /// with moments also `uncompressed_paper`, `mask`, and with `trace_reference` `reference` and
-/// `reference_mask`). Refuses a camera that sees none of the mesh: every score would be empty.
+/// `reference_mask`). The reference comes from `cache` when it holds one of the same inputs
+/// ([`reference`]). Refuses a camera that sees none of the mesh: every score would be empty.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn targets(
     exp: &Experiment,
@@ -77,6 +81,7 @@ pub(crate) fn targets(
     view: &View<'_>,
     images_dir: &Path,
     trace_reference: bool,
+    cache: Option<&StageCache>,
     clock: &mut crate::provenance::StageClock,
 ) -> Result<Targets> {
     let moments = match exp.file.runtime.light_moments {
@@ -107,7 +112,7 @@ pub(crate) fn targets(
     fault_point("images");
     let reference = match trace_reference {
         true => {
-            let r = reference(exp, geometry, view, lighting, &base)?;
+            let r = reference(exp, geometry, view, lighting, &base, cache)?;
             save_images(&r.render.image, images_dir, "reference", exposure)?;
             r.render.write_mask_png(&images_dir.join("reference_mask.png"))?;
             clock.mark("reference");
@@ -192,7 +197,10 @@ pub(crate) fn cpus_online() -> usize {
 pub struct Reference {
     pub render: Render,
     pub camera: Camera,
+    /// The trace's wall time; of a `cached` reference, the time the run that traced it measured.
     pub seconds: f64,
+    /// Whether the image came from the stage cache ([`REFERENCE_ARTIFACT`]) instead of a trace.
+    pub cached: bool,
     pub baseline_error: ImageMetrics,
     /// With light moments: the paper-mode baseline's error against the same reference.
     pub paper_baseline_error: Option<ImageMetrics>,
@@ -202,30 +210,143 @@ pub struct Reference {
     pub(crate) scored: std::sync::Mutex<Vec<(String, HdrImage)>>,
 }
 
+/// How the pipeline's reference weights each traced texel (whatever `light_moments` says).
+/// Changing it, or anything of how [`reference`] renders, needs a bump of
+/// [`crate::store::cache::REFERENCE_VERSION`], so no cached reference of the old code is reused.
+pub(crate) const REFERENCE_RULE: ReferenceRule = ReferenceRule::GroundTruth;
+
+/// The artifact kind of a cached reference (`reference-<key>.bsf`): fields `width`, `height`,
+/// `seconds` (the trace's), `samples_per_pixel`; arrays `image` (f32 RGB, row-major, row 0 at
+/// the top, without the background), `mask` (u8, 1 where the mesh is hit) and, with several
+/// samples per pixel, `coverage` (f32).
+pub(crate) const REFERENCE_ARTIFACT: &str = "reference";
+
+/// The reference's camera (the run's at `report.reference_downscale`) and the cache key of its
+/// image in `scene` ([`reference_key`]), as [`reference`] computes them; `biscale plan` asks too.
+pub(crate) fn reference_key_of(
+    exp: &Experiment,
+    geometry: &Geometry,
+    lighting: &Lighting,
+    scene: &ShadeScene,
+) -> (Camera, CacheKey) {
+    let camera = geometry.camera(exp, *exp.file.report.reference_downscale.get_ref());
+    let key = reference_key(scene, &lighting.light, &exp.transfer_settings(), &camera, REFERENCE_RULE);
+    (camera, key)
+}
+
+/// A traced reference (before its background) as a cache artifact ([`REFERENCE_ARTIFACT`]).
+fn reference_artifact(render: &Render, camera: &Camera, seconds: f64) -> Artifact {
+    let image = render.image.pixels.iter().flatten().copied().collect();
+    let mask = render.mask.iter().map(|&m| m as u8).collect();
+    let a = Artifact::new(REFERENCE_ARTIFACT)
+        .with("width", Field::U64(render.image.width as u64))
+        .with("height", Field::U64(render.image.height as u64))
+        .with("samples_per_pixel", Field::U64(camera.samples_per_pixel as u64))
+        .with("seconds", Field::F64(seconds))
+        .with_array("image", ArrayData::F32(image))
+        .with_array("mask", ArrayData::U8(mask));
+    match &render.coverage {
+        Some(c) => a.with_array("coverage", ArrayData::F32(c.clone())),
+        None => a,
+    }
+}
+
+/// A cached reference read back: the render (without background) and the trace's seconds.
+/// Every size is checked against the header's, every value against what a trace can give.
+fn reference_from_artifact(mut a: Artifact) -> std::result::Result<(Render, f64), ArtifactError> {
+    a.expect_kind(REFERENCE_ARTIFACT)?;
+    let (width, height) = (a.u64("width")?, a.u64("height")?);
+    let pixels = match (u32::try_from(width), u32::try_from(height)) {
+        (Ok(w), Ok(h)) if (w as u64) * (h as u64) <= biscale_core::scene::image::MAX_IMAGE_PIXELS => {
+            w as usize * h as usize
+        }
+        _ => return Err(a.corrupt(format!("a {width}x{height} image"))),
+    };
+    let seconds = a.f64("seconds")?;
+    let image = match a.take_array("image")? {
+        ArrayData::F32(v) if v.len() == 3 * pixels && v.iter().all(|x| x.is_finite()) => v,
+        _ => return Err(a.corrupt(format!("'image' is not {pixels} finite f32 RGB pixels"))),
+    };
+    let mask = match a.take_array("mask")? {
+        ArrayData::U8(v) if v.len() == pixels && v.iter().all(|&m| m <= 1) => v,
+        _ => return Err(a.corrupt(format!("'mask' is not {pixels} values of 0 or 1"))),
+    };
+    let coverage = match a.arrays.iter().any(|x| x.name == "coverage") {
+        false => None,
+        true => match a.take_array("coverage")? {
+            ArrayData::F32(v) if v.len() == pixels && v.iter().all(|x| (0.0..=1.0).contains(x)) => Some(v),
+            _ => return Err(a.corrupt(format!("'coverage' is not {pixels} fractions"))),
+        },
+    };
+    let image = HdrImage {
+        width: width as u32,
+        height: height as u32,
+        pixels: image.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect(),
+    };
+    Ok((Render { image, mask: mask.into_iter().map(|m| m == 1).collect(), coverage }, seconds))
+}
+
+/// The ground-truth reference of the run's view at `report.reference_downscale`: loaded from
+/// `cache` when it holds one under the same [`reference_key`] (the image as traced, before its
+/// background, which is added here either way), else traced and stored there.
 pub(crate) fn reference(
     exp: &Experiment,
     geometry: &Geometry,
     view: &View<'_>,
     lighting: &Lighting,
     baseline: &Baseline,
+    cache: Option<&StageCache>,
 ) -> Result<Reference> {
-    let camera = geometry.camera(exp, *exp.file.report.reference_downscale.get_ref());
-    let sampler = VisibilitySampler::new(&exp.transfer_settings());
-    let pb = progress_bar(camera.height as u64, "reference");
-    let tick = |rows: usize| pb.set_position(rows as u64);
-    let start = Instant::now();
-    let render = biscale_shading::reference::render_reference(
-        view.scene,
-        &lighting.light,
-        &geometry.transfer,
-        &sampler,
-        &camera,
-        biscale_shading::reference::ReferenceRule::GroundTruth,
-        Some(&tick),
-    )?
-    .with_background(&camera, &view.background);
-    let seconds = start.elapsed().as_secs_f64();
-    pb.finish_and_clear();
+    let (camera, key) = reference_key_of(exp, geometry, lighting, view.scene);
+    let cached = cache.map(|c| (c, c.reference_path(&key), key));
+    let loaded = cached.as_ref().and_then(|(c, path, key)| {
+        let accept = |(r, _): &(Render, f64)| {
+            let (w, h) = (r.image.width, r.image.height);
+            let several = camera.samples_per_pixel > 1;
+            match (w, h, r.coverage.is_some()) == (camera.width, camera.height, several) {
+                true => Ok(()),
+                false => Err(format!(
+                    "{}: holds a {w}x{h} reference{}, this run needs {}x{}{}",
+                    path.display(),
+                    if r.coverage.is_some() { " with coverage" } else { "" },
+                    camera.width,
+                    camera.height,
+                    if several { " with coverage" } else { "" }
+                )),
+            }
+        };
+        c.get(path, key, reference_from_artifact, accept)
+    });
+    let (render, seconds, from_cache) = match loaded {
+        Some((render, seconds)) => {
+            let path = &cached.as_ref().expect("loaded from a cache").1;
+            log::info!("reference: loaded from cache {}", path.display());
+            (render, seconds, true)
+        }
+        None => {
+            let sampler = VisibilitySampler::new(&exp.transfer_settings());
+            let pb = progress_bar(camera.height as u64, "reference");
+            let tick = |rows: usize| pb.set_position(rows as u64);
+            let start = Instant::now();
+            let render = biscale_shading::reference::render_reference(
+                view.scene,
+                &lighting.light,
+                &geometry.transfer,
+                &sampler,
+                &camera,
+                REFERENCE_RULE,
+                Some(&tick),
+            )?;
+            let seconds = start.elapsed().as_secs_f64();
+            pb.finish_and_clear();
+            log::info!("reference: traced {}x{} in {seconds:.1} s", camera.width, camera.height);
+            if let Some((c, path, key)) = &cached {
+                c.put(path, key, &reference_artifact(&render, &camera, seconds));
+            }
+            (render, seconds, false)
+        }
+    };
+    let render = render.with_background(&camera, &view.background);
     let small = view.render(&baseline.lstar, &camera)?;
     let exposure = exp.file.report.exposure;
     let baseline_error = compare_exposed(&small.image, &render.image, Some(&render.mask), exposure)?;
@@ -236,8 +357,15 @@ pub(crate) fn reference(
         }
         None => None,
     };
-    log::info!("reference: traced {}x{} in {seconds:.1} s", camera.width, camera.height);
-    Ok(Reference { render, camera, seconds, baseline_error, paper_baseline_error, scored: Default::default() })
+    Ok(Reference {
+        render,
+        camera,
+        seconds,
+        cached: from_cache,
+        baseline_error,
+        paper_baseline_error,
+        scored: Default::default(),
+    })
 }
 
 #[cfg(feature = "gpu")]
@@ -510,5 +638,78 @@ mod tests {
         if cfg!(target_os = "linux") {
             assert!(load_average_1min().is_some_and(|l| l >= 0.0));
         }
+    }
+}
+
+#[cfg(test)]
+mod reference_cache_tests {
+    use super::*;
+    use crate::stages::scene::{load_geometry, load_lighting};
+
+    /// The reference's key of the smoke config with `--set` overrides, as a run computes it.
+    fn key_of(sets: &[&str]) -> CacheKey {
+        let smoke = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/smoke.toml");
+        let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        let exp = Experiment::load_with(&smoke, &sets).unwrap();
+        let (geometry, lighting) = (load_geometry(&exp).unwrap(), load_lighting(&exp).unwrap());
+        let local = exp.transfer_settings().local_basis();
+        let m = crate::stages::materials::load_materials(&exp, &geometry.mesh, local, None).unwrap();
+        let frames = geometry.transfer.frames().to_vec();
+        let scene = ShadeScene::new(geometry.mesh.clone(), frames, m.materials, m.triangle_materials).unwrap();
+        reference_key_of(&exp, &geometry, &lighting, &scene).1
+    }
+
+    /// Every config value the reference image depends on misses the cache; the ones it does
+    /// not (the compressor list, the name that names the default output folder, the background
+    /// and exposure, which are applied after the cache, repeats, light moments) hit it.
+    #[test]
+    fn the_reference_key_follows_the_config_values_the_image_depends_on() {
+        let base = key_of(&[]);
+        assert_eq!(base, key_of(&[]), "the same config gives the same key");
+        for set in [
+            "runtime.camera.azimuth_degrees = 40",
+            "runtime.camera.elevation_degrees = 30",
+            "runtime.camera.fov_y_degrees = 45",
+            "runtime.width = 128",
+            "runtime.height = 96",
+            "report.reference_downscale = 1",
+            "runtime.samples_per_pixel = 1",
+            "lighting.rotation_degrees = 90",
+            "lighting.sun_boost = 4.0",
+            "lighting.env_map = \"../assets/envmaps/blender_forest.exr\"",
+            "scene.mesh = \"../assets/meshes/teapot.obj\"",
+            "scene.material.albedo = [0.7, 0.8, 0.8]",
+            "transfer.visibility_resolution = 32",
+        ] {
+            assert_ne!(key_of(&[set]).hash, base.hash, "{set} left the reference's key as it was");
+        }
+        for set in [
+            "compressors = [{ kind = \"sparse\" }]",
+            "name = \"elsewhere\"",
+            "report.background = false",
+            "report.exposure = 2.0",
+            "runtime.repeats = 3",
+            "runtime.light_moments = true",
+            "seed = 8",
+        ] {
+            assert_eq!(key_of(&[set]), base, "{set} changed the reference's key");
+        }
+    }
+
+    /// A reference goes into the cache and comes back as it was, coverage and all; a file
+    /// whose arrays do not fit its header is refused.
+    #[test]
+    fn a_cached_reference_reads_back_as_it_was_written() {
+        let mut render =
+            Render { image: HdrImage::new(3, 2), mask: vec![true, false, true, true, false, false], coverage: None };
+        render.image.pixels[2] = [0.5, 1.5, 2.5];
+        let camera = Camera::frame_bounds(glam::Vec3::ZERO, glam::Vec3::ONE, 3, 2, 0.0, 0.0, 40.0);
+        let back = reference_from_artifact(reference_artifact(&render, &camera, 1.25)).unwrap();
+        assert_eq!(back, (render.clone(), 1.25));
+        render.coverage = Some(vec![1.0, 0.0, 0.25, 0.5, 0.0, 0.0]);
+        let back = reference_from_artifact(reference_artifact(&render, &camera, 2.0)).unwrap();
+        assert_eq!(back, (render.clone(), 2.0));
+        let wrong = reference_artifact(&render, &camera, 2.0).with("width", Field::U64(4));
+        assert!(reference_from_artifact(wrong).unwrap_err().to_string().contains("'image'"));
     }
 }

@@ -16,6 +16,10 @@
 //! * `btf-<key>-<encoding>.btf`: a synthesized BTF (its key is `materials::synth_key`).
 //! * `lpca-<key>-<setting>.btf`: a local-PCA BTF (`materials::lpca_key`: the dense table's
 //!   content, the setting and the seed).
+//! * `reference-<key>.bsf`: the per-pixel ground-truth image before its background
+//!   ([`reference_key`]: the repaired mesh and its frames, the materials as shaded, the light
+//!   vector, the visibility settings, the camera and [`REFERENCE_VERSION`]). Changing a
+//!   compressor, a method or the output folder does not re-trace it.
 //!
 //! Keys are 128-bit content hashes ([`ContentHash`], XXH3-128), written as 32 hex digits in
 //! the file name. A file also carries its key inside ([`CacheKey`]: the hash and a readable
@@ -38,8 +42,11 @@ use biscale_core::artifact::{Artifact, Field, MAGIC};
 use biscale_core::compress::Compressor;
 use biscale_core::geometry::Mesh;
 use biscale_core::io::ContentHash;
+use biscale_core::sampling::LightVector;
+use biscale_core::scene::{BtfRepresentation, Camera, ShadeScene};
 use biscale_core::transfer::sh::ShTransferSettings;
 use biscale_core::transfer::TransferSettings;
+use biscale_shading::reference::ReferenceRule;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -50,6 +57,17 @@ pub const TRANSFER_VERSION: u32 = 3; // 3: 128-bit keys stored inside the file
 pub const FORM_VERSION: u32 = 2;
 /// Bump when the SH transfer's semantics change.
 pub const SH_TRANSFER_VERSION: u32 = 2;
+/// Bump whenever the per-pixel reference image could come out different for the same inputs:
+/// a change to `biscale_shading::reference::render_reference` or to what it calls (the primary
+/// rays and hit interpolation of `biscale_shading::cpu::render_rows`, `shade_point` and the
+/// BTF lookups, `TransferScene::visibility_at` and `VisibilitySampler`, `TexelCosine`, the
+/// camera's rays), or to how `stages::evaluate::reference` calls it. The key hashes the
+/// inputs, not the code: without a bump a cached reference of the old code is reused.
+pub const REFERENCE_VERSION: u32 = 1;
+
+/// The kinds of cache file `biscale cache list` names and `biscale cache clean --kind` takes
+/// (besides `other`, which clean never touches).
+pub const KINDS: &[&str] = &["transfer", "form", "sh", "btf", "lpca", "reference", "temporary"];
 
 /// Names of the fields that carry a cache file's key inside it.
 const KEY_FIELD: &str = "cache.key";
@@ -161,6 +179,11 @@ impl StageCache {
         self.dir.join(format!("btf-{}-{encoding}.btf", key.hex()))
     }
 
+    /// The file of a per-pixel reference image (its key is [`reference_key`]).
+    pub fn reference_path(&self, key: &CacheKey) -> PathBuf {
+        self.dir.join(format!("reference-{}.bsf", key.hex()))
+    }
+
     /// The output cached at `path` under `key`, decoded by `decode` and checked by `accept`:
     /// `None` when absent or unusable (then a warning names the file and says why: corrupt,
     /// foreign key, wrong shape).
@@ -253,6 +276,131 @@ pub fn sh_transfer_key(mesh: &Mesh, s: &ShTransferSettings, bounces: u32, bounce
             s.seed()
         ),
     )
+}
+
+/// The key of the per-pixel reference image that `rule` renders of `scene` under `light` with
+/// `settings`' visibility, seen by `camera`, before any background is added (a run adds it
+/// after loading, from the env map). Everything `render_reference` reads, by content: the
+/// mesh (positions, triangles, UVs) and the vertex frames it interpolates, each material's
+/// BTF as shaded (its table, or a local-PCA fit's stored values; not its name) and tiling,
+/// the per-triangle material ids, the light vector's basis and every texel's power (so the
+/// env map, its rotation, `sun_boost` and the cubemap resolution as they came out), both
+/// bases and the visibility resolution, every field of the camera (position, target, up,
+/// field of view, width and height after `reference_downscale`, samples per pixel), the rule,
+/// and [`REFERENCE_VERSION`]. Nothing random is drawn, so no seed.
+pub fn reference_key(
+    scene: &ShadeScene,
+    light: &LightVector,
+    settings: &TransferSettings,
+    camera: &Camera,
+    rule: ReferenceRule,
+) -> CacheKey {
+    let mut h = ContentHash::default();
+    h.write(&REFERENCE_VERSION.to_le_bytes()).write(&biscale_core::artifact::CONTAINER_VERSION.to_le_bytes());
+    h.write_str(&format!("{rule:?}"));
+    h.write_str(&settings.light_basis().tag())
+        .write(&settings.visibility_resolution().to_le_bytes())
+        .write_str(&settings.local_basis().tag());
+    let c = camera;
+    let mut floats = FloatHash::default();
+    floats.extend(&mut h, [c.position, c.target, c.up].iter().flat_map(|v| v.to_array()));
+    floats.extend(&mut h, [c.fov_y_degrees]);
+    floats.flush(&mut h);
+    h.write(&c.width.to_le_bytes()).write(&c.height.to_le_bytes()).write(&c.samples_per_pixel.to_le_bytes());
+    let mesh_hash = mesh_hash(scene.mesh());
+    h.write(&mesh_hash.to_le_bytes());
+    let frames = scene.frames();
+    h.write(&(frames.len() as u64).to_le_bytes());
+    floats.extend(&mut h, frames.iter().flat_map(|f| [f.tangent, f.bitangent, f.normal]).flat_map(|v| v.to_array()));
+    floats.flush(&mut h);
+    let light_hash = {
+        let mut l = ContentHash::default();
+        l.write_str(&light.basis().tag()).write(&(light.power.len() as u64).to_le_bytes());
+        floats.extend(&mut l, light.power.iter().flatten().copied());
+        floats.flush(&mut l);
+        l.finish128()
+    };
+    h.write(&light_hash.to_le_bytes());
+    let materials_hash = {
+        let mut m = ContentHash::default();
+        m.write(&(scene.materials().len() as u64).to_le_bytes());
+        for material in scene.materials() {
+            m.write(&material.tiling.to_bits().to_le_bytes());
+            match &material.btf {
+                BtfRepresentation::Dense(b) => {
+                    m.write_str("dense").write_str(&b.local_basis().tag());
+                    m.write(&b.spatial()[0].to_le_bytes()).write(&b.spatial()[1].to_le_bytes());
+                    m.write(&b.view_grid().map_or(0, |g| g.m).to_le_bytes());
+                    m.write(&(b.data().len() as u64).to_le_bytes());
+                    floats.extend(&mut m, b.data().iter().flatten().copied());
+                    floats.flush(&mut m);
+                }
+                BtfRepresentation::Lpca(l) => {
+                    let mut a = l.to_artifact();
+                    a.fields.remove("name");
+                    m.write_str("lpca").write(&a.encode());
+                }
+            }
+        }
+        match scene.triangle_materials() {
+            None => m.write(&[0]),
+            Some(ids) => {
+                m.write(&[1]).write(&(ids.len() as u64).to_le_bytes());
+                let bytes: Vec<u8> = ids.iter().flat_map(|i| i.to_le_bytes()).collect();
+                m.write(&bytes)
+            }
+        };
+        m.finish128()
+    };
+    h.write(&materials_hash.to_le_bytes());
+    CacheKey::new(
+        h.finish128(),
+        format!(
+            "{rule:?} reference {}x{} ({} sample(s) per pixel) from ({:.4}, {:.4}, {:.4}) at ({:.4}, {:.4}, {:.4}), \
+             fov {} deg, of {}, {} material(s) (hash {materials_hash:032x}), light {} (hash {light_hash:032x}), \
+             local {}, visibility {}",
+            c.width,
+            c.height,
+            c.samples_per_pixel,
+            c.position.x,
+            c.position.y,
+            c.position.z,
+            c.target.x,
+            c.target.y,
+            c.target.z,
+            c.fov_y_degrees,
+            describe_mesh(scene.mesh(), mesh_hash),
+            scene.materials().len(),
+            light.basis(),
+            settings.local_basis(),
+            settings.visibility_resolution()
+        ),
+    )
+}
+
+/// f32 values fed to a [`ContentHash`] as little-endian bytes, a block at a time (one hash
+/// update per value would dominate the key of a large mesh).
+#[derive(Default)]
+struct FloatHash {
+    buf: Vec<u8>,
+}
+
+impl FloatHash {
+    const BLOCK: usize = 1 << 16;
+
+    fn extend(&mut self, h: &mut ContentHash, values: impl IntoIterator<Item = f32>) {
+        for v in values {
+            self.buf.extend_from_slice(&v.to_bits().to_le_bytes());
+            if self.buf.len() >= Self::BLOCK {
+                self.flush(h);
+            }
+        }
+    }
+
+    fn flush(&mut self, h: &mut ContentHash) {
+        h.write(&self.buf);
+        self.buf.clear();
+    }
 }
 
 /// A mesh in a key's account: its vertex and triangle counts and its content hash.
@@ -416,6 +564,71 @@ mod tests {
         assert_ne!(transfer_key(&mesh, &s).hash, transfer_key(&mesh, &TransferSettings::new(8, 16, 2).unwrap()).hash);
         assert!(transfer_key(&mesh, &s).inputs.contains("mesh hash"));
     }
+
+    /// The reference's key changes with every input the reference reads (the mesh, a frame,
+    /// the materials' tables and tiling, the light's power, the visibility resolution, every
+    /// field of the camera, the rule) and is the same for the same inputs built twice.
+    #[test]
+    fn the_reference_key_changes_with_each_input_it_reads() {
+        use biscale_core::geometry::{shapes, vertex_frames};
+        use biscale_core::scene::{Btf, Material};
+        let s = TransferSettings::new(8, 16, 4).unwrap();
+        let scene_of = |mesh: &Mesh, material: Material| {
+            ShadeScene::new(mesh.clone(), vertex_frames(mesh).0, vec![material], None).unwrap()
+        };
+        let grey = || Material::new(Btf::lambertian([0.5; 3], s.local_basis()).unwrap());
+        let mesh = shapes::uv_sphere(glam::Vec3::ZERO, 1.0, 6, 8);
+        let light = LightVector::constant(s.light_basis(), [1.0, 0.9, 0.8]);
+        let camera = Camera::frame_bounds(glam::Vec3::splat(-1.0), glam::Vec3::splat(1.0), 32, 24, 20.0, 10.0, 40.0);
+        let rule = ReferenceRule::GroundTruth;
+        let base = reference_key(&scene_of(&mesh, grey()), &light, &s, &camera, rule);
+        assert_eq!(base, reference_key(&scene_of(&mesh.clone(), grey()), &light, &s, &camera, rule));
+        assert!(base.inputs.contains("mesh hash") && base.inputs.contains("32x24"), "{}", base.inputs);
+
+        let mut moved = mesh.clone();
+        moved.positions[0].x += 1e-3;
+        let mut turned = scene_of(&mesh, grey());
+        let mut frames = turned.frames().to_vec();
+        frames[3].normal.y += 1e-3;
+        turned = ShadeScene::new(mesh.clone(), frames, vec![grey()], None).unwrap();
+        let red = Material::new(Btf::lambertian([0.6, 0.5, 0.5], s.local_basis()).unwrap());
+        let tiled = Material { tiling: 2.0, ..grey() };
+        let mut brighter = light.clone();
+        brighter.power[5][1] *= 1.001;
+        let mut moved_camera = camera;
+        moved_camera.position.x += 1e-3;
+        let mut more_samples = camera;
+        more_samples.samples_per_pixel = 4;
+        let others = [
+            ("mesh", reference_key(&scene_of(&moved, grey()), &light, &s, &camera, rule)),
+            ("frame", reference_key(&turned, &light, &s, &camera, rule)),
+            ("albedo", reference_key(&scene_of(&mesh, red), &light, &s, &camera, rule)),
+            ("tiling", reference_key(&scene_of(&mesh, tiled), &light, &s, &camera, rule)),
+            ("light", reference_key(&scene_of(&mesh, grey()), &brighter, &s, &camera, rule)),
+            (
+                "visibility",
+                reference_key(
+                    &scene_of(&mesh, grey()),
+                    &light,
+                    &TransferSettings::new(8, 32, 4).unwrap(),
+                    &camera,
+                    rule,
+                ),
+            ),
+            ("camera", reference_key(&scene_of(&mesh, grey()), &light, &s, &moved_camera, rule)),
+            ("size", reference_key(&scene_of(&mesh, grey()), &light, &s, &Camera { width: 16, ..camera }, rule)),
+            ("samples", reference_key(&scene_of(&mesh, grey()), &light, &s, &more_samples, rule)),
+            ("rule", reference_key(&scene_of(&mesh, grey()), &light, &s, &camera, ReferenceRule::Binned)),
+        ];
+        let mut seen = std::collections::BTreeSet::from([base.hash]);
+        for (what, key) in &others {
+            assert!(seen.insert(key.hash), "changing the {what} left the key as it was");
+        }
+        let cache = StageCache::in_dir("c");
+        assert_eq!(cache.reference_path(&base), Path::new("c").join(format!("reference-{}.bsf", base.hex())));
+        assert_eq!(parse_name(&format!("reference-{}.bsf", base.hex())), Some(("reference", base.hex().as_str())));
+        assert_eq!(parse_name(&format!("reference-{}-x.bsf", base.hex())), None);
+    }
 }
 
 /// The cache folder every command shares unless given `--cache-dir`:
@@ -433,8 +646,8 @@ pub fn default_dir() -> PathBuf {
 #[derive(Clone, Debug)]
 pub struct Entry {
     pub name: String,
-    /// `transfer`, `form`, `sh`, `btf`, `lpca`, `temporary` (a write that never finished) or
-    /// `other` (not proved biscale's by its contents, whatever its name).
+    /// `transfer`, `form`, `sh`, `btf`, `lpca`, `reference`, `temporary` (a write that never
+    /// finished) or `other` (not proved biscale's by its contents, whatever its name).
     pub kind: &'static str,
     pub bytes: u64,
     pub modified: std::time::SystemTime,
@@ -443,7 +656,7 @@ pub struct Entry {
 }
 
 /// The kind a cache file's name claims, with the key its name carries: `<kind>-<32 hex>.bsf`
-/// for `T`, `<kind>-<32 hex>-<rest>` for the others, `.bsf` for matrices and forms, `.btf` for
+/// for `T` and the reference, `<kind>-<32 hex>-<rest>` for the others, `.bsf` for matrices and forms, `.btf` for
 /// BTFs. A name is only a claim: [`owned`] checks it against the file's own header.
 fn parse_name(name: &str) -> Option<(&'static str, &str)> {
     let (kind, ext): (&'static str, &str) = match name.split('-').next()? {
@@ -452,13 +665,14 @@ fn parse_name(name: &str) -> Option<(&'static str, &str)> {
         "sh" => ("sh", ".bsf"),
         "btf" => ("btf", ".btf"),
         "lpca" => ("lpca", ".btf"),
+        "reference" => ("reference", ".bsf"),
         _ => return None,
     };
     let rest = name.strip_prefix(kind)?.strip_prefix('-')?.strip_suffix(ext)?;
     let hex = rest.get(..32)?;
     let tail = &rest[32..];
     let tail_ok = match kind {
-        "transfer" => tail.is_empty(),
+        "transfer" | "reference" => tail.is_empty(),
         _ => tail.len() > 1 && tail.starts_with('-'),
     };
     (hex.bytes().all(|b| b.is_ascii_hexdigit() && !b.is_ascii_uppercase()) && tail_ok).then_some((kind, hex))
@@ -567,6 +781,7 @@ mod listing_tests {
         let artifact = Artifact::new("probe").with("n", Field::U64(1));
         cache.put(&cache.transfer_path(&key), &key, &artifact);
         cache.put(&cache.form_path(&key, "bicluster"), &key, &artifact);
+        cache.put(&cache.reference_path(&key), &key, &artifact);
         let temp = format!(".transfer-{}.bsf.tmp-1-2", key.hex());
         std::fs::write(dir.path().join(&temp), &MAGIC[..5]).unwrap();
         std::fs::write(dir.path().join("notes.txt"), b"mine").unwrap();
@@ -577,19 +792,26 @@ mod listing_tests {
                 (temp.clone(), "temporary"),
                 (format!("form-{}-bicluster.bsf", key.hex()), "form"),
                 ("notes.txt".to_string(), "other"),
+                (format!("reference-{}.bsf", key.hex()), "reference"),
                 (format!("transfer-{}.bsf", key.hex()), "transfer"),
             ]
         );
-        assert_eq!(all[3].inputs.as_deref(), Some("mesh abc, 3 vertices"), "read from the header");
-        assert!(all[3].bytes > 0);
+        assert_eq!(all[4].inputs.as_deref(), Some("mesh abc, 3 vertices"), "read from the header");
+        assert!(all[4].bytes > 0);
+        assert!(all.iter().all(|e| e.kind == "other" || KINDS.contains(&e.kind)), "every kind is one clean takes");
 
         // Too young to clean; a dry run removes nothing.
         let old = CleanFilter { kinds: vec![], older_than: Some(std::time::Duration::from_secs(3600)) };
         assert!(clean(dir.path(), &old, false).unwrap().is_empty());
         let temps = CleanFilter { kinds: vec!["temporary".into()], older_than: None };
         assert_eq!(clean(dir.path(), &temps, true).unwrap().len(), 1);
-        assert_eq!(list(dir.path()).unwrap().len(), 4);
+        assert_eq!(list(dir.path()).unwrap().len(), 5);
         assert_eq!(kinds(&clean(dir.path(), &temps, false).unwrap()), [(temp, "temporary")]);
+        let references = CleanFilter { kinds: vec!["reference".into()], older_than: None };
+        assert_eq!(
+            kinds(&clean(dir.path(), &references, false).unwrap()),
+            [(format!("reference-{}.bsf", key.hex()), "reference")]
+        );
         // Everything of biscale's goes; the user's own file stays.
         assert_eq!(clean(dir.path(), &CleanFilter::default(), false).unwrap().len(), 2);
         assert_eq!(kinds(&list(dir.path()).unwrap()), [("notes.txt".to_string(), "other")]);
