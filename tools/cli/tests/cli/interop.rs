@@ -419,11 +419,8 @@ fn eval_reports_a_forms_own_flops_not_the_flops_and_build_time_its_file_claims()
     let d = dir.path();
     let (exp, cache) = (d.join("export"), d.join("cache"));
     ok(&["export", CONFIG, "--what", "forms", "--out", s(&exp), "--cache-dir", s(&cache)]);
-    let mut forms: Vec<PathBuf> = std::fs::read_dir(&exp)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| !p.ends_with(".biscale-run"))
-        .collect();
+    let mut forms: Vec<PathBuf> =
+        std::fs::read_dir(&exp).unwrap().map(|e| e.unwrap().path()).filter(|p| !p.ends_with(".biscale-run")).collect();
     forms.sort();
     assert_eq!(forms.len(), 4, "one form per built-in kind: {forms:?}");
     // `meta` rewritten: the arrays as they are, the metadata replaced.
