@@ -342,7 +342,9 @@ pub fn form(data: &[u8]) {
     };
     let again = CompressedForm::from_artifact(form.to_artifact()).expect("a saved form loads");
     assert_eq!(again.to_artifact().encode(), form.to_artifact().encode(), "a form re-encodes to itself");
-    let Some(kind) = registry::KINDS.iter().find(|k| k.name == form.kind && k.name != "plugin") else { return };
+    let Some(kind) = registry::KINDS.iter().find(|k| k.name == form.kind && k.role != registry::Role::External) else {
+        return;
+    };
     let compressor = (kind.build)(&serde_json::json!({})).expect("a built-in builds with its defaults");
     let Ok(kernels) = compressor.kernels(&form) else { return };
     if kernels.check_form(&form).is_err() || form.rows() > MAX_GATHER_ROWS {
@@ -766,7 +768,10 @@ pub fn npz(data: &[u8]) {
             let counted = biscale::interop::form_flops(&form).unwrap_or(0);
             assert_eq!(form.flops_per_gather, counted, "a form's flops are not counted from its arrays");
             assert_eq!(form.build_seconds, 0.0, "a form read from a file claims a build time");
-            let Some(kind) = registry::KINDS.iter().find(|k| k.name == form.kind && k.name != "plugin") else { return };
+            let Some(kind) = registry::KINDS.iter().find(|k| k.name == form.kind && k.role != registry::Role::External)
+            else {
+                return;
+            };
             let compressor = (kind.build)(&serde_json::json!({})).expect("a built-in builds with its defaults");
             let Ok(kernels) = compressor.kernels(&form) else { return };
             if kernels.check_form(&form).is_err() {
