@@ -78,6 +78,11 @@ def _overrides(set: Optional[Mapping[str, Any]]) -> List[str]:
     return [f"{k}={_toml_value(v)}" for k, v in set.items()]
 
 
+def _opt_path(p: Optional[PathLike]) -> Optional[str]:
+    """A path argument as the native calls take it (``None`` stays ``None``)."""
+    return None if p is None else os.fspath(p)
+
+
 def _light_array(L: Any) -> np.ndarray:
     """``L`` as the C-contiguous float32 N x 3 array the native calls take."""
     a = np.asarray(L)
@@ -216,7 +221,7 @@ class Experiment:
 
     def plan(self, *, cache_dir: Optional[PathLike] = None, no_cache: bool = False) -> str:
         """What ``biscale plan`` prints."""
-        return self._e.plan(None if cache_dir is None else os.fspath(cache_dir), no_cache)
+        return self._e.plan(_opt_path(cache_dir), no_cache)
 
     def run(
         self,
@@ -235,8 +240,8 @@ class Experiment:
                 raise BiscaleError(f"{c!r} has no compress(T, context) method (see biscale.PythonCompressor)")
         labels = [_label(c) for c in objs]
         out_dir, text = self._e.run(
-            None if out is None else os.fspath(out),
-            None if cache_dir is None else os.fspath(cache_dir),
+            _opt_path(out),
+            _opt_path(cache_dir),
             no_cache,
             objs,
             labels,
@@ -264,24 +269,20 @@ class Experiment:
 
         if isinstance(lstar, Form):
             raise BiscaleError("evaluate takes an L* array; a form is scored by run(compressors=[...]) or form.gather(L)")
-        if isinstance(lstar, (str, os.PathLike)):
-            # A file, as `biscale eval --lstar FILE` takes it.
-            out_dir, text = self._e.evaluate(
-                os.fspath(lstar), name, None if out is None else os.fspath(out), None if cache_dir is None else os.fspath(cache_dir), no_cache
-            )
+        def score(path: str) -> Dict[str, Any]:
+            out_dir, text = self._e.evaluate(path, name, _opt_path(out), _opt_path(cache_dir), no_cache)
             self.out_dir = out_dir
             return json.loads(text)
+
+        if isinstance(lstar, (str, os.PathLike)):
+            return score(os.fspath(lstar))  # a file, as `biscale eval --lstar FILE` takes it
         a = np.asarray(lstar)
         if a.dtype not in (np.float32, np.float64):
             raise BiscaleError(f"L* has dtype {a.dtype}; it is float32 or float64")
         with tempfile.TemporaryDirectory(prefix="biscale-eval-") as d:
             path = os.path.join(d, "lstar.npy")
             np.save(path, np.ascontiguousarray(a))
-            out_dir, text = self._e.evaluate(
-                path, name, None if out is None else os.fspath(out), None if cache_dir is None else os.fspath(cache_dir), no_cache
-            )
-        self.out_dir = out_dir
-        return json.loads(text)
+            return score(path)
 
     def light(self) -> np.ndarray:
         """The light vector ``L``: power per cubemap texel, N x 3 float32."""
@@ -289,7 +290,7 @@ class Experiment:
 
     def transfer(self, *, cache_dir: Optional[PathLike] = None, no_cache: bool = False) -> Transfer:
         """``T`` from the stage cache, or traced (as ``biscale run`` gets it)."""
-        return Transfer(self._e.transfer(None if cache_dir is None else os.fspath(cache_dir), no_cache))
+        return Transfer(self._e.transfer(_opt_path(cache_dir), no_cache))
 
     def __repr__(self) -> str:
         return f"<biscale.Experiment {self.name!r}>"
