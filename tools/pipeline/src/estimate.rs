@@ -604,7 +604,7 @@ pub fn check_run(
     let memory = estimate(exp, geometry, lighting, cache);
     let available = available()?;
     let peak = memory.peak();
-    eprintln!(
+    crate::util::note(format_args!(
         "memory: estimated peak {} (in: {}; T {} non-zeros from {} sampled vertices), {} available ({})",
         human(peak.bytes),
         peak.name,
@@ -612,7 +612,7 @@ pub fn check_run(
         memory.nnz.sampled,
         human(available.bytes),
         available.source
-    );
+    ));
     refuse_over(&format!("{}: this run", exp.config_path.display()), &memory, &available)?;
     Ok((memory, available))
 }

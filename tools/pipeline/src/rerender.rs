@@ -145,7 +145,7 @@ fn comparison_plots(runs: &[FinishedRun], dir: &Path) -> Vec<(String, String)> {
         match crate::plots::log_log_plot_with(&dir.join(&rel), title, x_label, "relative L2 error of L*", &series, None)
         {
             Ok(()) => out.push((rel, title.to_string())),
-            Err(e) => eprintln!("warning: plot {file}: {e}"),
+            Err(e) => crate::util::warn(format_args!("plot {file}: {e}")),
         }
     }
     out

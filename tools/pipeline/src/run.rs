@@ -113,11 +113,11 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     let geometry = load_geometry(exp)?;
     ctx.clock.mark("geometry");
     for r in &geometry.repairs {
-        eprintln!("warning: {}: {r}", exp.mesh_path.display());
+        crate::util::warn(format_args!("{}: {r}", exp.mesh_path.display()));
     }
     let lighting = load_lighting(exp)?;
     for w in &lighting.warnings {
-        eprintln!("warning: {w}");
+        crate::util::warn(w);
     }
     ctx.clock.mark("lighting");
     let (memory, available) = crate::estimate::check_run(exp, &geometry, &lighting, ctx.cache.is_some())?;
@@ -134,7 +134,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     fault_point("transfer");
     crate::estimate::check_peak(&memory, &available, "the transfer stage")?;
     if let Some(w) = sky_warning(&t.metrics, t.matrix.vertices()) {
-        eprintln!("warning: {w}");
+        crate::util::warn(w);
     }
     let (scene, mut materials) = shade_scene(exp, &geometry, &t.matrix, ctx.cache.as_ref())?;
     for n in &materials.notes {

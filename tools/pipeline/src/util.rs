@@ -6,13 +6,19 @@
 //!
 //! [`Verbosity`] (`-q` / `-v` on the command line) decides whether progress is shown. What a
 //! stage did is a `log` event, not a print: `log::info!` for the notes, `log::debug!` for each
-//! stage's wall time, `log::warn!`-level lines stay `eprintln!("warning: ...")` where a user
-//! must see them whatever the logger. The CLI installs the logger that prints them
+//! stage's wall time. Warnings go through [`warn`]: `warning: ...` on stderr, where a user must
+//! see them whatever the logger. The CLI installs the logger that prints the rest
 //! (`biscale-cli`'s `StderrLog`: `-q` keeps warnings only, `-v` adds the stage times); a
 //! program using this crate as a library hears nothing unless it installs its own.
+//!
+//! A host with its own logging (the Python module) calls [`report_through_log`]: warnings
+//! become `log::warn!` records and progress becomes `log::info!` lines (target
+//! `biscale::progress`, at most every [`PROGRESS_SECONDS_VAR`] seconds), with no bar.
 
 use indicatif::{ProgressBar, ProgressStyle};
+use std::fmt::Display;
 use std::io::IsTerminal;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
@@ -43,6 +49,44 @@ pub fn verbosity() -> Verbosity {
     }
 }
 
+static THROUGH_LOG: AtomicBool = AtomicBool::new(false);
+
+/// Send warnings and progress through the `log` facade instead of stderr, for a host with its
+/// own logging (the Python module: `logging`); see the module docs.
+pub fn report_through_log(on: bool) {
+    THROUGH_LOG.store(on, Ordering::Relaxed);
+}
+
+fn through_log() -> bool {
+    THROUGH_LOG.load(Ordering::Relaxed)
+}
+
+/// A warning the user must see: `warning: {msg}` on stderr, or a `log::warn!` record after
+/// [`report_through_log`].
+pub fn warn(msg: impl Display) {
+    match through_log() {
+        true => log::warn!("{msg}"),
+        false => eprintln!("warning: {msg}"),
+    }
+}
+
+/// A line a batch log must hold whatever the logger (the memory estimate): stderr, or a
+/// `log::info!` record after [`report_through_log`].
+pub fn note(msg: impl Display) {
+    match through_log() {
+        true => log::info!("{msg}"),
+        false => eprintln!("{msg}"),
+    }
+}
+
+/// One progress line: stderr, or a `log::info!` record (target `biscale::progress`).
+fn progress_line(line: impl Display) {
+    match through_log() {
+        true => log::info!(target: "biscale::progress", "{line}"),
+        false => eprintln!("{line}"),
+    }
+}
+
 /// Environment variable: seconds between progress lines when stderr is not a terminal.
 pub const PROGRESS_SECONDS_VAR: &str = "BISCALE_PROGRESS_SECONDS";
 
@@ -66,14 +110,17 @@ pub fn progress_bar(len: u64, what: &str) -> Progress {
     if verbosity() == Verbosity::Quiet {
         return Progress { bar: ProgressBar::hidden(), lines: None };
     }
-    let bar = ProgressBar::new(len);
+    let bar = match through_log() {
+        true => ProgressBar::hidden(),
+        false => ProgressBar::new(len),
+    };
     bar.set_style(
         ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} ({elapsed} < {eta})")
             .expect("valid template")
             .progress_chars("=> "),
     );
     bar.set_message(what.to_string());
-    let lines = (!std::io::stderr().is_terminal()).then(|| {
+    let lines = (through_log() || !std::io::stderr().is_terminal()).then(|| {
         let every = std::env::var(PROGRESS_SECONDS_VAR).ok().and_then(|s| s.parse::<f64>().ok()).unwrap_or(10.0);
         let now = Instant::now();
         Lines {
@@ -95,7 +142,7 @@ impl Progress {
             let mut last = l.last.lock().unwrap_or_else(|e| e.into_inner());
             if last.0.elapsed() >= l.every {
                 *last = (Instant::now(), true);
-                eprintln!("{}", l.line(pos));
+                progress_line(l.line(pos));
             }
         }
     }
@@ -106,7 +153,7 @@ impl Progress {
         if let Some(l) = &self.lines {
             let last = l.last.lock().unwrap_or_else(|e| e.into_inner());
             if last.1 {
-                eprintln!("{}: done in {:.1} s", l.what, l.start.elapsed().as_secs_f64());
+                progress_line(format_args!("{}: done in {:.1} s", l.what, l.start.elapsed().as_secs_f64()));
             }
         }
     }

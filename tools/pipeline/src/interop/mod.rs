@@ -20,7 +20,11 @@
 //! very `CompressedForm` the run gathered. Its statistics are the file's claims, which `eval`
 //! does not report: the flops are counted again from the form's own arrays ([`form_flops`]) and
 //! the build time is 0 (nothing was built by `eval`).
+//!
+//! [`images`] renders an `L*` and the reference without a run, for a program holding the
+//! pipeline as a library (the Python module).
 
+pub mod images;
 pub mod mtx;
 pub mod npy;
 
@@ -624,11 +628,11 @@ pub fn read_lstar(path: &Path, want: TransferShape, light_moments: bool) -> Resu
         let product = meta.get("product").and_then(Value::as_str);
         let ours = if light_moments { "light_moments" } else { "paper" };
         if product.is_some_and(|p| p != ours) {
-            eprintln!(
-                "warning: {}: an L* of the '{}' product, this config's uncompressed L* is the '{ours}' one (runtime.light_moments); scored as it is",
+            crate::util::warn(format_args!(
+                "{}: an L* of the '{}' product, this config's uncompressed L* is the '{ours}' one (runtime.light_moments); scored as it is",
                 path.display(),
                 product.unwrap_or_default()
-            );
+            ));
         }
     }
     let (v, m) = (want.vertices, want.local_dirs());
@@ -905,12 +909,15 @@ fn form_compressor(
     // The record's flops are the form's own count, whatever the file claims.
     let flops = f.form.flops_per_gather;
     if form_flops(&f.form).is_none() {
-        eprintln!("warning: {}: the flops of a {kind} form are not counted; reported as 0", path.display());
-    } else if let Some(claim) = f.claimed_flops.as_ref().filter(|c| c.as_u64() != Some(flops)) {
-        eprintln!(
-            "warning: {}: metadata flops_per_gather is {claim}, the form's arrays give {flops}; {flops} is reported",
+        crate::util::warn(format_args!(
+            "{}: the flops of a {kind} form are not counted; reported as 0",
             path.display()
-        );
+        ));
+    } else if let Some(claim) = f.claimed_flops.as_ref().filter(|c| c.as_u64() != Some(flops)) {
+        crate::util::warn(format_args!(
+            "{}: metadata flops_per_gather is {claim}, the form's arrays give {flops}; {flops} is reported",
+            path.display()
+        ));
     }
     Ok((CompressorSetting { label: name.to_string(), kind: kind.to_string(), params }, compressor))
 }

@@ -286,9 +286,8 @@ fn reference_from_artifact(mut a: Artifact) -> std::result::Result<(Render, f64)
     Ok((Render { image, mask: mask.into_iter().map(|m| m == 1).collect(), coverage }, seconds))
 }
 
-/// The ground-truth reference of the run's view at `report.reference_downscale`: loaded from
-/// `cache` when it holds one under the same [`reference_key`] (the image as traced, before its
-/// background, which is added here either way), else traced and stored there.
+/// The ground-truth reference of the run's view at `report.reference_downscale` with the
+/// baseline's errors against it ([`reference_render`]).
 pub(crate) fn reference(
     exp: &Experiment,
     geometry: &Geometry,
@@ -297,6 +296,49 @@ pub(crate) fn reference(
     baseline: &Baseline,
     cache: Option<&StageCache>,
 ) -> Result<Reference> {
+    let traced = reference_render(exp, geometry, view, lighting, cache)?;
+    let (render, camera) = (traced.render, traced.camera);
+    let small = view.render(&baseline.lstar, &camera)?;
+    let exposure = exp.file.report.exposure;
+    let baseline_error = compare_exposed(&small.image, &render.image, Some(&render.mask), exposure)?;
+    let paper_baseline_error = match &baseline.paper {
+        Some((lstar, _)) => {
+            let small = view.render(lstar, &camera)?;
+            Some(compare_exposed(&small.image, &render.image, Some(&render.mask), exposure)?)
+        }
+        None => None,
+    };
+    Ok(Reference {
+        render,
+        camera,
+        seconds: traced.seconds,
+        cached: traced.cached,
+        baseline_error,
+        paper_baseline_error,
+        scored: Default::default(),
+    })
+}
+
+/// A traced (or cached) reference image, with the background.
+pub(crate) struct TracedReference {
+    pub render: Render,
+    /// The camera at `report.reference_downscale`.
+    pub camera: Camera,
+    /// The trace's seconds (the cached file's, when loaded).
+    pub seconds: f64,
+    pub cached: bool,
+}
+
+/// The ground-truth reference image of the run's view at `report.reference_downscale`: loaded
+/// from `cache` when it holds one under the same [`reference_key`] (the image as traced, before
+/// its background, which is added here either way), else traced and stored there.
+pub(crate) fn reference_render(
+    exp: &Experiment,
+    geometry: &Geometry,
+    view: &View<'_>,
+    lighting: &Lighting,
+    cache: Option<&StageCache>,
+) -> Result<TracedReference> {
     let (camera, key) = reference_key_of(exp, geometry, lighting, view.scene);
     let cached = cache.map(|c| (c, c.reference_path(&key), key));
     let loaded = cached.as_ref().and_then(|(c, path, key)| {
@@ -347,25 +389,7 @@ pub(crate) fn reference(
         }
     };
     let render = render.with_background(&camera, &view.background);
-    let small = view.render(&baseline.lstar, &camera)?;
-    let exposure = exp.file.report.exposure;
-    let baseline_error = compare_exposed(&small.image, &render.image, Some(&render.mask), exposure)?;
-    let paper_baseline_error = match &baseline.paper {
-        Some((lstar, _)) => {
-            let small = view.render(lstar, &camera)?;
-            Some(compare_exposed(&small.image, &render.image, Some(&render.mask), exposure)?)
-        }
-        None => None,
-    };
-    Ok(Reference {
-        render,
-        camera,
-        seconds,
-        cached: from_cache,
-        baseline_error,
-        paper_baseline_error,
-        scored: Default::default(),
-    })
+    Ok(TracedReference { render, camera, seconds, cached: from_cache })
 }
 
 #[cfg(feature = "gpu")]
@@ -512,10 +536,10 @@ impl Evaluation<'_> {
         // The host checks a lossless claim (a plugin's, or our own) against its f64 product.
         let lossless = form.lossless && rel_error_lstar <= LOSSLESS_CLAIM_TOLERANCE;
         if form.lossless && !lossless {
-            eprintln!(
-                "warning: {name}: the form claims to be lossless, but its L* is {rel_error_lstar:.2e} from the f64 \
+            crate::util::warn(format_args!(
+                "{name}: the form claims to be lossless, but its L* is {rel_error_lstar:.2e} from the f64 \
                  product T L (more than f32 rounding explains, {LOSSLESS_CLAIM_TOLERANCE:.0e}); reported as lossy"
-            );
+            ));
         }
         record.kind = compressor.kind().to_string();
         record.params = compressor.params();

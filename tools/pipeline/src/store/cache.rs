@@ -205,7 +205,7 @@ impl StageCache {
         match read {
             Ok(v) => Some(v),
             Err(e) => {
-                eprintln!("warning: ignoring unusable cache file (it is rebuilt): {e}");
+                crate::util::warn(format_args!("ignoring unusable cache file (it is rebuilt): {e}"));
                 None
             }
         }
@@ -217,7 +217,7 @@ impl StageCache {
             .map_err(|e| format!("{}: {e}", self.dir.display()))
             .and_then(|()| artifact.save_with(path, &key.fields()).map_err(|e| e.to_string()));
         if let Err(e) = stored {
-            eprintln!("warning: could not write the cache file {}: {e}", path.display());
+            crate::util::warn(format_args!("could not write the cache file {}: {e}", path.display()));
         }
     }
 
@@ -230,7 +230,7 @@ impl StageCache {
     ) {
         match artifact() {
             Ok(a) => self.put(path, key, &a),
-            Err(e) => eprintln!("warning: could not write the cache file {}: {e}", path.display()),
+            Err(e) => crate::util::warn(format_args!("could not write the cache file {}: {e}", path.display())),
         }
     }
 }

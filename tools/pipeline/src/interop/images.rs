@@ -1,0 +1,61 @@
+//! An experiment's images without a run, for a program that holds the pipeline as a library
+//! (the Python module's `Experiment.shade` and `Experiment.reference`): the image of an `L*`
+//! at the run's camera, and the ground-truth reference, each exactly as `biscale run` renders
+//! it (same scene, materials, camera, background and reference cache).
+
+use crate::error::{PipelineError, Result};
+use crate::experiment::config::Experiment;
+use crate::stages::evaluate::{reference_render, View};
+use crate::stages::scene::{load_geometry, load_lighting, shade_scene};
+use crate::stages::transfer::transfer_matrix;
+use crate::store::cache::StageCache;
+use crate::store::RunOptions;
+use biscale_core::gather::LocalRadiance;
+use biscale_core::scene::Render;
+use std::path::Path;
+
+/// The image `biscale run` renders of `lstar` (rows `v*M + j` of the config's transfer shape),
+/// at the run's camera with its background. `T` comes from the stage cache (or is traced): its
+/// local basis builds the materials' BTFs.
+pub fn shade_image(exp: &Experiment, lstar: &[[f32; 3]], opts: &RunOptions) -> Result<Render> {
+    let geometry = load_geometry(exp)?;
+    let want = exp.transfer_settings().shape(geometry.mesh.vertex_count());
+    if lstar.len() != want.rows() {
+        return Err(PipelineError::Mismatch {
+            path: exp.config_path.clone(),
+            what: format!(
+                "the L* has {} rows, this config's has {} ({} vertices x {} local directions)",
+                lstar.len(),
+                want.rows(),
+                want.vertices,
+                want.local_dirs()
+            ),
+        });
+    }
+    if let Some(i) = lstar.as_flattened().iter().position(|x| !x.is_finite()) {
+        return Err(PipelineError::Mismatch {
+            path: exp.config_path.clone(),
+            what: format!("L*[{}, {}] is {}: every value must be finite", i / 3, i % 3, lstar.as_flattened()[i]),
+        });
+    }
+    let lighting = load_lighting(exp)?;
+    let cache = StageCache::new(opts, Path::new("."));
+    let t = transfer_matrix(exp, &geometry, cache.as_ref())?;
+    let lstar = LocalRadiance::new(t.matrix.local_basis(), t.matrix.vertices(), lstar.to_vec())?;
+    let (scene, _) = shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
+    let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
+    view.render(&lstar, &view.camera)
+}
+
+/// The reference image of a run of `exp` (at `report.reference_downscale`, with the
+/// background): from the stage cache when it holds one of the same inputs, else traced (and
+/// stored there).
+pub fn reference_image(exp: &Experiment, opts: &RunOptions) -> Result<Render> {
+    let geometry = load_geometry(exp)?;
+    let lighting = load_lighting(exp)?;
+    let cache = StageCache::new(opts, Path::new("."));
+    let t = transfer_matrix(exp, &geometry, cache.as_ref())?;
+    let (scene, _) = shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
+    let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
+    Ok(reference_render(exp, &geometry, &view, &lighting, cache.as_ref())?.render)
+}
