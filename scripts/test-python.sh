@@ -19,6 +19,6 @@ if ! bash scripts/setup-python.sh --module; then
     exit 0
 fi
 # The CLI the tests compare with: the one `cargo test` built.
-cargo build --locked --quiet -p biscale-cli
+cargo build --locked --quiet -p biscale-cli -p biscale-plugin-quantized
 export BISCALE_BIN="${BISCALE_BIN:-$PWD/target/debug/biscale}"
 exec .venv/bin/python -m pytest python/tests -q -p no:cacheprovider "$@"

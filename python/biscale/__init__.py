@@ -11,6 +11,8 @@ the built-in ones in the same run, and is gathered, imaged, timed and reported l
     T, L = exp.transfer(), exp.light()                  # T (CSR arrays, .to_scipy()), L (N x 3)
     form = biscale.compress(T, "bicluster")             # a built-in kind's form
     lstar = form.gather(L)                              # L* = T L, rows x 3
+    image = exp.shade(lstar)                            # H x W x 3, as the run renders it
+    record = exp.evaluate(form, name="bc")              # scored as `biscale eval --form`
 
 A Python compressor is any object with ``compress(T, context)`` that returns a form with
 ``gather(L)``, ``flops_per_gather`` and, for its storage, ``arrays`` (see
@@ -44,6 +46,7 @@ __all__ = [
     "PythonForm",
     "Transfer",
     "compress",
+    "read_image",
 ]
 __version__ = _native.__version__
 
@@ -83,14 +86,32 @@ def _opt_path(p: Optional[PathLike]) -> Optional[str]:
     return None if p is None else os.fspath(p)
 
 
-def _light_array(L: Any) -> np.ndarray:
-    """``L`` as the C-contiguous float32 N x 3 array the native calls take."""
-    a = np.asarray(L)
+def _float32(a: Any, what: str) -> np.ndarray:
+    """``a`` as a C-contiguous float32 array (float64 is converted; anything else refused)."""
+    a = np.asarray(a)
     if a.dtype != np.float32:
         if not np.issubdtype(a.dtype, np.floating):
-            raise BiscaleError(f"L has dtype {a.dtype}; a light is float32 (or float64, converted)")
+            raise BiscaleError(f"{what} has dtype {a.dtype}; it is float32 (or float64, converted)")
         a = a.astype(np.float32)
     return np.ascontiguousarray(a)
+
+
+def _light_array(L: Any) -> np.ndarray:
+    """``L`` as the C-contiguous float32 N x 3 array the native calls take."""
+    return _float32(L, "L")
+
+
+def _lstar_rows(lstar: Any) -> np.ndarray:
+    """An ``L*`` (rows x 3, or V x M x 3) as float32 rows x 3."""
+    a = _float32(lstar, "L*")
+    if a.ndim == 3 and a.shape[2] == 3:
+        a = a.reshape(-1, 3)
+    return a
+
+
+def read_image(path: PathLike) -> np.ndarray:
+    """An EXR image the pipeline wrote (a run's ``images/*.exr``) as H x W x 3 float32, linear RGB."""
+    return _native.read_image(os.fspath(path))
 
 
 class Transfer:
@@ -111,9 +132,17 @@ class Transfer:
     indices = property(lambda self: self._t.indices(), doc="int32, nnz")
     data = property(lambda self: self._t.data(), doc="float32, nnz")
 
-    def product(self, L: Any) -> np.ndarray:
-        """``T L`` in float64 (rows x 3): the exact product a lossless gather reproduces."""
-        return self._t.product(_light_array(L))
+    def product(self, L: Any, *, moments: bool = False) -> np.ndarray:
+        """``T L`` in float64 (rows x 3): the exact product a lossless gather reproduces. With
+        ``moments=True`` the light-moments product (``runtime.light_moments``: every texel with
+        its own cosine, the BRDF at each bin's mean light direction), summed per texel in f64;
+        what :meth:`Form.gather_moments` approximates."""
+        return self._t.product(_light_array(L), moments)
+
+    @property
+    def normals(self) -> np.ndarray:
+        """The vertex normals ``T`` was traced with (V x 3 float32)."""
+        return self._t.normals()
 
     def to_scipy(self) -> Any:
         """``T`` as a ``scipy.sparse.csr_array`` (needs SciPy)."""
@@ -147,16 +176,34 @@ class Form:
         """``L*`` of the light ``L`` (N x 3): rows x 3 float32, the form's own CPU gather."""
         return self._f.gather(_light_array(L))
 
+    def gather_moments(self, L: Any) -> np.ndarray:
+        """``L*`` of ``L`` with light moments, as a run with ``runtime.light_moments = true``
+        renders it: the form gathers the light's three direction moments
+        (:meth:`Experiment.light_moments`) and each vertex's bins are resolved with the normal
+        ``T`` was traced with. Rows x 3 float32; compare with ``T.product(L, moments=True)``."""
+        return self._f.gather_moments(_light_array(L))
+
+    def save(self, path: PathLike, *, label: Optional[str] = None) -> None:
+        """Write the form as ``biscale export`` writes ``form-<label>.npz`` (``label`` defaults
+        to the kind): ``biscale eval --form`` scores it, ``biscale_io.load_form`` reads it. The
+        file is written whole or not at all."""
+        self._f.save(os.fspath(path), label or self.kind)
+
     def __repr__(self) -> str:
         return f"<biscale.Form {self.kind}, {self.nbytes} bytes, {self.flops_per_gather} flops/gather>"
 
 
 def compress(T: Transfer, kind: str, *, seed: int = 0, **params: Any) -> Form:
     """Compress ``T`` with the built-in kind ``kind`` (``sparse``, ``bicluster``, ``cpca``,
-    ``haar``) and its parameters as a config's ``[[compressors]]`` entry names them, e.g.
-    ``compress(T, "cpca", clusters=8, components=4)``."""
+    ``haar``) or a plugin (``plugin``, with ``path`` its shared library and ``params`` its
+    table), and its parameters as a config's ``[[compressors]]`` entry names them, e.g.
+    ``compress(T, "cpca", clusters=8, components=4)`` or
+    ``compress(T, "plugin", path="libquantized.so", params={"scale": 0.25})`` (a relative
+    ``path`` is taken from the working directory)."""
     if not isinstance(T, Transfer):
         raise BiscaleError(f"compress takes a biscale.Transfer (Experiment.transfer()), not {type(T).__name__}")
+    if kind == "plugin" and isinstance(params.get("path"), (str, os.PathLike)):
+        params["path"] = os.path.abspath(os.fspath(params["path"]))
     return Form(_native.compress(T._t, kind, json.dumps(params), seed))
 
 
@@ -253,40 +300,72 @@ class Experiment:
         self,
         lstar: Any,
         *,
-        name: str = "python",
+        name: Optional[str] = None,
         out: Optional[PathLike] = None,
         cache_dir: Optional[PathLike] = None,
         no_cache: bool = False,
     ) -> Dict[str, Any]:
-        """Score an ``L*`` you computed (rows x 3, float32 or float64; rows ``v*M + j``) as a run
-        scores a compressor: images against the uncompressed render and the reference, errors,
-        a report in ``out`` (default ``out/<name>-eval-<name>``). Returns the record ``biscale
-        eval`` writes. ``lstar`` may also be a path to a ``.npy``/``.npz`` file (as ``--lstar``
-        takes it); an array is passed through a temporary ``.npy``, which the record's
-        ``params.file`` names. To score a compressor with its storage and timings, pass it to
-        :meth:`run` instead."""
+        """Score an ``L*`` you computed (rows x 3, float32 or float64; rows ``v*M + j``), or a
+        built-in :class:`Form`, as a run scores a compressor: images against the uncompressed
+        render and the reference, errors, a report in ``out`` (default
+        ``out/<experiment>-eval-<name>``). Returns the record ``biscale eval`` writes.
+
+        ``name`` labels the setting (default ``python`` for an array, the kind for a form).
+        ``lstar`` may also be a path to a ``.npy``/``.npz`` file (as ``--lstar`` takes it); an
+        array is passed through a temporary ``.npy`` (the record's ``params.file`` names it), a
+        form through a temporary ``form-<name>.npz`` scored as ``eval --form`` scores it (its
+        flops counted again, its gather timed, its build time 0). A Python compressor's form is
+        scored with its storage and timings by :meth:`run` instead."""
         import tempfile
 
-        if isinstance(lstar, Form):
-            raise BiscaleError("evaluate takes an L* array; a form is scored by run(compressors=[...]) or form.gather(L)")
-        def score(path: str) -> Dict[str, Any]:
-            out_dir, text = self._e.evaluate(path, name, _opt_path(out), _opt_path(cache_dir), no_cache)
+        def score(path: str, label: Optional[str], form: bool = False) -> Dict[str, Any]:
+            out_dir, text = self._e.evaluate(path, label, _opt_path(out), _opt_path(cache_dir), no_cache, form)
             self.out_dir = out_dir
             return json.loads(text)
 
+        if isinstance(lstar, Form):
+            label = name or lstar.kind
+            with tempfile.TemporaryDirectory(prefix="biscale-eval-") as d:
+                path = os.path.join(d, f"form-{label}.npz")
+                lstar.save(path, label=label)
+                return score(path, label, form=True)
+        if not isinstance(lstar, (str, os.PathLike, np.ndarray, list, tuple)) and callable(getattr(lstar, "gather", None)):
+            raise BiscaleError(
+                f"evaluate takes an L*, a path or a biscale.Form, not {type(lstar).__name__}: score a Python "
+                "compressor's form with run(compressors=[...]), or evaluate(form.gather(exp.light()))"
+            )
+        name = name or "python"
         if isinstance(lstar, (str, os.PathLike)):
-            return score(os.fspath(lstar))  # a file, as `biscale eval --lstar FILE` takes it
+            return score(os.fspath(lstar), name)  # a file, as `biscale eval --lstar FILE` takes it
         a = np.asarray(lstar)
         if a.dtype not in (np.float32, np.float64):
             raise BiscaleError(f"L* has dtype {a.dtype}; it is float32 or float64")
         with tempfile.TemporaryDirectory(prefix="biscale-eval-") as d:
             path = os.path.join(d, "lstar.npy")
             np.save(path, np.ascontiguousarray(a))
-            return score(path)
+            return score(path, name)
 
     def light(self) -> np.ndarray:
         """The light vector ``L``: power per cubemap texel, N x 3 float32."""
         return self._e.light()
+
+    def light_moments(self) -> np.ndarray:
+        """The light's three direction moments (``runtime.light_moments``): 3 x N x 3 float32,
+        ``[a, k]`` is ``L[k] * d_k[a]`` for the world axes ``a`` = x, y, z and ``d_k`` the centre
+        direction of texel ``k``. A run with light moments gathers these three through the
+        same form instead of ``L`` (:meth:`Form.gather_moments`)."""
+        return self._e.light_moments()
+
+    def shade(self, lstar: Any, *, cache_dir: Optional[PathLike] = None, no_cache: bool = False) -> np.ndarray:
+        """The image a run renders of ``lstar`` (rows x 3 or V x M x 3): H x W x 3 float32,
+        linear RGB, at the run's camera with its background (``images/*.exr`` hold the same)."""
+        return self._e.shade(_lstar_rows(lstar), _opt_path(cache_dir), no_cache)
+
+    def reference(self, *, cache_dir: Optional[PathLike] = None, no_cache: bool = False) -> np.ndarray:
+        """The ground-truth reference image a run compares with (``images/reference.exr``: at
+        ``report.reference_downscale``, with the background), from the stage cache or traced:
+        H x W x 3 float32, linear RGB."""
+        return self._e.reference(_opt_path(cache_dir), no_cache)
 
     def transfer(self, *, cache_dir: Optional[PathLike] = None, no_cache: bool = False) -> Transfer:
         """``T`` from the stage cache, or traced (as ``biscale run`` gets it)."""

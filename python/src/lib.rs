@@ -3,10 +3,13 @@
 //! module holds only what needs Rust.
 //!
 //! * [`Experiment`]: a config loaded with its `--set` overrides; `plan`, `run` (with Python
-//!   compressors beside the config's), `light`, `transfer`.
-//! * [`Transfer`]: `T` with its bases; its CSR arrays and its f64 product `T L`.
-//! * [`Form`] and [`compress`]: a built-in kind's form of a `Transfer`, its gather, storage
-//!   and flops, its arrays.
+//!   compressors beside the config's), `evaluate`, `light`, `light_moments`, `transfer`,
+//!   `shade` (an `L*`'s image) and `reference` (the ground-truth image).
+//! * [`Transfer`]: `T` with its bases and the vertex frames it was traced with; its CSR arrays
+//!   and its f64 product `T L` (or, with light moments, the moments' product).
+//! * [`Form`] and [`compress`]: a built-in kind's form of a `Transfer`, its gather (also with
+//!   light moments), storage and flops, its arrays, and `save` (the `.npz` `eval --form` reads).
+//! * [`read_image`]: an EXR the pipeline wrote, as an H x W x 3 array.
 //! * [`HostedCompressor`]: a Python object with `compress(T, context)` run inside a pipeline
 //!   run (registered as `biscale_compressors::hosted`): its form's `gather(L)` is called for
 //!   every gather the run times, and what it returns is checked before it is scored.
@@ -18,10 +21,13 @@
 use biscale::experiment::config::{CompressorSetting, Experiment as Exp};
 use biscale::store::RunOptions;
 use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor};
+use biscale_core::gather::moments::{exact_moments_product, gather_with_moments, LightMoments, Lobe};
 use biscale_core::gather::LocalRadiance;
+use biscale_core::geometry::VertexFrame;
 use biscale_core::sampling::LightVector;
+use biscale_core::scene::HdrImage;
 use biscale_core::transfer::TransferMatrix;
-use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -62,7 +68,7 @@ fn options(out: Option<PathBuf>, cache_dir: Option<PathBuf>, no_cache: bool) -> 
 /// A config loaded as `biscale run` loads it.
 #[pyclass(module = "biscale._native", frozen)]
 struct Experiment {
-    exp: Exp,
+    exp: Arc<Exp>,
 }
 
 #[pymethods]
@@ -72,7 +78,7 @@ impl Experiment {
     #[pyo3(signature = (path, overrides = Vec::new()))]
     fn load(py: Python<'_>, path: PathBuf, overrides: Vec<String>) -> PyResult<Self> {
         let exp = py.detach(|| Exp::load_with(&path, &overrides)).map_err(|e| ConfigError::new_err(e.to_string()))?;
-        Ok(Self { exp })
+        Ok(Self { exp: Arc::new(exp) })
     }
 
     /// The experiment's name (its output folder's default name).
@@ -133,7 +139,7 @@ impl Experiment {
             static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
             let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
             let name = format!("python-{}-{n}-{label}", std::process::id());
-            let hosted = Arc::new(HostedObject { obj, label: label.clone() });
+            let hosted = Arc::new(HostedObject { obj, label: label.clone(), exp: self.exp.clone() });
             let factory: biscale_compressors::hosted::Factory =
                 Arc::new(move || Box::new(HostedCompressor::new(hosted.clone())) as Box<dyn Compressor>);
             registrations.push(biscale_compressors::hosted::register(&name, factory).map_err(BiscaleError::new_err)?);
@@ -152,21 +158,26 @@ impl Experiment {
         Ok((dir.display().to_string(), json))
     }
 
-    /// Score an `L*` saved at `lstar` (`.npy`/`.npz`, as `biscale eval --lstar` reads it) as a
-    /// run scores a compressor setting: images, errors, report. Returns the output folder and
-    /// `metrics.json`'s text.
-    #[pyo3(signature = (lstar, name = None, out = None, cache_dir = None, no_cache = false))]
+    /// Score an `L*` saved at `path` (`.npy`/`.npz`, as `biscale eval --lstar` reads it), or
+    /// with `form` a form saved there (`eval --form`), as a run scores a compressor setting:
+    /// images, errors, report. Returns the output folder and `metrics.json`'s text.
+    #[pyo3(signature = (path, name = None, out = None, cache_dir = None, no_cache = false, form = false))]
+    #[allow(clippy::too_many_arguments)]
     fn evaluate(
         &self,
         py: Python<'_>,
-        lstar: PathBuf,
+        path: PathBuf,
         name: Option<String>,
         out: Option<PathBuf>,
         cache_dir: Option<PathBuf>,
         no_cache: bool,
+        form: bool,
     ) -> PyResult<(String, String)> {
         let opts = options(out, cache_dir, no_cache);
-        let input = biscale::interop::EvalInput::Lstar(lstar);
+        let input = match form {
+            true => biscale::interop::EvalInput::Form(path),
+            false => biscale::interop::EvalInput::Lstar(path),
+        };
         let (dir, metrics) =
             py.detach(|| biscale::interop::eval(&self.exp, &input, name.as_deref(), &opts)).map_err(err)?;
         let json = serde_json::to_string(&metrics).map_err(err)?;
@@ -179,19 +190,82 @@ impl Experiment {
         rows3(py, lighting.light.power.as_flattened().to_vec())
     }
 
-    /// `T`, from the stage cache or traced, as `biscale run` gets it.
+    /// The three direction moments of `L` (`runtime.light_moments`): 3 x N x 3 float32,
+    /// `[a, k]` = `L_k d_k[a]` for the world axes `a` = x, y, z and `d_k` texel `k`'s centre.
+    fn light_moments<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray3<f32>>> {
+        let moments = py
+            .detach(|| -> biscale::error::Result<LightMoments> {
+                let lighting = biscale::stages::scene::load_lighting(&self.exp)?;
+                Ok(LightMoments::new(&lighting.light)?)
+            })
+            .map_err(err)?;
+        let n = moments.along[0].power.len();
+        let flat: Vec<f32> = moments.along.iter().flat_map(|l| l.power.as_flattened().iter().copied()).collect();
+        PyArray1::from_vec(py, flat).reshape([3, n, 3])
+    }
+
+    /// `T`, from the stage cache or traced, as `biscale run` gets it, with the vertex frames it
+    /// was traced with.
     #[pyo3(signature = (cache_dir = None, no_cache = false))]
     fn transfer(&self, py: Python<'_>, cache_dir: Option<PathBuf>, no_cache: bool) -> PyResult<Transfer> {
         let opts = options(None, cache_dir, no_cache);
-        let t = py
+        let (t, frames) = py
             .detach(|| {
                 let geometry = biscale::stages::scene::load_geometry(&self.exp)?;
                 let cache = biscale::store::cache::StageCache::new(&opts, std::path::Path::new("."));
-                biscale::stages::transfer::transfer_matrix(&self.exp, &geometry, cache.as_ref())
+                let t = biscale::stages::transfer::transfer_matrix(&self.exp, &geometry, cache.as_ref())?;
+                Ok::<_, biscale::error::PipelineError>((t.matrix, geometry.transfer.frames().to_vec()))
             })
             .map_err(err)?;
-        Ok(Transfer { t: Arc::new(t.matrix) })
+        Ok(Transfer { t: Arc::new(t), frames: Some(Arc::new(frames)), exp: self.exp.clone() })
     }
+
+    /// The image `biscale run` renders of `lstar` (rows x 3 float32, rows `v*M + j`): H x W x 3
+    /// float32, linear RGB, at the run's camera with its background.
+    #[pyo3(signature = (lstar, cache_dir = None, no_cache = false))]
+    fn shade<'py>(
+        &self,
+        py: Python<'py>,
+        lstar: PyReadonlyArray2<'py, f32>,
+        cache_dir: Option<PathBuf>,
+        no_cache: bool,
+    ) -> PyResult<Bound<'py, PyArray3<f32>>> {
+        let shape = lstar.shape();
+        if shape.len() != 2 || shape[1] != 3 {
+            return Err(BiscaleError::new_err(format!("L* is {shape:?}; it is rows x 3 (float32)")));
+        }
+        let rows: Vec<[f32; 3]> = lstar.as_array().rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect();
+        let opts = options(None, cache_dir, no_cache);
+        let render = py.detach(|| biscale::interop::images::shade_image(&self.exp, &rows, &opts)).map_err(err)?;
+        image3(py, render.image)
+    }
+
+    /// The ground-truth reference image of a run (at `report.reference_downscale`, with the
+    /// background), from the stage cache or traced: H x W x 3 float32, linear RGB.
+    #[pyo3(signature = (cache_dir = None, no_cache = false))]
+    fn reference<'py>(
+        &self,
+        py: Python<'py>,
+        cache_dir: Option<PathBuf>,
+        no_cache: bool,
+    ) -> PyResult<Bound<'py, PyArray3<f32>>> {
+        let opts = options(None, cache_dir, no_cache);
+        let render = py.detach(|| biscale::interop::images::reference_image(&self.exp, &opts)).map_err(err)?;
+        image3(py, render.image)
+    }
+}
+
+/// An image as an H x W x 3 NumPy array, without a copy.
+fn image3(py: Python<'_>, image: HdrImage) -> PyResult<Bound<'_, PyArray3<f32>>> {
+    let (w, h) = (image.width as usize, image.height as usize);
+    PyArray1::from_vec(py, image.pixels.into_flattened()).reshape([h, w, 3])
+}
+
+/// An EXR image (as the pipeline writes them: `images/*.exr`) as H x W x 3 float32, linear RGB.
+#[pyfunction]
+fn read_image<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyArray3<f32>>> {
+    let (image, _) = py.detach(|| HdrImage::read_exr(&path)).map_err(err)?;
+    image3(py, image)
 }
 
 /// `values` (3 per row) as a rows x 3 NumPy array, without a copy.
@@ -222,6 +296,11 @@ fn light_of(l: &PyReadonlyArray2<'_, f32>, basis: biscale_core::basis::LightBasi
 #[pyclass(module = "biscale._native", frozen)]
 struct Transfer {
     t: Arc<TransferMatrix>,
+    /// The vertex frames `T` was traced with (light moments need the normals); `None` for the
+    /// copy a Python compressor is handed inside a run.
+    frames: Option<Arc<Vec<VertexFrame>>>,
+    /// The experiment `T` is of (a saved form's metadata names it).
+    exp: Arc<Exp>,
 }
 
 #[pymethods]
@@ -266,14 +345,44 @@ impl Transfer {
     fn data<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f32>> {
         PyArray1::from_vec(py, self.t.csr().data().to_vec())
     }
+    /// The vertex normals `T` was traced with (V x 3 float32).
+    fn normals<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        rows3(py, frames_of(&self.frames)?.iter().flat_map(|f| f.normal.to_array()).collect())
+    }
     /// The exact product `T L` in f64 (rows x 3): what a lossless form's gather reproduces.
-    fn product<'py>(&self, py: Python<'py>, light: PyReadonlyArray2<'py, f32>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    /// With `moments`, the light-moments product (`runtime.light_moments`: every texel with
+    /// its own cosine, the BRDF at each bin's mean direction), summed per texel in f64.
+    #[pyo3(signature = (light, moments = false))]
+    fn product<'py>(
+        &self,
+        py: Python<'py>,
+        light: PyReadonlyArray2<'py, f32>,
+        moments: bool,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let l = light_of(&light, self.t.light_basis(), self.t.cols())?;
-        let t = self.t.clone();
-        let rows = py.detach(|| biscale_core::gather::reference_product(&t, &l));
+        let frames = match moments {
+            true => Some(frames_of(&self.frames)?),
+            false => None,
+        };
+        let rows = py
+            .detach(|| match frames {
+                None => Ok(biscale_core::gather::reference_product(&self.t, &l)),
+                Some(frames) => exact_moments_product(&self.t, &l, frames, Lobe::MeanDirection),
+            })
+            .map_err(err)?;
         let n = rows.len();
         PyArray1::from_vec(py, rows.into_flattened()).reshape([n, 3])
     }
+}
+
+/// The frames of a [`Transfer`], or the error of one handed to a compressor inside a run.
+fn frames_of(frames: &Option<Arc<Vec<VertexFrame>>>) -> PyResult<&[VertexFrame]> {
+    frames.as_deref().map(Vec::as_slice).ok_or_else(|| {
+        BiscaleError::new_err(
+            "this T is the copy a compressor is handed inside a run; it carries no vertex frames \
+             (light moments need them: use Experiment.transfer())",
+        )
+    })
 }
 
 /// A built-in kind's form of a [`Transfer`], with the compressor that gathers it.
@@ -282,30 +391,33 @@ struct Form {
     form: CompressedForm,
     compressor: Box<dyn Compressor>,
     light_basis: biscale_core::basis::LightBasis,
+    /// The frames of the `T` it compresses (for the gather with light moments).
+    frames: Option<Arc<Vec<VertexFrame>>>,
+    exp: Arc<Exp>,
 }
 
-/// Compress `t` with the built-in kind `kind` and its parameters (`params`, JSON text).
+/// Compress `t` with the kind `kind` and its parameters (`params`, JSON text): a built-in kind
+/// or `plugin` (`path`, `params`); not `hosted` (a Python compressor is called from Python).
 #[pyfunction]
 #[pyo3(signature = (t, kind, params = "{}".to_string(), seed = 0))]
 fn compress(py: Python<'_>, t: &Transfer, kind: &str, params: String, seed: u64) -> PyResult<Form> {
     let params: serde_json::Value = serde_json::from_str(&params).map_err(err)?;
-    let entry = biscale_compressors::registry::find(kind)
-        .filter(|k| k.role != biscale_compressors::registry::Role::External)
-        .ok_or_else(|| {
-            let names: Vec<_> = biscale_compressors::registry::KINDS
-                .iter()
-                .filter(|k| k.role != biscale_compressors::registry::Role::External)
-                .map(|k| k.name)
-                .collect();
-            BiscaleError::new_err(format!("no built-in compressor kind `{kind}` (kinds: {})", names.join(", ")))
-        })?;
+    let offered = |k: &&biscale_compressors::registry::Kind| k.name != biscale_compressors::hosted::KIND.name;
+    let entry = biscale_compressors::registry::find(kind).filter(offered).ok_or_else(|| {
+        let names: Vec<_> = biscale_compressors::registry::KINDS.iter().filter(offered).map(|k| k.name).collect();
+        BiscaleError::new_err(format!(
+            "no compressor kind `{kind}` to compress with (kinds: {}; a Python compressor runs in \
+                 Experiment.run(compressors=[...]))",
+            names.join(", ")
+        ))
+    })?;
     (entry.check)(&params).map_err(|e| BiscaleError::new_err(format!("{kind}: {e}")))?;
     let compressor = (entry.build)(&params).map_err(|e| BiscaleError::new_err(format!("{kind}: {e}")))?;
     let tt = t.t.clone();
     let form = py
         .detach(|| compressor.compress(&tt, &CompressContext { seed, progress: None }))
         .map_err(|e| BiscaleError::new_err(format!("{kind}: {e}")))?;
-    Ok(Form { form, compressor, light_basis: t.t.light_basis() })
+    Ok(Form { form, compressor, light_basis: t.t.light_basis(), frames: t.frames.clone(), exp: t.exp.clone() })
 }
 
 #[pymethods]
@@ -353,10 +465,36 @@ impl Form {
         let lstar = py.detach(|| self.compressor.gather(&self.form, &l)).map_err(err)?;
         rows3(py, lstar.values().as_flattened().to_vec())
     }
+    /// `L*` of `light` with light moments (`runtime.light_moments`): the form gathers the
+    /// light's three direction moments, which are resolved with `T`'s vertex frames; rows x 3
+    /// float32, what a run with light moments renders.
+    fn gather_moments<'py>(
+        &self,
+        py: Python<'py>,
+        light: PyReadonlyArray2<'py, f32>,
+    ) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let l = light_of(&light, self.light_basis, self.form.cols())?;
+        let frames = frames_of(&self.frames)?;
+        let lstar = py
+            .detach(|| {
+                let moments = LightMoments::new(&l).map_err(|e| CompressError::External(Box::new(e)))?;
+                gather_with_moments(self.compressor.as_ref(), &self.form, &moments, frames)
+            })
+            .map_err(err)?;
+        rows3(py, lstar.values().as_flattened().to_vec())
+    }
+    /// Write the form to `path` as `biscale export` writes `form-<label>.npz` (read by
+    /// `biscale eval --form` and `biscale_io.load_form`), written whole or not at all.
+    fn save(&self, py: Python<'_>, path: PathBuf, label: String) -> PyResult<()> {
+        let params = self.compressor.params();
+        py.detach(|| biscale::interop::write_form(&self.exp, &self.form, &label, &params, &path)).map_err(err)
+    }
 }
 
 /// A Python compressor object and the label of its setting.
 struct HostedObject {
+    /// The experiment of the run (the `T` it is handed names it).
+    exp: Arc<Exp>,
     obj: Py<PyAny>,
     label: String,
 }
@@ -433,7 +571,8 @@ impl Compressor for HostedCompressor {
         let start = std::time::Instant::now();
         Python::attach(|py| {
             // The object sees a copy of `T` (the run keeps its own), as a `biscale.Transfer`.
-            let native = Py::new(py, Transfer { t: Arc::new(t.clone()) }).map_err(|e| self.py_fail(py, e))?;
+            let native = Py::new(py, Transfer { t: Arc::new(t.clone()), frames: None, exp: self.hosted.exp.clone() })
+                .map_err(|e| self.py_fail(py, e))?;
             let tt = py
                 .import("biscale")
                 .and_then(|m| m.getattr("Transfer"))
@@ -523,11 +662,17 @@ fn check_rows(c: &HostedCompressor, shape: &[usize], rows: usize) -> Result<(), 
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     // The pipeline's `log` records go to Python's logging (logger names follow the Rust
     // module paths, under `biscale`); a host that set up its own bridge keeps it.
-    let _ = pyo3_log::try_init();
+    // Levels are not cached: `logging.basicConfig(level=logging.INFO)` after the first record
+    // still shows the next ones (records are per stage and throttled progress lines, so asking
+    // Python each time costs nothing that matters).
+    let _ = pyo3_log::Logger::new(m.py(), pyo3_log::Caching::Loggers)?.install();
+    // Warnings and progress lines as `log` records too, so they reach `logging` (no bars).
+    biscale::util::report_through_log(true);
     m.add_class::<Experiment>()?;
     m.add_class::<Transfer>()?;
     m.add_class::<Form>()?;
     m.add_function(wrap_pyfunction!(compress, m)?)?;
+    m.add_function(wrap_pyfunction!(read_image, m)?)?;
     m.add("BiscaleError", m.py().get_type::<BiscaleError>())?;
     m.add("ConfigError", m.py().get_type::<ConfigError>())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;

@@ -145,6 +145,116 @@ def test_compress_builds_the_runs_forms(exp, runs, cache):
         assert rel == pytest.approx(r["rel_error_lstar"], rel=1e-9, abs=1e-12), s
 
 
+def test_light_moments_are_the_clis(exp, exported, cache, tmp_path):
+    """With light moments: the moments are L times the texel directions `biscale export` writes,
+    the f64 moments product is the CLI's uncompressed L* to the bit, and a form's gather of the
+    moments reproduces it (lossless: f32 rounding; lossy: the run's L* error)."""
+    run_cli(
+        "export", SMOKE, "--set", "runtime.repeats=1", "--set", "runtime.light_moments=true",
+        "--what", "lstar", "--out", tmp_path / "m", "--cache-dir", cache,
+    )
+    want = np.load(tmp_path / "m" / "lstar.npz")["lstar"]
+    T, L = exp.transfer(cache_dir=cache), exp.light()
+    moments = exp.light_moments()
+    l = exported["l"]
+    assert moments.shape == (3,) + L.shape and moments.dtype == np.float32
+    # f64 direction times f32 power, rounded once; the file's directions are those rounded to
+    # f32, so the two differ by at most a few f32 ulps.
+    expect = (l["directions"].T[:, :, None].astype(np.float64) * L[None].astype(np.float64))
+    assert np.allclose(moments, expect, rtol=1e-6, atol=1e-30)
+    exact = T.product(L, moments=True)
+    assert np.array_equal(exact.astype(np.float32), want)
+    assert not np.allclose(exact, T.product(L))  # the moments change L* (the sun's cosines)
+    assert T.normals.shape == (T.vertices, 3)
+    assert np.allclose(np.linalg.norm(T.normals, axis=1), 1.0, atol=1e-5)
+    norm = np.linalg.norm(exact)
+    sparse = biscale.compress(T, "sparse").gather_moments(L)
+    # The moments gathered in f32 by the raw CSR, then resolved in f32: rounding only.
+    assert np.linalg.norm(sparse - exact) / norm < 1e-5
+    haar = biscale.compress(T, "haar", terms=8).gather_moments(L)
+    # A lossy form's moments carry its error: more than rounding, far less than the signal.
+    assert 1e-5 < np.linalg.norm(haar - exact) / norm < 0.5
+
+
+def test_shade_and_reference_are_the_runs_images(exp, exported, runs, cache):
+    """The image of the CLI's uncompressed L* is the run's `uncompressed.exr`, and the reference
+    is its `reference.exr`, bit for bit (both are f32 EXRs)."""
+    cli_dir = runs[0]
+    image = exp.shade(exported["lstar"]["lstar"], cache_dir=cache)
+    want = biscale.read_image(cli_dir / "images" / "uncompressed.exr")
+    assert image.dtype == np.float32 and image.ndim == 3 and image.shape[2] == 3
+    assert np.array_equal(image, want)
+    # V x M x 3 is the same L*.
+    T = exp.transfer(cache_dir=cache)
+    assert np.array_equal(exp.shade(exported["lstar"]["lstar"].reshape(T.vertices, T.local_dirs, 3), cache_dir=cache), want)
+    ref = exp.reference(cache_dir=cache)
+    assert np.array_equal(ref, biscale.read_image(cli_dir / "images" / "reference.exr"))
+    assert ref.shape[0] < image.shape[0]  # report.reference_downscale = 2
+    bad = exported["lstar"]["lstar"].copy()
+    bad[3, 2] = np.inf
+    with pytest.raises(biscale.BiscaleError, match=r"L\*\[3, 2\] is inf"):
+        exp.shade(bad, cache_dir=cache)
+    with pytest.raises(biscale.BiscaleError, match="rows"):
+        exp.shade(bad[:-8], cache_dir=cache)
+    with pytest.raises(biscale.BiscaleError, match="cannot read OpenEXR|No such file"):
+        biscale.read_image(cli_dir / "metrics.json")
+
+
+def test_a_saved_form_is_the_clis_eval_form(exp, cache, tmp_path):
+    """`form.save` writes what `biscale eval --form` reads, and `exp.evaluate(form)` scores it as
+    the CLI does; a file is written whole or not at all."""
+    T = exp.transfer(cache_dir=cache)
+    form = biscale.compress(T, "cpca", clusters=4, components=3, seed=exp.seed)
+    path = tmp_path / "form-mine.npz"
+    form.save(path, label="mine")
+    sys.path.insert(0, str(ROOT / "python"))  # the NumPy-only reader beside the package
+    import biscale_io
+
+    back = biscale_io.load_form(path)
+    assert set(back.arrays) == set(form.arrays)
+    assert all(np.array_equal(back.arrays[k], v) for k, v in form.arrays.items())
+    run_cli("eval", SMOKE, "--set", "runtime.repeats=1", "--form", path, "--out", tmp_path / "cli", "--cache-dir", cache)
+    ours = exp.evaluate(form, name="mine", out=tmp_path / "py", cache_dir=cache)
+    same = subprocess.run([sys.executable, str(ROOT / "scripts" / "same_results.py"), str(tmp_path / "cli"), str(tmp_path / "py")], capture_output=True, text=True)
+    assert same.returncode == 0, same.stdout + same.stderr
+    rec = ours["compressors"][0]
+    assert (rec["name"], rec["kind"], rec["bytes"]) == ("mine", "cpca", form.nbytes)
+    with pytest.raises(biscale.BiscaleError):
+        form.save(tmp_path / "no-such-dir" / "form.npz")
+    assert not (tmp_path / "no-such-dir").exists()
+
+
+def test_warnings_and_progress_reach_logging(exp, cache, tmp_path, caplog):
+    """The pipeline's warnings and notes are `logging` records of the logger `biscale`."""
+    import logging
+
+    caplog.set_level(logging.INFO, logger="biscale")
+    c = DenseCsr(lossless=True, mangle=lambda out: out * 1.01)
+    c.label = "py-logged"
+    exp.run(out=tmp_path / "run", cache_dir=cache, compressors=[c])
+    records = [(r.name, r.levelno, r.getMessage()) for r in caplog.records if r.name.startswith("biscale")]
+    assert any(lvl == logging.WARNING and "claims to be lossless" in m for _, lvl, m in records), records
+    assert any(lvl == logging.INFO and m.startswith("memory: estimated peak") for _, lvl, m in records), records
+
+
+def test_a_plugin_compresses_from_python(exp, cache):
+    """`compress(T, "plugin", ...)` loads a plugin library as a config's setting does: the
+    example quantized plugin at scale 1/4 stores T's box-filtered values exactly (lossless),
+    3 bytes per non-zero and 4 per row."""
+    lib = ROOT / "target" / "debug" / "libbiscale_plugin_quantized.so"
+    if not lib.is_file():
+        pytest.fail(f"no {lib} (cargo build -p biscale-plugin-quantized; scripts/test-python.sh builds it)")
+    T, L = exp.transfer(cache_dir=cache), exp.light()
+    form = biscale.compress(T, "plugin", path=lib, params={"scale": 0.25})
+    exact = T.product(L)
+    assert form.lossless and np.linalg.norm(form.gather(L) - exact) / np.linalg.norm(exact) < 1e-6
+    assert form.nbytes == 3 * T.nnz + 4 * (T.shape[0] + 1) + 4  # codes, columns, row pointers, the scale
+    with pytest.raises(biscale.BiscaleError, match="hosted"):
+        biscale.compress(T, "hosted")
+    with pytest.raises(biscale.BiscaleError, match="no-such.so"):
+        biscale.compress(T, "plugin", path="no-such.so")
+
+
 def test_evaluate_is_the_clis_eval(exp, exported, cache, tmp_path):
     """An L* scored from Python gives the record `biscale eval --lstar` writes for the same
     array; the exact product scores as the uncompressed render."""
@@ -236,7 +346,7 @@ def test_bad_lights_are_clear_errors(exp, cache):
     strided[:] = L
     assert np.array_equal(form.gather(strided), form.gather(L))
     assert np.array_equal(form.gather(L.astype(np.float64)), form.gather(L))
-    with pytest.raises(biscale.BiscaleError, match="no built-in compressor kind `nope`"):
+    with pytest.raises(biscale.BiscaleError, match="no compressor kind `nope` to compress with"):
         biscale.compress(T, "nope")
     with pytest.raises(biscale.BiscaleError, match="cpca"):
         biscale.compress(T, "cpca", clusters=0)
