@@ -8,6 +8,8 @@
 //! * [`reference`](mod@reference): the ray-traced reference image (`L*` from exact per-pixel visibility).
 //! * [`synth`]: BTFs synthesized by ray tracing tileable height-field patches, their files and
 //!   contact sheets.
+//! * [`microfacet`]: GGX microfacet BRDFs as Mitsuba 3's `roughconductor` and `roughplastic`
+//!   (the synthesized BTFs' `rough_conductor` / `rough_plastic` BRDFs).
 //! * [`measured`]: measured BTFs in the Bonn BTF Database layout, resampled onto the bins.
 //! * [`precomputed`]: LPCA BTFs under a fixed light from per-vertex dot products, the fast path
 //!   of the CPU shader (checked against it).
@@ -37,6 +39,7 @@ pub mod error;
 pub mod image;
 pub mod ldr;
 pub mod measured;
+pub mod microfacet;
 pub mod precomputed;
 pub mod reference;
 pub mod synth;

@@ -7,11 +7,15 @@
 //!   anisotropic Phong BRDF model", J. Graphics Tools 5(2)), equations 4 (specular, with
 //!   Schlick's Fresnel term) and 5 (the coupled diffuse term). `nu` is the exponent for
 //!   half-vectors tilted towards the tangent (+X), `nv` towards the bitangent (+Y).
+//! * Rough conductor and rough plastic: the GGX microfacet BRDFs of Mitsuba 3's
+//!   `roughconductor` and `roughplastic` plugins (`distribution = "ggx"`), with Mitsuba's
+//!   parameter names and defaults; see [`crate::microfacet`].
 //!
 //! Evaluation returns the diffuse and specular parts separately, because an
 //! [`AlbedoMap`](super::AlbedoMap) scales the diffuse part only.
 
 use crate::error::{Result, ShadingError};
+use crate::microfacet;
 use biscale_core::scene::btf::phong_brdf;
 use biscale_core::Rgb;
 use glam::DVec3;
@@ -29,6 +33,88 @@ pub enum Brdf {
     /// Ashikhmin-Shirley: diffuse reflectance `rd`, specular reflectance at normal incidence
     /// `rs`, Phong-like exponents `nu` (along the tangent) and `nv` (along the bitangent).
     AshikhminShirley { rd: Rgb, rs: Rgb, nu: f32, nv: f32 },
+    /// Mitsuba 3's `roughconductor` with GGX ([`microfacet::RoughConductor`]): roughness
+    /// `alpha` (default 0.1), complex IOR `eta + i k` per channel (default `eta = 0`, `k = 1`:
+    /// Mitsuba's default, `F = 1`, a perfect rough mirror) and `specular_reflectance` (default
+    /// 1). All specular: an albedo map does not change it.
+    RoughConductor {
+        #[serde(default = "default_alpha")]
+        alpha: f32,
+        #[serde(default = "default_conductor_eta")]
+        eta: Rgb,
+        #[serde(default = "default_conductor_k")]
+        k: Rgb,
+        #[serde(default = "default_one")]
+        specular_reflectance: Rgb,
+    },
+    /// Mitsuba 3's `roughplastic` with GGX ([`microfacet::RoughPlastic`]): roughness `alpha`
+    /// (default 0.1), `int_ior` (default 1.49, polypropylene), `ext_ior` (default 1.000277,
+    /// air), `diffuse_reflectance` (default 0.5), `specular_reflectance` (default 1) and
+    /// `nonlinear` (default false). An albedo map scales the diffuse term as evaluated (with
+    /// `nonlinear = true` that is not the same as scaling `diffuse_reflectance`).
+    RoughPlastic {
+        #[serde(default = "default_alpha")]
+        alpha: f32,
+        #[serde(default = "default_int_ior")]
+        int_ior: f32,
+        #[serde(default = "default_ext_ior")]
+        ext_ior: f32,
+        #[serde(default = "default_diffuse_reflectance")]
+        diffuse_reflectance: Rgb,
+        #[serde(default = "default_one")]
+        specular_reflectance: Rgb,
+        #[serde(default)]
+        nonlinear: bool,
+    },
+}
+
+// Mitsuba 3's defaults (roughconductor.cpp, roughplastic.cpp, microfacet.h).
+fn default_alpha() -> f32 {
+    0.1
+}
+fn default_conductor_eta() -> Rgb {
+    [0.0; 3]
+}
+fn default_conductor_k() -> Rgb {
+    [1.0; 3]
+}
+fn default_one() -> Rgb {
+    [1.0; 3]
+}
+fn default_int_ior() -> f32 {
+    1.49
+}
+fn default_ext_ior() -> f32 {
+    1.000277
+}
+fn default_diffuse_reflectance() -> Rgb {
+    [0.5; 3]
+}
+
+/// The smallest and largest microfacet roughness accepted. Below, Mitsuba clamps to `1e-4`
+/// (so smaller values would not mean the same there); above 1 the surface is rougher than any
+/// finish Mitsuba's docs describe (0.3-0.7 is "extremely rough"), and single-scattering GGX
+/// already returns only `1 - ln 2` (31%) of the light at alpha = 1 and normal incidence.
+pub const ALPHA_RANGE: std::ops::RangeInclusive<f32> = 1e-4..=1.0;
+
+fn check_alpha(what: &str, alpha: f32) -> Result<()> {
+    if alpha.is_finite() && ALPHA_RANGE.contains(&alpha) {
+        Ok(())
+    } else {
+        Err(ShadingError::Invalid(format!(
+            "{what} alpha must be finite and in [{}, {}], got {alpha}",
+            ALPHA_RANGE.start(),
+            ALPHA_RANGE.end()
+        )))
+    }
+}
+
+fn check_ior(what: &str, ior: f32) -> Result<()> {
+    if ior.is_finite() && ior > 0.0 {
+        Ok(())
+    } else {
+        Err(ShadingError::Invalid(format!("{what} must be finite and > 0, got {ior}")))
+    }
 }
 
 fn check_rgb(what: &str, v: Rgb, max: f32) -> Result<()> {
@@ -40,17 +126,24 @@ fn check_rgb(what: &str, v: Rgb, max: f32) -> Result<()> {
 }
 
 impl Brdf {
-    /// Short name for reports: `lambertian`, `phong`, `ashikhmin-shirley`.
+    /// Short name for reports: `lambertian`, `phong`, `ashikhmin-shirley`, `rough-conductor`,
+    /// `rough-plastic`.
     pub fn kind(&self) -> &'static str {
         match self {
             Brdf::Lambertian { .. } => "lambertian",
             Brdf::Phong { .. } => "phong",
             Brdf::AshikhminShirley { .. } => "ashikhmin-shirley",
+            Brdf::RoughConductor { .. } => "rough-conductor",
+            Brdf::RoughPlastic { .. } => "rough-plastic",
         }
     }
 
     /// Check the parameters: reflectances finite and non-negative (`rs <= 1`: it is a Fresnel
-    /// reflectance), exponents finite, `>= 0` for Phong and `> 0` for Ashikhmin-Shirley.
+    /// reflectance), exponents finite, `>= 0` for Phong and `> 0` for Ashikhmin-Shirley. For
+    /// the microfacet BRDFs: `alpha` in [`ALPHA_RANGE`]; Mitsuba's reflectances in `[0, 1]`;
+    /// a conductor's `eta` and `k` finite and `>= 0` (`eta = 0` is Mitsuba's default) but not
+    /// both 0 (the Fresnel term is 0/0 there); a plastic's IORs finite, `> 0` and different
+    /// (Mitsuba refuses equal ones: the coating would vanish).
     pub fn validate(&self) -> Result<()> {
         match *self {
             Brdf::Lambertian { albedo } => check_rgb("lambertian albedo", albedo, f32::MAX),
@@ -76,6 +169,30 @@ impl Brdf {
                 }
                 Ok(())
             }
+            Brdf::RoughConductor { alpha, eta, k, specular_reflectance } => {
+                check_alpha("rough-conductor", alpha)?;
+                check_rgb("rough-conductor eta", eta, f32::MAX)?;
+                check_rgb("rough-conductor k", k, f32::MAX)?;
+                check_rgb("rough-conductor specular_reflectance", specular_reflectance, 1.0)?;
+                if (0..3).any(|c| eta[c] == 0.0 && k[c] == 0.0) {
+                    return Err(ShadingError::Invalid(format!(
+                        "rough-conductor eta and k must not both be 0 in a channel, got eta {eta:?}, k {k:?}"
+                    )));
+                }
+                Ok(())
+            }
+            Brdf::RoughPlastic { alpha, int_ior, ext_ior, diffuse_reflectance, specular_reflectance, .. } => {
+                check_alpha("rough-plastic", alpha)?;
+                check_ior("rough-plastic int_ior", int_ior)?;
+                check_ior("rough-plastic ext_ior", ext_ior)?;
+                if int_ior == ext_ior {
+                    return Err(ShadingError::Invalid(format!(
+                        "rough-plastic int_ior and ext_ior must differ, both are {int_ior}"
+                    )));
+                }
+                check_rgb("rough-plastic diffuse_reflectance", diffuse_reflectance, 1.0)?;
+                check_rgb("rough-plastic specular_reflectance", specular_reflectance, 1.0)
+            }
         }
     }
 
@@ -90,6 +207,26 @@ impl Brdf {
                 (kd.map(|a| a as f64 / PI), spec)
             }
             Brdf::AshikhminShirley { rd, rs, nu, nv } => ashikhmin_shirley(rd, rs, nu as f64, nv as f64, light, view),
+            Brdf::RoughConductor { alpha, eta, k, specular_reflectance } => {
+                let c = microfacet::RoughConductor {
+                    alpha: alpha as f64,
+                    eta: eta.map(f64::from),
+                    k: k.map(f64::from),
+                    specular_reflectance: specular_reflectance.map(f64::from),
+                };
+                ([0.0; 3], c.eval(light, view))
+            }
+            Brdf::RoughPlastic { alpha, int_ior, ext_ior, diffuse_reflectance, specular_reflectance, nonlinear } => {
+                microfacet::RoughPlastic {
+                    alpha: alpha as f64,
+                    int_ior: int_ior as f64,
+                    ext_ior: ext_ior as f64,
+                    diffuse_reflectance: diffuse_reflectance.map(f64::from),
+                    specular_reflectance: specular_reflectance.map(f64::from),
+                    nonlinear,
+                }
+                .eval_parts(light, view)
+            }
         }
     }
 
@@ -209,5 +346,72 @@ mod tests {
         assert!(Brdf::Phong { kd: [0.1; 3], ks: [0.1; 3], exponent: f32::NAN }.validate().is_err());
         assert!(Brdf::AshikhminShirley { rd: [0.1; 3], rs: [1.5; 3], nu: 10.0, nv: 10.0 }.validate().is_err());
         assert!(Brdf::AshikhminShirley { rd: [0.1; 3], rs: [0.1; 3], nu: 0.0, nv: 10.0 }.validate().is_err());
+        let rc = Brdf::RoughConductor { alpha: 0.1, eta: [0.0; 3], k: [1.0; 3], specular_reflectance: [1.0; 3] };
+        rc.validate().unwrap();
+        for bad in [
+            Brdf::RoughConductor { alpha: 0.0, eta: [0.0; 3], k: [1.0; 3], specular_reflectance: [1.0; 3] },
+            Brdf::RoughConductor { alpha: 1.5, eta: [0.0; 3], k: [1.0; 3], specular_reflectance: [1.0; 3] },
+            Brdf::RoughConductor { alpha: f32::NAN, eta: [0.0; 3], k: [1.0; 3], specular_reflectance: [1.0; 3] },
+            Brdf::RoughConductor { alpha: 0.1, eta: [0.0; 3], k: [1.0, 0.0, 1.0], specular_reflectance: [1.0; 3] },
+            Brdf::RoughConductor { alpha: 0.1, eta: [-1.0; 3], k: [1.0; 3], specular_reflectance: [1.0; 3] },
+            Brdf::RoughConductor { alpha: 0.1, eta: [1.0; 3], k: [1.0; 3], specular_reflectance: [1.1; 3] },
+        ] {
+            assert!(bad.validate().is_err(), "{bad:?}");
+        }
+        let rp = |int_ior: f32, ext_ior: f32, d: f32| Brdf::RoughPlastic {
+            alpha: 0.1,
+            int_ior,
+            ext_ior,
+            diffuse_reflectance: [d; 3],
+            specular_reflectance: [1.0; 3],
+            nonlinear: false,
+        };
+        rp(1.49, 1.000277, 0.5).validate().unwrap();
+        for bad in [rp(1.5, 1.5, 0.5), rp(0.0, 1.0, 0.5), rp(f32::INFINITY, 1.0, 0.5), rp(1.49, 1.0, 1.2)] {
+            assert!(bad.validate().is_err(), "{bad:?}");
+        }
+    }
+
+    /// A `brdf = { ... }` table as the pipeline's config deserializes it (JSON here).
+    fn parse(v: serde_json::Value) -> std::result::Result<Brdf, serde_json::Error> {
+        serde_json::from_value(v)
+    }
+
+    #[test]
+    fn microfacet_brdfs_deserialize_with_mitsubas_names_and_defaults() {
+        assert_eq!(
+            parse(serde_json::json!({"kind": "rough_conductor"})).unwrap(),
+            Brdf::RoughConductor { alpha: 0.1, eta: [0.0; 3], k: [1.0; 3], specular_reflectance: [1.0; 3] }
+        );
+        assert_eq!(
+            parse(serde_json::json!({"kind": "rough_plastic", "alpha": 0.3, "nonlinear": true})).unwrap(),
+            Brdf::RoughPlastic {
+                alpha: 0.3,
+                int_ior: 1.49,
+                ext_ior: 1.000277,
+                diffuse_reflectance: [0.5; 3],
+                specular_reflectance: [1.0; 3],
+                nonlinear: true,
+            }
+        );
+        let b = parse(serde_json::json!({
+            "kind": "rough_conductor", "alpha": 0.2, "eta": [0.2, 0.9, 1.1], "k": [3.9, 2.4, 2.2]
+        }))
+        .unwrap();
+        assert_eq!(b.kind(), "rough-conductor");
+        assert_eq!(parse(serde_json::json!({"kind": "rough_plastic"})).unwrap().kind(), "rough-plastic");
+        b.validate().unwrap();
+        let (d, s) = b.eval_parts(DVec3::Z, DVec3::Z);
+        assert_eq!(d, [0.0; 3], "a conductor has no diffuse part");
+        assert!(s.iter().all(|&x| x > 0.0));
+        // Mitsuba's names only: unknown fields are errors.
+        assert!(parse(serde_json::json!({"kind": "rough_plastic", "roughness": 0.3})).is_err());
+        // The rough plastic's diffuse part is what an albedo map scales.
+        let p = parse(serde_json::json!({"kind": "rough_plastic"})).unwrap();
+        let (l, v) = (DVec3::new(0.3, 0.0, 0.9).normalize(), DVec3::new(-0.2, 0.1, 0.95).normalize());
+        let (d, s) = p.eval_parts(l, v);
+        let half = p.eval_scaled(l, v, [0.5; 3]);
+        assert!(d[0] > 0.0 && s[0] > 0.0);
+        assert!((half[0] - (0.5 * d[0] + s[0])).abs() < 1e-15);
     }
 }

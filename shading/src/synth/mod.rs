@@ -4,7 +4,8 @@
 //!
 //! * [`heightfield`]: periodic height fields from procedural recipes (bumps, weave, stucco,
 //!   holes, bricks, scales) or grayscale images, and albedo maps.
-//! * [`brdf`]: Lambertian, normalized Phong and Ashikhmin-Shirley meso-scale BRDFs.
+//! * [`brdf`]: Lambertian, normalized Phong, Ashikhmin-Shirley and the GGX rough conductor and
+//!   rough plastic ([`crate::microfacet`], Mitsuba 3's) meso-scale BRDFs.
 //! * [`synthesize`]: the generator, rayon-parallel; [`BtfSpec`] holds its inputs.
 //! * [`file`](mod@file): the binary BTF file (`save_btf` / `load_btf`, f32 / f16 / u8).
 //! * [`preview`]: contact sheets of a BTF under several lights and views.
@@ -47,8 +48,8 @@
 //!   falls as `1 / sqrt(K s^2)` per texel.
 //! * **Flat patches** (zero amplitude) are tabulated without ray tracing: with no albedo map,
 //!   [`Btf::lambertian`](biscale_core::scene::Btf::lambertian) / [`Btf::phong`](biscale_core::scene::Btf::phong)
-//!   themselves (one texel; a Lambertian one has no view axis), Ashikhmin-Shirley analytically
-//!   at one texel.
+//!   themselves (one texel; a Lambertian one has no view axis), the other BRDFs analytically
+//!   at one texel (a flat GGX patch is the flat GGX material Mitsuba renders).
 //!
 //! Shortest use:
 //!

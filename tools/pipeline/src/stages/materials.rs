@@ -161,6 +161,8 @@ fn describe(cfg: &SynthesizedConfig) -> String {
         Brdf::Lambertian { .. } => "lambertian".to_string(),
         Brdf::Phong { exponent, .. } => format!("phong n={exponent}"),
         Brdf::AshikhminShirley { nu, nv, .. } => format!("ashikhmin-shirley {nu}/{nv}"),
+        Brdf::RoughConductor { alpha, .. } => format!("rough conductor a={alpha}"),
+        Brdf::RoughPlastic { alpha, .. } => format!("rough plastic a={alpha}"),
     };
     format!("{shape}, {brdf}, {r}x{r}", r = cfg.resolution)
 }
