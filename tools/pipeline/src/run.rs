@@ -142,7 +142,13 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     }
     ctx.clock.mark("materials");
     crate::estimate::check_peak(&memory, &available, "the materials")?;
-    let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
+    let analytic = materials.analytic.clone();
+    let view = View {
+        scene: &scene,
+        camera: geometry.camera(exp, 1),
+        background: lighting.background(exp),
+        analytic: &analytic,
+    };
     // The machine's load around the timed steps: from the uncompressed gather to the last method.
     let load_before = load_average_1min();
     let (images, cache) = (ctx.images_dir(), ctx.cache.as_ref());
@@ -311,6 +317,7 @@ pub(crate) fn metrics_of_run(
         },
         reference: reference.map(|r| ReferenceMetrics {
             kind: "ground truth (direct light)".into(),
+            shading: materials.reference_shading(),
             width: r.render.image.width,
             height: r.render.image.height,
             seconds: r.seconds,

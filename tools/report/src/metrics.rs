@@ -441,6 +441,12 @@ pub struct UncompressedMetrics {
 pub struct ReferenceMetrics {
     /// What the reference is: `"ground truth (direct light)"`.
     pub kind: String,
+    /// How it shades each material, `; `-separated: `<label>: <kind> BRDF, exact` where the
+    /// material is an analytic BRDF (evaluated at each texel's direction and the pixel's
+    /// view), `<label>: BTF table` where its table is all there is (interpolated at each
+    /// texel's direction). Empty in records written before it was recorded.
+    #[serde(default)]
+    pub shading: String,
     pub width: u32,
     pub height: u32,
     /// The trace's wall time (of a `cached` reference: measured by the earlier run that traced it).

@@ -449,9 +449,10 @@ fn comparison_rows(m: &Metrics) -> Vec<Block> {
         push(&mut t, label(&c.name, lines, Some(&c.image.exr)), &c.name, &c.image.png, error);
     }
     if reference {
+        let shading = m.reference.as_ref().map(|r| r.shading.clone()).filter(|s| !s.is_empty());
         push(
             &mut t,
-            label("ground truth (direct light)", vec![], Some("images/reference.exr")),
+            label("ground truth (direct light)", shading.into_iter().collect(), Some("images/reference.exr")),
             "reference",
             "images/reference.png",
             dash(),
@@ -688,8 +689,12 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
             figures.push(Figure::new(e.clone(), caption));
         }
     }
-    if m.reference.is_some() {
-        figures.push(Figure::new("images/reference.png", "ground truth (direct light)"));
+    if let Some(r) = &m.reference {
+        let caption = match r.shading.is_empty() {
+            true => "ground truth (direct light)".to_string(),
+            false => format!("ground truth (direct light); {}", r.shading),
+        };
+        figures.push(Figure::new("images/reference.png", caption));
     }
     let mut table = Table::new(header);
     for row in rows {

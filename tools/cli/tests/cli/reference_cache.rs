@@ -119,3 +119,38 @@ fn a_second_run_loads_the_reference_and_a_moved_camera_traces_its_own() {
     assert_eq!(listed.lines().filter(|l| l.starts_with("reference ")).count(), 2, "{listed}");
     assert!(listed.contains("GroundTruth reference 48x36"), "the inputs are listed: {listed}");
 }
+
+/// A flat GGX material (a synthesized patch of zero amplitude) is its BRDF: the reference
+/// evaluates it at each texel's direction and says so in the record and the report; its
+/// parameters are part of the reference's key.
+#[test]
+fn a_flat_ggx_material_is_shaded_by_its_brdf_in_the_reference() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("cache");
+    let ggx = |alpha: f32| {
+        format!(
+            "scene.material={{kind=\"synthesized\", name=\"gold\", pattern=\"bumps\", amplitude=0.0, view_grid=4, \
+             brdf={{kind=\"rough_conductor\", alpha={alpha}, eta=[0.2, 0.9, 1.1], k=[3.9, 2.4, 2.2]}}}}"
+        )
+    };
+    let only_raw = "compressors=[{kind=\"sparse\"}]";
+    let first = dir.path().join("first");
+    run(&first, &cache, &[&ggx(0.2), only_raw]);
+    let m = metrics(&first);
+    assert_eq!(m["reference"]["shading"], "gold: rough-conductor BRDF, exact");
+    // The vertex render against it: glossy under the apartment's lamps, far from exact but
+    // the same picture (a wrong frame or a lost cosine gives errors near or above 1).
+    let err = m["reference"]["uncompressed_vs_reference"]["rel_l2"].as_f64().unwrap();
+    assert!(err > 0.0 && err < 0.5, "uncompressed vs reference: {err}");
+    let report = std::fs::read_to_string(first.join("report.md")).unwrap();
+    assert!(report.contains("gold: rough-conductor BRDF, exact"), "the report names the reference's shading");
+    assert_eq!(references(&cache).len(), 1);
+    let rougher = dir.path().join("rougher");
+    let log = run(&rougher, &cache, &[&ggx(0.25), only_raw]);
+    assert!(log.contains("reference: traced"), "another alpha is another reference: {log}");
+    assert_eq!(references(&cache).len(), 2);
+    // The bundled smoke material is Lambertian: its BRDF too.
+    let lambert = dir.path().join("lambert");
+    run(&lambert, &cache, &[only_raw]);
+    assert_eq!(metrics(&lambert)["reference"]["shading"], "lambertian: lambertian BRDF, exact");
+}

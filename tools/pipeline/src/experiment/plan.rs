@@ -420,7 +420,8 @@ fn reference_output(
         materials.materials,
         materials.triangle_materials,
     )?;
-    let (camera, key) = crate::stages::evaluate::reference_key_of(exp, geometry, lighting, &scene);
+    let analytic = materials.analytic;
+    let (camera, key) = crate::stages::evaluate::reference_key_of(exp, geometry, lighting, &scene, &analytic);
     // f32 RGB, a byte of mask and with several samples an f32 of coverage per pixel.
     let pixels = camera.width as u64 * camera.height as u64;
     let estimate = pixels * (12 + 1 + if camera.samples_per_pixel > 1 { 4 } else { 0 }) + 512;

@@ -42,8 +42,13 @@ pub fn shade_image(exp: &Experiment, lstar: &[[f32; 3]], opts: &RunOptions) -> R
     let cache = StageCache::new(opts, Path::new("."));
     let t = transfer_matrix(exp, &geometry, cache.as_ref())?;
     let lstar = LocalRadiance::new(t.matrix.local_basis(), t.matrix.vertices(), lstar.to_vec())?;
-    let (scene, _) = shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
-    let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
+    let (scene, materials) = shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
+    let view = View {
+        scene: &scene,
+        camera: geometry.camera(exp, 1),
+        background: lighting.background(exp),
+        analytic: &materials.analytic,
+    };
     view.render(&lstar, &view.camera)
 }
 
@@ -55,7 +60,12 @@ pub fn reference_image(exp: &Experiment, opts: &RunOptions) -> Result<Render> {
     let lighting = load_lighting(exp)?;
     let cache = StageCache::new(opts, Path::new("."));
     let t = transfer_matrix(exp, &geometry, cache.as_ref())?;
-    let (scene, _) = shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
-    let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
+    let (scene, materials) = shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
+    let view = View {
+        scene: &scene,
+        camera: geometry.camera(exp, 1),
+        background: lighting.background(exp),
+        analytic: &materials.analytic,
+    };
     Ok(reference_render(exp, &geometry, &view, &lighting, cache.as_ref())?.render)
 }

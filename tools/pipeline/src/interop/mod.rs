@@ -840,7 +840,12 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
     ctx.clock.mark("transfer");
     crate::estimate::check_peak(&memory, &available, "the transfer stage")?;
     let (scene, materials) = shade_scene(exp, &geometry, &t.matrix, ctx.cache.as_ref())?;
-    let view = View { scene: &scene, camera: geometry.camera(exp, 1), background: lighting.background(exp) };
+    let view = View {
+        scene: &scene,
+        camera: geometry.camera(exp, 1),
+        background: lighting.background(exp),
+        analytic: &materials.analytic,
+    };
     let reference = Plan::new(exp).reference;
     let (images, cache) = (ctx.images_dir(), ctx.cache.as_ref());
     let targets = targets(exp, &geometry, &lighting, &t.matrix, &view, &images, reference, cache, &mut ctx.clock)?;

@@ -19,7 +19,8 @@ use biscale_core::scene::{Background, Camera, HdrImage, Render, ShadeScene};
 use biscale_core::transfer::{TransferMatrix, VisibilitySampler};
 use biscale_shading::cpu::shade;
 use biscale_shading::image::{compare_exposed, ImageMetrics};
-use biscale_shading::reference::ReferenceRule;
+use biscale_shading::reference::{AnalyticBrdf, ReferenceRule};
+use biscale_shading::synth::Brdf;
 use std::path::Path;
 use std::time::Instant;
 
@@ -149,6 +150,9 @@ pub(crate) struct View<'a> {
     pub scene: &'a ShadeScene,
     pub camera: Camera,
     pub background: Background<'a>,
+    /// The BRDF of each material of `scene` that is one (`SceneMaterials::analytic`): the
+    /// reference evaluates it exactly.
+    pub analytic: &'a [Option<Brdf>],
 }
 
 impl View<'_> {
@@ -228,9 +232,10 @@ pub(crate) fn reference_key_of(
     geometry: &Geometry,
     lighting: &Lighting,
     scene: &ShadeScene,
+    analytic: &[Option<Brdf>],
 ) -> (Camera, CacheKey) {
     let camera = geometry.camera(exp, *exp.file.report.reference_downscale.get_ref());
-    let key = reference_key(scene, &lighting.light, &exp.transfer_settings(), &camera, REFERENCE_RULE);
+    let key = reference_key(scene, &lighting.light, &exp.transfer_settings(), &camera, REFERENCE_RULE, analytic);
     (camera, key)
 }
 
@@ -339,7 +344,7 @@ pub(crate) fn reference_render(
     lighting: &Lighting,
     cache: Option<&StageCache>,
 ) -> Result<TracedReference> {
-    let (camera, key) = reference_key_of(exp, geometry, lighting, view.scene);
+    let (camera, key) = reference_key_of(exp, geometry, lighting, view.scene, view.analytic);
     let cached = cache.map(|c| (c, c.reference_path(&key), key));
     let loaded = cached.as_ref().and_then(|(c, path, key)| {
         let accept = |(r, _): &(Render, f64)| {
@@ -370,6 +375,8 @@ pub(crate) fn reference_render(
             let pb = progress_bar(camera.height as u64, "reference");
             let tick = |rows: usize| pb.set_position(rows as u64);
             let start = Instant::now();
+            let brdfs: Vec<Option<&dyn AnalyticBrdf>> =
+                view.analytic.iter().map(|b| b.as_ref().map(|b| b as &dyn AnalyticBrdf)).collect();
             let render = biscale_shading::reference::render_reference(
                 view.scene,
                 &lighting.light,
@@ -377,6 +384,7 @@ pub(crate) fn reference_render(
                 &sampler,
                 &camera,
                 REFERENCE_RULE,
+                &brdfs,
                 Some(&tick),
             )?;
             let seconds = start.elapsed().as_secs_f64();
@@ -679,8 +687,9 @@ mod reference_cache_tests {
         let local = exp.transfer_settings().local_basis();
         let m = crate::stages::materials::load_materials(&exp, &geometry.mesh, local, None).unwrap();
         let frames = geometry.transfer.frames().to_vec();
-        let scene = ShadeScene::new(geometry.mesh.clone(), frames, m.materials, m.triangle_materials).unwrap();
-        reference_key_of(&exp, &geometry, &lighting, &scene).1
+        let scene =
+            ShadeScene::new(geometry.mesh.clone(), frames, m.materials.clone(), m.triangle_materials.clone()).unwrap();
+        reference_key_of(&exp, &geometry, &lighting, &scene, &m.analytic).1
     }
 
     /// Every config value the reference image depends on misses the cache; the ones it does

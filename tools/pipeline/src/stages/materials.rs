@@ -55,6 +55,21 @@ pub struct SceneMaterials {
     /// The dense table of each material whose own representation is compressed (the BTF
     /// study's all-dense image needs it); `None` where the material is dense.
     pub dense: Vec<Option<Btf>>,
+    /// The BRDF of each material that is one ([`analytic_brdf`]): the ground-truth reference
+    /// evaluates it at each texel's exact direction instead of looking up the table.
+    pub analytic: Vec<Option<Brdf>>,
+}
+
+/// The BRDF a material entry is, when its BTF is nothing but a tabulated BRDF: Lambertian,
+/// Phong, and a flat synthesized patch (`amplitude = 0`) without an albedo map. A height-field
+/// or measured BTF has only its table.
+pub fn analytic_brdf(cfg: &MaterialConfig) -> Option<Brdf> {
+    match cfg {
+        MaterialConfig::Lambertian { albedo, .. } => Some(Brdf::Lambertian { albedo: *albedo }),
+        MaterialConfig::Phong { kd, ks, exponent, .. } => Some(Brdf::Phong { kd: *kd, ks: *ks, exponent: *exponent }),
+        MaterialConfig::Synthesized(s) if s.amplitude == 0.0 && s.albedo_map.is_none() => Some(s.brdf),
+        MaterialConfig::Synthesized(_) | MaterialConfig::Bonn(_) => None,
+    }
 }
 
 /// One representation of one material (a record of [`SceneMaterials::btfs`]).
@@ -94,6 +109,16 @@ impl SceneMaterials {
 }
 
 impl SceneMaterials {
+    /// How the ground-truth reference shades each material (`ReferenceMetrics::shading`):
+    /// `<label>: <kind> BRDF, exact` or `<label>: BTF table`, `; `-separated.
+    pub fn reference_shading(&self) -> String {
+        let one = |(label, brdf): (&String, &Option<Brdf>)| match brdf {
+            Some(b) => format!("{label}: {} BRDF, exact", b.kind()),
+            None => format!("{label}: BTF table"),
+        };
+        self.labels.iter().zip(&self.analytic).map(one).collect::<Vec<_>>().join("; ")
+    }
+
     /// One line for reports: `label (btf name)`, comma separated.
     pub fn summary(&self) -> String {
         self.labels
@@ -323,6 +348,7 @@ pub fn load_materials(
     };
     let mut compact = vec![u32::MAX; configs.len()];
     let (mut materials, mut labels, mut btfs, mut variants, mut dense) = (vec![], vec![], vec![], vec![], vec![]);
+    let mut analytic = vec![];
     for (c, cfg) in configs.iter().enumerate() {
         let label = cfg.label();
         if !used[c] {
@@ -383,6 +409,7 @@ pub fn load_materials(
             _ => Some(btf),
         });
         materials.push(Material { btf: own, tiling: cfg.tiling() });
+        analytic.push(analytic_brdf(cfg));
         labels.push(label);
     }
     let triangle_materials = match (&of_name, &mesh.materials) {
@@ -394,7 +421,7 @@ pub fn load_materials(
             None
         }
     };
-    Ok(SceneMaterials { materials, triangle_materials, labels, notes, btfs, variants, dense })
+    Ok(SceneMaterials { materials, triangle_materials, labels, notes, btfs, variants, dense, analytic })
 }
 
 /// `btf` in the representation `repr`: dense as it is, or compressed by local PCA (cached by

@@ -322,7 +322,12 @@ pub(crate) fn evaluate(
     let projection = ShProjection::new(inp.exp.transfer_settings().cubemap(), order, LIGHT_SUBTEXELS);
     let light = projection.project(&inp.lighting.light)?;
     let light_projection_error = projection.projection_error(&inp.lighting.light)?;
-    let view = View { scene: &sh_scene, camera: inp.view.camera, background: inp.view.background };
+    let view = View {
+        scene: &sh_scene,
+        camera: inp.view.camera,
+        background: inp.view.background,
+        analytic: inp.view.analytic,
+    };
     let exact = reference_product(&m, &light);
     let mut gpu = match gpu {
         Some(g) => Some(g.for_scene(&sh_scene, &view.camera)?),

@@ -47,6 +47,7 @@ use biscale_core::scene::{BtfRepresentation, Camera, ShadeScene};
 use biscale_core::transfer::sh::ShTransferSettings;
 use biscale_core::transfer::TransferSettings;
 use biscale_shading::reference::ReferenceRule;
+use biscale_shading::synth::Brdf;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -63,7 +64,8 @@ pub const SH_TRANSFER_VERSION: u32 = 2;
 /// BTF lookups, `TransferScene::visibility_at` and `VisibilitySampler`, `TexelCosine`, the
 /// camera's rays), or to how `stages::evaluate::reference` calls it. The key hashes the
 /// inputs, not the code: without a bump a cached reference of the old code is reused.
-pub const REFERENCE_VERSION: u32 = 1;
+/// 2: analytic materials' BRDFs evaluated at each texel's exact direction.
+pub const REFERENCE_VERSION: u32 = 2;
 
 /// The kinds of cache file `biscale cache list` names and `biscale cache clean --kind` takes
 /// (besides `other`, which clean never touches).
@@ -287,17 +289,21 @@ pub fn sh_transfer_key(mesh: &Mesh, s: &ShTransferSettings, bounces: u32, bounce
 /// env map, its rotation, `sun_boost` and the cubemap resolution as they came out), both
 /// bases and the visibility resolution, every field of the camera (position, target, up,
 /// field of view, width and height after `reference_downscale`, samples per pixel), the rule,
-/// and [`REFERENCE_VERSION`]. Nothing random is drawn, so no seed.
+/// each material's analytic BRDF (its every parameter) and [`REFERENCE_VERSION`]. Nothing
+/// random is drawn, so no seed.
 pub fn reference_key(
     scene: &ShadeScene,
     light: &LightVector,
     settings: &TransferSettings,
     camera: &Camera,
     rule: ReferenceRule,
+    analytic: &[Option<Brdf>],
 ) -> CacheKey {
     let mut h = ContentHash::default();
     h.write(&REFERENCE_VERSION.to_le_bytes()).write(&biscale_core::artifact::CONTAINER_VERSION.to_le_bytes());
     h.write_str(&format!("{rule:?}"));
+    // Debug prints every parameter, f32s as their shortest exact decimal.
+    h.write_str(&format!("{analytic:?}"));
     h.write_str(&settings.light_basis().tag())
         .write(&settings.visibility_resolution().to_le_bytes())
         .write_str(&settings.local_basis().tag());
@@ -581,8 +587,9 @@ mod tests {
         let light = LightVector::constant(s.light_basis(), [1.0, 0.9, 0.8]);
         let camera = Camera::frame_bounds(glam::Vec3::splat(-1.0), glam::Vec3::splat(1.0), 32, 24, 20.0, 10.0, 40.0);
         let rule = ReferenceRule::GroundTruth;
-        let base = reference_key(&scene_of(&mesh, grey()), &light, &s, &camera, rule);
-        assert_eq!(base, reference_key(&scene_of(&mesh.clone(), grey()), &light, &s, &camera, rule));
+        let lambert = |a: f32| Brdf::Lambertian { albedo: [a; 3] };
+        let base = reference_key(&scene_of(&mesh, grey()), &light, &s, &camera, rule, &[]);
+        assert_eq!(base, reference_key(&scene_of(&mesh.clone(), grey()), &light, &s, &camera, rule, &[]));
         assert!(base.inputs.contains("mesh hash") && base.inputs.contains("32x24"), "{}", base.inputs);
 
         let mut moved = mesh.clone();
@@ -600,11 +607,11 @@ mod tests {
         let mut more_samples = camera;
         more_samples.samples_per_pixel = 4;
         let others = [
-            ("mesh", reference_key(&scene_of(&moved, grey()), &light, &s, &camera, rule)),
-            ("frame", reference_key(&turned, &light, &s, &camera, rule)),
-            ("albedo", reference_key(&scene_of(&mesh, red), &light, &s, &camera, rule)),
-            ("tiling", reference_key(&scene_of(&mesh, tiled), &light, &s, &camera, rule)),
-            ("light", reference_key(&scene_of(&mesh, grey()), &brighter, &s, &camera, rule)),
+            ("mesh", reference_key(&scene_of(&moved, grey()), &light, &s, &camera, rule, &[])),
+            ("frame", reference_key(&turned, &light, &s, &camera, rule, &[])),
+            ("albedo", reference_key(&scene_of(&mesh, red), &light, &s, &camera, rule, &[])),
+            ("tiling", reference_key(&scene_of(&mesh, tiled), &light, &s, &camera, rule, &[])),
+            ("light", reference_key(&scene_of(&mesh, grey()), &brighter, &s, &camera, rule, &[])),
             (
                 "visibility",
                 reference_key(
@@ -613,12 +620,18 @@ mod tests {
                     &TransferSettings::new(8, 32, 4).unwrap(),
                     &camera,
                     rule,
+                    &[],
                 ),
             ),
-            ("camera", reference_key(&scene_of(&mesh, grey()), &light, &s, &moved_camera, rule)),
-            ("size", reference_key(&scene_of(&mesh, grey()), &light, &s, &Camera { width: 16, ..camera }, rule)),
-            ("samples", reference_key(&scene_of(&mesh, grey()), &light, &s, &more_samples, rule)),
-            ("rule", reference_key(&scene_of(&mesh, grey()), &light, &s, &camera, ReferenceRule::Binned)),
+            ("camera", reference_key(&scene_of(&mesh, grey()), &light, &s, &moved_camera, rule, &[])),
+            ("size", reference_key(&scene_of(&mesh, grey()), &light, &s, &Camera { width: 16, ..camera }, rule, &[])),
+            ("samples", reference_key(&scene_of(&mesh, grey()), &light, &s, &more_samples, rule, &[])),
+            ("rule", reference_key(&scene_of(&mesh, grey()), &light, &s, &camera, ReferenceRule::Binned, &[])),
+            ("analytic", reference_key(&scene_of(&mesh, grey()), &light, &s, &camera, rule, &[Some(lambert(0.5))])),
+            (
+                "analytic parameter",
+                reference_key(&scene_of(&mesh, grey()), &light, &s, &camera, rule, &[Some(lambert(0.5 + 1e-6))]),
+            ),
         ];
         let mut seen = std::collections::BTreeSet::from([base.hash]);
         for (what, key) in &others {
