@@ -11,7 +11,8 @@
 //!   at the pixel, with the BRDF at the texel's own direction. For a material given an
 //!   [`AnalyticBrdf`] (a flat analytic material: Lambertian, Phong, GGX, ...) that is the BRDF
 //!   itself, evaluated at the texel's centre direction and the pixel's exact view direction:
-//!   `sum_k V_k L_k f(d_k, v) max(0, n . d_k)`, no tabulation at all. For any other material
+//!   `sum_k V_k L_k f(d_k, v) max(0, n . d_k)`, no tabulation at all. A view below the
+//!   interpolated normal's horizon is taken on it (as the BTF's view grid does). For any other material
 //!   (a height-field or measured BTF, whose table is all there is) it is the BTF interpolated in
 //!   its light grid at the texel's direction ([`TexelCosine::spread`]) and looked up in its
 //!   view grid as the shader does. Only the environment's cubemap texels and their 2x2
@@ -45,6 +46,25 @@ impl AnalyticBrdf for crate::synth::Brdf {
         }
         let (d, s) = self.eval_parts(light, view);
         std::array::from_fn(|c| d[c] + s[c])
+    }
+}
+
+/// `v` normalised, with its elevation clamped to a hair above the horizon (azimuth kept).
+fn above_horizon(v: DVec3) -> DVec3 {
+    const MIN_Z: f64 = 1e-6;
+    let v = v.normalize_or(DVec3::Z);
+    match v.z >= MIN_Z {
+        true => v,
+        false => {
+            let xy = (v.x * v.x + v.y * v.y).sqrt();
+            match xy > 0.0 {
+                true => {
+                    let s = (1.0 - MIN_Z * MIN_Z).sqrt() / xy;
+                    DVec3::new(v.x * s, v.y * s, MIN_Z)
+                }
+                false => DVec3::Z,
+            }
+        }
     }
 }
 
@@ -134,7 +154,11 @@ pub fn render_reference(
             // sum_k V_k L_k f(d_k, v) (n . d_k), every texel at its own direction.
             let frame = &p.frame;
             let (t, b, n) = (frame.tangent.as_dvec3(), frame.bitangent.as_dvec3(), frame.normal.as_dvec3());
-            let view = p.view_local.as_dvec3().normalize();
+            // A view below the interpolated normal's horizon (near silhouettes) is taken on
+            // the horizon at its azimuth, as the BTF's view grid takes it, so both renders
+            // share the shading-normal convention (Mitsuba's BSDFs return black there instead;
+            // scripts/mitsuba_check.py sees that difference, the reference does not).
+            let view = above_horizon(p.view_local.as_dvec3());
             let mut sum = [0.0f64; 3];
             transfer.visibility_at(sampler, p.position, frame, |_, k, v| {
                 let d = directions[k as usize];
@@ -550,5 +574,15 @@ mod tests {
         assert!(lit > 300 && worst < 1e-5, "{lit} lit pixels, worst relative difference {worst:.2e}");
         // Below the horizon the analytic BRDF is 0, as Mitsuba's.
         assert_eq!(brdf.eval(DVec3::new(0.0, 0.6, -0.8), DVec3::Z), [0.0; 3]);
+    }
+
+    #[test]
+    fn a_view_below_the_horizon_is_taken_on_it_at_its_azimuth() {
+        let v = above_horizon(DVec3::new(0.3, -0.4, -0.2));
+        assert!((v.length() - 1.0).abs() < 1e-12 && v.z > 0.0 && v.z < 1e-5, "{v}");
+        assert!((v.y / v.x - (-0.4 / 0.3)).abs() < 1e-12, "azimuth kept: {v}");
+        assert_eq!(above_horizon(DVec3::new(0.0, 0.0, -1.0)), DVec3::Z);
+        let up = DVec3::new(0.1, 0.2, 0.9);
+        assert_eq!(above_horizon(up), up.normalize());
     }
 }

@@ -64,8 +64,9 @@ pub const SH_TRANSFER_VERSION: u32 = 2;
 /// BTF lookups, `TransferScene::visibility_at` and `VisibilitySampler`, `TexelCosine`, the
 /// camera's rays), or to how `stages::evaluate::reference` calls it. The key hashes the
 /// inputs, not the code: without a bump a cached reference of the old code is reused.
-/// 2: analytic materials' BRDFs evaluated at each texel's exact direction.
-pub const REFERENCE_VERSION: u32 = 2;
+/// 2: analytic materials' BRDFs evaluated at each texel's exact direction; 3: their view
+/// clamped onto the shading horizon as the BTF's view grid clamps it.
+pub const REFERENCE_VERSION: u32 = 3;
 
 /// The kinds of cache file `biscale cache list` names and `biscale cache clean --kind` takes
 /// (besides `other`, which clean never touches).
