@@ -286,6 +286,11 @@ def main():
     if os.path.exists(os.path.join(images, "uncompressed_paper.exr")):
         names.append("uncompressed_paper")
     names += [c["name"] for c in metrics.get("compressors", []) if os.path.exists(os.path.join(images, c["name"] + ".exr"))]
+    # biscale's own ray-traced reference, when the run traced it at full resolution
+    # (`--set report.reference_downscale=1`): how far the ground truth itself is from Mitsuba.
+    ref = os.path.join(images, "reference.exr")
+    if os.path.exists(ref) and read_exr(mi, ref).shape == image.shape:
+        names.append("reference")
     rows = []
     for name in names:
         b = read_exr(mi, os.path.join(images, name + ".exr"))
