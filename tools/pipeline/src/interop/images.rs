@@ -6,12 +6,13 @@
 use crate::error::{PipelineError, Result};
 use crate::experiment::config::Experiment;
 use crate::stages::evaluate::{reference_render, View};
-use crate::stages::scene::{load_geometry, load_lighting, shade_scene};
+use crate::stages::scene::{load_geometry, load_lighting, shade_scene, Geometry, Lighting};
 use crate::stages::transfer::transfer_matrix;
 use crate::store::cache::StageCache;
 use crate::store::RunOptions;
 use biscale_core::gather::LocalRadiance;
 use biscale_core::scene::Render;
+use biscale_core::transfer::TransferMatrix;
 use std::path::Path;
 
 /// The image `biscale run` renders of `lstar` (rows `v*M + j` of the config's transfer shape),
@@ -38,34 +39,38 @@ pub fn shade_image(exp: &Experiment, lstar: &[[f32; 3]], opts: &RunOptions) -> R
             what: format!("L*[{}, {}] is {}: every value must be finite", i / 3, i % 3, lstar.as_flattened()[i]),
         });
     }
-    let lighting = load_lighting(exp)?;
-    let cache = StageCache::new(opts, Path::new("."));
-    let t = transfer_matrix(exp, &geometry, cache.as_ref())?;
-    let lstar = LocalRadiance::new(t.matrix.local_basis(), t.matrix.vertices(), lstar.to_vec())?;
-    let (scene, materials) = shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
-    let view = View {
-        scene: &scene,
-        camera: geometry.camera(exp, 1),
-        background: lighting.background(exp),
-        analytic: &materials.analytic,
-    };
-    view.render(&lstar, &view.camera)
+    with_view(exp, geometry, opts, |_, v, t, _| {
+        let lstar = LocalRadiance::new(t.local_basis(), t.vertices(), lstar.to_vec())?;
+        v.render(&lstar, &v.camera)
+    })
 }
 
 /// The reference image of a run of `exp` (at `report.reference_downscale`, with the
 /// background): from the stage cache when it holds one of the same inputs, else traced (and
 /// stored there).
 pub fn reference_image(exp: &Experiment, opts: &RunOptions) -> Result<Render> {
-    let geometry = load_geometry(exp)?;
+    with_view(exp, load_geometry(exp)?, opts, |g, v, _, l| {
+        let cache = StageCache::new(opts, Path::new("."));
+        Ok(reference_render(exp, g, v, l, cache.as_ref())?.render)
+    })
+}
+
+/// `f` of the run's view of `exp` (`T` from the cache or traced, the materials on its basis).
+fn with_view<R>(
+    exp: &Experiment,
+    geometry: Geometry,
+    opts: &RunOptions,
+    f: impl FnOnce(&Geometry, &View<'_>, &TransferMatrix, &Lighting) -> Result<R>,
+) -> Result<R> {
     let lighting = load_lighting(exp)?;
     let cache = StageCache::new(opts, Path::new("."));
-    let t = transfer_matrix(exp, &geometry, cache.as_ref())?;
-    let (scene, materials) = shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
+    let t = transfer_matrix(exp, &geometry, cache.as_ref())?.matrix;
+    let (scene, materials) = shade_scene(exp, &geometry, &t, cache.as_ref())?;
     let view = View {
         scene: &scene,
         camera: geometry.camera(exp, 1),
         background: lighting.background(exp),
         analytic: &materials.analytic,
     };
-    Ok(reference_render(exp, &geometry, &view, &lighting, cache.as_ref())?.render)
+    f(&geometry, &view, &t, &lighting)
 }
