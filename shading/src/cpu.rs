@@ -21,6 +21,7 @@
 //! ([`Btf::view_weights`](biscale_core::scene::Btf::view_weights)) with the front side's `L*`.
 
 use crate::error::Result;
+use biscale_core::gather::moments::{Lobe, PointResolve};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::geometry::VertexFrame;
 use biscale_core::scene::{Camera, HdrImage, Material, Render, ShadeScene};
@@ -155,6 +156,32 @@ pub fn shade(scene: &ShadeScene, lstar: &LocalRadiance, camera: &Camera) -> Resu
     scene.check_lstar(lstar)?;
     Ok(render_rows(scene, camera, &|| {}, &|p, acc, scratch| {
         interpolate_lstar(p, lstar, acc);
+        shade_point(scene.material(p.triangle), p.uv, p.view_local, acc, scratch)
+    }))
+}
+
+/// Shade the mesh from the three gathered light moments per vertex (`runtime.moments_resolve =
+/// "pixel"`): at every hit the three are blended by the barycentric weights and resolved at
+/// the hit's own frame ([`PointResolve`]), then dotted with the BTF as [`shade`] dots `L*`.
+/// The moments are world-space direction sums, so a sharp light that neighbouring vertices
+/// put in different bins of their own frames stays one direction at the pixel instead of
+/// being split between two local directions by the blend of resolved rows. Errors as
+/// [`shade`] when a moment does not fit the scene.
+pub fn shade_moments(scene: &ShadeScene, moments: [&LocalRadiance; 3], lobe: Lobe, camera: &Camera) -> Result<Render> {
+    camera.validate()?;
+    for m in moments {
+        scene.check_lstar(m)?;
+    }
+    let point = PointResolve::new(scene.local_basis(), lobe)?;
+    let m = scene.local_basis().len();
+    Ok(render_rows(scene, camera, &|| {}, &|p, acc, scratch| {
+        let mut rows = vec![[0.0f64; 3]; 3 * m];
+        for (a, r) in moments.iter().zip(rows.chunks_mut(m)) {
+            interpolate_lstar(p, a, r);
+        }
+        let (x, rest) = rows.split_at(m);
+        let (y, z) = rest.split_at(m);
+        point.resolve(&p.frame, [x, y, z], acc);
         shade_point(scene.material(p.triangle), p.uv, p.view_local, acc, scratch)
     }))
 }

@@ -208,6 +208,38 @@ pub fn resolve(along: [&LocalRadiance; 3], frames: &[VertexFrame], lobe: Lobe) -
     Ok(out)
 }
 
+/// [`resolve`] for one point between vertices: the three moments interpolated there (f64,
+/// `M` rows each, world-space direction sums as the gathers give them) resolved at the point's
+/// own frame. Moments are world-space, so a light that falls in different bins of
+/// neighbouring vertices' frames is one direction here, handed to the bins around it in the
+/// point's frame; blending resolved rows instead splits it between two local directions.
+#[derive(Clone, Debug)]
+pub struct PointResolve {
+    grid: HemisphereGrid,
+    inverse_mean_cosine: Vec<f64>,
+    lobe: Lobe,
+}
+
+impl PointResolve {
+    /// The resolve on `basis`'s bins; an error unless it has bins.
+    pub fn new(basis: crate::basis::LocalBasis, lobe: Lobe) -> Result<Self> {
+        let grid = basis
+            .grid()
+            .ok_or_else(|| CoreError::Invalid(format!("light moments need a local bin basis, not {basis}")))?;
+        Ok(Self { grid, inverse_mean_cosine: inverse_mean_cosines(&grid), lobe })
+    }
+
+    /// `out[i]` = `L*'_i` of the moments `along[a][j]` (`D_{j}` along world axis `a`, RGB) at
+    /// `frame`, as [`resolve`] gives it for a vertex (there in f32 lanes, here in f64).
+    pub fn resolve(&self, frame: &VertexFrame, along: [&[[f64; 3]]; 3], out: &mut [[f64; 3]]) {
+        let d = |j: usize, c: usize| DVec3::new(along[0][j][c], along[1][j][c], along[2][j][c]);
+        redistribute(self.grid, frame, self.lobe, d, out);
+        for (o, inv) in out.iter_mut().zip(&self.inverse_mean_cosine) {
+            *o = o.map(|x| x * inv);
+        }
+    }
+}
+
 /// The working rows of [`resolve`] for one vertex, one f32 lane per bin (structure of arrays,
 /// so that each step is one loop over the bins that the compiler vectorises).
 struct Lanes {
@@ -826,5 +858,38 @@ mod tests {
         let sh = LightVector::new(LightBasis::Sh(crate::sh::ShOrder::new(2).unwrap()), vec![[1.0; 3]; 4]).unwrap();
         let e = LightMoments::new(&sh).unwrap_err().to_string();
         assert!(e.contains("cubemap"), "{e}");
+    }
+
+    /// The per-point resolve of a vertex's own moments at its own frame is the vertex resolve
+    /// (f64 against f32 lanes: 1e-5 relative covers the lanes' rounding and their atan fit).
+    #[test]
+    fn a_point_resolve_at_a_vertex_is_the_vertex_resolve() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let basis = LocalBasis::bins(8).unwrap();
+        let m = basis.len();
+        let frames = random_frames(30, &mut rng);
+        let along: Vec<LocalRadiance> = (0..3)
+            .map(|_| {
+                let values = (0..30 * m).map(|_| [0, 1, 2].map(|_| rng.gen_range(-1.0f32..1.0))).collect();
+                LocalRadiance::new(basis, 30, values).unwrap()
+            })
+            .collect();
+        for lobe in [Lobe::MeanDirection, Lobe::BinCentre] {
+            let vertex = resolve([&along[0], &along[1], &along[2]], &frames, lobe).unwrap();
+            let point = PointResolve::new(basis, lobe).unwrap();
+            let mut out = vec![[0.0f64; 3]; m];
+            for (v, frame) in frames.iter().enumerate() {
+                let rows: Vec<Vec<[f64; 3]>> =
+                    along.iter().map(|a| a.vertex(v).iter().map(|x| x.map(f64::from)).collect()).collect();
+                point.resolve(frame, [&rows[0], &rows[1], &rows[2]], &mut out);
+                let scale = out.iter().flatten().fold(0.0f64, |a, x| a.max(x.abs())).max(1e-12);
+                for (o, w) in out.iter().zip(vertex.vertex(v)) {
+                    for c in 0..3 {
+                        assert!((o[c] - w[c] as f64).abs() <= 1e-5 * scale, "{lobe:?} vertex {v}: {o:?} vs {w:?}");
+                    }
+                }
+            }
+        }
+        assert!(PointResolve::new(LocalBasis::sh(3).unwrap(), Lobe::MeanDirection).is_err());
     }
 }

@@ -9,7 +9,7 @@
 //! | `binned` | per pixel, the paper's bins (bin-mean cosine) | the BTF at the bin centres |
 //! | `vertex` | per vertex with light moments, interpolated | the BTF as every run shades it |
 //! | `vertex_paper` | per vertex, the paper's bins, interpolated | same |
-//! | `pixel_resolve` | the moments' three gathers per vertex, interpolated, resolved at the pixel's own frame | same |
+//! | `pixel_resolve` | the moments' three gathers per vertex, interpolated, resolved at the pixel's own frame (`runtime.moments_resolve = "pixel"`) | same |
 //!
 //! The terms: `table` vs `exact` is the tabulation of the BRDF on the light and view grids;
 //! `binned` vs `table` the bin rule (each texel by its bin's mean cosine, the BRDF at the bin
@@ -33,13 +33,12 @@ use biscale::stages::scene::{load_geometry, load_lighting, shade_scene};
 use biscale::stages::transfer::transfer_matrix;
 use biscale::store::cache::StageCache;
 use biscale::store::RunOptions;
-use biscale_core::gather::moments::{exact_moments_product, resolve, LightMoments, Lobe};
+use biscale_core::gather::moments::{exact_moments_product, LightMoments, Lobe};
 use biscale_core::gather::{reference_product, LocalRadiance};
 use biscale_core::transfer::VisibilitySampler;
-use biscale_shading::cpu::{interpolate_lstar, primary_hit, shade, shade_point};
+use biscale_shading::cpu::{shade, shade_moments};
 use biscale_shading::image::compare;
 use biscale_shading::reference::{render_reference, AnalyticBrdf, ReferenceRule};
-use rayon::prelude::*;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -92,43 +91,8 @@ fn main() -> Result<()> {
         .iter()
         .map(|l| LocalRadiance::from_f64(basis, t.vertices(), &reference_product(&t, l)))
         .collect::<std::result::Result<_, _>>()?;
-    let m = basis.len();
-    let (w, h, n) = (camera.width, camera.height, camera.samples_per_axis());
-    let pixels: Vec<[f32; 3]> = (0..w * h)
-        .into_par_iter()
-        .map(|i| {
-            let (x, y) = (i % w, i / w);
-            let mut acc = vec![[0.0f64; 3]; m];
-            let mut scratch = vec![[0.0f32; 3]; m];
-            let mut sum = [0.0f64; 3];
-            for j in 0..n {
-                for k in 0..n {
-                    let (sx, sy) = camera.sample(x, y, k, j);
-                    let (o, d) = camera.ray(sx, sy);
-                    let Some(p) = primary_hit(&scene, o, d) else { continue };
-                    let at_pixel: Vec<LocalRadiance> = gathered
-                        .iter()
-                        .map(|g| {
-                            interpolate_lstar(&p, g, &mut acc);
-                            LocalRadiance::from_f64(basis, 1, &acc).expect("one vertex of the basis")
-                        })
-                        .collect();
-                    let resolved = resolve([&at_pixel[0], &at_pixel[1], &at_pixel[2]], &[p.frame], Lobe::MeanDirection)
-                        .expect("one vertex, one frame");
-                    let lstar: Vec<[f64; 3]> = resolved.values().iter().map(|v| v.map(f64::from)).collect();
-                    let c = shade_point(scene.material(p.triangle), p.uv, p.view_local, &lstar, &mut scratch);
-                    (0..3).for_each(|q| sum[q] += c[q] as f64);
-                }
-            }
-            sum.map(|v| (v / (n * n) as f64) as f32)
-        })
-        .collect();
-    let mut pixel_resolve = biscale_core::scene::Render {
-        image: biscale_core::scene::HdrImage::new(w, h),
-        mask: exact.mask.clone(),
-        coverage: None,
-    };
-    pixel_resolve.image.pixels = pixels;
+    let pixel_resolve =
+        shade_moments(&scene, [&gathered[0], &gathered[1], &gathered[2]], Lobe::MeanDirection, &camera)?;
     let mask = &exact.mask;
     let rel = |a: &biscale_core::scene::Render, b: &biscale_core::scene::Render| -> Result<f64> {
         Ok(compare(&a.image, &b.image, Some(mask))?.rel_l2)

@@ -774,6 +774,12 @@ pub struct RuntimeConfig {
     /// `false` is the paper's shading, kept for reproduction.
     #[serde(default)]
     pub light_moments: bool,
+    /// With light moments, where they are resolved into the `L*` the BTF is dotted with:
+    /// `vertex` (default: at each vertex, then blended) or `pixel` (the three gathered moments
+    /// blended and resolved at every shading point's own frame; `biscale_shading::cpu::
+    /// shade_moments`; CPU backend only).
+    #[serde(default)]
+    pub moments_resolve: Option<Spanned<MomentsResolve>>,
     /// Rays per pixel for anti-aliasing, a square (1, 4, 9, ...; a stratified box filter,
     /// `biscale_core::scene::Camera`; the wgpu shader runs on the supersampled grid). Default 4:
     /// see [`RuntimeConfig::samples_per_pixel`].
@@ -781,10 +787,24 @@ pub struct RuntimeConfig {
 }
 
 impl RuntimeConfig {
+    /// Whether the run resolves the light moments per pixel (`moments_resolve = "pixel"`).
+    pub fn resolve_per_pixel(&self) -> bool {
+        self.light_moments && self.moments_resolve.as_ref().is_some_and(|m| *m.get_ref() == MomentsResolve::Pixel)
+    }
+
     /// The rays per pixel every render of the run takes: the config's, else 4.
     pub fn samples_per_pixel(&self) -> u32 {
         self.samples_per_pixel.as_ref().map_or(4, |s| *s.get_ref())
     }
+}
+
+/// Where light moments are resolved (`runtime.moments_resolve`).
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum MomentsResolve {
+    #[default]
+    Vertex,
+    Pixel,
 }
 
 #[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
@@ -814,6 +834,7 @@ impl Default for RuntimeConfig {
             camera: CameraConfig::default(),
             repeats: default_repeats(),
             light_moments: false,
+            moments_resolve: None,
             samples_per_pixel: None,
         }
     }
@@ -1233,6 +1254,18 @@ fn check_runtime(file: &ExperimentFile, path: &Path, err: &Locate<'_>) -> Result
     if let Some(s) = &file.runtime.samples_per_pixel {
         if let Err(what) = biscale_core::scene::camera::samples_per_axis_of(*s.get_ref()) {
             return Err(err(s.span(), format!("runtime.samples_per_pixel {what}")));
+        }
+    }
+    if let Some(r) = file.runtime.moments_resolve.as_ref().filter(|r| *r.get_ref() == MomentsResolve::Pixel) {
+        if !file.runtime.light_moments {
+            return Err(err(
+                r.span(),
+                "runtime.moments_resolve = \"pixel\" resolves light moments: set runtime.light_moments = true"
+                    .to_string(),
+            ));
+        }
+        if file.runtime.backend == Backend::Gpu {
+            return Err(err(r.span(), "runtime.moments_resolve = \"pixel\" shades on the CPU only: set runtime.backend = \"cpu\" (the wgpu shader resolves per vertex)".to_string()));
         }
     }
     in_range(&file.report.reference_downscale, 1, 64, "report.reference_downscale", err)?;
@@ -1677,6 +1710,19 @@ mod tests {
         assert_eq!(exp.file.report.error_scale, Some(0.05));
         assert!(exp.file.runtime.light_moments);
         assert!(!parse(OK).unwrap().file.runtime.light_moments, "the paper's cosine is the default");
+    }
+
+    #[test]
+    fn a_per_pixel_resolve_needs_moments_and_the_cpu() {
+        let rt = |extra: &str| parse(&format!("{OK}[runtime]\n{extra}")).map(|e| e.file.runtime.resolve_per_pixel());
+        assert!(rt("light_moments = true\nmoments_resolve = \"pixel\"\n").unwrap());
+        assert!(!rt("light_moments = true\nmoments_resolve = \"vertex\"\n").unwrap());
+        assert!(!rt("light_moments = true\n").unwrap());
+        let e = rt("moments_resolve = \"pixel\"\n").unwrap_err().to_string();
+        assert!(e.contains(":7:19: runtime.moments_resolve = \"pixel\" resolves light moments"), "{e}");
+        let e = rt("light_moments = true\nbackend = \"gpu\"\nmoments_resolve = \"pixel\"\n").unwrap_err().to_string();
+        assert!(e.contains("shades on the CPU only"), "{e}");
+        assert!(rt("light_moments = true\nmoments_resolve = \"texel\"\n").is_err());
     }
 
     #[test]

@@ -795,6 +795,14 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
         Lstar(LocalRadiance, Value),
         Form(ReadForm),
     }
+    if matches!(input, EvalInput::Lstar(_)) && exp.file.runtime.resolve_per_pixel() {
+        return Err(PipelineError::Mismatch {
+            path: exp.config_path.clone(),
+            what: "runtime.moments_resolve = \"pixel\" shades the three moment gathers, which an L* file does not \
+                   hold: score it with --set runtime.moments_resolve=\"vertex\", or score a form (--form)"
+                .into(),
+        });
+    }
     let loaded = match input {
         EvalInput::Lstar(p) => {
             let (lstar, about) = read_lstar(p, want, exp.file.runtime.light_moments)?;

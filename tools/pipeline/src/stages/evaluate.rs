@@ -11,13 +11,13 @@ use crate::store::staging::fault_point;
 use crate::util::progress_bar;
 use biscale_core::artifact::{Artifact, ArtifactError, Field};
 use biscale_core::compress::{ArrayData, CompressedForm, Compressor};
-use biscale_core::gather::moments::{exact_moments_product, gather_with_moments, LightMoments, Lobe};
+use biscale_core::gather::moments::{exact_moments_product, gather_with_moments, resolve, LightMoments, Lobe};
 use biscale_core::gather::{reference_product, relative_l2_error, LocalRadiance};
 use biscale_core::geometry::VertexFrame;
 use biscale_core::sampling::LightVector;
 use biscale_core::scene::{Background, Camera, HdrImage, Render, ShadeScene};
 use biscale_core::transfer::{TransferMatrix, VisibilitySampler};
-use biscale_shading::cpu::shade;
+use biscale_shading::cpu::{shade, shade_moments};
 use biscale_shading::image::{compare_exposed, ImageMetrics};
 use biscale_shading::reference::{AnalyticBrdf, ReferenceRule};
 use biscale_shading::synth::Brdf;
@@ -43,6 +43,28 @@ pub struct Baseline {
     pub shade_timing: Timing,
     /// With light moments: the paper's `L*` and its image.
     pub paper: Option<(LocalRadiance, Render)>,
+    /// With `runtime.moments_resolve = "pixel"`: the exact three moment gathers (f64 products
+    /// rounded to f32), which `render` resolves at every pixel.
+    pub moments: Option<[LocalRadiance; 3]>,
+}
+
+impl Baseline {
+    /// What the baseline's image shades: the three moments per pixel, or `L*`.
+    pub(crate) fn shaded(&self) -> Shaded<'_> {
+        match &self.moments {
+            Some([x, y, z]) => Shaded::Moments([x, y, z]),
+            None => Shaded::Lstar(&self.lstar),
+        }
+    }
+}
+
+/// What a render of the run shades: an `L*`, or with `runtime.moments_resolve = "pixel"` the
+/// three gathered light moments, resolved at every shading point
+/// (`biscale_shading::cpu::shade_moments`).
+#[derive(Clone, Copy)]
+pub(crate) enum Shaded<'a> {
+    Lstar(&'a LocalRadiance),
+    Moments([&'a LocalRadiance; 3]),
 }
 
 /// The uncompressed product in f64: `T L`, or with light moments (`moments`: the frames `T`
@@ -90,7 +112,8 @@ pub(crate) fn targets(
         false => None,
     };
     let frames = geometry.transfer.frames();
-    let base = baseline(t, lighting, moments.as_ref().map(|_| frames), view, exp.file.runtime.repeats)?;
+    let per_pixel = moments.as_ref().filter(|_| exp.file.runtime.resolve_per_pixel());
+    let base = baseline(t, lighting, moments.as_ref().map(|_| frames), per_pixel, view, exp.file.runtime.repeats)?;
     if !base.render.mask.iter().any(|&hit| hit) {
         return Err(PipelineError::Mismatch {
             path: exp.config_path.clone(),
@@ -124,16 +147,32 @@ pub(crate) fn targets(
     Ok(Targets { moments, base, reference })
 }
 
+/// The uncompressed baseline; with `per_pixel` (the light's moments, `moments_resolve =
+/// "pixel"`) its image resolves the three exact moment gathers at every pixel.
 pub(crate) fn baseline(
     t: &TransferMatrix,
     lighting: &Lighting,
     moments: Option<&[VertexFrame]>,
+    per_pixel: Option<&LightMoments>,
     view: &View<'_>,
     repeats: usize,
 ) -> Result<Baseline> {
     let (exact, gather_timing) = timed(repeats, || uncompressed_product(t, &lighting.light, moments))?;
     let lstar = LocalRadiance::from_f64(t.local_basis(), t.vertices(), &exact)?;
-    let (render, shade_timing) = view.timed_render(&lstar, repeats)?;
+    let pixel_moments = match per_pixel {
+        Some(m) => {
+            let [x, y, z] = &m.along;
+            let one =
+                |l: &LightVector| LocalRadiance::from_f64(t.local_basis(), t.vertices(), &reference_product(t, l));
+            Some([one(x)?, one(y)?, one(z)?])
+        }
+        None => None,
+    };
+    let shaded = match &pixel_moments {
+        Some([x, y, z]) => Shaded::Moments([x, y, z]),
+        None => Shaded::Lstar(&lstar),
+    };
+    let (render, shade_timing) = view.timed_render_shaded(shaded, repeats)?;
     let paper = match moments {
         None => None,
         Some(_) => {
@@ -142,7 +181,7 @@ pub(crate) fn baseline(
             Some((lstar, render))
         }
     };
-    Ok(Baseline { exact, lstar, render, gather_timing, shade_timing, paper })
+    Ok(Baseline { exact, lstar, render, gather_timing, shade_timing, paper, moments: pixel_moments })
 }
 
 /// What every render of the run shares: the scene, the camera and the background.
@@ -161,9 +200,20 @@ impl View<'_> {
         Ok(shade(self.scene, lstar, camera)?.with_background(camera, &self.background))
     }
 
-    /// [`Self::render`] at the run's camera, `repeats` times: the image and its [`Timing`].
-    pub(crate) fn timed_render(&self, lstar: &LocalRadiance, repeats: usize) -> Result<(Render, Timing)> {
-        timed(repeats, || self.render(lstar, &self.camera))
+    /// The image of `shaded` with the background behind it.
+    pub(crate) fn render_shaded(&self, shaded: Shaded<'_>, camera: &Camera) -> Result<Render> {
+        match shaded {
+            Shaded::Lstar(lstar) => self.render(lstar, camera),
+            Shaded::Moments(m) => {
+                let render = shade_moments(self.scene, m, Lobe::MeanDirection, camera)?;
+                Ok(render.with_background(camera, &self.background))
+            }
+        }
+    }
+
+    /// [`Self::render_shaded`] at the run's camera, `repeats` times: the image and its [`Timing`].
+    pub(crate) fn timed_render_shaded(&self, shaded: Shaded<'_>, repeats: usize) -> Result<(Render, Timing)> {
+        timed(repeats, || self.render_shaded(shaded, &self.camera))
     }
 }
 
@@ -303,7 +353,7 @@ pub(crate) fn reference(
 ) -> Result<Reference> {
     let traced = reference_render(exp, geometry, view, lighting, cache)?;
     let (render, camera) = (traced.render, traced.camera);
-    let small = view.render(&baseline.lstar, &camera)?;
+    let small = view.render_shaded(baseline.shaded(), &camera)?;
     let exposure = exp.file.report.exposure;
     let baseline_error = compare_exposed(&small.image, &render.image, Some(&render.mask), exposure)?;
     let paper_baseline_error = match &baseline.paper {
@@ -447,6 +497,9 @@ pub(crate) struct Evaluation<'a> {
     /// With light moments: the light's moments and the vertex frames `T` was traced with;
     /// every form is then gathered three times and resolved ([`gather_with_moments`]).
     pub moments: Option<(&'a LightMoments, &'a [VertexFrame])>,
+    /// `runtime.moments_resolve = "pixel"`: every form's image resolves its three moment
+    /// gathers at each pixel (its `L*`, for the `L*` error, is still resolved per vertex).
+    pub per_pixel: bool,
     pub exact: &'a [[f64; 3]],
     pub baseline: &'a Render,
     pub view: &'a View<'a>,
@@ -476,6 +529,7 @@ impl<'a> Evaluation<'a> {
             t,
             light: &lighting.light,
             moments: targets.moments.as_ref().map(|m| (m, geometry.transfer.frames())),
+            per_pixel: targets.base.moments.is_some(),
             exact: &targets.base.exact,
             baseline: &targets.base.render,
             view,
@@ -506,14 +560,23 @@ impl Evaluation<'_> {
     ) -> Result<(CompressorRecord, Render)> {
         let (view, repeats) = (self.view, self.repeats);
         let cerr = |source| PipelineError::Compress { name: setting.label.clone(), source };
-        let (lstar, gather_timing) = timed(repeats, || {
+        let ((lstar, gathered), gather_timing) = timed(repeats, || {
             match self.moments {
-                None => compressor.gather(form, self.light),
-                Some((moments, frames)) => gather_with_moments(compressor, form, moments, frames),
+                None => compressor.gather(form, self.light).map(|l| (l, None)),
+                Some((moments, frames)) if self.per_pixel => {
+                    let [x, y, z] = &moments.along;
+                    compressor.gather_three(form, [x, y, z]).and_then(|g| {
+                        let lstar = resolve([&g[0], &g[1], &g[2]], frames, moments.lobe)
+                            .map_err(|e| biscale_core::compress::CompressError::External(Box::new(e)))?;
+                        Ok((lstar, Some(g)))
+                    })
+                }
+                Some((moments, frames)) => gather_with_moments(compressor, form, moments, frames).map(|l| (l, None)),
             }
             .map_err(cerr)
         })?;
-        let (mut record, render) = self.score_timed(&setting.label, &lstar, Some(gather_timing))?;
+        let gathered = gathered.as_ref().map(|[x, y, z]| [x, y, z]);
+        let (mut record, render) = self.score_timed(&setting.label, &lstar, gathered, Some(gather_timing))?;
         // A compressor without a GPU gather (a hosted one) is gathered on the CPU only.
         let gpu = match gpu.filter(|_| compressor.has_kernels()) {
             Some(g) => {
@@ -573,26 +636,38 @@ impl Evaluation<'_> {
         lstar: &LocalRadiance,
         gather_ms: f64,
     ) -> Result<(CompressorRecord, Render)> {
-        let (mut record, render) = self.score_timed(name, lstar, None)?;
+        if self.per_pixel {
+            return Err(PipelineError::Mismatch {
+                path: self.out_dir.to_path_buf(),
+                what: format!(
+                    "{name}: an L* alone cannot be resolved per pixel (runtime.moments_resolve = \"pixel\" needs the \
+                     three moment gathers): score it with runtime.moments_resolve = \"vertex\", or score a form"
+                ),
+            });
+        }
+        let (mut record, render) = self.score_timed(name, lstar, None, None)?;
         record.gather_ms = gather_ms;
         Ok((record, render))
     }
 
     /// [`Self::score`] of an `L*` whose gather was timed (`gather_timing`, [`Self::record`]).
+    /// `moments`: the three gathers the image resolves per pixel (`per_pixel`), else `lstar`'s.
     fn score_timed(
         &self,
         name: &str,
         lstar: &LocalRadiance,
+        moments: Option<[&LocalRadiance; 3]>,
         gather_timing: Option<Timing>,
     ) -> Result<(CompressorRecord, Render)> {
         let (view, repeats) = (self.view, self.repeats);
         let rel_error_lstar = relative_l2_error(lstar.values(), self.exact);
-        let (render, shade_timing) = view.timed_render(lstar, repeats)?;
+        let shaded = moments.map_or(Shaded::Lstar(lstar), Shaded::Moments);
+        let (render, shade_timing) = view.timed_render_shaded(shaded, repeats)?;
         let vs_uncompressed =
             errors(&compare_exposed(&render.image, &self.baseline.image, Some(&self.baseline.mask), self.exposure)?);
         let vs_reference = match self.reference {
             Some(r) => {
-                let small = view.render(lstar, &r.camera)?;
+                let small = view.render_shaded(shaded, &r.camera)?;
                 let e = errors(&compare_exposed(&small.image, &r.render.image, Some(&r.render.mask), self.exposure)?);
                 r.scored.lock().unwrap_or_else(|p| p.into_inner()).push((name.replace(':', "-"), small.image));
                 Some(e)

@@ -125,7 +125,7 @@ pub(crate) fn comparison_figures(
     let mut reference_error_scale = None;
     if let Some(r) = reference {
         let mut scored = std::mem::take(&mut *r.scored.lock().unwrap_or_else(|p| p.into_inner()));
-        scored.insert(0, ("uncompressed".into(), view.render(&base.lstar, &r.camera)?.image));
+        scored.insert(0, ("uncompressed".into(), view.render_shaded(base.shaded(), &r.camera)?.image));
         let mut scale = 0.0f32;
         for (_, small) in &scored {
             scale = scale.max(error_extent(small, &r.render.image)?.0);

@@ -339,6 +339,7 @@ pub(crate) fn evaluate(
         // SH light and local bases have no texels or bins to take moments of: the low-frequency
         // method shades as Sloan et al. do, with or without [runtime] light_moments.
         moments: None,
+        per_pixel: false,
         exact: &exact,
         baseline: inp.baseline,
         view: &view,
