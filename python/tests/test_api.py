@@ -196,6 +196,10 @@ def test_shade_and_reference_are_the_runs_images(exp, exported, runs, cache):
         exp.shade(bad, cache_dir=cache)
     with pytest.raises(biscale.BiscaleError, match="rows"):
         exp.shade(bad[:-8], cache_dir=cache)
+    # With the moments resolved per pixel a run's images shade the three gathers, not an L*.
+    per_pixel = biscale.Experiment.load(SMOKE, set={"runtime.light_moments": True, "runtime.moments_resolve": "pixel"})
+    with pytest.raises(biscale.BiscaleError, match="moments_resolve"):
+        per_pixel.shade(exported["lstar"]["lstar"], cache_dir=cache)
     with pytest.raises(biscale.BiscaleError, match="cannot read OpenEXR|No such file"):
         biscale.read_image(cli_dir / "metrics.json")
 

@@ -16,9 +16,18 @@ use biscale_core::transfer::TransferMatrix;
 use std::path::Path;
 
 /// The image `biscale run` renders of `lstar` (rows `v*M + j` of the config's transfer shape),
-/// at the run's camera with its background. `T` comes from the stage cache (or is traced): its
+/// at the run's camera with its background; refused with `runtime.moments_resolve = "pixel"`,
+/// whose images shade the three moment gathers, not an `L*`. `T` comes from the stage cache (or is traced): its
 /// local basis builds the materials' BTFs.
 pub fn shade_image(exp: &Experiment, lstar: &[[f32; 3]], opts: &RunOptions) -> Result<Render> {
+    if exp.file.runtime.resolve_per_pixel() {
+        return Err(PipelineError::Mismatch {
+            path: exp.config_path.clone(),
+            what: "runtime.moments_resolve = \"pixel\" shades the three moment gathers, which an L* does not hold: \
+                   shade it with runtime.moments_resolve = \"vertex\""
+                .into(),
+        });
+    }
     let geometry = load_geometry(exp)?;
     let want = exp.transfer_settings().shape(geometry.mesh.vertex_count());
     if lstar.len() != want.rows() {
