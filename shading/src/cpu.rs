@@ -21,13 +21,14 @@
 //! ([`Btf::view_weights`](biscale_core::scene::Btf::view_weights)) with the front side's `L*`.
 
 use crate::error::Result;
-use biscale_core::gather::moments::{Lobe, PointResolve};
+use biscale_core::gather::moments::{Lobe, PointLanes, PointResolve};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::geometry::VertexFrame;
 use biscale_core::scene::{Camera, HdrImage, Material, Render, ShadeScene};
 use biscale_core::Rgb;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
+use std::cell::RefCell;
 
 /// A shading point found by a primary ray.
 #[derive(Clone, Copy, Debug)]
@@ -174,14 +175,26 @@ pub fn shade_moments(scene: &ShadeScene, moments: [&LocalRadiance; 3], lobe: Lob
     }
     let point = PointResolve::new(scene.local_basis(), lobe)?;
     let m = scene.local_basis().len();
+    /// A worker's bin count, blended rows (three moments of `M` rows) and resolve lanes.
+    type Work = (usize, Vec<[f64; 3]>, PointLanes);
+    thread_local! {
+        // Kept across a worker's hits (rebuilt when the bin count changes).
+        static WORK: RefCell<Option<Work>> = const { RefCell::new(None) };
+    }
     Ok(render_rows(scene, camera, &|| {}, &|p, acc, scratch| {
-        let mut rows = vec![[0.0f64; 3]; 3 * m];
-        for (a, r) in moments.iter().zip(rows.chunks_mut(m)) {
-            interpolate_lstar(p, a, r);
-        }
-        let (x, rest) = rows.split_at(m);
-        let (y, z) = rest.split_at(m);
-        point.resolve(&p.frame, [x, y, z], acc);
+        WORK.with(|work| {
+            let mut work = work.borrow_mut();
+            if work.as_ref().is_none_or(|(k, ..)| *k != m) {
+                *work = Some((m, vec![[0.0f64; 3]; 3 * m], point.lanes()));
+            }
+            let (_, rows, lanes) = work.as_mut().expect("just filled");
+            for (a, r) in moments.iter().zip(rows.chunks_mut(m)) {
+                interpolate_lstar(p, a, r);
+            }
+            let (x, rest) = rows.split_at(m);
+            let (y, z) = rest.split_at(m);
+            point.resolve_lanes(lanes, &p.frame, [x, y, z], acc);
+        });
         shade_point(scene.material(p.triangle), p.uv, p.view_local, acc, scratch)
     }))
 }
