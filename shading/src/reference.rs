@@ -8,8 +8,8 @@
 //! BTF dot product follows. Two rules weight each traced texel ([`ReferenceRule`]):
 //!
 //! * [`ReferenceRule::GroundTruth`], "ground truth (direct light)": each texel by its own cosine
-//!   at the pixel, with the BRDF at the texel's own direction. For a material given an
-//!   [`AnalyticBrdf`] (a flat analytic material: Lambertian, Phong, GGX, ...) that is the BRDF
+//!   at the pixel, with the BRDF at the texel's own direction. For a material given its
+//!   [`Brdf`] (a flat analytic material: Lambertian, Phong, GGX, ...) that is the BRDF
 //!   itself, evaluated at the texel's centre direction and the pixel's exact view direction:
 //!   `sum_k V_k L_k f(d_k, v) max(0, n . d_k)`, no tabulation at all. A view below the
 //!   interpolated normal's horizon is taken on it (as the BTF's view grid does). For any other material
@@ -24,30 +24,13 @@
 
 use crate::cpu::{render_rows, shade_point};
 use crate::error::{Result, ShadingError};
+use crate::synth::Brdf;
 use biscale_core::gather::moments::TexelCosine;
 use biscale_core::sampling::LightVector;
 use biscale_core::scene::{Camera, Render, ShadeScene};
 use biscale_core::transfer::{TransferScene, VisibilitySampler};
 use glam::DVec3;
 use std::sync::atomic::{AtomicUsize, Ordering};
-
-/// A material's BRDF as a function, for the ground-truth reference to evaluate at each
-/// texel's exact direction instead of looking up a tabulated BTF.
-pub trait AnalyticBrdf: Sync {
-    /// `f(light, view)` per RGB channel, both local unit directions (+Z the shading normal);
-    /// 0 when either is at or below the horizon (as Mitsuba's BSDFs).
-    fn eval(&self, light: DVec3, view: DVec3) -> [f64; 3];
-}
-
-impl AnalyticBrdf for crate::synth::Brdf {
-    fn eval(&self, light: DVec3, view: DVec3) -> [f64; 3] {
-        if !(light.z > 0.0 && view.z > 0.0) {
-            return [0.0; 3];
-        }
-        let (d, s) = self.eval_parts(light, view);
-        std::array::from_fn(|c| d[c] + s[c])
-    }
-}
 
 /// `v` normalised, with its elevation clamped to a hair above the horizon (azimuth kept).
 fn above_horizon(v: DVec3) -> DVec3 {
@@ -82,7 +65,7 @@ pub enum ReferenceRule {
 /// resolution and local basis (which must be the BTFs' light directions). Uncovered pixels
 /// are black ([`Render::with_background`] adds a background).
 ///
-/// `brdfs[i]`, where given, is material `i`'s [`AnalyticBrdf`], which
+/// `brdfs[i]`, where given, is material `i`'s [`Brdf`] ([`Brdf::eval`]), which
 /// [`ReferenceRule::GroundTruth`] evaluates exactly (see the module docs); a material without
 /// one (or beyond the slice) is shaded from its BTF.
 ///
@@ -101,7 +84,7 @@ pub fn render_reference(
     sampler: &VisibilitySampler,
     camera: &Camera,
     rule: ReferenceRule,
-    brdfs: &[Option<&dyn AnalyticBrdf>],
+    brdfs: &[Option<Brdf>],
     progress: Option<&(dyn Fn(usize) + Sync)>,
 ) -> Result<Render> {
     camera.validate()?;
@@ -147,7 +130,7 @@ pub fn render_reference(
     };
     Ok(render_rows(scene, camera, &row_done, &|p, acc, scratch| {
         let analytic = match rule {
-            ReferenceRule::GroundTruth => brdfs.get(scene.material_index(p.triangle)).copied().flatten(),
+            ReferenceRule::GroundTruth => brdfs.get(scene.material_index(p.triangle)).and_then(Option::as_ref),
             ReferenceRule::Binned => None,
         };
         if let Some(brdf) = analytic {
@@ -492,7 +475,7 @@ mod tests {
     /// The directional albedo `integral f(l, v) l_z dl` over the hemisphere, by a midpoint rule
     /// in (cos theta, phi) fine enough for a lobe of alpha >= 0.2 (400 x 720 cells: the
     /// lobe spans > 50 cells per axis), independent of the cubemap.
-    fn albedo(brdf: &dyn AnalyticBrdf, view: DVec3) -> [f64; 3] {
+    fn albedo(brdf: &Brdf, view: DVec3) -> [f64; 3] {
         let (nu, nphi) = (400, 720);
         let mut sum = [0.0f64; 3];
         for i in 0..nu {
@@ -530,7 +513,7 @@ mod tests {
         let transfer = TransferScene::new(&mesh).unwrap();
         let camera =
             Camera::frame_bounds(Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 0.0, 1.0), 16, 12, 10.0, 50.0, 40.0);
-        let brdfs: [Option<&dyn AnalyticBrdf>; 1] = [Some(&brdf)];
+        let brdfs = [Some(brdf)];
         let render =
             render_reference(&scene, &light, &transfer, &sampler, &camera, ReferenceRule::GroundTruth, &brdfs, None)
                 .unwrap();
@@ -560,7 +543,7 @@ mod tests {
     fn analytic_lambertian_reference_is_the_tabulated_one() {
         let SphereOnPlane { albedo, sampler, light, scene, transfer, camera, .. } = sphere_on_plane();
         let brdf = crate::synth::Brdf::Lambertian { albedo: [albedo as f32; 3] };
-        let brdfs: [Option<&dyn AnalyticBrdf>; 1] = [Some(&brdf)];
+        let brdfs = [Some(brdf)];
         let rule = ReferenceRule::GroundTruth;
         let table = render_reference(&scene, &light, &transfer, &sampler, &camera, rule, &[], None).unwrap();
         let exact = render_reference(&scene, &light, &transfer, &sampler, &camera, rule, &brdfs, None).unwrap();

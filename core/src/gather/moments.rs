@@ -526,10 +526,22 @@ pub fn gather_with_moments(
     moments: &LightMoments,
     frames: &[VertexFrame],
 ) -> std::result::Result<LocalRadiance, CompressError> {
+    gather_keeping_moments(compressor, form, moments, frames).map(|(lstar, _)| lstar)
+}
+
+/// [`gather_with_moments`], and the three gathered moments it resolved (what a per-pixel
+/// resolve, `biscale_shading::cpu::shade_moments`, shades).
+pub fn gather_keeping_moments(
+    compressor: &dyn Compressor,
+    form: &CompressedForm,
+    moments: &LightMoments,
+    frames: &[VertexFrame],
+) -> std::result::Result<(LocalRadiance, [LocalRadiance; 3]), CompressError> {
     let [x, y, z] = &moments.along;
     let gathered = compressor.gather_three(form, [x, y, z])?;
-    resolve([&gathered[0], &gathered[1], &gathered[2]], frames, moments.lobe)
-        .map_err(|e| CompressError::External(Box::new(e)))
+    let lstar = resolve([&gathered[0], &gathered[1], &gathered[2]], frames, moments.lobe)
+        .map_err(|e| CompressError::External(Box::new(e)))?;
+    Ok((lstar, gathered))
 }
 
 /// Every row's exact-cosine light in f64: for every row `(v, j)`,

@@ -230,6 +230,17 @@ impl Brdf {
         }
     }
 
+    /// `f(light, view)` per RGB channel, both local unit directions (+Z the shading normal);
+    /// 0 when either is at or below the horizon (as Mitsuba's BSDFs). What the ground-truth
+    /// reference evaluates at each texel's exact direction for a flat analytic material.
+    pub fn eval(&self, light: DVec3, view: DVec3) -> [f64; 3] {
+        if !(light.z > 0.0 && view.z > 0.0) {
+            return [0.0; 3];
+        }
+        let (d, s) = self.eval_parts(light, view);
+        std::array::from_fn(|c| d[c] + s[c])
+    }
+
     /// `f(light, view)` with the diffuse part scaled by `diffuse_scale` (an albedo map texel).
     #[inline]
     pub fn eval_scaled(&self, light: DVec3, view: DVec3, diffuse_scale: Rgb) -> [f64; 3] {

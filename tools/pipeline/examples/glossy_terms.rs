@@ -38,7 +38,7 @@ use biscale_core::gather::{reference_product, LocalRadiance};
 use biscale_core::transfer::VisibilitySampler;
 use biscale_shading::cpu::{shade, shade_moments};
 use biscale_shading::image::compare;
-use biscale_shading::reference::{render_reference, AnalyticBrdf, ReferenceRule};
+use biscale_shading::reference::{render_reference, ReferenceRule};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -64,18 +64,17 @@ fn main() -> Result<()> {
     let lighting = load_lighting(&exp)?;
     let t = transfer_matrix(&exp, &geometry, cache.as_ref())?.matrix;
     let (scene, materials) = shade_scene(&exp, &geometry, &t, cache.as_ref())?;
-    let brdfs: Vec<Option<&dyn AnalyticBrdf>> =
-        materials.analytic.iter().map(|b| b.as_ref().map(|b| b as &dyn AnalyticBrdf)).collect();
+    let brdfs = &materials.analytic;
     if brdfs.iter().any(Option::is_none) {
         bail!("{}: every material must be an analytic BRDF ({})", args.config.display(), materials.reference_shading());
     }
     let camera = geometry.camera(&exp, *exp.file.report.reference_downscale.get_ref());
     let sampler = VisibilitySampler::new(&exp.transfer_settings());
     let light = &lighting.light;
-    let trace = |rule, brdfs: &[Option<&dyn AnalyticBrdf>]| {
+    let trace = |rule, brdfs: &[Option<biscale_shading::synth::Brdf>]| {
         render_reference(&scene, light, &geometry.transfer, &sampler, &camera, rule, brdfs, None)
     };
-    let exact = trace(ReferenceRule::GroundTruth, &brdfs)?;
+    let exact = trace(ReferenceRule::GroundTruth, brdfs)?;
     let table = trace(ReferenceRule::GroundTruth, &[])?;
     let binned = trace(ReferenceRule::Binned, &[])?;
     let frames = geometry.transfer.frames();

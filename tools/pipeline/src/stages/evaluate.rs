@@ -11,7 +11,7 @@ use crate::store::staging::fault_point;
 use crate::util::progress_bar;
 use biscale_core::artifact::{Artifact, ArtifactError, Field};
 use biscale_core::compress::{ArrayData, CompressedForm, Compressor};
-use biscale_core::gather::moments::{exact_moments_product, gather_with_moments, resolve, LightMoments, Lobe};
+use biscale_core::gather::moments::{exact_moments_product, gather_keeping_moments, LightMoments, Lobe};
 use biscale_core::gather::{reference_product, relative_l2_error, LocalRadiance};
 use biscale_core::geometry::VertexFrame;
 use biscale_core::sampling::LightVector;
@@ -19,7 +19,7 @@ use biscale_core::scene::{Background, Camera, HdrImage, Render, ShadeScene};
 use biscale_core::transfer::{TransferMatrix, VisibilitySampler};
 use biscale_shading::cpu::{shade, shade_moments};
 use biscale_shading::image::{compare_exposed, ImageMetrics};
-use biscale_shading::reference::{AnalyticBrdf, ReferenceRule};
+use biscale_shading::reference::ReferenceRule;
 use biscale_shading::synth::Brdf;
 use std::path::Path;
 use std::time::Instant;
@@ -51,10 +51,7 @@ pub struct Baseline {
 impl Baseline {
     /// What the baseline's image shades: the three moments per pixel, or `L*`.
     pub(crate) fn shaded(&self) -> Shaded<'_> {
-        match &self.moments {
-            Some([x, y, z]) => Shaded::Moments([x, y, z]),
-            None => Shaded::Lstar(&self.lstar),
-        }
+        Shaded::of(&self.lstar, self.moments.as_ref())
     }
 }
 
@@ -65,6 +62,16 @@ impl Baseline {
 pub(crate) enum Shaded<'a> {
     Lstar(&'a LocalRadiance),
     Moments([&'a LocalRadiance; 3]),
+}
+
+impl<'a> Shaded<'a> {
+    /// The three moments when there are (`moments_resolve = "pixel"`), else `lstar`.
+    pub(crate) fn of(lstar: &'a LocalRadiance, moments: Option<&'a [LocalRadiance; 3]>) -> Self {
+        match moments {
+            Some([x, y, z]) => Shaded::Moments([x, y, z]),
+            None => Shaded::Lstar(lstar),
+        }
+    }
 }
 
 /// The uncompressed product in f64: `T L`, or with light moments (`moments`: the frames `T`
@@ -168,11 +175,7 @@ pub(crate) fn baseline(
         }
         None => None,
     };
-    let shaded = match &pixel_moments {
-        Some([x, y, z]) => Shaded::Moments([x, y, z]),
-        None => Shaded::Lstar(&lstar),
-    };
-    let (render, shade_timing) = view.timed_render_shaded(shaded, repeats)?;
+    let (render, shade_timing) = view.timed_render_shaded(Shaded::of(&lstar, pixel_moments.as_ref()), repeats)?;
     let paper = match moments {
         None => None,
         Some(_) => {
@@ -425,8 +428,6 @@ pub(crate) fn reference_render(
             let pb = progress_bar(camera.height as u64, "reference");
             let tick = |rows: usize| pb.set_position(rows as u64);
             let start = Instant::now();
-            let brdfs: Vec<Option<&dyn AnalyticBrdf>> =
-                view.analytic.iter().map(|b| b.as_ref().map(|b| b as &dyn AnalyticBrdf)).collect();
             let render = biscale_shading::reference::render_reference(
                 view.scene,
                 &lighting.light,
@@ -434,7 +435,7 @@ pub(crate) fn reference_render(
                 &sampler,
                 &camera,
                 REFERENCE_RULE,
-                &brdfs,
+                view.analytic,
                 Some(&tick),
             )?;
             let seconds = start.elapsed().as_secs_f64();
@@ -495,7 +496,7 @@ pub(crate) struct Evaluation<'a> {
     pub t: &'a TransferMatrix,
     pub light: &'a LightVector,
     /// With light moments: the light's moments and the vertex frames `T` was traced with;
-    /// every form is then gathered three times and resolved ([`gather_with_moments`]).
+    /// every form is then gathered three times and resolved ([`gather_keeping_moments`]).
     pub moments: Option<(&'a LightMoments, &'a [VertexFrame])>,
     /// `runtime.moments_resolve = "pixel"`: every form's image resolves its three moment
     /// gathers at each pixel (its `L*`, for the `L*` error, is still resolved per vertex).
@@ -563,20 +564,13 @@ impl Evaluation<'_> {
         let ((lstar, gathered), gather_timing) = timed(repeats, || {
             match self.moments {
                 None => compressor.gather(form, self.light).map(|l| (l, None)),
-                Some((moments, frames)) if self.per_pixel => {
-                    let [x, y, z] = &moments.along;
-                    compressor.gather_three(form, [x, y, z]).and_then(|g| {
-                        let lstar = resolve([&g[0], &g[1], &g[2]], frames, moments.lobe)
-                            .map_err(|e| biscale_core::compress::CompressError::External(Box::new(e)))?;
-                        Ok((lstar, Some(g)))
-                    })
-                }
-                Some((moments, frames)) => gather_with_moments(compressor, form, moments, frames).map(|l| (l, None)),
+                // The same gathers and resolve either way; per pixel the image shades the three.
+                Some((moments, frames)) => gather_keeping_moments(compressor, form, moments, frames)
+                    .map(|(l, g)| (l, self.per_pixel.then_some(g))),
             }
             .map_err(cerr)
         })?;
-        let gathered = gathered.as_ref().map(|[x, y, z]| [x, y, z]);
-        let (mut record, render) = self.score_timed(&setting.label, &lstar, gathered, Some(gather_timing))?;
+        let (mut record, render) = self.score_timed(&setting.label, &lstar, gathered.as_ref(), Some(gather_timing))?;
         // A compressor without a GPU gather (a hosted one) is gathered on the CPU only.
         let gpu = match gpu.filter(|_| compressor.has_kernels()) {
             Some(g) => {
@@ -656,12 +650,12 @@ impl Evaluation<'_> {
         &self,
         name: &str,
         lstar: &LocalRadiance,
-        moments: Option<[&LocalRadiance; 3]>,
+        moments: Option<&[LocalRadiance; 3]>,
         gather_timing: Option<Timing>,
     ) -> Result<(CompressorRecord, Render)> {
         let (view, repeats) = (self.view, self.repeats);
         let rel_error_lstar = relative_l2_error(lstar.values(), self.exact);
-        let shaded = moments.map_or(Shaded::Lstar(lstar), Shaded::Moments);
+        let shaded = Shaded::of(lstar, moments);
         let (render, shade_timing) = view.timed_render_shaded(shaded, repeats)?;
         let vs_uncompressed =
             errors(&compare_exposed(&render.image, &self.baseline.image, Some(&self.baseline.mask), self.exposure)?);
