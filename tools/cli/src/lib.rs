@@ -137,22 +137,23 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
-    /// Reproduce the paper's Table I, Table II and its equal-storage comparison (with the
-    /// equal-quality one it could not make): runs the configs of configs/paper/ into
-    /// DIR/runs/ and writes numbers.csv (every figure: ours, the paper's, their ratio),
-    /// tables/*.tex (booktabs) and index.html, ours beside the published figures
-    /// (paper/published.toml). Run it in the biscale checkout (it reads configs/paper/ and
-    /// assets/). --set applies to every run's config.
+    /// Reproduce the paper's Tables I and II, Figs. 1, 3(b), 5, 6, 7 and 8 and its
+    /// equal-storage comparison (with the equal-quality one it could not make): runs the
+    /// configs of configs/paper/ into DIR/runs/ and writes numbers.csv (every figure: ours, the
+    /// paper's, their ratio), tables/*.tex (booktabs), figures/ (PNG panels and a LaTeX
+    /// figure each) and index.html, ours beside the published figures (paper/published.toml).
+    /// Run it in the biscale checkout (it reads configs/paper/ and assets/). --set applies to
+    /// every run's config.
     #[command(
         after_help = "Example: biscale reproduce --quick --out out/paper-quick\n         biscale reproduce --only table1,equal-quality"
     )]
     Reproduce {
         /// Every item at small sizes (6x8x8 light, 4x4 local directions, 96x72 images, one
-        /// timing repeat): under a minute on two cores against about 15 for the full command,
-        /// with figures not at the paper's scale.
+        /// timing repeat): a few minutes on two cores, with figures not at the paper's scale.
         #[arg(long)]
         quick: bool,
-        /// Only these items, comma-separated: table1, table2, equal-quality (default: all).
+        /// Only these items, comma-separated: table1, table2, equal-quality, low-vs-all, fig8,
+        /// fig3b, fig7 (default: all).
         #[arg(long, value_delimiter = ',')]
         only: Vec<String>,
         /// Output folder (default: out/paper, or out/paper-quick with --quick), replaced whole
@@ -709,6 +710,9 @@ fn run() -> anyhow::Result<()> {
             let done = biscale::reproduce::reproduce(&opts).context("reproducing the paper")?;
             for t in &done.tables {
                 println!("wrote {}", done.out_dir.join("tables").join(format!("{}.tex", t.file)).display());
+            }
+            for f in &done.figures {
+                println!("wrote {} ({} panels)", done.out_dir.join("figures").join(format!("{}.tex", f.id)).display(), f.panels.len());
             }
             println!("wrote {}", done.out_dir.join("numbers.csv").display());
             println!("wrote {}", done.out_dir.join("index.html").display());

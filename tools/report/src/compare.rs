@@ -8,7 +8,10 @@ use std::collections::BTreeMap;
 
 /// For every compressor kind, the setting whose storage is closest to `target_bytes`
 /// (closest in log ratio, so 2x too big and 2x too small count the same).
-pub fn equal_storage(records: &[CompressorRecord], target_bytes: u64) -> Vec<&CompressorRecord> {
+pub fn equal_storage<'a>(
+    records: impl IntoIterator<Item = &'a CompressorRecord>,
+    target_bytes: u64,
+) -> Vec<&'a CompressorRecord> {
     let mut best: BTreeMap<&str, &CompressorRecord> = BTreeMap::new();
     let dist = |r: &CompressorRecord| ((r.bytes.max(1) as f64) / (target_bytes.max(1) as f64)).ln().abs();
     for r in records {

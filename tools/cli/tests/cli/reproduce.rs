@@ -114,6 +114,67 @@ fn expected(m: &Value, row: &str) -> f64 {
     }
 }
 
+/// The record a low- vs all-frequency column names, in a run's `metrics.json`.
+fn low_vs_all_record<'a>(column: &str, m: &'a Value) -> &'a Value {
+    let compressors = m["compressors"].as_array().unwrap();
+    if column == "all-frequency, raw T" {
+        return compressors.iter().find(|c| c["kind"] == "sparse").unwrap();
+    }
+    if let Some(name) = column.strip_prefix("all-frequency, ") {
+        return compressors.iter().find(|c| c["name"] == name).unwrap_or_else(|| panic!("{column}"));
+    }
+    let order: f64 = column.strip_prefix("SH order ").unwrap().split(' ').next().unwrap().parse().unwrap();
+    m["methods"].as_array().unwrap().iter().find(|r| f(r, "sh.order") == order).unwrap_or_else(|| panic!("{column}"))
+}
+
+/// Figs. 1 and 5's rows against the runs' records; `paper_run` is the paper-rule run whose
+/// `-moments` twin holds the light-moments errors.
+fn check_low_vs_all(line: &Line, metrics: &BTreeMap<String, Value>) {
+    let ours = num(&line["ours"]).unwrap();
+    let m = &metrics[&line["source"]];
+    let c = low_vs_all_record(&line["column"], m);
+    let want = match line["row"].as_str() {
+        "transfer_mb" => f(c, "bytes") / 1e6,
+        "error_paper_rule" | "error_light_moments" => f(c, "image.vs_reference.rel_l2"),
+        "gather_ms" => f(c, "gather_ms"),
+        "shade_ms" => f(c, "shade_ms"),
+        other => panic!("a low- vs all-frequency row this test does not know: {other}"),
+    };
+    assert!(close(ours, want), "{line:?}: {want}");
+    let moments = line["source"].ends_with("-moments");
+    assert_eq!(moments, line["row"] == "error_light_moments", "{line:?}");
+    assert_eq!(m["uncompressed"]["light_moments"], moments, "{line:?}");
+    // The equal-storage order: the SH setting nearest the lossless biclustering in log storage.
+    if let Some(rest) = line["column"].strip_suffix(" (equal storage)") {
+        let b = m["compressors"].as_array().unwrap().iter().find(|c| c["kind"] == "bicluster" && c["lossless"] == true);
+        let target = f(b.unwrap(), "bytes");
+        let dist = |r: &Value| (f(r, "bytes") / target).ln().abs();
+        let best = m["methods"].as_array().unwrap().iter().min_by(|a, b| dist(a).total_cmp(&dist(b))).unwrap();
+        assert_eq!(rest, format!("SH order {}", f(best, "sh.order")), "{line:?}");
+    }
+}
+
+/// Fig. 8's rows against the runs' records (the ratio row against the 8x8 run's).
+fn check_fig8(line: &Line, metrics: &BTreeMap<String, Value>) {
+    let ours = num(&line["ours"]).unwrap();
+    let m = &metrics[&line["source"]];
+    let b = |m: &Value| -> Value {
+        m["compressors"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c["kind"] == "bicluster" && c["lossless"] == true)
+            .unwrap()
+            .clone()
+    };
+    let want = match line["row"].as_str() {
+        "storage_over_8x8" => f(&b(m), "bytes") / f(&b(&metrics["runs/fig8-8"]), "bytes"),
+        "transfer_ms" => f(&b(m), "gather_ms"),
+        row => expected(m, row),
+    };
+    assert!(close(ours, want), "{line:?}: {want}");
+}
+
 /// The equal-storage and equal-quality rows against the comparison run's records.
 fn check_comparison(line: &Line, m: &Value) {
     let records = m["compressors"].as_array().unwrap();
@@ -143,11 +204,11 @@ fn reproduce_quick_sets_each_runs_figures_beside_the_papers_and_a_rerun_reuses_t
     let (out_s, cache_s) = (out.to_str().unwrap(), cache.to_str().unwrap());
     let (ok, stdout, err) = biscale(&["reproduce", "--quick", "--out", out_s, "--cache-dir", cache_s]);
     assert!(ok, "{err}");
-    assert!(err.contains("reproduce: run 1/5 `bunny`"), "a progress line per run: {err}");
+    assert!(err.contains("reproduce: run 1/12 `bunny`"), "a progress line per run: {err}");
     assert!(stdout.contains("numbers.csv") && stdout.contains("index.html"), "{stdout}");
 
     // Every file, and each table in LaTeX with booktabs and a caption.
-    for t in ["table1", "table2", "equal_quality"] {
+    for t in ["table1", "table2", "equal_quality", "fig1_low_vs_all", "fig5_low_vs_all", "fig8"] {
         let tex = std::fs::read_to_string(out.join("tables").join(format!("{t}.tex"))).unwrap();
         for must in ["\\begin{tabular}", "\\toprule", "\\midrule", "\\bottomrule", "\\caption{", "\\end{table*}"] {
             assert!(tex.contains(must), "{t}.tex lacks {must}");
@@ -161,11 +222,38 @@ fn reproduce_quick_sets_each_runs_figures_beside_the_papers_and_a_rerun_reuses_t
     for must in ["Table I", "Table II", "equal-quality", "<caption>", "Not reproduced yet", "Machine:"] {
         assert!(html.contains(must), "index.html lacks {must}");
     }
+    // Every figure: its LaTeX and its panels, each a PNG the page embeds.
+    for (id, at_least) in [("fig1", 6), ("fig5", 6), ("fig6", 4), ("fig8", 3), ("fig3b", 4), ("fig7", 1)] {
+        let tex = std::fs::read_to_string(out.join("figures").join(format!("{id}.tex"))).unwrap();
+        let panels: Vec<&str> =
+            tex.lines().filter_map(|l| l.split("\\includegraphics[width=\\linewidth]{").nth(1)).collect();
+        assert!(panels.len() >= at_least, "{id}: {} panels", panels.len());
+        for p in panels {
+            let file = p.split('}').next().unwrap();
+            let bytes = std::fs::read(out.join(file)).unwrap_or_else(|e| panic!("{file}: {e}"));
+            assert!(bytes.starts_with(b"\x89PNG"), "{file}");
+        }
+        assert!(html.contains(&format!("<h2 id=\"{id}\">")), "{id} on the page");
+    }
+    assert!(html.matches("data:image/png;base64,").count() >= 24, "the panels are embedded");
     let provenance: Value = serde_json::from_slice(&std::fs::read(out.join("reproduce.json")).unwrap()).unwrap();
     assert_eq!(provenance["quick"], true);
     assert!(provenance["run"]["started_at"].is_string() && provenance["run"]["host"].is_string());
     let mut metrics = BTreeMap::new();
-    for run in ["bunny", "bunny-l1", "bunny-l2", "temple", "equal-quality"] {
+    for run in [
+        "bunny",
+        "bunny-l1",
+        "bunny-l2",
+        "temple",
+        "equal-quality",
+        "fig1-bunny",
+        "fig1-bunny-moments",
+        "fig5-glossy",
+        "fig5-glossy-moments",
+        "fig8-8",
+        "fig8-16",
+        "fig8-32",
+    ] {
         let path = out.join("runs").join(run).join("metrics.json");
         let m: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
         assert!(out.join("runs").join(run).join("report.html").is_file());
@@ -192,11 +280,31 @@ fn reproduce_quick_sets_each_runs_figures_beside_the_papers_and_a_rerun_reuses_t
         match l["item"].as_str() {
             "table1" | "table2" => assert!(close(ours, expected(m, &l["row"])), "{l:?}: {}", expected(m, &l["row"])),
             "equal-quality" => check_comparison(l, m),
+            "low-vs-all" => check_low_vs_all(l, &metrics),
+            "fig8" => check_fig8(l, &metrics),
             other => panic!("an item this test does not know: {other}"),
         }
         checked += 1;
     }
-    assert!(checked > 80, "{checked} figures checked");
+    assert!(checked > 150, "{checked} figures checked");
+    // Figs. 1 and 5 name the paper's order, the equal-storage one and the highest; Fig. 8's
+    // grids grow.
+    for scene in ["fig1-bunny", "fig5-glossy"] {
+        let columns: Vec<&str> = lines
+            .iter()
+            .filter(|l| {
+                l["item"] == "low-vs-all" && l["row"] == "transfer_mb" && l["source"] == format!("runs/{scene}")
+            })
+            .map(|l| l["column"].as_str())
+            .collect();
+        assert_eq!(columns.len(), 5, "{scene}: {columns:?}");
+        assert!(
+            columns.contains(&"SH order 5 (the paper's)") && columns.contains(&"SH order 8 (highest run)"),
+            "{columns:?}"
+        );
+    }
+    let grid = |r: &str| f(&metrics[r], "transfer.local_dirs");
+    assert!(grid("runs/fig8-8") < grid("runs/fig8-16") && grid("runs/fig8-16") < grid("runs/fig8-32"));
 
     // Every published figure the tables quote has its row, with the paper's value.
     let published = biscale::reproduce::published::Published::get();
@@ -247,6 +355,20 @@ fn reproduce_quick_sets_each_runs_figures_beside_the_papers_and_a_rerun_reuses_t
     }
     for (kind, mb) in &published.fig6.storage_mb {
         assert_eq!(paper("equal-quality", "equal_storage_mb", kind), Some(*mb), "{kind}");
+    }
+    for c in &published.fig8 {
+        let column = format!("{0}x{0}", c.local_grid);
+        let quoted = [
+            ("reduced_size", c.compressed_mb),
+            ("precompute", c.precompute_min),
+            ("transfer_ms", c.transfer_ms),
+            ("fps_fixed_light", c.fps_fixed_light),
+            ("fps_moving_light", c.fps_moving_light),
+            ("storage_over_8x8", c.compressed_mb / published.fig8[0].compressed_mb),
+        ];
+        for (row, value) in quoted {
+            assert_eq!(paper("fig8", row, &column), Some(value), "{column} {row}");
+        }
     }
     // Armor and Chair are listed, not run.
     for scene in ["Armor", "Chair"] {

@@ -191,7 +191,7 @@ pub fn table1(ctx: &Context<'_>, runs: &[RunOutcome<'_>]) -> PaperTable {
         .map(|s| Column {
             name: s.scene.clone(),
             ours_head: ours_head.into(),
-            paper_head: format!("paper ({})", s.figure),
+            paper_head: Some(format!("paper ({})", s.figure)),
         })
         .collect();
     let rows = TABLE1
@@ -250,7 +250,7 @@ pub fn table2(ctx: &Context<'_>, runs: &[RunOutcome<'_>]) -> PaperTable {
         .map(|c| Column {
             name: format!("bunny {}", c.vertices),
             ours_head: ours_head.into(),
-            paper_head: "paper".into(),
+            paper_head: Some("paper".into()),
         })
         .collect();
     let rows = figures
@@ -309,7 +309,7 @@ pub fn equal_quality(ctx: &Context<'_>, run: &RunOutcome<'_>) -> PaperTable {
         .map(|(k, _)| Column {
             name: k.clone(),
             ours_head: ours_head.into(),
-            paper_head: format!("paper ({})", fig6.scene),
+            paper_head: Some(format!("paper ({})", fig6.scene)),
         })
         .collect();
     let numeric = |key: &str, label: &str, unit: &str, decimals: usize, cells: Vec<Cell>| Row {

@@ -30,6 +30,8 @@ pub struct RunSpec {
     pub experiment: Option<&'static str>,
     pub mesh: MeshSource,
     pub quick_mesh: MeshSource,
+    /// Overrides of this run in both modes (one config run several ways), before `--quick`'s.
+    pub set: &'static [&'static str],
     /// `--quick`'s overrides beside [`QUICK`], for this config's own keys.
     pub quick: &'static [&'static str],
 }
@@ -79,6 +81,7 @@ pub const RUNS: &[RunSpec] = &[
         experiment: None,
         mesh: MeshSource::AsConfigured,
         quick_mesh: MeshSource::AsConfigured,
+        set: &[],
         quick: BUNNY_QUICK,
     },
     RunSpec {
@@ -87,6 +90,7 @@ pub const RUNS: &[RunSpec] = &[
         experiment: Some("table2_bunny_l1"),
         mesh: MeshSource::Subdivided(1),
         quick_mesh: MeshSource::Subdivided(1),
+        set: &[],
         quick: BUNNY_QUICK,
     },
     RunSpec {
@@ -95,6 +99,7 @@ pub const RUNS: &[RunSpec] = &[
         experiment: Some("table2_bunny_l2"),
         mesh: MeshSource::Subdivided(2),
         quick_mesh: MeshSource::Subdivided(2),
+        set: &[],
         quick: BUNNY_QUICK,
     },
     RunSpec {
@@ -103,6 +108,7 @@ pub const RUNS: &[RunSpec] = &[
         experiment: None,
         mesh: MeshSource::PaperTemple,
         quick_mesh: MeshSource::AsConfigured,
+        set: &[],
         quick: TEMPLE_QUICK,
     },
     RunSpec {
@@ -111,8 +117,85 @@ pub const RUNS: &[RunSpec] = &[
         experiment: None,
         mesh: MeshSource::AsConfigured,
         quick_mesh: MeshSource::AsConfigured,
+        set: &[],
         quick: EQUAL_QUALITY_QUICK,
     },
+    RunSpec {
+        name: "fig1-bunny",
+        config: "fig1_bunny.toml",
+        experiment: None,
+        mesh: MeshSource::AsConfigured,
+        quick_mesh: MeshSource::AsConfigured,
+        set: &[],
+        quick: LOW_VS_ALL_QUICK,
+    },
+    RunSpec {
+        name: "fig1-bunny-moments",
+        config: "fig1_bunny.toml",
+        experiment: Some("fig1_bunny_moments"),
+        mesh: MeshSource::AsConfigured,
+        quick_mesh: MeshSource::AsConfigured,
+        set: MOMENTS,
+        quick: LOW_VS_ALL_QUICK,
+    },
+    RunSpec {
+        name: "fig5-glossy",
+        config: "fig5_glossy.toml",
+        experiment: None,
+        mesh: MeshSource::AsConfigured,
+        quick_mesh: MeshSource::AsConfigured,
+        set: &[],
+        quick: LOW_VS_ALL_QUICK,
+    },
+    RunSpec {
+        name: "fig5-glossy-moments",
+        config: "fig5_glossy.toml",
+        experiment: Some("fig5_glossy_moments"),
+        mesh: MeshSource::AsConfigured,
+        quick_mesh: MeshSource::AsConfigured,
+        set: MOMENTS,
+        quick: LOW_VS_ALL_QUICK,
+    },
+    RunSpec {
+        name: "fig8-8",
+        config: "fig8_bunny.toml",
+        experiment: Some("fig8_bunny_8"),
+        mesh: MeshSource::AsConfigured,
+        quick_mesh: MeshSource::AsConfigured,
+        set: &["transfer.local_grid=8"],
+        quick: &["scene.material.resolution=8", "scene.material.view_grid=4", "transfer.local_grid=2"],
+    },
+    RunSpec {
+        name: "fig8-16",
+        config: "fig8_bunny.toml",
+        experiment: Some("fig8_bunny_16"),
+        mesh: MeshSource::AsConfigured,
+        quick_mesh: MeshSource::AsConfigured,
+        set: &["transfer.local_grid=16"],
+        quick: &["scene.material.resolution=8", "scene.material.view_grid=4", "transfer.local_grid=4"],
+    },
+    RunSpec {
+        name: "fig8-32",
+        config: "fig8_bunny.toml",
+        experiment: Some("fig8_bunny_32"),
+        mesh: MeshSource::AsConfigured,
+        quick_mesh: MeshSource::AsConfigured,
+        set: &["transfer.local_grid=32"],
+        quick: &["scene.material.resolution=8", "scene.material.view_grid=4", "transfer.local_grid=8"],
+    },
+];
+
+/// The light-moments runs of Figs. 1 and 5: the all-frequency gather with each bin's light
+/// moments; the SH settings, which moments do not change, are left to the paper-rule run.
+const MOMENTS: &[&str] = &["runtime.light_moments=true", "methods=[]"];
+
+/// Figs. 1 and 5 at `--quick`: small BTFs, the ground truth traced (the figures are errors
+/// against it) and three SH orders.
+const LOW_VS_ALL_QUICK: &[&str] = &[
+    "scene.material.resolution=8",
+    "scene.material.view_grid=4",
+    "report.reference=true",
+    "report.reference_downscale=1",
 ];
 
 /// One item: a table of the paper and the runs it is made from.
@@ -140,6 +223,20 @@ pub const ITEMS: &[Item] = &[
         file: "equal_quality",
         runs: &["equal-quality"],
     },
+    Item {
+        name: "low-vs-all",
+        title: "Figs. 1 and 5: low- vs all-frequency",
+        file: "low_vs_all",
+        runs: &["fig1-bunny", "fig1-bunny-moments", "fig5-glossy", "fig5-glossy-moments"],
+    },
+    Item {
+        name: "fig8",
+        title: "Fig. 8: local incident-direction resolution",
+        file: "fig8",
+        runs: &["fig8-8", "fig8-16", "fig8-32"],
+    },
+    Item { name: "fig3b", title: "Fig. 3(b): the structure of T", file: "fig3b", runs: &["bunny"] },
+    Item { name: "fig7", title: "Fig. 7: the temple, five BTFs", file: "fig7", runs: &["temple"] },
 ];
 
 /// The items `--only` names (all of them when it names none), in [`ITEMS`] order.
@@ -196,6 +293,7 @@ pub fn experiment(
     if let Some(name) = spec.experiment {
         overrides.push(format!("name={}", toml_string(name)));
     }
+    overrides.extend(spec.set.iter().map(|s| s.to_string()));
     if quick {
         overrides.extend(QUICK.iter().chain(spec.quick).map(|s| s.to_string()));
     }
@@ -305,7 +403,7 @@ mod tests {
         for spec in RUNS {
             for quick in [false, true] {
                 let path = configs.join(spec.config);
-                let mut o: Vec<String> = vec![];
+                let mut o: Vec<String> = spec.set.iter().map(|s| s.to_string()).collect();
                 if quick {
                     o.extend(QUICK.iter().chain(spec.quick).map(|s| s.to_string()));
                 }

@@ -3,7 +3,7 @@
 //! reproduced yet, and the provenance: the biscale build, the machine and the date.
 
 use super::published::Published;
-use super::tables::{html, html_escape, html_text, PaperTable};
+use super::tables::{html_escape, html_text};
 use crate::metrics::RunRecord;
 use std::fmt::Write;
 
@@ -21,7 +21,8 @@ pub struct Page<'a> {
     /// The command's own provenance record.
     pub record: &'a RunRecord,
     pub quick: bool,
-    pub tables: &'a [PaperTable],
+    /// Each table's and figure's HTML, in the page's order.
+    pub sections: &'a [String],
     pub runs: &'a [RunLine],
     pub published: &'a Published,
 }
@@ -29,14 +30,18 @@ pub struct Page<'a> {
 const STYLE: &str = "body{font-family:sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;color:#222}\
 table{border-collapse:collapse;margin:1em 0}caption{caption-side:bottom;text-align:left;font-size:90%;\
 color:#444;padding-top:.5em;max-width:1100px}th,td{padding:2px 8px;text-align:right;border-bottom:1px solid #ddd}\
-th:first-child,td:first-child{text-align:left}.pair{border-left:1px solid #999}code{background:#f4f4f4}";
+th:first-child,td:first-child{text-align:left}.pair{border-left:1px solid #999}code{background:#f4f4f4}\
+figure{margin:1em 0}.panel{display:inline-block;vertical-align:top;margin:0 .5% .5em 0;font-size:85%;text-align:center}\
+.panel img{width:100%;image-rendering:pixelated}figcaption{font-size:90%;color:#444;max-width:1100px}";
 
 /// What is not reproduced yet, one line each.
 pub const NOT_YET: &[&str] = &[
-    "Table I's Armor (Fig. 5) and Chair (Fig. 6): no meshes or measured BTFs of them are bundled.",
-    "Fig. 8 (8x8, 16x16 and 32x32 local directions): the paper's figures are in `paper/published.toml`; no item \
-     runs it yet.",
-    "The images of Figs. 1, 3b, 5, 6 and 7, and the animations.",
+    "Table I's Armor and Chair: no meshes or measured BTFs of them are bundled (Fig. 5 is made on the bundled \
+     teapot, Fig. 6 on the bunny).",
+    "Figure mode: one shared error scale with a colour bar across every method a figure compares (today the \
+     compressors of a run share one; SH orders and BTF-study settings do not), and insets placed where the visible \
+     difference is largest.",
+    "The animated light-rotation and camera-orbit comparisons.",
     "A PDF of the tables: `tables/*.tex` are written, not typeset (they need `\\usepackage{booktabs}`).",
 ];
 
@@ -92,8 +97,8 @@ pub fn index(p: &Page<'_>) -> String {
         html_escape(&pl.visibility),
         html_escape(&pl.local_directions)
     );
-    for t in p.tables {
-        s += &html(t);
+    for section in p.sections {
+        s += section;
     }
     let _ = writeln!(s, "<h2>Runs</h2>\n<table>\n<tr><th>run</th><th>config</th><th>mesh</th><th>vertices</th><th>wall s</th><th>report</th></tr>");
     for run in p.runs {

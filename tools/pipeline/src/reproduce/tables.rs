@@ -54,14 +54,33 @@ pub struct Row {
     pub cells: Vec<Cell>,
 }
 
-/// A column: a scene or a size, its "ours" and "paper" side by side.
+/// A column: a scene or a size, its "ours" and "paper" side by side, or "ours" alone where
+/// the paper printed no figure (its Figs. 1 and 5 are images).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Column {
     /// `numbers.csv`'s column key and the heading over the pair.
     pub name: String,
     /// Under the heading: what "ours" is here (`ours, 1,879 v.`).
     pub ours_head: String,
-    pub paper_head: String,
+    /// Over the paper's figures; `None`: the column has no paper figures and is printed alone.
+    pub paper_head: Option<String>,
+}
+
+impl Column {
+    /// A column of ours beside the paper's.
+    pub fn pair(name: impl Into<String>, ours_head: impl Into<String>, paper_head: impl Into<String>) -> Self {
+        Self { name: name.into(), ours_head: ours_head.into(), paper_head: Some(paper_head.into()) }
+    }
+
+    /// A column of ours alone.
+    pub fn ours(name: impl Into<String>, ours_head: impl Into<String>) -> Self {
+        Self { name: name.into(), ours_head: ours_head.into(), paper_head: None }
+    }
+
+    /// How many printed columns it takes.
+    fn span(&self) -> usize {
+        1 + usize::from(self.paper_head.is_some())
+    }
 }
 
 /// One table of the paper with our figures beside its own.
@@ -227,29 +246,54 @@ fn latex_figure(s: &str) -> String {
 /// pair of columns per scene, "ours" left of "paper".
 pub fn latex(t: &PaperTable) -> String {
     let mut s = String::new();
-    let n = t.columns.len();
     let _ = writeln!(s, "% Written by `biscale reproduce`; needs \\usepackage{{booktabs}}.");
     let _ = writeln!(s, "\\begin{{table*}}[t]\n\\centering\n\\small");
     let _ = writeln!(s, "\\caption{{{}: {}}}", latex_text(&t.title), latex_text(&t.caption));
     let _ = writeln!(s, "\\label{{tab:reproduce-{}}}", t.file.replace('_', "-"));
-    let _ = writeln!(s, "\\begin{{tabular}}{{ll{}}}", "rr".repeat(n));
+    let spans: usize = t.columns.iter().map(Column::span).sum();
+    let _ = writeln!(s, "\\begin{{tabular}}{{ll{}}}", "r".repeat(spans));
     let _ = writeln!(s, "\\toprule");
-    let heads: Vec<String> =
-        t.columns.iter().map(|c| format!("\\multicolumn{{2}}{{c}}{{{}}}", latex_escape(&c.name))).collect();
+    let heads: Vec<String> = t
+        .columns
+        .iter()
+        .map(|c| match c.span() {
+            1 => latex_escape(&c.name),
+            n => format!("\\multicolumn{{{n}}}{{c}}{{{}}}", latex_escape(&c.name)),
+        })
+        .collect();
     let _ = writeln!(s, " & & {} \\\\", heads.join(" & "));
-    let rules: Vec<String> = (0..n).map(|i| format!("\\cmidrule(lr){{{}-{}}}", 3 + 2 * i, 4 + 2 * i)).collect();
-    let _ = writeln!(s, "{}", rules.join(" "));
-    let sub: Vec<String> =
-        t.columns.iter().map(|c| format!("{} & {}", latex_escape(&c.ours_head), latex_escape(&c.paper_head))).collect();
+    let mut rules = vec![];
+    let mut at = 3;
+    for c in &t.columns {
+        if c.span() == 2 {
+            rules.push(format!("\\cmidrule(lr){{{}-{}}}", at, at + 1));
+        }
+        at += c.span();
+    }
+    if !rules.is_empty() {
+        let _ = writeln!(s, "{}", rules.join(" "));
+    }
+    let sub: Vec<String> = t
+        .columns
+        .iter()
+        .map(|c| match &c.paper_head {
+            Some(p) => format!("{} & {}", latex_escape(&c.ours_head), latex_escape(p)),
+            None => latex_escape(&c.ours_head),
+        })
+        .collect();
     let _ = writeln!(s, " & unit & {} \\\\", sub.join(" & "));
     let _ = writeln!(s, "\\midrule");
     for r in &t.rows {
-        let cells: Vec<String> = r
-            .cells
+        let cells: Vec<String> = t
+            .columns
             .iter()
-            .map(|c| {
+            .zip(&r.cells)
+            .map(|(col, c)| {
                 let (o, p) = shown(c, r.decimals);
-                format!("{} & {}", latex_figure(&o), latex_figure(&p))
+                match col.paper_head {
+                    Some(_) => format!("{} & {}", latex_figure(&o), latex_figure(&p)),
+                    None => latex_figure(&o),
+                }
             })
             .collect();
         let _ = writeln!(s, "{} & {} & {} \\\\", latex_escape(&r.label), latex_escape(&r.unit), cells.join(" & "));
@@ -279,29 +323,37 @@ pub fn html(t: &PaperTable) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "<h2 id=\"{}\">{}</h2>", html_escape(&t.file), html_escape(&t.title));
     let _ = writeln!(s, "<table>\n<caption>{}</caption>", html_text(&t.caption));
-    let heads: String =
-        t.columns.iter().map(|c| format!("<th colspan=\"2\" class=\"pair\">{}</th>", html_escape(&c.name))).collect();
+    let heads: String = t
+        .columns
+        .iter()
+        .map(|c| format!("<th colspan=\"{}\" class=\"pair\">{}</th>", c.span(), html_escape(&c.name)))
+        .collect();
     let _ = writeln!(s, "<tr><th></th><th></th>{heads}</tr>");
     let sub: String = t
         .columns
         .iter()
-        .map(|c| {
-            format!("<th class=\"pair\">{}</th><th>{}</th>", html_escape(&c.ours_head), html_escape(&c.paper_head))
+        .map(|c| match &c.paper_head {
+            Some(p) => format!("<th class=\"pair\">{}</th><th>{}</th>", html_escape(&c.ours_head), html_escape(p)),
+            None => format!("<th class=\"pair\">{}</th>", html_escape(&c.ours_head)),
         })
         .collect();
     let _ = writeln!(s, "<tr><th>figure</th><th>unit</th>{sub}</tr>");
     for r in &t.rows {
-        let cells: String = r
-            .cells
+        let cells: String = t
+            .columns
             .iter()
-            .map(|c| {
+            .zip(&r.cells)
+            .map(|(col, c)| {
                 let (o, p) = shown(c, r.decimals);
                 let mut title = c.note.clone().unwrap_or_default();
                 if let Some(x) = c.ratio() {
                     title = format!("ours / paper = {x:.3}{}{title}", if title.is_empty() { "" } else { "; " });
                 }
                 let attr = if title.is_empty() { String::new() } else { format!(" title=\"{}\"", html_escape(&title)) };
-                format!("<td class=\"pair\"{attr}>{}</td><td>{}</td>", html_escape(&o), html_escape(&p))
+                match col.paper_head {
+                    Some(_) => format!("<td class=\"pair\"{attr}>{}</td><td>{}</td>", html_escape(&o), html_escape(&p)),
+                    None => format!("<td class=\"pair\"{attr}>{}</td>", html_escape(&o)),
+                }
             })
             .collect();
         let _ = writeln!(s, "<tr><td>{}</td><td>{}</td>{cells}</tr>", html_escape(&r.label), html_escape(&r.unit));
@@ -321,10 +373,7 @@ mod tests {
             file: "table1".into(),
             title: "Table I".into(),
             caption: "Ours from `runs/bunny`, 50% of the paper's & more".into(),
-            columns: vec![
-                Column { name: "Bunny".into(), ours_head: "ours".into(), paper_head: "paper".into() },
-                Column { name: "Armor".into(), ours_head: "ours".into(), paper_head: "paper".into() },
-            ],
+            columns: vec![Column::pair("Bunny", "ours", "paper"), Column::pair("Armor", "ours", "paper")],
             rows: vec![
                 Row {
                     key: "data_size".into(),
@@ -378,6 +427,20 @@ mod tests {
         assert!(tex.contains("cpca-k32-c8 & -- & $\\le$ 6 & --"), "{tex}");
         assert_eq!(latex_escape("a_b#c~<"), "a\\_b\\#c\\textasciitilde{}$<$");
         assert_eq!(latex_text("at most (<=) or `a_b`"), "at most ($\\le$) or \\texttt{a\\_b}");
+    }
+
+    #[test]
+    fn a_column_without_paper_figures_is_printed_alone() {
+        let mut t = table();
+        t.columns[1] = Column::ours("SH order 5", "ours");
+        let tex = latex(&t);
+        assert!(tex.contains("\\begin{tabular}{llrrr}"), "{tex}");
+        assert!(tex.contains("\\cmidrule(lr){3-4}") && !tex.contains("{5-6}"), "{tex}");
+        assert!(tex.contains(" & & \\multicolumn{2}{c}{Bunny} & SH order 5 \\\\"), "{tex}");
+        assert!(tex.contains("data size & MB & 1,292 & 1,400 & -- \\\\"), "{tex}");
+        let h = html(&t);
+        assert!(h.contains("<th colspan=\"1\" class=\"pair\">SH order 5</th>"), "{h}");
+        assert!(h.contains("<th class=\"pair\">ours</th><th>paper</th><th class=\"pair\">ours</th></tr>"), "{h}");
     }
 
     #[test]

@@ -1,0 +1,483 @@
+//! The items that are figures of the paper: Figs. 1 and 5 (low- vs all-frequency, a table of
+//! ours alone since the paper printed images, and the images), Fig. 8 (the local grid, a
+//! table beside the paper's figures), and the image sets of Figs. 3(b), 6 and 7. Every number
+//! is read off a run's record like the tables' ([`RunFacts`], the record's own fields); every
+//! panel is an image the run wrote ([`FigureSet::add`]).
+
+use super::compose::{Context, RunOutcome};
+use super::facts::Figure;
+use super::figures::FigureSet;
+use super::tables::{number, Cell, Column, PaperTable, Row};
+use crate::compare::equal_storage;
+use crate::error::Result;
+use crate::metrics::{CompressorRecord, Metrics};
+use biscale_compressors::registry::{self, Role};
+use std::path::Path;
+
+fn ours_head(ctx: &Context<'_>) -> &'static str {
+    if ctx.quick {
+        "ours (quick)"
+    } else {
+        "ours"
+    }
+}
+
+fn lossless_paper(m: &Metrics) -> Option<&CompressorRecord> {
+    m.compressors.iter().find(|c| registry::role_of(&c.kind) == Role::Paper && c.lossless)
+}
+
+fn raw(m: &Metrics) -> Option<&CompressorRecord> {
+    m.compressors.iter().find(|c| registry::role_of(&c.kind) == Role::Raw)
+}
+
+/// The SH settings of a run by order, ascending.
+fn sh_orders(m: &Metrics) -> Vec<(u32, &CompressorRecord)> {
+    let mut v: Vec<(u32, &CompressorRecord)> =
+        m.methods.iter().filter_map(|r| r.sh.as_ref().map(|s| (s.order, &r.record))).collect();
+    v.sort_by_key(|(o, _)| *o);
+    v
+}
+
+/// One method of the low- vs all-frequency comparison: a column.
+struct Method<'a> {
+    name: String,
+    /// The setting in the paper-rule run, and its counterpart in the moments run (the
+    /// all-frequency settings only).
+    paper_rule: Option<&'a CompressorRecord>,
+    moments: Option<&'a CompressorRecord>,
+}
+
+/// The columns: raw T, lossless biclustering, SH at the paper's order 5, at the order whose
+/// transfer storage is nearest the biclustered T's, and at the highest order run.
+fn methods<'a>(paper: &'a Metrics, moments: Option<&'a Metrics>) -> (Vec<Method<'a>>, Option<u32>) {
+    let mut out = vec![];
+    let counterpart = |c: &CompressorRecord| moments.and_then(|m| m.compressors.iter().find(|d| d.name == c.name));
+    for c in [raw(paper), lossless_paper(paper)].into_iter().flatten() {
+        let name = match registry::role_of(&c.kind) {
+            Role::Raw => "all-frequency, raw T".to_string(),
+            _ => format!("all-frequency, {}", c.name),
+        };
+        out.push(Method { name, paper_rule: Some(c), moments: counterpart(c) });
+    }
+    let sh = sh_orders(paper);
+    let equal = lossless_paper(paper).and_then(|b| {
+        let picked = equal_storage(sh.iter().map(|(_, r)| *r), b.bytes);
+        picked.first().and_then(|p| sh.iter().find(|(_, r)| r.name == p.name).map(|(o, _)| *o))
+    });
+    let mut wanted: Vec<(u32, &str)> = vec![(5, "the paper's")];
+    if let Some(o) = equal {
+        wanted.push((o, "equal storage"));
+    }
+    if let Some((o, _)) = sh.last() {
+        wanted.push((*o, "highest run"));
+    }
+    for (order, why) in wanted {
+        if let Some((_, r)) = sh.iter().find(|(o, _)| *o == order) {
+            out.push(Method { name: format!("SH order {order} ({why})"), paper_rule: Some(r), moments: None });
+        }
+    }
+    (out, equal)
+}
+
+fn rel_l2(c: Option<&CompressorRecord>) -> Option<f64> {
+    c.and_then(|c| c.image.vs_reference.as_ref()).map(|e| e.rel_l2).filter(|x| x.is_finite())
+}
+
+/// Figs. 1 and 5: one table per scene, ours alone (the paper printed images), and the caption
+/// saying what the numbers say at each order.
+pub fn low_vs_all(
+    ctx: &Context<'_>,
+    file: &str,
+    title: &str,
+    paper_says: &str,
+    run: &RunOutcome<'_>,
+    moments: Option<&RunOutcome<'_>>,
+) -> PaperTable {
+    let m = run.facts.metrics;
+    let mm = moments.map(|r| r.facts.metrics);
+    let (methods, equal) = methods(m, mm);
+    let columns = methods.iter().map(|x| Column::ours(x.name.clone(), ours_head(ctx))).collect();
+    let src = |mom: bool| Some(format!("runs/{}", if mom { moments.map_or(run.name, |r| r.name) } else { run.name }));
+    let cell = |v: Option<f64>, mom: bool, note: Option<&str>| Cell {
+        ours: v,
+        source: src(mom),
+        note: note.map(str::to_string),
+        ..Cell::default()
+    };
+    let row = |key: &str, label: &str, unit: &str, decimals: usize, cells: Vec<Cell>| Row {
+        key: key.into(),
+        label: label.into(),
+        unit: unit.into(),
+        decimals,
+        text: false,
+        cells,
+    };
+    let rows = vec![
+        row(
+            "transfer_mb",
+            "transfer storage",
+            "MB",
+            2,
+            methods.iter().map(|x| cell(x.paper_rule.map(|c| c.bytes as f64 / 1e6), false, None)).collect(),
+        ),
+        row(
+            "error_paper_rule",
+            "image error vs ground truth, paper's rule",
+            "rel. L2",
+            4,
+            methods.iter().map(|x| cell(rel_l2(x.paper_rule), false, None)).collect(),
+        ),
+        row(
+            "error_light_moments",
+            "image error vs ground truth, light moments",
+            "rel. L2",
+            4,
+            methods
+                .iter()
+                .map(|x| match x.moments {
+                    Some(c) => cell(rel_l2(Some(c)), true, None),
+                    None => cell(None, true, Some("light moments change the all-frequency gather only")),
+                })
+                .collect(),
+        ),
+        row(
+            "gather_ms",
+            "gather (CPU, median)",
+            "ms",
+            2,
+            methods.iter().map(|x| cell(x.paper_rule.map(|c| c.gather_ms), false, None)).collect(),
+        ),
+        row(
+            "shade_ms",
+            "shade (CPU, median)",
+            "ms",
+            1,
+            methods.iter().map(|x| cell(x.paper_rule.map(|c| c.shade_ms), false, None)).collect(),
+        ),
+    ];
+    let mut caption = format!(
+        "{paper_says} Ours: {}, {} vertices, {}; errors are relative L2 against the ray-traced ground truth (direct \
+         light, each texel's own visibility). The all-frequency rows are the same T and BTFs shaded by the paper's \
+         rule (each 8x8 bin's mean cosine) and with light moments (`runtime.light_moments = true`, run \
+         `{}`). ",
+        file_name(&m.scene.mesh),
+        number(m.scene.vertices as f64, 0),
+        m.scene.material,
+        moments.map_or("none", |r| r.name),
+    );
+    caption += &verdict(m, mm, equal);
+    caption += &format!(" Run on this machine ({}).", ctx.machine);
+    if ctx.quick {
+        caption += " Made with --quick: small transfer, BTFs and images, so the errors show the pipeline, not the paper's scale.";
+    }
+    PaperTable { item: "low-vs-all".into(), file: file.into(), title: title.into(), caption, columns, rows }
+}
+
+/// What the numbers say: the best SH order against each all-frequency rule, and where SH wins.
+fn verdict(m: &Metrics, mm: Option<&Metrics>, equal: Option<u32>) -> String {
+    let Some(b) = lossless_paper(m) else { return "No lossless biclustering ran.".into() };
+    let sh = sh_orders(m);
+    let (Some(paper_rule), false) = (rel_l2(Some(b)), sh.is_empty()) else {
+        return "No ground truth or SH setting to compare.".into();
+    };
+    let moments = mm.and_then(|mm| rel_l2(mm.compressors.iter().find(|c| c.name == b.name)));
+    let beats = |x: f64| -> Vec<String> {
+        sh.iter().filter(|(_, r)| rel_l2(Some(r)).is_some_and(|e| e < x)).map(|(o, _)| o.to_string()).collect()
+    };
+    let order_err = |o: u32| sh.iter().find(|(k, _)| *k == o).and_then(|(_, r)| rel_l2(Some(r)));
+    let mut s = format!("Lossless biclustering: {paper_rule:.4} by the paper's rule");
+    if let Some(x) = moments {
+        s += &format!(", {x:.4} with light moments");
+    }
+    s += ". SH: ";
+    s += &sh
+        .iter()
+        .filter_map(|(o, r)| rel_l2(Some(r)).map(|e| format!("order {o} {e:.4}")))
+        .collect::<Vec<_>>()
+        .join(", ");
+    s += ". ";
+    if let Some(o) = equal {
+        s += &format!("At equal transfer storage the SH order is {o}. ");
+    }
+    let w = beats(paper_rule);
+    s += &match w.is_empty() {
+        true => "No SH order run beats the paper's rule.".to_string(),
+        false => format!("SH beats the paper's rule at order {}.", w.join(", ")),
+    };
+    if let Some(x) = moments {
+        let w = beats(x);
+        s += &match w.is_empty() {
+            true => " With light moments the all-frequency method beats every SH order run.".to_string(),
+            false => format!(" With light moments SH still wins at order {}.", w.join(", ")),
+        };
+    }
+    if let Some(e5) = order_err(5) {
+        s += &format!(
+            " Against SH order 5, the paper's setting, the all-frequency error is {:.2}x by the paper's rule",
+            paper_rule / e5
+        );
+        s += &match moments {
+            Some(x) => format!(" and {:.2}x with light moments.", x / e5),
+            None => ".".into(),
+        };
+    }
+    s
+}
+
+fn file_name(path: &str) -> String {
+    Path::new(path).file_name().map_or(path.to_string(), |n| n.to_string_lossy().into_owned())
+}
+
+/// The figure of Figs. 1 and 5: ground truth, each method's image (thumbnails with the inset
+/// marked) and its inset, the light-moments biclustering beside the paper rule's.
+pub fn low_vs_all_figure(
+    out: &Path,
+    id: &str,
+    title: &str,
+    run: &RunOutcome<'_>,
+    moments: Option<&RunOutcome<'_>>,
+) -> Result<FigureSet> {
+    let m = run.facts.metrics;
+    let (methods, _) = methods(m, moments.map(|r| r.facts.metrics));
+    let mut panels: Vec<(&str, String, String)> = vec![]; // run, figure row name, label
+    panels.push((run.name, "reference".into(), "ground truth".into()));
+    for x in &methods {
+        let Some(c) = x.paper_rule else { continue };
+        if registry::role_of(&c.kind) == Role::Raw {
+            continue;
+        }
+        panels.push((run.name, c.name.clone(), format!("{} (paper's rule)", x.name)));
+        if let (Some(r), Some(_)) = (moments, x.moments) {
+            panels.push((r.name, c.name.clone(), format!("{} (light moments)", x.name)));
+        }
+    }
+    let caption = format!(
+        "{title}: the ground truth and each method's image (the inset's region marked), then the insets magnified, from \
+         `runs/{}`{}. Each image's tone map is the run's own.",
+        run.name,
+        moments.map_or(String::new(), |r| format!(" and `runs/{}`", r.name))
+    );
+    let mut f = FigureSet::new("low-vs-all", id, title, caption, panels.len());
+    let runs = [Some(run), moments];
+    let record = |name: &str| runs.iter().flatten().find(|r| r.name == name).map(|r| r.facts.metrics);
+    for (kind, pick) in [("image", 0), ("inset", 1)] {
+        for (i, (run_name, row, label)) in panels.iter().enumerate() {
+            let Some(figs) = record(run_name).and_then(|m| m.figures.as_ref()) else { continue };
+            let Some(r) = figs.rows.iter().find(|r| &r.name == row) else { continue };
+            let from = if pick == 0 { &r.thumbnail } else { &r.inset };
+            f.add(out, &format!("runs/{run_name}/{from}"), &format!("{kind}-{i}"), label.clone())?;
+        }
+    }
+    Ok(f)
+}
+
+/// Fig. 8: lossless biclustering at each local grid beside the paper's.
+pub fn fig8(ctx: &Context<'_>, runs: &[RunOutcome<'_>]) -> PaperTable {
+    let names = ["fig8-8", "fig8-16", "fig8-32"];
+    let published = &ctx.published.fig8;
+    let found: Vec<Option<&RunOutcome<'_>>> = names.iter().map(|n| runs.iter().find(|r| r.name == *n)).collect();
+    let grid = |r: &RunOutcome<'_>| (r.facts.metrics.transfer.local_dirs as f64).sqrt().round() as u32;
+    let columns = published
+        .iter()
+        .zip(&found)
+        .map(|(p, r)| {
+            let ours =
+                r.map_or(ours_head(ctx).to_string(), |r| format!("{} ({}x{})", ours_head(ctx), grid(r), grid(r)));
+            Column::pair(format!("{0}x{0}", p.local_grid), ours, "paper")
+        })
+        .collect();
+    let base_mb = found[0].and_then(|r| r.facts.value(Figure::ReducedMb).ok());
+    let paper_base = published.first().map(|p| p.compressed_mb);
+    let figure = |f: Figure, paper: &dyn Fn(&super::published::GridColumn) -> f64| -> Row {
+        let (key, label, unit, decimals) = f.describe();
+        let cells = published
+            .iter()
+            .zip(&found)
+            .map(|(p, r)| {
+                let mut c = Cell { paper: Some(paper(p)), ..Cell::default() };
+                match r {
+                    Some(r) => {
+                        c.source = Some(format!("runs/{}", r.name));
+                        match r.facts.value(f) {
+                            Ok(v) => c.ours = Some(v),
+                            Err(e) => c.note = Some(e),
+                        }
+                        if let Some(n) = r.facts.note(f) {
+                            c.note = Some(n);
+                        }
+                    }
+                    None => c.note = Some("its run did not take place".into()),
+                }
+                c
+            })
+            .collect();
+        Row { key: key.into(), label: label.into(), unit: unit.into(), decimals, text: false, cells }
+    };
+    let ratio = Row {
+        key: "storage_over_8x8".into(),
+        label: "compressed T over the first grid's".into(),
+        unit: "x".into(),
+        decimals: 2,
+        text: false,
+        cells: published
+            .iter()
+            .zip(&found)
+            .map(|(p, r)| Cell {
+                ours: r.and_then(|r| r.facts.value(Figure::ReducedMb).ok()).zip(base_mb).map(|(a, b)| a / b),
+                paper: paper_base.map(|b| p.compressed_mb / b),
+                source: r.map(|r| format!("runs/{}", r.name)),
+                ..Cell::default()
+            })
+            .collect(),
+    };
+    let gather = Row {
+        key: "transfer_ms".into(),
+        label: "macro-scale transfer per frame (gather)".into(),
+        unit: "ms".into(),
+        decimals: 2,
+        text: false,
+        cells: published
+            .iter()
+            .zip(&found)
+            .map(|(p, r)| Cell {
+                ours: r.and_then(|r| lossless_paper(r.facts.metrics)).map(|b| b.gather_ms),
+                paper: Some(p.transfer_ms),
+                source: r.map(|r| format!("runs/{}", r.name)),
+                ..Cell::default()
+            })
+            .collect(),
+    };
+    let rows = vec![
+        figure(Figure::NnzM, &|_| f64::NAN),
+        figure(Figure::ReducedMb, &|p| p.compressed_mb),
+        ratio,
+        figure(Figure::PrecomputeMin, &|p| p.precompute_min),
+        gather,
+        figure(Figure::FpsFixedLight, &|p| p.fps_fixed_light),
+        figure(Figure::FpsMovingLight, &|p| p.fps_moving_light),
+    ];
+    // The paper prints no nnz(T) for Fig. 8.
+    let rows: Vec<Row> = rows
+        .into_iter()
+        .map(|mut r| {
+            for c in &mut r.cells {
+                c.paper = c.paper.filter(|x| x.is_finite());
+            }
+            r
+        })
+        .collect();
+    let limit = ctx.published.fig8_note.storage_32_over_8_less_than;
+    let last = rows[2].cells.last().and_then(|c| c.ours);
+    let mut caption = format!(
+        "Lossless biclustering of the glossy bumpy bunny (Phong exponent 128, a 16x16-texel BTF patch, as the paper's \
+         figure) at three local grids; the BTF's light directions follow the grid. The paper's text: the storage at \
+         32x32 is less than {limit} times that at 8x8. "
+    );
+    caption += &match last {
+        Some(x) => format!(
+            "Ours: {x:.2} times{}. ",
+            if x < limit { ", within the paper's bound" } else { ", above the paper's bound" }
+        ),
+        None => "Ours: not measured. ".into(),
+    };
+    caption += &format!(
+        "Precomputation, gather and fps as in Table I (CPU gather and shading on this machine, {}).",
+        ctx.machine
+    );
+    if ctx.quick {
+        caption += " Made with --quick: the grids are 2x2, 4x4 and 8x8 at small sizes, so the ratios show the pipeline, not the paper's scale.";
+    }
+    PaperTable { item: "fig8".into(), file: "fig8".into(), title: "Fig. 8".into(), caption, columns, rows }
+}
+
+/// Fig. 8's images: the lossless biclustering's render at each grid.
+pub fn fig8_figure(out: &Path, runs: &[RunOutcome<'_>]) -> Result<FigureSet> {
+    let mut f = FigureSet::new(
+        "fig8",
+        "fig8",
+        "Fig. 8: local grids",
+        "The glossy bumpy bunny rendered from lossless biclustering at each local grid (the runs' own images).",
+        3,
+    );
+    for r in runs.iter().filter(|r| r.name.starts_with("fig8-")) {
+        let m = r.facts.metrics;
+        let Some(b) = lossless_paper(m) else { continue };
+        let g = (m.transfer.local_dirs as f64).sqrt().round() as u32;
+        f.add(out, &format!("runs/{}/{}", r.name, b.image.png), r.name, format!("{g}x{g} local directions"))?;
+    }
+    Ok(f)
+}
+
+/// Fig. 6's images: the equal-storage setting of each kind beside the ground truth, thumbnails,
+/// insets and errors against the ground truth on one shared scale.
+pub fn fig6_figure(out: &Path, run: &RunOutcome<'_>) -> Result<FigureSet> {
+    let m = run.facts.metrics;
+    let picked: Vec<String> = crate::report::storage_budget(m)
+        .map(|(b, _)| equal_storage(&m.compressors, b).iter().map(|r| r.name.clone()).collect())
+        .unwrap_or_default();
+    let scale = m.figures.as_ref().and_then(|f| f.reference_error_scale);
+    let caption = format!(
+        "Each kind's setting nearest lossless biclustering's storage, from `runs/{}`: images with the inset's region \
+         marked, the insets magnified, and |error| against the ground truth on one shared scale{}.",
+        run.name,
+        scale.map_or(String::new(), |s| format!(" (full scale {s:.3e})"))
+    );
+    let mut f = FigureSet::new("equal-quality", "fig6", "Fig. 6: at equal storage", caption, picked.len() + 1);
+    let Some(figs) = m.figures.as_ref() else { return Ok(f) };
+    let mut names = picked.clone();
+    names.push("reference".into());
+    for (kind, i) in [("image", 0), ("inset", 1), ("error", 2)] {
+        for name in &names {
+            let Some(r) = figs.rows.iter().find(|r| &r.name == name) else { continue };
+            let from = match i {
+                0 => Some(&r.thumbnail),
+                1 => Some(&r.inset),
+                _ => r.error_vs_reference_png.as_ref(),
+            };
+            let Some(from) = from else { continue };
+            let label = match (name.as_str(), i) {
+                ("reference", _) => "ground truth".to_string(),
+                (n, 2) => format!("{n}: |error|"),
+                (n, _) => n.to_string(),
+            };
+            f.add(out, &format!("runs/{}/{from}", run.name), &format!("{kind}-{name}"), label)?;
+        }
+    }
+    Ok(f)
+}
+
+/// Fig. 7: the temple's render from lossless biclustering.
+pub fn fig7_figure(out: &Path, run: &RunOutcome<'_>) -> Result<FigureSet> {
+    let m = run.facts.metrics;
+    let caption = format!(
+        "The generated temple ({} vertices, {} synthesized BTFs) rendered from lossless biclustering, from `runs/{}`.",
+        number(m.scene.vertices as f64, 0),
+        m.scene.btfs.iter().filter(|b| b.primary).count(),
+        run.name
+    );
+    let mut f = FigureSet::new("fig7", "fig7", "Fig. 7: the temple", caption, 2);
+    if let Some(b) = lossless_paper(m) {
+        f.add(out, &format!("runs/{}/{}", run.name, b.image.png), "temple", b.name.clone())?;
+    }
+    Ok(f)
+}
+
+/// Fig. 3(b): `biscale viz`'s pictures of the bunny's T, written into `viz/` of the output
+/// folder.
+pub fn fig3b_figure(out: &Path, files: &[std::path::PathBuf]) -> Result<FigureSet> {
+    let mut f = FigureSet::new(
+        "fig3b",
+        "fig3b",
+        "Fig. 3(b): the structure of T",
+        "The bunny's T (Table I's run) by `biscale viz`: the non-zeros of eight neighbouring vertices as cube-map \
+         panels, the same coloured by bicluster, the biclusters' sizes, and T's values.",
+        2,
+    );
+    for (name, what) in crate::commands::VIZ_FILES {
+        if !files.iter().any(|p| p.ends_with(name)) || name.starts_with("heat_") {
+            continue;
+        }
+        f.add(out, &format!("viz/{name}"), name.trim_end_matches(".png"), what)?;
+    }
+    Ok(f)
+}

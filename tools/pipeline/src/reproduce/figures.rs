@@ -1,0 +1,136 @@
+//! The paper's figures as `biscale reproduce` makes them: panels (images the runs wrote, or
+//! `biscale viz`'s pictures) copied into `figures/<id>/`, each set under one caption, written
+//! as a LaTeX `figure*` (`figures/<id>.tex`, needs `graphicx`) and embedded in `index.html` as
+//! data URIs, so the page stays one file.
+
+use super::tables::{html_escape, html_text, latex_escape};
+use crate::error::{io_err, PipelineError, Result};
+use std::fmt::Write;
+use std::path::Path;
+
+/// One picture of a figure.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Panel {
+    /// Where it is in the output folder: `figures/<id>/<name>.png`.
+    pub file: String,
+    pub label: String,
+    /// Where it was copied from, relative to the output folder (`runs/<run>/images/...`).
+    pub source: String,
+}
+
+/// A figure of the paper: its panels under one caption.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FigureSet {
+    /// The item (`--only`'s name).
+    pub item: String,
+    /// `figures/<id>/`, `figures/<id>.tex`.
+    pub id: String,
+    pub title: String,
+    pub caption: String,
+    /// Panels per row in the page and the LaTeX.
+    pub per_row: usize,
+    pub panels: Vec<Panel>,
+}
+
+impl FigureSet {
+    pub fn new(item: &str, id: &str, title: impl Into<String>, caption: impl Into<String>, per_row: usize) -> Self {
+        Self {
+            item: item.into(),
+            id: id.into(),
+            title: title.into(),
+            caption: caption.into(),
+            per_row: per_row.max(1),
+            panels: vec![],
+        }
+    }
+
+    /// Copy `from` (relative to the output folder `out`) into `figures/<id>/<name>.png` and add
+    /// it as a panel.
+    pub fn add(&mut self, out: &Path, from: &str, name: &str, label: impl Into<String>) -> Result<()> {
+        let file = format!("figures/{}/{name}.png", self.id);
+        let (src, dst) = (out.join(from), out.join(&file));
+        if !src.is_file() {
+            return Err(PipelineError::Mismatch {
+                path: src,
+                what: format!("figure {} needs this image, which its run did not write", self.id),
+            });
+        }
+        if src != dst {
+            let dir = dst.parent().expect("a file under figures/");
+            std::fs::create_dir_all(dir).map_err(io_err(dir))?;
+            std::fs::copy(&src, &dst).map_err(io_err(&dst))?;
+        }
+        self.panels.push(Panel { file, label: label.into(), source: from.into() });
+        Ok(())
+    }
+}
+
+/// `figures/<id>.tex`: a `figure*` with one `\includegraphics` per panel, labelled, and the
+/// caption.
+pub fn latex(f: &FigureSet) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "% Written by `biscale reproduce`; needs \\usepackage{{graphicx}}. Paths relative to the output folder."
+    );
+    let _ = writeln!(s, "\\begin{{figure*}}[t]\n\\centering");
+    let width = 0.98 / f.per_row as f64;
+    for (i, p) in f.panels.iter().enumerate() {
+        let _ = writeln!(
+            s,
+            "\\begin{{minipage}}[t]{{{width:.3}\\textwidth}}\\centering\\includegraphics[width=\\linewidth]{{{}}}\\\\\\footnotesize {}\\end{{minipage}}{}",
+            p.file,
+            latex_escape(&p.label),
+            if (i + 1) % f.per_row == 0 { "\\\\[2pt]" } else { "\\hfill" }
+        );
+    }
+    let _ = writeln!(s, "\\caption{{{}: {}}}", latex_escape(&f.title), latex_escape(&f.caption.replace('`', "")));
+    let _ = writeln!(s, "\\label{{fig:reproduce-{}}}\n\\end{{figure*}}", f.id);
+    s
+}
+
+/// The figure as HTML, every panel embedded as a data URI read from the output folder.
+pub fn html(f: &FigureSet, out: &Path) -> Result<String> {
+    let mut s = String::new();
+    let _ = writeln!(s, "<h2 id=\"{}\">{}</h2>\n<figure>", html_escape(&f.id), html_escape(&f.title));
+    let width = 100.0 / f.per_row as f64 - 1.0;
+    for p in &f.panels {
+        let path = out.join(&p.file);
+        let bytes = std::fs::read(&path).map_err(io_err(&path))?;
+        let _ = writeln!(
+            s,
+            "<div class=\"panel\" style=\"width:{width:.1}%\"><img src=\"data:image/png;base64,{}\" alt=\"{}\" title=\"{}\"><br>{}</div>",
+            crate::html::base64(&bytes),
+            html_escape(&p.label),
+            html_escape(&p.file),
+            html_escape(&p.label)
+        );
+    }
+    let _ = writeln!(s, "<figcaption>{}</figcaption>\n</figure>", html_text(&f.caption));
+    Ok(s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn panels_are_copied_and_written_both_ways() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path();
+        std::fs::create_dir_all(out.join("runs/a/images")).unwrap();
+        std::fs::write(out.join("runs/a/images/x.png"), b"\x89PNG fake").unwrap();
+        let mut f = FigureSet::new("fig7", "fig7", "Fig. 7", "The temple & `five` BTFs", 2);
+        f.add(out, "runs/a/images/x.png", "bicluster", "lossless_bicluster").unwrap();
+        assert_eq!(std::fs::read(out.join("figures/fig7/bicluster.png")).unwrap(), b"\x89PNG fake");
+        let e = f.add(out, "runs/a/images/missing.png", "m", "m").unwrap_err().to_string();
+        assert!(e.contains("missing.png") && e.contains("fig7"), "{e}");
+        assert_eq!(f.panels.len(), 1);
+        let tex = latex(&f);
+        assert!(tex.contains("\\includegraphics[width=\\linewidth]{figures/fig7/bicluster.png}"), "{tex}");
+        assert!(tex.contains("lossless\\_bicluster") && tex.contains("The temple \\& five BTFs"), "{tex}");
+        let h = html(&f, out).unwrap();
+        assert!(h.contains("data:image/png;base64,iVBORyBmYWtl"), "{h}");
+        assert!(h.contains("<figcaption>The temple &amp; <code>five</code> BTFs</figcaption>"), "{h}");
+    }
+}
