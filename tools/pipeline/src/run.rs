@@ -307,6 +307,11 @@ pub(crate) fn metrics_of_run(
             gather_timing: Some(base.gather_timing),
             shade_timing: Some(base.shade_timing),
             light_moments: exp.file.runtime.light_moments,
+            moments_resolve: exp
+                .file
+                .runtime
+                .light_moments
+                .then(|| if exp.file.runtime.resolve_per_pixel() { "pixel" } else { "vertex" }.to_string()),
             // Same camera, same size: compare cannot fail here.
             paper_vs_moments: base.paper.as_ref().and_then(|(_, paper)| {
                 let exposure = exp.file.report.exposure;

@@ -429,6 +429,11 @@ pub struct UncompressedMetrics {
     pub shade_timing: Option<Timing>,
     /// `[runtime] light_moments`: every `L*` of the run weights texels by their own cosine.
     pub light_moments: bool,
+    /// With light moments, `[runtime] moments_resolve`: `vertex` (each vertex's three moment
+    /// gathers resolved into its `L*`, interpolated) or `pixel` (the moment gathers
+    /// interpolated and resolved per pixel). Absent without moments, and in older records.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub moments_resolve: Option<String>,
     /// With light moments: the paper's (bin-mean-cosine) uncompressed image against the
     /// moments' one, over the covered pixels: how much the moments change the picture.
     #[serde(skip_serializing_if = "Option::is_none")]

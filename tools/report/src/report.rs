@@ -1029,6 +1029,18 @@ pub(crate) fn light_moments_summary(m: &Metrics) -> String {
         "Cosine rule: light moments, every texel weighted by its own cosine (three gathers of the light's \
          direction moments through each form; `[runtime] light_moments = true`).",
     );
+    match m.uncompressed.moments_resolve.as_deref() {
+        Some("pixel") => s.push_str(
+            " Resolved per pixel (`[runtime] moments_resolve = \"pixel\"`): the three moment gathers are \
+             interpolated across each triangle and resolved at every pixel, so no image \
+             of this run shades an interpolated L*.",
+        ),
+        Some(_) => s.push_str(
+            " Resolved per vertex (`[runtime] moments_resolve = \"vertex\"`): each vertex's L* is interpolated \
+             across its triangles.",
+        ),
+        None => {}
+    }
     if let Some(e) = &m.uncompressed.paper_vs_moments {
         let _ = write!(s, " The paper's bin-mean-cosine image differs from it by rel. L2 {:.4}.", e.rel_l2);
     }

@@ -534,6 +534,11 @@ fn moments_resolved_per_pixel_are_closer_to_the_reference() {
     let vs_ref = |m: &serde_json::Value| m["reference"]["uncompressed_vs_reference"]["rel_l2"].as_f64().unwrap();
     let (v, p) = (vs_ref(&vertex), vs_ref(&pixel));
     assert!(p < v, "against the reference: per pixel {p}, per vertex {v}");
+    // The record and the report say which resolve made the images.
+    assert_eq!(vertex["uncompressed"]["moments_resolve"], "vertex");
+    assert_eq!(pixel["uncompressed"]["moments_resolve"], "pixel");
+    let report = std::fs::read_to_string(dir.path().join("p/report.md")).unwrap();
+    assert!(report.contains("Resolved per pixel"), "{report}");
     for (a, b) in vertex["compressors"].as_array().unwrap().iter().zip(pixel["compressors"].as_array().unwrap()) {
         assert_eq!(a["rel_error_lstar"], b["rel_error_lstar"], "{}: the same L*", a["name"]);
     }
