@@ -108,6 +108,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     // Compressors are constructed first so a bad setting fails before any heavy work.
     let compressors: Vec<(CompressorSetting, Box<dyn Compressor>)> =
         plan.compressors.iter().map(|s| build_compressor(s).map(|c| (s.clone(), c))).collect::<Result<_>>()?;
+    let animated_labels = animated_settings(exp, &plan)?;
 
     ctx.clock.mark("setup");
     let geometry = load_geometry(exp)?;
@@ -176,7 +177,8 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     }
     let eval = Evaluation::new(exp, &t.matrix, &lighting, &geometry, &targets, &view, &out_dir, true);
     let forms = Forms { exp, t: &t, cache: ctx.cache.as_ref(), precomputed: pre_forms };
-    let (mut records, renders) = forms.evaluate(&compressors, &eval, gpu.as_mut(), &mut ctx.clock)?;
+    let (mut records, renders, kept) =
+        forms.evaluate(&compressors, &eval, gpu.as_mut(), &mut ctx.clock, &animated_labels)?;
     crate::estimate::check_peak(&memory, &available, "the compressors")?;
     share_error_scale(&mut records, &renders, &base.render, exp.file.report.error_scale, &out_dir)?;
     let region = inset_region(exp, &records, &renders, base);
@@ -195,21 +197,48 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
         exposure: exp.file.report.exposure,
         out_dir: &out_dir,
     };
-    let methods = exp
-        .method_settings()
-        .iter()
-        .map(|m| crate::stages::evaluate_method(m, &inputs, gpu.as_ref()))
-        .collect::<Result<Vec<_>>>()?;
+    let mut animated: Vec<crate::stages::animation::Animated<'_>> = kept
+        .into_iter()
+        .map(|(i, form)| crate::stages::animation::Animated {
+            name: compressors[i].0.label.clone(),
+            source: crate::stages::animation::Source::Form { compressor: compressors[i].1.as_ref(), form },
+        })
+        .collect();
+    let mut methods = vec![];
+    for m in exp.method_settings() {
+        let keep = animated_labels.contains(&m.label);
+        let (record, a) = crate::stages::evaluate_method(m, &inputs, gpu.as_ref(), keep)?;
+        methods.push(record);
+        animated.extend(a);
+    }
     if !methods.is_empty() {
         ctx.clock.mark("methods");
     }
     let load_after = load_average_1min();
     crate::estimate::check_peak(&memory, &available, "the methods")?;
+    let animations = match exp.file.runtime.animation.any() {
+        true => {
+            let inputs = crate::stages::animation::Inputs {
+                exp,
+                lighting: &lighting,
+                t: &t.matrix,
+                frames: geometry.transfer.frames(),
+                view: &view,
+                out_dir: &out_dir,
+            };
+            let a = crate::stages::animation::animate(&inputs, &animated)?;
+            ctx.clock.mark("animation");
+            a
+        }
+        false => vec![],
+    };
+    drop(animated);
 
     let figures = comparison_figures(region, &records, &methods, base, &view, reference, &out_dir)?;
     let mut metrics =
         metrics_of_run(exp, &geometry, &lighting, &materials, t.metrics, base, reference, records, methods);
     metrics.figures = Some(figures);
+    metrics.animations = animations;
     metrics.memory = Some(memory.metrics(&available));
     metrics.sharded = sharded;
     metrics.run = Some(ctx.clock.finish());
@@ -235,17 +264,48 @@ struct Forms<'a> {
     precomputed: std::collections::BTreeMap<String, CompressedForm>,
 }
 
+/// The labels `[runtime.animation]` animates (every compressor setting when it names none;
+/// none without an animation), each checked against the plan's settings before any work.
+fn animated_settings(exp: &Experiment, plan: &Plan) -> Result<Vec<String>> {
+    let a = &exp.file.runtime.animation;
+    if !a.any() {
+        return Ok(vec![]);
+    }
+    let mut known: Vec<String> = plan.compressors.iter().map(|s| s.label.clone()).collect();
+    known.extend(exp.method_settings().iter().map(|m| m.label.clone()));
+    if a.settings.is_empty() {
+        return Ok(plan.compressors.iter().map(|s| s.label.clone()).collect());
+    }
+    for name in &a.settings {
+        if !known.contains(name) {
+            return Err(PipelineError::Mismatch {
+                path: exp.config_path.clone(),
+                what: format!(
+                    "runtime.animation.settings names `{name}`, which is no compressor or method setting of this \
+                     run; the settings are {}",
+                    known.join(", ")
+                ),
+            });
+        }
+    }
+    Ok(a.settings.clone())
+}
+
 impl Forms<'_> {
+    /// Every setting's record and image, and the forms of the settings in `keep` (by their
+    /// index in `compressors`), which the animation renders again.
+    #[allow(clippy::type_complexity)]
     fn evaluate(
         mut self,
         compressors: &[(CompressorSetting, Box<dyn Compressor>)],
         eval: &Evaluation<'_>,
         mut gpu: Option<&mut GpuBackend>,
         clock: &mut StageClock,
-    ) -> Result<(Vec<CompressorRecord>, Vec<Render>)> {
+        keep: &[String],
+    ) -> Result<(Vec<CompressorRecord>, Vec<Render>, Vec<(usize, CompressedForm)>)> {
         let (exp, t, cache) = (self.exp, self.t, self.cache);
-        let (mut records, mut renders) = (vec![], vec![]);
-        for (setting, compressor) in compressors {
+        let (mut records, mut renders, mut kept) = (vec![], vec![], vec![]);
+        for (i, (setting, compressor)) in compressors.iter().enumerate() {
             let (form, cached) = match self.precomputed.remove(&setting.label) {
                 Some(form) => {
                     if let Some((c, key)) = cache.zip(form_key(&t.key, compressor.as_ref(), exp.file.seed)) {
@@ -258,10 +318,13 @@ impl Forms<'_> {
             let (record, render) = eval.record(setting, compressor.as_ref(), &form, cached, gpu.as_deref_mut())?;
             records.push(record);
             renders.push(render);
+            if keep.contains(&setting.label) {
+                kept.push((i, form));
+            }
             clock.mark(format!("compressor {}", setting.label));
             fault_point("compression");
         }
-        Ok((records, renders))
+        Ok((records, renders, kept))
     }
 }
 
@@ -338,6 +401,7 @@ pub(crate) fn metrics_of_run(
         run: None,
         figures: None,
         load: None,
+        animations: vec![],
     }
 }
 

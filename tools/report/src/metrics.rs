@@ -37,6 +37,43 @@ pub struct Metrics {
     /// The machine's load around the timed steps (absent in older records and off Linux).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub load: Option<LoadRecord>,
+    /// The animated comparisons (`[runtime.animation]`), one per path; absent without.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub animations: Vec<AnimationRecord>,
+}
+
+/// One animated comparison (`[runtime.animation]`): a path, the light turned about +Y or the
+/// camera orbited about its target through one full turn, rendered per frame for the
+/// uncompressed `T` and every animated setting.
+#[derive(Debug, Serialize, Deserialize)]
+pub struct AnimationRecord {
+    /// `light` or `camera`.
+    pub path: String,
+    pub frames: u32,
+    /// Degrees turned from one frame to the next.
+    pub step_degrees: f64,
+    /// The animated PNGs' playback rate.
+    pub fps: u32,
+    /// The per-frame plot (`*.png`, with `*.svg` beside it), relative to the output folder.
+    pub plot: String,
+    pub series: Vec<AnimationSeries>,
+}
+
+/// One rendered sequence of an [`AnimationRecord`].
+#[derive(Debug, Serialize, Deserialize)]
+pub struct AnimationSeries {
+    /// `uncompressed` or the setting's label.
+    pub name: String,
+    /// The animated PNG (APNG: every frame, tone mapped at the report's exposure), relative to
+    /// the output folder.
+    pub apng: String,
+    /// Each frame's image error against the uncompressed render of the same frame: relative
+    /// L2 over the covered pixels at the report's exposure (0 for `uncompressed` itself).
+    pub rel_l2: Vec<f64>,
+    /// Each frame's gather wall time (the light path's; 0 on the camera path, where the light
+    /// and so `L*` do not change) and shade wall time, one repeat each.
+    pub gather_ms: Vec<f64>,
+    pub shade_ms: Vec<f64>,
 }
 
 /// The machine's load while a run timed its steps (`metrics.json`'s `load`): the 1-minute

@@ -558,6 +558,137 @@ pub fn with_colour_bar(picture: &image::RgbImage, scale: f32, label: &str) -> Re
     Ok(out)
 }
 
+/// One setting's per-frame figures on a [`frame_plot`].
+pub struct FrameCurve {
+    pub name: String,
+    /// Each frame's image error (relative L2; a curve of zeros, the target itself, is left off
+    /// the error panel).
+    pub error: Vec<f64>,
+    /// Each frame's wall time in ms.
+    pub ms: Vec<f64>,
+}
+
+/// An animation's per-frame plot: image error (log scale) above, frame time below, both
+/// against the frame index, every curve on one pair of axes; written to `path` (PNG,
+/// [`PLOT_SIZE`]) and beside it as SVG, drawn by one routine.
+pub fn frame_plot(path: &Path, title: &str, curves: &[FrameCurve]) -> Result<(), String> {
+    register_font();
+    let frames = curves.iter().map(|c| c.error.len().max(c.ms.len())).max().unwrap_or(0);
+    if frames == 0 {
+        return Err("nothing to plot".into());
+    }
+    let tmp = path.with_extension("tmp.png");
+    {
+        let root = BitMapBackend::new(&tmp, PLOT_SIZE).into_drawing_area();
+        draw_frames(&root, title, curves, frames)?;
+        root.present().map_err(|e| e.to_string())?;
+    }
+    std::fs::rename(&tmp, path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, PLOT_SIZE).into_drawing_area();
+        draw_frames(&root, title, curves, frames)?;
+        root.present().map_err(|e| e.to_string())?;
+    }
+    let svg_path = path.with_extension("svg");
+    let tmp = path.with_extension("tmp.svg");
+    std::fs::write(&tmp, svg).map_err(|e| format!("{}: {e}", tmp.display()))?;
+    std::fs::rename(&tmp, &svg_path).map_err(|e| format!("{}: {e}", svg_path.display()))
+}
+
+fn draw_frames<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    title: &str,
+    curves: &[FrameCurve],
+    frames: usize,
+) -> Result<(), String> {
+    let e = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
+    root.fill(&WHITE).map_err(e)?;
+    let root = root.titled(title, ("sans-serif", 20)).map_err(e)?;
+    let (top, bottom) = root.split_vertically(PLOT_SIZE.1 as i32 / 2 - 10);
+    let x = 0f64..(frames.max(2) - 1) as f64;
+    let span = |v: Vec<f64>| v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+    let errors: Vec<f64> =
+        curves.iter().flat_map(|c| c.error.iter().copied()).filter(|x| x.is_finite() && *x > 0.0).collect();
+    let (lo, hi) = if errors.is_empty() { (1e-3, 1.0) } else { span(errors) };
+    let (lo, hi) = ((lo / 2.0).max(ERROR_FLOOR), hi * 2.0);
+    let ms: Vec<f64> = curves.iter().flat_map(|c| c.ms.iter().copied()).filter(|x| x.is_finite()).collect();
+    let (_, ms_hi) = if ms.is_empty() { (0.0, 1.0) } else { span(ms) };
+    let colour = |i: usize| Palette99::pick(i).to_rgba();
+    let mut chart = ChartBuilder::on(&top)
+        .margin(10)
+        .x_label_area_size(30)
+        .y_label_area_size(70)
+        .build_cartesian_2d(x.clone(), (lo..hi).log_scale())
+        .map_err(e)?;
+    chart
+        .configure_mesh()
+        .x_desc("frame")
+        .y_desc("rel. L2 vs uncompressed")
+        .x_label_formatter(&|v| format!("{v:.0}"))
+        .y_label_formatter(&|v| tick_label(*v))
+        .label_style(("sans-serif", 13))
+        .draw()
+        .map_err(e)?;
+    for (i, c) in curves.iter().enumerate() {
+        if c.error.iter().all(|&x| x == 0.0) {
+            continue;
+        }
+        let points: Vec<(f64, f64)> = c
+            .error
+            .iter()
+            .enumerate()
+            .filter(|(_, y)| y.is_finite())
+            .map(|(f, &y)| (f as f64, y.max(ERROR_FLOOR)))
+            .collect();
+        let style = ShapeStyle::from(colour(i)).stroke_width(2);
+        chart
+            .draw_series(LineSeries::new(points, style))
+            .map_err(e)?
+            .label(c.name.clone())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 13))
+        .draw()
+        .map_err(e)?;
+    let mut chart = ChartBuilder::on(&bottom)
+        .margin(10)
+        .x_label_area_size(30)
+        .y_label_area_size(70)
+        .build_cartesian_2d(x, 0f64..ms_hi * 1.1)
+        .map_err(e)?;
+    chart
+        .configure_mesh()
+        .x_desc("frame")
+        .y_desc("frame time, ms (gather + shade)")
+        .x_label_formatter(&|v| format!("{v:.0}"))
+        .label_style(("sans-serif", 13))
+        .draw()
+        .map_err(e)?;
+    for (i, c) in curves.iter().enumerate() {
+        let points: Vec<(f64, f64)> =
+            c.ms.iter().enumerate().filter(|(_, y)| y.is_finite()).map(|(f, &y)| (f as f64, y)).collect();
+        let style = ShapeStyle::from(colour(i)).stroke_width(2);
+        chart
+            .draw_series(LineSeries::new(points, style))
+            .map_err(e)?
+            .label(c.name.clone())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 13))
+        .draw()
+        .map_err(e)?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     #[test]

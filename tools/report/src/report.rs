@@ -240,6 +240,7 @@ pub fn document(m: &Metrics, plan: &str, plots: &[(String, String)]) -> Vec<Bloc
     para(&mut d, light_moments_summary(m));
     d.extend(comparisons(m));
     d.extend(low_vs_all_blocks(m));
+    d.extend(animation_blocks(m));
     d.extend(comparison_rows(m));
     if !plots.is_empty() {
         d.push(Block::Heading(2, "Plots".into()));
@@ -717,6 +718,67 @@ fn low_vs_all_blocks(m: &Metrics) -> Vec<Block> {
     ));
     d.push(Block::Table(l.table));
     d.push(Block::Figures { figures: l.figures, wide: false });
+    d
+}
+
+/// The animation section (`[runtime.animation]`; nothing without one): per path, a table of
+/// each setting's per-frame error and frame time, the animated PNGs and the per-frame plot.
+fn animation_blocks(m: &Metrics) -> Vec<Block> {
+    if m.animations.is_empty() {
+        return vec![];
+    }
+    let mut d = vec![Block::Heading(2, "Animation".into())];
+    d.push(Block::Para(
+        "Every frame rendered on the CPU for the uncompressed T and each animated setting, one repeat each; error: \
+         relative L2 against the uncompressed render of the same frame over the covered pixels, at the report's \
+         exposure. Frame time: gather (the light path only: on the camera path the light and L* do not change) plus \
+         shade, in ms. The animated PNGs play in a browser."
+            .into(),
+    ));
+    let stat = |v: &[f64]| {
+        let mut s: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+        s.sort_by(f64::total_cmp);
+        let median = if s.is_empty() { f64::NAN } else { s[s.len() / 2] };
+        (median, s.last().copied().unwrap_or(f64::NAN))
+    };
+    for a in &m.animations {
+        let what = match a.path.as_str() {
+            "light" => "the light turned about +Y",
+            _ => "the camera orbited about its target",
+        };
+        d.push(Block::Heading(
+            3,
+            format!("{what}: {} frames, {:.1} degrees apart, {} fps", a.frames, a.step_degrees, a.fps),
+        ));
+        let mut t = Table::new(&[
+            "setting",
+            "median rel. L2",
+            "worst rel. L2",
+            "median gather ms",
+            "median shade ms",
+            "median frame ms",
+        ]);
+        for s in &a.series {
+            let frame: Vec<f64> = s.gather_ms.iter().zip(&s.shade_ms).map(|(g, h)| g + h).collect();
+            let (e_med, e_max) = stat(&s.rel_l2);
+            t.text_row(vec![
+                s.name.clone(),
+                format!("{e_med:.2e}"),
+                format!("{e_max:.2e}"),
+                format!("{:.2}", stat(&s.gather_ms).0),
+                format!("{:.1}", stat(&s.shade_ms).0),
+                format!("{:.1}", stat(&frame).0),
+            ]);
+        }
+        d.push(Block::Table(t));
+        let mut figures: Vec<Figure> = a.series.iter().map(|s| Figure::new(s.apng.clone(), s.name.clone())).collect();
+        figures.push(Figure {
+            src: a.plot.clone(),
+            caption: "per-frame error and frame time".into(),
+            link: Some(svg_twin(&a.plot)),
+        });
+        d.push(Block::Figures { figures, wide: false });
+    }
     d
 }
 

@@ -784,7 +784,53 @@ pub struct RuntimeConfig {
     /// `biscale_core::scene::Camera`; the wgpu shader runs on the supersampled grid). Default 4:
     /// see [`RuntimeConfig::samples_per_pixel`].
     pub samples_per_pixel: Option<Spanned<u32>>,
+    /// Animated comparisons: the light rotated and the camera orbited, every named setting
+    /// rendered per frame beside the uncompressed `T` (`crate::stages::animation`).
+    #[serde(default)]
+    pub animation: AnimationConfig,
 }
+
+/// `[runtime.animation]`: frame sequences of the light rotating about +Y and of the camera
+/// orbiting its target, each through one full turn, rendered for the named settings (CPU)
+/// and written as animated PNGs with their per-frame error and time.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct AnimationConfig {
+    /// Frames of the light's turn about +Y (0: none).
+    #[serde(default)]
+    pub light_frames: u32,
+    /// Frames of the camera's orbit about its target (0: none).
+    #[serde(default)]
+    pub camera_frames: u32,
+    /// The compressor and method settings to animate, by label (`bicluster-b1024`, `sh-n5`);
+    /// empty: every compressor setting. The uncompressed `T` is always rendered: it is what
+    /// every frame's error is measured against.
+    #[serde(default)]
+    pub settings: Vec<String>,
+    /// Playback rate of the animated PNGs, frames per second.
+    #[serde(default = "default_animation_fps")]
+    pub fps: u32,
+}
+
+impl Default for AnimationConfig {
+    fn default() -> Self {
+        Self { light_frames: 0, camera_frames: 0, settings: vec![], fps: default_animation_fps() }
+    }
+}
+
+impl AnimationConfig {
+    /// Whether any animation is asked for.
+    pub fn any(&self) -> bool {
+        self.light_frames > 0 || self.camera_frames > 0
+    }
+}
+
+fn default_animation_fps() -> u32 {
+    12
+}
+
+/// Most frames of one animation (`runtime.animation.light_frames`, `camera_frames`).
+pub const MAX_ANIMATION_FRAMES: u32 = 720;
 
 impl RuntimeConfig {
     /// Whether the run resolves the light moments per pixel (`moments_resolve = "pixel"`).
@@ -836,6 +882,7 @@ impl Default for RuntimeConfig {
             light_moments: false,
             moments_resolve: None,
             samples_per_pixel: None,
+            animation: AnimationConfig::default(),
         }
     }
 }
@@ -1269,6 +1316,23 @@ fn check_runtime(file: &ExperimentFile, path: &Path, err: &Locate<'_>) -> Result
         }
     }
     in_range(&file.report.reference_downscale, 1, 64, "report.reference_downscale", err)?;
+    let a = &file.runtime.animation;
+    for (frames, key) in [(a.light_frames, "light_frames"), (a.camera_frames, "camera_frames")] {
+        if frames > MAX_ANIMATION_FRAMES {
+            return Err(ConfigError::whole_file(
+                path,
+                format!(
+                    "runtime.animation.{key} must be at most {MAX_ANIMATION_FRAMES} (0: no animation), got {frames}"
+                ),
+            ));
+        }
+    }
+    if a.fps == 0 || a.fps > 120 {
+        return Err(ConfigError::whole_file(
+            path,
+            format!("runtime.animation.fps must be in 1..=120 (frames per second), got {}", a.fps),
+        ));
+    }
     if let Some(inset) = &file.report.inset {
         let [x, y, w, h] = *inset.get_ref();
         let (width, height) = (*file.runtime.width.get_ref(), *file.runtime.height.get_ref());
@@ -1723,6 +1787,20 @@ mod tests {
         let e = rt("light_moments = true\nbackend = \"gpu\"\nmoments_resolve = \"pixel\"\n").unwrap_err().to_string();
         assert!(e.contains("shades on the CPU only"), "{e}");
         assert!(rt("light_moments = true\nmoments_resolve = \"texel\"\n").is_err());
+    }
+
+    #[test]
+    fn animations_are_off_by_default_and_their_counts_are_bounded() {
+        let a = parse(OK).unwrap().file.runtime.animation;
+        assert!(!a.any() && a.settings.is_empty() && a.fps == 12);
+        let exp = parse(&format!("{OK}[runtime.animation]\nlight_frames = 24\nsettings = [\"bicluster\"]\n")).unwrap();
+        let a = &exp.file.runtime.animation;
+        assert!(a.any() && a.light_frames == 24 && a.camera_frames == 0 && a.settings == ["bicluster"]);
+        let e = parse(&format!("{OK}[runtime.animation]\ncamera_frames = 721\n")).unwrap_err().to_string();
+        assert!(e.contains("runtime.animation.camera_frames must be at most 720"), "{e}");
+        let e = parse(&format!("{OK}[runtime.animation]\nfps = 0\n")).unwrap_err().to_string();
+        assert!(e.contains("runtime.animation.fps must be in 1..=120"), "{e}");
+        assert!(parse(&format!("{OK}[runtime.animation]\nframes = 3\n")).is_err(), "unknown keys are refused");
     }
 
     #[test]

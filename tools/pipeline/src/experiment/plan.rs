@@ -140,12 +140,31 @@ impl Plan {
             .to_lowercase(),
             Action::Run,
         );
-        push(
-            &mut steps,
-            "gather",
-            "re-gathers for changing light".into(),
-            Action::LeftOut("the light does not change".into()),
-        );
+        let a = &f.runtime.animation;
+        match a.any() {
+            false => push(
+                &mut steps,
+                "gather",
+                "re-gathers for changing light".into(),
+                Action::LeftOut("the light does not change ([runtime.animation] turns it)".into()),
+            ),
+            true => {
+                let settings = match a.settings.is_empty() {
+                    true => "every compressor setting".to_string(),
+                    false => a.settings.join(", "),
+                };
+                push(
+                    &mut steps,
+                    "animate",
+                    format!(
+                        "{} frames of the light turned about +Y, {} of the camera orbited: the uncompressed T and \
+                         {settings}, on the cpu, into animated PNGs",
+                        a.light_frames, a.camera_frames
+                    ),
+                    Action::Run,
+                )
+            }
+        }
         push(
             &mut steps,
             "shade",

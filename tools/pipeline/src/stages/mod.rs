@@ -10,8 +10,10 @@
 //! | [`figures`] | error images on a shared scale, insets, the side-by-side comparison |
 //! | [`btf_study`] | every BTF representation of the scene measured against the dense tables |
 //! | [`sh`] | the low-frequency (SH) method's run |
+//! | [`animation`] | the light turned and the camera orbited, per frame, into animated PNGs |
 //! | `gpu_backend` | the wgpu backend (with the `gpu` feature) |
 
+pub mod animation;
 pub mod btf_study;
 pub mod evaluate;
 pub mod figures;
@@ -28,14 +30,16 @@ use crate::experiment::methods;
 use crate::metrics::MethodRecord;
 use evaluate::GpuBackend;
 
-/// Run one method setting against the all-frequency run's inputs (dispatch on its kind).
+/// Run one method setting against the all-frequency run's inputs (dispatch on its kind); with
+/// `animate`, also what [`animation`] needs to render it again under other lights.
 pub(crate) fn evaluate_method(
     setting: &MethodSetting,
     inputs: &sh::MethodInputs<'_>,
     gpu: Option<&GpuBackend>,
-) -> Result<MethodRecord> {
+    animate: bool,
+) -> Result<(MethodRecord, Option<animation::Animated<'static>>)> {
     match setting.kind.as_str() {
-        k if k == methods::sh::KIND.name => sh::evaluate(setting, inputs, gpu),
+        k if k == methods::sh::KIND.name => sh::evaluate(setting, inputs, gpu, animate),
         other => Err(PipelineError::Mismatch {
             path: inputs.exp.config_path.clone(),
             what: format!("method kind {other} has no evaluation in this build"),

@@ -303,7 +303,8 @@ pub(crate) fn evaluate(
     setting: &MethodSetting,
     inp: &MethodInputs<'_>,
     gpu: Option<&GpuBackend>,
-) -> Result<MethodRecord> {
+    animate: bool,
+) -> Result<(MethodRecord, Option<crate::stages::animation::Animated<'static>>)> {
     let label = &setting.label;
     let Prepared {
         params: p,
@@ -376,7 +377,16 @@ pub(crate) fn evaluate(
         diffuse,
         lpca,
     };
-    Ok(MethodRecord { record, sh: Some(sh) })
+    let animated = animate.then(|| crate::stages::animation::Animated {
+        name: label.clone(),
+        source: crate::stages::animation::Source::Sh(Box::new(crate::stages::animation::ShSource {
+            projection,
+            compressor,
+            form,
+            scene: sh_scene,
+        })),
+    });
+    Ok((MethodRecord { record, sh: Some(sh) }, animated))
 }
 
 /// Müller et al.'s runtime for a scene with LPCA BTFs lit by SH: per light, gather `M_p l` and
