@@ -137,8 +137,8 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
-    /// Reproduce the paper's Tables I and II, Figs. 1, 3(b), 5, 6, 7 and 8 and its
-    /// equal-storage comparison (with the equal-quality one it could not make): runs the
+    /// Reproduce the paper's Tables I and II, Figs. 1, 3(b), 5, 6, 7 and 8, its video (as an
+    /// animated comparison) and its equal-storage comparison (with the equal-quality one it could not make): runs the
     /// configs of configs/paper/ into DIR/runs/ and writes numbers.csv (every figure: ours, the
     /// paper's, their ratio), tables/*.tex (booktabs), figures/ (PNG panels and a LaTeX
     /// figure each) and index.html, ours beside the published figures (paper/published.toml).
@@ -153,7 +153,7 @@ enum Command {
         #[arg(long)]
         quick: bool,
         /// Only these items, comma-separated: table1, table2, equal-quality, low-vs-all, fig8,
-        /// fig3b, fig7 (default: all).
+        /// fig3b, fig7, animation (default: all).
         #[arg(long, value_delimiter = ',')]
         only: Vec<String>,
         /// Output folder (default: out/paper, or out/paper-quick with --quick), replaced whole

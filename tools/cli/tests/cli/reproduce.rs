@@ -223,7 +223,9 @@ fn reproduce_quick_sets_each_runs_figures_beside_the_papers_and_a_rerun_reuses_t
         assert!(html.contains(must), "index.html lacks {must}");
     }
     // Every figure: its LaTeX and its panels, each a PNG the page embeds.
-    for (id, at_least) in [("fig1", 6), ("fig5", 6), ("fig6", 4), ("fig8", 3), ("fig3b", 4), ("fig7", 1)] {
+    for (id, at_least) in
+        [("fig1", 6), ("fig5", 6), ("fig6", 4), ("fig8", 3), ("fig3b", 4), ("fig7", 1), ("animation", 4)]
+    {
         let tex = std::fs::read_to_string(out.join("figures").join(format!("{id}.tex"))).unwrap();
         let panels: Vec<&str> =
             tex.lines().filter_map(|l| l.split("\\includegraphics[width=\\linewidth]{").nth(1)).collect();

@@ -127,7 +127,7 @@ pub const RUNS: &[RunSpec] = &[
         mesh: MeshSource::AsConfigured,
         quick_mesh: MeshSource::AsConfigured,
         set: &[],
-        quick: LOW_VS_ALL_QUICK,
+        quick: FIG1_QUICK,
     },
     RunSpec {
         name: "fig1-bunny-moments",
@@ -135,7 +135,7 @@ pub const RUNS: &[RunSpec] = &[
         experiment: Some("fig1_bunny_moments"),
         mesh: MeshSource::AsConfigured,
         quick_mesh: MeshSource::AsConfigured,
-        set: MOMENTS,
+        set: FIG1_MOMENTS,
         quick: LOW_VS_ALL_QUICK,
     },
     RunSpec {
@@ -189,13 +189,25 @@ pub const RUNS: &[RunSpec] = &[
 /// moments; the SH settings, which moments do not change, are left to the paper-rule run.
 const MOMENTS: &[&str] = &["runtime.light_moments=true", "methods=[]"];
 
-/// Figs. 1 and 5 at `--quick`: small BTFs, the ground truth traced (the figures are errors
-/// against it) and three SH orders.
+/// Fig. 1's moments run: no animation either (its SH setting is the paper-rule run's).
+const FIG1_MOMENTS: &[&str] = &["runtime.light_moments=true", "methods=[]", "runtime.animation.light_frames=0"];
+
+/// Figs. 1 and 5 at `--quick`: small BTFs and the ground truth traced (the figures are errors
+/// against it).
 const LOW_VS_ALL_QUICK: &[&str] = &[
     "scene.material.resolution=8",
     "scene.material.view_grid=4",
     "report.reference=true",
     "report.reference_downscale=1",
+];
+
+/// Fig. 1 at `--quick`: [`LOW_VS_ALL_QUICK`] and an animation of six frames.
+const FIG1_QUICK: &[&str] = &[
+    "scene.material.resolution=8",
+    "scene.material.view_grid=4",
+    "report.reference=true",
+    "report.reference_downscale=1",
+    "runtime.animation.light_frames=6",
 ];
 
 /// One item: a table of the paper and the runs it is made from.
@@ -237,6 +249,7 @@ pub const ITEMS: &[Item] = &[
     },
     Item { name: "fig3b", title: "Fig. 3(b): the structure of T", file: "fig3b", runs: &["bunny"] },
     Item { name: "fig7", title: "Fig. 7: the temple, five BTFs", file: "fig7", runs: &["temple"] },
+    Item { name: "animation", title: "The light turned (the paper's video)", file: "animation", runs: &["fig1-bunny"] },
 ];
 
 /// The items `--only` names (all of them when it names none), in [`ITEMS`] order.

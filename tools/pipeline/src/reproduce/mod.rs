@@ -3,14 +3,15 @@
 //! command, our figures beside the published ones.
 //!
 //! **What runs.** Each item ([`items::ITEMS`]: `table1`, `table2`, `equal-quality`,
-//! `low-vs-all`, `fig8`, `fig3b`, `fig7`) is made from runs ([`items::RUNS`]) of the configs in
+//! `low-vs-all`, `fig8`, `fig3b`, `fig7`, `animation`) is made from runs ([`items::RUNS`]) of the configs in
 //! `configs/paper/`, each an ordinary [`crate::run::run`] into `runs/<name>/` of the output
 //! folder: the bunny (Table I's Bunny and Table II's first column, as in the paper; `biscale
 //! viz` of its T is Fig. 3(b)), the bunny midpoint-subdivided once and twice (Table II), the
 //! generated temple at the vertex count nearest the paper's (Table I's Temple and Fig. 7), a
 //! copy of `configs/compare_bunny.toml` (the comparison and Fig. 6), the low- vs
-//! all-frequency scenes by the paper's rule and with light moments (Figs. 1 and 5), and the
-//! glossy bunny at three local grids (Fig. 8). Generated meshes are written into `meshes/` of
+//! all-frequency scenes by the paper's rule and with light moments (Figs. 1 and 5; the
+//! paper-rule bunny also turns its light for the animation), and the glossy bunny at three
+//! local grids (Fig. 8). Generated meshes are written into `meshes/` of
 //! the stage cache folder. `--quick` runs every item at small sizes ([`items::QUICK`]) in
 //! under a minute on two cores; `--only` picks items.
 //!
@@ -259,6 +260,11 @@ pub fn reproduce(opts: &Options) -> Result<Outcome> {
             "fig7" => {
                 if let Some(o) = find("temple") {
                     figure(figs::fig7_figure(&out, o)?, &mut order);
+                }
+            }
+            "animation" => {
+                if let Some(f) = find("fig1-bunny").map(|o| figs::animation_figure(&out, o)).transpose()?.flatten() {
+                    figure(f, &mut order);
                 }
             }
             other => unreachable!("items::ITEMS has no item `{other}`"),

@@ -41,7 +41,7 @@ pub const NOT_YET: &[&str] = &[
     "Figure mode: one shared error scale with a colour bar across every method a figure compares (today the \
      compressors of a run share one; SH orders and BTF-study settings do not), and insets placed where the visible \
      difference is largest.",
-    "The animated light-rotation and camera-orbit comparisons.",
+    "The camera-orbit animation (`[runtime.animation] camera_frames`) is not made by this command.",
     "A PDF of the tables: `tables/*.tex` are written, not typeset (they need `\\usepackage{booktabs}`).",
 ];
 
