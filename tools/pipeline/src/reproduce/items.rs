@@ -34,6 +34,9 @@ pub struct RunSpec {
     pub set: &'static [&'static str],
     /// `--quick`'s overrides beside [`QUICK`], for this config's own keys.
     pub quick: &'static [&'static str],
+    /// The run whose inset region this one takes (`report.inset`), so a figure that sets
+    /// their images side by side magnifies the same pixels.
+    pub inset_from: Option<&'static str>,
 }
 
 /// `--quick`'s overrides of every run: coarse transfer (6x8x8 light, 6x16x16 visibility, 4x4
@@ -83,6 +86,7 @@ pub const RUNS: &[RunSpec] = &[
         quick_mesh: MeshSource::AsConfigured,
         set: &[],
         quick: BUNNY_QUICK,
+        inset_from: None,
     },
     RunSpec {
         name: "bunny-l1",
@@ -92,6 +96,7 @@ pub const RUNS: &[RunSpec] = &[
         quick_mesh: MeshSource::Subdivided(1),
         set: &[],
         quick: BUNNY_QUICK,
+        inset_from: None,
     },
     RunSpec {
         name: "bunny-l2",
@@ -101,6 +106,7 @@ pub const RUNS: &[RunSpec] = &[
         quick_mesh: MeshSource::Subdivided(2),
         set: &[],
         quick: BUNNY_QUICK,
+        inset_from: None,
     },
     RunSpec {
         name: "temple",
@@ -110,6 +116,7 @@ pub const RUNS: &[RunSpec] = &[
         quick_mesh: MeshSource::AsConfigured,
         set: &[],
         quick: TEMPLE_QUICK,
+        inset_from: None,
     },
     RunSpec {
         name: "equal-quality",
@@ -119,6 +126,7 @@ pub const RUNS: &[RunSpec] = &[
         quick_mesh: MeshSource::AsConfigured,
         set: &[],
         quick: EQUAL_QUALITY_QUICK,
+        inset_from: None,
     },
     RunSpec {
         name: "fig1-bunny",
@@ -128,6 +136,7 @@ pub const RUNS: &[RunSpec] = &[
         quick_mesh: MeshSource::AsConfigured,
         set: &[],
         quick: FIG1_QUICK,
+        inset_from: None,
     },
     RunSpec {
         name: "fig1-bunny-moments",
@@ -137,6 +146,7 @@ pub const RUNS: &[RunSpec] = &[
         quick_mesh: MeshSource::AsConfigured,
         set: FIG1_MOMENTS,
         quick: LOW_VS_ALL_QUICK,
+        inset_from: Some("fig1-bunny"),
     },
     RunSpec {
         name: "fig5-glossy",
@@ -146,6 +156,7 @@ pub const RUNS: &[RunSpec] = &[
         quick_mesh: MeshSource::AsConfigured,
         set: &[],
         quick: LOW_VS_ALL_QUICK,
+        inset_from: None,
     },
     RunSpec {
         name: "fig5-glossy-moments",
@@ -155,6 +166,7 @@ pub const RUNS: &[RunSpec] = &[
         quick_mesh: MeshSource::AsConfigured,
         set: MOMENTS,
         quick: LOW_VS_ALL_QUICK,
+        inset_from: Some("fig5-glossy"),
     },
     RunSpec {
         name: "fig8-8",
@@ -164,6 +176,7 @@ pub const RUNS: &[RunSpec] = &[
         quick_mesh: MeshSource::AsConfigured,
         set: &["transfer.local_grid=8"],
         quick: &["scene.material.resolution=8", "scene.material.view_grid=4", "transfer.local_grid=2"],
+        inset_from: None,
     },
     RunSpec {
         name: "fig8-16",
@@ -173,6 +186,7 @@ pub const RUNS: &[RunSpec] = &[
         quick_mesh: MeshSource::AsConfigured,
         set: &["transfer.local_grid=16"],
         quick: &["scene.material.resolution=8", "scene.material.view_grid=4", "transfer.local_grid=4"],
+        inset_from: None,
     },
     RunSpec {
         name: "fig8-32",
@@ -182,6 +196,7 @@ pub const RUNS: &[RunSpec] = &[
         quick_mesh: MeshSource::AsConfigured,
         set: &["transfer.local_grid=32"],
         quick: &["scene.material.resolution=8", "scene.material.view_grid=4", "transfer.local_grid=8"],
+        inset_from: None,
     },
 ];
 

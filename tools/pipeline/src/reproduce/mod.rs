@@ -180,7 +180,17 @@ pub fn reproduce(opts: &Options) -> Result<Outcome> {
             if opts.quick { ", quick" } else { "" }
         );
         let start = std::time::Instant::now();
-        let (exp, made) = items::experiment(spec, &configs, opts.quick, &opts.overrides, &meshes, temple_vertices)?;
+        // A twin run magnifies the same pixels as the run it is set beside (before the
+        // user's --set, which wins).
+        let mut overrides = vec![];
+        if let Some(twin) = spec.inset_from {
+            let inset = done.iter().find(|d| d.0.name == twin).and_then(|d| d.1.figures.as_ref()).map(|f| f.inset);
+            if let Some([x, y, w, h]) = inset {
+                overrides.push(format!("report.inset=[{x}, {y}, {w}, {h}]"));
+            }
+        }
+        overrides.extend(opts.overrides.iter().cloned());
+        let (exp, made) = items::experiment(spec, &configs, opts.quick, &overrides, &meshes, temple_vertices)?;
         if let Some(m) = &made {
             log::info!("reproduce: `{}` mesh: {} ({})", spec.name, m.how, m.path.display());
         }
