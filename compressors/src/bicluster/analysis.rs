@@ -115,7 +115,9 @@ pub fn achieved_error(form: &CompressedForm, t: &TransferMatrix) -> Result<Achie
         _ => None,
     };
     let (mut e2, mut t2, mut se2, mut st2) = (0f64, 0f64, 0f64, 0f64);
-    let mut diff: HashMap<u16, i32> = HashMap::new();
+    // Ordered by column, so the f64 sums run in one order on every run (a hash map's order
+    // differs per process, and with it the last bit of `sky`).
+    let mut diff: BTreeMap<u16, i32> = BTreeMap::new();
     for i in 0..full.rows {
         diff.clear();
         let mut sky_t = 0.0;
