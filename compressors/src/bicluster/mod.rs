@@ -106,7 +106,9 @@ fn form_flops(form: &CompressedForm) -> Option<u64> {
 /// [`Kind::memory`]: the integer codes (u16 column, i8 code, usize row pointer); per block in
 /// flight its rows (8 bytes per non-zero) and column views (8, in vectors grown by doubling:
 /// 12 on average); the biclusters found (about 2% of the non-zeros, ~170 bytes each: 4 per
-/// non-zero); the form (about 1 byte per non-zero lossless: 2).
+/// non-zero) twice, the greedy's output kept for the next setting of a sweep
+/// ([`release_shared_greedy`]) and the copy pruned; the form (about 1 byte per non-zero
+/// lossless: 2).
 fn memory(p: &serde_json::Value, t: &registry::MemoryFacts) -> registry::FormMemory {
     let p: Bicluster = registry::parse(p).unwrap_or_default();
     let (rows, vertices) = (t.rows(), t.vertices.max(1));
@@ -115,7 +117,7 @@ fn memory(p: &serde_json::Value, t: &registry::MemoryFacts) -> registry::FormMem
     let blocks = vertices.div_ceil(block_vertices.max(1));
     let in_flight = blocks.min(t.threads) * block_vertices * (t.nnz / vertices) * 20;
     let form = t.nnz * 2 + (rows + 1) * 4;
-    registry::FormMemory { working: codes + in_flight + t.nnz * 4 + form, form }
+    registry::FormMemory { working: codes + in_flight + t.nnz * 8 + form, form }
 }
 
 /// [`Kind::report`]: how many biclusters, their mean size, the gather's flops against the
@@ -535,36 +537,59 @@ impl Bicluster {
         let block_rows =
             if self.block_vertices == 0 { rows.max(1) } else { self.block_vertices * t.local_dirs().max(1) };
         let nblocks = if rows == 0 { 0 } else { rows.div_ceil(block_rows) };
-        let max_code = codes.codes.iter().map(|&c| (c as i32).abs()).max().unwrap_or(1);
-        let done = AtomicUsize::new(0);
+        let key = SharedKey::of(&codes, block_rows, ctx.seed, first_block);
+        let greedy = match shared_greedy(&key) {
+            Some(g) => {
+                ctx.report(1.0);
+                g
+            }
+            None => {
+                let max_code = codes.codes.iter().map(|&c| (c as i32).abs()).max().unwrap_or(1);
+                let done = AtomicUsize::new(0);
+                let g: Vec<Vec<greedy::Bc>> = (0..nblocks)
+                    .into_par_iter()
+                    .with_max_len(1)
+                    .map_init(
+                        || greedy::Workspace::new(cols, max_code),
+                        |ws, b| {
+                            let range = b * block_rows..((b + 1) * block_rows).min(rows);
+                            let out = greedy::bicluster_block(&codes, range, ctx.seed, (first_block + b) as u64, ws);
+                            let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+                            ctx.report(d as f64 / nblocks as f64);
+                            out
+                        },
+                    )
+                    .collect();
+                let g = std::sync::Arc::new(g);
+                keep_shared_greedy(key, g.clone());
+                g
+            }
+        };
         let blocks: Vec<(Vec<greedy::Bc>, prune::Pruned)> = (0..nblocks)
             .into_par_iter()
-            .with_max_len(1)
-            .map_init(
-                || greedy::Workspace::new(cols, max_code),
-                |ws, b| {
-                    let range = b * block_rows..((b + 1) * block_rows).min(rows);
-                    let out = greedy::bicluster_block(&codes, range.clone(), ctx.seed, (first_block + b) as u64, ws);
-                    let energy2: u64 = codes.codes[codes.indptr[range.start]..codes.indptr[range.end]]
-                        .iter()
-                        .map(|&c| (c as i64 * c as i64) as u64)
-                        .sum();
-                    let (mut out, pruned) = prune::prune(out, range.len(), energy2, self.error_budget);
-                    // Number the block's biclusters by their first row (stable, so ties keep
-                    // the greedy order): pass 2 of the gather walks rows in order, and a
-                    // bicluster's scalar then sits near those of the other biclusters that
-                    // start nearby, instead of wherever the random greedy emitted it.
-                    out.sort_by_key(|bc| bc.rows.iter().min().copied());
-                    let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-                    ctx.report(d as f64 / nblocks as f64);
-                    (out, pruned)
-                },
-            )
+            .map(|b| {
+                let range = b * block_rows..((b + 1) * block_rows).min(rows);
+                let energy2: u64 = codes.codes[codes.indptr[range.start]..codes.indptr[range.end]]
+                    .iter()
+                    .map(|&c| (c as i64 * c as i64) as u64)
+                    .sum();
+                let (mut out, pruned) = prune::prune(greedy[b].clone(), range.len(), energy2, self.error_budget);
+                // Number the block's biclusters by their first row (stable, so ties keep
+                // the greedy order): pass 2 of the gather walks rows in order, and a
+                // bicluster's scalar then sits near those of the other biclusters that
+                // start nearby, instead of wherever the random greedy emitted it.
+                out.sort_by_key(|bc| bc.rows.iter().min().copied());
+                (out, pruned)
+            })
             .collect();
+        drop(greedy);
         let (blocks, pruned): (Vec<_>, Vec<_>) = blocks.into_iter().unzip();
         let mut form = assemble(t, &codes, block_rows, &blocks)?;
         let error2: u64 = pruned.iter().map(|p| p.error2).sum();
         form.lossless = error2 == 0;
+        // The form is the same whichever way its greedy output came (a pure function of T
+        // and the setting, for the cache and the shard merge); only its build time, then the
+        // pruning's alone, tells.
         if self.error_budget > 0.0 {
             let energy2: u64 = pruned.iter().map(|p| p.energy2).sum();
             form.meta.insert("dropped_biclusters".into(), pruned.iter().map(|p| p.dropped as u64).sum());
@@ -574,6 +599,66 @@ impl Bicluster {
         form.build_seconds = start.elapsed().as_secs_f64();
         Ok(form)
     }
+}
+
+/// What identifies a greedy run: the exact codes (by a 64-bit hash of their arrays), the block
+/// rows, the seed and the first block's index.
+#[derive(Clone, Debug, PartialEq, Eq)]
+struct SharedKey {
+    fingerprint: u64,
+    rows: usize,
+    cols: usize,
+    scale: u32,
+    nnz: usize,
+    block_rows: usize,
+    seed: u64,
+    first_block: usize,
+}
+
+impl SharedKey {
+    fn of(codes: &CodeMatrix, block_rows: usize, seed: u64, first_block: usize) -> Self {
+        use std::hash::{Hash, Hasher};
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        codes.indptr.hash(&mut h);
+        codes.col_idx.hash(&mut h);
+        codes.codes.hash(&mut h);
+        Self {
+            fingerprint: h.finish(),
+            rows: codes.rows,
+            cols: codes.cols,
+            scale: codes.scale,
+            nnz: codes.nnz(),
+            block_rows,
+            seed,
+            first_block,
+        }
+    }
+}
+
+type SharedBlocks = std::sync::Arc<Vec<Vec<greedy::Bc>>>;
+
+thread_local! {
+    /// The greedy's biclusters of the last matrix this thread biclustered, by block. Every
+    /// setting of an error-budget sweep prunes the same greedy output of the same `T`, so a
+    /// sweep compressed on one thread (as a run compresses its settings, one after another)
+    /// runs the greedy once; the lossless setting is the sweep's budget 0. The result is
+    /// identical to a fresh build (the greedy is deterministic in its key). One entry,
+    /// replaced by the next matrix; [`release_shared_greedy`] frees it.
+    static SHARED: std::cell::RefCell<Option<(SharedKey, SharedBlocks)>> = const { std::cell::RefCell::new(None) };
+}
+
+fn shared_greedy(key: &SharedKey) -> Option<SharedBlocks> {
+    SHARED.with(|s| s.borrow().as_ref().filter(|(k, _)| k == key).map(|(_, b)| b.clone()))
+}
+
+fn keep_shared_greedy(key: SharedKey, blocks: SharedBlocks) {
+    SHARED.with(|s| *s.borrow_mut() = Some((key, blocks)));
+}
+
+/// Free the greedy output this thread keeps for the next setting of a sweep ([`SHARED`]): a
+/// caller that has compressed every setting of a matrix calls this so the memory goes with it.
+pub fn release_shared_greedy() {
+    SHARED.with(|s| *s.borrow_mut() = None);
 }
 
 /// Store `form`'s row lists as global bicluster ids plus `offset` (u32, `row_bc_local` = 0):

@@ -630,3 +630,34 @@ fn forms_of_block_aligned_ranges_merge_into_the_whole_form() {
     assert_eq!(merged.meta("row_bc_local").unwrap(), 0);
     crate::testing::assert_lossless(&c, &merged, &t, &light);
 }
+
+/// A sweep shares one greedy run: a lossy setting after the lossless one of the same matrix
+/// and seed prunes the kept greedy output, and its form is that of a fresh build; a
+/// different seed or a released memo builds afresh. (The memo is per thread, and each test has
+/// its own.)
+#[test]
+fn a_budget_sweep_runs_the_greedy_once_with_the_fresh_builds_form() {
+    let t = random_transfer(48, 2, 3, 0.3, 11);
+    let ctx = |seed| CompressContext { seed, progress: None };
+    let lossy = Bicluster { block_vertices: 16, error_budget: 0.2, ..Bicluster::default() };
+    let lossless = Bicluster { error_budget: 0.0, ..lossy.clone() };
+    let strip = |mut f: CompressedForm| {
+        f.build_seconds = 0.0;
+        f
+    };
+    release_shared_greedy();
+    let fresh = strip(lossy.compress(&t, &ctx(5)).unwrap());
+    release_shared_greedy();
+    let key = SharedKey::of(&codes::quantize(&t, 0).unwrap(), 16 * t.local_dirs(), 5, 0);
+    assert!(shared_greedy(&key).is_none());
+    assert!(lossless.compress(&t, &ctx(5)).unwrap().lossless);
+    assert!(shared_greedy(&key).is_some(), "the lossless build keeps its greedy output");
+    let shared = strip(lossy.compress(&t, &ctx(5)).unwrap());
+    assert_eq!(shared, fresh, "the shared greedy gives the fresh build's form");
+    assert!(!fresh.lossless && fresh.meta["dropped_biclusters"] > 0, "the budget drops biclusters");
+    let other = SharedKey::of(&codes::quantize(&t, 0).unwrap(), 16 * t.local_dirs(), 6, 0);
+    lossy.compress(&t, &ctx(6)).unwrap();
+    assert!(shared_greedy(&other).is_some() && shared_greedy(&key).is_none(), "another seed replaces it");
+    release_shared_greedy();
+    assert!(shared_greedy(&other).is_none(), "released");
+}

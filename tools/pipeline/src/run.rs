@@ -305,6 +305,9 @@ impl Forms<'_> {
     ) -> Result<(Vec<CompressorRecord>, Vec<Render>, Vec<(usize, CompressedForm)>)> {
         let (exp, t, cache) = (self.exp, self.t, self.cache);
         let (mut records, mut renders, mut kept) = (vec![], vec![], vec![]);
+        // The bicluster compressor keeps its greedy output for the next setting of a sweep;
+        // it goes after the last one.
+        let last_bicluster = compressors.iter().rposition(|(s, _)| s.kind == biscale_compressors::bicluster::KIND.name);
         for (i, (setting, compressor)) in compressors.iter().enumerate() {
             let (form, cached) = match self.precomputed.remove(&setting.label) {
                 Some(form) => {
@@ -320,6 +323,9 @@ impl Forms<'_> {
             renders.push(render);
             if keep.contains(&setting.label) {
                 kept.push((i, form));
+            }
+            if Some(i) == last_bicluster {
+                biscale_compressors::bicluster::release_shared_greedy();
             }
             clock.mark(format!("compressor {}", setting.label));
             fault_point("compression");
