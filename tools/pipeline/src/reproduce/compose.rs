@@ -82,7 +82,7 @@ fn cell(run: Option<&RunOutcome<'_>>, f: Figure, paper: Option<f64>, missing: Op
 
 fn row(f: Figure, cells: Vec<Cell>) -> Row {
     let (key, label, unit, decimals) = f.describe();
-    Row { key: key.into(), label: label.into(), unit: unit.into(), decimals, text: false, cells }
+    Row::numeric(key, label, unit, decimals, cells)
 }
 
 /// A Table I figure as the paper printed it.
@@ -312,14 +312,7 @@ pub fn equal_quality(ctx: &Context<'_>, run: &RunOutcome<'_>) -> PaperTable {
             paper_head: Some(format!("paper ({})", fig6.scene)),
         })
         .collect();
-    let numeric = |key: &str, label: &str, unit: &str, decimals: usize, cells: Vec<Cell>| Row {
-        key: key.into(),
-        label: label.into(),
-        unit: unit.into(),
-        decimals,
-        text: false,
-        cells,
-    };
+    let numeric = Row::numeric;
     let mut rows = vec![];
     rows.push(Row {
         key: "setting".into(),

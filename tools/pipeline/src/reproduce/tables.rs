@@ -54,6 +54,13 @@ pub struct Row {
     pub cells: Vec<Cell>,
 }
 
+impl Row {
+    /// A row of figures (`text: false`).
+    pub fn numeric(key: &str, label: &str, unit: &str, decimals: usize, cells: Vec<Cell>) -> Self {
+        Self { key: key.into(), label: label.into(), unit: unit.into(), decimals, text: false, cells }
+    }
+}
+
 /// A column: a scene or a size, its "ours" and "paper" side by side, or "ours" alone where
 /// the paper printed no figure (its Figs. 1 and 5 are images).
 #[derive(Clone, Debug, PartialEq)]
