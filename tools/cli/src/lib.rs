@@ -712,7 +712,7 @@ fn run() -> anyhow::Result<()> {
                 println!("wrote {}", done.out_dir.join("tables").join(format!("{}.tex", t.file)).display());
             }
             for f in &done.figures {
-                println!("wrote {} ({} panels)", done.out_dir.join("figures").join(format!("{}.tex", f.id)).display(), f.panels.len());
+                println!("wrote {} ({} panels)", done.out_dir.join("figures").join(format!("{}.tex", f.id)).display(), f.pictures().count());
             }
             println!("wrote {}", done.out_dir.join("numbers.csv").display());
             println!("wrote {}", done.out_dir.join("index.html").display());

@@ -234,7 +234,8 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     };
     drop(animated);
 
-    let figures = comparison_figures(region, &records, &methods, base, &view, reference, &out_dir)?;
+    let fixed = exp.file.report.reference_error_scale;
+    let figures = comparison_figures(region, &records, &methods, base, &view, reference, fixed, &out_dir)?;
     let mut metrics =
         metrics_of_run(exp, &geometry, &lighting, &materials, t.metrics, base, reference, records, methods);
     metrics.figures = Some(figures);

@@ -305,10 +305,14 @@ fn reproduce_quick_sets_each_runs_figures_beside_the_papers_and_a_rerun_reuses_t
             "{columns:?}"
         );
     }
-    // A light-moments twin magnifies the same pixels as its paper-rule run.
+    // A light-moments twin magnifies the same pixels as its paper-rule run, and draws its
+    // errors against the ground truth on the same colour bar.
     for scene in ["fig1-bunny", "fig5-glossy"] {
-        let inset = |r: &str| metrics[r]["figures"]["inset"].clone();
-        assert_eq!(inset(&format!("runs/{scene}")), inset(&format!("runs/{scene}-moments")), "{scene}");
+        for key in ["inset", "reference_error_scale"] {
+            let v = |r: &str| metrics[r]["figures"][key].clone();
+            assert!(!v(&format!("runs/{scene}")).is_null(), "{scene} {key}");
+            assert_eq!(v(&format!("runs/{scene}")), v(&format!("runs/{scene}-moments")), "{scene} {key}");
+        }
     }
     let grid = |r: &str| f(&metrics[r], "transfer.local_dirs");
     assert!(grid("runs/fig8-8") < grid("runs/fig8-16") && grid("runs/fig8-16") < grid("runs/fig8-32"));

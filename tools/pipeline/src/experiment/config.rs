@@ -945,6 +945,12 @@ pub struct ReportConfig {
     /// the largest 99th-percentile error of the lossy settings, shared by all.
     #[serde(default)]
     pub error_scale: Option<f32>,
+    /// Full scale of every error figure against the ground truth (luminance, linear
+    /// radiance); by default the largest 99th-percentile error of the run's renders (the
+    /// uncompressed one, every compressor and method setting), shared by all. Set, it puts
+    /// another run's figures on the same colour bar (`biscale reproduce` sets it for a twin).
+    #[serde(default)]
+    pub reference_error_scale: Option<f32>,
     /// The region `[x, y, width, height]` (pixels of the render) every setting's zoomed inset
     /// shows; by default the window where the worst lossy setting's error is largest.
     #[serde(default)]
@@ -971,6 +977,7 @@ impl Default for ReportConfig {
             background: true,
             target_error: default_target_error(),
             error_scale: None,
+            reference_error_scale: None,
             inset: None,
         }
     }
@@ -1348,6 +1355,12 @@ fn check_runtime(file: &ExperimentFile, path: &Path, err: &Locate<'_>) -> Result
     }
     if let Some(e) = file.report.error_scale.filter(|e| !(*e > 0.0 && e.is_finite())) {
         return Err(ConfigError::whole_file(path, format!("report.error_scale must be a positive number, got {e}")));
+    }
+    if let Some(e) = file.report.reference_error_scale.filter(|e| !(*e > 0.0 && e.is_finite())) {
+        return Err(ConfigError::whole_file(
+            path,
+            format!("report.reference_error_scale must be a positive number, got {e}"),
+        ));
     }
     if !(file.report.target_error > 0.0 && file.report.target_error.is_finite()) {
         return Err(ConfigError::whole_file(path, "report.target_error must be a positive number"));
@@ -1770,6 +1783,8 @@ mod tests {
     fn a_fixed_error_scale_must_be_positive_and_light_moments_parse() {
         let e = parse(&format!("{OK}[report]\nerror_scale = -1.0\n")).unwrap_err().to_string();
         assert!(e.contains("report.error_scale must be a positive number, got -1"), "{e}");
+        let e = parse(&format!("{OK}[report]\nreference_error_scale = 0.0\n")).unwrap_err().to_string();
+        assert!(e.contains("report.reference_error_scale must be a positive number, got 0"), "{e}");
         let exp = parse(&format!("{OK}[report]\nerror_scale = 0.05\n[runtime]\nlight_moments = true\n")).unwrap();
         assert_eq!(exp.file.report.error_scale, Some(0.05));
         assert!(exp.file.runtime.light_moments);

@@ -104,14 +104,7 @@ pub fn low_vs_all(
         note: note.map(str::to_string),
         ..Cell::default()
     };
-    let row = |key: &str, label: &str, unit: &str, decimals: usize, cells: Vec<Cell>| Row {
-        key: key.into(),
-        label: label.into(),
-        unit: unit.into(),
-        decimals,
-        text: false,
-        cells,
-    };
+    let row = Row::numeric;
     let rows = vec![
         row(
             "transfer_mb",
@@ -251,21 +244,37 @@ pub fn low_vs_all_figure(
             panels.push((r.name, c.name.clone(), format!("{} (light moments)", x.name)));
         }
     }
+    let scale = m.figures.as_ref().and_then(|f| f.reference_error_scale);
     let caption = format!(
-        "{title}: the ground truth and each method's image (the inset's region marked), then the insets magnified, from \
-         `runs/{}`{}. Each image's tone map is the run's own.",
+        "{title}: the ground truth and each method's image (the inset's region marked), the insets magnified, and each \
+         method's |error| against the ground truth on one shared colour bar{}, from `runs/{}`{}. Each image's tone map \
+         is the run's own.",
+        scale.map_or(String::new(), |s| format!(" (full scale {s:.3e})")),
         run.name,
         moments.map_or(String::new(), |r| format!(" and `runs/{}`", r.name))
     );
     let mut f = FigureSet::new("low-vs-all", id, title, caption, panels.len());
     let runs = [Some(run), moments];
     let record = |name: &str| runs.iter().flatten().find(|r| r.name == name).map(|r| r.facts.metrics);
-    for (kind, pick) in [("image", 0), ("inset", 1)] {
+    for (kind, pick) in [("image", 0), ("inset", 1), ("error", 2)] {
         for (i, (run_name, row, label)) in panels.iter().enumerate() {
             let Some(figs) = record(run_name).and_then(|m| m.figures.as_ref()) else { continue };
             let Some(r) = figs.rows.iter().find(|r| &r.name == row) else { continue };
-            let from = if pick == 0 { &r.thumbnail } else { &r.inset };
-            f.add(out, &format!("runs/{run_name}/{from}"), &format!("{kind}-{i}"), label.clone())?;
+            let from = match pick {
+                0 => Some(&r.thumbnail),
+                1 => Some(&r.inset),
+                _ => r.error_vs_reference_png.as_ref(),
+            };
+            let label = match pick {
+                2 => format!("{label}: |error|"),
+                _ => label.clone(),
+            };
+            match from {
+                Some(from) => f.add(out, &format!("runs/{run_name}/{from}"), &format!("{kind}-{i}"), label)?,
+                // The ground truth has no error image: its place in the row stays empty.
+                None if pick == 2 && i == 0 => f.spacer(),
+                None => {}
+            }
         }
     }
     Ok(f)
@@ -311,42 +320,41 @@ pub fn fig8(ctx: &Context<'_>, runs: &[RunOutcome<'_>]) -> PaperTable {
                 c
             })
             .collect();
-        Row { key: key.into(), label: label.into(), unit: unit.into(), decimals, text: false, cells }
+        Row::numeric(key, label, unit, decimals, cells)
     };
-    let ratio = Row {
-        key: "storage_over_8x8".into(),
-        label: "compressed T over the first grid's".into(),
-        unit: "x".into(),
-        decimals: 2,
-        text: false,
-        cells: published
+    // A row of a figure the facts do not define: `ours` of each grid's run, the paper's.
+    type Ours<'a> = &'a dyn Fn(&RunOutcome<'_>) -> Option<f64>;
+    let derived = |key: &str,
+                   label: &str,
+                   unit: &str,
+                   ours: Ours<'_>,
+                   paper: &dyn Fn(&super::published::GridColumn) -> Option<f64>| {
+        let cells = published
             .iter()
             .zip(&found)
             .map(|(p, r)| Cell {
-                ours: r.and_then(|r| r.facts.value(Figure::ReducedMb).ok()).zip(base_mb).map(|(a, b)| a / b),
-                paper: paper_base.map(|b| p.compressed_mb / b),
+                ours: r.and_then(ours),
+                paper: paper(p),
                 source: r.map(|r| format!("runs/{}", r.name)),
                 ..Cell::default()
             })
-            .collect(),
+            .collect();
+        Row::numeric(key, label, unit, 2, cells)
     };
-    let gather = Row {
-        key: "transfer_ms".into(),
-        label: "macro-scale transfer per frame (gather)".into(),
-        unit: "ms".into(),
-        decimals: 2,
-        text: false,
-        cells: published
-            .iter()
-            .zip(&found)
-            .map(|(p, r)| Cell {
-                ours: r.and_then(|r| lossless_paper(r.facts.metrics)).map(|b| b.gather_ms),
-                paper: Some(p.transfer_ms),
-                source: r.map(|r| format!("runs/{}", r.name)),
-                ..Cell::default()
-            })
-            .collect(),
-    };
+    let ratio = derived(
+        "storage_over_8x8",
+        "compressed T over the first grid's",
+        "x",
+        &|r| r.facts.value(Figure::ReducedMb).ok().zip(base_mb).map(|(a, b)| a / b),
+        &|p| paper_base.map(|b| p.compressed_mb / b),
+    );
+    let gather = derived(
+        "transfer_ms",
+        "macro-scale transfer per frame (gather)",
+        "ms",
+        &|r| lossless_paper(r.facts.metrics).map(|b| b.gather_ms),
+        &|p| Some(p.transfer_ms),
+    );
     let rows = vec![
         figure(Figure::NnzM, &|_| f64::NAN),
         figure(Figure::ReducedMb, &|p| p.compressed_mb),

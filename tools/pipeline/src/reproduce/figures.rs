@@ -11,7 +11,8 @@ use std::path::Path;
 /// One picture of a figure.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Panel {
-    /// Where it is in the output folder: `figures/<id>/<name>.png`.
+    /// Where it is in the output folder: `figures/<id>/<name>.png`; empty for a spacer (an
+    /// empty place in a row, [`FigureSet::spacer`]).
     pub file: String,
     pub label: String,
     /// Where it was copied from, relative to the output folder (`runs/<run>/images/...`).
@@ -42,6 +43,16 @@ impl FigureSet {
             per_row: per_row.max(1),
             panels: vec![],
         }
+    }
+
+    /// An empty place in the row (under a panel that has nothing below it).
+    pub fn spacer(&mut self) {
+        self.panels.push(Panel { file: String::new(), label: String::new(), source: String::new() });
+    }
+
+    /// The panels that are pictures (not spacers).
+    pub fn pictures(&self) -> impl Iterator<Item = &Panel> {
+        self.panels.iter().filter(|p| !p.file.is_empty())
     }
 
     /// Copy `from` (relative to the output folder `out`) into `figures/<id>/<name>.png` and add
@@ -76,13 +87,16 @@ pub fn latex(f: &FigureSet) -> String {
     let _ = writeln!(s, "\\begin{{figure*}}[t]\n\\centering");
     let width = 0.98 / f.per_row as f64;
     for (i, p) in f.panels.iter().enumerate() {
-        let _ = writeln!(
-            s,
-            "\\begin{{minipage}}[t]{{{width:.3}\\textwidth}}\\centering\\includegraphics[width=\\linewidth]{{{}}}\\\\\\footnotesize {}\\end{{minipage}}{}",
-            p.file,
-            latex_escape(&p.label),
-            if (i + 1) % f.per_row == 0 { "\\\\[2pt]" } else { "\\hfill" }
-        );
+        let end = if (i + 1) % f.per_row == 0 { "\\\\[2pt]" } else { "\\hfill" };
+        let _ = match p.file.is_empty() {
+            true => writeln!(s, "\\begin{{minipage}}[t]{{{width:.3}\\textwidth}}\\mbox{{}}\\end{{minipage}}{end}"),
+            false => writeln!(
+                s,
+                "\\begin{{minipage}}[t]{{{width:.3}\\textwidth}}\\centering\\includegraphics[width=\\linewidth]{{{}}}\\\\\\footnotesize {}\\end{{minipage}}{end}",
+                p.file,
+                latex_escape(&p.label),
+            ),
+        };
     }
     let _ = writeln!(s, "\\caption{{{}: {}}}", latex_escape(&f.title), latex_escape(&f.caption.replace('`', "")));
     let _ = writeln!(s, "\\label{{fig:reproduce-{}}}\n\\end{{figure*}}", f.id);
@@ -95,6 +109,10 @@ pub fn html(f: &FigureSet, out: &Path) -> Result<String> {
     let _ = writeln!(s, "<h2 id=\"{}\">{}</h2>\n<figure>", html_escape(&f.id), html_escape(&f.title));
     let width = 100.0 / f.per_row as f64 - 1.0;
     for p in &f.panels {
+        if p.file.is_empty() {
+            let _ = writeln!(s, "<div class=\"panel\" style=\"width:{width:.1}%\"></div>");
+            continue;
+        }
         let path = out.join(&p.file);
         let bytes = std::fs::read(&path).map_err(io_err(&path))?;
         let _ = writeln!(
@@ -126,11 +144,14 @@ mod tests {
         let e = f.add(out, "runs/a/images/missing.png", "m", "m").unwrap_err().to_string();
         assert!(e.contains("missing.png") && e.contains("fig7"), "{e}");
         assert_eq!(f.panels.len(), 1);
+        f.spacer();
+        assert_eq!((f.panels.len(), f.pictures().count()), (2, 1));
         let tex = latex(&f);
         assert!(tex.contains("\\includegraphics[width=\\linewidth]{figures/fig7/bicluster.png}"), "{tex}");
         assert!(tex.contains("lossless\\_bicluster") && tex.contains("The temple \\& five BTFs"), "{tex}");
         let h = html(&f, out).unwrap();
         assert!(h.contains("data:image/png;base64,iVBORyBmYWtl"), "{h}");
         assert!(h.contains("<figcaption>The temple &amp; <code>five</code> BTFs</figcaption>"), "{h}");
+        assert!(tex.contains("\\mbox{}") && h.contains("style=\"width:49.0%\"></div>"), "a spacer: {tex} {h}");
     }
 }

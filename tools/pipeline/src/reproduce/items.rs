@@ -34,8 +34,9 @@ pub struct RunSpec {
     pub set: &'static [&'static str],
     /// `--quick`'s overrides beside [`QUICK`], for this config's own keys.
     pub quick: &'static [&'static str],
-    /// The run whose inset region this one takes (`report.inset`), so a figure that sets
-    /// their images side by side magnifies the same pixels.
+    /// The run whose inset region and error scale this one takes (`report.inset`,
+    /// `report.reference_error_scale`), so a figure that sets their images side by side
+    /// magnifies the same pixels and shares one colour bar.
     pub inset_from: Option<&'static str>,
 }
 

@@ -180,13 +180,16 @@ pub fn reproduce(opts: &Options) -> Result<Outcome> {
             if opts.quick { ", quick" } else { "" }
         );
         let start = std::time::Instant::now();
-        // A twin run magnifies the same pixels as the run it is set beside (before the
-        // user's --set, which wins).
+        // A twin run magnifies the same pixels as the run it is set beside, and draws its
+        // errors against the ground truth on the same colour bar (before the user's --set,
+        // which wins).
         let mut overrides = vec![];
-        if let Some(twin) = spec.inset_from {
-            let inset = done.iter().find(|d| d.0.name == twin).and_then(|d| d.1.figures.as_ref()).map(|f| f.inset);
-            if let Some([x, y, w, h]) = inset {
-                overrides.push(format!("report.inset=[{x}, {y}, {w}, {h}]"));
+        let twin = spec.inset_from.and_then(|t| done.iter().find(|d| d.0.name == t)).and_then(|d| d.1.figures.as_ref());
+        if let Some(f) = twin {
+            let [x, y, w, h] = f.inset;
+            overrides.push(format!("report.inset=[{x}, {y}, {w}, {h}]"));
+            if let Some(scale) = f.reference_error_scale {
+                overrides.push(format!("report.reference_error_scale={scale:?}"));
             }
         }
         overrides.extend(opts.overrides.iter().cloned());

@@ -110,6 +110,7 @@ pub(crate) fn comparison_figures(
     base: &Baseline,
     view: &View<'_>,
     reference: Option<&Reference>,
+    fixed_scale: Option<f32>,
     out_dir: &Path,
 ) -> Result<ComparisonFigures> {
     use crate::inset;
@@ -130,6 +131,8 @@ pub(crate) fn comparison_figures(
         for (_, small) in &scored {
             scale = scale.max(error_extent(small, &r.render.image)?.0);
         }
+        // `[report] reference_error_scale` puts them on another run's colour bar.
+        let scale = fixed_scale.unwrap_or(scale);
         for (name, small) in &scored {
             let png = reference_error_png(name);
             write_error_figure(small, &r.render.image, "ground truth", Some(scale), &out_dir.join(&png))?;
