@@ -518,8 +518,9 @@ pub fn colour_bar_height(width: u32) -> u32 {
 
 /// `picture` (a false-colour error map, [`biscale_shading::image::error_image`]) with its colour
 /// bar below: the viridis ramp from 0 to `scale`, ticks at 0, half and full scale, and
-/// `label` saying what is measured and in which unit (one or two lines, split at `\n`). The
-/// bar is at least 300 pixels wide; a narrower picture is centred above it on white. Under a
+/// `label` saying what is measured and in which unit (one or two lines, split at `\n`; a line
+/// too long for the bar is set in a smaller size, not clipped). The bar is at least 300 pixels
+/// wide; a narrower picture is centred above it on white. Under a
 /// wider picture the bar, its ticks and text grow with it ([`colour_bar_height`]).
 pub fn with_colour_bar(picture: &image::RgbImage, scale: f32, label: &str) -> Result<image::RgbImage, String> {
     register_font();
@@ -546,6 +547,13 @@ pub fn with_colour_bar(picture: &image::RgbImage, scale: f32, label: &str) -> Re
             root.draw(&Text::new(tick_label((scale * frac) as f64), (x, at(20.0)), style)).map_err(e)?;
         }
         for (i, line) in label.lines().take(2).enumerate() {
+            // A line wider than the bar is set smaller until it fits, never clipped.
+            let avail = w as f64 - 2.0 * at(6.0) as f64;
+            let width = text_size(line, font).0;
+            let font = match width > avail {
+                true => ((font as f64 * avail / width).floor() as u32).max(6),
+                false => font,
+            };
             let style = ("sans-serif", font).into_font().color(&BLACK).pos(Pos::new(HPos::Center, VPos::Top));
             root.draw(&Text::new(line.to_string(), (w as i32 / 2, at(33.0 + 13.0 * i as f64)), style)).map_err(e)?;
         }
@@ -691,6 +699,24 @@ fn draw_frames<DB: DrawingBackend>(
 
 #[cfg(test)]
 mod tests {
+    /// A label longer than the bar is set smaller, inside the bar's margins, not clipped at
+    /// its edges (the run's own labels fit at every width from 300 to 1000 pixels; a longer
+    /// `against` name need not).
+    #[test]
+    fn a_long_colour_bar_label_fits_inside_the_bar() {
+        let long = "luminance of |error| vs the uncompressed render of the paper's cosine rule (linear radiance)\nlargest 0.25";
+        for w in [300, 320, 640, 1000] {
+            let out = with_colour_bar(&image::RgbImage::new(w, 30), 0.25, long).unwrap();
+            let h = colour_bar_height(w);
+            let lum = |x: u32, y: u32| out.get_pixel(x, y).0.iter().map(|&c| c as u32).sum::<u32>();
+            // The label lines, below the tick labels.
+            let dark_at = |x: u32| (30 + h * 33 / 60..30 + h).any(|y| lum(x, y) < 600);
+            assert!((0..w).filter(|&x| dark_at(x)).count() as u32 > w / 3, "{w}: the label is drawn");
+            let edge = (w / 100).max(2);
+            assert!(!(0..edge).chain(w - edge..w).any(dark_at), "{w}: nothing at the bar's edges");
+        }
+    }
+
     #[test]
     fn a_colour_bar_runs_from_zero_to_the_scale_under_the_picture() {
         let picture = image::RgbImage::from_pixel(120, 30, image::Rgb([1, 2, 3]));
