@@ -604,6 +604,14 @@ pub fn frame_plot(path: &Path, title: &str, curves: &[FrameCurve]) -> Result<(),
     std::fs::rename(&tmp, &svg_path).map_err(|e| format!("{}: {e}", svg_path.display()))
 }
 
+/// A frame index on the axis: whole frames only (the mesh's fractional ticks stay unlabelled).
+fn frame_label(v: &f64) -> String {
+    match (v - v.round()).abs() < 1e-6 {
+        true => format!("{v:.0}"),
+        false => String::new(),
+    }
+}
+
 fn draw_frames<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     title: &str,
@@ -633,7 +641,8 @@ fn draw_frames<DB: DrawingBackend>(
         .configure_mesh()
         .x_desc("frame")
         .y_desc("rel. L2 vs uncompressed")
-        .x_label_formatter(&|v| format!("{v:.0}"))
+        .x_labels(frames.clamp(2, 13))
+        .x_label_formatter(&frame_label)
         .y_label_formatter(&|v| tick_label(*v))
         .label_style(("sans-serif", 13))
         .draw()
@@ -673,7 +682,8 @@ fn draw_frames<DB: DrawingBackend>(
         .configure_mesh()
         .x_desc("frame")
         .y_desc("frame time, ms (gather + shade)")
-        .x_label_formatter(&|v| format!("{v:.0}"))
+        .x_labels(frames.clamp(2, 13))
+        .x_label_formatter(&frame_label)
         .label_style(("sans-serif", 13))
         .draw()
         .map_err(e)?;

@@ -517,6 +517,6 @@ pub fn animation_figure(out: &Path, run: &RunOutcome<'_>) -> Result<Option<Figur
     for s in &a.series {
         f.add(out, &format!("runs/{}/{}", run.name, s.apng), &s.name.replace([':', '/'], "-"), s.name.clone())?;
     }
-    f.add(out, &format!("runs/{}/{}", run.name, a.plot), "per-frame", "per-frame error and frame time")?;
+    f.add_wide(out, &format!("runs/{}/{}", run.name, a.plot), "per-frame", "per-frame error and frame time")?;
     Ok(Some(f))
 }

@@ -17,6 +17,8 @@ pub struct Panel {
     pub label: String,
     /// Where it was copied from, relative to the output folder (`runs/<run>/images/...`).
     pub source: String,
+    /// Across the whole figure on a row of its own (a plot under the images).
+    pub wide: bool,
 }
 
 /// A figure of the paper: its panels under one caption.
@@ -47,7 +49,7 @@ impl FigureSet {
 
     /// An empty place in the row (under a panel that has nothing below it).
     pub fn spacer(&mut self) {
-        self.panels.push(Panel { file: String::new(), label: String::new(), source: String::new() });
+        self.panels.push(Panel { file: String::new(), label: String::new(), source: String::new(), wide: false });
     }
 
     /// The panels that are pictures (not spacers).
@@ -71,7 +73,16 @@ impl FigureSet {
             std::fs::create_dir_all(dir).map_err(io_err(dir))?;
             std::fs::copy(&src, &dst).map_err(io_err(&dst))?;
         }
-        self.panels.push(Panel { file, label: label.into(), source: from.into() });
+        self.panels.push(Panel { file, label: label.into(), source: from.into(), wide: false });
+        Ok(())
+    }
+
+    /// [`Self::add`] across the whole figure, on a row of its own.
+    pub fn add_wide(&mut self, out: &Path, from: &str, name: &str, label: impl Into<String>) -> Result<()> {
+        self.add(out, from, name, label)?;
+        if let Some(p) = self.panels.last_mut() {
+            p.wide = true;
+        }
         Ok(())
     }
 }
@@ -87,6 +98,15 @@ pub fn latex(f: &FigureSet) -> String {
     let _ = writeln!(s, "\\begin{{figure*}}[t]\n\\centering");
     let width = 0.98 / f.per_row as f64;
     for (i, p) in f.panels.iter().enumerate() {
+        if p.wide {
+            let _ = writeln!(
+                s,
+                "\\par\\includegraphics[width=\\linewidth]{{{}}}\\\\\\footnotesize {}\\\\[2pt]",
+                p.file,
+                latex_escape(&p.label)
+            );
+            continue;
+        }
         let end = if (i + 1) % f.per_row == 0 { "\\\\[2pt]" } else { "\\hfill" };
         let _ = match p.file.is_empty() {
             true => writeln!(s, "\\begin{{minipage}}[t]{{{width:.3}\\textwidth}}\\mbox{{}}\\end{{minipage}}{end}"),
@@ -115,6 +135,7 @@ pub fn html(f: &FigureSet, out: &Path) -> Result<String> {
         }
         let path = out.join(&p.file);
         let bytes = std::fs::read(&path).map_err(io_err(&path))?;
+        let width = if p.wide { 99.0 } else { width };
         let _ = writeln!(
             s,
             "<div class=\"panel\" style=\"width:{width:.1}%\"><img src=\"data:image/png;base64,{}\" alt=\"{}\" title=\"{}\"><br>{}</div>",
@@ -153,5 +174,9 @@ mod tests {
         assert!(h.contains("data:image/png;base64,iVBORyBmYWtl"), "{h}");
         assert!(h.contains("<figcaption>The temple &amp; <code>five</code> BTFs</figcaption>"), "{h}");
         assert!(tex.contains("\\mbox{}") && h.contains("style=\"width:49.0%\"></div>"), "a spacer: {tex} {h}");
+        f.add_wide(out, "runs/a/images/x.png", "plot", "the plot").unwrap();
+        let (tex, h) = (latex(&f), html(&f, out).unwrap());
+        assert!(tex.contains("\\par\\includegraphics[width=\\linewidth]{figures/fig7/plot.png}"), "{tex}");
+        assert!(h.contains("style=\"width:99.0%\"><img"), "{h}");
     }
 }
