@@ -445,7 +445,7 @@ mod isolated {
                 child
                     .stats(
                         &CompressedForm::new("x", random_transfer(1, 1, 1, 0.0, 0).shape()),
-                        &random_transfer(1, 1, 1, 0.0, 0)
+                        (&random_transfer(1, 1, 1, 0.0, 0)).into()
                     )
                     .unwrap()["isolated"],
                 json!(true)

@@ -12,7 +12,7 @@ use crate::artifact::{Artifact, ArtifactError, Field};
 use crate::basis::{LightBasis, LocalBasis, TransferShape};
 use crate::gather::LocalRadiance;
 use crate::sampling::LightVector;
-use crate::transfer::TransferMatrix;
+use crate::transfer::{TransferMatrix, TransferView};
 use biscale_kernels::{FormData, FormError, KernelDesc};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -282,6 +282,13 @@ pub enum CompressError {
     External(Box<dyn std::error::Error + Send + Sync>),
 }
 
+/// A failure outside the compressor, met on its way (reading a part of `T`).
+impl From<crate::error::CoreError> for CompressError {
+    fn from(e: crate::error::CoreError) -> Self {
+        CompressError::External(Box::new(e))
+    }
+}
+
 impl From<FormError> for CompressError {
     fn from(e: FormError) -> Self {
         CompressError::Malformed { kind: e.kind, array: e.array, what: e.what }
@@ -346,8 +353,9 @@ pub trait Compressor: Send + Sync {
     /// structural checks the host runs before any upload.
     fn kernels(&self, form: &CompressedForm) -> Result<KernelDesc, CompressError>;
     /// Compressor-specific statistics of `form` for the report (biclustering: the paper's
-    /// Table I quantities); none by default.
-    fn stats(&self, _form: &CompressedForm, _t: &TransferMatrix) -> Option<serde_json::Value> {
+    /// Table I quantities); none by default. `t` may be a sharded run's parts, read one at a
+    /// time ([`TransferView::for_each_part`]): statistics that need `T`'s values make one pass.
+    fn stats(&self, _form: &CompressedForm, _t: TransferView<'_>) -> Option<serde_json::Value> {
         None
     }
     /// A hash of the code that makes this compressor's forms when it is not biscale's own

@@ -214,7 +214,7 @@ impl Experiment {
                 let geometry = biscale::stages::scene::load_geometry(&self.exp)?;
                 let cache = biscale::store::cache::StageCache::new(&opts, std::path::Path::new("."));
                 let t = biscale::stages::transfer::transfer_matrix(&self.exp, &geometry, cache.as_ref())?;
-                Ok::<_, biscale::error::PipelineError>((t.matrix, geometry.transfer.frames().to_vec()))
+                Ok::<_, biscale::error::PipelineError>((t.into_whole("Transfer")?, geometry.transfer.frames().to_vec()))
             })
             .map_err(err)?;
         Ok(Transfer { t: Arc::new(t), frames: Some(Arc::new(frames)), exp: self.exp.clone() })

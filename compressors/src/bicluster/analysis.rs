@@ -6,7 +6,7 @@
 
 use super::BiclusterView;
 use biscale_core::compress::{CompressError, CompressedForm};
-use biscale_core::transfer::TransferMatrix;
+use biscale_core::transfer::{TransferMatrix, TransferView};
 use rayon::prelude::*;
 use serde::Serialize;
 use std::collections::{BTreeMap, BTreeSet, HashMap};
@@ -103,50 +103,60 @@ pub struct AchievedError {
 }
 
 /// The error of `form` against `t`, from the form's decompressed integer codes and `t`'s
-/// codes at the form's `value_scale`, accumulated in f64 (exact for the Frobenius sums).
-pub fn achieved_error(form: &CompressedForm, t: &TransferMatrix) -> Result<AchievedError, CompressError> {
+/// codes at the form's `value_scale`, accumulated in f64 (exact for the Frobenius sums). The
+/// sums run over rows in order, part after part, so `T`'s parts give what `T` whole gives.
+pub fn achieved_error<'a>(
+    form: &CompressedForm,
+    t: impl Into<TransferView<'a>>,
+) -> Result<AchievedError, CompressError> {
+    let t = t.into();
     let kept = super::decompress_codes(form)?;
-    let full = super::codes::quantize(t, kept.scale)?;
-    if (kept.rows, kept.cols) != (full.rows, full.cols) {
+    if (kept.rows, kept.cols) != (t.rows(), t.cols()) {
         return Err(CompressError::malformed("bicluster", "shape", "does not match T"));
     }
     let omega = match t.light_basis() {
         biscale_core::basis::LightBasis::Cubemap(c) => Some(c.solid_angles()),
         _ => None,
     };
+    let m = t.local_dirs();
     let (mut e2, mut t2, mut se2, mut st2) = (0f64, 0f64, 0f64, 0f64);
     // Ordered by column, so the f64 sums run in one order on every run (a hash map's order
     // differs per process, and with it the last bit of `sky`).
     let mut diff: BTreeMap<u16, i32> = BTreeMap::new();
-    for i in 0..full.rows {
-        diff.clear();
-        let mut sky_t = 0.0;
-        for (k, c) in full.row(i) {
-            *diff.entry(k).or_insert(0) += c as i32;
-            t2 += (c as f64).powi(2);
-            if let Some(w) = &omega {
-                sky_t += c as f64 * w[k as usize];
+    t.for_each_part(|first: usize, part: &TransferMatrix| -> Result<(), CompressError> {
+        let full = super::codes::quantize(part, kept.scale)?;
+        for i in 0..full.rows {
+            diff.clear();
+            let mut sky_t = 0.0;
+            for (k, c) in full.row(i) {
+                *diff.entry(k).or_insert(0) += c as i32;
+                t2 += (c as f64).powi(2);
+                if let Some(w) = &omega {
+                    sky_t += c as f64 * w[k as usize];
+                }
             }
-        }
-        for (k, c) in kept.row(i) {
-            *diff.entry(k).or_insert(0) -= c as i32;
-        }
-        let mut sky_e = 0.0;
-        for (&k, &d) in &diff {
-            e2 += (d as f64).powi(2);
-            if let Some(w) = &omega {
-                sky_e += d as f64 * w[k as usize];
+            for (k, c) in kept.row(first * m + i) {
+                *diff.entry(k).or_insert(0) -= c as i32;
             }
+            let mut sky_e = 0.0;
+            for (&k, &d) in &diff {
+                e2 += (d as f64).powi(2);
+                if let Some(w) = &omega {
+                    sky_e += d as f64 * w[k as usize];
+                }
+            }
+            se2 += sky_e * sky_e;
+            st2 += sky_t * sky_t;
         }
-        se2 += sky_e * sky_e;
-        st2 += sky_t * sky_t;
-    }
+        Ok(())
+    })?;
     let rel = |a: f64, b: f64| if b == 0.0 { 0.0 } else { (a / b).sqrt() };
     Ok(AchievedError { frobenius: rel(e2, t2), sky: omega.map(|_| rel(se2, st2)) })
 }
 
 /// Table I stats of `form` (a bicluster form of `t`).
-pub fn table_stats(form: &CompressedForm, t: &TransferMatrix) -> Result<BiclusterStats, CompressError> {
+pub fn table_stats<'a>(form: &CompressedForm, t: impl Into<TransferView<'a>>) -> Result<BiclusterStats, CompressError> {
+    let t = t.into();
     let v = BiclusterView::new(form)?;
     if (v.rows, v.cols) != (t.rows(), t.cols()) {
         return Err(CompressError::malformed(
@@ -155,7 +165,11 @@ pub fn table_stats(form: &CompressedForm, t: &TransferMatrix) -> Result<Bicluste
             format!("is {}x{}, T is {}x{}", v.rows, v.cols, t.rows(), t.cols()),
         ));
     }
-    let nnz = t.csr().data().iter().filter(|&&x| x != 0.0).count() as u64;
+    let mut nnz = 0u64;
+    t.for_each_part(|_, part| -> Result<(), CompressError> {
+        nnz += part.csr().data().iter().filter(|&&x| x != 0.0).count() as u64;
+        Ok(())
+    })?;
     let r: Vec<u64> = v.bicluster_rows().into_iter().map(u64::from).collect();
     let l: Vec<u64> = v.bicluster_cols().into_iter().map(u64::from).collect();
     let w: u64 = r.iter().zip(&l).map(|(&r, &l)| r + 2 * l - 1).sum();

@@ -62,7 +62,7 @@ use biscale_core::compress::{
 };
 use biscale_core::gather::LocalRadiance;
 use biscale_core::sampling::LightVector;
-use biscale_core::transfer::TransferMatrix;
+use biscale_core::transfer::{TransferMatrix, TransferView};
 use biscale_kernels::{Count, Factor, FormCheck, KernelDesc, PassDesc, ScratchDesc};
 use codes::CodeMatrix;
 use rayon::prelude::*;
@@ -353,7 +353,7 @@ impl Compressor for Bicluster {
         })
     }
 
-    fn stats(&self, form: &CompressedForm, t: &TransferMatrix) -> Option<serde_json::Value> {
+    fn stats(&self, form: &CompressedForm, t: TransferView<'_>) -> Option<serde_json::Value> {
         match table_stats(form, t) {
             Ok(s) => serde_json::to_value(s).ok(),
             Err(e) => {

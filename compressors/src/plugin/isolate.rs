@@ -54,7 +54,7 @@ use biscale_core::artifact::{Artifact, Field};
 use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::sampling::LightVector;
-use biscale_core::transfer::TransferMatrix;
+use biscale_core::transfer::{TransferMatrix, TransferView};
 use biscale_kernels::{Count, Factor, FormCheck, KernelDesc, PassDesc, ScratchDesc};
 use serde_json::{json, Value};
 use std::io::{Read, Write};
@@ -533,7 +533,7 @@ impl Compressor for IsolatedPlugin {
     }
 
     /// Says that the setting ran isolated and that its CPU times include the pipes.
-    fn stats(&self, _form: &CompressedForm, _t: &TransferMatrix) -> Option<Value> {
+    fn stats(&self, _form: &CompressedForm, _t: TransferView<'_>) -> Option<Value> {
         Some(json!({
             "isolated": true,
             "host": self.host.display().to_string(),

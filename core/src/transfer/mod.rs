@@ -15,10 +15,13 @@
 //! * [`build`] / [`build_range`]: `T` for a mesh, or for a range of its vertices (a shard).
 //! * [`TransferMatrix`]: the stacked result, carrying its bases; `save` / `load` keep it as
 //!   a file of its own (the stage cache).
+//! * [`TransferView`]: `T` whole or as a sharded precompute's [`TransferParts`], read one
+//!   part at a time: what every pass over `T` after the compressors takes.
 //! * [`sh`]: the low-frequency method's SH transfer `M` (local SH x world SH), ray traced on
 //!   the same [`TransferScene`] or projected from `T`.
 
 mod build;
+mod parts;
 mod sampler;
 mod scene;
 pub mod sh;
@@ -27,6 +30,7 @@ pub use build::{
     build, build_range, nnz_strata, sample_nnz, worst_case_bytes, NnzEstimate, NnzStratum, TransferBuild,
     TransferMemory, TransferStats, BYTES_PER_NONZERO, MAX_TRANSFER_BYTES, NNZ_MARGIN_SIGMAS, NNZ_SAMPLE_VERTICES,
 };
+pub use parts::{TransferParts, TransferView};
 pub use sampler::{VisibilitySampler, VisibilityScratch};
 pub use scene::{TransferScene, BVH_DIAGONAL, ORIGIN_OFFSET};
 

@@ -62,8 +62,8 @@ fn main() -> Result<()> {
     let start = Instant::now();
     let geometry = load_geometry(&exp)?;
     let lighting = load_lighting(&exp)?;
-    let t = transfer_matrix(&exp, &geometry, cache.as_ref())?.matrix;
-    let (scene, materials) = shade_scene(&exp, &geometry, &t, cache.as_ref())?;
+    let t = transfer_matrix(&exp, &geometry, cache.as_ref())?.into_whole("the glossy terms")?;
+    let (scene, materials) = shade_scene(&exp, &geometry, t.local_basis(), cache.as_ref())?;
     let brdfs = &materials.analytic;
     if brdfs.iter().any(Option::is_none) {
         bail!("{}: every material must be an analytic BRDF ({})", args.config.display(), materials.reference_shading());

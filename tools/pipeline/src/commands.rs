@@ -25,7 +25,8 @@ pub fn export_matrix(exp: &Experiment, dir: &Path, opts: &RunOptions) -> Result<
     let staged = shared.path();
     let geometry = crate::stages::scene::load_geometry(exp)?;
     let lighting = crate::stages::scene::load_lighting(exp)?;
-    let t = crate::stages::transfer::transfer_matrix(exp, &geometry, StageCache::new(opts, dir).as_ref())?.matrix;
+    let t = crate::stages::transfer::transfer_matrix(exp, &geometry, StageCache::new(opts, dir).as_ref())?
+        .into_whole("export-matrix")?;
     crate::interop::mtx::write_mtx(&t, &lighting.light, staged)?;
     write_scene(exp, &geometry, staged)?;
     write_irradiance(&t, &lighting.light, geometry.transfer.frames(), staged)?;
@@ -292,7 +293,7 @@ pub fn viz(
     let cache = StageCache::new(opts, out);
     let out = shared.path();
     let geometry = crate::stages::scene::load_geometry(exp)?;
-    let t = crate::stages::transfer::transfer_matrix(exp, &geometry, cache.as_ref())?.matrix;
+    let t = crate::stages::transfer::transfer_matrix(exp, &geometry, cache.as_ref())?.into_whole("viz")?;
     let form =
         Bicluster::default().compress(&t, &CompressContext { seed: exp.file.seed, progress: None }).map_err(cerr)?;
     let count = count.clamp(1, t.vertices().max(1));
@@ -374,7 +375,7 @@ pub fn view(
     let lighting = crate::stages::scene::load_lighting(exp)?;
     let cache = StageCache::new(opts, &out);
     let t = crate::stages::transfer::transfer_matrix(exp, &geometry, cache.as_ref())?;
-    let (scene, _) = crate::stages::scene::shade_scene(exp, &geometry, &t.matrix, cache.as_ref())?;
+    let (scene, _) = crate::stages::scene::shade_scene(exp, &geometry, t.view().local_basis(), cache.as_ref())?;
     let mut forms = vec![];
     let (scene, light_basis) = match method {
         Some(setting) => {
@@ -388,14 +389,14 @@ pub fn view(
             forms.push(ViewerForm { label: setting.label.clone(), form: p.form, kernels });
             (p.scene, basis)
         }
-        None => (scene, t.matrix.light_basis()),
+        None => (scene, t.view().light_basis()),
     };
     for setting in plan.compressors.iter().filter(|_| method.is_none()) {
         let c = crate::stages::transfer::build_compressor(setting)?;
         let (form, _) = crate::stages::transfer::compressed_form(
             setting,
             c.as_ref(),
-            &t.matrix,
+            t.whole("the viewer's forms")?,
             &t.key,
             exp.file.seed,
             cache.as_ref(),

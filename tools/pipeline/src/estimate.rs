@@ -104,6 +104,9 @@ pub struct RunMemory {
     pub nnz: NnzEstimate,
     /// `T`'s buffers at `nnz.upper` non-zeros.
     pub transfer: TransferMemory,
+    /// A merge that streams `T` ([`RunShape::streamed_part`]): the largest part as loaded,
+    /// all of `T` it holds at once (then `transfer` is what it never builds).
+    pub streamed_part: Option<u64>,
     pub baseline: u64,
     pub geometry: u64,
     /// The environment map as loaded (with its decoding) and `L`.
@@ -136,6 +139,10 @@ pub struct RunShape {
     pub cache: bool,
     /// Threads tracing `T` and building compressors.
     pub threads: usize,
+    /// A sharded merge that streams `T` from the shards' files: the vertices of the largest
+    /// part, all of `T` it holds at once (it builds no `T` and no separable form; `None`: a
+    /// run that holds `T` whole).
+    pub streamed_part: Option<usize>,
 }
 
 impl RunMemory {
@@ -183,24 +190,38 @@ impl RunMemory {
             .collect();
 
         let common = PROCESS_BASELINE_BYTES + geometry + lighting;
-        let mut phases = vec![Part::new("transfer build", common + transfer.build_peak())];
-        if shape.cache {
+        // What of T is alive after the transfer stage: all of it, or (streamed) nothing but
+        // the one part a pass has loaded, during the baseline's passes.
+        let (held, part) = match shape.streamed_part {
+            None => (transfer.csr, 0),
+            Some(v) => {
+                let part_nnz = (nnz as f64 * v as f64 / shape.vertices.max(1) as f64).ceil() as u64;
+                (0, TransferMemory::new(settings, v, part_nnz, shape.threads).load_peak())
+            }
+        };
+        let mut phases = match shape.streamed_part {
+            None => vec![Part::new("transfer build", common + transfer.build_peak())],
+            Some(_) => vec![Part::new("transfer: one shard's part at a time", common + part)],
+        };
+        if shape.cache && shape.streamed_part.is_none() {
             phases.push(Part::new("transfer cache write", common + transfer.save_peak()));
         }
-        let materials = (common + transfer.csr + btfs).saturating_add(representations.tables);
+        let materials = (common + held + btfs).saturating_add(representations.tables);
         if let Some(b) = &representations.largest_build {
             phases.push(Part::new(format!("materials: local-PCA build {}", b.name), materials.saturating_add(b.bytes)));
         }
         let after = materials.saturating_add(images + vectors);
-        phases.push(Part::new("materials, baseline and reference", after));
+        phases.push(Part::new("materials, baseline and reference", after + part));
         if representations.study > 0 {
             phases.push(Part::new("btf study", after.saturating_add(representations.study)));
         }
         for c in &compressors {
+            // A streamed merge builds no form: it holds the shards' parts and the merged form.
+            let working = if shape.streamed_part.is_some() { c.form.saturating_mul(2) } else { c.working };
             let cache_write = if shape.cache { c.form.saturating_mul(2) } else { 0 };
             let upload =
                 if gpu_on { c.form.saturating_mul(2).saturating_add(gpu + rows * GPU_BYTES_PER_ROW) } else { 0 };
-            let bytes = after.saturating_add(c.working).saturating_add(cache_write).saturating_add(upload);
+            let bytes = after.saturating_add(working).saturating_add(cache_write).saturating_add(upload);
             phases.push(Part::new(format!("compress {}", c.label), bytes));
         }
         for p in &methods {
@@ -209,6 +230,7 @@ impl RunMemory {
         Self {
             nnz: estimate,
             transfer,
+            streamed_part: shape.streamed_part.map(|_| part),
             baseline: PROCESS_BASELINE_BYTES,
             geometry,
             lighting,
@@ -237,20 +259,30 @@ impl RunMemory {
             Part::new("process baseline", self.baseline),
             Part::new("mesh, frames and BVHs", self.geometry),
             Part::new("environment map and L", self.lighting),
-            Part::new("T: build staging (u16 columns and counts)", t.staging),
-            Part::new("T: CSR (f32 values, usize columns and row pointers)", t.csr),
-            Part::new("T: tracing scratch", t.scratch),
-            Part::new("T: cache file arrays (u32, u16, f32)", t.file_arrays),
-            Part::new("T: cache file encode buffer", t.file_bytes),
+        ];
+        match self.streamed_part {
+            None => parts.extend([
+                Part::new("T: build staging (u16 columns and counts)", t.staging),
+                Part::new("T: CSR (f32 values, usize columns and row pointers)", t.csr),
+                Part::new("T: tracing scratch", t.scratch),
+                Part::new("T: cache file arrays (u32, u16, f32)", t.file_arrays),
+                Part::new("T: cache file encode buffer", t.file_bytes),
+            ]),
+            Some(b) => parts.push(Part::new("T: the largest shard's part as it is read (streamed)", b)),
+        }
+        parts.extend([
             Part::new("BTFs", self.btfs),
             Part::new("images", self.images),
             Part::new("per-row vectors (T L in f64, L*)", self.vectors),
-        ];
+        ]);
         if self.gpu > 0 {
             parts.push(Part::new("wgpu instance", self.gpu));
         }
         for c in &self.compressors {
-            parts.push(Part::new(format!("compressor {} working set", c.label), c.working));
+            match self.streamed_part {
+                None => parts.push(Part::new(format!("compressor {} working set", c.label), c.working)),
+                Some(_) => parts.push(Part::new(format!("compressor {} shards' parts", c.label), c.form)),
+            }
             parts.push(Part::new(format!("compressor {} form", c.label), c.form));
         }
         for p in &self.methods {
@@ -581,16 +613,33 @@ fn method_bytes(s: &Setting, vertices: usize, cache: bool) -> u64 {
 /// Estimate the run of `exp` on its loaded geometry and lighting: traces the sample of
 /// vertices (well under a second), then counts every buffer.
 pub fn estimate(exp: &Experiment, geometry: &Geometry, lighting: &Lighting, cache: bool) -> RunMemory {
+    estimate_streamed(exp, geometry, lighting, cache, None)
+}
+
+/// [`estimate`] of a sharded merge that streams `T` from parts of at most `streamed_part`
+/// vertices (`None`: the run holds `T` whole).
+pub fn estimate_streamed(
+    exp: &Experiment,
+    geometry: &Geometry,
+    lighting: &Lighting,
+    cache: bool,
+    streamed_part: Option<usize>,
+) -> RunMemory {
     let settings = exp.transfer_settings();
     let nnz = sample_nnz(&geometry.transfer, &geometry.mesh.triangles, &settings, NNZ_SAMPLE_VERTICES, exp.file.seed);
-    let shape = RunShape {
+    RunMemory::new(exp, &RunShape { streamed_part, ..run_shape(geometry, lighting, cache) }, nnz)
+}
+
+/// The [`RunShape`] of a run on its loaded geometry and lighting, holding `T` whole.
+pub fn run_shape(geometry: &Geometry, lighting: &Lighting, cache: bool) -> RunShape {
+    RunShape {
         vertices: geometry.mesh.vertex_count(),
         triangles: geometry.mesh.triangle_count(),
         env_pixels: lighting.env.width * lighting.env.height,
         cache,
         threads: rayon::current_num_threads(),
-    };
-    RunMemory::new(exp, &shape, nnz)
+        streamed_part: None,
+    }
 }
 
 /// Estimate the run of `exp` and refuse it when the estimate exceeds the available memory:
@@ -600,8 +649,9 @@ pub fn check_run(
     geometry: &Geometry,
     lighting: &Lighting,
     cache: bool,
+    streamed_part: Option<usize>,
 ) -> Result<(RunMemory, Available), PipelineError> {
-    let memory = estimate(exp, geometry, lighting, cache);
+    let memory = estimate_streamed(exp, geometry, lighting, cache, streamed_part);
     let available = available()?;
     let peak = memory.peak();
     crate::util::note(format_args!(
@@ -880,7 +930,8 @@ mod tests {
     fn a_run_over_the_available_memory_is_refused_with_the_setting_to_change() {
         let dir = tempfile::tempdir().unwrap();
         let exp = crate::experiment::config::Experiment::load(&smoke_at(dir.path(), 32)).unwrap();
-        let shape = RunShape { vertices: 1839, triangles: 3674, env_pixels: 0, cache: true, threads: 2 };
+        let shape =
+            RunShape { vertices: 1839, triangles: 3674, env_pixels: 0, cache: true, threads: 2, streamed_part: None };
         let nnz = NnzEstimate::exact(1839, 5_000_000, &exp.transfer_settings());
         let m = RunMemory::new(&exp, &shape, nnz);
         let peak = m.peak().bytes;
@@ -901,7 +952,8 @@ mod tests {
         // (12 + 6 + 6).
         let dir = tempfile::tempdir().unwrap();
         let exp = crate::experiment::config::Experiment::load(&smoke_at(dir.path(), 32)).unwrap();
-        let shape = RunShape { vertices: 1000, triangles: 2000, env_pixels: 0, cache: true, threads: 2 };
+        let shape =
+            RunShape { vertices: 1000, triangles: 2000, env_pixels: 0, cache: true, threads: 2, streamed_part: None };
         let settings = exp.transfer_settings();
         let at = |nnz| RunMemory::new(&exp, &shape, NnzEstimate::exact(1000, nnz, &settings));
         let (small, large) = (at(1_000_000), at(2_000_000));
@@ -916,6 +968,37 @@ mod tests {
         assert_eq!(small.peak().bytes - no_cache.peak().bytes, 2 * (8 * 1_000_000 + 4 * (64_000 + 1)));
         // The worst case (N / 2 = 3072 per vertex) is the same count at 3,072,000 non-zeros.
         assert_eq!(small.worst_case_peak, at(3_072_000).peak().bytes);
+    }
+
+    #[test]
+    fn a_streamed_merge_holds_one_part_of_t_and_the_forms_not_t() {
+        // 1000 vertices at 1,000 non-zeros each in parts of at most 250: the streamed merge
+        // holds one part as it is read (a quarter of T's file arrays and CSR) instead of T's
+        // CSR, and each separable form twice (the shards' parts, the merged form) instead of
+        // the compressor's working set; it builds no T.
+        let dir = tempfile::tempdir().unwrap();
+        let exp = crate::experiment::config::Experiment::load(&smoke_at(dir.path(), 32)).unwrap();
+        let settings = exp.transfer_settings();
+        let shape =
+            RunShape { vertices: 1000, triangles: 2000, env_pixels: 0, cache: false, threads: 2, streamed_part: None };
+        let nnz = NnzEstimate::exact(1000, 1_000_000, &settings);
+        let whole = RunMemory::new(&exp, &shape, nnz);
+        let streamed = RunMemory::new(&exp, &RunShape { streamed_part: Some(250), ..shape }, nnz);
+        let part = TransferMemory::new(&settings, 250, 250_000, 2).load_peak();
+        assert_eq!(streamed.streamed_part, Some(part));
+        let phase = |m: &RunMemory, name: &str| m.phases.iter().find(|p| p.name == name).map(|p| p.bytes);
+        assert_eq!(phase(&streamed, "transfer build"), None);
+        let base = |m: &RunMemory| phase(m, "materials, baseline and reference").unwrap();
+        assert_eq!(base(&streamed), base(&whole) - whole.transfer.csr + part);
+        let sparse = &whole.compressors[0];
+        assert_eq!(
+            phase(&streamed, "compress sparse").unwrap() - base(&streamed) + part,
+            2 * sparse.form,
+            "the parts and the merged form"
+        );
+        assert!(streamed.peak().bytes < whole.peak().bytes);
+        let names: Vec<String> = streamed.parts().into_iter().map(|p| p.name).collect();
+        assert!(names.iter().any(|n| n.contains("streamed")) && !names.iter().any(|n| n.contains("CSR")), "{names:?}");
     }
 
     #[test]
@@ -998,6 +1081,7 @@ mod tests {
             env_pixels: 0,
             cache: false,
             threads: 2,
+            streamed_part: None,
         };
         let m = RunMemory::new(&exp, &shape, NnzEstimate::exact(shape.vertices, 100_000, &exp.transfer_settings()));
         let r = &m.representations;
@@ -1055,7 +1139,8 @@ mod tests {
     fn the_runs_own_peak_is_checked_against_the_limit() {
         let dir = tempfile::tempdir().unwrap();
         let exp = crate::experiment::config::Experiment::load(&smoke_at(dir.path(), 32)).unwrap();
-        let shape = RunShape { vertices: 1839, triangles: 3674, env_pixels: 0, cache: true, threads: 2 };
+        let shape =
+            RunShape { vertices: 1839, triangles: 3674, env_pixels: 0, cache: true, threads: 2, streamed_part: None };
         let m = RunMemory::new(&exp, &shape, NnzEstimate::exact(1839, 5_000_000, &exp.transfer_settings()));
         let limit = Available { bytes: 1 << 30, source: "BISCALE_MEMORY_LIMIT" };
         check_peak_at(Some(1 << 30), &m, &limit, "the transfer stage").unwrap();

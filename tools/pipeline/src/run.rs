@@ -19,6 +19,7 @@ use crate::stages::materials::SceneMaterials;
 use crate::stages::scene::{load_geometry, load_lighting, shade_scene, Geometry, Lighting};
 use crate::stages::transfer::{
     build_compressor, compressed_form, precomputed_transfer, sky_warning, transfer_matrix, Precomputed, Transfer,
+    TransferRows,
 };
 use crate::store::cache::{form_key, StageCache};
 use crate::store::staging::{fault_point, StagedDir};
@@ -121,23 +122,28 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
         crate::util::warn(w);
     }
     ctx.clock.mark("lighting");
-    let (memory, available) = crate::estimate::check_run(exp, &geometry, &lighting, ctx.cache.is_some())?;
+    let streamed = pre.as_ref().and_then(|p| p.streamed_part_vertices());
+    let (memory, available) = crate::estimate::check_run(exp, &geometry, &lighting, ctx.cache.is_some(), streamed)?;
     ctx.clock.mark("memory estimate");
     let (t, pre_forms, sharded) = match pre {
         Some(p) => {
             let t =
-                precomputed_transfer(p.matrix, p.rays_traced, p.transfer_seconds, exp, &geometry, ctx.cache.as_ref())?;
+                precomputed_transfer(p.rows, p.rays_traced, p.transfer_seconds, exp, &geometry, ctx.cache.as_ref())?;
             (t, p.forms, Some(p.sharded))
         }
         None => (transfer_matrix(exp, &geometry, ctx.cache.as_ref())?, Default::default(), None),
     };
-    ctx.clock.mark(if sharded.is_some() { "transfer (stacked from the shards)" } else { "transfer" });
+    ctx.clock.mark(match (&sharded, &t.rows) {
+        (None, _) => "transfer",
+        (Some(_), TransferRows::Whole(_)) => "transfer (stacked from the shards)",
+        (Some(_), TransferRows::Parts(_)) => "transfer (streamed from the shards)",
+    });
     fault_point("transfer");
     crate::estimate::check_peak(&memory, &available, "the transfer stage")?;
-    if let Some(w) = sky_warning(&t.metrics, t.matrix.vertices()) {
+    if let Some(w) = sky_warning(&t.metrics, t.view().vertices()) {
         crate::util::warn(w);
     }
-    let (scene, mut materials) = shade_scene(exp, &geometry, &t.matrix, ctx.cache.as_ref())?;
+    let (scene, mut materials) = shade_scene(exp, &geometry, t.view().local_basis(), ctx.cache.as_ref())?;
     for n in &materials.notes {
         log::info!("materials: {n}");
     }
@@ -153,7 +159,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     // The machine's load around the timed steps: from the uncompressed gather to the last method.
     let load_before = load_average_1min();
     let (images, cache) = (ctx.images_dir(), ctx.cache.as_ref());
-    let targets = targets(exp, &geometry, &lighting, &t.matrix, &view, &images, plan.reference, cache, &mut ctx.clock)?;
+    let targets = targets(exp, &geometry, &lighting, t.view(), &view, &images, plan.reference, cache, &mut ctx.clock)?;
     let (base, reference) = (&targets.base, targets.reference.as_ref());
 
     let study = crate::stages::btf_study::StudyInputs {
@@ -175,7 +181,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     if gpu.is_some() {
         ctx.clock.mark("gpu setup");
     }
-    let eval = Evaluation::new(exp, &t.matrix, &lighting, &geometry, &targets, &view, &out_dir, true);
+    let eval = Evaluation::new(exp, t.view(), &lighting, &geometry, &targets, &view, &out_dir, true);
     let forms = Forms { exp, t: &t, cache: ctx.cache.as_ref(), precomputed: pre_forms };
     let (mut records, renders, kept) =
         forms.evaluate(&compressors, &eval, gpu.as_mut(), &mut ctx.clock, &animated_labels)?;
@@ -221,7 +227,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
             let inputs = crate::stages::animation::Inputs {
                 exp,
                 lighting: &lighting,
-                t: &t.matrix,
+                t: t.whole("[runtime.animation]")?,
                 frames: geometry.transfer.frames(),
                 view: &view,
                 out_dir: &out_dir,
@@ -317,7 +323,10 @@ impl Forms<'_> {
                     }
                     (form, false)
                 }
-                None => compressed_form(setting, compressor.as_ref(), &t.matrix, &t.key, exp.file.seed, cache)?,
+                None => {
+                    let whole = t.whole(&format!("the compressor {}", setting.label))?;
+                    compressed_form(setting, compressor.as_ref(), whole, &t.key, exp.file.seed, cache)?
+                }
             };
             let (record, render) = eval.record(setting, compressor.as_ref(), &form, cached, gpu.as_deref_mut())?;
             records.push(record);

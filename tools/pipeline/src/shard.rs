@@ -17,10 +17,15 @@
 //!   is not complete, whatever else its folder holds; rerunning one starts by removing it, so
 //!   reruns are idempotent.
 //! * **merge** checks every shard (missing, stale or corrupt ones are listed with the command
-//!   that reruns them), stacks `T`, merges the parts' forms
+//!   that reruns them), merges the parts' forms
 //!   ([`biscale_core::compress::Compressor::merge_parts`]), and runs the rest of the
-//!   pipeline ([`crate::run::run_with`]): the compressors that need all of `T` (CPCA's
-//!   global k-means), gathers, shading and the report. `T`, the forms and the images are
+//!   pipeline ([`crate::run::run_with`]): gathers, shading and the report. When every step
+//!   after the shards is row-separable (no compressor that needs all of `T`, such as CPCA's
+//!   global k-means; no SH method; no animation) it **streams** `T`: the f64 baseline `T L`,
+//!   `T`'s record and the forms' error terms are passes over the shards' files, one part in
+//!   memory at a time ([`biscale_core::transfer::TransferView`]), so its peak is the forms,
+//!   the per-row vectors and the images, not `T`. Otherwise it stacks `T` whole, and the plan
+//!   says why ([`Manifest::stacked`]). Either way `T`'s products, the forms and the images are
 //!   byte-identical to `biscale run` of the same config (only timings differ).
 //! * **sbatch** writes a job-array script over the shards, a merge script and `submit.sh`,
 //!   which submits the merge with `--dependency=afterok` on the array.
@@ -32,11 +37,11 @@
 use crate::error::{PipelineError, Result};
 use crate::estimate::{human, Available};
 use crate::experiment::config::{CompressorSetting, Experiment};
-use crate::stages::transfer::{build_compressor, Precomputed};
+use crate::stages::transfer::{build_compressor, Precomputed, TransferRows};
 use crate::store::RunOptions;
 use biscale_core::compress::{CompressContext, CompressedForm, Compressor, Separability};
 use biscale_core::io::{write_atomic_bytes, ContentHash};
-use biscale_core::transfer::{self, TransferMatrix};
+use biscale_core::transfer::{self, TransferMatrix, TransferParts};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -97,6 +102,10 @@ pub struct Manifest {
     pub separable: Vec<ShardedSetting>,
     /// Compressors that run in the merge step, on all of `T`, and why.
     pub in_merge: Vec<MergeSetting>,
+    /// Why the merge stacks all of `T` in memory; `None`: every step after the shards is
+    /// row-separable and the merge streams `T` from the shards' files ([`stacked_because`]).
+    #[serde(default)]
+    pub stacked: Option<String>,
     pub estimate: ShardEstimate,
     pub shards: Vec<ShardSpec>,
 }
@@ -124,7 +133,8 @@ pub struct ShardEstimate {
     pub shard_peak_bytes: u64,
     /// Bytes the largest shard writes.
     pub shard_output_bytes: u64,
-    /// Peak memory of the merge (the run's estimate, `T` whole).
+    /// Peak memory of the merge (the run's estimate: with `T` whole, or streamed one shard's
+    /// part at a time).
     pub merge_peak_bytes: u64,
     /// CPU seconds of tracing all of `T`, from the time the sample took (its wall time x
     /// threads, per sampled vertex, x vertices): a rough guide for `--time`; the
@@ -221,6 +231,22 @@ fn lcm(a: usize, b: usize) -> Option<usize> {
     (a / gcd(a, b)).checked_mul(b)
 }
 
+/// Why a merge of `exp` must hold all of `T` at once (`in_merge`: the compressors that run
+/// in the merge); `None` when every step after the shards is row-separable, so the merge
+/// streams `T` from the shards' files.
+pub fn stacked_because(exp: &Experiment, in_merge: &[MergeSetting]) -> Option<String> {
+    if let Some(c) = in_merge.first() {
+        return Some(format!("the compressor {} runs in the merge on all of T ({})", c.label, c.why));
+    }
+    if let Some(m) = exp.method_settings().first() {
+        return Some(format!("the [[methods]] setting {} compares its SH transfer with T projected whole", m.label));
+    }
+    if exp.file.runtime.animation.any() {
+        return Some("[runtime.animation] renders the uncompressed T at every frame".into());
+    }
+    None
+}
+
 /// `shard plan`: the manifest of `exp` in `shards` shards (written to `out/manifest.json`).
 pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Manifest)> {
     if shards == 0 || shards > MAX_SHARDS {
@@ -300,11 +326,22 @@ pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Man
         .map(|s| crate::estimate::compressor_memory(s, &settings, largest, shard_nnz, threads as u64))
         .collect();
     let compress_peak = parts.iter().map(|c| c.working + c.form).max().unwrap_or(0);
+    let stacked = stacked_because(exp, &in_merge);
+    let merge = match stacked {
+        Some(_) => run.peak().bytes,
+        None => {
+            let shape = crate::estimate::RunShape {
+                streamed_part: Some(largest),
+                ..crate::estimate::run_shape(&geometry, &lighting, true)
+            };
+            crate::estimate::RunMemory::new(exp, &shape, run.nnz).peak().bytes
+        }
+    };
     let estimate = ShardEstimate {
         nnz_per_vertex: per_vertex,
         shard_peak_bytes: common + t.build_peak().max(t.save_peak()).max(t.csr + compress_peak),
         shard_output_bytes: t.file_bytes + parts.iter().map(|c| c.form).sum::<u64>(),
-        merge_peak_bytes: run.peak().bytes,
+        merge_peak_bytes: merge,
         transfer_cpu_seconds: run.nnz.seconds * threads as f64 * vertices as f64 / run.nnz.sampled.max(1) as f64,
     };
 
@@ -322,6 +359,7 @@ pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Man
         vertex_multiple: multiple,
         separable,
         in_merge,
+        stacked,
         estimate,
         shards: specs,
         checksum: String::new(),
@@ -633,19 +671,27 @@ pub fn merge(path: &Path, opts: &RunOptions) -> Result<(PathBuf, crate::metrics:
         ));
     }
     let load_start = Instant::now();
-    let mut error = None;
-    let parts = m.shards.iter().map_while(|s| match TransferMatrix::load(&root.join(&s.dir).join(TRANSFER_FILE)) {
-        Ok(t) => Some(t),
-        Err(e) => {
-            error = Some(e);
-            None
+    let files = || m.shards.iter().map(|s| root.join(&s.dir).join(TRANSFER_FILE));
+    let rows = match &m.stacked {
+        Some(why) => {
+            eprintln!("merge: stacking T whole: {why}");
+            let mut error = None;
+            let parts = files().map_while(|p| match TransferMatrix::load(&p) {
+                Ok(t) => Some(t),
+                Err(e) => {
+                    error = Some(e);
+                    None
+                }
+            });
+            let stacked = TransferMatrix::stack(parts);
+            if let Some(e) = error {
+                return Err(biscale_core::CoreError::from(e).into());
+            }
+            TransferRows::Whole(stacked?)
         }
-    });
-    let stacked = TransferMatrix::stack(parts);
-    if let Some(e) = error {
-        return Err(biscale_core::CoreError::from(e).into());
-    }
-    let matrix = stacked?;
+        None => TransferRows::Parts(TransferParts::open(files().collect(), m.vertices, |_, _| Ok(()))?),
+    };
+    let shape = rows.view().shape();
     let mut forms = std::collections::BTreeMap::new();
     for s in &m.separable {
         let c = m.compressor(&exp, &s.label, path)?;
@@ -657,16 +703,19 @@ pub fn merge(path: &Path, opts: &RunOptions) -> Result<(PathBuf, crate::metrics:
                 CompressedForm::load(&p).map_err(|e| biscale_core::CoreError::from(e).into())
             })
             .collect::<Result<Vec<_>>>()?;
-        let form = c
-            .merge_parts(matrix.shape(), parts)
-            .map_err(|source| PipelineError::Compress { name: s.label.clone(), source })?;
+        let form =
+            c.merge_parts(shape, parts).map_err(|source| PipelineError::Compress { name: s.label.clone(), source })?;
         forms.insert(s.label.clone(), form);
     }
     let merge_load_seconds = load_start.elapsed().as_secs_f64();
     eprintln!(
-        "merge: {} shards stacked into T ({} non-zeros) and {} forms in {merge_load_seconds:.2} s",
+        "merge: {} shards {} ({} non-zeros) and {} forms in {merge_load_seconds:.2} s",
         m.shards.len(),
-        matrix.nnz(),
+        match &rows {
+            TransferRows::Whole(_) => "stacked into T",
+            TransferRows::Parts(_) => "checked, T left in their files",
+        },
+        rows.view().nnz(),
         forms.len()
     );
     let sharded = crate::metrics::ShardedMetrics {
@@ -679,7 +728,7 @@ pub fn merge(path: &Path, opts: &RunOptions) -> Result<(PathBuf, crate::metrics:
         merge_seconds: 0.0,
     };
     let pre = Precomputed {
-        matrix,
+        rows,
         rays_traced: dones.iter().map(|d| d.rays_traced).sum(),
         transfer_seconds: dones.iter().map(|d| d.transfer_seconds).sum(),
         forms,
@@ -711,6 +760,12 @@ pub fn describe(m: &Manifest, path: &Path, available: Option<&Available>) -> Str
     for c in &m.in_merge {
         s += &format!("  in the merge:  {} ({}): {}\n", c.label, c.kind, c.why);
     }
+    s += &match &m.stacked {
+        None => "  the merge streams T from the shards' files, one part at a time (every step after the shards is \
+                 row-separable)\n"
+            .to_string(),
+        Some(why) => format!("  the merge stacks all of T in memory: {why}\n"),
+    };
     let e = &m.estimate;
     s += &format!(
         "  estimates: {:.0} non-zeros per vertex; per shard peak {} and {} written; merge peak {}",

@@ -83,6 +83,10 @@ fn a_sharded_precompute_merges_into_the_single_machine_run_byte_for_byte() {
 
     let plan = ok(biscale(&["shard", "plan", s(&cfg), "--shards", "4", "--out", s(&d.join("shards"))], &[]));
     assert!(plan.contains("in the merge:  cpca-k4-c2") && plan.contains("in the shards: bicluster-b128"), "{plan}");
+    assert!(
+        plan.contains("the merge stacks all of T in memory: the compressor cpca-k4-c2 runs in the merge"),
+        "{plan}"
+    );
 
     // Shard 2 fails after tracing (as a crashed array task would): it is incomplete, and the
     // merge refuses, naming it and the command that reruns it.
@@ -158,6 +162,81 @@ fn a_sharded_precompute_merges_into_the_single_machine_run_byte_for_byte() {
     assert!(e.contains("changed since the plan"), "{e}");
     let e = failed(biscale(&["shard", "run", s(&manifest), "--index", "1"], &[]));
     assert!(e.contains("changed since the plan"), "{e}");
+}
+
+/// The comparable numbers of a run's `metrics.json`: `T`'s record but its timings, and every
+/// compressor's errors and statistics but its build time.
+fn scores(out: &Path) -> serde_json::Value {
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
+    let t = &m["transfer"];
+    let compressors: Vec<_> = m["compressors"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| {
+            let mut stats = c["stats"].clone();
+            if let Some(s) = stats.as_object_mut() {
+                s.remove("build_seconds");
+            }
+            serde_json::json!([c["name"], c["bytes"], c["rel_error_lstar"], c["image"], stats])
+        })
+        .collect();
+    serde_json::json!({
+        "transfer": [t["rows"], t["nnz"], t["value_histogram"], t["vertices_without_sky"]],
+        "compressors": compressors,
+    })
+}
+
+#[test]
+fn a_merge_whose_steps_are_all_row_separable_streams_t_and_matches_the_single_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // The test scene without CPCA (the one compressor that needs all of T): every step after
+    // the shards is a pass over rows, so the merge never stacks T.
+    let text = std::fs::read_to_string(config(d)).unwrap();
+    let blocks: Vec<&str> = text.split("[[compressors]]").filter(|b| !b.contains("\"cpca\"")).collect();
+    assert_eq!(blocks.len(), 5, "the test config's compressors changed");
+    let cfg = d.join("stream.toml");
+    std::fs::write(&cfg, blocks.join("[[compressors]]")).unwrap();
+    let manifest = d.join("shards/manifest.json");
+    let plan = ok(biscale(&["shard", "plan", s(&cfg), "--shards", "3", "--out", s(&d.join("shards"))], &[]));
+    assert!(plan.contains("the merge streams T from the shards' files"), "{plan}");
+    for i in 0..3 {
+        ok(biscale(&["shard", "run", s(&manifest), "--index", &i.to_string()], &[]));
+    }
+    let (merged, merged_cache) = (d.join("merged"), d.join("cache-merged"));
+    let log = ok(biscale(&["shard", "merge", s(&manifest), "--out", s(&merged), "--cache-dir", s(&merged_cache)], &[]));
+    assert!(log.contains("T left in their files"), "{log}");
+    let (single, single_cache) = (d.join("single"), d.join("cache-single"));
+    ok(biscale(&["run", s(&cfg), "--out", s(&single), "--cache-dir", s(&single_cache)], &[]));
+
+    // Every image byte for byte, every form byte for byte but its build time, and every
+    // score (T's record, each L* and image error, the lossy biclustering's achieved error
+    // summed over the parts) equal.
+    let (a, b) = (files(&single.join("images")), files(&merged.join("images")));
+    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+    assert!(a.len() >= 12, "{:?}", a.keys());
+    for (name, bytes) in &a {
+        assert!(bytes == &b[name], "image {name} differs");
+    }
+    let (a, b) = (files(&single_cache), files(&merged_cache));
+    let forms: Vec<_> = a.keys().filter(|k| k.starts_with("form-")).collect();
+    assert_eq!(forms.len(), 4);
+    assert_eq!(forms, b.keys().filter(|k| k.starts_with("form-")).collect::<Vec<_>>());
+    for name in forms {
+        let (x, y) = (without_build_time(&single_cache.join(name)), without_build_time(&merged_cache.join(name)));
+        assert!(x == y, "form {name} differs");
+    }
+    // T stays in the shards' files: the merge does not write it to the cache.
+    assert!(!b.keys().any(|k| k.starts_with("transfer-")), "{:?}", b.keys());
+    assert_eq!(scores(&single), scores(&merged));
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(merged.join("metrics.json")).unwrap()).unwrap();
+    let phases = m["memory"]["phases"].to_string();
+    assert!(phases.contains("one shard's part at a time") && !phases.contains("transfer build"), "{phases}");
+    let lossy = &m["compressors"][2]["stats"]["error"]["frobenius"];
+    assert!(lossy.as_f64().is_some_and(|e| e > 0.0 && e <= 0.05 * (1.0 + 1e-12)), "{lossy}");
 }
 
 #[test]

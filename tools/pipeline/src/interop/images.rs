@@ -73,8 +73,8 @@ fn with_view<R>(
 ) -> Result<R> {
     let lighting = load_lighting(exp)?;
     let cache = StageCache::new(opts, Path::new("."));
-    let t = transfer_matrix(exp, &geometry, cache.as_ref())?.matrix;
-    let (scene, materials) = shade_scene(exp, &geometry, &t, cache.as_ref())?;
+    let t = transfer_matrix(exp, &geometry, cache.as_ref())?.into_whole("rendering")?;
+    let (scene, materials) = shade_scene(exp, &geometry, t.local_basis(), cache.as_ref())?;
     let view = View {
         scene: &scene,
         camera: geometry.camera(exp, 1),

@@ -262,7 +262,7 @@ pub fn export(
     for &item in items {
         match (item, format) {
             (Item::T, ExportFormat::Mtx) => {
-                let t = &transfer.as_ref().expect("loaded for t").matrix;
+                let t = transfer.as_ref().expect("loaded for t").whole("export of T")?;
                 let path = mtx::write_t_mtx(t, dir)?;
                 written.push(Written { path, about: format!("T, {} x {}, {} non-zeros", t.rows(), t.cols(), t.nnz()) });
             }
@@ -272,14 +272,14 @@ pub fn export(
                 written.push(Written { path, about: format!("L, {} x 3", l.len()) });
             }
             (Item::T, ExportFormat::Npz) => {
-                let t = &transfer.as_ref().expect("loaded for t").matrix;
+                let t = transfer.as_ref().expect("loaded for t").whole("export of T")?;
                 written.push(write_t_npz(exp, t, dir)?);
             }
             (Item::L, ExportFormat::Npz) => {
                 written.push(write_l_npz(exp, lighting.as_ref().expect("loaded for l"), dir)?);
             }
             (Item::Lstar, _) => {
-                let t = &transfer.as_ref().expect("loaded for lstar").matrix;
+                let t = transfer.as_ref().expect("loaded for lstar").whole("export of L*")?;
                 let light = &lighting.as_ref().expect("loaded for lstar").light;
                 let moments = exp.file.runtime.light_moments;
                 let frames = geometry.as_ref().expect("loaded for lstar").transfer.frames();
@@ -305,7 +305,7 @@ pub fn export(
                     let (form, _) = crate::stages::transfer::compressed_form(
                         setting,
                         compressor.as_ref(),
-                        &t.matrix,
+                        t.whole("export of forms")?,
                         &t.key,
                         exp.file.seed,
                         cache.as_ref(),
@@ -843,11 +843,11 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
     let out_dir = ctx.out_dir().to_path_buf();
 
     let lighting = load_lighting(exp)?;
-    let (memory, available) = crate::estimate::check_run(exp, &geometry, &lighting, ctx.cache.is_some())?;
+    let (memory, available) = crate::estimate::check_run(exp, &geometry, &lighting, ctx.cache.is_some(), None)?;
     let t = transfer_matrix(exp, &geometry, ctx.cache.as_ref())?;
     ctx.clock.mark("transfer");
     crate::estimate::check_peak(&memory, &available, "the transfer stage")?;
-    let (scene, materials) = shade_scene(exp, &geometry, &t.matrix, ctx.cache.as_ref())?;
+    let (scene, materials) = shade_scene(exp, &geometry, t.view().local_basis(), ctx.cache.as_ref())?;
     let view = View {
         scene: &scene,
         camera: geometry.camera(exp, 1),
@@ -856,13 +856,13 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
     };
     let reference = Plan::new(exp).reference;
     let (images, cache) = (ctx.images_dir(), ctx.cache.as_ref());
-    let targets = targets(exp, &geometry, &lighting, &t.matrix, &view, &images, reference, cache, &mut ctx.clock)?;
-    let evaluation = Evaluation::new(exp, &t.matrix, &lighting, &geometry, &targets, &view, &out_dir, false);
+    let targets = targets(exp, &geometry, &lighting, t.view(), &view, &images, reference, cache, &mut ctx.clock)?;
+    let evaluation = Evaluation::new(exp, t.view(), &lighting, &geometry, &targets, &view, &out_dir, false);
     let record = match (loaded, compressor) {
         (Loaded::Form(f), Some((setting, compressor))) => {
             evaluation.record(&setting, compressor.as_ref(), &f.form, false, None)?.0
         }
-        (Loaded::Lstar(lstar, about), _) => score_lstar(&evaluation, &name, &lstar, about, t.matrix.nnz())?,
+        (Loaded::Lstar(lstar, about), _) => score_lstar(&evaluation, &name, &lstar, about, t.view().nnz())?,
         (Loaded::Form(_), None) => unreachable!("a form has its compressor"),
     };
     ctx.clock.mark(format!("evaluate {name}"));

@@ -16,7 +16,7 @@ use biscale_core::gather::{reference_product, relative_l2_error, LocalRadiance};
 use biscale_core::geometry::VertexFrame;
 use biscale_core::sampling::LightVector;
 use biscale_core::scene::{Background, Camera, HdrImage, Render, ShadeScene};
-use biscale_core::transfer::{TransferMatrix, VisibilitySampler};
+use biscale_core::transfer::{TransferMatrix, TransferView, VisibilitySampler};
 use biscale_shading::cpu::{shade, shade_moments};
 use biscale_shading::image::{compare_exposed, ImageMetrics};
 use biscale_shading::reference::ReferenceRule;
@@ -89,6 +89,34 @@ pub(crate) fn uncompressed_product(
     }
 }
 
+/// [`uncompressed_product`] part by part over `T` (a streamed merge's shard files, or `T`
+/// whole as one part), with the seconds spent in the products alone (not in reading parts).
+/// Every row is computed on its own, so the rows are those of the product of `T` whole.
+pub(crate) fn uncompressed_rows(
+    t: TransferView<'_>,
+    light: &LightVector,
+    moments: Option<&[VertexFrame]>,
+) -> Result<(Vec<[f64; 3]>, f64)> {
+    let mut seconds = 0.0;
+    let rows = t.map_rows(|first, part| -> Result<Vec<[f64; 3]>> {
+        let frames = match moments {
+            Some(f) => Some(f.get(first..first + part.vertices()).ok_or_else(|| {
+                PipelineError::Core(biscale_core::CoreError::Invalid(format!(
+                    "light moments need one vertex frame per vertex: {} frames for {} vertices",
+                    f.len(),
+                    t.vertices()
+                )))
+            })?),
+            None => None,
+        };
+        let start = Instant::now();
+        let rows = uncompressed_product(part, light, frames)?;
+        seconds += start.elapsed().as_secs_f64();
+        Ok(rows)
+    })?;
+    Ok((rows, seconds))
+}
+
 /// What every compressor setting is scored against, made the same way for `run` and `eval`.
 pub(crate) struct Targets {
     /// The light's direction moments, with `runtime.light_moments`.
@@ -107,7 +135,7 @@ pub(crate) fn targets(
     exp: &Experiment,
     geometry: &Geometry,
     lighting: &Lighting,
-    t: &TransferMatrix,
+    t: TransferView<'_>,
     view: &View<'_>,
     images_dir: &Path,
     trace_reference: bool,
@@ -155,23 +183,33 @@ pub(crate) fn targets(
 }
 
 /// The uncompressed baseline; with `per_pixel` (the light's moments, `moments_resolve =
-/// "pixel"`) its image resolves the three exact moment gathers at every pixel.
+/// "pixel"`) its image resolves the three exact moment gathers at every pixel. Of `T` in parts
+/// (a streamed merge) the gather is timed once, its products alone (reading the parts is not
+/// part of a gather).
 pub(crate) fn baseline(
-    t: &TransferMatrix,
+    t: TransferView<'_>,
     lighting: &Lighting,
     moments: Option<&[VertexFrame]>,
     per_pixel: Option<&LightMoments>,
     view: &View<'_>,
     repeats: usize,
 ) -> Result<Baseline> {
-    let (exact, gather_timing) = timed(repeats, || uncompressed_product(t, &lighting.light, moments))?;
+    let (exact, gather_timing) = match t {
+        TransferView::Whole(t) => timed(repeats, || uncompressed_product(t, &lighting.light, moments))?,
+        TransferView::Parts(_) => {
+            let (exact, seconds) = uncompressed_rows(t, &lighting.light, moments)?;
+            (exact, Timing::from_samples(&[seconds * 1e3]))
+        }
+    };
     let lstar = LocalRadiance::from_f64(t.local_basis(), t.vertices(), &exact)?;
+    let product = |l: &LightVector| -> Result<LocalRadiance> {
+        let rows = t.map_rows(|_, part| -> Result<_> { Ok(reference_product(part, l)) })?;
+        Ok(LocalRadiance::from_f64(t.local_basis(), t.vertices(), &rows)?)
+    };
     let pixel_moments = match per_pixel {
         Some(m) => {
             let [x, y, z] = &m.along;
-            let one =
-                |l: &LightVector| LocalRadiance::from_f64(t.local_basis(), t.vertices(), &reference_product(t, l));
-            Some([one(x)?, one(y)?, one(z)?])
+            Some([product(x)?, product(y)?, product(z)?])
         }
         None => None,
     };
@@ -179,7 +217,7 @@ pub(crate) fn baseline(
     let paper = match moments {
         None => None,
         Some(_) => {
-            let lstar = LocalRadiance::from_f64(t.local_basis(), t.vertices(), &reference_product(t, &lighting.light))?;
+            let lstar = product(&lighting.light)?;
             let render = view.render(&lstar, &view.camera)?;
             Some((lstar, render))
         }
@@ -493,7 +531,7 @@ pub(crate) fn no_gpu_feature() -> PipelineError {
 /// is gathered with, the f64 product `T L` (the reference for `L*`), the uncompressed
 /// all-frequency image (the baseline), the reference and the view it is shaded in.
 pub(crate) struct Evaluation<'a> {
-    pub t: &'a TransferMatrix,
+    pub t: TransferView<'a>,
     pub light: &'a LightVector,
     /// With light moments: the light's moments and the vertex frames `T` was traced with;
     /// every form is then gathered three times and resolved ([`gather_keeping_moments`]).
@@ -518,7 +556,7 @@ impl<'a> Evaluation<'a> {
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         exp: &Experiment,
-        t: &'a TransferMatrix,
+        t: TransferView<'a>,
         lighting: &'a Lighting,
         geometry: &'a Geometry,
         targets: &'a Targets,

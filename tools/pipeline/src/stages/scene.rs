@@ -8,7 +8,7 @@ use crate::store::cache::StageCache;
 use biscale_core::geometry::{Mesh, Placement};
 use biscale_core::sampling::{EnvMap, LightVector};
 use biscale_core::scene::{Background, Camera, ShadeScene};
-use biscale_core::transfer::{TransferMatrix, TransferScene};
+use biscale_core::transfer::TransferScene;
 
 /// The loaded mesh and the geometry every visibility query shares.
 pub struct Geometry {
@@ -90,14 +90,14 @@ pub fn load_lighting(exp: &Experiment) -> Result<Lighting> {
 }
 
 /// The shade scene: the mesh, the transfer scene's frames and the materials, whose BTFs are
-/// built on `T`'s local basis (synthesized ones cached when there is a cache).
+/// built on `local`, `T`'s local basis (synthesized ones cached when there is a cache).
 pub fn shade_scene(
     exp: &Experiment,
     geometry: &Geometry,
-    t: &TransferMatrix,
+    local: biscale_core::basis::LocalBasis,
     cache: Option<&StageCache>,
 ) -> Result<(ShadeScene, SceneMaterials)> {
-    let materials = load_materials(exp, &geometry.mesh, t.local_basis(), cache)?;
+    let materials = load_materials(exp, &geometry.mesh, local, cache)?;
     let scene = ShadeScene::new(
         geometry.mesh.clone(),
         geometry.transfer.frames().to_vec(),

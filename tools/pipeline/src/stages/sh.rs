@@ -278,7 +278,7 @@ fn method_materials(scene: &ShadeScene, order: ShOrder) -> Result<(Vec<Material>
 /// traced `m`, over every `FROM_T_STRIDE`-th vertex.
 fn from_t_difference(inp: &MethodScene<'_>, t: &Transfer, m: &TransferMatrix, order: ShOrder) -> Result<f64> {
     let vertices: Vec<usize> = (0..m.vertices()).step_by(FROM_T_STRIDE).collect();
-    let projected = sh_from_transfer_vertices(&t.matrix, inp.geometry.transfer.frames(), order, &vertices)?;
+    let projected = sh_from_transfer_vertices(t.whole("SH from T")?, inp.geometry.transfer.frames(), order, &vertices)?;
     let n = order.len();
     let (mut num, mut den) = (0.0f64, 0.0f64);
     for (b, &v) in projected.iter().zip(&vertices) {
@@ -335,7 +335,7 @@ pub(crate) fn evaluate(
         None => None,
     };
     let eval = Evaluation {
-        t: &m,
+        t: (&m).into(),
         light: &light,
         // SH light and local bases have no texels or bins to take moments of: the low-frequency
         // method shades as Sloan et al. do, with or without [runtime] light_moments.

@@ -1,5 +1,5 @@
-//! The transfer stage: `T` traced (or loaded from the cache, or stacked from shards) and each
-//! compressor's form of it.
+//! The transfer stage: `T` traced (or loaded from the cache, or stacked from shards, or left
+//! in the shards' files and streamed) and each compressor's form of it.
 
 use crate::error::{PipelineError, Result};
 use crate::experiment::config::{CompressorSetting, Experiment};
@@ -9,14 +9,63 @@ use crate::store::cache::{CacheKey, StageCache};
 use crate::util::progress_bar;
 use biscale_compressors::registry::{self};
 use biscale_core::compress::{CompressContext, CompressedForm, Compressor};
-use biscale_core::transfer::{self, TransferMatrix, TransferSettings};
+use biscale_core::transfer::{self, TransferMatrix, TransferParts, TransferSettings, TransferView};
 use std::time::Instant;
 
 /// `T` with its record and its cache key (which keys every output built from it).
 pub struct Transfer {
-    pub matrix: TransferMatrix,
+    pub rows: TransferRows,
     pub metrics: TransferMetrics,
     pub key: CacheKey,
+}
+
+/// `T` as a run holds it: whole in memory, or (a sharded merge whose every step is
+/// row-separable) left in the shards' files and read one part at a time.
+pub enum TransferRows {
+    Whole(TransferMatrix),
+    Parts(TransferParts),
+}
+
+impl TransferRows {
+    /// The view every pass over `T` takes.
+    pub fn view(&self) -> TransferView<'_> {
+        match self {
+            TransferRows::Whole(t) => TransferView::Whole(t),
+            TransferRows::Parts(p) => TransferView::Parts(p),
+        }
+    }
+}
+
+impl Transfer {
+    /// The view every pass over `T` takes.
+    pub fn view(&self) -> TransferView<'_> {
+        self.rows.view()
+    }
+
+    /// `T` whole, for a step that needs all of it at once (`needs` names the step); an error
+    /// when the run streams `T` from a sharded precompute's parts.
+    pub fn whole(&self, needs: &str) -> Result<&TransferMatrix> {
+        match &self.rows {
+            TransferRows::Whole(t) => Ok(t),
+            TransferRows::Parts(p) => Err(streamed(needs, p)),
+        }
+    }
+
+    /// `T`, by value, when whole (see [`Self::whole`]).
+    pub fn into_whole(self, needs: &str) -> Result<TransferMatrix> {
+        match self.rows {
+            TransferRows::Whole(t) => Ok(t),
+            TransferRows::Parts(p) => Err(streamed(needs, &p)),
+        }
+    }
+}
+
+fn streamed(needs: &str, parts: &TransferParts) -> PipelineError {
+    PipelineError::Core(biscale_core::CoreError::Invalid(format!(
+        "{needs} needs all of T at once, but this run streams T from {} shard files (only row-separable steps \
+         run in a streamed merge)",
+        parts.len()
+    )))
 }
 
 /// Build (or load from the cache) the transfer matrix with a progress bar.
@@ -32,8 +81,8 @@ pub fn transfer_matrix(exp: &Experiment, geometry: &Geometry, cache: Option<&Sta
         };
         if let Some(matrix) = c.get(&path, &key, TransferMatrix::from_artifact, accept) {
             log::info!("transfer: loaded from cache {}", path.display());
-            let metrics = transfer_metrics(&matrix, 0.0, 0, 0.0, true, &settings);
-            return Ok(Transfer { matrix, metrics, key });
+            let metrics = transfer_metrics((&matrix).into(), 0.0, 0, 0.0, true, &settings)?;
+            return Ok(Transfer { rows: TransferRows::Whole(matrix), metrics, key });
         }
     }
     let vertices = geometry.mesh.vertex_count();
@@ -50,8 +99,9 @@ pub fn transfer_matrix(exp: &Experiment, geometry: &Geometry, cache: Option<&Sta
         c.put_with(&c.transfer_path(&key), &key, || build.matrix.to_artifact());
     }
     let s = &build.stats;
-    let metrics = transfer_metrics(&build.matrix, s.seconds, s.rays_traced, s.rays_per_second, false, &settings);
-    Ok(Transfer { matrix: build.matrix, metrics, key })
+    let metrics =
+        transfer_metrics((&build.matrix).into(), s.seconds, s.rays_traced, s.rays_per_second, false, &settings)?;
+    Ok(Transfer { rows: TransferRows::Whole(build.matrix), metrics, key })
 }
 
 /// One setting's compressed form of `t` (whose cache key is `t_key`), built or loaded from the
@@ -97,22 +147,28 @@ pub fn compressed_form(
     Ok((form, false))
 }
 
+/// `T`'s record: one pass over its parts (the value histogram, the vertices without sky).
 fn transfer_metrics(
-    t: &TransferMatrix,
+    t: TransferView<'_>,
     seconds: f64,
     rays: u64,
     rays_per_second: f64,
     cached: bool,
     settings: &TransferSettings,
-) -> TransferMetrics {
+) -> Result<TransferMetrics> {
     let mut hist = std::collections::BTreeMap::<u32, u64>::new();
-    for v in t.csr().data() {
-        *hist.entry(v.to_bits()).or_default() += 1;
-    }
+    let mut without_sky = 0;
+    t.for_each_part(|_, part| -> Result<()> {
+        for v in part.csr().data() {
+            *hist.entry(v.to_bits()).or_default() += 1;
+        }
+        without_sky += vertices_without_sky(part);
+        Ok(())
+    })?;
     let mut value_histogram: Vec<ValueCount> =
         hist.into_iter().map(|(b, count)| ValueCount { value: f32::from_bits(b), count }).collect();
     value_histogram.sort_by(|a, b| a.value.total_cmp(&b.value));
-    TransferMetrics {
+    Ok(TransferMetrics {
         rows: t.rows(),
         cols: t.cols(),
         nnz: t.nnz(),
@@ -123,8 +179,8 @@ fn transfer_metrics(
         rays_traced: rays,
         rays_per_second,
         cached,
-        vertices_without_sky: vertices_without_sky(t),
-    }
+        vertices_without_sky: without_sky,
+    })
 }
 
 /// Vertices whose M rows of `t` are all zero.
@@ -156,9 +212,10 @@ pub fn build_compressor(setting: &CompressorSetting) -> Result<Box<dyn Compresso
 }
 
 /// What a sharded precompute hands the pipeline (`crate::shard::merge`): `T` stacked from the
-/// shards, the merged forms of the separable compressors by label, and the shards' record.
+/// shards or left in their files, the merged forms of the separable compressors by label, and
+/// the shards' record.
 pub struct Precomputed {
-    pub matrix: TransferMatrix,
+    pub rows: TransferRows,
     /// Rays and seconds summed over the shards.
     pub rays_traced: u64,
     pub transfer_seconds: f64,
@@ -166,10 +223,21 @@ pub struct Precomputed {
     pub sharded: ShardedMetrics,
 }
 
-/// `T` from a sharded precompute, checked against the geometry and put in the cache as a
-/// single build would have (so a later `biscale run` of the config finds it).
+impl Precomputed {
+    /// With `T` left in the shards' files: the vertices of the largest part, all of `T` the
+    /// merge holds at once (the memory estimate's streamed phase).
+    pub fn streamed_part_vertices(&self) -> Option<usize> {
+        match &self.rows {
+            TransferRows::Whole(_) => None,
+            TransferRows::Parts(p) => Some(p.largest_part()),
+        }
+    }
+}
+
+/// `T` from a sharded precompute, checked against the geometry and, when stacked, put in the
+/// cache as a single build would have (so a later `biscale run` of the config finds it).
 pub(crate) fn precomputed_transfer(
-    matrix: TransferMatrix,
+    rows: TransferRows,
     rays: u64,
     seconds: f64,
     exp: &Experiment,
@@ -178,19 +246,24 @@ pub(crate) fn precomputed_transfer(
 ) -> Result<Transfer> {
     let settings = exp.transfer_settings();
     let shape = settings.shape(geometry.mesh.vertex_count());
-    if matrix.shape() != shape {
+    let key = crate::store::cache::transfer_key(&geometry.mesh, &settings);
+    let view = rows.view();
+    if view.shape() != shape {
         return Err(PipelineError::Mismatch {
             path: exp.config_path.clone(),
-            what: format!("the shards' T is {}, this config's mesh and settings need {shape}", matrix.shape()),
+            what: format!("the shards' T is {}, this config's mesh and settings need {shape}", view.shape()),
         });
     }
-    let key = crate::store::cache::transfer_key(&geometry.mesh, &settings);
-    if let Some(c) = cache {
+    if let (Some(c), TransferRows::Whole(matrix)) = (cache, &rows) {
         c.put_with(&c.transfer_path(&key), &key, || matrix.to_artifact());
     }
-    let metrics = transfer_metrics(&matrix, seconds, rays, rays as f64 / seconds.max(1e-12), false, &settings);
-    log::info!("transfer: {} x {} from the shards, {} non-zeros", matrix.rows(), matrix.cols(), matrix.nnz());
-    Ok(Transfer { matrix, metrics, key })
+    let metrics = transfer_metrics(view, seconds, rays, rays as f64 / seconds.max(1e-12), false, &settings)?;
+    let how = match &rows {
+        TransferRows::Whole(_) => "stacked from the shards".to_string(),
+        TransferRows::Parts(p) => format!("left in {} shard files, streamed", p.len()),
+    };
+    log::info!("transfer: {} x {} {how}, {} non-zeros", view.rows(), view.cols(), view.nnz());
+    Ok(Transfer { rows, metrics, key })
 }
 
 #[cfg(test)]
@@ -201,7 +274,7 @@ mod tests {
     fn transfer_of(mesh: &biscale_core::geometry::Mesh) -> TransferMetrics {
         let settings = TransferSettings::new(8, 16, 4).unwrap();
         let t = transfer::build(mesh, &settings, None).unwrap().matrix;
-        transfer_metrics(&t, 0.0, 0, 0.0, false, &settings)
+        transfer_metrics((&t).into(), 0.0, 0, 0.0, false, &settings).unwrap()
     }
 
     #[test]
