@@ -129,7 +129,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
         Some(p) => {
             let t =
                 precomputed_transfer(p.rows, p.rays_traced, p.transfer_seconds, exp, &geometry, ctx.cache.as_ref())?;
-            (t, p.forms, Some(p.sharded))
+            (t, p.forms, Some((p.sharded, p.started)))
         }
         None => (transfer_matrix(exp, &geometry, ctx.cache.as_ref())?, Default::default(), None),
     };
@@ -247,7 +247,9 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     metrics.figures = Some(figures);
     metrics.animations = animations;
     metrics.memory = Some(memory.metrics(&available));
-    metrics.sharded = sharded;
+    // The merge's own time, up to its record (metrics.json is written next).
+    metrics.sharded =
+        sharded.map(|(s, started)| ShardedMetrics { merge_seconds: started.elapsed().as_secs_f64(), ..s });
     metrics.run = Some(ctx.clock.finish());
     metrics.load = (load_before.is_some() || load_after.is_some()).then(|| LoadRecord {
         load_before,

@@ -131,6 +131,13 @@ pub struct ShardEstimate {
     pub nnz_per_vertex: f64,
     /// Peak memory of the largest shard.
     pub shard_peak_bytes: u64,
+    /// What of it does not grow with its non-zeros: the process, the whole mesh and its BVH
+    /// (every shard holds them), the per-row arrays of its vertices.
+    #[serde(default)]
+    pub shard_base_bytes: u64,
+    /// What it adds per non-zero of `T` (its CSR, the file's arrays, the compressors).
+    #[serde(default)]
+    pub shard_bytes_per_nnz: f64,
     /// Bytes the largest shard writes.
     pub shard_output_bytes: u64,
     /// Peak memory of the merge (the run's estimate: with `T` whole, or streamed one shard's
@@ -315,17 +322,25 @@ pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Man
     let largest = specs.iter().map(|s| s.end_vertex - s.first_vertex).max().unwrap_or(0);
     let shard_nnz = (per_vertex * largest as f64).ceil() as u64;
     let threads = rayon::current_num_threads();
-    let t = transfer::TransferMemory::new(&settings, largest, shard_nnz, threads);
+    // Every shard holds the whole mesh and its BVH (the rays of its vertices may hit any
+    // triangle); the rest grows with its non-zeros.
     let common = crate::estimate::PROCESS_BASELINE_BYTES
         + geometry.mesh.triangle_count() as u64 * crate::estimate::GEOMETRY_BYTES_PER_TRIANGLE
         + vertices as u64 * crate::estimate::GEOMETRY_BYTES_PER_VERTEX;
     let plan_settings: Vec<CompressorSetting> = crate::experiment::plan::Plan::new(exp).compressors;
-    let parts: Vec<_> = plan_settings
-        .iter()
-        .filter(|s| separable.iter().any(|p| p.label == s.label))
-        .map(|s| crate::estimate::compressor_memory(s, &settings, largest, shard_nnz, threads as u64))
-        .collect();
-    let compress_peak = parts.iter().map(|c| c.working + c.form).max().unwrap_or(0);
+    let shard_at = |nnz: u64| {
+        let t = transfer::TransferMemory::new(&settings, largest, nnz, threads);
+        let parts: Vec<_> = plan_settings
+            .iter()
+            .filter(|s| separable.iter().any(|p| p.label == s.label))
+            .map(|s| crate::estimate::compressor_memory(s, &settings, largest, nnz, threads as u64))
+            .collect();
+        let compress_peak = parts.iter().map(|c| c.working + c.form).max().unwrap_or(0);
+        let peak = common + t.build_peak().max(t.save_peak()).max(t.csr + compress_peak);
+        (peak, t.file_bytes + parts.iter().map(|c| c.form).sum::<u64>())
+    };
+    let (shard_peak, shard_output) = shard_at(shard_nnz);
+    let (shard_base, _) = shard_at(0);
     let stacked = stacked_because(exp, &in_merge);
     let merge = match stacked {
         Some(_) => run.peak().bytes,
@@ -339,8 +354,10 @@ pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Man
     };
     let estimate = ShardEstimate {
         nnz_per_vertex: per_vertex,
-        shard_peak_bytes: common + t.build_peak().max(t.save_peak()).max(t.csr + compress_peak),
-        shard_output_bytes: t.file_bytes + parts.iter().map(|c| c.form).sum::<u64>(),
+        shard_peak_bytes: shard_peak,
+        shard_base_bytes: shard_base,
+        shard_bytes_per_nnz: (shard_peak - shard_base) as f64 / shard_nnz.max(1) as f64,
+        shard_output_bytes: shard_output,
         merge_peak_bytes: merge,
         transfer_cpu_seconds: run.nnz.seconds * threads as f64 * vertices as f64 / run.nnz.sampled.max(1) as f64,
     };
@@ -733,12 +750,9 @@ pub fn merge(path: &Path, opts: &RunOptions) -> Result<(PathBuf, crate::metrics:
         transfer_seconds: dones.iter().map(|d| d.transfer_seconds).sum(),
         forms,
         sharded,
+        started: start,
     };
-    let (out, mut metrics) = crate::run::run_with(&exp, opts, Some(pre))?;
-    if let Some(s) = &mut metrics.sharded {
-        s.merge_seconds = start.elapsed().as_secs_f64();
-    }
-    Ok((out, metrics))
+    crate::run::run_with(&exp, opts, Some(pre))
 }
 
 /// The plan's summary for people: shards, what runs where, estimates, how to run it.
@@ -768,9 +782,12 @@ pub fn describe(m: &Manifest, path: &Path, available: Option<&Available>) -> Str
     };
     let e = &m.estimate;
     s += &format!(
-        "  estimates: {:.0} non-zeros per vertex; per shard peak {} and {} written; merge peak {}",
+        "  estimates: {:.0} non-zeros per vertex; per shard peak {} ({} base + {:.1} B per non-zero) and {} \
+         written; merge peak {}",
         e.nnz_per_vertex,
         human(e.shard_peak_bytes),
+        human(e.shard_base_bytes),
+        e.shard_bytes_per_nnz,
         human(e.shard_output_bytes),
         human(e.merge_peak_bytes)
     );

@@ -202,6 +202,7 @@ fn a_merge_whose_steps_are_all_row_separable_streams_t_and_matches_the_single_ru
     let manifest = d.join("shards/manifest.json");
     let plan = ok(biscale(&["shard", "plan", s(&cfg), "--shards", "3", "--out", s(&d.join("shards"))], &[]));
     assert!(plan.contains("the merge streams T from the shards' files"), "{plan}");
+    assert!(plan.contains(" base + ") && plan.contains(" B per non-zero)"), "{plan}");
     for i in 0..3 {
         ok(biscale(&["shard", "run", s(&manifest), "--index", &i.to_string()], &[]));
     }
@@ -235,6 +236,10 @@ fn a_merge_whose_steps_are_all_row_separable_streams_t_and_matches_the_single_ru
         serde_json::from_str(&std::fs::read_to_string(merged.join("metrics.json")).unwrap()).unwrap();
     let phases = m["memory"]["phases"].to_string();
     assert!(phases.contains("one shard's part at a time") && !phases.contains("transfer build"), "{phases}");
+    // The merge's whole time is in its record (it was written as 0 before the pipeline ended).
+    let (whole, load) =
+        (m["sharded"]["merge_seconds"].as_f64().unwrap(), m["sharded"]["merge_load_seconds"].as_f64().unwrap());
+    assert!(whole > load && load > 0.0, "{}", m["sharded"]);
     let lossy = &m["compressors"][2]["stats"]["error"]["frobenius"];
     assert!(lossy.as_f64().is_some_and(|e| e > 0.0 && e <= 0.05 * (1.0 + 1e-12)), "{lossy}");
 }

@@ -220,7 +220,10 @@ pub struct Precomputed {
     pub rays_traced: u64,
     pub transfer_seconds: f64,
     pub forms: std::collections::BTreeMap<String, CompressedForm>,
+    /// `merge_seconds` is filled in when the merge writes its record (from `started`).
     pub sharded: ShardedMetrics,
+    /// When the merge began (checking the shards).
+    pub started: Instant,
 }
 
 impl Precomputed {
