@@ -587,12 +587,12 @@ fn lossy_budget_holds_on_the_bunny() {
             .into_iter()
             .enumerate()
             .map(|(i, r)| {
-                let p = dir.path().join(format!("{i}.bsf"));
-                t.vertex_rows(r).unwrap().save(&p).unwrap();
-                p
+                let (path, part) = (dir.path().join(format!("{i}.bsf")), t.vertex_rows(r).unwrap());
+                part.save(&path).unwrap();
+                biscale_core::transfer::PartFile { path, vertices: part.vertices(), nnz: part.nnz() }
             })
             .collect();
-        let parts = biscale_core::transfer::TransferParts::open(files, n, |_, _| Ok(())).unwrap();
+        let parts = biscale_core::transfer::TransferParts::new(t.shape(), files).unwrap();
         assert_eq!(achieved_error(&form, &parts).unwrap(), got);
         let streamed = table_stats(&form, &parts).unwrap();
         assert_eq!(streamed, s);

@@ -30,7 +30,7 @@ pub use build::{
     build, build_range, nnz_strata, sample_nnz, worst_case_bytes, NnzEstimate, NnzStratum, TransferBuild,
     TransferMemory, TransferStats, BYTES_PER_NONZERO, MAX_TRANSFER_BYTES, NNZ_MARGIN_SIGMAS, NNZ_SAMPLE_VERTICES,
 };
-pub use parts::{TransferParts, TransferView};
+pub use parts::{PartFile, TransferParts, TransferView};
 pub use sampler::{VisibilitySampler, VisibilityScratch};
 pub use scene::{TransferScene, BVH_DIAGONAL, ORIGIN_OFFSET};
 

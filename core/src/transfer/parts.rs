@@ -8,7 +8,8 @@
 //! dropping it after; it holds one part at a time and gets, row for row and sum for sum in
 //! the same order, what the pass over the whole matrix gets.
 //!
-//! * [`TransferParts`]: the part files, checked once when opened (bases, consecutive ranges).
+//! * [`TransferParts`]: the part files with their writers' records, each part checked against
+//!   its record whenever a pass reads it.
 //! * [`TransferView`]: `T` whole or as parts; [`TransferView::for_each_part`] is the pass,
 //!   [`TransferView::map_rows`] a row-separable product over it.
 
@@ -18,50 +19,45 @@ use crate::error::{CoreError, Result};
 use std::path::{Path, PathBuf};
 
 /// A sharded precompute's `T`: one file per consecutive vertex range
-/// ([`TransferMatrix::save`] of a [`super::build_range`]).
+/// ([`TransferMatrix::save`] of a [`super::build_range`]), each with its writer's record.
 #[derive(Clone, Debug)]
 pub struct TransferParts {
     shape: TransferShape,
     nnz: usize,
-    /// Each part's file, first vertex and vertices.
-    parts: Vec<(PathBuf, usize, usize)>,
+    /// Each part's file and record, and its first vertex.
+    parts: Vec<(PartFile, usize)>,
+}
+
+/// One part of `T` in a file, as the shard that wrote it recorded it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PartFile {
+    pub path: PathBuf,
+    pub vertices: usize,
+    pub nnz: usize,
 }
 
 impl TransferParts {
-    /// The parts in `files`, in order, each loaded once to check that all share one pair of
-    /// bases and together hold the rows of `vertices` vertices; `visit` sees every part
-    /// with its first vertex during that pass (so a caller can take its statistics without
-    /// a second one).
-    pub fn open(
-        files: Vec<PathBuf>,
-        vertices: usize,
-        mut visit: impl FnMut(usize, &TransferMatrix) -> Result<()>,
-    ) -> Result<Self> {
-        let mut bases: Option<(LocalBasis, LightBasis)> = None;
-        let (mut first, mut nnz, mut parts) = (0usize, 0usize, vec![]);
-        for path in files {
-            let part = load(&path)?;
-            let (local, light) = *bases.get_or_insert((part.local_basis(), part.light_basis()));
-            if (part.local_basis(), part.light_basis()) != (local, light) {
-                return Err(CoreError::Invalid(format!(
-                    "{}: is {} x {}, the first part {local} x {light}",
-                    path.display(),
-                    part.local_basis(),
-                    part.light_basis()
-                )));
-            }
-            visit(first, &part)?;
-            nnz += part.nnz();
-            parts.push((path, first, part.vertices()));
-            first += part.vertices();
+    /// `T` of `shape` held by `parts`, in row order. Nothing is read here (opening costs no
+    /// pass over `T`); the records must cover `shape`'s vertices, and every pass checks each
+    /// part against its record (bases, vertices, non-zeros) when it reads it.
+    pub fn new(shape: TransferShape, parts: Vec<PartFile>) -> Result<Self> {
+        if parts.is_empty() {
+            return Err(CoreError::Invalid("no transfer parts".into()));
         }
-        let (local, light) = bases.ok_or_else(|| CoreError::Invalid("no transfer parts to open".into()))?;
-        if first != vertices {
+        let (mut first, mut nnz, mut out) = (0usize, 0usize, vec![]);
+        for p in parts {
+            nnz += p.nnz;
+            let vertices = p.vertices;
+            out.push((p, first));
+            first += vertices;
+        }
+        if first != shape.vertices {
             return Err(CoreError::Invalid(format!(
-                "the transfer parts hold {first} vertices, the mesh has {vertices}"
+                "the transfer parts hold {first} vertices, T has {}",
+                shape.vertices
             )));
         }
-        Ok(Self { shape: TransferShape::new(vertices, local, light), nnz, parts })
+        Ok(Self { shape, nnz, parts: out })
     }
 
     pub fn shape(&self) -> TransferShape {
@@ -72,7 +68,7 @@ impl TransferParts {
     }
     /// The vertices of the largest part: what a pass holds of `T` at once.
     pub fn largest_part(&self) -> usize {
-        self.parts.iter().map(|p| p.2).max().unwrap_or(0)
+        self.parts.iter().map(|(p, _)| p.vertices).max().unwrap_or(0)
     }
     /// How many files hold `T`.
     pub fn len(&self) -> usize {
@@ -156,10 +152,17 @@ impl TransferView<'_> {
         match self {
             TransferView::Whole(t) => f(0, t),
             TransferView::Parts(p) => {
-                for (path, first, vertices) in &p.parts {
-                    let part = load(path)?;
-                    if part.shape() != TransferShape::new(*vertices, p.shape.local, p.shape.light) {
-                        let what = format!("{}: changed since it was opened", path.display());
+                for (record, first) in &p.parts {
+                    let part = load(&record.path)?;
+                    let expected = TransferShape::new(record.vertices, p.shape.local, p.shape.light);
+                    if part.shape() != expected || part.nnz() != record.nnz {
+                        let what = format!(
+                            "{}: holds {} with {} non-zeros, its record says {expected} with {}",
+                            record.path.display(),
+                            part.shape(),
+                            part.nnz(),
+                            record.nnz
+                        );
                         return Err(CoreError::Invalid(what).into());
                     }
                     f(*first, &part)?;
@@ -220,18 +223,22 @@ mod tests {
             .collect()
     }
 
+    /// The parts' records, as shards write them.
+    fn records(t: &TransferMatrix, files: &[PathBuf], ranges: &[std::ops::Range<usize>]) -> Vec<PartFile> {
+        files
+            .iter()
+            .zip(ranges)
+            .map(|(f, r)| PartFile { path: f.clone(), vertices: r.len(), nnz: t.vertex_rows(r.clone()).unwrap().nnz() })
+            .collect()
+    }
+
     #[test]
     fn a_pass_over_parts_is_the_pass_over_the_whole_matrix() {
         let dir = tempfile::tempdir().unwrap();
         let t = random(10, 1);
-        let files = save_parts(&t, &[0..3, 3..7, 7..10], dir.path());
-        let mut opened = vec![];
-        let parts = TransferParts::open(files, 10, |first, p| {
-            opened.push((first, p.vertices()));
-            Ok(())
-        })
-        .unwrap();
-        assert_eq!(opened, [(0, 3), (3, 4), (7, 3)]);
+        let ranges = [0..3, 3..7, 7..10];
+        let files = save_parts(&t, &ranges, dir.path());
+        let parts = TransferParts::new(t.shape(), records(&t, &files, &ranges)).unwrap();
         assert_eq!((parts.shape(), parts.nnz(), parts.len(), parts.largest_part()), (t.shape(), t.nnz(), 3, 4));
 
         // The product of T in parts is the product of T, bit for bit (each row on its own).
@@ -241,13 +248,13 @@ mod tests {
         let view = TransferView::from(&parts);
         let streamed = view.map_rows(|_, p| -> Result<_> { Ok(reference_product(p, &light)) }).unwrap();
         assert_eq!(streamed, whole);
-        let mut firsts = vec![];
-        view.for_each_part(|first, _| -> Result<()> {
-            firsts.push(first);
+        let mut visited = vec![];
+        view.for_each_part(|first, p| -> Result<()> {
+            visited.push((first, p.vertices()));
             Ok(())
         })
         .unwrap();
-        assert_eq!(firsts, [0, 3, 7]);
+        assert_eq!(visited, [(0, 3), (3, 4), (7, 3)]);
         let one = TransferView::from(&t);
         assert_eq!(one.map_rows(|_, p| -> Result<_> { Ok(reference_product(p, &light)) }).unwrap(), whole);
         assert!(one.whole().is_some() && view.whole().is_none());
@@ -257,24 +264,27 @@ mod tests {
     fn parts_that_do_not_make_the_matrix_are_refused_by_name() {
         let dir = tempfile::tempdir().unwrap();
         let t = random(6, 2);
-        let files = save_parts(&t, &[0..2, 2..6], dir.path());
-        let e = TransferParts::open(files.clone(), 7, |_, _| Ok(())).unwrap_err().to_string();
-        assert!(e.contains("hold 6 vertices, the mesh has 7"), "{e}");
-        assert!(TransferParts::open(vec![], 0, |_, _| Ok(())).unwrap_err().to_string().contains("no transfer parts"));
+        let ranges = [0..2, 2..6];
+        let files = save_parts(&t, &ranges, dir.path());
+        let recs = records(&t, &files, &ranges);
+        let seven = TransferShape::new(7, t.local_basis(), t.light_basis());
+        let e = TransferParts::new(seven, recs.clone()).unwrap_err().to_string();
+        assert!(e.contains("hold 6 vertices, T has 7"), "{e}");
+        assert!(TransferParts::new(t.shape(), vec![]).unwrap_err().to_string().contains("no transfer parts"));
 
-        // A part in other bases, at open and when it is swapped in after.
-        let other = {
-            let local = LocalBasis::bins(3).unwrap();
-            let csr = sprs::CsMat::zero((4 * local.len(), 24));
-            TransferMatrix::new(local, t.light_basis(), csr).unwrap()
+        // A part that is not what its record says (other bases; a non-zero fewer) is named
+        // when a pass reads it.
+        let pass = |parts: &TransferParts| {
+            TransferView::from(parts).for_each_part(|_, _| -> Result<()> { Ok(()) }).unwrap_err().to_string()
         };
-        let odd = dir.path().join("odd.bsf");
-        other.save(&odd).unwrap();
-        let e = TransferParts::open(vec![files[0].clone(), odd.clone()], 6, |_, _| Ok(())).unwrap_err().to_string();
-        assert!(e.contains("odd.bsf") && e.contains("the first part"), "{e}");
-        let parts = TransferParts::open(files.clone(), 6, |_, _| Ok(())).unwrap();
-        std::fs::copy(&odd, &files[1]).unwrap();
-        let e = TransferView::from(&parts).for_each_part(|_, _| -> Result<()> { Ok(()) }).unwrap_err().to_string();
-        assert!(e.contains("part1.bsf") && e.contains("changed since it was opened"), "{e}");
+        let mut short = recs.clone();
+        short[1].nnz += 1;
+        let e = pass(&TransferParts::new(t.shape(), short).unwrap());
+        assert!(e.contains("part1.bsf") && e.contains("its record says"), "{e}");
+        let local = LocalBasis::bins(3).unwrap();
+        let other = TransferMatrix::new(local, t.light_basis(), sprs::CsMat::zero((4 * local.len(), 24))).unwrap();
+        other.save(&files[1]).unwrap();
+        let e = pass(&TransferParts::new(t.shape(), recs).unwrap());
+        assert!(e.contains("part1.bsf") && e.contains("its record says"), "{e}");
     }
 }

@@ -41,7 +41,7 @@ use crate::stages::transfer::{build_compressor, Precomputed, TransferRows};
 use crate::store::RunOptions;
 use biscale_core::compress::{CompressContext, CompressedForm, Compressor, Separability};
 use biscale_core::io::{write_atomic_bytes, ContentHash};
-use biscale_core::transfer::{self, TransferMatrix, TransferParts};
+use biscale_core::transfer::{self, PartFile, TransferMatrix, TransferParts};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -706,7 +706,17 @@ pub fn merge(path: &Path, opts: &RunOptions) -> Result<(PathBuf, crate::metrics:
             }
             TransferRows::Whole(stacked?)
         }
-        None => TransferRows::Parts(TransferParts::open(files().collect(), m.vertices, |_, _| Ok(()))?),
+        None => {
+            // The shards' records say what each file holds (their checksums were just
+            // checked); every pass checks each part against its record as it reads it.
+            let records = m.shards.iter().zip(&dones).zip(files()).map(|((s, d), path)| PartFile {
+                path,
+                vertices: s.end_vertex - s.first_vertex,
+                nnz: d.nnz as usize,
+            });
+            let shape = exp.transfer_settings().shape(m.vertices);
+            TransferRows::Parts(TransferParts::new(shape, records.collect())?)
+        }
     };
     let shape = rows.view().shape();
     let mut forms = std::collections::BTreeMap::new();
