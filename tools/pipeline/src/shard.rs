@@ -48,7 +48,10 @@ use std::time::Instant;
 
 /// The manifest's `format` and current `version`.
 pub const MANIFEST_FORMAT: &str = "biscale-shard-manifest";
-pub const MANIFEST_VERSION: u32 = 1;
+/// Version 2 added `stacked` (whether the merge streams `T`) and a shard's base and
+/// per-non-zero memory; a version-1 manifest is refused with "plan again" (the shards stay
+/// complete: their records name the config's hash and their ranges, not the manifest).
+pub const MANIFEST_VERSION: u32 = 2;
 /// Most shards a plan may have (a job array of more is no longer a plan a scheduler takes).
 pub const MAX_SHARDS: usize = 100_000;
 
@@ -104,7 +107,6 @@ pub struct Manifest {
     pub in_merge: Vec<MergeSetting>,
     /// Why the merge stacks all of `T` in memory; `None`: every step after the shards is
     /// row-separable and the merge streams `T` from the shards' files ([`stacked_because`]).
-    #[serde(default)]
     pub stacked: Option<String>,
     pub estimate: ShardEstimate,
     pub shards: Vec<ShardSpec>,
@@ -132,7 +134,8 @@ pub struct ShardEstimate {
     /// Peak memory of the largest shard.
     pub shard_peak_bytes: u64,
     /// What of it does not grow with its non-zeros: the process, the whole mesh and its BVH
-    /// (every shard holds them), the per-row arrays of its vertices.
+    /// (every shard holds them), the per-row arrays of its vertices. (Defaults let an older
+    /// manifest parse, so its version is what the refusal names.)
     #[serde(default)]
     pub shard_base_bytes: u64,
     /// What it adds per non-zero of `T` (its CSR, the file's arrays, the compressors).
