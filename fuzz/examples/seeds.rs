@@ -336,9 +336,12 @@ fn manifests(dir: &Path) {
             kind: "cpca".into(),
             why: "k-means clusters the units of every vertex together".into(),
         }],
+        stacked: Some("the compressor cpca-k4-c2 runs in the merge on all of T".into()),
         estimate: ShardEstimate {
             nnz_per_vertex: 1234.5,
             shard_peak_bytes: 50 << 20,
+            shard_base_bytes: 30 << 20,
+            shard_bytes_per_nnz: 28.5,
             shard_output_bytes: 20 << 20,
             merge_peak_bytes: 200 << 20,
             transfer_cpu_seconds: 12.5,
