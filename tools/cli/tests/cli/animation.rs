@@ -49,6 +49,14 @@ fn animated_frames_start_at_the_runs_own_image_and_stream_into_animated_pngs() {
         "runtime.animation.camera_frames=3",
         "--set",
         "runtime.animation.settings=[\"bicluster\", \"haar-t4\", \"sh-n3\"]",
+        // The stiff case and the per-pixel moments: every turned frame makes the run's light
+        // (sun boost included) and its moment gathers the way the run does.
+        "--set",
+        "lighting.sun_boost=20",
+        "--set",
+        "runtime.light_moments=true",
+        "--set",
+        "runtime.moments_resolve=\"pixel\"",
         "--out",
         out.to_str().unwrap(),
         "--cache-dir",

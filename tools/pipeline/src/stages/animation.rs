@@ -17,7 +17,7 @@ use crate::stages::evaluate::{uncompressed_product, Shaded, View};
 use crate::stages::scene::Lighting;
 use biscale_core::compress::{CompressedForm, Compressor};
 use biscale_core::gather::moments::{gather_keeping_moments, LightMoments};
-use biscale_core::gather::{reference_product, LocalRadiance};
+use biscale_core::gather::LocalRadiance;
 use biscale_core::geometry::VertexFrame;
 use biscale_core::sampling::LightVector;
 use biscale_core::scene::{Background, Camera, ShadeScene};
@@ -92,12 +92,7 @@ pub(crate) fn animate(inp: &Inputs<'_>, entries: &[Animated<'_>]) -> Result<Vec<
 
 /// The light of frame `angle` radians past the run's rotation, with the run's sun boost.
 fn light_at(inp: &Inputs<'_>, angle: f64) -> LightVector {
-    let l = inp.lighting;
-    let mut light = LightVector::from_env(&l.env, inp.exp.transfer_settings().cubemap(), l.rotation + angle);
-    if let Some(boost) = &inp.exp.file.lighting.sun_boost {
-        light.boost_brightest(*boost.get_ref());
-    }
-    light
+    crate::stages::scene::light_of(inp.exp, &inp.lighting.env, inp.lighting.rotation + angle).0
 }
 
 /// The camera turned `angle` radians about +Y around its target (frame 0 is the run's camera
@@ -168,9 +163,7 @@ fn uncompressed(inp: &Inputs<'_>, light: &LightVector) -> Result<Gathered> {
         return Ok(Gathered::Lstar(lstar));
     }
     let m = LightMoments::new(light)?;
-    let one = |l: &LightVector| LocalRadiance::from_f64(t.local_basis(), t.vertices(), &reference_product(t, l));
-    let [x, y, z] = &m.along;
-    Ok(Gathered::Moments(lstar, [one(x)?, one(y)?, one(z)?]))
+    Ok(Gathered::Moments(lstar, crate::stages::evaluate::moment_gathers(t.into(), &m)?))
 }
 
 /// A setting's frame under `light`, gathered as the run gathers it.
@@ -231,45 +224,44 @@ fn one(inp: &Inputs<'_>, entries: &[Animated<'_>], path: Turn, frames: u32) -> R
     let progress = crate::util::progress_bar(frames as u64, &format!("animation ({})", path.name()));
     for f in 0..frames {
         let angle = step * f as f64;
-        let (camera, background, light) = match path {
+        let (camera, background) = match path {
             Turn::Light => {
                 let background = match inp.view.background {
                     Background::Env { env, rotation } => Background::Env { env, rotation: rotation + angle },
                     Background::Black => Background::Black,
                 };
-                (cam, background, Some(light_at(inp, angle)))
+                (cam, background)
             }
-            Turn::Camera => (orbit(&cam, angle), inp.view.background, None),
+            Turn::Camera => (orbit(&cam, angle), inp.view.background),
         };
         let view = View { scene: inp.view.scene, camera, background, analytic: inp.view.analytic };
-        // The uncompressed frame: the target of every other's error.
-        let start = Instant::now();
-        let own;
-        let target_g = match (&fixed, &light) {
-            (Some((u, _)), _) => u,
-            (None, Some(l)) => {
-                own = uncompressed(inp, l)?;
-                &own
+        // This frame's gathers, the uncompressed one first (the target of every other's
+        // error), and each one's time: the fixed light's, gathered once (no time per frame),
+        // or the turned light's, gathered now.
+        let turned;
+        let (target_g, gs, gather_ms): (&Gathered, &[Gathered], Vec<f64>) = match &fixed {
+            Some((u, gs)) => (u, gs, vec![0.0; entries.len() + 1]),
+            None => {
+                let light = light_at(inp, angle);
+                let mut ms = vec![];
+                let mut timed = |f: &dyn Fn() -> Result<Gathered>| -> Result<Gathered> {
+                    let start = Instant::now();
+                    let g = f()?;
+                    ms.push(start.elapsed().as_secs_f64() * 1e3);
+                    Ok(g)
+                };
+                let u = timed(&|| uncompressed(inp, &light))?;
+                let gs = entries.iter().map(|e| timed(&|| gathered(inp, e, &light))).collect::<Result<Vec<_>>>()?;
+                turned = (u, gs);
+                (&turned.0, &turned.1, ms)
             }
-            (None, None) => unreachable!("the light path has a light"),
         };
-        let gather_ms = if fixed.is_some() { 0.0 } else { start.elapsed().as_secs_f64() * 1e3 };
         let start = Instant::now();
         let target = view.render_shaded(target_g.shaded(), &camera)?;
         let shade_ms = start.elapsed().as_secs_f64() * 1e3;
-        record(&mut series[0], &mut apngs[0], &target, &target, gather_ms, shade_ms, exposure)?;
+        record(&mut series[0], &mut apngs[0], &target, &target, gather_ms[0], shade_ms, exposure)?;
         for (i, e) in entries.iter().enumerate() {
-            let start = Instant::now();
-            let own_g;
-            let g = match (&fixed, &light) {
-                (Some((_, gs)), _) => &gs[i],
-                (None, Some(l)) => {
-                    own_g = gathered(inp, e, l)?;
-                    &own_g
-                }
-                (None, None) => unreachable!("the light path has a light"),
-            };
-            let gather_ms = if fixed.is_some() { 0.0 } else { start.elapsed().as_secs_f64() * 1e3 };
+            let g = &gs[i];
             let start = Instant::now();
             let render = match &e.source {
                 Source::Form { .. } => view.render_shaded(g.shaded(), &camera)?,
@@ -279,7 +271,7 @@ fn one(inp: &Inputs<'_>, entries: &[Animated<'_>], path: Turn, frames: u32) -> R
                 }
             };
             let shade_ms = start.elapsed().as_secs_f64() * 1e3;
-            record(&mut series[i + 1], &mut apngs[i + 1], &render, &target, gather_ms, shade_ms, exposure)?;
+            record(&mut series[i + 1], &mut apngs[i + 1], &render, &target, gather_ms[i + 1], shade_ms, exposure)?;
         }
         progress.set_position(f as u64 + 1);
     }

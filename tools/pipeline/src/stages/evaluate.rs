@@ -202,27 +202,30 @@ pub(crate) fn baseline(
         }
     };
     let lstar = LocalRadiance::from_f64(t.local_basis(), t.vertices(), &exact)?;
-    let product = |l: &LightVector| -> Result<LocalRadiance> {
-        let rows = t.map_rows(|_, part| -> Result<_> { Ok(reference_product(part, l)) })?;
-        Ok(LocalRadiance::from_f64(t.local_basis(), t.vertices(), &rows)?)
-    };
-    let pixel_moments = match per_pixel {
-        Some(m) => {
-            let [x, y, z] = &m.along;
-            Some([product(x)?, product(y)?, product(z)?])
-        }
-        None => None,
-    };
+    let pixel_moments = per_pixel.map(|m| moment_gathers(t, m)).transpose()?;
     let (render, shade_timing) = view.timed_render_shaded(Shaded::of(&lstar, pixel_moments.as_ref()), repeats)?;
     let paper = match moments {
         None => None,
         Some(_) => {
-            let lstar = product(&lighting.light)?;
+            let lstar = exact_lstar(t, &lighting.light)?;
             let render = view.render(&lstar, &view.camera)?;
             Some((lstar, render))
         }
     };
     Ok(Baseline { exact, lstar, render, gather_timing, shade_timing, paper, moments: pixel_moments })
+}
+
+/// `T l` in f64, part by part, rounded to an `L*`: the paper's rule's uncompressed `L*`.
+fn exact_lstar(t: TransferView<'_>, l: &LightVector) -> Result<LocalRadiance> {
+    let rows = t.map_rows(|_, part| -> Result<_> { Ok(reference_product(part, l)) })?;
+    Ok(LocalRadiance::from_f64(t.local_basis(), t.vertices(), &rows)?)
+}
+
+/// The three exact moment gathers of `m` ([`exact_lstar`] along each axis): what a per-pixel
+/// resolve (`moments_resolve = "pixel"`) shades for the uncompressed `T`.
+pub(crate) fn moment_gathers(t: TransferView<'_>, m: &LightMoments) -> Result<[LocalRadiance; 3]> {
+    let [x, y, z] = &m.along;
+    Ok([exact_lstar(t, x)?, exact_lstar(t, y)?, exact_lstar(t, z)?])
 }
 
 /// What every render of the run shares: the scene, the camera and the background.

@@ -80,13 +80,20 @@ pub fn load_lighting(exp: &Experiment) -> Result<Lighting> {
         (None, Some(c)) => (EnvMap::constant(64, 32, c), vec![]),
         (None, None) => unreachable!("validated by the config"),
     };
-    let mut light = LightVector::from_env(&env, exp.transfer_settings().cubemap(), rotation);
-    if let Some(boost) = &l.sun_boost {
-        if let Some(k) = light.boost_brightest(*boost.get_ref()) {
-            warnings.push(format!("sun_boost: texel {k} multiplied by {}", boost.get_ref()));
-        }
+    let (light, boosted) = light_of(exp, &env, rotation);
+    if let (Some(k), Some(boost)) = (boosted, &l.sun_boost) {
+        warnings.push(format!("sun_boost: texel {k} multiplied by {}", boost.get_ref()));
     }
     Ok(Lighting { light, env, rotation, warnings })
+}
+
+/// `L` of `env` turned `rotation` radians about +Y on the config's cubemap, with its
+/// `sun_boost` (and the texel it multiplied): the run's light, and every frame of a turning
+/// light ([`crate::stages::animation`]), made one way.
+pub fn light_of(exp: &Experiment, env: &EnvMap, rotation: f64) -> (LightVector, Option<usize>) {
+    let mut light = LightVector::from_env(env, exp.transfer_settings().cubemap(), rotation);
+    let boosted = exp.file.lighting.sun_boost.as_ref().and_then(|b| light.boost_brightest(*b.get_ref()));
+    (light, boosted)
 }
 
 /// The shade scene: the mesh, the transfer scene's frames and the materials, whose BTFs are
