@@ -59,7 +59,7 @@ fn run_of_scene(scene: &str) -> Option<&'static str> {
 }
 
 /// One "ours"/"paper" cell of a figure.
-fn cell(run: Option<&RunOutcome<'_>>, f: Figure, paper: Option<f64>, missing: Option<&str>) -> Cell {
+pub(super) fn cell(run: Option<&RunOutcome<'_>>, f: Figure, paper: Option<f64>, missing: Option<&str>) -> Cell {
     let mut c = Cell { paper, ..Cell::default() };
     match run {
         Some(r) => {
@@ -80,7 +80,7 @@ fn cell(run: Option<&RunOutcome<'_>>, f: Figure, paper: Option<f64>, missing: Op
     c
 }
 
-fn row(f: Figure, cells: Vec<Cell>) -> Row {
+pub(super) fn row(f: Figure, cells: Vec<Cell>) -> Row {
     let (key, label, unit, decimals) = f.describe();
     Row::numeric(key, label, unit, decimals, cells)
 }

@@ -72,6 +72,11 @@ impl TransferTime {
     }
 }
 
+/// The lossless setting of the paper's compressor (lossless biclustering) in `m`.
+pub fn paper_form(m: &Metrics) -> Option<&CompressorRecord> {
+    m.compressors.iter().find(|c| registry::role_of(&c.kind) == Role::Paper && c.lossless)
+}
+
 /// A run's record and how long its `T` took to trace.
 pub struct RunFacts<'a> {
     pub metrics: &'a Metrics,
@@ -81,7 +86,7 @@ pub struct RunFacts<'a> {
 impl RunFacts<'_> {
     /// The lossless setting of the paper's compressor (lossless biclustering).
     pub fn paper_form(&self) -> Option<&CompressorRecord> {
-        self.metrics.compressors.iter().find(|c| registry::role_of(&c.kind) == Role::Paper && c.lossless)
+        paper_form(self.metrics)
     }
 
     fn stat(&self, key: &str) -> Result<f64, String> {

@@ -4,8 +4,8 @@
 //! is read off a run's record like the tables' ([`RunFacts`], the record's own fields); every
 //! panel is an image the run wrote ([`FigureSet::add`]).
 
-use super::compose::{Context, RunOutcome};
-use super::facts::Figure;
+use super::compose::{cell, row, Context, RunOutcome};
+use super::facts::{paper_form, Figure};
 use super::figures::FigureSet;
 use super::tables::{number, Cell, Column, PaperTable, Row};
 use crate::compare::equal_storage;
@@ -20,10 +20,6 @@ fn ours_head(ctx: &Context<'_>) -> &'static str {
     } else {
         "ours"
     }
-}
-
-fn lossless_paper(m: &Metrics) -> Option<&CompressorRecord> {
-    m.compressors.iter().find(|c| registry::role_of(&c.kind) == Role::Paper && c.lossless)
 }
 
 fn raw(m: &Metrics) -> Option<&CompressorRecord> {
@@ -52,7 +48,7 @@ struct Method<'a> {
 fn methods<'a>(paper: &'a Metrics, moments: Option<&'a Metrics>) -> (Vec<Method<'a>>, Option<u32>) {
     let mut out = vec![];
     let counterpart = |c: &CompressorRecord| moments.and_then(|m| m.compressors.iter().find(|d| d.name == c.name));
-    for c in [raw(paper), lossless_paper(paper)].into_iter().flatten() {
+    for c in [raw(paper), paper_form(paper)].into_iter().flatten() {
         let name = match registry::role_of(&c.kind) {
             Role::Raw => "all-frequency, raw T".to_string(),
             _ => format!("all-frequency, {}", c.name),
@@ -60,7 +56,7 @@ fn methods<'a>(paper: &'a Metrics, moments: Option<&'a Metrics>) -> (Vec<Method<
         out.push(Method { name, paper_rule: Some(c), moments: counterpart(c) });
     }
     let sh = sh_orders(paper);
-    let equal = lossless_paper(paper).and_then(|b| {
+    let equal = paper_form(paper).and_then(|b| {
         let picked = equal_storage(sh.iter().map(|(_, r)| *r), b.bytes);
         picked.first().and_then(|p| sh.iter().find(|(_, r)| r.name == p.name).map(|(o, _)| *o))
     });
@@ -168,7 +164,7 @@ pub fn low_vs_all(
 
 /// What the numbers say: the best SH order against each all-frequency rule, and where SH wins.
 fn verdict(m: &Metrics, mm: Option<&Metrics>, equal: Option<u32>) -> String {
-    let Some(b) = lossless_paper(m) else { return "No lossless biclustering ran.".into() };
+    let Some(b) = paper_form(m) else { return "No lossless biclustering ran.".into() };
     let sh = sh_orders(m);
     let (Some(paper_rule), false) = (rel_l2(Some(b)), sh.is_empty()) else {
         return "No ground truth or SH setting to compare.".into();
@@ -298,29 +294,9 @@ pub fn fig8(ctx: &Context<'_>, runs: &[RunOutcome<'_>]) -> PaperTable {
     let base_mb = found[0].and_then(|r| r.facts.value(Figure::ReducedMb).ok());
     let paper_base = published.first().map(|p| p.compressed_mb);
     let figure = |f: Figure, paper: &dyn Fn(&super::published::GridColumn) -> f64| -> Row {
-        let (key, label, unit, decimals) = f.describe();
-        let cells = published
-            .iter()
-            .zip(&found)
-            .map(|(p, r)| {
-                let mut c = Cell { paper: Some(paper(p)), ..Cell::default() };
-                match r {
-                    Some(r) => {
-                        c.source = Some(format!("runs/{}", r.name));
-                        match r.facts.value(f) {
-                            Ok(v) => c.ours = Some(v),
-                            Err(e) => c.note = Some(e),
-                        }
-                        if let Some(n) = r.facts.note(f) {
-                            c.note = Some(n);
-                        }
-                    }
-                    None => c.note = Some("its run did not take place".into()),
-                }
-                c
-            })
-            .collect();
-        Row::numeric(key, label, unit, decimals, cells)
+        let missing = Some("its run did not take place");
+        let cells = published.iter().zip(&found).map(|(p, r)| cell(*r, f, Some(paper(p)), missing)).collect();
+        row(f, cells)
     };
     // A row of a figure the facts do not define: `ours` of each grid's run, the paper's.
     type Ours<'a> = &'a dyn Fn(&RunOutcome<'_>) -> Option<f64>;
@@ -352,7 +328,7 @@ pub fn fig8(ctx: &Context<'_>, runs: &[RunOutcome<'_>]) -> PaperTable {
         "transfer_ms",
         "macro-scale transfer per frame (gather)",
         "ms",
-        &|r| lossless_paper(r.facts.metrics).map(|b| b.gather_ms),
+        &|r| paper_form(r.facts.metrics).map(|b| b.gather_ms),
         &|p| Some(p.transfer_ms),
     );
     let rows = vec![
@@ -409,7 +385,7 @@ pub fn fig8_figure(out: &Path, runs: &[RunOutcome<'_>]) -> Result<FigureSet> {
     );
     for r in runs.iter().filter(|r| r.name.starts_with("fig8-")) {
         let m = r.facts.metrics;
-        let Some(b) = lossless_paper(m) else { continue };
+        let Some(b) = paper_form(m) else { continue };
         let g = (m.transfer.local_dirs as f64).sqrt().round() as u32;
         f.add(out, &format!("runs/{}/{}", r.name, b.image.png), r.name, format!("{g}x{g} local directions"))?;
     }
@@ -464,7 +440,7 @@ pub fn fig7_figure(out: &Path, run: &RunOutcome<'_>) -> Result<FigureSet> {
         run.name
     );
     let mut f = FigureSet::new("fig7", "fig7", "Fig. 7: the temple", caption, 2);
-    if let Some(b) = lossless_paper(m) {
+    if let Some(b) = paper_form(m) {
         f.add(out, &format!("runs/{}/{}", run.name, b.image.png), "temple", b.name.clone())?;
     }
     Ok(f)
