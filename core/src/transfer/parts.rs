@@ -5,8 +5,8 @@
 //! compressors have run is row-separable: the f64 baseline `T L` (with or without light
 //! moments), the error terms of a form (sums of squares over rows), the value histogram. So a
 //! pass can visit `T` as consecutive vertex ranges, loading each part when it is reached and
-//! dropping it after; it holds one part at a time and gets, row for row and sum for sum in
-//! the same order, what the pass over the whole matrix gets.
+//! dropping it after (the next is read ahead, so two are in memory at once); it gets, row for
+//! row and sum for sum in the same order, what the pass over the whole matrix gets.
 //!
 //! * [`TransferParts`]: the part files with their writers' records, each part checked against
 //!   its record whenever a pass reads it.
@@ -79,6 +79,24 @@ impl TransferParts {
     }
 }
 
+impl TransferParts {
+    /// One part, checked against its record.
+    fn read(&self, record: &PartFile) -> Result<TransferMatrix> {
+        let part = load(&record.path)?;
+        let expected = TransferShape::new(record.vertices, self.shape.local, self.shape.light);
+        if part.shape() != expected || part.nnz() != record.nnz {
+            return Err(CoreError::Invalid(format!(
+                "{}: holds {} with {} non-zeros, its record says {expected} with {}",
+                record.path.display(),
+                part.shape(),
+                part.nnz(),
+                record.nnz
+            )));
+        }
+        Ok(part)
+    }
+}
+
 fn load(path: &Path) -> Result<TransferMatrix> {
     TransferMatrix::load(path).map_err(CoreError::from)
 }
@@ -144,31 +162,26 @@ impl TransferView<'_> {
     }
 
     /// `f(first_vertex, part)` for each part of `T` in row order: the whole matrix once, or
-    /// each part file loaded in turn and dropped after `f` returns.
+    /// each part file loaded in turn and dropped after `f` returns. The next part is read on
+    /// a thread of its own while `f` works on this one (reading is one core's decoding; `f`
+    /// may use the others), so at most two parts are in memory at once.
     pub fn for_each_part<E: From<CoreError>>(
         &self,
         mut f: impl FnMut(usize, &TransferMatrix) -> std::result::Result<(), E>,
     ) -> std::result::Result<(), E> {
         match self {
             TransferView::Whole(t) => f(0, t),
-            TransferView::Parts(p) => {
-                for (record, first) in &p.parts {
-                    let part = load(&record.path)?;
-                    let expected = TransferShape::new(record.vertices, p.shape.local, p.shape.light);
-                    if part.shape() != expected || part.nnz() != record.nnz {
-                        let what = format!(
-                            "{}: holds {} with {} non-zeros, its record says {expected} with {}",
-                            record.path.display(),
-                            part.shape(),
-                            part.nnz(),
-                            record.nnz
-                        );
-                        return Err(CoreError::Invalid(what).into());
-                    }
+            TransferView::Parts(p) => std::thread::scope(|scope| {
+                let read = |i: usize| p.parts.get(i).map(|(record, _)| scope.spawn(move || p.read(record)));
+                let mut next = read(0);
+                for (i, (_, first)) in p.parts.iter().enumerate() {
+                    let reading = next.take().expect("a read was started for every part");
+                    let part = reading.join().unwrap_or_else(|panic| std::panic::resume_unwind(panic))?;
+                    next = read(i + 1);
                     f(*first, &part)?;
                 }
                 Ok(())
-            }
+            }),
         }
     }
 

@@ -105,7 +105,8 @@ pub struct RunMemory {
     /// `T`'s buffers at `nnz.upper` non-zeros.
     pub transfer: TransferMemory,
     /// A merge that streams `T` ([`RunShape::streamed_part`]): the largest part as loaded,
-    /// all of `T` it holds at once (then `transfer` is what it never builds).
+    /// held twice (one in use, the next being read): all of `T` it holds at once (then
+    /// `transfer` is what it never builds).
     pub streamed_part: Option<u64>,
     pub baseline: u64,
     pub geometry: u64,
@@ -140,7 +141,8 @@ pub struct RunShape {
     /// Threads tracing `T` and building compressors.
     pub threads: usize,
     /// A sharded merge that streams `T` from the shards' files: the vertices of the largest
-    /// part, all of `T` it holds at once (it builds no `T` and no separable form; `None`: a
+    /// part (it holds two at once: one in use, the next being read; it builds no `T` and no
+    /// separable form; `None`: a
     /// run that holds `T` whole).
     pub streamed_part: Option<usize>,
 }
@@ -196,12 +198,12 @@ impl RunMemory {
             None => (transfer.csr, 0),
             Some(v) => {
                 let part_nnz = (nnz as f64 * v as f64 / shape.vertices.max(1) as f64).ceil() as u64;
-                (0, TransferMemory::new(settings, v, part_nnz, shape.threads).load_peak())
+                (0, 2 * TransferMemory::new(settings, v, part_nnz, shape.threads).load_peak())
             }
         };
         let mut phases = match shape.streamed_part {
             None => vec![Part::new("transfer build", common + transfer.build_peak())],
-            Some(_) => vec![Part::new("transfer: one shard's part at a time", common + part)],
+            Some(_) => vec![Part::new("transfer: two shards' parts at a time (one read ahead)", common + part)],
         };
         if shape.cache && shape.streamed_part.is_none() {
             phases.push(Part::new("transfer cache write", common + transfer.save_peak()));
@@ -268,7 +270,7 @@ impl RunMemory {
                 Part::new("T: cache file arrays (u32, u16, f32)", t.file_arrays),
                 Part::new("T: cache file encode buffer", t.file_bytes),
             ]),
-            Some(b) => parts.push(Part::new("T: the largest shard's part as it is read (streamed)", b)),
+            Some(b) => parts.push(Part::new("T: the largest shard's part in use and one read ahead (streamed)", b)),
         }
         parts.extend([
             Part::new("BTFs", self.btfs),
@@ -973,7 +975,7 @@ mod tests {
     #[test]
     fn a_streamed_merge_holds_one_part_of_t_and_the_forms_not_t() {
         // 1000 vertices at 1,000 non-zeros each in parts of at most 250: the streamed merge
-        // holds one part as it is read (a quarter of T's file arrays and CSR) instead of T's
+        // holds two parts as they are read (each a quarter of T's file arrays and CSR) instead of T's
         // CSR, and each separable form twice (the shards' parts, the merged form) instead of
         // the compressor's working set; it builds no T.
         let dir = tempfile::tempdir().unwrap();
@@ -984,7 +986,7 @@ mod tests {
         let nnz = NnzEstimate::exact(1000, 1_000_000, &settings);
         let whole = RunMemory::new(&exp, &shape, nnz);
         let streamed = RunMemory::new(&exp, &RunShape { streamed_part: Some(250), ..shape }, nnz);
-        let part = TransferMemory::new(&settings, 250, 250_000, 2).load_peak();
+        let part = 2 * TransferMemory::new(&settings, 250, 250_000, 2).load_peak();
         assert_eq!(streamed.streamed_part, Some(part));
         let phase = |m: &RunMemory, name: &str| m.phases.iter().find(|p| p.name == name).map(|p| p.bytes);
         assert_eq!(phase(&streamed, "transfer build"), None);

@@ -22,8 +22,8 @@
 //!   pipeline ([`crate::run::run_with`]): gathers, shading and the report. When every step
 //!   after the shards is row-separable (no compressor that needs all of `T`, such as CPCA's
 //!   global k-means; no SH method; no animation) it **streams** `T`: the f64 baseline `T L`,
-//!   `T`'s record and the forms' error terms are passes over the shards' files, one part in
-//!   memory at a time ([`biscale_core::transfer::TransferView`]), so its peak is the forms,
+//!   `T`'s record and the forms' error terms are passes over the shards' files, two parts in
+//!   memory at once ([`biscale_core::transfer::TransferView`]), so its peak is the forms,
 //!   the per-row vectors and the images, not `T`. Otherwise it stacks `T` whole, and the plan
 //!   says why ([`Manifest::stacked`]). Either way `T`'s products, the forms and the images are
 //!   byte-identical to `biscale run` of the same config (only timings differ).
@@ -788,7 +788,7 @@ pub fn describe(m: &Manifest, path: &Path, available: Option<&Available>) -> Str
         s += &format!("  in the merge:  {} ({}): {}\n", c.label, c.kind, c.why);
     }
     s += &match &m.stacked {
-        None => "  the merge streams T from the shards' files, one part at a time (every step after the shards is \
+        None => "  the merge streams T from the shards' files, part by part (every step after the shards is \
                  row-separable)\n"
             .to_string(),
         Some(why) => format!("  the merge stacks all of T in memory: {why}\n"),

@@ -235,7 +235,7 @@ fn a_merge_whose_steps_are_all_row_separable_streams_t_and_matches_the_single_ru
     let m: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(merged.join("metrics.json")).unwrap()).unwrap();
     let phases = m["memory"]["phases"].to_string();
-    assert!(phases.contains("one shard's part at a time") && !phases.contains("transfer build"), "{phases}");
+    assert!(phases.contains("two shards' parts at a time") && !phases.contains("transfer build"), "{phases}");
     // The merge's whole time is in its record (it was written as 0 before the pipeline ended).
     let (whole, load) =
         (m["sharded"]["merge_seconds"].as_f64().unwrap(), m["sharded"]["merge_load_seconds"].as_f64().unwrap());

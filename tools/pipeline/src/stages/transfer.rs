@@ -20,7 +20,7 @@ pub struct Transfer {
 }
 
 /// `T` as a run holds it: whole in memory, or (a sharded merge whose every step is
-/// row-separable) left in the shards' files and read one part at a time.
+/// row-separable) left in the shards' files and read part by part.
 pub enum TransferRows {
     Whole(TransferMatrix),
     Parts(TransferParts),
