@@ -165,11 +165,7 @@ pub fn table_stats<'a>(form: &CompressedForm, t: impl Into<TransferView<'a>>) ->
             format!("is {}x{}, T is {}x{}", v.rows, v.cols, t.rows(), t.cols()),
         ));
     }
-    let mut nnz = 0u64;
-    t.for_each_part(|_, part| -> Result<(), CompressError> {
-        nnz += part.csr().data().iter().filter(|&&x| x != 0.0).count() as u64;
-        Ok(())
-    })?;
+    let nnz = t.nonzero()? as u64;
     let r: Vec<u64> = v.bicluster_rows().into_iter().map(u64::from).collect();
     let l: Vec<u64> = v.bicluster_cols().into_iter().map(u64::from).collect();
     let w: u64 = r.iter().zip(&l).map(|(&r, &l)| r + 2 * l - 1).sum();

@@ -589,7 +589,8 @@ fn lossy_budget_holds_on_the_bunny() {
             .map(|(i, r)| {
                 let (path, part) = (dir.path().join(format!("{i}.bsf")), t.vertex_rows(r).unwrap());
                 part.save(&path).unwrap();
-                biscale_core::transfer::PartFile { path, vertices: part.vertices(), nnz: part.nnz() }
+                let nonzero = (i > 0).then(|| part.csr().data().iter().filter(|&&x| x != 0.0).count());
+                biscale_core::transfer::PartFile { path, vertices: part.vertices(), nnz: part.nnz(), nonzero }
             })
             .collect();
         let parts = biscale_core::transfer::TransferParts::new(t.shape(), files).unwrap();

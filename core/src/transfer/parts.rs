@@ -34,6 +34,9 @@ pub struct PartFile {
     pub path: PathBuf,
     pub vertices: usize,
     pub nnz: usize,
+    /// Its stored values that are not 0, when the writer counted them (a pass that needs the
+    /// count then reads no part for it).
+    pub nonzero: Option<usize>,
 }
 
 impl TransferParts {
@@ -84,17 +87,25 @@ impl TransferParts {
     fn read(&self, record: &PartFile) -> Result<TransferMatrix> {
         let part = load(&record.path)?;
         let expected = TransferShape::new(record.vertices, self.shape.local, self.shape.light);
-        if part.shape() != expected || part.nnz() != record.nnz {
+        let counted = record.nonzero.map(|_| nonzero_values(&part));
+        if part.shape() != expected || part.nnz() != record.nnz || counted != record.nonzero {
             return Err(CoreError::Invalid(format!(
-                "{}: holds {} with {} non-zeros, its record says {expected} with {}",
+                "{}: holds {} with {} non-zeros ({:?} not 0), its record says {expected} with {} ({:?})",
                 record.path.display(),
                 part.shape(),
                 part.nnz(),
-                record.nnz
+                counted,
+                record.nnz,
+                record.nonzero
             )));
         }
         Ok(part)
     }
+}
+
+/// The stored values of `t` that are not 0.
+fn nonzero_values(t: &TransferMatrix) -> usize {
+    t.csr().data().iter().filter(|&&x| x != 0.0).count()
 }
 
 fn load(path: &Path) -> Result<TransferMatrix> {
@@ -153,6 +164,22 @@ impl TransferView<'_> {
             TransferView::Parts(p) => p.nnz,
         }
     }
+    /// The stored values that are not 0: counted (a pass over `T`'s parts), or summed from
+    /// the parts' records when every one of them has the count.
+    pub fn nonzero(&self) -> Result<usize> {
+        if let TransferView::Parts(p) = self {
+            if let Some(n) = p.parts.iter().map(|(r, _)| r.nonzero).sum::<Option<usize>>() {
+                return Ok(n);
+            }
+        }
+        let mut n = 0;
+        self.for_each_part(|_, part| -> Result<()> {
+            n += nonzero_values(part);
+            Ok(())
+        })?;
+        Ok(n)
+    }
+
     /// The matrix, when it is whole in memory.
     pub fn whole(&self) -> Option<&TransferMatrix> {
         match self {
@@ -241,7 +268,10 @@ mod tests {
         files
             .iter()
             .zip(ranges)
-            .map(|(f, r)| PartFile { path: f.clone(), vertices: r.len(), nnz: t.vertex_rows(r.clone()).unwrap().nnz() })
+            .map(|(f, r)| {
+                let part = t.vertex_rows(r.clone()).unwrap();
+                PartFile { path: f.clone(), vertices: r.len(), nnz: part.nnz(), nonzero: Some(nonzero_values(&part)) }
+            })
             .collect()
     }
 
@@ -253,6 +283,13 @@ mod tests {
         let files = save_parts(&t, &ranges, dir.path());
         let parts = TransferParts::new(t.shape(), records(&t, &files, &ranges)).unwrap();
         assert_eq!((parts.shape(), parts.nnz(), parts.len(), parts.largest_part()), (t.shape(), t.nnz(), 3, 4));
+        // The count of values that are not 0: from the records when all have it, else counted.
+        let mut unrecorded = records(&t, &files, &ranges);
+        unrecorded[1].nonzero = None;
+        let counted = TransferParts::new(t.shape(), unrecorded).unwrap();
+        assert_eq!(TransferView::from(&parts).nonzero().unwrap(), nonzero_values(&t));
+        assert_eq!(TransferView::from(&counted).nonzero().unwrap(), nonzero_values(&t));
+        assert_eq!(TransferView::from(&t).nonzero().unwrap(), nonzero_values(&t));
 
         // The product of T in parts is the product of T, bit for bit (each row on its own).
         let power = (0..24).map(|k| [k as f32 * 0.5 + 1.0, 2.0 / (k as f32 + 1.0), 0.25]).collect();
@@ -294,6 +331,10 @@ mod tests {
         short[1].nnz += 1;
         let e = pass(&TransferParts::new(t.shape(), short).unwrap());
         assert!(e.contains("part1.bsf") && e.contains("its record says"), "{e}");
+        let mut miscounted = recs.clone();
+        miscounted[0].nonzero = miscounted[0].nonzero.map(|n| n - 1);
+        let e = pass(&TransferParts::new(t.shape(), miscounted).unwrap());
+        assert!(e.contains("part0.bsf") && e.contains("its record says"), "{e}");
         let local = LocalBasis::bins(3).unwrap();
         let other = TransferMatrix::new(local, t.light_basis(), sprs::CsMat::zero((4 * local.len(), 24))).unwrap();
         other.save(&files[1]).unwrap();

@@ -173,6 +173,10 @@ pub struct ShardDone {
     pub end_vertex: usize,
     pub files: Vec<FileSum>,
     pub nnz: u64,
+    /// Its `T`'s stored values that are not 0 (what Table I counts), so the merge need not
+    /// read `T` to count them; absent in records of older shards.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nonzero: Option<u64>,
     pub rays_traced: u64,
     pub transfer_seconds: f64,
     /// Build seconds of each separable compressor, by label.
@@ -558,6 +562,7 @@ pub fn run(path: &Path, index: usize) -> Result<ShardDone> {
         end_vertex: range.end,
         files,
         nnz: build.matrix.nnz() as u64,
+        nonzero: Some(build.matrix.csr().data().iter().filter(|&&x| x != 0.0).count() as u64),
         rays_traced: build.stats.rays_traced,
         transfer_seconds: build.stats.seconds,
         compressor_seconds,
@@ -716,6 +721,7 @@ pub fn merge(path: &Path, opts: &RunOptions) -> Result<(PathBuf, crate::metrics:
                 path,
                 vertices: s.end_vertex - s.first_vertex,
                 nnz: d.nnz as usize,
+                nonzero: d.nonzero.map(|n| n as usize),
             });
             let shape = exp.transfer_settings().shape(m.vertices);
             TransferRows::Parts(TransferParts::new(shape, records.collect())?)
