@@ -589,7 +589,7 @@ fn lossy_budget_holds_on_the_bunny() {
             .map(|(i, r)| {
                 let (path, part) = (dir.path().join(format!("{i}.bsf")), t.vertex_rows(r).unwrap());
                 part.save(&path).unwrap();
-                let nonzero = (i > 0).then(|| part.csr().data().iter().filter(|&&x| x != 0.0).count());
+                let nonzero = (i > 0).then(|| part.nonzero_values());
                 biscale_core::transfer::PartFile { path, vertices: part.vertices(), nnz: part.nnz(), nonzero }
             })
             .collect();

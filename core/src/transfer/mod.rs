@@ -178,6 +178,10 @@ impl TransferMatrix {
     pub fn nnz(&self) -> usize {
         self.csr.nnz()
     }
+    /// The stored values that are not 0 (what Table I counts as `T`'s non-zeros).
+    pub fn nonzero_values(&self) -> usize {
+        self.csr.data().iter().filter(|&&x| x != 0.0).count()
+    }
     /// The sparse matrix itself (rows `v * M + j`).
     pub fn csr(&self) -> &sprs::CsMat<f32> {
         &self.csr

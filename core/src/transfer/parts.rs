@@ -87,7 +87,7 @@ impl TransferParts {
     fn read(&self, record: &PartFile) -> Result<TransferMatrix> {
         let part = load(&record.path)?;
         let expected = TransferShape::new(record.vertices, self.shape.local, self.shape.light);
-        let counted = record.nonzero.map(|_| nonzero_values(&part));
+        let counted = record.nonzero.map(|_| part.nonzero_values());
         if part.shape() != expected || part.nnz() != record.nnz || counted != record.nonzero {
             return Err(CoreError::Invalid(format!(
                 "{}: holds {} with {} non-zeros ({:?} not 0), its record says {expected} with {} ({:?})",
@@ -101,11 +101,6 @@ impl TransferParts {
         }
         Ok(part)
     }
-}
-
-/// The stored values of `t` that are not 0.
-fn nonzero_values(t: &TransferMatrix) -> usize {
-    t.csr().data().iter().filter(|&&x| x != 0.0).count()
 }
 
 fn load(path: &Path) -> Result<TransferMatrix> {
@@ -174,7 +169,7 @@ impl TransferView<'_> {
         }
         let mut n = 0;
         self.for_each_part(|_, part| -> Result<()> {
-            n += nonzero_values(part);
+            n += part.nonzero_values();
             Ok(())
         })?;
         Ok(n)
@@ -270,7 +265,7 @@ mod tests {
             .zip(ranges)
             .map(|(f, r)| {
                 let part = t.vertex_rows(r.clone()).unwrap();
-                PartFile { path: f.clone(), vertices: r.len(), nnz: part.nnz(), nonzero: Some(nonzero_values(&part)) }
+                PartFile { path: f.clone(), vertices: r.len(), nnz: part.nnz(), nonzero: Some(part.nonzero_values()) }
             })
             .collect()
     }
@@ -287,9 +282,9 @@ mod tests {
         let mut unrecorded = records(&t, &files, &ranges);
         unrecorded[1].nonzero = None;
         let counted = TransferParts::new(t.shape(), unrecorded).unwrap();
-        assert_eq!(TransferView::from(&parts).nonzero().unwrap(), nonzero_values(&t));
-        assert_eq!(TransferView::from(&counted).nonzero().unwrap(), nonzero_values(&t));
-        assert_eq!(TransferView::from(&t).nonzero().unwrap(), nonzero_values(&t));
+        assert_eq!(TransferView::from(&parts).nonzero().unwrap(), t.nonzero_values());
+        assert_eq!(TransferView::from(&counted).nonzero().unwrap(), t.nonzero_values());
+        assert_eq!(TransferView::from(&t).nonzero().unwrap(), t.nonzero_values());
 
         // The product of T in parts is the product of T, bit for bit (each row on its own).
         let power = (0..24).map(|k| [k as f32 * 0.5 + 1.0, 2.0 / (k as f32 + 1.0), 0.25]).collect();

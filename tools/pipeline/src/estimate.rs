@@ -141,9 +141,8 @@ pub struct RunShape {
     /// Threads tracing `T` and building compressors.
     pub threads: usize,
     /// A sharded merge that streams `T` from the shards' files: the vertices of the largest
-    /// part (it holds two at once: one in use, the next being read; it builds no `T` and no
-    /// separable form; `None`: a
-    /// run that holds `T` whole).
+    /// part (it holds two at once, one in use and the next being read, and builds no `T` and
+    /// no separable form); `None`: a run that holds `T` whole.
     pub streamed_part: Option<usize>,
 }
 
@@ -193,7 +192,7 @@ impl RunMemory {
 
         let common = PROCESS_BASELINE_BYTES + geometry + lighting;
         // What of T is alive after the transfer stage: all of it, or (streamed) nothing but
-        // the one part a pass has loaded, during the baseline's passes.
+        // the two parts a pass holds (one in use, one read ahead), during the baseline's passes.
         let (held, part) = match shape.streamed_part {
             None => (transfer.csr, 0),
             Some(v) => {
@@ -973,7 +972,7 @@ mod tests {
     }
 
     #[test]
-    fn a_streamed_merge_holds_one_part_of_t_and_the_forms_not_t() {
+    fn a_streamed_merge_holds_two_parts_of_t_and_the_forms_not_t() {
         // 1000 vertices at 1,000 non-zeros each in parts of at most 250: the streamed merge
         // holds two parts as they are read (each a quarter of T's file arrays and CSR) instead of T's
         // CSR, and each separable form twice (the shards' parts, the merged form) instead of

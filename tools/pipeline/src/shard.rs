@@ -143,8 +143,8 @@ pub struct ShardEstimate {
     pub shard_bytes_per_nnz: f64,
     /// Bytes the largest shard writes.
     pub shard_output_bytes: u64,
-    /// Peak memory of the merge (the run's estimate: with `T` whole, or streamed one shard's
-    /// part at a time).
+    /// Peak memory of the merge (the run's estimate: with `T` whole, or streamed from the
+    /// shards' files, two parts at a time).
     pub merge_peak_bytes: u64,
     /// CPU seconds of tracing all of `T`, from the time the sample took (its wall time x
     /// threads, per sampled vertex, x vertices): a rough guide for `--time`; the
@@ -562,7 +562,7 @@ pub fn run(path: &Path, index: usize) -> Result<ShardDone> {
         end_vertex: range.end,
         files,
         nnz: build.matrix.nnz() as u64,
-        nonzero: Some(build.matrix.csr().data().iter().filter(|&&x| x != 0.0).count() as u64),
+        nonzero: Some(build.matrix.nonzero_values() as u64),
         rays_traced: build.stats.rays_traced,
         transfer_seconds: build.stats.seconds,
         compressor_seconds,
