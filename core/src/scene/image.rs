@@ -157,6 +157,42 @@ impl HdrImage {
         out
     }
 
+    /// The share of the pixels `mask` marks (all of them for `None`) that the tone map of
+    /// [`Self::to_srgb8`] at `exposure` clips: a channel above 1 after `x 2^exposure`.
+    pub fn clipped_fraction(&self, mask: Option<&[bool]>, exposure: f32) -> f64 {
+        let scale = exposure.exp2();
+        let (mut seen, mut clipped) = (0usize, 0usize);
+        for (i, p) in self.pixels.iter().enumerate() {
+            if mask.is_some_and(|m| !m.get(i).copied().unwrap_or(false)) {
+                continue;
+            }
+            seen += 1;
+            clipped += p.iter().any(|&x| x * scale > 1.0) as usize;
+        }
+        clipped as f64 / seen.max(1) as f64
+    }
+
+    /// The exposure (stops) at which at most `1 - quantile` of the pixels `mask` marks clip:
+    /// the `quantile` of their largest channel (nearest rank, finite values only) is taken to
+    /// white, rounded down to a tenth of a stop so that the count holds after rounding. `0`
+    /// when there is no such pixel or the quantile is not positive (a black image).
+    pub fn auto_exposure(&self, mask: Option<&[bool]>, quantile: f64) -> f32 {
+        let mut peaks: Vec<f32> = (self.pixels.iter().enumerate())
+            .filter(|(i, _)| mask.is_none_or(|m| m.get(*i).copied().unwrap_or(false)))
+            .map(|(_, p)| p.iter().copied().fold(f32::NEG_INFINITY, f32::max))
+            .filter(|v| v.is_finite())
+            .collect();
+        if peaks.is_empty() {
+            return 0.0;
+        }
+        let rank = ((quantile.clamp(0.0, 1.0) * peaks.len() as f64).ceil() as usize).clamp(1, peaks.len()) - 1;
+        let white = *peaks.select_nth_unstable_by(rank, f32::total_cmp).1;
+        if !(white > 0.0) {
+            return 0.0;
+        }
+        ((-(white as f64).log2() * 10.0).floor() / 10.0) as f32
+    }
+
     /// Write an 8-bit sRGB PNG ([`Self::to_srgb8`]), atomically.
     pub fn write_png(&self, path: &Path, exposure: f32) -> Result<()> {
         self.check_size(&path.display().to_string())?;
@@ -366,6 +402,34 @@ mod tests {
         assert_eq!(back.get_pixel(1, 0).0, [255, 188, 137]);
         assert_eq!(back.get_pixel(2, 0).0, [255, 0, 0]);
         assert_eq!(back.get_pixel(3, 0).0, [175, 175, 175]);
+    }
+
+    #[test]
+    fn auto_exposure_takes_the_quantile_to_white_and_clips_no_more() {
+        // 1000 pixels with largest channels 0.001 .. 1.000, scaled by 8: the 99th percentile
+        // (nearest rank 990) is 7.92, so the exposure is -log2(7.92) = -2.985 rounded down
+        // to -3.0; at -3.0 the pixels above 8 (none) clip, at -2.9 the 67 above 2^2.9 = 7.464 would.
+        let pixels: Vec<Rgb> = (1..=1000).map(|i| [0.0, 8.0 * i as f32 / 1000.0, 4.0 * i as f32 / 1000.0]).collect();
+        let img = HdrImage { width: 1000, height: 1, pixels };
+        let e = img.auto_exposure(None, 0.99);
+        assert_eq!(e, -3.0);
+        assert_eq!(img.clipped_fraction(None, e), 0.0);
+        assert!((img.clipped_fraction(None, -2.9) - 0.067).abs() < 1e-9, "{}", img.clipped_fraction(None, -2.9));
+        // The mask chooses the pixels: only the darkest ten, 0.008 i, peak 0.08 -> -log2 0.08 =
+        // 3.64 -> 3.6; at 4 stops (x 16) i = 8, 9, 10 clip.
+        let mask: Vec<bool> = (0..1000).map(|i| i < 10).collect();
+        assert_eq!(img.auto_exposure(Some(&mask), 0.99), 3.6);
+        assert_eq!(img.clipped_fraction(Some(&mask), 3.6), 0.0);
+        assert_eq!(img.clipped_fraction(Some(&mask), 4.0), 0.3);
+        // Non-finite pixels are left out; a black or empty selection is 0 stops.
+        let mut odd = img.clone();
+        odd.pixels[999] = [f32::INFINITY; 3];
+        odd.pixels[998] = [f32::NAN; 3];
+        // The largest finite peak is now pixel 997's 7.984: -log2 7.984 = -2.997 -> -3.0.
+        assert_eq!(odd.auto_exposure(None, 1.0), -3.0);
+        assert_eq!(img.auto_exposure(None, 1.0), -3.0, "8.0 itself maps to white exactly");
+        assert_eq!(HdrImage::new(4, 4).auto_exposure(None, 0.99), 0.0);
+        assert_eq!(img.auto_exposure(Some(&[false; 1000]), 0.99), 0.0);
     }
 
     #[test]

@@ -343,6 +343,18 @@ pub const VIZ_FILES: [(&str, &str); 6] = [
     ("heat_nnz.png", "non-zeros of T per vertex, on the mesh"),
 ];
 
+/// The viewer's starting exposure: `[report] exposure`, or 0 stops for `"auto"`, which a run
+/// resolves from its uncompressed render (the viewer's +/- keys change it).
+#[cfg(feature = "viewer")]
+fn viewer_exposure(exp: &Experiment) -> f32 {
+    exp.file.report.exposure.stops().unwrap_or_else(|| {
+        log::info!(
+            "view: `[report] exposure = \"auto\"` is chosen by a run; the viewer starts at 0 stops (+/- change it)"
+        );
+        0.0
+    })
+}
+
 /// `biscale view`: open the interactive viewer on a config's scene with every compressor it
 /// names (feature `viewer`), or with the `[[methods]]` setting labelled `method` (the
 /// low-frequency method: the sky is rotated in SH). `screenshot` renders a few frames into a
@@ -415,7 +427,7 @@ pub fn view(
         light_basis,
         env_rotation: lighting.rotation,
         sun_boost: exp.file.lighting.sun_boost.as_ref().map(|b| *b.get_ref()),
-        exposure: exp.file.report.exposure,
+        exposure: viewer_exposure(exp),
         background: exp.file.report.background,
         screenshot: screenshot.map(|path| Screenshot { path, frames: 5 }),
         continuous: false,

@@ -167,7 +167,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
         lstar: &base.lstar,
         reference,
         repeats: exp.file.runtime.repeats,
-        exposure: exp.file.report.exposure,
+        exposure: targets.tone.exposure,
         out_dir: &out_dir,
     };
     materials.btfs = crate::stages::btf_study::run(&materials, &study)?;
@@ -186,8 +186,8 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     let (mut records, renders, kept) =
         forms.evaluate(&compressors, &eval, gpu.as_mut(), &mut ctx.clock, &animated_labels)?;
     crate::estimate::check_peak(&memory, &available, "the compressors")?;
-    share_error_scale(&mut records, &renders, &base.render, exp.file.report.error_scale, &out_dir)?;
-    let region = inset_region(exp, &records, &renders, base);
+    share_error_scale(records.iter_mut().collect(), &renders, &base.render, exp.file.report.error_scale, &out_dir)?;
+    let region = inset_region(exp, &records, &renders, base, targets.tone.exposure);
     drop(renders);
     let inputs = crate::stages::sh::MethodInputs {
         exp,
@@ -200,7 +200,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
         reference,
         cache: ctx.cache.as_ref(),
         repeats: exp.file.runtime.repeats,
-        exposure: exp.file.report.exposure,
+        exposure: targets.tone.exposure,
         out_dir: &out_dir,
     };
     let mut animated: Vec<crate::stages::animation::Animated<'_>> = kept
@@ -210,13 +210,24 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
             source: crate::stages::animation::Source::Form { compressor: compressors[i].1.as_ref(), form },
         })
         .collect();
-    let mut methods = vec![];
+    let (mut methods, mut method_renders) = (vec![], vec![]);
     for m in exp.method_settings() {
         let keep = animated_labels.contains(&m.label);
-        let (record, a) = crate::stages::evaluate_method(m, &inputs, gpu.as_ref(), keep)?;
+        let (record, render, a) = crate::stages::evaluate_method(m, &inputs, gpu.as_ref(), keep)?;
         methods.push(record);
+        method_renders.push(render);
         animated.extend(a);
     }
+    // The methods (SH orders) share a colour scale of their own: their errors against the
+    // uncompressed render are of another size than the compressors'.
+    share_error_scale(
+        methods.iter_mut().map(|m| &mut m.record).collect(),
+        &method_renders,
+        &base.render,
+        None,
+        &out_dir,
+    )?;
+    drop(method_renders);
     if !methods.is_empty() {
         ctx.clock.mark("methods");
     }
@@ -230,6 +241,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
                 t: t.whole("[runtime.animation]")?,
                 frames: geometry.transfer.frames(),
                 view: &view,
+                exposure: targets.tone.exposure,
                 out_dir: &out_dir,
             };
             let a = crate::stages::animation::animate(&inputs, &animated)?;
@@ -242,8 +254,18 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
 
     let fixed = exp.file.report.reference_error_scale;
     let figures = comparison_figures(region, &records, &methods, base, &view, reference, fixed, &out_dir)?;
-    let mut metrics =
-        metrics_of_run(exp, &geometry, &lighting, &materials, t.metrics, base, reference, records, methods);
+    let mut metrics = metrics_of_run(
+        exp,
+        &geometry,
+        &lighting,
+        &materials,
+        t.metrics,
+        base,
+        reference,
+        records,
+        methods,
+        &targets.tone,
+    );
     metrics.figures = Some(figures);
     metrics.animations = animations;
     metrics.memory = Some(memory.metrics(&available));
@@ -358,6 +380,7 @@ pub(crate) fn metrics_of_run(
     reference: Option<&Reference>,
     compressors: Vec<CompressorRecord>,
     methods: Vec<MethodRecord>,
+    tone: &crate::metrics::ToneMapRecord,
 ) -> Metrics {
     Metrics {
         schema_version: crate::provenance::SCHEMA_VERSION,
@@ -395,7 +418,7 @@ pub(crate) fn metrics_of_run(
                 .then(|| if exp.file.runtime.resolve_per_pixel() { "pixel" } else { "vertex" }.to_string()),
             // Same camera, same size: compare cannot fail here.
             paper_vs_moments: base.paper.as_ref().and_then(|(_, paper)| {
-                let exposure = exp.file.report.exposure;
+                let exposure = tone.exposure;
                 compare_exposed(&paper.image, &base.render.image, Some(&base.render.mask), exposure)
                     .ok()
                     .map(|m| errors(&m))
@@ -420,6 +443,7 @@ pub(crate) fn metrics_of_run(
         figures: None,
         load: None,
         animations: vec![],
+        tone_map: Some(tone.clone()),
     }
 }
 

@@ -40,6 +40,22 @@ pub struct Metrics {
     /// The animated comparisons (`[runtime.animation]`), one per path; absent without.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub animations: Vec<AnimationRecord>,
+    /// The tone map every PNG of the run was written with (absent in older records).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tone_map: Option<ToneMapRecord>,
+}
+
+/// The PNGs' tone map (`value x 2^exposure`, clamped to [0, 1], sRGB), one for the whole run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ToneMapRecord {
+    /// The exposure in stops.
+    pub exposure: f32,
+    /// `[report] exposure = "auto"`: chosen from the uncompressed render so that at most 1% of
+    /// the mesh's pixels clip.
+    pub auto: bool,
+    /// The share of the uncompressed render's mesh pixels the tone map clips (a channel
+    /// above 1).
+    pub clipped: f64,
 }
 
 /// One animated comparison (`[runtime.animation]`): a path, the light turned about +Y or the

@@ -358,7 +358,14 @@ fn comparison_rows(m: &Metrics) -> Vec<Block> {
         let _ = write!(
             text,
             "Every compressor's error figure has one colour scale, full scale {} (luminance of |error| against the \
-             uncompressed render, linear radiance; `[report] error_scale` fixes it); a method's has its own.",
+             uncompressed render, linear radiance; `[report] error_scale` fixes it).",
+            tick_label(scale as f64)
+        );
+    }
+    if let Some(scale) = m.methods.iter().find_map(|c| c.record.image.error_scale) {
+        let _ = write!(
+            text,
+            " The methods' error figures share another, full scale {}: their errors are of another size.",
             tick_label(scale as f64)
         );
     }
@@ -377,6 +384,23 @@ fn comparison_rows(m: &Metrics) -> Vec<Block> {
             " Inset: the {w}x{h} pixels at ({x}, {y}) ({}), magnified {}x by nearest neighbour and marked in red on \
              every image.",
             f.inset_from, f.inset_magnification
+        );
+    }
+    if let Some(t) = &m.tone_map {
+        let _ = write!(
+            text,
+            " Every image is tone mapped at {:+.1} stops ({}), which clips {:.1}% of the uncompressed render's mesh              pixels{}.",
+            t.exposure,
+            match t.auto {
+                true => "`[report] exposure = \"auto\"`: the 99th percentile of the mesh's pixels at white",
+                false => "`[report] exposure`",
+            },
+            100.0 * t.clipped,
+            match t.clipped > 0.1 {
+                true => ". Warning: the renders saturate there and their insets may show nothing; `exposure = \
+                         \"auto\"` would choose one that clips at most 1%",
+                false => "",
+            }
         );
     }
     if !text.is_empty() {

@@ -932,9 +932,10 @@ pub struct ReportConfig {
     /// Resolution divisor for the reference image and the images compared with it.
     #[serde(default = "default_one")]
     pub reference_downscale: Spanned<u32>,
-    /// Exposure of the PNG images in stops (value x 2^exposure).
+    /// Exposure of the PNG images in stops (value x 2^exposure), or `"auto"`: the exposure
+    /// that takes the 99th percentile of the uncompressed render's mesh pixels to white.
     #[serde(default)]
-    pub exposure: f32,
+    pub exposure: Exposure,
     /// Draw the environment behind the mesh in the images.
     #[serde(default = "default_true")]
     pub background: bool,
@@ -957,6 +958,71 @@ pub struct ReportConfig {
     pub inset: Option<Spanned<[u32; 4]>>,
 }
 
+/// `[report] exposure`: fixed stops, or chosen by the run from its uncompressed render
+/// ([`Exposure::resolve`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Exposure {
+    Stops(f32),
+    Auto,
+}
+
+impl Default for Exposure {
+    fn default() -> Self {
+        Exposure::Stops(0.0)
+    }
+}
+
+impl Exposure {
+    /// The share of the mesh's pixels `"auto"` lets the tone map clip at most.
+    pub const AUTO_CLIPS: f64 = 0.01;
+
+    /// The stops to tone map `image` with: fixed, or for `"auto"` the exposure at which at
+    /// most [`Self::AUTO_CLIPS`] of the pixels `mask` marks (the mesh) clip
+    /// ([`biscale_core::scene::HdrImage::auto_exposure`]).
+    pub fn resolve(self, image: &biscale_core::scene::HdrImage, mask: &[bool]) -> f32 {
+        match self {
+            Exposure::Stops(s) => s,
+            Exposure::Auto => image.auto_exposure(Some(mask), 1.0 - Self::AUTO_CLIPS),
+        }
+    }
+
+    /// The fixed stops; `None` for `"auto"`.
+    pub fn stops(self) -> Option<f32> {
+        match self {
+            Exposure::Stops(s) => Some(s),
+            Exposure::Auto => None,
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for Exposure {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        struct V;
+        impl serde::de::Visitor<'_> for V {
+            type Value = Exposure;
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("a number of stops or \"auto\"")
+            }
+            fn visit_f64<E: serde::de::Error>(self, v: f64) -> std::result::Result<Exposure, E> {
+                Ok(Exposure::Stops(v as f32))
+            }
+            fn visit_i64<E: serde::de::Error>(self, v: i64) -> std::result::Result<Exposure, E> {
+                Ok(Exposure::Stops(v as f32))
+            }
+            fn visit_u64<E: serde::de::Error>(self, v: u64) -> std::result::Result<Exposure, E> {
+                Ok(Exposure::Stops(v as f32))
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> std::result::Result<Exposure, E> {
+                match v {
+                    "auto" => Ok(Exposure::Auto),
+                    other => Err(E::invalid_value(serde::de::Unexpected::Str(other), &self)),
+                }
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
 fn default_target_error() -> f64 {
     0.05
 }
@@ -973,7 +1039,7 @@ impl Default for ReportConfig {
         Self {
             reference: false,
             reference_downscale: default_one(),
-            exposure: 0.0,
+            exposure: Exposure::default(),
             background: true,
             target_error: default_target_error(),
             error_scale: None,
@@ -1897,6 +1963,22 @@ mod tests {
         // An entry of the list keeps serde's own message.
         let e = parse(&body("[{ kind = \"lpca\", cluster = 3 }]")).unwrap_err();
         assert!(e.message.contains("unknown field `cluster`"), "{e}");
+    }
+
+    #[test]
+    fn exposure_is_stops_or_auto() {
+        let at = |v: &str| parse(&format!("{OK}[report]\nexposure = {v}\n")).map(|e| e.file.report.exposure);
+        assert_eq!(at("-1.5").unwrap(), Exposure::Stops(-1.5));
+        assert_eq!(at("2").unwrap(), Exposure::Stops(2.0));
+        assert_eq!(at("\"auto\"").unwrap(), Exposure::Auto);
+        assert_eq!(parse(OK).unwrap().file.report.exposure, Exposure::Stops(0.0));
+        let e = at("\"bright\"").unwrap_err();
+        assert!(e.message.contains("a number of stops or \"auto\"") && e.message.contains("bright"), "{e}");
+        assert_eq!(e.line, 7, "{e}");
+        // Auto takes the 99th percentile of the masked pixels' largest channel to white.
+        let img = biscale_core::scene::HdrImage { width: 2, height: 1, pixels: vec![[4.0; 3], [100.0; 3]] };
+        assert_eq!(Exposure::Auto.resolve(&img, &[true, false]), -2.0);
+        assert_eq!(Exposure::Stops(0.5).resolve(&img, &[true, false]), 0.5);
     }
 
     #[test]

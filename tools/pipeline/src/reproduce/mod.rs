@@ -180,12 +180,15 @@ pub fn reproduce(opts: &Options) -> Result<Outcome> {
             if opts.quick { ", quick" } else { "" }
         );
         let start = std::time::Instant::now();
-        // A twin run magnifies the same pixels as the run it is set beside, and draws its
-        // errors against the ground truth on the same colour bar (before the user's --set,
-        // which wins).
+        // A twin run magnifies the same pixels as the run it is set beside, tone maps its
+        // images at the same exposure and draws its errors against the ground truth on the
+        // same colour bar (before the user's --set, which wins).
         let mut overrides = vec![];
-        let twin = spec.inset_from.and_then(|t| done.iter().find(|d| d.0.name == t)).and_then(|d| d.1.figures.as_ref());
-        if let Some(f) = twin {
+        let twin = spec.inset_from.and_then(|t| done.iter().find(|d| d.0.name == t)).map(|d| &d.1);
+        if let Some(tone) = twin.and_then(|m| m.tone_map.as_ref()) {
+            overrides.push(format!("report.exposure={:?}", tone.exposure));
+        }
+        if let Some(f) = twin.and_then(|m| m.figures.as_ref()) {
             let [x, y, w, h] = f.inset;
             overrides.push(format!("report.inset=[{x}, {y}, {w}, {h}]"));
             if let Some(scale) = f.reference_error_scale {

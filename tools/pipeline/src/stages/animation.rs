@@ -59,6 +59,8 @@ pub(crate) struct Inputs<'a> {
     /// The vertex frames `T` was traced with (light moments resolve against them).
     pub frames: &'a [VertexFrame],
     pub view: &'a View<'a>,
+    /// The run's tone map, in stops ([`crate::stages::evaluate::Targets::tone`]).
+    pub exposure: f32,
     pub out_dir: &'a Path,
 }
 
@@ -191,7 +193,7 @@ fn gathered(inp: &Inputs<'_>, e: &Animated<'_>, light: &LightVector) -> Result<G
 /// One path: every frame of every setting.
 fn one(inp: &Inputs<'_>, entries: &[Animated<'_>], path: Turn, frames: u32) -> Result<AnimationRecord> {
     let a = &inp.exp.file.runtime.animation;
-    let exposure = inp.exp.file.report.exposure;
+    let exposure = inp.exposure;
     let dir = inp.out_dir.join("animation").join(path.name());
     std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
     let cam = inp.view.camera;

@@ -77,6 +77,7 @@ pub(crate) fn run(materials: &SceneMaterials, inp: &StudyInputs<'_>) -> Result<V
     let mut pre_ms = ms[2 + scenes.len()..].iter();
     let mut pre_renders = renders;
     let images = inp.out_dir.join("images");
+    let shared_scale = shared_study_scale(&direct, &dense)?;
     for (i, record) in records.iter_mut().enumerate() {
         let (scene, render, shade_ms) = (&scenes[i], &direct[i], ms[2 + i]);
         let vs_dense = errors(&compare_exposed(&render.image, &dense.image, Some(&dense.mask), inp.exposure)?);
@@ -104,7 +105,7 @@ pub(crate) fn run(materials: &SceneMaterials, inp: &StudyInputs<'_>) -> Result<V
             &render.image,
             &dense.image,
             "all-dense BTFs",
-            None,
+            Some(shared_scale),
             &inp.out_dir.join(&error_png),
         )?;
         log::info!(
@@ -134,6 +135,21 @@ pub(crate) fn run(materials: &SceneMaterials, inp: &StudyInputs<'_>) -> Result<V
         });
     }
     Ok(records)
+}
+
+/// One error scale for every setting of the study, so their figures against the all-dense
+/// image compare at a glance: the largest of the settings' own 99th percentiles
+/// ([`crate::stages::figures::error_extent`]). A dense setting, identical to the all-dense
+/// image, is then drawn dark on the others' scale instead of on a scale of its own. Where
+/// every setting differs in fewer than 1% of the pixels the largest error is the scale; where
+/// none differs at all, 0 leaves [`biscale_shading::image::error_image`]'s fallback.
+fn shared_study_scale(direct: &[Render], dense: &Render) -> Result<f32> {
+    let (mut scale, mut largest) = (0.0f32, 0.0f32);
+    for r in direct {
+        let (own, max) = crate::stages::figures::error_extent(&r.image, &dense.image)?;
+        (scale, largest) = (scale.max(own), largest.max(max));
+    }
+    Ok(if scale > 0.0 { scale } else { largest })
 }
 
 /// The precomputed dot products of every compressed setting whose table fits (with the time

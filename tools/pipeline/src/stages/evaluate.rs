@@ -124,6 +124,8 @@ pub(crate) struct Targets {
     pub base: Baseline,
     /// The ground-truth reference, when the plan traces one.
     pub reference: Option<Reference>,
+    /// The tone map of every PNG of the run ([`crate::experiment::config::Exposure::resolve`]).
+    pub tone: crate::metrics::ToneMapRecord,
 }
 
 /// The [`Targets`] of `t` in `view`, their images written into `images_dir` (`uncompressed`,
@@ -161,7 +163,8 @@ pub(crate) fn targets(
             ),
         });
     }
-    let exposure = exp.file.report.exposure;
+    let tone = tone_map(exp, &base.render);
+    let exposure = tone.exposure;
     save_images(&base.render.image, images_dir, "uncompressed", exposure)?;
     if let Some((_, paper)) = &base.paper {
         save_images(&paper.image, images_dir, "uncompressed_paper", exposure)?;
@@ -171,7 +174,7 @@ pub(crate) fn targets(
     fault_point("images");
     let reference = match trace_reference {
         true => {
-            let r = reference(exp, geometry, view, lighting, &base, cache)?;
+            let r = reference(exp, geometry, view, lighting, &base, exposure, cache)?;
             save_images(&r.render.image, images_dir, "reference", exposure)?;
             r.render.write_mask_png(&images_dir.join("reference_mask.png"))?;
             clock.mark("reference");
@@ -179,7 +182,32 @@ pub(crate) fn targets(
         }
         false => None,
     };
-    Ok(Targets { moments, base, reference })
+    Ok(Targets { moments, base, reference, tone })
+}
+
+/// The run's tone map: `[report] exposure` resolved on the uncompressed render's mesh pixels,
+/// with the share it clips (logged; a fixed exposure that clips over a tenth of the mesh is
+/// warned about).
+pub(crate) fn tone_map(exp: &Experiment, render: &Render) -> crate::metrics::ToneMapRecord {
+    use crate::experiment::config::Exposure;
+    let setting = exp.file.report.exposure;
+    let exposure = setting.resolve(&render.image, &render.mask);
+    let clipped = render.image.clipped_fraction(Some(&render.mask), exposure);
+    let auto = setting == Exposure::Auto;
+    match auto {
+        true => log::info!(
+            "report: exposure \"auto\": {exposure:+.1} stops ({:.2}% of the mesh's pixels clip)",
+            100.0 * clipped
+        ),
+        false if clipped > 0.1 => log::warn!(
+            "report: the PNGs' tone map at {exposure:+.1} stops clips {:.0}% of the mesh's pixels; \
+             `[report] exposure = \"auto\"` picks one that clips at most {:.0}%",
+            100.0 * clipped,
+            100.0 * Exposure::AUTO_CLIPS
+        ),
+        false => {}
+    }
+    crate::metrics::ToneMapRecord { exposure, auto, clipped }
 }
 
 /// The uncompressed baseline; with `per_pixel` (the light's moments, `moments_resolve =
@@ -393,12 +421,12 @@ pub(crate) fn reference(
     view: &View<'_>,
     lighting: &Lighting,
     baseline: &Baseline,
+    exposure: f32,
     cache: Option<&StageCache>,
 ) -> Result<Reference> {
     let traced = reference_render(exp, geometry, view, lighting, cache)?;
     let (render, camera) = (traced.render, traced.camera);
     let small = view.render_shaded(baseline.shaded(), &camera)?;
-    let exposure = exp.file.report.exposure;
     let baseline_error = compare_exposed(&small.image, &render.image, Some(&render.mask), exposure)?;
     let paper_baseline_error = match &baseline.paper {
         Some((lstar, _)) => {
@@ -577,7 +605,7 @@ impl<'a> Evaluation<'a> {
             view,
             reference: targets.reference.as_ref(),
             repeats: exp.file.runtime.repeats,
-            exposure: exp.file.report.exposure,
+            exposure: targets.tone.exposure,
             out_dir,
             shared_error_scale,
         }

@@ -62,6 +62,7 @@ pub(crate) fn inset_region(
     records: &[CompressorRecord],
     renders: &[Render],
     base: &Baseline,
+    exposure: f32,
 ) -> (crate::inset::Region, String) {
     use crate::inset::{self, Region};
     let (width, height) = (base.render.image.width, base.render.image.height);
@@ -79,9 +80,7 @@ pub(crate) fn inset_region(
             };
             let errors = worst(true)
                 .or_else(|| worst(false))
-                .map(|(r, render)| {
-                    (r.name.clone(), inset::error_map(&render.image, &base.render.image, exp.file.report.exposure))
-                })
+                .map(|(r, render)| (r.name.clone(), inset::error_map(&render.image, &base.render.image, exposure)))
                 .filter(|(_, e)| e.iter().any(|&v| v > 0.0));
             let (values, from) = match errors {
                 Some((name, e)) => {
@@ -160,12 +159,13 @@ pub(crate) fn comparison_figures(
     })
 }
 
-/// One error scale for every compressor of the run, so their error figures compare at a
-/// glance: `[report] error_scale` when set, else the largest of the lossy settings' own 99th
+/// One error scale for every setting of `records` (the run's compressors; apart from them,
+/// its methods), so their error figures compare at a glance: `fixed` (`[report] error_scale`
+/// for the compressors) when set, else the largest of the lossy settings' own 99th
 /// percentiles (every lossy figure then fits; a lossless one, far below, shows dark), else of
 /// all. Each figure is drawn here, once, at that scale.
 pub(crate) fn share_error_scale(
-    records: &mut [CompressorRecord],
+    mut records: Vec<&mut CompressorRecord>,
     renders: &[Render],
     baseline: &Render,
     fixed: Option<f32>,

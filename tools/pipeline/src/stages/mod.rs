@@ -28,6 +28,7 @@ use crate::error::{PipelineError, Result};
 use crate::experiment::config::MethodSetting;
 use crate::experiment::methods;
 use crate::metrics::MethodRecord;
+use biscale_core::scene::Render;
 use evaluate::GpuBackend;
 
 /// Run one method setting against the all-frequency run's inputs (dispatch on its kind); with
@@ -37,7 +38,7 @@ pub(crate) fn evaluate_method(
     inputs: &sh::MethodInputs<'_>,
     gpu: Option<&GpuBackend>,
     animate: bool,
-) -> Result<(MethodRecord, Option<animation::Animated<'static>>)> {
+) -> Result<(MethodRecord, Render, Option<animation::Animated<'static>>)> {
     match setting.kind.as_str() {
         k if k == methods::sh::KIND.name => sh::evaluate(setting, inputs, gpu, animate),
         other => Err(PipelineError::Mismatch {

@@ -304,7 +304,7 @@ pub(crate) fn evaluate(
     inp: &MethodInputs<'_>,
     gpu: Option<&GpuBackend>,
     animate: bool,
-) -> Result<(MethodRecord, Option<crate::stages::animation::Animated<'static>>)> {
+) -> Result<(MethodRecord, biscale_core::scene::Render, Option<crate::stages::animation::Animated<'static>>)> {
     let label = &setting.label;
     let Prepared {
         params: p,
@@ -348,8 +348,8 @@ pub(crate) fn evaluate(
         repeats: inp.repeats,
         exposure: inp.exposure,
         out_dir: inp.out_dir,
-        // A method's error figure is drawn at its own scale.
-        shared_error_scale: false,
+        // The methods' error figures share one scale, drawn once they all are rendered.
+        shared_error_scale: true,
     };
     let (mut record, render) = eval.record(&csetting, compressor.as_ref(), &form, cached, gpu.as_mut())?;
     record.kind = KIND.name.to_string();
@@ -386,7 +386,7 @@ pub(crate) fn evaluate(
             scene: sh_scene,
         })),
     });
-    Ok((MethodRecord { record, sh: Some(sh) }, animated))
+    Ok((MethodRecord { record, sh: Some(sh) }, render, animated))
 }
 
 /// Müller et al.'s runtime for a scene with LPCA BTFs lit by SH: per light, gather `M_p l` and
