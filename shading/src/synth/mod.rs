@@ -75,7 +75,7 @@ pub use file::{
 };
 pub use generate::{synthesize, BtfSpec};
 pub use heightfield::{AlbedoMap, HeightField, Pattern, Recipe};
-pub use preview::{comparison_sheet, contact_sheet, save_contact_sheet};
+pub use preview::{comparison_sheet, contact_sheet, save_contact_sheet, COMPARISON_GAP};
 
 #[cfg(test)]
 mod tests;

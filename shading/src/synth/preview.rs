@@ -10,6 +10,9 @@ use std::path::Path;
 /// Tiles narrower than this are enlarged (nearest neighbour) by an integer factor.
 const MIN_TILE: u32 = 32;
 
+/// The white gap in pixels between the three sheets of a [`comparison_sheet`].
+pub const COMPARISON_GAP: u32 = 8;
+
 /// A grid of tiles: row `r` shows view sample `views[r]`, column `c` light bin `lights[c]`;
 /// each tile is the patch's texels (texel row 0 at the tile's top), enlarged by an integer
 /// factor to at least 32 pixels, with 1-pixel black gaps between tiles. Values are scaled so
@@ -110,11 +113,10 @@ pub fn comparison_sheet(
     let err_peak = peak(dense, lights, views, &err).max(f32::MIN_POSITIVE);
     let middle = sheet(dense.spatial(), lights, views, 1.0 / dense_peak, &c);
     let right = sheet(dense.spatial(), lights, views, 1.0 / err_peak, &err);
-    const GAP: u32 = 8;
     let (w, h) = (left.width(), left.height());
-    let mut img = image::RgbImage::from_pixel(3 * w + 2 * GAP, h, image::Rgb([255, 255, 255]));
+    let mut img = image::RgbImage::from_pixel(3 * w + 2 * COMPARISON_GAP, h, image::Rgb([255, 255, 255]));
     for (i, panel) in [left, middle, right].iter().enumerate() {
-        image::imageops::replace(&mut img, panel, (i as u32 * (w + GAP)) as i64, 0);
+        image::imageops::replace(&mut img, panel, (i as u32 * (w + COMPARISON_GAP)) as i64, 0);
     }
     Ok((img, dense_peak / err_peak))
 }

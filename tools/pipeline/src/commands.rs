@@ -476,7 +476,7 @@ pub fn btf(
     opts: &RunOptions,
 ) -> Result<Vec<BtfWritten>> {
     use crate::experiment::config::MaterialConfig;
-    use biscale_shading::synth::{save_btf, save_contact_sheet, BtfEncoding};
+    use biscale_shading::synth::{contact_sheet, save_btf, BtfEncoding};
     let configs = exp.materials();
     let chosen: Vec<&MaterialConfig> = configs.iter().filter(|c| only.is_none_or(|n| c.name() == Some(n))).collect();
     if chosen.is_empty() {
@@ -506,12 +506,16 @@ pub fn btf(
             _ => BtfEncoding::F32,
         };
         save_btf(&btf, &path, encoding)?;
-        let lights = btf.local_basis().grid().map_or(vec![0], |g| sweep_bins(&g));
+        let light_grid = btf.local_basis().grid();
+        let lights = light_grid.map_or(vec![0], |g| sweep_bins(&g));
         let views = btf.view_grid().as_ref().map_or(vec![0], sweep_bins);
+        let labels = SheetLabels::of(&btf, &lights, &views);
         let mut comparisons = vec![];
         let preview_path = if preview {
             let p = out.join(format!("{stem}_preview.png"));
-            save_contact_sheet(&btf, &lights, &views, &p)?;
+            let sheet = contact_sheet(&btf, &lights, &views)?;
+            let title = format!("{label}: texels by light (columns) and view (rows), brightest value white");
+            labels.write(&sheet, 1, &title, &[], &p)?;
             for &repr in cfg.representations().all() {
                 if repr == crate::experiment::config::RepresentationSetting::Dense {
                     continue;
@@ -521,7 +525,14 @@ pub fn btf(
                 let decoded = r.to_dense()?;
                 let (img, error_gain) = biscale_shading::synth::comparison_sheet(&btf, &decoded, &lights, &views)?;
                 let path = out.join(format!("{stem}_{}_compare.png", record.representation));
-                biscale_core::scene::image::write_rgb8_png(&img, &path)?;
+                let title = format!(
+                    "{label}: dense, {} and their difference (x {error_gain:.1}), table rel. RMS error {:.2}%",
+                    record.representation,
+                    100.0 * record.relative_rms_error
+                );
+                let panels =
+                    ["dense".to_string(), record.representation.clone(), format!("|difference| x {error_gain:.1}")];
+                labels.write(&img, 3, &title, &panels, &path)?;
                 comparisons.push(Comparison {
                     path,
                     representation: record.representation,
@@ -545,6 +556,54 @@ pub fn btf(
         }
     }
     Ok(written)
+}
+
+/// The column (light bin) and row (view sample) labels of a BTF's contact sheets: each bin's
+/// index and elevation above the surface.
+struct SheetLabels {
+    columns: Vec<String>,
+    rows: Vec<String>,
+}
+
+impl SheetLabels {
+    fn of(btf: &biscale_core::scene::Btf, lights: &[usize], views: &[usize]) -> Self {
+        let label = |what: &str, grid: Option<biscale_core::sampling::HemisphereGrid>, bins: &[usize]| {
+            (bins.iter())
+                .map(|&b| match grid {
+                    Some(g) => {
+                        let up = g.bin_direction(b as u32).z.clamp(-1.0, 1.0).asin().to_degrees();
+                        format!("{what} {b}\n{up:.0}° up")
+                    }
+                    None => format!("{what} {b}"),
+                })
+                .collect()
+        };
+        SheetLabels {
+            columns: label("light", btf.local_basis().grid(), lights),
+            rows: match btf.view_grid() {
+                Some(g) => label("view", Some(g), views),
+                None => vec!["any view".to_string()],
+            },
+        }
+    }
+
+    /// `sheet` (`panels` contact sheets side by side, [`COMPARISON_GAP`] apart) labelled and
+    /// written as a PNG at `path`.
+    ///
+    /// [`COMPARISON_GAP`]: biscale_shading::synth::COMPARISON_GAP
+    fn write(&self, sheet: &image::RgbImage, panels: u32, title: &str, names: &[String], path: &Path) -> Result<()> {
+        let layout = crate::plots::SheetLayout {
+            panels,
+            panel_gap: biscale_shading::synth::COMPARISON_GAP,
+            rows: self.rows.len() as u32,
+            columns: self.columns.len() as u32,
+        };
+        let img =
+            crate::plots::labelled_sheet(sheet, layout, title, names, &self.columns, &self.rows).map_err(|what| {
+                PipelineError::Mismatch { path: path.to_path_buf(), what: format!("contact sheet: {what}") }
+            })?;
+        Ok(biscale_core::scene::image::write_rgb8_png(&img, path)?)
+    }
 }
 
 /// Up to four distinct bins of `grid` from overhead to grazing along +X (elevations 90, 60,

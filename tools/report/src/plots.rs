@@ -566,6 +566,112 @@ pub fn with_colour_bar(picture: &image::RgbImage, scale: f32, label: &str) -> Re
     Ok(out)
 }
 
+/// The layout of a contact sheet for [`labelled_sheet`]: `panels` grids side by side,
+/// `panel_gap` pixels apart, each of `rows` x `columns` equal tiles with 1-pixel gaps
+/// (`biscale_shading::synth::contact_sheet` and `comparison_sheet`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SheetLayout {
+    pub panels: u32,
+    pub panel_gap: u32,
+    pub rows: u32,
+    pub columns: u32,
+}
+
+/// Tiles narrower than this are magnified (nearest) by an integer factor in a
+/// [`labelled_sheet`], so that a column's label fits over it.
+pub const LABELLED_TILE: u32 = 72;
+
+/// `sheet` laid out as `layout` with its labels: `title` above, each panel's title over it,
+/// each column's label (one or two lines, split at `\n`) over its tiles in every panel and
+/// each row's beside the first panel. The sheet is magnified by an integer factor so a tile is
+/// at least [`LABELLED_TILE`] pixels wide. Errors when the sheet's size does not divide into
+/// the layout or the label counts differ from it.
+pub fn labelled_sheet(
+    sheet: &image::RgbImage,
+    layout: SheetLayout,
+    title: &str,
+    panel_titles: &[String],
+    column_labels: &[String],
+    row_labels: &[String],
+) -> Result<image::RgbImage, String> {
+    register_font();
+    let SheetLayout { panels, panel_gap, rows, columns } = layout;
+    if panels == 0 || rows == 0 || columns == 0 {
+        return Err("a sheet needs at least one panel, row and column".into());
+    }
+    let (w, h) = sheet.dimensions();
+    let panel_w = w.checked_sub((panels - 1) * panel_gap).map(|x| x / panels).unwrap_or(0);
+    let tile_w = panel_w.checked_sub(columns - 1).map(|x| x / columns).unwrap_or(0);
+    let tile_h = h.checked_sub(rows - 1).map(|x| x / rows).unwrap_or(0);
+    if tile_w == 0
+        || tile_h == 0
+        || panel_w * panels + (panels - 1) * panel_gap != w
+        || tile_w * columns + columns - 1 != panel_w
+        || tile_h * rows + rows - 1 != h
+    {
+        return Err(format!("a {w}x{h} sheet is not {panels} panel(s) of {rows}x{columns} tiles"));
+    }
+    if column_labels.len() != columns as usize || row_labels.len() != rows as usize {
+        return Err(format!(
+            "{} column and {} row labels for {columns} columns and {rows} rows",
+            column_labels.len(),
+            row_labels.len()
+        ));
+    }
+    if !(panel_titles.is_empty() || panel_titles.len() == panels as usize) {
+        return Err(format!("{} panel titles for {panels} panels", panel_titles.len()));
+    }
+    let k = LABELLED_TILE.div_ceil(tile_w).max(1);
+    let big = image::imageops::resize(sheet, w * k, h * k, image::imageops::FilterType::Nearest);
+    let font = 13u32;
+    let line = font as i32 + 3;
+    let lines = |s: &str| s.lines().count().max(1) as i32;
+    let head_lines = column_labels.iter().map(|l| lines(l)).max().unwrap_or(1);
+    let left =
+        row_labels.iter().flat_map(|l| l.lines()).map(|l| text_size(l, font).0.ceil() as u32).max().unwrap_or(0) + 12;
+    let top = 8 + line * (1 + (!panel_titles.is_empty()) as i32 + head_lines);
+    let (cw, ch) = (left + w * k + 8, top as u32 + h * k + 8);
+    let mut buf = vec![255u8; (cw * ch * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (cw, ch)).into_drawing_area();
+        let e = |e: DrawingAreaErrorKind<_>| e.to_string();
+        let text = |s: &str, x: i32, y: i32, hp: HPos| {
+            let style = ("sans-serif", font).into_font().color(&BLACK).pos(Pos::new(hp, VPos::Top));
+            Text::new(s.to_string(), (x, y), style)
+        };
+        root.draw(&text(title, 4, 4, HPos::Left)).map_err(e)?;
+        let x0 = left as i32;
+        let panel_x = |p: u32| x0 + ((p * (panel_w + panel_gap)) * k) as i32;
+        let mut y = 4 + line;
+        if !panel_titles.is_empty() {
+            for (p, t) in panel_titles.iter().enumerate() {
+                let cx = panel_x(p as u32) + (panel_w * k / 2) as i32;
+                root.draw(&text(t, cx, y, HPos::Center)).map_err(e)?;
+            }
+            y += line;
+        }
+        for p in 0..panels {
+            for (c, label) in column_labels.iter().enumerate() {
+                let cx = panel_x(p) + ((c as u32 * (tile_w + 1)) * k + tile_w * k / 2) as i32;
+                for (i, l) in label.lines().enumerate() {
+                    root.draw(&text(l, cx, y + line * i as i32, HPos::Center)).map_err(e)?;
+                }
+            }
+        }
+        for (r, label) in row_labels.iter().enumerate() {
+            let n = lines(label);
+            let cy = top + ((r as u32 * (tile_h + 1)) * k + tile_h * k / 2) as i32 - n * line / 2;
+            for (i, l) in label.lines().enumerate() {
+                root.draw(&text(l, x0 - 6, cy + line * i as i32, HPos::Right)).map_err(e)?;
+            }
+        }
+        root.present().map_err(|e| e.to_string())?;
+    }
+    let mut out = image::RgbImage::from_raw(cw, ch, buf).ok_or("sheet buffer size")?;
+    image::imageops::replace(&mut out, &big, left as i64, top as i64);
+    Ok(out)
+}
+
 /// One setting's per-frame figures on a [`frame_plot`].
 pub struct FrameCurve {
     pub name: String,
@@ -712,6 +818,38 @@ mod tests {
     /// A label longer than the bar is set smaller, inside the bar's margins, not clipped at
     /// its edges (the run's own labels fit at every width from 300 to 1000 pixels; a longer
     /// `against` name need not).
+    #[test]
+    fn a_labelled_sheet_keeps_every_tile_and_refuses_a_wrong_layout() {
+        // Two panels 8 apart of 2 rows x 3 columns of 10x6 tiles: 2 x 32 + 8 = 72 by 13.
+        let mut sheet = image::RgbImage::from_pixel(72, 13, image::Rgb([0, 0, 0]));
+        sheet.put_pixel(0, 0, image::Rgb([255, 0, 0]));
+        sheet.put_pixel(71, 12, image::Rgb([0, 0, 255]));
+        let layout = SheetLayout { panels: 2, panel_gap: 8, rows: 2, columns: 3 };
+        let s = |v: &[&str]| v.iter().map(|x| x.to_string()).collect::<Vec<_>>();
+        let cols = s(&["light 0\n90 deg", "light 5", "light 9"]);
+        let rows = s(&["view 0", "view 3\n35 deg"]);
+        let out = labelled_sheet(&sheet, layout, "a BTF", &s(&["dense", "lpca"]), &cols, &rows).unwrap();
+        // Tiles 10 wide are magnified 8 times (72 / 10 rounded up): the sheet is 576x104,
+        // placed whole with its first and last pixels where they were, and labels above and
+        // left of it (dark text pixels there).
+        let k = LABELLED_TILE.div_ceil(10);
+        assert_eq!(k, 8);
+        let (x0, y0) = (out.width() - 8 - 72 * k, out.height() - 8 - 13 * k);
+        assert_eq!(out.get_pixel(x0, y0).0, [255, 0, 0]);
+        assert_eq!(out.get_pixel(x0 + 72 * k - 1, y0 + 13 * k - 1).0, [0, 0, 255]);
+        let dark = |xs: std::ops::Range<u32>, ys: std::ops::Range<u32>| {
+            xs.flat_map(|x| ys.clone().map(move |y| (x, y))).filter(|&(x, y)| out.get_pixel(x, y).0[0] < 128).count()
+        };
+        assert!(dark(0..x0, y0..y0 + 13 * k) > 20, "row labels");
+        assert!(dark(x0..out.width(), 0..y0) > 50, "title and column labels");
+        // Wrong layouts and label counts are errors, not panics.
+        let bad = SheetLayout { rows: 3, ..layout };
+        assert!(labelled_sheet(&sheet, bad, "", &[], &cols, &s(&["a", "b", "c"])).unwrap_err().contains("not 2 panel"));
+        assert!(labelled_sheet(&sheet, layout, "", &[], &cols, &s(&["a"])).unwrap_err().contains("1 row labels"));
+        let zero = SheetLayout { panels: 0, ..layout };
+        assert!(labelled_sheet(&sheet, zero, "", &[], &cols, &rows).is_err());
+    }
+
     #[test]
     fn a_long_colour_bar_label_fits_inside_the_bar() {
         let long = "luminance of |error| vs the uncompressed render of the paper's cosine rule (linear radiance)\nlargest 0.25";
