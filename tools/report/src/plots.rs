@@ -523,13 +523,42 @@ pub fn colour_bar_height(width: u32) -> u32 {
 /// wide; a narrower picture is centred above it on white. Under a
 /// wider picture the bar, its ticks and text grow with it ([`colour_bar_height`]).
 pub fn with_colour_bar(picture: &image::RgbImage, scale: f32, label: &str) -> Result<image::RgbImage, String> {
-    register_font();
     let w = picture.width().max(300);
-    let h = colour_bar_height(w);
-    // Every length below is for a 300-pixel bar, times `k`.
     let k = w as f64 / 300.0;
+    let bar = draw_colour_bar((w, colour_bar_height(w)), k, (12.0 * k).round() as u32, scale, label)?;
+    let mut out = image::RgbImage::from_pixel(w, picture.height() + bar.height(), image::Rgb([255, 255, 255]));
+    image::imageops::replace(&mut out, picture, ((w - picture.width()) / 2) as i64, 0);
+    image::imageops::replace(&mut out, &bar, 0, picture.height() as i64);
+    Ok(out)
+}
+
+/// The picture of a [`with_colour_bar`] figure, its bar cut off (a picture narrower than 300
+/// pixels keeps the white it was centred on).
+pub fn without_colour_bar(figure: &image::RgbImage) -> Result<image::RgbImage, String> {
+    let (w, h) = figure.dimensions();
+    let bar = colour_bar_height(w);
+    match h.checked_sub(bar) {
+        Some(p) if p > 0 && w >= 300 => Ok(image::imageops::crop_imm(figure, 0, 0, w, p).to_image()),
+        _ => Err(format!("a {w}x{h} picture is not an error figure with a colour bar ({bar} pixels high)")),
+    }
+}
+
+/// A colour bar alone, `width` pixels wide with its text `font` pixels high (the bar and ticks
+/// in proportion: `COLOUR_BAR_HEIGHT * font / 12` high): the one bar under a figure whose
+/// panels share a scale, sized for the figure's width rather than a panel's.
+pub fn colour_bar(width: u32, font: u32, scale: f32, label: &str) -> Result<image::RgbImage, String> {
+    let k = font.max(6) as f64 / 12.0;
+    if (width as f64) < 100.0 * k {
+        return Err(format!("a colour bar {width} pixels wide is too narrow for {font}-pixel text"));
+    }
+    draw_colour_bar((width, (COLOUR_BAR_HEIGHT as f64 * k).round() as u32), k, font.max(6), scale, label)
+}
+
+/// The bar of [`with_colour_bar`] and [`colour_bar`], `w` x `h` pixels: every length of the
+/// 300-pixel layout times `k`, text `font` pixels high.
+fn draw_colour_bar((w, h): (u32, u32), k: f64, font: u32, scale: f32, label: &str) -> Result<image::RgbImage, String> {
+    register_font();
     let at = |v: f64| (v * k).round() as i32;
-    let font = (12.0 * k).round() as u32;
     let mut bar = vec![255u8; (w * h * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut bar, (w, h)).into_drawing_area();
@@ -559,11 +588,7 @@ pub fn with_colour_bar(picture: &image::RgbImage, scale: f32, label: &str) -> Re
         }
         root.present().map_err(|e| e.to_string())?;
     }
-    let mut out = image::RgbImage::from_pixel(w, picture.height() + h, image::Rgb([255, 255, 255]));
-    image::imageops::replace(&mut out, picture, ((w - picture.width()) / 2) as i64, 0);
-    let bar = image::RgbImage::from_raw(w, h, bar).ok_or("colour bar buffer size")?;
-    image::imageops::replace(&mut out, &bar, 0, picture.height() as i64);
-    Ok(out)
+    image::RgbImage::from_raw(w, h, bar).ok_or_else(|| "colour bar buffer size".to_string())
 }
 
 /// The layout of a contact sheet for [`labelled_sheet`]: `panels` grids side by side,
@@ -889,6 +914,23 @@ mod tests {
         assert_eq!((wide.width(), wide.height()), (600, 30 + 120));
         assert_eq!(wide.get_pixel(20, 30 + 16).0, biscale_shading::image::viridis(0.0));
         assert_eq!(wide.get_pixel(150, 30 + 34).0, [255, 255, 255], "below the ramp, which ends at 30");
+        // Cut off again, the picture is what went in; at any width (60 * w / 300 rounds down).
+        for w in [300, 308, 384, 600] {
+            let picture = image::RgbImage::from_fn(w, 17, |x, y| image::Rgb([x as u8, y as u8, 7]));
+            let figure = with_colour_bar(&picture, 1.0, "x").unwrap();
+            assert_eq!(without_colour_bar(&figure).unwrap(), picture, "{w}");
+        }
+        assert!(without_colour_bar(&image::RgbImage::new(300, 60)).is_err(), "all bar, no picture");
+        assert!(without_colour_bar(&image::RgbImage::new(200, 90)).is_err(), "narrower than any figure");
+        // A bar alone for a figure: its text size is set apart from its width.
+        let alone = colour_bar(1200, 20, 0.5, "luminance of |error|").unwrap();
+        assert_eq!((alone.width(), alone.height()), (1200, 100));
+        assert_eq!(
+            alone.get_pixel(1200 - 18, 12).0,
+            biscale_shading::image::viridis(1.0),
+            "ramp ends 10 k = 17 from the edge"
+        );
+        assert!(colour_bar(120, 20, 0.5, "x").is_err(), "too narrow for its text");
     }
 
     #[test]

@@ -224,7 +224,7 @@ fn reproduce_quick_sets_each_runs_figures_beside_the_papers_and_a_rerun_reuses_t
     }
     // Every figure: its LaTeX and its panels, each a PNG the page embeds.
     for (id, at_least) in
-        [("fig1", 6), ("fig5", 6), ("fig6", 4), ("fig8", 3), ("fig3b", 4), ("fig7", 1), ("animation", 4)]
+        [("fig1", 6), ("fig5", 6), ("fig6", 4), ("fig8", 3), ("fig3b", 4), ("fig7", 1), ("animation", 8)]
     {
         let tex = std::fs::read_to_string(out.join("figures").join(format!("{id}.tex"))).unwrap();
         let panels: Vec<&str> =
@@ -238,6 +238,31 @@ fn reproduce_quick_sets_each_runs_figures_beside_the_papers_and_a_rerun_reuses_t
         assert!(html.contains(&format!("<h2 id=\"{id}\">")), "{id} on the page");
     }
     assert!(html.matches("data:image/png;base64,").count() >= 24, "the panels are embedded");
+    // Both paths of the paper's video, each with its plot.
+    for path in ["light", "camera"] {
+        assert!(out.join(format!("figures/animation/per-frame-{path}.png")).is_file(), "{path}");
+    }
+    // A figure of errors on one scale has one colour bar, across it; its error panels are the
+    // runs' pictures without theirs. (Fig. 6's quick run traces no ground truth: no errors.)
+    for id in ["fig1", "fig5", "fig6"] {
+        let tex = std::fs::read_to_string(out.join("figures").join(format!("{id}.tex"))).unwrap();
+        let error_panel = tex
+            .lines()
+            .filter_map(|l| l.split("\\includegraphics[width=\\linewidth]{").nth(1))
+            .map(|p| p.split('}').next().unwrap())
+            .find(|p| p.contains("/error-"));
+        let bar = out.join(format!("figures/{id}/colour-bar.png"));
+        assert_eq!(bar.is_file(), error_panel.is_some(), "{id}: a bar when there are errors");
+        let Some(error_panel) = error_panel else {
+            assert_eq!(id, "fig6", "{tex}");
+            continue;
+        };
+        assert_eq!(image::open(&bar).unwrap().width(), 1200, "{id}");
+        // The picture under the bar is the render's thumbnail's size: the panel beside it.
+        let panel = image::open(out.join(error_panel)).unwrap();
+        let image = image::open(out.join(error_panel.replace("/error-", "/image-"))).unwrap();
+        assert_eq!((panel.width(), panel.height()), (image.width(), image.height()), "{error_panel}");
+    }
     let provenance: Value = serde_json::from_slice(&std::fs::read(out.join("reproduce.json")).unwrap()).unwrap();
     assert_eq!(provenance["quick"], true);
     assert!(provenance["run"]["started_at"].is_string() && provenance["run"]["host"].is_string());
@@ -260,6 +285,18 @@ fn reproduce_quick_sets_each_runs_figures_beside_the_papers_and_a_rerun_reuses_t
         let m: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
         assert!(out.join("runs").join(run).join("report.html").is_file());
         metrics.insert(format!("runs/{run}"), m);
+    }
+    // Every run's images are tone mapped at an exposure chosen from its render ("auto" in the
+    // paper's configs), clipping at most 1% of the mesh; a moments twin takes its partner's.
+    for (run, m) in &metrics {
+        let tone = &m["tone_map"];
+        match run.ends_with("-moments") {
+            false => assert!(tone["auto"] == true && tone["clipped"].as_f64().unwrap() <= 0.01, "{run}: {tone}"),
+            true => {
+                let partner = &metrics[run.trim_end_matches("-moments")]["tone_map"];
+                assert_eq!((tone["auto"].as_bool(), &tone["exposure"]), (Some(false), &partner["exposure"]), "{run}");
+            }
+        }
     }
     // The bunny grows by subdivision, about 4x a level.
     let v = |r: &str| f(&metrics[r], "scene.vertices");

@@ -243,11 +243,16 @@ pub fn low_vs_all_figure(
     let scale = m.figures.as_ref().and_then(|f| f.reference_error_scale);
     let caption = format!(
         "{title}: the ground truth and each method's image (the inset's region marked), the insets magnified, and each \
-         method's |error| against the ground truth on one shared colour bar{}, from `runs/{}`{}. Each image's tone map \
-         is the run's own.",
+         method's |error| against the ground truth on one shared colour bar{}, from `runs/{}`{}.{}",
         scale.map_or(String::new(), |s| format!(" (full scale {s:.3e})")),
         run.name,
-        moments.map_or(String::new(), |r| format!(" and `runs/{}`", r.name))
+        moments.map_or(String::new(), |r| format!(" and `runs/{}`", r.name)),
+        m.tone_map.as_ref().map_or(String::new(), |t| format!(
+            " Every image is tone mapped at {:+.1} stops{}, which clips {:.1}% of the mesh's pixels.",
+            t.exposure,
+            if t.auto { " (chosen so that at most 1% of the mesh's pixels clip)" } else { "" },
+            100.0 * t.clipped
+        ))
     );
     let mut f = FigureSet::new("low-vs-all", id, title, caption, panels.len());
     let runs = [Some(run), moments];
@@ -266,6 +271,9 @@ pub fn low_vs_all_figure(
                 _ => label.clone(),
             };
             match from {
+                Some(from) if pick == 2 => {
+                    f.add_error(out, &format!("runs/{run_name}/{from}"), &format!("{kind}-{i}"), label)?
+                }
                 Some(from) => f.add(out, &format!("runs/{run_name}/{from}"), &format!("{kind}-{i}"), label)?,
                 // The ground truth has no error image: its place in the row stays empty.
                 None if pick == 2 && i == 0 => f.spacer(),
@@ -273,8 +281,14 @@ pub fn low_vs_all_figure(
             }
         }
     }
+    if let Some(s) = scale.filter(|_| f.pictures().any(|p| p.label.ends_with("|error|"))) {
+        f.add_colour_bar(out, s, REFERENCE_BAR)?;
+    }
     Ok(f)
 }
+
+/// The text of a figure's colour bar for errors against the ground truth.
+const REFERENCE_BAR: &str = "luminance of |error| against the ground truth (linear radiance)";
 
 /// Fig. 8: lossless biclustering at each local grid beside the paper's.
 pub fn fig8(ctx: &Context<'_>, runs: &[RunOutcome<'_>]) -> PaperTable {
@@ -424,8 +438,15 @@ pub fn fig6_figure(out: &Path, run: &RunOutcome<'_>) -> Result<FigureSet> {
                 (n, 2) => format!("{n}: |error|"),
                 (n, _) => n.to_string(),
             };
-            f.add(out, &format!("runs/{}/{from}", run.name), &format!("{kind}-{name}"), label)?;
+            let (from, name) = (format!("runs/{}/{from}", run.name), format!("{kind}-{name}"));
+            match i {
+                2 => f.add_error(out, &from, &name, label)?,
+                _ => f.add(out, &from, &name, label)?,
+            }
         }
+    }
+    if let Some(s) = scale.filter(|_| f.pictures().any(|p| p.label.ends_with("|error|"))) {
+        f.add_colour_bar(out, s, REFERENCE_BAR)?;
     }
     Ok(f)
 }
@@ -466,33 +487,54 @@ pub fn fig3b_figure(out: &Path, files: &[std::path::PathBuf]) -> Result<FigureSe
     Ok(f)
 }
 
-/// The paper's video as a comparison: Fig. 1's bunny with the light turned about +Y, the
-/// animated PNG of each setting and the per-frame plot of error and frame time.
+/// The paper's video as a comparison: Fig. 1's bunny with the light turned about +Y, and with
+/// the camera orbited about it, the animated PNG of each setting and the per-frame plot of
+/// error and frame time for each path.
 pub fn animation_figure(out: &Path, run: &RunOutcome<'_>) -> Result<Option<FigureSet>> {
     let m = run.facts.metrics;
-    let Some(a) = m.animations.iter().find(|a| a.path == "light") else { return Ok(None) };
-    let worst: Vec<String> = a
-        .series
-        .iter()
-        .skip(1)
-        .map(|s| format!("{} {:.2e}", s.name, s.rel_l2.iter().fold(0f64, |x, &y| x.max(y))))
-        .collect();
-    let caption = format!(
-        "The paper's video shows its scenes under a turning light; here Fig. 1's bunny (`runs/{}`) with the light turned \
-         about +Y in {} frames ({:.0} degrees apart), each setting rendered per frame on the CPU beside the \
-         uncompressed T (animated PNGs at {} fps: they play in a browser; the PDF shows frame 0), and each frame's \
-         error against the uncompressed frame and its time. Worst frame: {}.",
-        run.name,
-        a.frames,
-        a.step_degrees,
-        a.fps,
-        worst.join(", ")
-    );
-    let mut f =
-        FigureSet::new("animation", "animation", "The light turned (the paper's video)", caption, a.series.len());
-    for s in &a.series {
-        f.add(out, &format!("runs/{}/{}", run.name, s.apng), &s.name.replace([':', '/'], "-"), s.name.clone())?;
+    if m.animations.is_empty() {
+        return Ok(None);
     }
-    f.add_wide(out, &format!("runs/{}/{}", run.name, a.plot), "per-frame", "per-frame error and frame time")?;
+    let what = |a: &crate::metrics::AnimationRecord| match a.path.as_str() {
+        "light" => format!("the light turned about +Y in {} frames ({:.0} degrees apart)", a.frames, a.step_degrees),
+        _ => {
+            format!("the camera orbited about its target in {} frames ({:.0} degrees apart)", a.frames, a.step_degrees)
+        }
+    };
+    let worst = |a: &crate::metrics::AnimationRecord| -> String {
+        let w: Vec<String> = (a.series.iter().skip(1))
+            .map(|s| format!("{} {:.2e}", s.name, s.rel_l2.iter().fold(0f64, |x, &y| x.max(y))))
+            .collect();
+        w.join(", ")
+    };
+    let paths: Vec<String> = m.animations.iter().map(|a| format!("{} (worst frame: {})", what(a), worst(a))).collect();
+    let caption = format!(
+        "The paper's video shows its scenes under a turning light; here Fig. 1's bunny (`runs/{}`) with {}: each \
+         setting rendered per frame on the CPU beside the uncompressed T (animated PNGs at {} fps: they play in a \
+         browser; the PDF shows frame 0), and each frame's error against the uncompressed frame and its time.",
+        run.name,
+        paths.join("; then "),
+        m.animations[0].fps,
+    );
+    let per_row = m.animations.iter().map(|a| a.series.len()).max().unwrap_or(1);
+    let mut f = FigureSet::new(
+        "animation",
+        "animation",
+        "The light turned and the camera orbited (the paper's video)",
+        caption,
+        per_row,
+    );
+    for a in &m.animations {
+        for s in &a.series {
+            let name = format!("{}-{}", a.path, s.name.replace([':', '/'], "-"));
+            f.add(out, &format!("runs/{}/{}", run.name, s.apng), &name, format!("{}: {}", a.path, s.name))?;
+        }
+        // A shorter row leaves its places empty, so each path starts a row of its own.
+        for _ in a.series.len()..per_row {
+            f.spacer();
+        }
+        let label = format!("per-frame error and frame time, {} path", a.path);
+        f.add_wide(out, &format!("runs/{}/{}", run.name, a.plot), &format!("per-frame-{}", a.path), label)?;
+    }
     Ok(Some(f))
 }

@@ -8,6 +8,11 @@ use crate::error::{io_err, PipelineError, Result};
 use std::fmt::Write;
 use std::path::Path;
 
+/// The width in pixels of a figure's own colour bar ([`FigureSet::add_colour_bar`]), about
+/// the page's, and the height of its text: at a 17 cm text width the text is about 8 pt.
+pub const COLOUR_BAR_WIDTH: u32 = 1200;
+pub const COLOUR_BAR_FONT: u32 = 20;
+
 /// One picture of a figure.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Panel {
@@ -74,6 +79,39 @@ impl FigureSet {
             std::fs::copy(&src, &dst).map_err(io_err(&dst))?;
         }
         self.panels.push(Panel { file, label: label.into(), source: from.into(), wide: false });
+        Ok(())
+    }
+
+    /// [`Self::add`] for an error figure whose panels share one scale: the run's picture
+    /// without its colour bar (one bar for the figure follows, [`Self::add_colour_bar`]).
+    pub fn add_error(&mut self, out: &Path, from: &str, name: &str, label: impl Into<String>) -> Result<()> {
+        let file = format!("figures/{}/{name}.png", self.id);
+        let (src, dst) = (out.join(from), out.join(&file));
+        let mismatch = |path: &Path, what: String| PipelineError::Mismatch { path: path.to_path_buf(), what };
+        let figure = image::open(&src)
+            .map_err(|e| mismatch(&src, format!("figure {} needs this error image: {e}", self.id)))?
+            .into_rgb8();
+        let picture = crate::plots::without_colour_bar(&figure).map_err(|what| mismatch(&src, what))?;
+        let dir = dst.parent().expect("a file under figures/");
+        std::fs::create_dir_all(dir).map_err(io_err(dir))?;
+        biscale_core::scene::image::write_rgb8_png(&picture, &dst)?;
+        self.panels.push(Panel { file, label: label.into(), source: from.into(), wide: false });
+        Ok(())
+    }
+
+    /// The figure's one colour bar, 0 to `scale`, across it on a row of its own
+    /// (`figures/<id>/colour-bar.png`): its text is sized for the figure's width
+    /// ([`COLOUR_BAR_FONT`] pixels in [`COLOUR_BAR_WIDTH`]), so it stays readable in print.
+    pub fn add_colour_bar(&mut self, out: &Path, scale: f32, label: &str) -> Result<()> {
+        let file = format!("figures/{}/colour-bar.png", self.id);
+        let dst = out.join(&file);
+        let bar = crate::plots::colour_bar(COLOUR_BAR_WIDTH, COLOUR_BAR_FONT, scale, label)
+            .map_err(|what| PipelineError::Mismatch { path: dst.clone(), what })?;
+        let dir = dst.parent().expect("a file under figures/");
+        std::fs::create_dir_all(dir).map_err(io_err(dir))?;
+        biscale_core::scene::image::write_rgb8_png(&bar, &dst)?;
+        let source = format!("drawn by biscale reproduce (full scale {scale:.3e})");
+        self.panels.push(Panel { file, label: String::new(), source, wide: true });
         Ok(())
     }
 

@@ -206,7 +206,12 @@ pub const RUNS: &[RunSpec] = &[
 const MOMENTS: &[&str] = &["runtime.light_moments=true", "methods=[]"];
 
 /// Fig. 1's moments run: no animation either (its SH setting is the paper-rule run's).
-const FIG1_MOMENTS: &[&str] = &["runtime.light_moments=true", "methods=[]", "runtime.animation.light_frames=0"];
+const FIG1_MOMENTS: &[&str] = &[
+    "runtime.light_moments=true",
+    "methods=[]",
+    "runtime.animation.light_frames=0",
+    "runtime.animation.camera_frames=0",
+];
 
 /// Figs. 1 and 5 at `--quick`: small BTFs and the ground truth traced (the figures are errors
 /// against it).
@@ -217,13 +222,14 @@ const LOW_VS_ALL_QUICK: &[&str] = &[
     "report.reference_downscale=1",
 ];
 
-/// Fig. 1 at `--quick`: [`LOW_VS_ALL_QUICK`] and an animation of six frames.
+/// Fig. 1 at `--quick`: [`LOW_VS_ALL_QUICK`] and animations of six frames.
 const FIG1_QUICK: &[&str] = &[
     "scene.material.resolution=8",
     "scene.material.view_grid=4",
     "report.reference=true",
     "report.reference_downscale=1",
     "runtime.animation.light_frames=6",
+    "runtime.animation.camera_frames=6",
 ];
 
 /// One item: a table of the paper and the runs it is made from.
@@ -265,7 +271,12 @@ pub const ITEMS: &[Item] = &[
     },
     Item { name: "fig3b", title: "Fig. 3(b): the structure of T", file: "fig3b", runs: &["bunny"] },
     Item { name: "fig7", title: "Fig. 7: the temple, five BTFs", file: "fig7", runs: &["temple"] },
-    Item { name: "animation", title: "The light turned (the paper's video)", file: "animation", runs: &["fig1-bunny"] },
+    Item {
+        name: "animation",
+        title: "The light turned and the camera orbited (the paper's video)",
+        file: "animation",
+        runs: &["fig1-bunny"],
+    },
 ];
 
 /// The items `--only` names (all of them when it names none), in [`ITEMS`] order.

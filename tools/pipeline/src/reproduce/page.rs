@@ -38,10 +38,6 @@ figure{margin:1em 0}.panel{display:inline-block;vertical-align:top;margin:0 .5% 
 pub const NOT_YET: &[&str] = &[
     "Table I's Armor and Chair: no meshes or measured BTFs of them are bundled (Fig. 5 is made on the bundled \
      teapot, Fig. 6 on the bunny).",
-    "Figure mode: one shared error scale with a colour bar across every method a figure compares (today the \
-     compressors of a run share one; SH orders and BTF-study settings do not), and insets placed where the visible \
-     difference is largest.",
-    "The camera-orbit animation (`[runtime.animation] camera_frames`) is not made by this command.",
     "A PDF of the tables: `tables/*.tex` are written, not typeset (they need `\\usepackage{booktabs}`).",
 ];
 
