@@ -188,6 +188,9 @@ pub enum GeneratedScene {
     /// A temple of flat architectural pieces with five materials (`usemtl` ground, steps,
     /// columns, marble, roof) and planar texture coordinates: the several-BTF example.
     Temple,
+    /// A chair on a wooden floor with three materials (`usemtl` floor, wood, fabric) and planar
+    /// texture coordinates: Table I's "Chair" analogue in `biscale reproduce`.
+    Chair,
 }
 
 /// Write a generated scene as OBJ (atomically).
@@ -200,6 +203,7 @@ pub fn generate_scene(kind: GeneratedScene, out: &Path) -> Result<biscale_core::
         ]),
         GeneratedScene::Plane => shapes::grid_plane(40, 6.0),
         GeneratedScene::Temple => crate::temple::build(&crate::temple::TempleOptions::default()),
+        GeneratedScene::Chair => crate::chair::build(&crate::chair::ChairOptions::default()),
     };
     write_obj(&mesh, out)?;
     Ok(mesh)

@@ -21,7 +21,7 @@
 //! | [`interop`] | NumPy files in and out (`export`, `eval`), with its `.npy`/`.npz` codec |
 //! | [`rerender`] | `biscale report`: a finished run's report from its record alone |
 //! | [`reproduce`] | `biscale reproduce`: the paper's Tables I and II and its comparisons beside our runs' figures |
-//! | [`commands`], [`temple`] | the smaller commands (`export-matrix`, `diff`, `btf`, `generate`, `viz`, `view`) |
+//! | [`commands`], [`temple`], [`chair`] | the smaller commands (`export-matrix`, `diff`, `btf`, `generate`, `viz`, `view`); the generated scenes |
 //! | [`util`] | verbosity, notes and progress bars |
 //!
 //! Imports run one way: `run`, `shard`, `interop` and `commands` use `stages`, which use
@@ -32,6 +32,7 @@
 //! let (out_dir, metrics) = biscale::run::run(&exp, &Default::default()).unwrap();
 //! ```
 
+pub mod chair;
 pub mod commands;
 pub mod error;
 pub mod estimate;

@@ -30,9 +30,9 @@ impl Default for TempleOptions {
     }
 }
 
-/// Accumulates faces with their material.
+/// Accumulates faces with their material (the temple's, and [`crate::chair`]'s).
 #[derive(Default)]
-struct Builder {
+pub(crate) struct Builder {
     positions: Vec<Vec3>,
     uvs: Vec<Vec2>,
     triangles: Vec<[u32; 3]>,
@@ -51,13 +51,18 @@ impl Builder {
         Vec2::new((self.faces as f32 * 0.618_034).fract(), (self.faces as f32 * 0.414_214).fract())
     }
 
-    fn material(&mut self, name: &str) {
-        self.current = self.materials.intern(name).expect("the temple names five materials");
+    /// A builder whose face grids have cells no larger than `cell` (at least 0.002).
+    pub(crate) fn new(cell: f32) -> Self {
+        Builder { cell: cell.max(0.002), ..Default::default() }
+    }
+
+    pub(crate) fn material(&mut self, name: &str) {
+        self.current = self.materials.intern(name).expect("a generated scene names a few materials");
     }
 
     /// The parallelogram `o + s a + t b` (`s, t` in `[0, 1]`), facing `a x b`, meshed as a grid
     /// of cells no larger than `cell`; uv = `(s |a|, t |b|)`.
-    fn quad(&mut self, o: Vec3, a: Vec3, b: Vec3) {
+    pub(crate) fn quad(&mut self, o: Vec3, a: Vec3, b: Vec3) {
         let (la, lb) = (a.length(), b.length());
         let na = ((la / self.cell).ceil() as u32).max(1);
         let nb = ((lb / self.cell).ceil() as u32).max(1);
@@ -114,7 +119,7 @@ impl Builder {
     }
 
     /// The five visible faces of the box `[lo, hi]` (no bottom: it rests on something).
-    fn open_box(&mut self, lo: Vec3, hi: Vec3) {
+    pub(crate) fn open_box(&mut self, lo: Vec3, hi: Vec3) {
         let d = hi - lo;
         let (x, y, z) = (Vec3::X * d.x, Vec3::Y * d.y, Vec3::Z * d.z);
         self.quad(Vec3::new(lo.x, hi.y, lo.z), z, x); // +Y
@@ -122,6 +127,13 @@ impl Builder {
         self.quad(lo, z, y); // -X
         self.quad(Vec3::new(lo.x, lo.y, hi.z), x, y); // +Z
         self.quad(lo, y, x); // -Z
+    }
+
+    /// The six faces of the box `[lo, hi]` (one that stands clear of everything).
+    pub(crate) fn closed_box(&mut self, lo: Vec3, hi: Vec3) {
+        self.open_box(lo, hi);
+        let d = hi - lo;
+        self.quad(lo, Vec3::X * d.x, Vec3::Z * d.z); // -Y
     }
 
     /// An octagonal prism of circumradius `r` from `y0` to `y1` about `(cx, cz)` (sides only).
@@ -136,7 +148,7 @@ impl Builder {
         }
     }
 
-    fn finish(self) -> Mesh {
+    pub(crate) fn finish(self) -> Mesh {
         Mesh {
             positions: self.positions,
             uvs: Some(self.uvs),
@@ -149,7 +161,7 @@ impl Builder {
 /// Build the temple (see the module docs). The base's footprint is centred on the origin,
 /// +Y up, the front (the pediment with the entrance side) facing -Z.
 pub fn build(opts: &TempleOptions) -> Mesh {
-    let mut b = Builder { cell: opts.cell.max(0.02), ..Default::default() };
+    let mut b = Builder::new(opts.cell.max(0.02));
     let (nx, nz) = (opts.columns_x.max(2), opts.columns_z.max(2));
     let spacing = 1.0f32;
     // Column centres span (nx - 1) x (nz - 1) spacings; the top step overhangs them by 0.6.
