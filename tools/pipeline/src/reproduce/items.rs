@@ -18,6 +18,16 @@ pub enum MeshSource {
     /// The generated temple (`biscale generate scene temple`) with the face grid whose vertex
     /// count is nearest to Table I's Temple.
     PaperTemple,
+    /// The generated chair (`biscale generate scene chair`) with the face grid whose vertex
+    /// count is nearest to Table I's Chair.
+    PaperChair,
+}
+
+/// The vertex counts the generated scenes are made near: Table I's.
+#[derive(Clone, Copy, Debug)]
+pub struct PaperSizes {
+    pub temple: usize,
+    pub chair: usize,
 }
 
 /// One run: a config of `configs/paper/`, run into `runs/<name>/`.
@@ -53,6 +63,17 @@ pub const QUICK: &[&str] = &[
 ];
 
 const BUNNY_QUICK: &[&str] = &["scene.material.resolution=8", "scene.material.view_grid=4"];
+
+const ARMOR_QUICK: &[&str] = &["scene.material.resolution=8", "scene.material.view_grid=4"];
+
+const CHAIR_QUICK: &[&str] = &[
+    "scene.materials.0.resolution=8",
+    "scene.materials.0.view_grid=4",
+    "scene.materials.1.resolution=8",
+    "scene.materials.1.view_grid=4",
+    "scene.materials.2.resolution=8",
+    "scene.materials.2.view_grid=4",
+];
 
 const TEMPLE_QUICK: &[&str] = &[
     "scene.materials.0.resolution=8",
@@ -107,6 +128,26 @@ pub const RUNS: &[RunSpec] = &[
         quick_mesh: MeshSource::Subdivided(2),
         set: &[],
         quick: BUNNY_QUICK,
+        inset_from: None,
+    },
+    RunSpec {
+        name: "armor",
+        config: "table1_armor.toml",
+        experiment: None,
+        mesh: MeshSource::Subdivided(2),
+        quick_mesh: MeshSource::AsConfigured,
+        set: &[],
+        quick: ARMOR_QUICK,
+        inset_from: None,
+    },
+    RunSpec {
+        name: "chair",
+        config: "table1_chair.toml",
+        experiment: None,
+        mesh: MeshSource::PaperChair,
+        quick_mesh: MeshSource::AsConfigured,
+        set: &[],
+        quick: CHAIR_QUICK,
         inset_from: None,
     },
     RunSpec {
@@ -244,7 +285,7 @@ pub struct Item {
 }
 
 pub const ITEMS: &[Item] = &[
-    Item { name: "table1", title: "Table I: the scenes", file: "table1", runs: &["bunny", "temple"] },
+    Item { name: "table1", title: "Table I: the scenes", file: "table1", runs: &["bunny", "armor", "chair", "temple"] },
     Item {
         name: "table2",
         title: "Table II: the bunny at three vertex counts",
@@ -326,7 +367,7 @@ pub fn experiment(
     quick: bool,
     user: &[String],
     meshes: &Path,
-    temple_vertices: usize,
+    sizes: PaperSizes,
 ) -> Result<(Experiment, Option<MadeMesh>)> {
     let path = configs.join(spec.config);
     let mut overrides: Vec<String> = vec![];
@@ -353,22 +394,30 @@ pub fn experiment(
             );
             Some(MadeMesh { path: out, how })
         }
-        MeshSource::PaperTemple => {
-            let (cell, mesh) = temple_near(temple_vertices);
-            let out = meshes.join(format!("reproduce-temple-{temple_vertices}.obj"));
-            std::fs::create_dir_all(meshes).map_err(io_err(meshes))?;
-            biscale_core::io::write_atomic_bytes(&out, mesh.to_obj().as_bytes())?;
-            let how = format!(
-                "the generated temple with {cell:.4}-unit face cells ({} vertices; the nearest to {temple_vertices})",
-                mesh.vertex_count()
-            );
-            Some(MadeMesh { path: out, how })
-        }
+        MeshSource::PaperTemple => Some(generated(meshes, "temple", sizes.temple, temple_near(sizes.temple))?),
+        MeshSource::PaperChair => Some(generated(meshes, "chair", sizes.chair, chair_near(sizes.chair))?),
     };
     let Some(m) = made else { return Ok((load(&path, overrides, user)?, None)) };
     let abs = std::path::absolute(&m.path).map_err(io_err(&m.path))?;
     overrides.push(format!("scene.mesh={}", toml_string(&abs.to_string_lossy())));
     Ok((load(&path, overrides, user)?, Some(m)))
+}
+
+/// A generated scene made near `target` vertices, written into `meshes`.
+fn generated(
+    meshes: &Path,
+    what: &str,
+    target: usize,
+    (cell, mesh): (f32, biscale_core::geometry::Mesh),
+) -> Result<MadeMesh> {
+    let out = meshes.join(format!("reproduce-{what}-{target}.obj"));
+    std::fs::create_dir_all(meshes).map_err(io_err(meshes))?;
+    biscale_core::io::write_atomic_bytes(&out, mesh.to_obj().as_bytes())?;
+    let how = format!(
+        "the generated {what} with {cell:.4}-unit face cells ({} vertices; the nearest to {target})",
+        mesh.vertex_count()
+    );
+    Ok(MadeMesh { path: out, how })
 }
 
 fn load(path: &Path, mut overrides: Vec<String>, user: &[String]) -> Result<Experiment> {
@@ -386,8 +435,24 @@ fn toml_string(s: &str) -> String {
 /// grows, in steps, so the nearest of every size tried is kept).
 pub fn temple_near(target: usize) -> (f32, biscale_core::geometry::Mesh) {
     use crate::temple::{build, TempleOptions};
-    let make = |cell: f32| build(&TempleOptions { cell, ..TempleOptions::default() });
-    let (mut lo, mut hi) = (0.02f32.ln(), 4f32.ln());
+    near(target, (0.02, 4.0), |cell| build(&TempleOptions { cell, ..TempleOptions::default() }))
+}
+
+/// The generated chair with the face cell (between 0.005 and 0.5 units) whose vertex count is
+/// nearest to `target`, and that cell.
+pub fn chair_near(target: usize) -> (f32, biscale_core::geometry::Mesh) {
+    use crate::chair::{build, ChairOptions};
+    near(target, (0.005, 0.5), |cell| build(&ChairOptions { cell }))
+}
+
+/// Bisection on the log of a scene's face cell in `(lo, hi)` for the mesh nearest `target`
+/// vertices (finer cells, more vertices).
+fn near(
+    target: usize,
+    (lo, hi): (f32, f32),
+    make: impl Fn(f32) -> biscale_core::geometry::Mesh,
+) -> (f32, biscale_core::geometry::Mesh) {
+    let (mut lo, mut hi) = (lo.ln(), hi.ln());
     let mut best: Option<(usize, f32, biscale_core::geometry::Mesh)> = None;
     for _ in 0..24 {
         let mid = 0.5 * (lo + hi);
@@ -428,13 +493,25 @@ mod tests {
     }
 
     #[test]
-    fn the_temple_is_made_near_the_papers_vertex_count() {
+    fn the_generated_scenes_are_made_near_the_papers_vertex_counts() {
         let target = super::super::published::Published::get().scene("Temple").unwrap().vertices as usize;
         let (cell, mesh) = temple_near(target);
         let n = mesh.vertex_count();
         assert!(n.abs_diff(target) * 20 < target, "{n} vertices at cell {cell} for {target}");
         // The default cell is the bundled temple.
         assert_eq!(temple_near(5336).1.vertex_count(), 5336);
+        // The chair likewise, and the bundled one is its default.
+        let target = super::super::published::Published::get().scene("Chair").unwrap().vertices as usize;
+        let (cell, mesh) = chair_near(target);
+        let n = mesh.vertex_count();
+        assert!(n.abs_diff(target) * 20 < target, "{n} vertices at cell {cell} for {target}");
+        let bundled = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/meshes/chair.obj");
+        let v = std::fs::read_to_string(bundled).unwrap().lines().filter(|l| l.starts_with("v ")).count();
+        assert_eq!(
+            v,
+            crate::chair::build(&Default::default()).vertex_count(),
+            "assets/meshes/chair.obj is the default"
+        );
     }
 
     #[test]
