@@ -187,7 +187,7 @@ impl HdrImage {
         }
         let rank = ((quantile.clamp(0.0, 1.0) * peaks.len() as f64).ceil() as usize).clamp(1, peaks.len()) - 1;
         let white = *peaks.select_nth_unstable_by(rank, f32::total_cmp).1;
-        if !(white > 0.0) {
+        if white <= 0.0 {
             return 0.0;
         }
         ((-(white as f64).log2() * 10.0).floor() / 10.0) as f32
