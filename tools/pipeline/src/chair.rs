@@ -25,42 +25,61 @@ impl Default for ChairOptions {
     }
 }
 
-/// Build the chair (see the module docs).
-pub fn build(opts: &ChairOptions) -> Mesh {
-    let mut b = Builder::new(opts.cell);
-    let v = Vec3::new;
-    b.material("floor");
-    let f = 0.9f32;
-    b.quad(v(-f, 0.0, -f), Vec3::Z * 2.0 * f, Vec3::X * 2.0 * f);
+/// One box of the chair: its material, its corners, and whether its underside is meshed
+/// (everything but the legs, which stand on the floor).
+struct Part {
+    material: &'static str,
+    lo: Vec3,
+    hi: Vec3,
+    underside: bool,
+}
 
-    b.material("wood");
+/// The chair's boxes, wood before fabric.
+fn parts() -> Vec<Part> {
+    let v = Vec3::new;
+    let part = |material, lo, hi, underside| Part { material, lo, hi, underside };
+    let mut p = vec![];
     let (half, leg, seat_y, frame_h) = (0.25f32, 0.05f32, 0.45f32, 0.06f32);
     // Legs at the four corners; the rear two run on up as the back posts.
     for (x, z) in [(-1.0f32, -1.0f32), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)] {
         let (cx, cz) = (x * (half - leg / 2.0), z * (half - leg / 2.0));
         let top = if z > 0.0 { 1.0 } else { seat_y - frame_h };
-        b.open_box(v(cx - leg / 2.0, 0.0, cz - leg / 2.0), v(cx + leg / 2.0, top, cz + leg / 2.0));
+        p.push(part("wood", v(cx - leg / 2.0, 0.0, cz - leg / 2.0), v(cx + leg / 2.0, top, cz + leg / 2.0), false));
     }
     // Stretchers between the legs, clear of the floor.
     let (s, sy) = (0.03f32, 0.14f32);
     let inner = half - leg;
     for z in [-1.0f32, 1.0] {
         let cz = z * (half - leg / 2.0);
-        b.closed_box(v(-inner, sy, cz - s / 2.0), v(inner, sy + s, cz + s / 2.0));
+        p.push(part("wood", v(-inner, sy, cz - s / 2.0), v(inner, sy + s, cz + s / 2.0), true));
     }
     for x in [-1.0f32, 1.0] {
         let cx = x * (half - leg / 2.0);
-        b.closed_box(v(cx - s / 2.0, sy + 0.05, -inner), v(cx + s / 2.0, sy + 0.05 + s, inner));
+        p.push(part("wood", v(cx - s / 2.0, sy + 0.05, -inner), v(cx + s / 2.0, sy + 0.05 + s, inner), true));
     }
     // The seat frame, between the back posts, and the top rail between them.
     let back = half - leg;
-    b.closed_box(v(-half, seat_y - frame_h, -half), v(half, seat_y, back));
-    b.closed_box(v(-inner, 0.88, back), v(inner, 0.98, half));
-
-    b.material("fabric");
+    p.push(part("wood", v(-half, seat_y - frame_h, -half), v(half, seat_y, back), true));
+    p.push(part("wood", v(-inner, 0.88, back), v(inner, 0.98, half), true));
     // The seat cushion on the frame, and the back cushion against the posts' front.
-    b.open_box(v(-half + 0.01, seat_y, -half + 0.01), v(half - 0.01, seat_y + 0.07, back - 0.005));
-    b.closed_box(v(-inner + 0.005, seat_y + 0.12, back - 0.06), v(inner - 0.005, 0.86, back));
+    p.push(part("fabric", v(-half + 0.01, seat_y, -half + 0.01), v(half - 0.01, seat_y + 0.07, back - 0.005), false));
+    p.push(part("fabric", v(-inner + 0.005, seat_y + 0.12, back - 0.06), v(inner - 0.005, 0.86, back), true));
+    p
+}
+
+/// Build the chair (see the module docs).
+pub fn build(opts: &ChairOptions) -> Mesh {
+    let mut b = Builder::new(opts.cell);
+    b.material("floor");
+    let f = 0.9f32;
+    b.quad(Vec3::new(-f, 0.0, -f), Vec3::Z * 2.0 * f, Vec3::X * 2.0 * f);
+    for p in parts() {
+        b.material(p.material);
+        match p.underside {
+            true => b.closed_box(p.lo, p.hi),
+            false => b.open_box(p.lo, p.hi),
+        }
+    }
     b.finish()
 }
 
@@ -84,16 +103,34 @@ mod tests {
         )
         .unwrap();
         assert!(load.repairs.is_empty(), "{:?}", load.repairs);
-        // Every face points away from the centre of the box it belongs to: here, away from
-        // the chair's vertical axis or up/down; the floor faces up, and the seat cushion's
-        // top (the highest fabric faces below the back) faces up.
+        // The floor faces up; every face of every box points away from the box's centre, and
+        // a box has an underside exactly when it is meant to (not the legs on the floor, nor
+        // the seat cushion on its frame).
+        let normal = |mesh: &Mesh, t: &[u32; 3]| {
+            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+            ((b - a).cross(c - a).normalize(), (a + b + c) / 3.0)
+        };
         for (t, &id) in mesh.triangles.iter().zip(&m.per_triangle) {
-            let [a, bb, c] = t.map(|i| mesh.positions[i as usize]);
-            let n = (bb - a).cross(c - a).normalize();
             if m.names[id as usize] == "floor" {
-                assert!(n.dot(Vec3::Y) > 0.999, "{n}");
+                assert!(normal(&mesh, t).0.dot(Vec3::Y) > 0.999);
             }
-            assert!((n.length() - 1.0).abs() < 1e-4, "no degenerate triangle");
+        }
+        for p in parts() {
+            let mut b = Builder::new(0.05);
+            b.material(p.material);
+            match p.underside {
+                true => b.closed_box(p.lo, p.hi),
+                false => b.open_box(p.lo, p.hi),
+            }
+            let one = b.finish();
+            let centre = (p.lo + p.hi) / 2.0;
+            let mut down = 0;
+            for t in &one.triangles {
+                let (n, at) = normal(&one, t);
+                assert!(n.dot(at - centre) > 0.0, "a face of the box at {centre} points inward: {n} at {at}");
+                down += (n.y < -0.999) as usize;
+            }
+            assert_eq!(down > 0, p.underside, "box at {centre}");
         }
         // Finer cells, more vertices: the grid size sets the count (reproduce picks it).
         let fine = build(&ChairOptions { cell: 0.025 });

@@ -12,7 +12,7 @@ use crate::experiment::plan::Plan;
 use crate::metrics::*;
 use crate::provenance::StageClock;
 use crate::stages::evaluate::{
-    cpus_online, errors, load_average_1min, no_gpu_feature, targets, Baseline, Evaluation, GpuBackend, Reference, View,
+    cpus_online, errors, load_average_1min, no_gpu_feature, targets, Evaluation, GpuBackend, Targets, View,
 };
 use crate::stages::figures::{comparison_figures, inset_region, share_error_scale};
 use crate::stages::materials::SceneMaterials;
@@ -254,18 +254,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
 
     let fixed = exp.file.report.reference_error_scale;
     let figures = comparison_figures(region, &records, &methods, base, &view, reference, fixed, &out_dir)?;
-    let mut metrics = metrics_of_run(
-        exp,
-        &geometry,
-        &lighting,
-        &materials,
-        t.metrics,
-        base,
-        reference,
-        records,
-        methods,
-        &targets.tone,
-    );
+    let mut metrics = metrics_of_run(exp, &geometry, &lighting, &materials, t.metrics, &targets, records, methods);
     metrics.figures = Some(figures);
     metrics.animations = animations;
     metrics.memory = Some(memory.metrics(&available));
@@ -376,12 +365,11 @@ pub(crate) fn metrics_of_run(
     lighting: &Lighting,
     materials: &SceneMaterials,
     transfer: TransferMetrics,
-    base: &Baseline,
-    reference: Option<&Reference>,
+    targets: &Targets,
     compressors: Vec<CompressorRecord>,
     methods: Vec<MethodRecord>,
-    tone: &crate::metrics::ToneMapRecord,
 ) -> Metrics {
+    let (base, reference, tone) = (&targets.base, targets.reference.as_ref(), &targets.tone);
     Metrics {
         schema_version: crate::provenance::SCHEMA_VERSION,
         experiment: exp.name().to_string(),

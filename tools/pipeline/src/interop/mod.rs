@@ -866,19 +866,7 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
         (Loaded::Form(_), None) => unreachable!("a form has its compressor"),
     };
     ctx.clock.mark(format!("evaluate {name}"));
-    let (base, reference) = (&targets.base, targets.reference.as_ref());
-    let mut metrics = metrics_of_run(
-        exp,
-        &geometry,
-        &lighting,
-        &materials,
-        t.metrics,
-        base,
-        reference,
-        vec![record],
-        vec![],
-        &targets.tone,
-    );
+    let mut metrics = metrics_of_run(exp, &geometry, &lighting, &materials, t.metrics, &targets, vec![record], vec![]);
     metrics.memory = Some(memory.metrics(&available));
     metrics.run = Some(ctx.clock.finish());
     let json = serde_json::to_string_pretty(&metrics).expect("metrics serialize");
