@@ -270,7 +270,8 @@ enum Command {
         #[arg(long)]
         json: bool,
         /// Exposure in stops of the tone map (x 2^exposure, clamp, sRGB) the LDR figures are
-        /// measured after: a run's `[report] exposure` gives its report's numbers.
+        /// measured after: a run's `tone_map.exposure` (metrics.json; its `[report] exposure`
+        /// unless that is "auto") gives its report's numbers.
         #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
         exposure: f32,
     },
