@@ -96,7 +96,18 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
 pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -> Result<(PathBuf, Metrics)> {
     // The text as it runs (with any `--set` applied), not the file's.
     let clock = StageClock::start(&exp.source, exp.file.seed);
-    let plan = Plan::new(exp);
+    let mut plan = Plan::new(exp);
+    if let Some(p) = &pre {
+        // A merge traces nothing and caches no T: its plan says where T comes from.
+        plan.transfer_from(format!(
+            "T from {} shards' outputs ({}), traced by the shards, not cached",
+            p.sharded.shards,
+            match &p.rows {
+                TransferRows::Whole(_) => "stacked into one matrix",
+                TransferRows::Parts(_) => "streamed part by part, never whole",
+            }
+        ));
+    }
     eprint!("{plan}");
     if exp.file.runtime.backend == Backend::Gpu && !cfg!(feature = "gpu") {
         return Err(no_gpu_feature());

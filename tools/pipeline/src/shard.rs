@@ -762,6 +762,7 @@ pub fn merge(path: &Path, opts: &RunOptions) -> Result<(PathBuf, crate::metrics:
         shard_peak_rss_max: dones.iter().filter_map(|d| d.peak_rss_bytes).max(),
         merge_load_seconds,
         merge_seconds: 0.0,
+        streamed: matches!(rows, TransferRows::Parts(_)),
     };
     let pre = Precomputed {
         rows,

@@ -245,6 +245,10 @@ pub struct ShardedMetrics {
     pub merge_load_seconds: f64,
     /// Seconds of the whole merge, pipeline included.
     pub merge_seconds: f64,
+    /// `T` was left in the shards' files and every pass over it read them part by part
+    /// (false: stacked into one matrix; and in older records).
+    #[serde(default)]
+    pub streamed: bool,
 }
 
 /// The memory record of a run (the pipeline's `memory`): the estimate made before tracing, beside

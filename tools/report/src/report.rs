@@ -203,8 +203,12 @@ pub fn document(m: &Metrics, plan: &str, plots: &[(String, String)]) -> Vec<Bloc
     para(
         &mut d,
         format!(
-            "Uncompressed `T L`: gather {} ms (f64 reference), shade {} ms. {}",
+            "Uncompressed `T L`: gather {} ms (f64 reference{}), shade {} ms. {}",
             timing_cell(u.gather_ms, u.gather_timing.as_ref(), 2),
+            match m.sharded.as_ref().is_some_and(|s| s.streamed) {
+                true => ": the products over the shards' parts of T summed, reading the files left out",
+                false => "",
+            },
             timing_cell(u.shade_ms, u.shade_timing.as_ref(), 1),
             timing_note(m)
         ),

@@ -119,6 +119,8 @@ fn a_sharded_precompute_merges_into_the_single_machine_run_byte_for_byte() {
     assert!(without_build_time(&form) == form_before, "the form changed on a rerun");
     ok(biscale(&["shard", "status", s(&manifest)], &[]));
     ok(biscale(&merge_args, &[]));
+    let plan = std::fs::read_to_string(merged_out.join("plan.txt")).unwrap();
+    assert!(plan.contains("T from 4 shards' outputs (stacked into one matrix)"), "{plan}");
 
     let single_out = d.join("single");
     let single_cache = d.join("cache-single");
@@ -209,6 +211,11 @@ fn a_merge_whose_steps_are_all_row_separable_streams_t_and_matches_the_single_ru
     let (merged, merged_cache) = (d.join("merged"), d.join("cache-merged"));
     let log = ok(biscale(&["shard", "merge", s(&manifest), "--out", s(&merged), "--cache-dir", s(&merged_cache)], &[]));
     assert!(log.contains("T left in their files"), "{log}");
+    // Its plan says where T comes from, and that it neither traces nor caches it.
+    let plan = std::fs::read_to_string(merged.join("plan.txt")).unwrap();
+    let transfer = plan.lines().find(|l| l.contains(" transfer ")).unwrap();
+    assert!(transfer.contains("T from 3 shards' outputs (streamed part by part, never whole)"), "{plan}");
+    assert!(!transfer.contains("cached by content"), "{plan}");
     let (single, single_cache) = (d.join("single"), d.join("cache-single"));
     ok(biscale(&["run", s(&cfg), "--out", s(&single), "--cache-dir", s(&single_cache)], &[]));
 
@@ -236,6 +243,10 @@ fn a_merge_whose_steps_are_all_row_separable_streams_t_and_matches_the_single_ru
         serde_json::from_str(&std::fs::read_to_string(merged.join("metrics.json")).unwrap()).unwrap();
     let phases = m["memory"]["phases"].to_string();
     assert!(phases.contains("two shards' parts at a time") && !phases.contains("transfer build"), "{phases}");
+    // The record says T was streamed, and the report what the uncompressed gather time is then.
+    assert_eq!(m["sharded"]["streamed"], true);
+    let report = std::fs::read_to_string(merged.join("report.md")).unwrap();
+    assert!(report.contains("the products over the shards' parts of T summed"), "{report}");
     // The merge's whole time is in its record (it was written as 0 before the pipeline ended).
     let (whole, load) =
         (m["sharded"]["merge_seconds"].as_f64().unwrap(), m["sharded"]["merge_load_seconds"].as_f64().unwrap());

@@ -447,6 +447,16 @@ fn reference_output(
     Ok(CachedOutput { stage: "reference", what, state: CacheState::of(cache.reference_path(&key), Some(estimate)) })
 }
 
+impl Plan {
+    /// The transfer step, when `T` is not traced here (a shard merge): `what` says where it
+    /// comes from.
+    pub fn transfer_from(&mut self, what: String) {
+        if let Some(s) = self.steps.iter_mut().find(|s| s.stage == "transfer") {
+            s.what = what;
+        }
+    }
+}
+
 impl fmt::Display for Plan {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(f, "plan:")?;
