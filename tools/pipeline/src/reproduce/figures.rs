@@ -137,12 +137,16 @@ pub fn latex(f: &FigureSet) -> String {
     let width = 0.98 / f.per_row as f64;
     for (i, p) in f.panels.iter().enumerate() {
         if p.wide {
-            let _ = writeln!(
-                s,
-                "\\par\\includegraphics[width=\\linewidth]{{{}}}\\\\\\footnotesize {}\\\\[2pt]",
-                p.file,
-                latex_escape(&p.label)
-            );
+            // A line break after an empty label would end no line: LaTeX stops there.
+            let _ = match p.label.is_empty() {
+                true => writeln!(s, "\\par\\includegraphics[width=\\linewidth]{{{}}}\\par\\smallskip", p.file),
+                false => writeln!(
+                    s,
+                    "\\par\\includegraphics[width=\\linewidth]{{{}}}\\\\\\footnotesize {}\\\\[2pt]",
+                    p.file,
+                    latex_escape(&p.label)
+                ),
+            };
             continue;
         }
         let end = if (i + 1) % f.per_row == 0 { "\\\\[2pt]" } else { "\\hfill" };
@@ -216,5 +220,10 @@ mod tests {
         let (tex, h) = (latex(&f), html(&f, out).unwrap());
         assert!(tex.contains("\\par\\includegraphics[width=\\linewidth]{figures/fig7/plot.png}"), "{tex}");
         assert!(h.contains("style=\"width:99.0%\"><img"), "{h}");
+        // A colour bar has no label, and so no line break after it (pdflatex refuses one).
+        f.add_colour_bar(out, 0.5, "luminance").unwrap();
+        let tex = latex(&f);
+        let bar = tex.lines().find(|l| l.contains("colour-bar.png")).unwrap();
+        assert_eq!(bar, "\\par\\includegraphics[width=\\linewidth]{figures/fig7/colour-bar.png}\\par\\smallskip");
     }
 }
