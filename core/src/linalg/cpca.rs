@@ -18,14 +18,15 @@
 //!    fit equally well); the error itself is combined in f64.
 //! 3. **Refit**: each cluster's mean and its top C principal directions of the centred rows
 //!    `A = X - 1 mu^T`, never formed: `A Q = X Q - 1 (mu^T Q)` and `A^T Z = X^T Z - mu (1^T Z)`
-//!    on the stored rows. Randomised subspace iteration (Halko, Martinsson, Tropp 2011,
+//!    on the stored rows, in the cluster's support (the columns its rows store: `A` is zero in
+//!    the others, and so are the mean and every direction). Randomised subspace iteration (Halko, Martinsson, Tropp 2011,
 //!    Algorithm 4.4) with `l = C + oversampling` columns, warm-started from the cluster's
 //!    previous components, `power_iterations` rounds of `Q <- orth(A^T A Q)`, then Rayleigh-Ritz:
 //!    the eigen-decomposition of the l x l matrix `(A Q)^T (A Q)` (Jacobi, [`super::eigen`]).
-//!    A cluster whose centred rows span at most `l` dimensions (fewer rows than `l + 1`, or
-//!    N <= l) uses those rows (or the identity) as `Q`, which makes its PCA exact. Directions
-//!    with a Ritz value below 1e-13 of the largest (rank-deficient clusters) are stored as zero
-//!    components.
+//!    A cluster whose centred rows span at most `l` dimensions (fewer rows than `l + 1`, or a
+//!    support of at most `l` columns) uses those rows (or the identity) as `Q`, which makes its
+//!    PCA exact. Directions with a Ritz value below 1e-13 of the largest (rank-deficient
+//!    clusters) are stored as zero components.
 //! 4. Empty clusters are re-seeded with the worst-fit rows (largest `err`) taken from clusters
 //!    that keep at least one row; a cluster that cannot be re-seeded (every row is fit exactly)
 //!    is dropped. Rounds stop after `iterations` or when no row changes cluster.
@@ -342,7 +343,73 @@ fn seed_rows<R: RowSet>(rows: &R, nz_rows: &[u32], sq_norm: &[f64], k: usize, se
 }
 
 /// Mean and top `c` principal directions of the rows `members` (module doc, step 3).
+/// The rows of a cluster seen through its support: column `col` of `rows` is column
+/// `index[col]` here (increasing, so entries stay sorted), `dim` columns in all.
+struct Supported<'a, R> {
+    rows: &'a R,
+    index: &'a [u32],
+    dim: usize,
+}
+
+impl<R: RowSet> RowSet for Supported<'_, R> {
+    fn count(&self) -> usize {
+        self.rows.count()
+    }
+    fn dim(&self) -> usize {
+        self.dim
+    }
+    fn for_each(&self, r: usize, mut f: impl FnMut(usize, f32)) {
+        self.rows.for_each(r, |col, v| f(self.index[col] as usize, v))
+    }
+}
+
+/// The model of one cluster ([`fit_in`]), computed on its support: the columns any member
+/// stores. The centred rows `A = X - 1 mu^T` are zero in every other column, so the mean and
+/// every principal direction are too, and the subspace iteration's `N x l` work shrinks to
+/// the support's size (a cluster of a few vertices touches a small share of `T`'s columns).
 fn fit<R: RowSet>(
+    rows: &R,
+    members: &[u32],
+    prev: Option<&Model>,
+    c: usize,
+    settings: &CpcaSettings,
+    rng: ChaCha8Rng,
+) -> Model {
+    let n = rows.dim();
+    let mut index = vec![u32::MAX; n];
+    let mut support: Vec<u32> = vec![];
+    for &r in members {
+        rows.for_each(r as usize, |col, _| {
+            if index[col] == u32::MAX {
+                index[col] = 0;
+                support.push(col as u32);
+            }
+        });
+    }
+    support.sort_unstable();
+    for (i, &col) in support.iter().enumerate() {
+        index[col as usize] = i as u32;
+    }
+    let s = support.len();
+    let gather = |full: &[f64]| -> Vec<f64> { support.iter().map(|&col| full[col as usize]).collect() };
+    let prev = prev.map(|p| Model {
+        mean: gather(&p.mean),
+        comps: (0..c).flat_map(|j| gather(&p.comps[j * n..(j + 1) * n])).collect(),
+    });
+    let compact = Supported { rows, index: &index, dim: s };
+    let m = fit_in(&compact, members, prev.as_ref(), c, settings, rng);
+    let (mut mean, mut comps) = (vec![0.0f64; n], vec![0.0f64; c * n]);
+    for (i, &col) in support.iter().enumerate() {
+        mean[col as usize] = m.mean[i];
+        for j in 0..c {
+            comps[j * n + col as usize] = m.comps[j * s + i];
+        }
+    }
+    Model { mean, comps }
+}
+
+/// The mean and top `c` principal directions of the `members` of `rows` (module docs, step 3).
+fn fit_in<R: RowSet>(
     rows: &R,
     members: &[u32],
     prev: Option<&Model>,
