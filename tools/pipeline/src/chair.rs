@@ -34,6 +34,17 @@ struct Part {
     underside: bool,
 }
 
+impl Part {
+    /// Its faces, in its material.
+    fn mesh_into(&self, b: &mut Builder) {
+        b.material(self.material);
+        match self.underside {
+            true => b.closed_box(self.lo, self.hi),
+            false => b.open_box(self.lo, self.hi),
+        }
+    }
+}
+
 /// The chair's boxes, wood before fabric.
 fn parts() -> Vec<Part> {
     let v = Vec3::new;
@@ -74,11 +85,7 @@ pub fn build(opts: &ChairOptions) -> Mesh {
     let f = 0.9f32;
     b.quad(Vec3::new(-f, 0.0, -f), Vec3::Z * 2.0 * f, Vec3::X * 2.0 * f);
     for p in parts() {
-        b.material(p.material);
-        match p.underside {
-            true => b.closed_box(p.lo, p.hi),
-            false => b.open_box(p.lo, p.hi),
-        }
+        p.mesh_into(&mut b);
     }
     b.finish()
 }
@@ -90,19 +97,8 @@ mod tests {
     #[test]
     fn the_chair_has_three_materials_faces_outward_and_loads_without_repairs() {
         let mesh = build(&ChairOptions::default());
+        crate::temple::tests::assert_materials_and_no_repairs(&mesh, &["floor", "wood", "fabric"], "chair");
         let m = mesh.materials.as_ref().unwrap();
-        assert_eq!(m.names, ["floor", "wood", "fabric"]);
-        assert_eq!(m.per_triangle.len(), mesh.triangles.len());
-        assert!(m.counts().iter().all(|&c| c > 0), "{:?}", m.counts());
-        let load = Mesh::from_parts_with_materials(
-            mesh.positions.clone(),
-            mesh.uvs.clone(),
-            mesh.triangles.clone(),
-            mesh.materials.clone(),
-            "chair",
-        )
-        .unwrap();
-        assert!(load.repairs.is_empty(), "{:?}", load.repairs);
         // The floor faces up; every face of every box points away from the box's centre, and
         // a box has an underside exactly when it is meant to (not the legs on the floor, nor
         // the seat cushion on its frame).
@@ -117,11 +113,7 @@ mod tests {
         }
         for p in parts() {
             let mut b = Builder::new(0.05);
-            b.material(p.material);
-            match p.underside {
-                true => b.closed_box(p.lo, p.hi),
-                false => b.open_box(p.lo, p.hi),
-            }
+            p.mesh_into(&mut b);
             let one = b.finish();
             let centre = (p.lo + p.hi) / 2.0;
             let mut down = 0;

@@ -225,27 +225,33 @@ pub fn build(opts: &TempleOptions) -> Mesh {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    #[test]
-    fn faces_face_outward_and_every_triangle_has_a_material() {
-        let mesh = build(&TempleOptions::default());
+    /// A generated scene's materials are `names` in order, every triangle has one and each
+    /// has triangles, and loading it repairs nothing: no degenerate triangles, no duplicated
+    /// vertices within a face.
+    pub(crate) fn assert_materials_and_no_repairs(mesh: &Mesh, names: &[&str], label: &str) {
         let m = mesh.materials.as_ref().unwrap();
-        assert_eq!(m.names, ["ground", "steps", "columns", "marble", "roof"]);
+        assert_eq!(m.names, names);
         assert_eq!(m.per_triangle.len(), mesh.triangles.len());
         assert!(m.counts().iter().all(|&c| c > 0), "{:?}", m.counts());
-        // Repairs find nothing to fix: no degenerate triangles, no duplicated vertices
-        // within a face.
         let load = Mesh::from_parts_with_materials(
             mesh.positions.clone(),
             mesh.uvs.clone(),
             mesh.triangles.clone(),
             mesh.materials.clone(),
-            "temple",
+            label,
         )
         .unwrap();
         assert!(load.repairs.is_empty(), "{:?}", load.repairs);
+    }
+
+    #[test]
+    fn faces_face_outward_and_every_triangle_has_a_material() {
+        let mesh = build(&TempleOptions::default());
+        assert_materials_and_no_repairs(&mesh, &["ground", "steps", "columns", "marble", "roof"], "temple");
+        let m = mesh.materials.as_ref().unwrap();
         // Outward: the ground faces +Y; every roof triangle faces up; each column triangle's
         // normal points away from its shaft axis (no face points into the solid).
         let normal = |t: &[u32; 3]| {

@@ -281,14 +281,18 @@ pub fn low_vs_all_figure(
             }
         }
     }
-    if let Some(s) = scale.filter(|_| f.pictures().any(|p| p.label.ends_with("|error|"))) {
-        f.add_colour_bar(out, s, REFERENCE_BAR)?;
-    }
+    reference_bar(&mut f, out, scale)?;
     Ok(f)
 }
 
-/// The text of a figure's colour bar for errors against the ground truth.
-const REFERENCE_BAR: &str = "luminance of |error| against the ground truth (linear radiance)";
+/// The colour bar, 0 to `scale`, under a figure whose panels include errors against the
+/// ground truth (labelled `...: |error|`); none without them.
+fn reference_bar(f: &mut FigureSet, out: &Path, scale: Option<f32>) -> Result<()> {
+    match scale.filter(|_| f.pictures().any(|p| p.label.ends_with("|error|"))) {
+        Some(s) => f.add_colour_bar(out, s, "luminance of |error| against the ground truth (linear radiance)"),
+        None => Ok(()),
+    }
+}
 
 /// Fig. 8: lossless biclustering at each local grid beside the paper's.
 pub fn fig8(ctx: &Context<'_>, runs: &[RunOutcome<'_>]) -> PaperTable {
@@ -445,9 +449,7 @@ pub fn fig6_figure(out: &Path, run: &RunOutcome<'_>) -> Result<FigureSet> {
             }
         }
     }
-    if let Some(s) = scale.filter(|_| f.pictures().any(|p| p.label.ends_with("|error|"))) {
-        f.add_colour_bar(out, s, REFERENCE_BAR)?;
-    }
+    reference_bar(&mut f, out, scale)?;
     Ok(f)
 }
 

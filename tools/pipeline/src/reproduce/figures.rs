@@ -62,20 +62,28 @@ impl FigureSet {
         self.panels.iter().filter(|p| !p.file.is_empty())
     }
 
+    /// A panel's file `figures/<id>/<name>.png` (relative to `out`) and its path, its folder
+    /// made.
+    fn destination(&self, out: &Path, name: &str) -> Result<(String, std::path::PathBuf)> {
+        let file = format!("figures/{}/{name}.png", self.id);
+        let dst = out.join(&file);
+        let dir = dst.parent().expect("a file under figures/");
+        std::fs::create_dir_all(dir).map_err(io_err(dir))?;
+        Ok((file, dst))
+    }
+
     /// Copy `from` (relative to the output folder `out`) into `figures/<id>/<name>.png` and add
     /// it as a panel.
     pub fn add(&mut self, out: &Path, from: &str, name: &str, label: impl Into<String>) -> Result<()> {
-        let file = format!("figures/{}/{name}.png", self.id);
-        let (src, dst) = (out.join(from), out.join(&file));
+        let src = out.join(from);
         if !src.is_file() {
             return Err(PipelineError::Mismatch {
                 path: src,
                 what: format!("figure {} needs this image, which its run did not write", self.id),
             });
         }
+        let (file, dst) = self.destination(out, name)?;
         if src != dst {
-            let dir = dst.parent().expect("a file under figures/");
-            std::fs::create_dir_all(dir).map_err(io_err(dir))?;
             std::fs::copy(&src, &dst).map_err(io_err(&dst))?;
         }
         self.panels.push(Panel { file, label: label.into(), source: from.into(), wide: false });
@@ -85,15 +93,13 @@ impl FigureSet {
     /// [`Self::add`] for an error figure whose panels share one scale: the run's picture
     /// without its colour bar (one bar for the figure follows, [`Self::add_colour_bar`]).
     pub fn add_error(&mut self, out: &Path, from: &str, name: &str, label: impl Into<String>) -> Result<()> {
-        let file = format!("figures/{}/{name}.png", self.id);
-        let (src, dst) = (out.join(from), out.join(&file));
+        let src = out.join(from);
         let mismatch = |path: &Path, what: String| PipelineError::Mismatch { path: path.to_path_buf(), what };
         let figure = image::open(&src)
             .map_err(|e| mismatch(&src, format!("figure {} needs this error image: {e}", self.id)))?
             .into_rgb8();
         let picture = crate::plots::without_colour_bar(&figure).map_err(|what| mismatch(&src, what))?;
-        let dir = dst.parent().expect("a file under figures/");
-        std::fs::create_dir_all(dir).map_err(io_err(dir))?;
+        let (file, dst) = self.destination(out, name)?;
         biscale_core::scene::image::write_rgb8_png(&picture, &dst)?;
         self.panels.push(Panel { file, label: label.into(), source: from.into(), wide: false });
         Ok(())
@@ -103,12 +109,9 @@ impl FigureSet {
     /// (`figures/<id>/colour-bar.png`): its text is sized for the figure's width
     /// ([`COLOUR_BAR_FONT`] pixels in [`COLOUR_BAR_WIDTH`]), so it stays readable in print.
     pub fn add_colour_bar(&mut self, out: &Path, scale: f32, label: &str) -> Result<()> {
-        let file = format!("figures/{}/colour-bar.png", self.id);
-        let dst = out.join(&file);
+        let (file, dst) = self.destination(out, "colour-bar")?;
         let bar = crate::plots::colour_bar(COLOUR_BAR_WIDTH, COLOUR_BAR_FONT, scale, label)
             .map_err(|what| PipelineError::Mismatch { path: dst.clone(), what })?;
-        let dir = dst.parent().expect("a file under figures/");
-        std::fs::create_dir_all(dir).map_err(io_err(dir))?;
         biscale_core::scene::image::write_rgb8_png(&bar, &dst)?;
         let source = format!("drawn by biscale reproduce (full scale {scale:.3e})");
         self.panels.push(Panel { file, label: String::new(), source, wide: true });
