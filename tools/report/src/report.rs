@@ -939,7 +939,8 @@ fn short_ms(ms: f64) -> String {
 }
 
 /// What the tables' LDR figures are (both reports).
-pub const LDR_NOTE: &str = "LDR PSNR / SSIM / FLIP: after the PNGs' tone map (x 2^exposure of `[report] exposure`, \
+pub const LDR_NOTE: &str =
+    "LDR PSNR / SSIM / FLIP: after the PNGs' tone map (x 2^exposure, the stops `tone_map` records, \
      clamped to [0, 1], sRGB-encoded), over the covered pixels: PSNR in dB with peak 1; SSIM with an 11x11 Gaussian \
      window (sigma 1.5), the mean of R, G and B (1 = equal); mean LDR FLIP of the 8-bit PNGs (0 = equal).";
 
