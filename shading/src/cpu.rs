@@ -21,12 +21,13 @@
 //! ([`Btf::view_weights`](biscale_core::scene::Btf::view_weights)) with the front side's `L*`.
 
 use crate::error::Result;
-use biscale_core::gather::moments::{Lobe, PointLanes, PointResolve};
+use crate::synth::Brdf;
+use biscale_core::gather::moments::{Lobe, PointLanes, PointResolve, LUMINANCE};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::geometry::VertexFrame;
 use biscale_core::scene::{Camera, HdrImage, Material, Render, ShadeScene};
 use biscale_core::Rgb;
-use glam::{Vec2, Vec3};
+use glam::{DVec3, Vec2, Vec3};
 use rayon::prelude::*;
 use std::cell::RefCell;
 
@@ -169,6 +170,86 @@ pub fn shade(scene: &ShadeScene, lstar: &LocalRadiance, camera: &Camera) -> Resu
 /// being split between two local directions by the blend of resolved rows. Errors as
 /// [`shade`] when a moment does not fit the scene.
 pub fn shade_moments(scene: &ShadeScene, moments: [&LocalRadiance; 3], lobe: Lobe, camera: &Camera) -> Result<Render> {
+    shade_moments_with(scene, moments, lobe, &[], camera)
+}
+
+/// [`shade_moments`] with each bin's light shaded by the material's own BRDF instead of its
+/// BTF's tables (`runtime.moments_resolve = "pixel_analytic"`), where `brdfs[i]` gives material
+/// `i` one (a flat analytic material, [`Brdf::eval`]); any other material is shaded as
+/// [`shade_moments`] shades it.
+///
+/// At a hit with frame `(t, b, n)` and view `v` the three blended moments give each bin `j`
+/// its radiance-weighted direction sum `D_j` per RGB channel, and the pixel is
+/// `sum_j f(w_j, v) (n . D_j)`, `w_j` the luminance-weighted direction of `D_j` in the hit's
+/// frame and `f` the BRDF evaluated there, at the pixel's exact view: no light grid and no view
+/// grid, so the BTF's tabulation (the largest glossy term, BENCHMARKS "Glossy fidelity")
+/// is gone. What is left is the bin's own approximation: its light all at one mean direction,
+/// exact for a bin lit from one texel (a sun) and for a constant BRDF (Lambertian: the
+/// exact-cosine irradiance times `albedo / pi`), and the interpolation of the moments across
+/// the triangle. A view below the hit's horizon is taken on it at its azimuth, as the
+/// analytic reference takes it ([`crate::reference::render_reference`]).
+pub fn shade_moments_analytic(
+    scene: &ShadeScene,
+    moments: [&LocalRadiance; 3],
+    brdfs: &[Option<Brdf>],
+    camera: &Camera,
+) -> Result<Render> {
+    shade_moments_with(scene, moments, Lobe::MeanDirection, brdfs, camera)
+}
+
+/// `sum_j f(w_j, view) (n . D_j)` at one hit (see [`shade_moments_analytic`]): `along[a][j]`
+/// is `D_j`'s world component `a` per channel, `frame` the hit's frame, `view` its view
+/// direction in that frame (above the horizon).
+pub fn analytic_resolve(brdf: &Brdf, frame: &VertexFrame, along: [&[[f64; 3]]; 3], view: DVec3) -> [f64; 3] {
+    let (t, b, n) = (frame.tangent.as_dvec3(), frame.bitangent.as_dvec3(), frame.normal.as_dvec3());
+    let mut sum = [0.0f64; 3];
+    for ((x, y), z) in along[0].iter().zip(along[1]).zip(along[2]) {
+        let d: [DVec3; 3] = std::array::from_fn(|c| DVec3::new(x[c], y[c], z[c]));
+        let power = d.map(|d| n.dot(d));
+        if power == [0.0; 3] {
+            continue;
+        }
+        let w = d[0] * LUMINANCE[0] + d[1] * LUMINANCE[1] + d[2] * LUMINANCE[2];
+        let local = DVec3::new(w.dot(t), w.dot(b), w.dot(n));
+        // Zero light, or light whose mean comes from below the hit's horizon: the BRDF is 0.
+        let Some(local) = local.try_normalize().filter(|l| l.z > 0.0) else { continue };
+        let f = brdf.eval(local, view);
+        for c in 0..3 {
+            sum[c] += f[c] * power[c];
+        }
+    }
+    sum
+}
+
+/// `v` normalised, with its elevation clamped to a hair above the horizon (azimuth kept): how
+/// the analytic shaders take a view below the interpolated normal's horizon (near
+/// silhouettes), as the BTF's view grid takes it.
+pub(crate) fn above_horizon(v: DVec3) -> DVec3 {
+    const MIN_Z: f64 = 1e-6;
+    let v = v.normalize_or(DVec3::Z);
+    match v.z >= MIN_Z {
+        true => v,
+        false => {
+            let xy = (v.x * v.x + v.y * v.y).sqrt();
+            match xy > 0.0 {
+                true => {
+                    let s = (1.0 - MIN_Z * MIN_Z).sqrt() / xy;
+                    DVec3::new(v.x * s, v.y * s, MIN_Z)
+                }
+                false => DVec3::Z,
+            }
+        }
+    }
+}
+
+/// [`shade_moments`], with the materials `brdfs` names shaded by [`analytic_resolve`].
+fn shade_moments_with(
+    scene: &ShadeScene,
+    moments: [&LocalRadiance; 3],
+    lobe: Lobe,
+    brdfs: &[Option<Brdf>],
+    camera: &Camera,
+) -> Result<Render> {
     camera.validate()?;
     for m in moments {
         scene.check_lstar(m)?;
@@ -182,7 +263,8 @@ pub fn shade_moments(scene: &ShadeScene, moments: [&LocalRadiance; 3], lobe: Lob
         static WORK: RefCell<Option<Work>> = const { RefCell::new(None) };
     }
     Ok(render_rows(scene, camera, &|| {}, &|p, acc, scratch| {
-        WORK.with(|work| {
+        let analytic = brdfs.get(scene.material_index(p.triangle)).and_then(Option::as_ref);
+        let shaded = WORK.with(|work| {
             let mut work = work.borrow_mut();
             if work.as_ref().is_none_or(|(k, ..)| *k != m) {
                 *work = Some((m, vec![[0.0f64; 3]; 3 * m], point.lanes()));
@@ -193,9 +275,18 @@ pub fn shade_moments(scene: &ShadeScene, moments: [&LocalRadiance; 3], lobe: Lob
             }
             let (x, rest) = rows.split_at(m);
             let (y, z) = rest.split_at(m);
-            point.resolve_lanes(lanes, &p.frame, [x, y, z], acc);
+            match analytic {
+                Some(brdf) => {
+                    let view = above_horizon(p.view_local.as_dvec3());
+                    Some(analytic_resolve(brdf, &p.frame, [x, y, z], view).map(|v| v as f32))
+                }
+                None => {
+                    point.resolve_lanes(lanes, &p.frame, [x, y, z], acc);
+                    None
+                }
+            }
         });
-        shade_point(scene.material(p.triangle), p.uv, p.view_local, acc, scratch)
+        shaded.unwrap_or_else(|| shade_point(scene.material(p.triangle), p.uv, p.view_local, acc, scratch))
     }))
 }
 

@@ -10,6 +10,7 @@
 //! | `vertex` | per vertex with light moments, interpolated | the BTF as every run shades it |
 //! | `vertex_paper` | per vertex, the paper's bins, interpolated | same |
 //! | `pixel_resolve` | the moments' three gathers per vertex, interpolated, resolved at the pixel's own frame (`runtime.moments_resolve = "pixel"`) | same |
+//! | `pixel_analytic` | same | the analytic BRDF at each bin's mean light direction and the pixel's view (`runtime.moments_resolve = "pixel_analytic"`) |
 //!
 //! The terms: `table` vs `exact` is the tabulation of the BRDF on the light and view grids;
 //! `binned` vs `table` the bin rule (each texel by its bin's mean cosine, the BRDF at the bin
@@ -18,7 +19,9 @@
 //! of the paper's `L*`; `pixel_resolve` vs `table` what is left of it when the moments (world
 //! space directions) are interpolated and resolved per pixel, so a sharp light falling in
 //! different bins of neighbouring vertices' frames is not split between two local directions;
-//! and each vertex image against `exact` the whole. They need not add up
+//! `pixel_analytic` vs `exact` what is left without the tables (each bin's light at its mean
+//! direction, the interpolation of the moments); and each vertex image against `exact` the
+//! whole. They need not add up
 //! (errors of opposite sign cancel). All share `T`'s visibility (cubemap texels, 2x2 box
 //! filter), which only a finer `[transfer]` changes; rerun with `--set` to see those terms.
 //! Prints one JSON object.
@@ -36,7 +39,7 @@ use biscale::store::RunOptions;
 use biscale_core::gather::moments::{exact_moments_product, LightMoments, Lobe};
 use biscale_core::gather::{reference_product, LocalRadiance};
 use biscale_core::transfer::VisibilitySampler;
-use biscale_shading::cpu::{shade, shade_moments};
+use biscale_shading::cpu::{shade, shade_moments, shade_moments_analytic};
 use biscale_shading::image::compare;
 use biscale_shading::reference::{render_reference, ReferenceRule};
 use std::path::PathBuf;
@@ -90,8 +93,9 @@ fn main() -> Result<()> {
         .iter()
         .map(|l| LocalRadiance::from_f64(basis, t.vertices(), &reference_product(&t, l)))
         .collect::<std::result::Result<_, _>>()?;
-    let pixel_resolve =
-        shade_moments(&scene, [&gathered[0], &gathered[1], &gathered[2]], Lobe::MeanDirection, &camera)?;
+    let g = [&gathered[0], &gathered[1], &gathered[2]];
+    let pixel_resolve = shade_moments(&scene, g, Lobe::MeanDirection, &camera)?;
+    let pixel_analytic = shade_moments_analytic(&scene, g, brdfs, &camera)?;
     let mask = &exact.mask;
     let rel = |a: &biscale_core::scene::Render, b: &biscale_core::scene::Render| -> Result<f64> {
         Ok(compare(&a.image, &b.image, Some(mask))?.rel_l2)
@@ -110,6 +114,7 @@ fn main() -> Result<()> {
             "vertex interpolation, moments (vertex vs table)": rel(&vertex, &table)?,
             "vertex interpolation, paper (vertex_paper vs binned)": rel(&vertex_paper, &binned)?,
             "moments resolved per pixel (pixel_resolve vs table)": rel(&pixel_resolve, &table)?,
+            "moments resolved per pixel, analytic BRDF (pixel_analytic vs exact)": rel(&pixel_analytic, &exact)?,
         },
         "against_exact": {
             "table": rel(&table, &exact)?,
@@ -117,6 +122,7 @@ fn main() -> Result<()> {
             "vertex": rel(&vertex, &exact)?,
             "vertex_paper": rel(&vertex_paper, &exact)?,
             "pixel_resolve": rel(&pixel_resolve, &exact)?,
+            "pixel_analytic": rel(&pixel_analytic, &exact)?,
         },
         "seconds": start.elapsed().as_secs_f64(),
     });

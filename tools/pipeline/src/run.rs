@@ -161,11 +161,19 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     ctx.clock.mark("materials");
     crate::estimate::check_peak(&memory, &available, "the materials")?;
     let analytic = materials.analytic.clone();
+    if exp.file.runtime.resolve_analytic() && analytic.iter().all(Option::is_none) {
+        crate::util::warn(format!(
+            "runtime.moments_resolve = \"pixel_analytic\": no material is a flat analytic BRDF ({}), so every \
+             pixel is resolved from the BTF's tables, as with \"pixel\"",
+            materials.reference_shading()
+        ));
+    }
     let view = View {
         scene: &scene,
         camera: geometry.camera(exp, 1),
         background: lighting.background(exp),
         analytic: &analytic,
+        moments_analytic: exp.file.runtime.resolve_analytic(),
     };
     // The machine's load around the timed steps: from the uncompressed gather to the last method.
     let load_before = load_average_1min();
@@ -410,11 +418,7 @@ pub(crate) fn metrics_of_run(
             gather_timing: Some(base.gather_timing),
             shade_timing: Some(base.shade_timing),
             light_moments: exp.file.runtime.light_moments,
-            moments_resolve: exp
-                .file
-                .runtime
-                .light_moments
-                .then(|| if exp.file.runtime.resolve_per_pixel() { "pixel" } else { "vertex" }.to_string()),
+            moments_resolve: exp.file.runtime.moments_resolve_name().map(str::to_string),
             // Same camera, same size: compare cannot fail here.
             paper_vs_moments: base.paper.as_ref().and_then(|(_, paper)| {
                 let exposure = tone.exposure;

@@ -775,9 +775,11 @@ pub struct RuntimeConfig {
     #[serde(default)]
     pub light_moments: bool,
     /// With light moments, where they are resolved into the `L*` the BTF is dotted with:
-    /// `vertex` (default: at each vertex, then blended) or `pixel` (the three gathered moments
+    /// `vertex` (default: at each vertex, then blended), `pixel` (the three gathered moments
     /// blended and resolved at every shading point's own frame; `biscale_shading::cpu::
-    /// shade_moments`; CPU backend only).
+    /// shade_moments`; CPU backend only) or `pixel_analytic` (as `pixel`, and each bin's light
+    /// shaded by a flat analytic material's own BRDF at its mean direction and the pixel's
+    /// view instead of the BTF's tables; `shade_moments_analytic`).
     #[serde(default)]
     pub moments_resolve: Option<Spanned<MomentsResolve>>,
     /// Rays per pixel for anti-aliasing, a square (1, 4, 9, ...; a stratified box filter,
@@ -833,9 +835,23 @@ fn default_animation_fps() -> u32 {
 pub const MAX_ANIMATION_FRAMES: u32 = 720;
 
 impl RuntimeConfig {
-    /// Whether the run resolves the light moments per pixel (`moments_resolve = "pixel"`).
+    /// Whether the run resolves the light moments per pixel (`moments_resolve = "pixel"` or
+    /// `"pixel_analytic"`).
     pub fn resolve_per_pixel(&self) -> bool {
-        self.light_moments && self.moments_resolve.as_ref().is_some_and(|m| *m.get_ref() == MomentsResolve::Pixel)
+        self.light_moments && self.moments_resolve.as_ref().is_some_and(|m| m.get_ref().per_pixel())
+    }
+
+    /// Whether the per-pixel resolve shades analytic materials with their own BRDF
+    /// (`moments_resolve = "pixel_analytic"`).
+    pub fn resolve_analytic(&self) -> bool {
+        self.light_moments
+            && self.moments_resolve.as_ref().is_some_and(|m| *m.get_ref() == MomentsResolve::PixelAnalytic)
+    }
+
+    /// `metrics.json`'s `moments_resolve`: the config's value, `None` without light moments.
+    pub fn moments_resolve_name(&self) -> Option<&'static str> {
+        self.light_moments
+            .then(|| self.moments_resolve.as_ref().map_or(MomentsResolve::Vertex, |m| *m.get_ref()).name())
     }
 
     /// The rays per pixel every render of the run takes: the config's, else 4.
@@ -851,6 +867,23 @@ pub enum MomentsResolve {
     #[default]
     Vertex,
     Pixel,
+    PixelAnalytic,
+}
+
+impl MomentsResolve {
+    /// The config's spelling.
+    pub fn name(self) -> &'static str {
+        match self {
+            MomentsResolve::Vertex => "vertex",
+            MomentsResolve::Pixel => "pixel",
+            MomentsResolve::PixelAnalytic => "pixel_analytic",
+        }
+    }
+
+    /// Whether the moments are resolved at every shading point.
+    pub fn per_pixel(self) -> bool {
+        self != MomentsResolve::Vertex
+    }
 }
 
 #[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
@@ -1376,16 +1409,18 @@ fn check_runtime(file: &ExperimentFile, path: &Path, err: &Locate<'_>) -> Result
             return Err(err(s.span(), format!("runtime.samples_per_pixel {what}")));
         }
     }
-    if let Some(r) = file.runtime.moments_resolve.as_ref().filter(|r| *r.get_ref() == MomentsResolve::Pixel) {
+    if let Some(r) = file.runtime.moments_resolve.as_ref().filter(|r| r.get_ref().per_pixel()) {
+        let name = r.get_ref().name();
         if !file.runtime.light_moments {
             return Err(err(
                 r.span(),
-                "runtime.moments_resolve = \"pixel\" resolves light moments: set runtime.light_moments = true"
-                    .to_string(),
+                format!(
+                    "runtime.moments_resolve = \"{name}\" resolves light moments: set runtime.light_moments = true"
+                ),
             ));
         }
         if file.runtime.backend == Backend::Gpu {
-            return Err(err(r.span(), "runtime.moments_resolve = \"pixel\" shades on the CPU only: set runtime.backend = \"cpu\" (the wgpu shader resolves per vertex)".to_string()));
+            return Err(err(r.span(), format!("runtime.moments_resolve = \"{name}\" shades on the CPU only: set runtime.backend = \"cpu\" (the wgpu shader resolves per vertex)")));
         }
     }
     in_range(&file.report.reference_downscale, 1, 64, "report.reference_downscale", err)?;
@@ -1868,6 +1903,19 @@ mod tests {
         let e = rt("light_moments = true\nbackend = \"gpu\"\nmoments_resolve = \"pixel\"\n").unwrap_err().to_string();
         assert!(e.contains("shades on the CPU only"), "{e}");
         assert!(rt("light_moments = true\nmoments_resolve = \"texel\"\n").is_err());
+        // The analytic resolve is a per-pixel one, with the same requirements.
+        let runtime = |extra: &str| parse(&format!("{OK}[runtime]\n{extra}")).map(|e| e.file.runtime);
+        let r = runtime("light_moments = true\nmoments_resolve = \"pixel_analytic\"\n").unwrap();
+        assert!(r.resolve_per_pixel() && r.resolve_analytic());
+        assert_eq!(r.moments_resolve_name(), Some("pixel_analytic"));
+        let r = runtime("light_moments = true\nmoments_resolve = \"pixel\"\n").unwrap();
+        assert!(!r.resolve_analytic() && r.moments_resolve_name() == Some("pixel"));
+        assert_eq!(runtime("light_moments = true\n").unwrap().moments_resolve_name(), Some("vertex"));
+        assert_eq!(runtime("").unwrap().moments_resolve_name(), None);
+        let e = rt("moments_resolve = \"pixel_analytic\"\n").unwrap_err().to_string();
+        assert!(e.contains(":7:19: runtime.moments_resolve = \"pixel_analytic\" resolves light moments"), "{e}");
+        let e = rt("light_moments = true\nbackend = \"gpu\"\nmoments_resolve = \"pixel_analytic\"\n").unwrap_err();
+        assert!(e.to_string().contains("\"pixel_analytic\" shades on the CPU only"), "{e}");
     }
 
     #[test]

@@ -23,9 +23,11 @@ pub fn shade_image(exp: &Experiment, lstar: &[[f32; 3]], opts: &RunOptions) -> R
     if exp.file.runtime.resolve_per_pixel() {
         return Err(PipelineError::Mismatch {
             path: exp.config_path.clone(),
-            what: "runtime.moments_resolve = \"pixel\" shades the three moment gathers, which an L* does not hold: \
-                   shade it with runtime.moments_resolve = \"vertex\""
-                .into(),
+            what: format!(
+                "runtime.moments_resolve = \"{}\" shades the three moment gathers, which an L* does not hold: \
+                 shade it with runtime.moments_resolve = \"vertex\"",
+                exp.file.runtime.moments_resolve_name().unwrap_or("pixel")
+            ),
         });
     }
     let geometry = load_geometry(exp)?;
@@ -80,6 +82,7 @@ fn with_view<R>(
         camera: geometry.camera(exp, 1),
         background: lighting.background(exp),
         analytic: &materials.analytic,
+        moments_analytic: exp.file.runtime.resolve_analytic(),
     };
     f(&geometry, &view, &t, &lighting)
 }

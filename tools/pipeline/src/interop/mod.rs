@@ -798,9 +798,11 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
     if matches!(input, EvalInput::Lstar(_)) && exp.file.runtime.resolve_per_pixel() {
         return Err(PipelineError::Mismatch {
             path: exp.config_path.clone(),
-            what: "runtime.moments_resolve = \"pixel\" shades the three moment gathers, which an L* file does not \
-                   hold: score it with --set runtime.moments_resolve=\"vertex\", or score a form (--form)"
-                .into(),
+            what: format!(
+                "runtime.moments_resolve = \"{}\" shades the three moment gathers, which an L* file does not \
+                 hold: score it with --set runtime.moments_resolve=\"vertex\", or score a form (--form)",
+                exp.file.runtime.moments_resolve_name().unwrap_or("pixel")
+            ),
         });
     }
     let loaded = match input {
@@ -853,6 +855,7 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
         camera: geometry.camera(exp, 1),
         background: lighting.background(exp),
         analytic: &materials.analytic,
+        moments_analytic: exp.file.runtime.resolve_analytic(),
     };
     let reference = Plan::new(exp).reference;
     let (images, cache) = (ctx.images_dir(), ctx.cache.as_ref());

@@ -17,7 +17,7 @@ use biscale_core::geometry::VertexFrame;
 use biscale_core::sampling::LightVector;
 use biscale_core::scene::{Background, Camera, HdrImage, Render, ShadeScene};
 use biscale_core::transfer::{TransferMatrix, TransferView, VisibilitySampler};
-use biscale_shading::cpu::{shade, shade_moments};
+use biscale_shading::cpu::{shade, shade_moments, shade_moments_analytic};
 use biscale_shading::image::{compare_exposed, ImageMetrics};
 use biscale_shading::reference::ReferenceRule;
 use biscale_shading::synth::Brdf;
@@ -264,6 +264,10 @@ pub(crate) struct View<'a> {
     /// The BRDF of each material of `scene` that is one (`SceneMaterials::analytic`): the
     /// reference evaluates it exactly.
     pub analytic: &'a [Option<Brdf>],
+    /// `runtime.moments_resolve = "pixel_analytic"`: the per-pixel resolve shades the
+    /// materials `analytic` names with their own BRDF
+    /// (`biscale_shading::cpu::shade_moments_analytic`).
+    pub moments_analytic: bool,
 }
 
 impl View<'_> {
@@ -277,7 +281,10 @@ impl View<'_> {
         match shaded {
             Shaded::Lstar(lstar) => self.render(lstar, camera),
             Shaded::Moments(m) => {
-                let render = shade_moments(self.scene, m, Lobe::MeanDirection, camera)?;
+                let render = match self.moments_analytic {
+                    true => shade_moments_analytic(self.scene, m, self.analytic, camera)?,
+                    false => shade_moments(self.scene, m, Lobe::MeanDirection, camera)?,
+                };
                 Ok(render.with_background(camera, &self.background))
             }
         }

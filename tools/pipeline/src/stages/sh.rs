@@ -328,6 +328,7 @@ pub(crate) fn evaluate(
         camera: inp.view.camera,
         background: inp.view.background,
         analytic: inp.view.analytic,
+        moments_analytic: inp.view.moments_analytic,
     };
     let exact = reference_product(&m, &light);
     let mut gpu = match gpu {
