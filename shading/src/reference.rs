@@ -679,9 +679,9 @@ mod tests {
         let err = |r: &Render| compare(&r.image, &exact.image, Some(&exact.mask)).unwrap().rel_l2;
         let (t, a) = (err(&table), err(&analytic));
         eprintln!("glossy sphere under a sun, vs the analytic reference: tables {t:.4}, analytic {a:.4}");
-        // Measured 0.41 through the tables and 0.0017 analytic (what is left: the moments'
-        // interpolation over the coarse sphere's triangles, the sky's bins at their mean
-        // directions). 0.01 leaves 6x room and fails on a view or light in the wrong frame.
+        // Measured 0.41 through the tables and 0.0009 analytic (what is left: the vertices'
+        // visibility blended over the sphere's triangles, the sky's bins at their mean
+        // directions). 0.01 leaves 10x room and fails on a view or light in the wrong frame.
         assert!(a < 0.01 && a < 0.1 * t, "analytic {a} vs tables {t}");
         // Without a BRDF for the material the tables shade it: the same image as shade_moments.
         let none = shade_moments_analytic(&scene, g, &[None], &camera).unwrap();
