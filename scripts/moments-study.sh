@@ -10,7 +10,9 @@
 #
 # The glossy case: configs/glossy_ggx_bunny.toml, the bunny as a flat GGX rough conductor
 # (aluminium-like, alpha 0.15) under the forest sky (the brightest compact sun), raw sparse and
-# lossless bicluster compressors; its row in the first table has no lossy bicluster.
+# lossless bicluster compressors; its row in the first table has no lossy bicluster. It runs
+# twice: as configured (the BTF's tables, 8x8 bins) and with `moments_resolve = "pixel_analytic"`
+# on 16x16 bins (the GGX BRDF itself at each bin's mean direction, shaded per pixel).
 #
 # With Mitsuba 3 in .venv (scripts/setup-python.sh --mitsuba) every run without a boosted sun is
 # also checked against Mitsuba's direct-light render (scripts/mitsuba_check.py, 1024 spp, two
@@ -20,7 +22,8 @@
 # Usage: scripts/moments-study.sh            (about 10 minutes on 2 cores with the Mitsuba check)
 #   SKIP_BENCH=1 leaves out the gather timing; SKIP_MITSUBA=1 the Mitsuba check;
 #   REUSE=1 keeps runs already in out/moments.
-# Writes out/moments/<sky>/ (one run each) and out/moments/glossy-ggx/, and prints Markdown tables.
+# Writes out/moments/<sky>/ (one run each), out/moments/glossy-ggx/ and glossy-ggx-analytic/,
+# and prints Markdown tables.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD
@@ -83,6 +86,14 @@ echo "== glossy-ggx" >&2
 if [ -z "${REUSE:-}" ] || [ ! -f "$out/glossy-ggx/metrics.json" ]; then
     "$B" run "$glossy_cfg" --out "$out/glossy-ggx" 2>"$out/glossy-ggx.log" || { cat "$out/glossy-ggx.log" >&2; exit 1; }
 fi
+# The same scene resolved per pixel with the GGX BRDF itself (no BTF tables) on 16x16 bins:
+# the setting of BENCHMARKS' "analytic resolve" rows.
+analytic_sets=(--set 'runtime.moments_resolve="pixel_analytic"' --set transfer.local_grid=16 --set scene.material.view_grid=32)
+echo "== glossy-ggx-analytic" >&2
+if [ -z "${REUSE:-}" ] || [ ! -f "$out/glossy-ggx-analytic/metrics.json" ]; then
+    "$B" run "$glossy_cfg" "${analytic_sets[@]}" --out "$out/glossy-ggx-analytic" 2>"$out/glossy-ggx-analytic.log" ||
+        { cat "$out/glossy-ggx-analytic.log" >&2; exit 1; }
+fi
 
 python3 - "$out" <<'PY'
 import json, sys, os
@@ -96,13 +107,15 @@ for name in ["courtyard", "forest", "studio", "sunset", "apartment", "sunset-sun
     vs = lambda c: c["image"]["vs_reference"]["rel_l2"]
     print(f"| {name} | {u['paper_vs_moments']['rel_l2']:.4f} | {r['uncompressed_paper_vs_reference']['rel_l2']:.4f} "
           f"| {r['uncompressed_vs_reference']['rel_l2']:.4f} | {vs(cs[0]):.4f} | {vs(cs[1]):.4f} | {cs[0]['gather_ms']:.2f} |")
-# The glossy case (configs/glossy_ggx_bunny.toml): its compressors are sparse and the lossless
-# bicluster, found by name; it has no lossy one.
-m = json.load(open(os.path.join(out, "glossy-ggx", "metrics.json")))
-u, r = m["uncompressed"], m["reference"]
-c = {x["name"]: x for x in m["compressors"]}["bicluster-b1024"]
-print(f"| glossy-ggx (GGX Al, forest) | {u['paper_vs_moments']['rel_l2']:.4f} | {r['uncompressed_paper_vs_reference']['rel_l2']:.4f} "
-      f"| {r['uncompressed_vs_reference']['rel_l2']:.4f} | {c['image']['vs_reference']['rel_l2']:.4f} | - | {c['gather_ms']:.2f} |")
+# The glossy case (configs/glossy_ggx_bunny.toml), with the tables and with the analytic
+# resolve: its compressors are sparse and the lossless bicluster, found by name; no lossy one.
+for name, label in [("glossy-ggx", "glossy-ggx (GGX Al, forest)"),
+                    ("glossy-ggx-analytic", "glossy-ggx, analytic resolve, 16x16 bins")]:
+    m = json.load(open(os.path.join(out, name, "metrics.json")))
+    u, r = m["uncompressed"], m["reference"]
+    c = {x["name"]: x for x in m["compressors"]}["bicluster-b1024"]
+    print(f"| {label} | {u['paper_vs_moments']['rel_l2']:.4f} | {r['uncompressed_paper_vs_reference']['rel_l2']:.4f} "
+          f"| {r['uncompressed_vs_reference']['rel_l2']:.4f} | {c['image']['vs_reference']['rel_l2']:.4f} | - | {c['gather_ms']:.2f} |")
 PY
 if [ -z "${SKIP_MITSUBA:-}" ] && [ -x .venv/bin/python ] && .venv/bin/python -c "import mitsuba" 2>/dev/null; then
     echo
@@ -124,17 +137,21 @@ for name in ["courtyard", "forest", "studio", "sunset", "apartment"]:
           f"| {i['paper']:.4f} | {i['exact_cosine']:.4f} | {i['mitsuba_noise']:.4f} |")
 PY
     "$B" export-matrix "$glossy_cfg" --out "$out/glossy-ggx-scene" >/dev/null 2>&1
-    .venv/bin/python scripts/mitsuba_check.py "$out/glossy-ggx-scene" "$out/glossy-ggx" --spp 1024 --json >"$out/glossy-ggx-mitsuba.json"
+    for name in glossy-ggx glossy-ggx-analytic; do
+        .venv/bin/python scripts/mitsuba_check.py "$out/glossy-ggx-scene" "$out/$name" --spp 1024 --json >"$out/$name-mitsuba.json"
+    done
     echo
     echo "| glossy case | Mitsuba 3 vs paper: full frame | interior | vs moments: full frame | interior | lossless bicluster (moments): interior | Mitsuba noise (mean of 2 seeds): full frame | interior |"
     echo "|---|---|---|---|---|---|---|---|"
     python3 - "$out" <<'PY'
 import json, os, sys
-o = json.load(open(os.path.join(sys.argv[1], "glossy-ggx-mitsuba.json")))
-r = {x["image"]: x for x in o["rows"]}
-p, m, l, n = r["uncompressed_paper"], r["uncompressed"], r["bicluster-b1024"], o["mitsuba_noise"]
-print(f"| glossy-ggx (GGX Al, forest) | {p['full_frame']:.4f} | {p['interior']:.4f} | {m['full_frame']:.4f} | {m['interior']:.4f} "
-      f"| {l['interior']:.4f} | {n['full_frame']:.4f} | {n['interior']:.4f} |")
+for name, label in [("glossy-ggx", "glossy-ggx (GGX Al, forest)"),
+                    ("glossy-ggx-analytic", "glossy-ggx, analytic resolve, 16x16 bins")]:
+    o = json.load(open(os.path.join(sys.argv[1], name + "-mitsuba.json")))
+    r = {x["image"]: x for x in o["rows"]}
+    p, m, l, n = r["uncompressed_paper"], r["uncompressed"], r["bicluster-b1024"], o["mitsuba_noise"]
+    print(f"| {label} | {p['full_frame']:.4f} | {p['interior']:.4f} | {m['full_frame']:.4f} | {m['interior']:.4f} "
+          f"| {l['interior']:.4f} | {n['full_frame']:.4f} | {n['interior']:.4f} |")
 PY
 fi
 if [ -z "${SKIP_BENCH:-}" ]; then

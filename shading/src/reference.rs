@@ -582,9 +582,10 @@ mod tests {
         let err = |r: &Render| compare(&r.image, &reference.image, Some(&reference.mask)).unwrap().rel_l2;
         let (v, p) = (err(&per_vertex), err(&per_pixel));
         eprintln!("sphere under a sun, vs the per-pixel reference: per vertex {v:.4}, per pixel {p:.4}");
-        // Measured 0.82 per vertex and 0.032 per pixel: the coarse sphere's vertices put the sun in
-        // different bins of their frames. 0.1 leaves 3x room and fails on a wrong frame or blend.
-        assert!(p < 0.1 && p < 0.25 * v, "per pixel {p} vs per vertex {v}");
+        // Measured 0.82 per vertex and 0.0059 per pixel (0.032 when the moments were blended
+        // before the resolve): the coarse sphere's vertices put the sun in different bins of
+        // their frames. 0.03 leaves 5x room and fails on a wrong frame or blend.
+        assert!(p < 0.03 && p < 0.25 * v, "per pixel {p} vs per vertex {v}");
         // A moment that does not fit the scene is an error, not a panic.
         let short = LocalRadiance::zeros(settings.local_basis(), 3);
         assert!(shade_moments(&scene, [&short, g[1], g[2]], lobe, &camera).is_err());
