@@ -9,16 +9,16 @@
 //! | `binned` | per pixel, the paper's bins (bin-mean cosine) | the BTF at the bin centres |
 //! | `vertex` | per vertex with light moments, interpolated | the BTF as every run shades it |
 //! | `vertex_paper` | per vertex, the paper's bins, interpolated | same |
-//! | `pixel_resolve` | the moments' three gathers per vertex, interpolated, resolved at the pixel's own frame (`runtime.moments_resolve = "pixel"`) | same |
-//! | `pixel_analytic` | same | the analytic BRDF at each bin's mean light direction and the pixel's view (`runtime.moments_resolve = "pixel_analytic"`) |
+//! | `pixel_resolve` | the moments' three gathers per vertex, each vertex's resolved at the pixel's own frame, blended (`runtime.moments_resolve = "pixel"`) | same |
+//! | `pixel_analytic` | the moments' three gathers per vertex | the analytic BRDF at each of a vertex's bins' mean light direction and the pixel's view, the three vertices blended (`runtime.moments_resolve = "pixel_analytic"`) |
 //!
 //! The terms: `table` vs `exact` is the tabulation of the BRDF on the light and view grids;
 //! `binned` vs `table` the bin rule (each texel by its bin's mean cosine, the BRDF at the bin
 //! centre) per pixel; `vertex` vs `table` the vertex interpolation of the moments' `L*` (with
 //! the resolve's own mean-direction rule); `vertex_paper` vs `binned` the vertex interpolation
 //! of the paper's `L*`; `pixel_resolve` vs `table` what is left of it when the moments (world
-//! space directions) are interpolated and resolved per pixel, so a sharp light falling in
-//! different bins of neighbouring vertices' frames is not split between two local directions;
+//! space directions) are resolved per pixel, so a sharp light falling in different bins of
+//! neighbouring vertices' frames is not split between two local directions;
 //! `pixel_analytic` vs `exact` what is left without the tables (each bin's light at its mean
 //! direction, the interpolation of the moments); and each vertex image against `exact` the
 //! whole. They need not add up

@@ -487,8 +487,8 @@ pub struct UncompressedMetrics {
     /// `[runtime] light_moments`: every `L*` of the run weights texels by their own cosine.
     pub light_moments: bool,
     /// With light moments, `[runtime] moments_resolve`: `vertex` (each vertex's three moment
-    /// gathers resolved into its `L*`, interpolated), `pixel` (the moment gathers
-    /// interpolated and resolved per pixel) or `pixel_analytic` (resolved per pixel with a flat
+    /// gathers resolved into its `L*`, interpolated), `pixel` (each vertex's moment gathers
+    /// resolved at every pixel's frame, then blended) or `pixel_analytic` (resolved per pixel with a flat
     /// analytic material's own BRDF). Absent without moments, and in older records.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub moments_resolve: Option<String>,

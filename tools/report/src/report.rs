@@ -1122,16 +1122,16 @@ pub(crate) fn light_moments_summary(m: &Metrics) -> String {
     );
     match m.uncompressed.moments_resolve.as_deref() {
         Some("pixel") => s.push_str(
-            " Resolved per pixel (`[runtime] moments_resolve = \"pixel\"`): the three moment gathers are \
-             interpolated across each triangle and resolved at every pixel, so no image \
-             of this run shades an interpolated L*.",
+            " Resolved per pixel (`[runtime] moments_resolve = \"pixel\"`): each vertex's three moment \
+             gathers are resolved at every pixel's own frame and the resolved rows blended across the \
+             triangle, so no image of this run shades an L* resolved in the vertices' frames.",
         ),
         Some("pixel_analytic") => s.push_str(
             " Resolved per pixel with the analytic BRDF (`[runtime] moments_resolve = \"pixel_analytic\"`): \
-             the three moment gathers are interpolated across each triangle, and at every pixel each \
-             local bin's light is shaded by the material's own BRDF at the bin's mean light direction \
-             and the pixel's view, not by the BTF's light and view tables (flat analytic materials; \
-             any other material is resolved from its tables as with `\"pixel\"`).",
+             at every pixel each local bin of the triangle's vertices is shaded by the material's own \
+             BRDF at the bin's mean light direction and the pixel's view, not by the BTF's light and \
+             view tables, and the three vertices blended (flat analytic materials; any other \
+             material is resolved from its tables as with `\"pixel\"`).",
         ),
         Some(_) => s.push_str(
             " Resolved per vertex (`[runtime] moments_resolve = \"vertex\"`): each vertex's L* is interpolated \

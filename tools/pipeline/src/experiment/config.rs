@@ -775,9 +775,9 @@ pub struct RuntimeConfig {
     #[serde(default)]
     pub light_moments: bool,
     /// With light moments, where they are resolved into the `L*` the BTF is dotted with:
-    /// `vertex` (default: at each vertex, then blended), `pixel` (the three gathered moments
-    /// blended and resolved at every shading point's own frame; `biscale_shading::cpu::
-    /// shade_moments`; CPU backend only) or `pixel_analytic` (as `pixel`, and each bin's light
+    /// `vertex` (default: at each vertex, then blended), `pixel` (each vertex's three gathered
+    /// moments resolved at every shading point's own frame, then blended; `biscale_shading::
+    /// cpu::shade_moments`; CPU backend only) or `pixel_analytic` (as `pixel`, and each bin's light
     /// shaded by a flat analytic material's own BRDF at its mean direction and the pixel's
     /// view instead of the BTF's tables; `shade_moments_analytic`).
     #[serde(default)]
