@@ -269,16 +269,15 @@ fn shade_moments_with(
     }
     let point = PointResolve::new(scene.local_basis(), lobe)?;
     let m = scene.local_basis().len();
-    /// A worker's bin count, one vertex's three moments (`3 M` rows), its resolved rows (`M`)
-    /// and the resolve's lanes.
-    type Work = (usize, Vec<[f64; 3]>, Vec<[f64; 3]>, PointLanes);
+    /// A worker's bin count, one vertex's resolved rows (`M`) and the resolve's lanes.
+    type Work = (usize, Vec<[f64; 3]>, PointLanes);
     thread_local! {
         // Kept across a worker's hits (rebuilt when the bin count changes).
         static WORK: RefCell<Option<Work>> = const { RefCell::new(None) };
     }
     Ok(render_rows(scene, camera, &|| {}, &|p, acc, scratch| {
         // Vertex `v`'s rows of the three gathers.
-        let rows_of = |v: u32| moments.map(|a| &a.values()[v as usize * m..(v as usize + 1) * m]);
+        let rows_of = |v: u32| moments.map(|a| a.vertex(v as usize));
         if let Some(brdf) = brdfs.get(scene.material_index(p.triangle)).and_then(Option::as_ref) {
             let view = above_horizon(p.view_local.as_dvec3());
             let mut sum = [0.0f64; 3];
@@ -291,17 +290,12 @@ fn shade_moments_with(
         WORK.with(|work| {
             let mut work = work.borrow_mut();
             if work.as_ref().is_none_or(|(k, ..)| *k != m) {
-                *work = Some((m, vec![[0.0f64; 3]; 3 * m], vec![[0.0f64; 3]; m], point.lanes()));
+                *work = Some((m, vec![[0.0f64; 3]; m], point.lanes()));
             }
-            let (_, rows, resolved, lanes) = work.as_mut().expect("just filled");
+            let (_, resolved, lanes) = work.as_mut().expect("just filled");
             acc.fill([0.0; 3]);
             for (&v, &w) in p.vertices.iter().zip(&p.weights) {
-                for (r, a) in rows.chunks_mut(m).zip(rows_of(v)) {
-                    r.iter_mut().zip(a).for_each(|(r, a)| *r = a.map(f64::from));
-                }
-                let (x, rest) = rows.split_at(m);
-                let (y, z) = rest.split_at(m);
-                point.resolve_lanes(lanes, &p.frame, [x, y, z], resolved);
+                point.resolve_lanes(lanes, &p.frame, rows_of(v), resolved);
                 for (a, r) in acc.iter_mut().zip(resolved.iter()) {
                     (0..3).for_each(|c| a[c] += w as f64 * r[c]);
                 }

@@ -208,11 +208,12 @@ pub fn resolve(along: [&LocalRadiance; 3], frames: &[VertexFrame], lobe: Lobe) -
     Ok(out)
 }
 
-/// [`resolve`] for one point between vertices: the three moments interpolated there (f64,
-/// `M` rows each, world-space direction sums as the gathers give them) resolved at the point's
-/// own frame. Moments are world-space, so a light that falls in different bins of
-/// neighbouring vertices' frames is one direction here, handed to the bins around it in the
-/// point's frame; blending resolved rows instead splits it between two local directions.
+/// [`resolve`] at a point between vertices: a vertex's three moments (`M` rows each,
+/// world-space direction sums as the gathers give them) resolved at the point's own frame
+/// instead of the vertex's. Moments are world-space, so a light that falls in different bins
+/// of neighbouring vertices' frames is one direction here, handed to the bins around it in the
+/// point's frame; blending rows resolved in the vertices' frames splits it between two local
+/// directions.
 #[derive(Clone, Debug)]
 pub struct PointResolve {
     grid: HemisphereGrid,
@@ -241,28 +242,22 @@ impl PointResolve {
 
     /// Working lanes for [`Self::resolve_lanes`] (one per thread).
     pub fn lanes(&self) -> PointLanes {
-        let m = self.grid.len();
-        PointLanes { lanes: Lanes::new(self.grid), rows: [vec![[0.0; 3]; m], vec![[0.0; 3]; m], vec![[0.0; 3]; m]] }
+        PointLanes { lanes: Lanes::new(self.grid) }
     }
 
-    /// [`Self::resolve`] in the f32 lanes of the vertex [`resolve`]: `along` rounded to f32,
-    /// then exactly the vertex's arithmetic (bit for bit the vertex resolve of the same f32
-    /// rows), several times faster than the f64 form (the bins' directions are located all at
-    /// once, with a polynomial arctangent).
+    /// [`Self::resolve`] of a vertex's stored (f32) rows of the three gathers, in the f32
+    /// lanes of the vertex [`resolve`]: exactly the vertex's arithmetic (bit for bit the
+    /// vertex resolve of the same rows at the same frame), several times faster than the f64
+    /// form (the bins' directions are located all at once, with a polynomial arctangent).
     pub fn resolve_lanes(
         &self,
         lanes: &mut PointLanes,
         frame: &VertexFrame,
-        along: [&[[f64; 3]]; 3],
+        along: [&[[f32; 3]]; 3],
         out: &mut [[f64; 3]],
     ) {
-        let PointLanes { lanes, rows } = lanes;
-        for (dst, src) in rows.iter_mut().zip(along) {
-            for (d, s) in dst.iter_mut().zip(src) {
-                *d = s.map(|x| x as f32);
-            }
-        }
-        lanes.redistribute(self.grid, frame, self.lobe, [&rows[0], &rows[1], &rows[2]]);
+        let PointLanes { lanes } = lanes;
+        lanes.redistribute(self.grid, frame, self.lobe, along);
         for ((o, a), inv) in out.iter_mut().zip(&lanes.acc).zip(&self.inverse_mean_cosine) {
             let inv = *inv as f32;
             *o = [(a[0] * inv) as f64, (a[1] * inv) as f64, (a[2] * inv) as f64];
@@ -270,10 +265,9 @@ impl PointResolve {
     }
 }
 
-/// The working memory of [`PointResolve::resolve_lanes`]: the f32 lanes and the rounded rows.
+/// The working memory of [`PointResolve::resolve_lanes`]: the f32 lanes.
 pub struct PointLanes {
     lanes: Lanes,
-    rows: [Vec<[f32; 3]>; 3],
 }
 
 /// The working rows of [`resolve`] for one vertex, one f32 lane per bin (structure of arrays,
@@ -938,7 +932,7 @@ mod tests {
                     }
                 }
                 // The lanes are the vertex resolve's own arithmetic: bit for bit.
-                point.resolve_lanes(&mut lanes, frame, [&rows[0], &rows[1], &rows[2]], &mut out);
+                point.resolve_lanes(&mut lanes, frame, [0, 1, 2].map(|a| along[a].vertex(v)), &mut out);
                 for (o, w) in out.iter().zip(vertex.vertex(v)) {
                     assert_eq!(o.map(|x| x as f32), *w, "{lobe:?} vertex {v}, lanes");
                 }
