@@ -30,6 +30,9 @@
 
 use super::bvh4::Bvh4;
 pub(crate) use super::bvh4::PACKET;
+pub(crate) use coverage::{CoverScratch, FaceTile, MAX_TILE};
+
+mod coverage;
 use glam::{Vec2, Vec3, Vec3A};
 use obvhs::{
     aabb::Aabb,

@@ -48,6 +48,35 @@ pub struct TransferSettings {
     cubemap: Cubemap,
     visibility_resolution: u32,
     grid: HemisphereGrid,
+    visibility: Visibility,
+}
+
+/// How the transfer stage decides which visibility rays are occluded (`transfer.visibility`).
+/// Both give the per-ray definition of `T` (a texel is covered exactly when the ray through
+/// its centre hits a triangle); they can differ only on a ray within f32 rounding of a
+/// triangle's edge, and on the bundled meshes they do not differ at all (docs/DESIGN.md,
+/// "Visibility by coverage").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Visibility {
+    /// Per vertex and cube face, the triangles the face could see rasterised front to back
+    /// into its coverage mask with texel-centre sampling, skipping what is already covered
+    /// (`geometry::bvh::coverage`).
+    #[default]
+    Coverage,
+    /// Every ray traced: tile by tile against the tile's cone-culled candidate list when it
+    /// is short, through the BVH in packets when it is long.
+    Rays,
+}
+
+impl Visibility {
+    /// The config's spelling.
+    pub fn name(self) -> &'static str {
+        match self {
+            Visibility::Coverage => "coverage",
+            Visibility::Rays => "rays",
+        }
+    }
 }
 
 impl Default for TransferSettings {
@@ -75,12 +104,22 @@ impl TransferSettings {
                 "supersampling {s} (visibility_resolution / cubemap_resolution) gives more than 65535 children per texel"
             )));
         }
-        Ok(Self { cubemap, visibility_resolution, grid })
+        Ok(Self { cubemap, visibility_resolution, grid, visibility: Visibility::default() })
+    }
+
+    /// These settings with another way to decide visibility (the same `T`, see [`Visibility`]).
+    pub fn with_visibility(&self, visibility: Visibility) -> Self {
+        Self { visibility, ..*self }
+    }
+
+    /// How visibility is decided.
+    pub fn visibility(&self) -> Visibility {
+        self.visibility
     }
 
     /// These settings with another local grid `m`.
     pub fn with_local_grid(&self, m: u32) -> Result<Self> {
-        Self::new(self.cubemap().resolution, self.visibility_resolution, m)
+        Ok(Self::new(self.cubemap().resolution, self.visibility_resolution, m)?.with_visibility(self.visibility))
     }
 
     /// The basis of `L` and of `T`'s columns: the light cubemap.

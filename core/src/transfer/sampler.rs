@@ -3,16 +3,24 @@
 //!
 //! For a point with frame F and a coarse texel k whose centre `d_k` lies above F's tangent
 //! plane, the kernel traces k's `s x s` children of the visibility cubemap and emits the
-//! number that are unoccluded, with the local bin `j` of `F.to_local(d_k)`. Rays are grouped
-//! in tiles of nearby texels (in Morton order within the tile): a tile below the horizon is
-//! skipped, and otherwise one cone query lists the triangles its rays could hit. A short list
-//! (usually none or a few) is tested eight triangles at a time; a tile with a long one traces
-//! its rays through the BVH in packets (`SceneBvh::occluded_packet`).
+//! number that are unoccluded, with the local bin `j` of `F.to_local(d_k)`. Two ways decide
+//! which children are occluded ([`Visibility`]), with the same answers:
+//!
+//! * **Coverage** (the default): per cube face (up to 64 x 64 fine texels), the children above
+//!   the horizon are the open bits of a coverage mask, and the triangles the face can see are
+//!   rasterised into it front to back with texel-centre sampling, skipping whatever is
+//!   already covered (`SceneBvh::cover_tile`, `geometry::bvh::coverage`).
+//! * **Rays**: rays are grouped in tiles of nearby texels (in Morton order within the tile): a
+//!   tile below the horizon is skipped, and otherwise one cone query lists the triangles its
+//!   rays could hit. A short list (usually none or a few) is tested eight triangles at a time;
+//!   a tile with a long one traces its rays through the BVH in packets
+//!   (`SceneBvh::occluded_packet`).
 
-use crate::geometry::bvh::{Cone, RayDir, TileTriangles, PACKET};
+use crate::geometry::bvh::{Cone, CoverScratch, FaceTile, RayDir, TileTriangles, MAX_TILE, PACKET};
 use crate::geometry::{SceneBvh, VertexFrame};
+use crate::sampling::cubemap::face_point;
 use crate::sampling::{Cubemap, HemisphereGrid};
-use crate::transfer::TransferSettings;
+use crate::transfer::{TransferSettings, Visibility};
 use glam::{Vec3, Vec3A};
 
 /// Directions shared by every point's visibility query: coarse texel centres, their
@@ -35,6 +43,16 @@ pub struct VisibilitySampler {
     /// traces the tile's rays through the BVH. Both paths give the same answers: the tests
     /// set 0 or `usize::MAX` to send every tile with candidates down one of them.
     pub(crate) brute_force_max: usize,
+    /// The coverage test's tiles (up to [`MAX_TILE`] fine texels square: a whole face at the
+    /// reference settings; none when one coarse texel's children are wider): the face
+    /// rectangle with its cone, and where its texels' `(coarse texel, fine ray)` and
+    /// directions start in `raster_rays` and `raster_dirs` (row-major).
+    raster: Vec<(FaceTile, usize)>,
+    raster_rays: Vec<(u32, u32)>,
+    raster_dirs: Vec<Vec3A>,
+    /// How a tile's rays are answered: rasterised into its coverage mask
+    /// ([`Visibility::Coverage`], the default) or traced ([`Visibility::Rays`]).
+    pub visibility: Visibility,
 }
 
 /// Side of a tile in fine texels (about): tiles of `16 / s` coarse texels, 256 rays (at most
@@ -49,7 +67,7 @@ const TILE_FINE: usize = 16;
 /// 2.01 s (1 thread) on the bunny; 16 with 96 and 384 were in between, and the tiny setting
 /// (one tile per face) is the same either way. With the BVH path traced in packets, a cap of
 /// 96 was slower again (24.6 / 26.4 s against 23.2 / 24.4 s on the 30k-vertex bunny).
-const BRUTE_FORCE_MAX: usize = 192;
+pub(crate) const BRUTE_FORCE_MAX: usize = 192;
 
 /// Per-thread scratch state of [`VisibilitySampler::point_counts`], reset by every query (so
 /// results never depend on which thread, or which earlier query, used it).
@@ -62,6 +80,21 @@ pub struct VisibilityScratch {
     tile: TileTriangles,
     /// The current tile's rays above the horizon: (coarse texel, fine ray index).
     tile_rays: Vec<(u32, u32)>,
+    /// The coverage walk's stack.
+    cover: CoverScratch,
+}
+
+/// A cone containing every direction of `dirs`: the axis is their normalised mean, the
+/// half-angle the largest angle to one of them, computed in f64 and widened by 1e-5 rad so
+/// the f32 tests stay conservative.
+fn bounding_cone(dirs: &[Vec3A]) -> Cone {
+    let axis = dirs.iter().map(|d| glam::Vec3::from(*d).as_dvec3()).sum::<glam::DVec3>().normalize();
+    let max_angle = dirs
+        .iter()
+        .map(|d| glam::Vec3::from(*d).as_dvec3().normalize().dot(axis).clamp(-1.0, 1.0).acos())
+        .fold(0.0, f64::max)
+        + 1e-5;
+    Cone { axis: axis.as_vec3().into(), cos: max_angle.cos() as f32, sin: max_angle.sin() as f32 }
 }
 
 /// The Z-order index of `(row, col)`: their bits interleaved.
@@ -110,22 +143,57 @@ impl VisibilitySampler {
                         let (_, row, col) = cubemap.texel_coords(k as usize);
                         morton(row - r0, col - c0)
                     });
-                    let axis = sum.normalize();
-                    let max_angle = tile_texels[start..]
+                    let dirs: Vec<Vec3A> = tile_texels[start..]
                         .iter()
                         .flat_map(|&k| &fine_dirs[k as usize * s * s..(k as usize + 1) * s * s])
-                        .map(|d| d.as_dvec3().normalize().dot(axis).clamp(-1.0, 1.0).acos())
-                        .fold(0.0, f64::max)
-                        + 1e-5;
-                    let cone =
-                        Cone { axis: axis.as_vec3().into(), cos: max_angle.cos() as f32, sin: max_angle.sin() as f32 };
-                    tiles.push((cone, start..tile_texels.len()));
+                        .map(|&d| Vec3A::from(d))
+                        .collect();
+                    tiles.push((bounding_cone(&dirs), start..tile_texels.len()));
+                }
+            }
+        }
+        // Coverage tiles: blocks of up to MAX_TILE x MAX_TILE fine texels (a whole face at the
+        // reference settings), whole coarse texels each; none when a coarse texel's children
+        // alone are wider (the rays path serves those settings).
+        let (mut raster, mut raster_rays, mut raster_dirs) = (vec![], vec![], vec![]);
+        let tc = MAX_TILE / s;
+        for face in (0..6).filter(|_| tc > 0) {
+            let w = face_point(face, 0.0, 0.0);
+            let (a, b) = (face_point(face, 1.0, 0.0) - w, face_point(face, 0.0, 1.0) - w);
+            for r0 in (0..r).step_by(tc) {
+                for c0 in (0..r).step_by(tc) {
+                    let (rows, cols) = (((r0 + tc).min(r) - r0) * s, ((c0 + tc).min(r) - c0) * s);
+                    let start = raster_rays.len();
+                    for row in r0 * s..r0 * s + rows {
+                        for col in c0 * s..c0 * s + cols {
+                            let k = cubemap.texel_index(face, row / s, col / s);
+                            let f = k * s * s + (row % s) * s + col % s;
+                            raster_rays.push((k as u32, f as u32));
+                            raster_dirs.push(Vec3A::from(fine_dirs[f]));
+                        }
+                    }
+                    let tile = FaceTile {
+                        cone: bounding_cone(&raster_dirs[start..]),
+                        w: w.as_vec3().into(),
+                        a: a.as_vec3().into(),
+                        b: b.as_vec3().into(),
+                        res: (r * s) as u32,
+                        row0: (r0 * s) as u32,
+                        col0: (c0 * s) as u32,
+                        rows: rows as u32,
+                        cols: cols as u32,
+                    };
+                    raster.push((tile, start));
                 }
             }
         }
         Self {
             tiles,
             tile_texels,
+            raster,
+            raster_rays,
+            raster_dirs,
+            visibility: settings.visibility(),
             brute_force_max: BRUTE_FORCE_MAX,
             settings: *settings,
             cubemap,
@@ -169,12 +237,17 @@ impl VisibilitySampler {
         let n = frame.normal;
         let n_a = Vec3A::from(n);
         let o = Vec3A::from(origin);
-        let VisibilityScratch { visible, candidates, tile, tile_rays } = scratch;
+        let VisibilityScratch { visible, candidates, tile, tile_rays, cover } = scratch;
         visible.clear();
         visible.resize(self.coarse_dirs.len(), 0);
         let mut rays = 0u64;
         let mut cache = u32::MAX;
-        for (cone, texels) in &self.tiles {
+        let coverage = self.visibility == Visibility::Coverage && !self.raster.is_empty();
+        if coverage {
+            rays = self.cover_counts(bvh, o, n, visible, cover);
+        }
+        let tiles = if coverage { &[][..] } else { &self.tiles[..] };
+        for (cone, texels) in tiles {
             // All directions of the tile are within the cone's angle of its axis: if the
             // axis is more than 90 degrees + that angle from n, all are below the horizon.
             if cone.axis.dot(n_a) < -cone.sin - 1e-6 {
@@ -230,6 +303,54 @@ impl VisibilitySampler {
                 continue;
             };
             emit(j, k as u32, count as u32);
+        }
+        rays
+    }
+
+    /// [`Visibility::Coverage`]'s answers for the point at `origin` with normal `n`: adds each
+    /// coarse texel's unoccluded children above the horizon to `visible`; returns the rays
+    /// decided (those above the horizon).
+    fn cover_counts(&self, bvh: &SceneBvh, o: Vec3A, n: Vec3, visible: &mut [u16], cover: &mut CoverScratch) -> u64 {
+        let n_a = Vec3A::from(n);
+        let mut rays = 0u64;
+        for (tile, start) in &self.raster {
+            let cone = &tile.cone;
+            if cone.axis.dot(n_a) < -cone.sin - 1e-6 {
+                continue;
+            }
+            // The tile's rays above the horizon are its open texels; what stays open after
+            // the coverage test is unoccluded.
+            let (rows, cols) = (tile.rows as usize, tile.cols as usize);
+            let texel_rays = &self.raster_rays[*start..start + rows * cols];
+            let mut open = [0u64; MAX_TILE];
+            if cone.axis.dot(n_a) > cone.sin + 1e-6 {
+                // Every direction of the tile (coarse centres included: each lies in the
+                // cone of its children) is above the horizon.
+                open[..rows].fill(u64::MAX >> (64 - cols));
+            } else {
+                for (row, mask) in open[..rows].iter_mut().enumerate() {
+                    for (col, &(k, f)) in texel_rays[row * cols..(row + 1) * cols].iter().enumerate() {
+                        let above =
+                            self.coarse_dirs[k as usize].dot(n) > 0.0 && self.fine_dirs[f as usize].dot(n) > 0.0;
+                        *mask |= (above as u64) << col;
+                    }
+                }
+            }
+            let count: u32 = open[..rows].iter().map(|m| m.count_ones()).sum();
+            if count == 0 {
+                continue;
+            }
+            rays += count as u64;
+            let dirs = &self.raster_dirs[*start..start + rows * cols];
+            bvh.cover_tile(o, n_a, tile, dirs, &mut open[..rows], cover);
+            for (row, &mask) in open[..rows].iter().enumerate() {
+                let mut bits = mask;
+                while bits != 0 {
+                    let col = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    visible[texel_rays[row * cols + col].0 as usize] += 1;
+                }
+            }
         }
         rays
     }
