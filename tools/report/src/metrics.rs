@@ -464,9 +464,14 @@ pub struct TransferMetrics {
     pub nnz: usize,
     pub local_dirs: usize,
     pub visibility_resolution: u32,
+    /// How the visibility rays were decided (`transfer.visibility`: "coverage" or "rays";
+    /// absent in older records, which traced every ray).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub visibility: Option<String>,
     pub value_histogram: Vec<ValueCount>,
     /// Seconds to build T (0 when it came from the cache; see `cached`).
     pub build_seconds: f64,
+    /// Visibility rays decided (traced, or answered by the coverage test).
     pub rays_traced: u64,
     pub rays_per_second: f64,
     pub cached: bool,

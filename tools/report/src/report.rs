@@ -496,9 +496,14 @@ pub fn transfer_summary(t: &TransferMetrics) -> String {
     let built = match t.cached {
         true => "loaded from the stage cache".to_string(),
         false => format!(
-            "built in {:.2} s ({} rays, {:.1} M rays/s)",
+            "built in {:.2} s ({} rays{}, {:.1} M rays/s)",
             t.build_seconds,
             t.rays_traced,
+            match t.visibility.as_deref() {
+                Some("coverage") => " decided by coverage",
+                Some("rays") => " traced",
+                _ => "",
+            },
             t.rays_per_second / 1e6
         ),
     };

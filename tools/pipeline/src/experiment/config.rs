@@ -589,6 +589,10 @@ pub struct TransferConfig {
     /// Local light directions per axis m (M = m^2). Reference 8.
     #[serde(default = "default_local_grid")]
     pub local_grid: Spanned<u32>,
+    /// How visibility is decided: "coverage" (default: each face's triangles rasterised into
+    /// its coverage mask) or "rays" (every ray traced). The same `T` (docs/DESIGN.md).
+    #[serde(default)]
+    pub visibility: biscale_core::transfer::Visibility,
 }
 
 fn default_cubemap() -> Spanned<u32> {
@@ -607,6 +611,7 @@ impl Default for TransferConfig {
             cubemap_resolution: default_cubemap(),
             visibility_resolution: default_visibility(),
             local_grid: default_local_grid(),
+            visibility: Default::default(),
         }
     }
 }
@@ -1397,6 +1402,7 @@ fn transfer_of(
         *t.visibility_resolution.get_ref(),
         *t.local_grid.get_ref(),
     )
+    .map(|s| s.with_visibility(t.visibility))
     .map_err(|e| err(t.local_grid.span(), e.to_string()))
 }
 
@@ -1890,6 +1896,17 @@ mod tests {
         assert_eq!(exp.file.report.error_scale, Some(0.05));
         assert!(exp.file.runtime.light_moments);
         assert!(!parse(OK).unwrap().file.runtime.light_moments, "the paper's cosine is the default");
+    }
+
+    #[test]
+    fn the_visibility_method_is_a_transfer_setting() {
+        use biscale_core::transfer::Visibility;
+        let how = |extra: &str| parse(&format!("{OK}[transfer]\n{extra}")).map(|e| e.transfer_settings().visibility());
+        assert_eq!(how("").unwrap(), Visibility::Coverage, "the default");
+        assert_eq!(how("visibility = \"rays\"\n").unwrap(), Visibility::Rays);
+        assert_eq!(how("visibility = \"coverage\"\nlocal_grid = 4\n").unwrap(), Visibility::Coverage);
+        let e = how("visibility = \"raster\"\n").unwrap_err().to_string();
+        assert!(e.contains(":7:14") && e.contains("coverage") && e.contains("rays"), "{e}");
     }
 
     #[test]

@@ -95,8 +95,9 @@ impl Plan {
             &mut steps,
             "transfer",
             format!(
-                "T: visibility 6x{v}x{v} box-filtered to 6x{r}x{r}, local grid {m}x{m} (cached by content)",
+                "T: visibility 6x{v}x{v} by {how}, box-filtered to 6x{r}x{r}, local grid {m}x{m} (cached by content)",
                 v = t.visibility_resolution(),
+                how = t.visibility().name(),
                 r = t.cubemap().resolution,
                 m = t.local_grid().m
             ),

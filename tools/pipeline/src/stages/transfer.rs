@@ -174,6 +174,7 @@ fn transfer_metrics(
         nnz: t.nnz(),
         local_dirs: t.local_dirs(),
         visibility_resolution: settings.visibility_resolution(),
+        visibility: Some(settings.visibility().name().into()),
         value_histogram,
         build_seconds: seconds,
         rays_traced: rays,

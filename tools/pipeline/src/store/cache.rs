@@ -245,17 +245,19 @@ pub fn transfer_key(mesh: &Mesh, s: &TransferSettings) -> CacheKey {
     h.write(&TRANSFER_VERSION.to_le_bytes()).write(&biscale_core::artifact::CONTAINER_VERSION.to_le_bytes());
     h.write_str(&s.light_basis().tag())
         .write(&s.visibility_resolution().to_le_bytes())
-        .write_str(&s.local_basis().tag());
+        .write_str(&s.local_basis().tag())
+        .write_str(s.visibility().name());
     let mesh_hash = mesh_hash(mesh);
     h.write(&mesh_hash.to_le_bytes());
     CacheKey::new(
         h.finish128(),
         format!(
-            "T of {}, light {}, local {}, visibility {}",
+            "T of {}, light {}, local {}, visibility {} by {}",
             describe_mesh(mesh, mesh_hash),
             s.light_basis(),
             s.local_basis(),
-            s.visibility_resolution()
+            s.visibility_resolution(),
+            s.visibility().name()
         ),
     )
 }
@@ -569,6 +571,9 @@ mod tests {
         assert_eq!(transfer_key(&mesh, &s), transfer_key(&mesh, &s));
         assert_ne!(transfer_key(&mesh, &s).hash, transfer_key(&moved, &s).hash);
         assert_ne!(transfer_key(&mesh, &s).hash, transfer_key(&mesh, &TransferSettings::new(8, 16, 2).unwrap()).hash);
+        let rays = s.with_visibility(biscale_core::transfer::Visibility::Rays);
+        assert_ne!(transfer_key(&mesh, &s).hash, transfer_key(&mesh, &rays).hash);
+        assert!(transfer_key(&mesh, &rays).inputs.contains("by rays"));
         assert!(transfer_key(&mesh, &s).inputs.contains("mesh hash"));
     }
 
