@@ -117,11 +117,20 @@ def main():
         b = rays / ours[f"bvh_seconds_{n}t"] / 1e6
         m = rays / statistics.median(seconds[n]) / 1e6
         print(f"| {n} | {b:.2f} | {m:.2f} | {b / m:.2f}x |")
-    st = ours["transfer_stage"]
+    mitsuba_2t = rays / statistics.median(seconds[2]) / 1e6
     print()
-    print(f"biscale's transfer stage at this visibility resolution: {st['rays_traced'] / st['seconds'] / 1e6:.2f} M rays/s "
-          f"({st['rays_traced']} rays in {st['seconds']:.2f} s on {st['threads']} threads; tile-by-tile with cone-culled "
-          f"candidate lists, so not the same work as the plain ray list)")
+    print("biscale's transfer stage at this visibility resolution, deciding the same rays "
+          "(medians; not the same work as the plain ray list):")
+    print()
+    print("| transfer.visibility | rays decided | seconds | threads | M rays/s | / Mitsuba 2 threads |")
+    print("|---|---|---|---|---|---|")
+    for key in ("transfer_stage", "transfer_stage_rays"):
+        st = ours.get(key)
+        if st is None:
+            continue
+        rate = st["rays_traced"] / st["seconds"] / 1e6
+        print(f"| {st.get('visibility', 'rays')} | {st['rays_traced']} | {st['seconds']:.2f} | {st['threads']} | "
+              f"{rate:.2f} | {rate / mitsuba_2t:.2f}x |")
 
 
 if __name__ == "__main__":

@@ -5,7 +5,9 @@
 #
 #  1. the transfer stage and biscale's BVH against Mitsuba 3's `ray_test` (Embree) on the same
 #     rays: the bundled bunny at 6x64x64 and the 30k-vertex bunny at 6x32x32
-#     (scripts/ray_peer.py);
+#     (scripts/ray_peer.py); and the transfer stage both ways (`transfer.visibility`,
+#     coverage and rays) on both bunnies at the reference 6x64x64, with the rays where their
+#     T differ (the `visibility_paths` example);
 #  2. the RGB gathers against SciPy CSR `T @ L` on the bunny, 1 and 2 threads
 #     (scripts/peer_bench.py);
 #  3. the gathers on the 30k bunny against the memory-copy floor (the `gather_floor` example,
@@ -15,12 +17,12 @@
 #
 # Needs .venv with Mitsuba and SciPy: bash scripts/setup-python.sh --mitsuba. Run on a quiet
 # machine: every figure is wall-clock, and the load average is recorded before and after.
-# About 10 minutes on 2 cores.
+# About 12 minutes on 2 cores.
 #
 #   scripts/speed-sitting.sh [OUT]      (default out/speed-sitting; prints Markdown)
 set -euo pipefail
 cd "$(dirname "$0")/.."
-case "${1:-}" in -h|--help) sed -n '2,21p' "$0"; exit 0 ;; esac
+case "${1:-}" in -h|--help) sed -n '2,22p' "$0"; exit 0 ;; esac
 out=${1:-out/speed-sitting}
 py=.venv/bin/python
 if ! [ -x "$py" ] || ! "$py" -c "import mitsuba, scipy" 2>/dev/null; then
@@ -28,7 +30,7 @@ if ! [ -x "$py" ] || ! "$py" -c "import mitsuba, scipy" 2>/dev/null; then
     exit 2
 fi
 mkdir -p "$out"
-cargo build --release --locked -p biscale-cli --bin biscale -p biscale --example ray_peer --example peer_gather
+cargo build --release --locked -p biscale-cli --bin biscale -p biscale --example ray_peer --example peer_gather --example visibility_paths
 cargo build --release --locked -p biscale-gpu --example gather_floor
 B=target/release/biscale
 l2=$(realpath "$out")/bunny-l2.obj
@@ -44,6 +46,8 @@ step "1. Rays: the bunny" "$py scripts/ray_peer.py assets/meshes/bunny.obj --rou
 "$py" scripts/ray_peer.py assets/meshes/bunny.obj --rounds 3
 step "1. Rays: the 30k bunny" "$py scripts/ray_peer.py $l2 --resolution 32 --rounds 1"
 "$py" scripts/ray_peer.py "$l2" --resolution 32 --rounds 1
+step "1. The transfer stage both ways, reference settings" "target/release/examples/visibility_paths assets/meshes/bunny.obj $l2 --rounds 1"
+target/release/examples/visibility_paths assets/meshes/bunny.obj "$l2" --rounds 1
 
 step "2. Gathers against SciPy" "$B export configs/bunny.toml --what t,l --out $out/bunny-export && $py scripts/peer_bench.py $out/bunny-export --no-sklearn"
 rm -rf "$out/bunny-export"

@@ -8,8 +8,9 @@
 //! reference setting) above the vertex's tangent plane, in the BVH's normalised space
 //! (`TransferScene`: centred, diagonal 1024). Writes `positions.npy`, `triangles.npy`,
 //! `origins.npy`, `normals.npy`, `directions.npy` into OUT, times the occlusion queries on
-//! 1 and 2 threads (medians of interleaved rounds) and the transfer stage itself (which
-//! traces the same directions, but tile by tile with its cone-culled candidate lists), and
+//! 1 and 2 threads (medians of interleaved rounds) and the transfer stage itself, which
+//! decides the same rays (by default by coverage, each face's triangles rasterised into a
+//! mask; also timed tracing every ray, tile by tile with cone-culled candidate lists), and
 //! prints one JSON object.
 //!
 //! ```text
@@ -21,7 +22,7 @@ use biscale::interop::npy::{self, ArrayRef, Elements};
 use biscale_core::geometry::Mesh;
 use biscale_core::sampling::Cubemap;
 use biscale_core::stats::median;
-use biscale_core::transfer::{self, TransferScene, TransferSettings};
+use biscale_core::transfer::{self, TransferScene, TransferSettings, Visibility};
 use glam::Vec3;
 use rayon::prelude::*;
 use std::path::PathBuf;
@@ -98,18 +99,32 @@ fn main() -> Result<()> {
             seconds[i].push(s.elapsed().as_secs_f64());
         }
     }
+    // The transfer stage both ways (`transfer.visibility`), interleaved, medians.
     let settings = TransferSettings::new(args.resolution / 2, args.resolution, 8)?;
-    let build = transfer::build(&mesh, &settings, None)?;
+    let mut stage = [vec![], vec![]];
+    let mut rays_decided = 0;
+    for _ in 0..args.rounds.max(1) {
+        for (i, how) in [Visibility::Coverage, Visibility::Rays].into_iter().enumerate() {
+            let build = transfer::build(&mesh, &settings.with_visibility(how), None)?;
+            rays_decided = build.stats.rays_traced;
+            stage[i].push(build.stats.seconds);
+        }
+    }
+    let stage_of = |i: usize, how: Visibility| {
+        serde_json::json!({
+            "visibility": how.name(),
+            "rays_traced": rays_decided,
+            "seconds": median(&stage[i]),
+            "threads": rayon::current_num_threads(),
+        })
+    };
     let mut out = serde_json::json!({
         "vertices": mesh.vertex_count(),
         "triangles": mesh.triangles.len(),
         "rays": counts.0,
         "occluded": counts.1,
-        "transfer_stage": {
-            "rays_traced": build.stats.rays_traced,
-            "seconds": build.stats.seconds,
-            "threads": rayon::current_num_threads(),
-        },
+        "transfer_stage": stage_of(0, Visibility::Coverage),
+        "transfer_stage_rays": stage_of(1, Visibility::Rays),
     });
     for ((n, _), s) in pools.iter().zip(&seconds) {
         out[format!("bvh_seconds_{n}t")] = median(s).into();

@@ -119,9 +119,10 @@ impl FaceTile {
             return Footprint::Plane;
         }
         let den = ww * ww - r * r;
+        let inv = 1.0 / den;
         let ends = |wx: f32| {
             let root = r * (wx * wx + den).sqrt();
-            ((wx * ww - root) / den, (wx * ww + root) / den)
+            ((wx * ww - root) * inv, (wx * ww + root) * inv)
         };
         let (a0, a1) = ends(w.dot(self.a));
         let (b0, b1) = ends(w.dot(self.b));
