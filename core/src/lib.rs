@@ -8,7 +8,8 @@
 //!   hemisphere grids that index local light and view directions, lat-long and cube-map
 //!   environment maps and the light vector `L` (power per cubemap texel).
 //! * [`geometry`]: triangle meshes (OBJ and PLY loading, repair), per-vertex frames, and the BVH used for
-//!   every ray query.
+//!   every ray query, with the coverage rasteriser that decides the transfer stage's rays by
+//!   default (`geometry/bvh/coverage.rs`).
 //! * [`transfer`]: the per-vertex visibility transfer matrix `T` ((n M) x N, CSR).
 //! * [`compress`]: the [`compress::Compressor`] interface and the compressed form as plain
 //!   arrays (docs/DESIGN.md section 4).
