@@ -5,11 +5,14 @@
 //! All rays of a transfer query leave one origin, and a ray is occluded as soon as any
 //! triangle is hit: no depth is needed, only which texel centres each triangle covers. So a
 //! tile (up to 64 x 64 texels of one cube face) keeps a bit per texel, and the sphere tree of
-//! the cone queries ([`super::ConeTree`]) is walked front to back: a node is skipped when it is
-//! outside the tile's cone or behind the tangent plane (as the cone query skips it) and also
-//! when every texel its sphere can project onto is already covered; a triangle is tested only
-//! on the texels of its sphere's footprint that are still open; and the walk stops when the
-//! whole tile is covered. The work is that of the visible surface, not of the rays.
+//! the cone queries ([`super::ConeTree`]) is walked front to back (the nearer child first). A
+//! node is skipped when it is behind the tangent plane (as the cone query skips it), when its
+//! sphere's footprint holds no texel centre of the tile (a sphere reaching the face's plane,
+//! whose footprint is unbounded, is tested against the tile's cone instead), and when every
+//! texel of its footprint is already covered. A triangle is tested only on the open texels of
+//! its footprint's rows that lie within the row's span of its three edge conditions, and the
+//! walk stops when the whole tile is covered. The work is that of the visible surface, not of
+//! the rays.
 //!
 //! **The per-texel test is the ray test, rearranged.** [`super::RtTri::intersect`] solves
 //! `o + t d = v0 + u e1 + v e2` by Cramer's rule: with `c = v0 - o`, `u = (e2 x c) . d / den`,
@@ -27,8 +30,13 @@
 //! `W + a A + b B`) projects onto the face coordinates `a = x . A / x . W` in the interval
 //! whose ends are the roots of `(w_W^2 - r^2) a^2 - 2 w_A w_W a + w_A^2 - r^2 = 0` (the planes
 //! through the origin tangent to the sphere), and likewise for `b`. The texel centres inside
-//! it, widened by a hundredth of a texel for rounding, are the footprint. A sphere reaching
-//! the face's plane gets the whole tile.
+//! it, widened by a hundredth of a texel for rounding, are the footprint.
+//!
+//! **Row spans.** Each edge condition is linear in the direction, so along a row of texel
+//! centres (`b` fixed) it holds on a half-line of `a`; the three half-lines meet in the span of
+//! columns the triangle can cover in that row. The spans are widened (each condition's constant
+//! by 1e-5 of its coefficients, the ends by a hundredth of a texel) so that they only leave out
+//! texels the exact test rejects.
 
 use super::{Cone, ConeTree, SceneBvh, EDGE_TOLERANCE, RAY_TMIN};
 use glam::Vec3A;
