@@ -549,26 +549,43 @@ impl ConeTree {
     /// Can a ray from `o` with direction in `cone` and `d . n > 0` reach the sphere?
     /// Conservative: false only when it certainly cannot.
     #[inline(always)]
-    fn reachable(&self, (c, r): (Vec3A, f32), o: Vec3A, n: Vec3A, cone: &Cone) -> bool {
-        let w = c - o;
-        let d2 = w.length_squared();
-        // Slack for f32 rounding relative to the distance; the L1 norm bounds the distance
-        // from above, so no square root is needed for it.
-        let r = r + self.slack + 1e-6 * (w.x.abs() + w.y.abs() + w.z.abs());
-        // Every point x of the sphere has (x - o) . n <= w . n + r; a ray point has
-        // (x - o) . n = t d . n > 0.
-        if w.dot(n) + r <= 0.0 {
-            return false;
-        }
-        if d2 <= r * r {
-            return true;
-        }
-        // The sphere subtends a cone of half-angle b around w (sin b = r / |w|); it meets
-        // the query cone iff angle(w, axis) <= a + b (a + b < pi for the tiles used):
-        // w . axis >= cos(a + b) |w| = cos a sqrt(|w|^2 - r^2) - sin a r, one square root.
-        w.dot(cone.axis) + cone.sin * r >= cone.cos * (d2 - r * r).sqrt()
+    fn reachable(&self, sphere: (Vec3A, f32), o: Vec3A, n: Vec3A, cone: &Cone) -> bool {
+        let (w, r) = self.seen_from(sphere, o);
+        !behind(w, r, n) && meets_cone(w, r, cone)
     }
 
+    /// The sphere's centre relative to `o`, and its radius padded by the slack the
+    /// conservative tests need: f32 rounding relative to the distance (the L1 norm bounds the
+    /// distance from above, so no square root is needed for it).
+    #[inline(always)]
+    fn seen_from(&self, (c, r): (Vec3A, f32), o: Vec3A) -> (Vec3A, f32) {
+        let w = c - o;
+        (w, r + self.slack + 1e-6 * (w.x.abs() + w.y.abs() + w.z.abs()))
+    }
+}
+
+/// Does the sphere of (padded) radius `r` at `w` from the origin lie wholly on or below the
+/// plane through the origin with normal `n`, where no ray above it goes? Every point x of
+/// the sphere has `x . n <= w . n + r`; a ray point has `x . n = t d . n > 0`.
+#[inline(always)]
+fn behind(w: Vec3A, r: f32, n: Vec3A) -> bool {
+    w.dot(n) + r <= 0.0
+}
+
+/// Does the sphere of (padded) radius `r` at `w` from the origin meet `cone`? Conservative.
+#[inline(always)]
+fn meets_cone(w: Vec3A, r: f32, cone: &Cone) -> bool {
+    let d2 = w.length_squared();
+    if d2 <= r * r {
+        return true;
+    }
+    // The sphere subtends a cone of half-angle b around w (sin b = r / |w|); it meets
+    // the query cone iff angle(w, axis) <= a + b (a + b < pi for the tiles used):
+    // w . axis >= cos(a + b) |w| = cos a sqrt(|w|^2 - r^2) - sin a r, one square root.
+    w.dot(cone.axis) + cone.sin * r >= cone.cos * (d2 - r * r).sqrt()
+}
+
+impl ConeTree {
     /// Append the reachable primitives to `out`; false (the list cut short) once it holds
     /// more than `limit`.
     fn query(&self, o: Vec3A, n: Vec3A, cone: &Cone, out: &mut Vec<u32>, limit: usize) -> bool {

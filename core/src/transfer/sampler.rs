@@ -230,24 +230,41 @@ impl VisibilitySampler {
         scratch: &mut VisibilityScratch,
         mut emit: impl FnMut(u32, u32, u32),
     ) -> u64 {
-        // Same answers as `point_entries_reference`, organised by tiles: a tile whose cone
-        // lies below the horizon is skipped; otherwise one cone query lists the triangles its
-        // rays could hit (above the tangent plane, inside the cone), usually none or a few,
-        // and its rays are tested against that list (or through the BVH if it is long).
+        // Same answers as `point_entries_reference`: each path adds every coarse texel's
+        // unoccluded children above the horizon to `visible`.
+        scratch.visible.clear();
+        scratch.visible.resize(self.coarse_dirs.len(), 0);
         let n = frame.normal;
+        let rays = if self.visibility == Visibility::Coverage && !self.raster.is_empty() {
+            self.cover_counts(bvh, origin.into(), n, scratch)
+        } else {
+            self.trace_counts(bvh, origin.into(), n, scratch)
+        };
+        let visible = &scratch.visible;
+        for (k, &count) in visible.iter().enumerate() {
+            if count == 0 {
+                continue;
+            }
+            let Some(j) = self.grid.bin_of(frame.to_local(self.coarse_dirs[k])) else {
+                continue;
+            };
+            emit(j, k as u32, count as u32);
+        }
+        rays
+    }
+
+    /// [`Visibility::Rays`]'s answers for the point at `o` with normal `n`, tile by tile: a
+    /// tile whose cone lies below the horizon is skipped; otherwise one cone query lists the
+    /// triangles its rays could hit (above the tangent plane, inside the cone), usually none
+    /// or a few, and its rays are tested against that list (or through the BVH if it is
+    /// long). Adds each coarse texel's unoccluded children above the horizon to
+    /// `scratch.visible`; returns the rays traced.
+    fn trace_counts(&self, bvh: &SceneBvh, o: Vec3A, n: Vec3, scratch: &mut VisibilityScratch) -> u64 {
         let n_a = Vec3A::from(n);
-        let o = Vec3A::from(origin);
-        let VisibilityScratch { visible, candidates, tile, tile_rays, cover } = scratch;
-        visible.clear();
-        visible.resize(self.coarse_dirs.len(), 0);
+        let VisibilityScratch { visible, candidates, tile, tile_rays, .. } = scratch;
         let mut rays = 0u64;
         let mut cache = u32::MAX;
-        let coverage = self.visibility == Visibility::Coverage && !self.raster.is_empty();
-        if coverage {
-            rays = self.cover_counts(bvh, o, n, visible, cover);
-        }
-        let tiles = if coverage { &[][..] } else { &self.tiles[..] };
-        for (cone, texels) in tiles {
+        for (cone, texels) in &self.tiles {
             // All directions of the tile are within the cone's angle of its axis: if the
             // axis is more than 90 degrees + that angle from n, all are below the horizon.
             if cone.axis.dot(n_a) < -cone.sin - 1e-6 {
@@ -295,23 +312,15 @@ impl VisibilitySampler {
                 }
             }
         }
-        for (k, &count) in visible.iter().enumerate() {
-            if count == 0 {
-                continue;
-            }
-            let Some(j) = self.grid.bin_of(frame.to_local(self.coarse_dirs[k])) else {
-                continue;
-            };
-            emit(j, k as u32, count as u32);
-        }
         rays
     }
 
-    /// [`Visibility::Coverage`]'s answers for the point at `origin` with normal `n`: adds each
-    /// coarse texel's unoccluded children above the horizon to `visible`; returns the rays
-    /// decided (those above the horizon).
-    fn cover_counts(&self, bvh: &SceneBvh, o: Vec3A, n: Vec3, visible: &mut [u16], cover: &mut CoverScratch) -> u64 {
+    /// [`Visibility::Coverage`]'s answers for the point at `o` with normal `n`: adds each
+    /// coarse texel's unoccluded children above the horizon to `scratch.visible`; returns the
+    /// rays decided (those above the horizon).
+    fn cover_counts(&self, bvh: &SceneBvh, o: Vec3A, n: Vec3, scratch: &mut VisibilityScratch) -> u64 {
         let n_a = Vec3A::from(n);
+        let VisibilityScratch { visible, cover, .. } = scratch;
         let mut rays = 0u64;
         for (tile, start) in &self.raster {
             let cone = &tile.cone;

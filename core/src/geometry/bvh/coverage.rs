@@ -38,7 +38,7 @@
 //! by 1e-5 of its coefficients, the ends by a hundredth of a texel) so that they only leave out
 //! texels the exact test rejects.
 
-use super::{Cone, ConeTree, SceneBvh, EDGE_TOLERANCE, RAY_TMIN};
+use super::{behind, meets_cone, Cone, ConeTree, SceneBvh, EDGE_TOLERANCE, RAY_TMIN};
 use glam::Vec3A;
 
 /// The widest tile, in texels: a row of the coverage mask is one `u64`.
@@ -82,6 +82,13 @@ impl Rect {
     #[inline(always)]
     fn col_mask(&self) -> u64 {
         (u64::MAX >> (63 - (self.c1 - self.c0))) << self.c0
+    }
+
+    /// Whether any texel of the rectangle is still open.
+    #[inline(always)]
+    fn any_open(&self, open: &[u64]) -> bool {
+        let m = self.col_mask();
+        open[self.r0 as usize..=self.r1 as usize].iter().any(|&row| row & m != 0)
     }
 }
 
@@ -224,16 +231,14 @@ impl ConeTree {
     /// tile's cone instead of its footprint.
     #[inline(always)]
     fn visible_rect(&self, sphere: (Vec3A, f32), o: Vec3A, n: Vec3A, cone: &Cone, tile: &FaceTile) -> Option<Rect> {
-        let w = sphere.0 - o;
-        // The padding of `reachable`.
-        let r = sphere.1 + self.slack + 1e-6 * (w.x.abs() + w.y.abs() + w.z.abs());
-        if w.dot(n) + r <= 0.0 {
+        let (w, r) = self.seen_from(sphere, o);
+        if behind(w, r, n) {
             return None;
         }
         match tile.footprint(w, r) {
             Footprint::Rect(rect) => Some(rect),
             Footprint::None => None,
-            Footprint::Plane => self.reachable(sphere, o, n, cone).then(|| tile.all()),
+            Footprint::Plane => meets_cone(w, r, cone).then(|| tile.all()),
         }
     }
 }
@@ -243,8 +248,7 @@ impl SceneBvh {
     /// `open` (row `i`, bit `j`: tile texel `(i, j)`, whose direction is `dirs[i * cols + j]`)
     /// whose ray `origin + t d`, `t >= RAY_TMIN`, some triangle occludes, and clears it from
     /// `open`. `normal` is the query's: as in [`Self::cone_candidates`], only triangles a ray
-    /// within the tile's cone and above the plane can reach are tested. Returns the number
-    /// of triangles tested.
+    /// within the tile's cone and above the plane can reach are tested.
     pub(crate) fn cover_tile(
         &self,
         origin: Vec3A,
@@ -253,18 +257,13 @@ impl SceneBvh {
         dirs: &[Vec3A],
         open: &mut [u64],
         scratch: &mut CoverScratch,
-    ) -> u64 {
+    ) {
         let (tree, cone) = (&self.cones, &tile.cone);
         let mut open_rows = open.iter().filter(|&&m| m != 0).count();
         if tree.ranges.is_empty() || open_rows == 0 {
-            return 0;
+            return;
         }
         let cols = tile.cols as usize;
-        let any_open = |open: &[u64], rect: &Rect| {
-            let m = rect.col_mask();
-            open[rect.r0 as usize..=rect.r1 as usize].iter().any(|&row| row & m != 0)
-        };
-        let mut tested = 0u64;
         let stack = &mut scratch.stack;
         stack.clear();
         stack.push(0);
@@ -273,7 +272,7 @@ impl SceneBvh {
             let Some(rect) = tree.visible_rect(tree.spheres[i], origin, normal, cone, tile) else {
                 continue;
             };
-            if !any_open(open, &rect) {
+            if !rect.any_open(open) {
                 continue;
             }
             let (first, end, next) = tree.ranges[i];
@@ -290,11 +289,10 @@ impl SceneBvh {
                 let Some(rect) = tree.visible_rect(tree.tri_spheres[p as usize], origin, normal, cone, tile) else {
                     continue;
                 };
-                let mask = rect.col_mask();
-                if !open[rect.r0 as usize..=rect.r1 as usize].iter().any(|&row| row & mask != 0) {
+                if !rect.any_open(open) {
                     continue;
                 }
-                tested += 1;
+                let mask = rect.col_mask();
                 let t = &self.tris[p as usize];
                 let c = t.v0 - origin;
                 let c_ng = c.dot(t.ng);
@@ -331,10 +329,9 @@ impl SceneBvh {
                     }
                 }
                 if open_rows == 0 {
-                    return tested;
+                    return;
                 }
             }
         }
-        tested
     }
 }
