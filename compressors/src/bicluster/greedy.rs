@@ -7,20 +7,23 @@
 //! For the submatrix `M` of `T_c` that `B` covers, `dW(M) = 2 nnz(M) - (r + 2l - 1) - 2 nnz(M_R)`
 //! with `M_R = M - B`: an element contributes +2 when it equals its column's constant, -2
 //! when it is zero (the residual `-t` becomes a new non-zero), 0 for a different non-zero;
-//! each row costs 1 and each column 2.
+//! each row costs 1 and each column 2 ([`Costs`]: the column's cost is a parameter, written
+//! `wc` below; the paper's is 2).
 //!
 //! Incremental form used here. For a row `j` let `m_j` (`o_j`) count `B`'s columns where
 //! `T_c[j, k] = t_k` (`!= t_k`, non-zero); the row's contribution is
 //! `2 m_j - 2 (l - m_j - o_j) - 1 = (4 m_j + 2 o_j) - 2l - 1`, so the row key `4 m_j + 2 o_j`
 //! changes only when a column of `B` is inserted or deleted in which row `j` has a non-zero.
 //! For a column `k` let `c_k(v)` count `B`'s rows with `T_c[j, k] = v` and `n_k` the non-zeros;
-//! with constant `t` its contribution is `2 c_k(t) - 2 (r - n_k) - 2 = 2 (c_k(t) + n_k) - 2r - 2`,
+//! with constant `t` its contribution is `2 c_k(t) - 2 (r - n_k) - wc = 2 (c_k(t) + n_k) - 2r - wc`,
 //! so the column key `c_k(t) + n_k` (with `t` the most frequent non-zero for candidates, the
 //! fixed constant for members) changes only when a row with a non-zero in `k` is inserted or
 //! deleted. Four lazy heaps (row insert/delete, column insert/delete) hold keys; stale
 //! entries are skipped by re-checking the key. Each step applies the operation of largest
-//! gain and stops when none is positive; `nnz(T_c)` then strictly drops (`dW > 0`, or the
-//! single seed element with `dW = 0` is removed), so the loop ends with `T_c = 0`.
+//! gain and stops when none is positive, so `dW` ends at least the seed element's
+//! `2 - (1 + wc - 1)`, and above it unless `B` is the seed alone. Then
+//! `nnz(M) - nnz(M_R) = (dW + W(B)) / 2 >= 1`: `nnz(T_c)` strictly drops, and the loop ends
+//! with `T_c = 0`.
 
 use super::codes::{CodeMatrix, CODE_MAX};
 use rand::{Rng, SeedableRng};
@@ -149,7 +152,7 @@ struct Block<'w> {
     max_row_len: usize,
     max_abs: i32,
     /// Max-heaps over `key << 32 | (u32::MAX - id)` (ties: smaller id first). A candidate
-    /// improves `dW` only if its key beats the bar (rows `> 2l + 1`, columns `> r + 1`), so
+    /// improves `dW` only if its key beats the bar (rows `> 2l + 1`, columns `> r + wc / 2`), so
     /// only keys above a floor at most the bar are kept: every candidate whose key is above
     /// `row_floor` (`col_floor`) has a valid entry. Insertions raise the floor to
     /// `bar - FLOOR_SLACK`; a deletion that lowers the bar below the floor rebuilds the heap
@@ -163,6 +166,20 @@ struct Block<'w> {
     col_del: BinaryHeap<Reverse<u64>>,
     /// Scratch row for `subtract`.
     scratch: Vec<Entry>,
+    /// The cost of one row and one column of a bicluster in `dW` (the paper's: 1 and 2).
+    costs: Costs,
+}
+
+/// What a bicluster's rows and columns cost in `dW = 2 nnz(M) - W(B) - 2 nnz(M_R)`,
+/// `W(B) = row r + col l - 1`. The paper's flop count is `row = 1, col = 2`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Costs {
+    pub row: u64,
+    pub col: u64,
+}
+
+impl Costs {
+    pub const PAPER: Costs = Costs { row: 1, col: 2 };
 }
 
 /// How far below the bar the candidate heaps keep keys (see `Block::row_ins`).
@@ -213,7 +230,7 @@ impl Block<'_> {
         self.ws.cols[k].t = t as i16;
         self.ws.cols[k].pos = self.bcols.len() as u32;
         self.bcols.push(k as u16);
-        self.row_floor = self.row_floor.max((2 * self.bcols.len() as u64 + 1).saturating_sub(FLOOR_SLACK));
+        self.row_floor = self.row_floor.max((2 * self.bcols.len() as u64 + self.costs.row).saturating_sub(FLOOR_SLACK));
         for i in 0..self.ws.colview[k].len() {
             let (j, x) = self.ws.colview[k][i];
             let j = j as usize;
@@ -247,7 +264,7 @@ impl Block<'_> {
         }
         // l dropped: if the bar fell below the floor, rows under the floor may now qualify:
         // rebuild the row candidates from every column of B (any row with a non-zero there).
-        let bar = 2 * self.bcols.len() as u64 + 1;
+        let bar = 2 * self.bcols.len() as u64 + self.costs.row;
         if bar < self.row_floor {
             self.row_floor = bar.saturating_sub(FLOOR_SLACK);
             self.row_ins.clear();
@@ -268,7 +285,7 @@ impl Block<'_> {
         self.in_row[j] = true;
         self.row_pos[j] = self.brows.len() as u32;
         self.brows.push(j as u32);
-        self.col_floor = self.col_floor.max((self.brows.len() as u64 + 1).saturating_sub(FLOOR_SLACK));
+        self.col_floor = self.col_floor.max((self.brows.len() as u64 + self.costs.col / 2).saturating_sub(FLOOR_SLACK));
         for i in 0..self.rows[j].len() {
             let e = self.rows[j][i];
             let k = e.col as usize;
@@ -308,7 +325,7 @@ impl Block<'_> {
         }
         // r dropped: if the bar fell below the floor, columns under the floor may now
         // qualify: rebuild the column candidates from every row of B.
-        let bar = self.brows.len() as u64 + 1;
+        let bar = self.brows.len() as u64 + self.costs.col / 2;
         if bar < self.col_floor {
             self.col_floor = bar.saturating_sub(FLOOR_SLACK);
             self.col_ins.clear();
@@ -376,23 +393,24 @@ impl Block<'_> {
         self.add_row(j0);
         loop {
             let (r, l) = (self.brows.len() as i64, self.bcols.len() as i64);
+            let (wr, wc) = (self.costs.row as i64, self.costs.col as i64);
             // (gain, op, index); ops: 0 row insert, 1 column insert, 2 row delete, 3 column delete.
             let mut best: (i64, u8, usize) = (0, 255, 0);
             if let Some((key, j)) = self.top_row_ins() {
-                let g = key - 2 * l - 1;
+                let g = key - 2 * l - wr;
                 if g > best.0 {
                     best = (g, 0, j);
                 }
             }
             if let Some((key, k)) = self.top_col_ins() {
-                let g = 2 * key - 2 * r - 2;
+                let g = 2 * key - 2 * r - wc;
                 if g > best.0 {
                     best = (g, 1, k);
                 }
             }
             if r > 1 {
                 if let Some((key, j)) = self.top_row_del() {
-                    let g = 2 * l + 1 - key;
+                    let g = 2 * l + wr - key;
                     if g > best.0 {
                         best = (g, 2, j);
                     }
@@ -400,7 +418,7 @@ impl Block<'_> {
             }
             if l > 1 {
                 if let Some((key, k)) = self.top_col_del() {
-                    let g = 2 * r + 2 - 2 * key;
+                    let g = 2 * r + wc - 2 * key;
                     if g > best.0 {
                         best = (g, 3, k);
                     }
@@ -541,7 +559,7 @@ impl Block<'_> {
 impl Block<'_> {
     /// `dW` of rows `rows` x columns `cols` (with constants) on `T_c`, from the definition.
     fn naive_dw(&self, rows: &[usize], cols: &[(u16, i8)]) -> i64 {
-        let mut d = -(rows.len() as i64 + 2 * cols.len() as i64 - 1);
+        let mut d = -(self.costs.row as i64 * rows.len() as i64 + self.costs.col as i64 * cols.len() as i64 - 1);
         for &j in rows {
             for &(k, t) in cols {
                 let x = self.code_at(j, k);
@@ -563,7 +581,10 @@ impl Block<'_> {
         let rows: Vec<usize> = self.brows.iter().map(|&j| j as usize).collect();
         let cols: Vec<(u16, i8)> = self.bcols.iter().map(|&k| (k, self.ws.cols[k as usize].t as i8)).collect();
         let base = self.naive_dw(&rows, &cols);
-        assert!(base >= 0 && (base > 0 || rows.len() * cols.len() == 1), "dW {base} of {rows:?} x {cols:?}");
+        // Every step raised dW from the seed's (one element equal to its constant: 0 at the
+        // paper's costs, negative when a column costs more than 2).
+        let seed = 2 - (self.costs.row + self.costs.col) as i64 + 1;
+        assert!(base > seed || base == seed && rows.len() * cols.len() == 1, "dW {base} of {rows:?} x {cols:?}");
         // Rows without a non-zero in B's columns only lose (-2 per column, -1 for the row),
         // and columns without a non-zero in B's rows have no value to take: skip them.
         let mut cand_rows: Vec<usize> =
@@ -620,6 +641,7 @@ pub fn bicluster_block(
     row_range: std::ops::Range<usize>,
     seed: u64,
     stream: u64,
+    costs: Costs,
     ws: &mut Workspace,
 ) -> Vec<Bc> {
     let n = row_range.len();
@@ -666,6 +688,7 @@ pub fn bicluster_block(
         row_floor: 0,
         col_floor: 0,
         scratch: Vec::new(),
+        costs,
     };
     let mut out = Vec::new();
     while !b.nonempty.is_empty() {

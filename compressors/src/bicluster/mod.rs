@@ -16,7 +16,10 @@
 //! * the rows are cut into blocks of `block_vertices` consecutive vertices biclustered
 //!   independently in parallel (rayon); a block's random stream is `(seed, block index)`, so
 //!   the arrays are byte-identical for any thread count; bicluster ids in the row lists are
-//!   then block-local `u16`.
+//!   then block-local `u16`;
+//! * a column's cost in `W(B)` is the `column_cost` key (default 2, the paper's): the gather's
+//!   measured time per entry gives about the same weights, so it stays the default
+//!   (BENCHMARKS, "A gather-aware greedy").
 //!
 //! # Compressed form (`kind = "bicluster"`)
 //!
@@ -73,14 +76,19 @@ fn build(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
     Ok(Box::new(c))
 }
 
-/// The registry entry. The label names `block_vertices` and `error_budget` only when the
-/// config gives them (`bicluster-b1024`, `bicluster-e0.05`).
+/// The registry entry. The label names `block_vertices`, `error_budget` and `column_cost`
+/// only when the config gives them (`bicluster-b1024`, `bicluster-e0.05`, `bicluster-c16`).
 pub const KIND: Kind = Kind {
     name: "bicluster",
     about: "greedy constant-column biclustering (Sun et al.), block-parallel; lossless, or lossy within error_budget",
     label: |p| {
-        registry::parse::<Bicluster>(p)
-            .map(|_| registry::tagged_label("bicluster", p, &[("block_vertices", "b"), ("error_budget", "e")]))
+        registry::parse::<Bicluster>(p).map(|_| {
+            registry::tagged_label(
+                "bicluster",
+                p,
+                &[("block_vertices", "b"), ("error_budget", "e"), ("column_cost", "c")],
+            )
+        })
     },
     check: |p| build(p).map(drop),
     build: |p| Ok(build(p)?),
@@ -537,7 +545,7 @@ impl Bicluster {
         let block_rows =
             if self.block_vertices == 0 { rows.max(1) } else { self.block_vertices * t.local_dirs().max(1) };
         let nblocks = if rows == 0 { 0 } else { rows.div_ceil(block_rows) };
-        let key = SharedKey::of(&codes, block_rows, ctx.seed, first_block);
+        let key = SharedKey::of(&codes, block_rows, ctx.seed, first_block, self.column_cost);
         let greedy = match shared_greedy(&key) {
             Some(g) => {
                 ctx.report(1.0);
@@ -553,7 +561,14 @@ impl Bicluster {
                         || greedy::Workspace::new(cols, max_code),
                         |ws, b| {
                             let range = b * block_rows..((b + 1) * block_rows).min(rows);
-                            let out = greedy::bicluster_block(&codes, range, ctx.seed, (first_block + b) as u64, ws);
+                            let out = greedy::bicluster_block(
+                                &codes,
+                                range,
+                                ctx.seed,
+                                (first_block + b) as u64,
+                                self.costs(),
+                                ws,
+                            );
                             let d = done.fetch_add(1, Ordering::Relaxed) + 1;
                             ctx.report(d as f64 / nblocks as f64);
                             out
@@ -602,7 +617,7 @@ impl Bicluster {
 }
 
 /// What identifies a greedy run: the exact codes (by a 64-bit hash of their arrays), the block
-/// rows, the seed and the first block's index.
+/// rows, the seed, the first block's index and the column cost.
 #[derive(Clone, Debug, PartialEq, Eq)]
 struct SharedKey {
     fingerprint: u64,
@@ -613,10 +628,11 @@ struct SharedKey {
     block_rows: usize,
     seed: u64,
     first_block: usize,
+    column_cost: u32,
 }
 
 impl SharedKey {
-    fn of(codes: &CodeMatrix, block_rows: usize, seed: u64, first_block: usize) -> Self {
+    fn of(codes: &CodeMatrix, block_rows: usize, seed: u64, first_block: usize, column_cost: u32) -> Self {
         use std::hash::{Hash, Hasher};
         let mut h = std::collections::hash_map::DefaultHasher::new();
         codes.indptr.hash(&mut h);
@@ -631,6 +647,7 @@ impl SharedKey {
             block_rows,
             seed,
             first_block,
+            column_cost,
         }
     }
 }

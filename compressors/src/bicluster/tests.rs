@@ -116,7 +116,14 @@ fn random_matrices_are_lossless_over_many_seeds() {
         let local_grid = [1, 2, 4][rng.gen_range(0..3)];
         let density = [0.02, 0.1, 0.4][rng.gen_range(0..3)];
         let t = random_transfer(vertices, local_grid, 3, density, seed);
-        let c = Bicluster { block_vertices: [0, 1, 4, 7][rng.gen_range(0..4)], value_scale: 0, ..Bicluster::default() };
+        // Column costs other than the paper's 2 run the greedy's heaps and bars with other
+        // weights; the test build checks every grown bicluster is a local optimum of that dW.
+        let c = Bicluster {
+            block_vertices: [0, 1, 4, 7][rng.gen_range(0..4)],
+            value_scale: 0,
+            column_cost: [1, 2, 2, 3, 16][rng.gen_range(0..5)],
+            ..Bicluster::default()
+        };
         let form = c.compress(&t, &CompressContext { seed, progress: None }).unwrap();
         assert_codes_exact(&form, &t);
         assert_flops(&form, &t);
@@ -303,6 +310,17 @@ fn real_mesh_transfer_is_lossless() {
         assert!(s.flops_ratio < 0.6, "flops ratio {}", s.flops_ratio);
         assert!(s.ratio_to_csr < 0.4, "bytes vs CSR {}", s.ratio_to_csr);
     }
+    // A dearer column makes narrower, taller biclusters, and the form stays exact.
+    let mean_shape = |column_cost: u32| {
+        let c = Bicluster { column_cost, ..Bicluster::default() };
+        let form = c.compress(&t, &CompressContext { seed: 3, progress: None }).unwrap();
+        assert_codes_exact(&form, &t);
+        assert_gather_exact(&form, &t, &random_light(8, 1));
+        let s = table_stats(&form, &t).unwrap();
+        (s.l.mean, s.r.mean)
+    };
+    let ((l2, r2), (l16, r16)) = (mean_shape(2), mean_shape(16));
+    assert!(l16 < l2 && r16 > r2, "column cost 16: {l16:.2} x {r16:.2} against 2: {l2:.2} x {r2:.2}");
 }
 
 /// The unfused gather: full validation, then the view's plain accessors, with the kernel's
@@ -611,6 +629,20 @@ fn error_budget_outside_zero_to_one_is_refused_by_name() {
 }
 
 #[test]
+fn column_cost_outside_one_to_64_is_refused_by_name() {
+    for bad in [0, 65] {
+        let e = (KIND.build)(&serde_json::json!({ "column_cost": bad })).err().expect("accepted").to_string();
+        assert!(e.contains("column_cost") && e.contains("1..=64"), "{e}");
+    }
+    assert_eq!((KIND.label)(&serde_json::json!({ "column_cost": 16 })).unwrap(), "bicluster-c16");
+    // The paper's cost is the default and leaves the params (and so every cache key) as
+    // they were before the key existed.
+    let c = (KIND.build)(&serde_json::json!({ "column_cost": 2 })).unwrap();
+    assert_eq!(c.params(), (KIND.build)(&serde_json::json!({})).unwrap().params());
+    assert!(c.params().get("column_cost").is_none());
+}
+
+#[test]
 fn forms_of_block_aligned_ranges_merge_into_the_whole_form() {
     let t = random_transfer(29, 2, 4, 0.4, 13);
     let light = random_light(4, 3);
@@ -666,16 +698,25 @@ fn a_budget_sweep_runs_the_greedy_once_with_the_fresh_builds_form() {
     release_shared_greedy();
     let fresh = strip(lossy.compress(&t, &ctx(5)).unwrap());
     release_shared_greedy();
-    let key = SharedKey::of(&codes::quantize(&t, 0).unwrap(), 16 * t.local_dirs(), 5, 0);
+    let key = SharedKey::of(&codes::quantize(&t, 0).unwrap(), 16 * t.local_dirs(), 5, 0, 2);
     assert!(shared_greedy(&key).is_none());
     assert!(lossless.compress(&t, &ctx(5)).unwrap().lossless);
     assert!(shared_greedy(&key).is_some(), "the lossless build keeps its greedy output");
     let shared = strip(lossy.compress(&t, &ctx(5)).unwrap());
     assert_eq!(shared, fresh, "the shared greedy gives the fresh build's form");
     assert!(!fresh.lossless && fresh.meta["dropped_biclusters"] > 0, "the budget drops biclusters");
-    let other = SharedKey::of(&codes::quantize(&t, 0).unwrap(), 16 * t.local_dirs(), 6, 0);
+    let other = SharedKey::of(&codes::quantize(&t, 0).unwrap(), 16 * t.local_dirs(), 6, 0, 2);
     lossy.compress(&t, &ctx(6)).unwrap();
     assert!(shared_greedy(&other).is_some() && shared_greedy(&key).is_none(), "another seed replaces it");
+    // Another column cost is another greedy: it is not served the kept one.
+    let dearer = Bicluster { column_cost: 16, ..lossy.clone() };
+    let own = SharedKey::of(&codes::quantize(&t, 0).unwrap(), 16 * t.local_dirs(), 6, 0, 16);
+    release_shared_greedy();
+    let fresh16 = strip(dearer.compress(&t, &ctx(6)).unwrap());
+    assert!(shared_greedy(&own).is_some() && shared_greedy(&other).is_none());
+    lossy.compress(&t, &ctx(6)).unwrap();
+    assert!(shared_greedy(&other).is_some() && shared_greedy(&own).is_none(), "the paper's cost replaces it");
+    assert_ne!(strip(lossy.compress(&t, &ctx(6)).unwrap()), fresh16);
     release_shared_greedy();
     assert!(shared_greedy(&other).is_none(), "released");
 }
