@@ -17,9 +17,9 @@
 //!   independently in parallel (rayon); a block's random stream is `(seed, block index)`, so
 //!   the arrays are byte-identical for any thread count; bicluster ids in the row lists are
 //!   then block-local `u16`;
-//! * a column's cost in `W(B)` is the `column_cost` key (default 2, the paper's): the gather's
-//!   measured time per entry gives about the same weights, so it stays the default
-//!   (BENCHMARKS, "A gather-aware greedy").
+//! * a column's cost in `W(B)` is the `column_cost` key (default 2, the paper's flop count;
+//!   the CPU gather's time per entry would weigh a column about 6 rows, and 16 gathers about
+//!   5% faster for more flops and bytes: BENCHMARKS, "A gather-aware greedy").
 //!
 //! # Compressed form (`kind = "bicluster"`)
 //!

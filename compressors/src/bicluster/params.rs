@@ -25,10 +25,12 @@ pub struct Bicluster {
     #[serde(skip_serializing_if = "is_zero")]
     pub error_budget: f64,
     /// What one column of a bicluster costs in the greedy's `dW`, against 1 for a row and 2
-    /// for each non-zero it covers. The paper's flop count is 2 (`W(B) = r + 2l - 1`), and
-    /// it is also what the CPU gather's time per entry says (a column entry about 2.2 times a
-    /// row-list entry). Raising it makes taller, narrower biclusters: on the bunny 16 gathers
-    /// about 5% faster for 5% more flops (BENCHMARKS, "A gather-aware greedy"). In `1..=64`.
+    /// for each non-zero it covers. The paper's flop count is 2 (`W(B) = r + 2l - 1`). The
+    /// CPU gather's time says a column entry, with its share of its bicluster's pass-1 work,
+    /// costs about 6 row-list entries (5.3 against 0.89 ns on the bunny). Raising the cost
+    /// makes taller, narrower biclusters that gather faster for more flops and bytes: 16
+    /// gathers about 5% faster for 5% (bunny) to 20% (30k bunny) more flops (BENCHMARKS,
+    /// "A gather-aware greedy"). In `1..=64`.
     #[serde(skip_serializing_if = "is_paper_column_cost")]
     pub column_cost: u32,
 }
