@@ -171,15 +171,12 @@ struct Block<'w> {
 }
 
 /// What a bicluster's rows and columns cost in `dW = 2 nnz(M) - W(B) - 2 nnz(M_R)`,
-/// `W(B) = row r + col l - 1`. The paper's flop count is `row = 1, col = 2`.
+/// `W(B) = row r + col l - 1`. The paper's flop count is `row = 1, col = 2`; the compressor
+/// sets `row = 1` and `col` from its `column_cost` key ([`super::Bicluster::costs`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Costs {
     pub row: u64,
     pub col: u64,
-}
-
-impl Costs {
-    pub const PAPER: Costs = Costs { row: 1, col: 2 };
 }
 
 /// How far below the bar the candidate heaps keep keys (see `Block::row_ins`).
