@@ -10,12 +10,14 @@
 //!     [--rotation-degrees 120] [--budgets 0.01,0.02,0.05,0.1,0.2,0.3] [--seed 3] [--block-vertices 1024]
 //! ```
 //!
-//! Columns: bytes and flops as a share of the lossless form; `frob` the relative Frobenius
-//! error of `T` (what the budget bounds, recomputed from the arrays); `sky` the relative `L*`
-//! error under the uniform sky; `env`, `sun`, `rand` the relative `L*` error of the CPU
-//! gather against the f64 product under the env map, a random light with a 10^6 sun and one
-//! without (`testing::random_light`). Every budget's achieved Frobenius error is checked to be
-//! at most the budget.
+//! Columns: bytes and flops as a share of the lossless form; `build s` the form's build time
+//! (a budget's is its pruning alone: the budgets share the lossless form's greedy output, as
+//! a sweep in `biscale run` does); `frob` the relative Frobenius error of `T` (what the budget
+//! bounds, recomputed from the arrays); `sky` the relative `L*` error under the uniform sky;
+//! `env`, `sun`, `rand` the relative `L*` error of the CPU gather against the f64 product
+//! under the env map, a random light with a 10^6 sun and one without
+//! (`testing::random_light`). Every budget's achieved Frobenius error is checked to be at
+//! most the budget.
 
 use biscale_compressors::bicluster::{achieved_error, Bicluster};
 use biscale_compressors::testing::random_light;
