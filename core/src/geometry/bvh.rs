@@ -478,6 +478,23 @@ pub(crate) struct Cone {
     pub sin: f32,
 }
 
+impl Cone {
+    /// Does every direction of the cone lie below the plane with unit normal `n`? The axis
+    /// is then more than 90 degrees plus the half-angle from `n` (1e-6 of slack for the f32
+    /// dot product), so no ray of it is above the horizon.
+    #[inline]
+    pub(crate) fn below(&self, n: Vec3A) -> bool {
+        self.axis.dot(n) < -self.sin - 1e-6
+    }
+
+    /// Does every direction of the cone lie above that plane (the axis less than 90 degrees
+    /// minus the half-angle from `n`, with the same slack)?
+    #[inline]
+    pub(crate) fn above(&self, n: Vec3A) -> bool {
+        self.axis.dot(n) > self.sin + 1e-6
+    }
+}
+
 /// A sphere tree over the primitives in BVH order (contiguous ranges of the CWBVH leaf
 /// order are spatially compact), stored in depth-first order with skip links so a query
 /// is one loop. Each sphere bounds its triangles grown by the test's edge tolerance.

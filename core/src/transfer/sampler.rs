@@ -253,6 +253,14 @@ impl VisibilitySampler {
         rays
     }
 
+    /// Is fine ray `f` of coarse texel `k` one the point with normal `n` decides? Both it and
+    /// its coarse texel's centre must be above the tangent plane (the rule of
+    /// `point_entries_reference`); both fast paths ask this one question.
+    #[inline]
+    fn above_horizon(&self, k: usize, f: usize, n: Vec3) -> bool {
+        self.coarse_dirs[k].dot(n) > 0.0 && self.fine_dirs[f].dot(n) > 0.0
+    }
+
     /// [`Visibility::Rays`]'s answers for the point at `o` with normal `n`, tile by tile: a
     /// tile whose cone lies below the horizon is skipped; otherwise one cone query lists the
     /// triangles its rays could hit (above the tangent plane, inside the cone), usually none
@@ -265,20 +273,16 @@ impl VisibilitySampler {
         let mut rays = 0u64;
         let mut cache = u32::MAX;
         for (cone, texels) in &self.tiles {
-            // All directions of the tile are within the cone's angle of its axis: if the
-            // axis is more than 90 degrees + that angle from n, all are below the horizon.
-            if cone.axis.dot(n_a) < -cone.sin - 1e-6 {
+            // All directions of the tile are within its cone.
+            if cone.below(n_a) {
                 continue;
             }
             // The tile's rays above the horizon: (coarse texel, fine ray).
             tile_rays.clear();
             for &k in &self.tile_texels[texels.clone()] {
                 let k = k as usize;
-                if self.coarse_dirs[k].dot(n) <= 0.0 {
-                    continue;
-                }
                 for f in k * self.s2..(k + 1) * self.s2 {
-                    if self.fine_dirs[f].dot(n) > 0.0 {
+                    if self.above_horizon(k, f, n) {
                         tile_rays.push((k as u32, f as u32));
                     }
                 }
@@ -323,8 +327,7 @@ impl VisibilitySampler {
         let VisibilityScratch { visible, cover, .. } = scratch;
         let mut rays = 0u64;
         for (tile, start) in &self.raster {
-            let cone = &tile.cone;
-            if cone.axis.dot(n_a) < -cone.sin - 1e-6 {
+            if tile.cone.below(n_a) {
                 continue;
             }
             // The tile's rays above the horizon are its open texels; what stays open after
@@ -332,16 +335,14 @@ impl VisibilitySampler {
             let (rows, cols) = (tile.rows as usize, tile.cols as usize);
             let texel_rays = &self.raster_rays[*start..start + rows * cols];
             let mut open = [0u64; MAX_TILE];
-            if cone.axis.dot(n_a) > cone.sin + 1e-6 {
+            if tile.cone.above(n_a) {
                 // Every direction of the tile (coarse centres included: each lies in the
                 // cone of its children) is above the horizon.
                 open[..rows].fill(u64::MAX >> (64 - cols));
             } else {
                 for (row, mask) in open[..rows].iter_mut().enumerate() {
                     for (col, &(k, f)) in texel_rays[row * cols..(row + 1) * cols].iter().enumerate() {
-                        let above =
-                            self.coarse_dirs[k as usize].dot(n) > 0.0 && self.fine_dirs[f as usize].dot(n) > 0.0;
-                        *mask |= (above as u64) << col;
+                        *mask |= (self.above_horizon(k as usize, f as usize, n) as u64) << col;
                     }
                 }
             }
