@@ -21,6 +21,7 @@ use biscale_compressors::bicluster::BiclusterView;
 use biscale_compressors::registry;
 use biscale_compressors::testing::random_light;
 use biscale_core::compress::CompressedForm;
+use biscale_core::gather::relative_l2_error;
 use biscale_core::stats::median;
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -211,14 +212,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let plain = pool.install(|| compressor.gather(&form, &light))?;
         let mut out = vec![[0.0f32; 3]; v.rows];
         paired_gather(&v, &blocks, &lp, &mut out);
-        let (mut e2, mut n2) = (0.0f64, 0.0f64);
-        for (o, w) in out.iter().zip(plain.values()) {
-            for c in 0..3 {
-                e2 += (o[c] as f64 - w[c] as f64).powi(2);
-                n2 += (w[c] as f64).powi(2);
-            }
-        }
-        let rel = (e2 / n2.max(f64::MIN_POSITIVE)).sqrt();
+        let plain64: Vec<[f64; 3]> = plain.values().iter().map(|v| v.map(f64::from)).collect();
+        let rel = relative_l2_error(&out, &plain64);
         if rel > 1e-5 {
             return Err(format!("{}: the paired gather differs from the plain one by {rel:.2e}", path.display()).into());
         }

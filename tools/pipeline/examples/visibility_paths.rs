@@ -51,25 +51,10 @@ fn main() -> Result<()> {
         // differences of the counts.
         let s2 = (base.supersampling() * base.supersampling()) as f64;
         let (a, b) = (rays.matrix.csr(), cover.matrix.csr());
-        let (mut entries, mut differing) = (0u64, 0f64);
-        for (ra, rb) in a.outer_iterator().zip(b.outer_iterator()) {
-            let (mut i, mut j) = (0, 0);
-            let (ia, da, ib, db) = (ra.indices(), ra.data(), rb.indices(), rb.data());
-            while i < ia.len() || j < ib.len() {
-                let (ka, kb) = (ia.get(i).copied().unwrap_or(usize::MAX), ib.get(j).copied().unwrap_or(usize::MAX));
-                let (va, vb) = match ka.cmp(&kb) {
-                    std::cmp::Ordering::Less => (da[i], 0.0),
-                    std::cmp::Ordering::Greater => (0.0, db[j]),
-                    std::cmp::Ordering::Equal => (da[i], db[j]),
-                };
-                i += (ka <= kb) as usize;
-                j += (kb <= ka) as usize;
-                if va != vb {
-                    entries += 1;
-                    differing += ((va - vb) as f64 * s2).abs().round();
-                }
-            }
-        }
+        let diff = a - b;
+        let differences = diff.data().iter().filter(|&&d| d != 0.0);
+        let entries = differences.clone().count();
+        let differing = differences.fold(0.0, |sum, &d| sum + (d as f64 * s2).abs().round());
         let (ts, tc) = (median(&seconds[0]), median(&seconds[1]));
         let rate = |s: f64| rays.stats.rays_traced as f64 / s / 1e6;
         println!(
