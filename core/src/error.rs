@@ -13,6 +13,10 @@ pub enum CoreError {
     /// A request that would need more memory than allowed.
     #[error("too large: {0}")]
     TooLarge(String),
+    /// An output path biscale will not write: something is there that it did not write (a
+    /// user's file, a link, a device node, a FIFO, a folder).
+    #[error("{}: {message}", path.display())]
+    Refused { path: PathBuf, message: String },
     #[error("{}: {source}", path.display())]
     Io { path: PathBuf, source: std::io::Error },
     /// A stage output file that cannot be read back.

@@ -1,9 +1,13 @@
-//! File output every stage shares: the one atomic writer, and the content hash that keys
-//! cached stage outputs.
+//! File output every stage shares: the one atomic writer, the single-file writer of commands
+//! that write one file where the user names it, and the content hash that keys cached stage
+//! outputs.
 //!
 //! Every write is atomic: the bytes go to a temporary file in the target's directory, which is
 //! flushed, synced and then renamed over the target, so a failed or interrupted write never
 //! leaves a half-written output (and a missing directory leaves nothing at all).
+//! [`write_atomic`] is for paths inside folders biscale owns (a staged run folder, the cache);
+//! a file at a path a user names goes through [`write_single_file`], which never replaces
+//! what biscale did not write.
 
 use crate::error::{CoreError, Result};
 use std::fs::{File, OpenOptions};
@@ -46,6 +50,266 @@ pub fn write_atomic(
 /// Write `bytes` to `path` atomically ([`write_atomic`]).
 pub fn write_atomic_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomic(path, |f| f.write_all(bytes).map_err(|e| e.to_string()))
+}
+
+/// How biscale recognises a single output file it wrote itself: each format carries a mark
+/// that biscale puts in every such file, where reading a few bytes finds it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FileMark {
+    /// An OBJ mesh whose first line starts with [`OBJ_MARK`].
+    Obj,
+    /// A PNG whose first chunk after `IHDR` is the `tEXt` chunk [`png_mark_chunk`]
+    /// (`Software`: [`MARK_TEXT`]), as [`mark_png`] puts it there.
+    Png,
+    /// A ZIP archive (a `.npz`) whose archive comment is [`MARK_TEXT`].
+    Zip,
+}
+
+/// The text of every mark: what a single file biscale wrote says of itself.
+pub const MARK_TEXT: &str = "written by biscale";
+/// The first line of an OBJ biscale writes as a single file starts with this.
+pub const OBJ_MARK: &str = "# written by biscale";
+
+impl FileMark {
+    /// What such a file is, for messages.
+    pub fn what(self) -> &'static str {
+        match self {
+            Self::Obj => "OBJ mesh",
+            Self::Png => "PNG image",
+            Self::Zip => "NumPy .npz archive",
+        }
+    }
+
+    /// Whether a file of `len` bytes, whose first bytes are `head` and last bytes `tail` (each
+    /// up to [`MARK_PROBE`] bytes), carries this mark.
+    fn found(self, head: &[u8], tail: &[u8]) -> bool {
+        match self {
+            Self::Obj => head.starts_with(OBJ_MARK.as_bytes()),
+            Self::Png => head.len() >= 33 && head[33..].starts_with(&png_mark_chunk()),
+            Self::Zip => {
+                // The end-of-central-directory record is the last 22 bytes plus the comment.
+                let n = MARK_TEXT.len();
+                tail.len() >= 22 + n && {
+                    let eocd = &tail[tail.len() - 22 - n..];
+                    eocd.starts_with(b"PK\x05\x06")
+                        && eocd[20..22] == (n as u16).to_le_bytes()
+                        && eocd[22..] == *MARK_TEXT.as_bytes()
+                }
+            }
+        }
+    }
+}
+
+/// How many bytes of an existing file's head and of its tail are read for its mark.
+const MARK_PROBE: u64 = 4096;
+
+/// The `tEXt` chunk [`mark_png`] puts right after `IHDR`: keyword `Software`, text
+/// [`MARK_TEXT`], with its length and CRC.
+pub fn png_mark_chunk() -> Vec<u8> {
+    let data = [b"Software\0".as_slice(), MARK_TEXT.as_bytes()].concat();
+    let mut chunk = (data.len() as u32).to_be_bytes().to_vec();
+    let typed = [b"tEXt".as_slice(), &data].concat();
+    chunk.extend_from_slice(&typed);
+    chunk.extend_from_slice(&crc32fast::hash(&typed).to_be_bytes());
+    chunk
+}
+
+/// Insert [`png_mark_chunk`] after the `IHDR` chunk of an encoded PNG (always its first: the
+/// 8-byte signature, then 25 bytes of `IHDR`). `None` when `png` does not start that way.
+pub fn mark_png(png: &[u8]) -> Option<Vec<u8>> {
+    (png.len() >= 33 && png.starts_with(b"\x89PNG\r\n\x1a\n") && &png[12..16] == b"IHDR")
+        .then(|| [&png[..33], &png_mark_chunk(), &png[33..]].concat())
+}
+
+/// Write one file where a user names it (`biscale generate --out`, `diff --error-image`,
+/// Python's `Form.save`), whole or not at all ([`write_atomic`]'s temporary and rename), and
+/// never over what biscale did not write:
+///
+/// * nothing there: written, by a rename that refuses to replace (`renameat2` with
+///   `RENAME_NOREPLACE`; a link where that is not supported), so something made at the path
+///   meanwhile is not replaced either;
+/// * a regular file carrying `mark` (biscale wrote it): replaced, by an atomic exchange, after
+///   which what was exchanged out is checked again and, if it changed meanwhile, put back;
+/// * a regular file without the mark (a user's, or an input): refused, unless `force`;
+/// * a link, a device node, a FIFO, a socket or a folder: refused, `force` or not. Nothing is
+///   read from it: a device or FIFO is only looked at, never opened.
+///
+/// `-` is standard output: the bytes are streamed there (the way to write to a pipe).
+/// `write` must leave `mark` in the bytes it writes, so the next run may replace the file.
+pub fn write_single_file(
+    path: &Path,
+    mark: FileMark,
+    force: bool,
+    write: impl FnOnce(&mut BufWriter<File>) -> std::result::Result<(), String>,
+) -> Result<()> {
+    if path.as_os_str() == "-" {
+        return write_stdout(write);
+    }
+    let refused = |message: String| CoreError::Refused { path: path.into(), message };
+    let existing = check_single_target(path, mark, force)?;
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    let io = |source: std::io::Error| CoreError::Io { path: path.into(), source };
+    let name = path.file_name().ok_or_else(|| CoreError::Invalid(format!("{}: not a file path", path.display())))?;
+    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let tmp: PathBuf = dir.join(format!(
+        ".{}.tmp-{}-{}",
+        name.to_string_lossy(),
+        std::process::id(),
+        COUNTER.fetch_add(1, Ordering::Relaxed)
+    ));
+    let file = OpenOptions::new().write(true).create_new(true).open(&tmp).map_err(io)?;
+    let mut out = BufWriter::new(file);
+    let result = write(&mut out)
+        .map_err(|message| CoreError::Input { path: path.into(), message })
+        .and_then(|()| out.flush().map_err(io))
+        .and_then(|()| out.get_ref().sync_all().map_err(io));
+    drop(out);
+    let result = result.and_then(|()| match existing {
+        None => publish_new(&tmp, path).map_err(|e| match e.kind() {
+            std::io::ErrorKind::AlreadyExists => {
+                refused("something was made at this path while biscale wrote; it is left as it is".into())
+            }
+            _ => io(e),
+        }),
+        Some(before) => publish_over(&tmp, path, mark, force, before),
+    });
+    // On success the temporary path holds the replaced file (or nothing); either way it goes.
+    let _ = std::fs::remove_file(&tmp);
+    result
+}
+
+/// [`write_single_file`] to standard output.
+fn write_stdout(write: impl FnOnce(&mut BufWriter<File>) -> std::result::Result<(), String>) -> Result<()> {
+    use std::os::fd::{AsFd, FromRawFd, IntoRawFd};
+    let stdout = std::io::stdout();
+    let fd = stdout.as_fd().try_clone_to_owned().map_err(|source| CoreError::Io { path: "-".into(), source })?;
+    // SAFETY: `fd` is an owned duplicate of standard output, handed to the File that owns it.
+    let mut out = BufWriter::new(unsafe { File::from_raw_fd(fd.into_raw_fd()) });
+    let path = PathBuf::from("<standard output>");
+    write(&mut out).map_err(|message| CoreError::Input { path: path.clone(), message })?;
+    out.flush().map_err(|source| CoreError::Io { path, source })
+}
+
+/// What is at a single file's path before it is written: `None` for nothing, else the
+/// identity (device, inode) of the regular file that may be replaced; or the refusal.
+fn check_single_target(path: &Path, mark: FileMark, force: bool) -> Result<Option<(u64, u64)>> {
+    use std::os::unix::fs::{FileTypeExt, MetadataExt};
+    let refused = |message: String| CoreError::Refused { path: path.into(), message };
+    let meta = match std::fs::symlink_metadata(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(source) => return Err(CoreError::Io { path: path.into(), source }),
+        Ok(m) => m,
+    };
+    let t = meta.file_type();
+    let kind = if t.is_symlink() {
+        "a symbolic link"
+    } else if t.is_dir() {
+        "a folder"
+    } else if t.is_char_device() || t.is_block_device() {
+        "a device node"
+    } else if t.is_fifo() {
+        "a FIFO"
+    } else if t.is_socket() {
+        "a socket"
+    } else {
+        ""
+    };
+    if !kind.is_empty() {
+        return Err(refused(format!(
+            "is {kind}, not a file biscale wrote; biscale writes a single output file only where nothing is or over              a {} it wrote itself (name a new file, or `-` to stream to standard output)",
+            mark.what()
+        )));
+    }
+    if force {
+        return Ok(Some((meta.dev(), meta.ino())));
+    }
+    match carries_mark(path, mark) {
+        Ok(true) => Ok(Some((meta.dev(), meta.ino()))),
+        Ok(false) => Err(refused(format!(
+            "exists and is not a {} biscale wrote (it lacks the mark \"{MARK_TEXT}\" biscale puts in every such file);              name a new file, or give --force to replace it",
+            mark.what()
+        ))),
+        Err(source) => Err(CoreError::Io { path: path.into(), source }),
+    }
+}
+
+/// Whether the regular file at `path` carries `mark`: it is opened without following a link
+/// and without blocking, checked to be a regular file, and at most [`MARK_PROBE`] bytes of
+/// its head and of its tail are read.
+fn carries_mark(path: &Path, mark: FileMark) -> std::io::Result<bool> {
+    use std::io::{Read, Seek, SeekFrom};
+    use std::os::unix::fs::OpenOptionsExt;
+    let mut f = OpenOptions::new().read(true).custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK).open(path)?;
+    let meta = f.metadata()?;
+    if !meta.is_file() {
+        return Ok(false);
+    }
+    let len = meta.len();
+    let mut head = vec![];
+    (&mut f).take(MARK_PROBE).read_to_end(&mut head)?;
+    let mut tail = vec![];
+    f.seek(SeekFrom::Start(len.saturating_sub(MARK_PROBE)))?;
+    f.take(MARK_PROBE).read_to_end(&mut tail)?;
+    Ok(mark.found(&head, &tail))
+}
+
+/// Move `tmp` to `path` where nothing is: fails with `AlreadyExists` if something is.
+fn publish_new(tmp: &Path, path: &Path) -> std::io::Result<()> {
+    #[cfg(target_os = "linux")]
+    match rename2(tmp, path, libc::RENAME_NOREPLACE) {
+        Err(e) if matches!(e.raw_os_error(), Some(libc::EINVAL | libc::ENOSYS)) => {}
+        other => return other,
+    }
+    // A hard link is never made over an existing name either.
+    std::fs::hard_link(tmp, path)?;
+    std::fs::remove_file(tmp)
+}
+
+/// Replace the file at `path`, which was the regular file `before` (device, inode), by `tmp`:
+/// the two are exchanged, then what came out is checked to be that same file, still
+/// acceptable; if not, the exchange is undone and the write refused.
+fn publish_over(tmp: &Path, path: &Path, mark: FileMark, force: bool, before: (u64, u64)) -> Result<()> {
+    use std::os::unix::fs::MetadataExt;
+    let io = |source: std::io::Error| CoreError::Io { path: path.into(), source };
+    #[cfg(target_os = "linux")]
+    match rename2(tmp, path, libc::RENAME_EXCHANGE) {
+        Ok(()) => {
+            let same = std::fs::symlink_metadata(tmp).is_ok_and(|m| m.is_file() && (m.dev(), m.ino()) == before);
+            if same && (force || carries_mark(tmp, mark).unwrap_or(false)) {
+                return Ok(());
+            }
+            rename2(tmp, path, libc::RENAME_EXCHANGE).map_err(io)?;
+            return Err(CoreError::Refused {
+                path: path.into(),
+                message: "was replaced by something else while biscale wrote; it is left as it is".into(),
+            });
+        }
+        Err(e) if matches!(e.raw_os_error(), Some(libc::EINVAL | libc::ENOSYS)) => {}
+        Err(e) => return Err(io(e)),
+    }
+    // Without an exchange: check again just before the rename (a window remains).
+    let now = std::fs::symlink_metadata(path).map_err(io)?;
+    if !(now.is_file() && (now.dev(), now.ino()) == before) {
+        return Err(CoreError::Refused {
+            path: path.into(),
+            message: "was replaced by something else while biscale wrote; it is left as it is".into(),
+        });
+    }
+    std::fs::rename(tmp, path).map_err(io)
+}
+
+#[cfg(target_os = "linux")]
+fn rename2(from: &Path, to: &Path, flags: libc::c_uint) -> std::io::Result<()> {
+    use std::os::unix::ffi::OsStrExt;
+    let c = |p: &Path| std::ffi::CString::new(p.as_os_str().as_bytes()).map_err(std::io::Error::other);
+    let (a, b) = (c(from)?, c(to)?);
+    // SAFETY: two NUL-terminated paths that live across the call.
+    let r = unsafe { libc::renameat2(libc::AT_FDCWD, a.as_ptr(), libc::AT_FDCWD, b.as_ptr(), flags) };
+    if r == 0 {
+        Ok(())
+    } else {
+        Err(std::io::Error::last_os_error())
+    }
 }
 
 /// The content hash behind every cache key: XXH3-128 (`xxhash-rust`), fast and stable across
@@ -106,6 +370,103 @@ mod tests {
         assert_eq!(whole, parts);
         assert_eq!(whole, 0x06b05ab6733a618578af5f94892f3950);
         assert_eq!(ContentHash::default().write(b"abc").finish(), 0x78af5f94892f3950);
+    }
+
+    /// An OBJ writer for [`write_single_file`] tests: `text` after the mark.
+    fn obj(path: &Path, force: bool, text: &str) -> Result<()> {
+        write_single_file(path, FileMark::Obj, force, |f| {
+            f.write_all(format!("{OBJ_MARK}\n{text}").as_bytes()).map_err(|e| e.to_string())
+        })
+    }
+
+    #[test]
+    fn a_single_file_is_written_new_or_over_its_own_only() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("m.obj");
+        obj(&p, false, "v 0 0 0\n").unwrap();
+        obj(&p, false, "v 1 1 1\n").unwrap();
+        assert_eq!(std::fs::read_to_string(&p).unwrap(), format!("{OBJ_MARK}\nv 1 1 1\n"));
+        // A user's file (an input, an EXR, notes) is refused and left byte for byte; with
+        // force it is replaced, and then it is biscale's.
+        let mine = dir.path().join("mine.obj");
+        std::fs::write(&mine, "v 9 9 9\n").unwrap();
+        let e = obj(&mine, false, "v 1 1 1\n").unwrap_err();
+        assert!(matches!(&e, CoreError::Refused { .. }) && e.to_string().contains("give --force"), "{e}");
+        assert_eq!(std::fs::read_to_string(&mine).unwrap(), "v 9 9 9\n");
+        obj(&mine, true, "v 2 2 2\n").unwrap();
+        obj(&mine, false, "v 3 3 3\n").unwrap();
+        // Only the mark counts, not the name: a PNG mark is not an OBJ mark.
+        assert!(!FileMark::Png.found(OBJ_MARK.as_bytes(), OBJ_MARK.as_bytes()));
+        // Nothing but the file was left in the folder (no temporaries).
+        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names.len(), 2, "{names:?}");
+    }
+
+    #[test]
+    fn links_folders_fifos_and_devices_are_never_replaced() {
+        use std::os::unix::fs::FileTypeExt;
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("target.obj");
+        obj(&target, false, "").unwrap();
+        let link = dir.path().join("link.obj");
+        std::os::unix::fs::symlink(&target, &link).unwrap();
+        let folder = dir.path().join("folder.obj");
+        std::fs::create_dir(&folder).unwrap();
+        let fifo = dir.path().join("fifo.obj");
+        let c = |p: &Path| std::ffi::CString::new(p.to_str().unwrap()).unwrap();
+        // SAFETY: a NUL-terminated path.
+        assert_eq!(unsafe { libc::mkfifo(c(&fifo).as_ptr(), 0o644) }, 0);
+        // A character device like /dev/null (1, 3), made here: only where this process may
+        // (root, as CI); elsewhere that case is skipped with a note.
+        let device = dir.path().join("null.obj");
+        // SAFETY: a NUL-terminated path.
+        let made = unsafe { libc::mknod(c(&device).as_ptr(), libc::S_IFCHR | 0o666, libc::makedev(1, 3)) } == 0;
+        if !made {
+            eprintln!("note: mknod not permitted here; the device-node case is checked where it is (CI runs as root)");
+        }
+        for (p, kind) in
+            [(&link, "a symbolic link"), (&folder, "a folder"), (&fifo, "a FIFO"), (&device, "a device node")]
+        {
+            if p == &device && !made {
+                continue;
+            }
+            for force in [false, true] {
+                let e = obj(p, force, "v 1 1 1\n").unwrap_err().to_string();
+                assert!(e.contains(&format!("is {kind}")) && e.contains("standard output"), "{e}");
+            }
+        }
+        assert!(std::fs::symlink_metadata(&link).unwrap().file_type().is_symlink());
+        assert_eq!(std::fs::read_to_string(&target).unwrap(), format!("{OBJ_MARK}\n"));
+        assert!(std::fs::symlink_metadata(&fifo).unwrap().file_type().is_fifo());
+        if made {
+            assert!(std::fs::symlink_metadata(&device).unwrap().file_type().is_char_device());
+        }
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 4 + made as usize);
+    }
+
+    #[test]
+    fn the_png_and_zip_marks_are_found_where_they_are_written() {
+        let img = image::RgbImage::from_pixel(3, 2, image::Rgb([10, 20, 30]));
+        let mut png = std::io::Cursor::new(vec![]);
+        img.write_to(&mut png, image::ImageFormat::Png).unwrap();
+        assert!(!FileMark::Png.found(png.get_ref(), png.get_ref()));
+        let marked = mark_png(png.get_ref()).unwrap();
+        assert!(FileMark::Png.found(&marked, &marked));
+        // The marked PNG still decodes to the same pixels (the chunk's CRC is right).
+        let back = image::load_from_memory_with_format(&marked, image::ImageFormat::Png).unwrap().to_rgb8();
+        assert_eq!(back, img);
+        assert!(mark_png(b"not a png at all, long enough to have 33 bytes").is_none());
+        // A ZIP's end record with the mark as its comment, and one with another comment.
+        let eocd = |comment: &[u8]| {
+            let mut r = b"PK\x05\x06".to_vec();
+            r.extend_from_slice(&[0; 16]);
+            r.extend_from_slice(&(comment.len() as u16).to_le_bytes());
+            r.extend_from_slice(comment);
+            r
+        };
+        assert!(FileMark::Zip.found(b"", &[b"members".as_slice(), &eocd(MARK_TEXT.as_bytes())].concat()));
+        assert!(!FileMark::Zip.found(b"", &eocd(b"written by numpy..")));
+        assert!(!FileMark::Zip.found(b"", &eocd(b"")));
     }
 
     #[test]

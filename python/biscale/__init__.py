@@ -183,11 +183,13 @@ class Form:
         ``T`` was traced with. Rows x 3 float32; compare with ``T.product(L, moments=True)``."""
         return self._f.gather_moments(_light_array(L))
 
-    def save(self, path: PathLike, *, label: Optional[str] = None) -> None:
+    def save(self, path: PathLike, *, label: Optional[str] = None, force: bool = False) -> None:
         """Write the form as ``biscale export`` writes ``form-<label>.npz`` (``label`` defaults
         to the kind): ``biscale eval --form`` scores it, ``biscale_io.load_form`` reads it. The
-        file is written whole or not at all."""
-        self._f.save(os.fspath(path), label or self.kind)
+        file is written whole or not at all, at a new path or over a ``.npz`` biscale wrote:
+        a file biscale did not write is refused (``BiscaleError``) unless ``force=True``, and a
+        link, device node, FIFO or folder is refused always."""
+        self._f.save(os.fspath(path), label or self.kind, force)
 
     def __repr__(self) -> str:
         return f"<biscale.Form {self.kind}, {self.nbytes} bytes, {self.flops_per_gather} flops/gather>"

@@ -484,10 +484,14 @@ impl Form {
         rows3(py, lstar.values().as_flattened().to_vec())
     }
     /// Write the form to `path` as `biscale export` writes `form-<label>.npz` (read by
-    /// `biscale eval --form` and `biscale_io.load_form`), written whole or not at all.
-    fn save(&self, py: Python<'_>, path: PathBuf, label: String) -> PyResult<()> {
+    /// `biscale eval --form` and `biscale_io.load_form`), written whole or not at all, and
+    /// never over what biscale did not write (a user's file unless `force`; a link, device,
+    /// FIFO or folder never).
+    #[pyo3(signature = (path, label, force = false))]
+    fn save(&self, py: Python<'_>, path: PathBuf, label: String, force: bool) -> PyResult<()> {
         let params = self.compressor.params();
-        py.detach(|| biscale::interop::write_form(&self.exp, &self.form, &label, &params, &path)).map_err(err)
+        py.detach(|| biscale::interop::write_form(&self.exp, &self.form, &label, &params, &path, Some(force)))
+            .map_err(err)
     }
 }
 

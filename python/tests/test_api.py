@@ -9,6 +9,7 @@ about two seconds; the tests share one stage cache (T traced once).
 import json
 import os
 import re
+import stat
 import subprocess
 import sys
 import threading
@@ -226,6 +227,23 @@ def test_a_saved_form_is_the_clis_eval_form(exp, cache, tmp_path):
     with pytest.raises(biscale.BiscaleError):
         form.save(tmp_path / "no-such-dir" / "form.npz")
     assert not (tmp_path / "no-such-dir").exists()
+    # Saved again over its own file; never over a user's file (unless force), a link or a FIFO.
+    form.save(path, label="mine")
+    mine = tmp_path / "notes.npz"
+    mine.write_bytes(b"my own notes")
+    with pytest.raises(biscale.BiscaleError, match="not a NumPy .npz archive biscale wrote"):
+        form.save(mine)
+    assert mine.read_bytes() == b"my own notes"
+    form.save(mine, force=True)
+    assert set(biscale_io.load_form(mine).arrays) == set(form.arrays)
+    link = tmp_path / "link.npz"
+    link.symlink_to(path)
+    fifo = tmp_path / "fifo.npz"
+    os.mkfifo(fifo)
+    for special in (link, fifo):
+        with pytest.raises(biscale.BiscaleError, match="is a (symbolic link|FIFO)"):
+            form.save(special, force=True)
+    assert link.is_symlink() and stat.S_ISFIFO(os.stat(fifo).st_mode)
 
 
 def test_warnings_and_progress_reach_logging(exp, cache, tmp_path, caplog):

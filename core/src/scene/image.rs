@@ -205,6 +205,22 @@ pub fn write_rgb8_png(img: &image::RgbImage, path: &Path) -> Result<()> {
     write_atomic(path, |out| img.write_to(out, image::ImageFormat::Png).map_err(|e| format!("cannot write PNG: {e}")))
 }
 
+/// Write an 8-bit RGB image as PNG to a path a user names ([`crate::io::write_single_file`]):
+/// never over anything but a PNG biscale wrote (unless `force`, a user's regular file); `-` is
+/// standard output. The PNG carries biscale's mark ([`crate::io::mark_png`]).
+pub fn write_rgb8_png_single(img: &image::RgbImage, path: &Path, force: bool) -> Result<()> {
+    let mut png = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut png, image::ImageFormat::Png)
+        .map_err(|e| CoreError::Input { path: path.into(), message: format!("cannot write PNG: {e}") })?;
+    let png = crate::io::mark_png(png.get_ref()).ok_or_else(|| CoreError::Input {
+        path: path.into(),
+        message: "the PNG encoder wrote no IHDR chunk first".into(),
+    })?;
+    crate::io::write_single_file(path, crate::io::FileMark::Png, force, |out| {
+        std::io::Write::write_all(out, &png).map_err(|e| e.to_string())
+    })
+}
+
 /// A rendered image and its coverage: what every shader returns.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Render {

@@ -117,7 +117,7 @@ fn a_ply_mesh_under_six_sky_faces_runs_exactly_as_its_obj_under_the_cross() {
     assert!(ia.pixels[0].iter().all(|&c| c > 0.1), "{:?}", ia.pixels[0]);
 
     // The mesh commands take a PLY too.
-    let from_ply = biscale::commands::cylindrical_uv(&d.join("m.ply"), &d.join("uv_ply.obj")).unwrap();
-    let from_obj = biscale::commands::cylindrical_uv(&d.join("m.obj"), &d.join("uv_obj.obj")).unwrap();
+    let from_ply = biscale::commands::cylindrical_uv(&d.join("m.ply"), &d.join("uv_ply.obj"), false).unwrap();
+    let from_obj = biscale::commands::cylindrical_uv(&d.join("m.obj"), &d.join("uv_obj.obj"), false).unwrap();
     assert_eq!(from_ply, from_obj);
 }

@@ -210,7 +210,11 @@ enum Command {
         args: Vec<String>,
     },
     /// Write a generated mesh (OBJ): a test scene, or a subdivided mesh for scaling studies.
-    #[command(after_help = "Example: biscale generate scene plane-sphere --out assets/meshes/plane_sphere.obj")]
+    /// `--out` is a new file or an OBJ biscale wrote (it is never written over a user's file,
+    /// a link, a device or a FIFO; `--force` replaces a user's regular file), or `-` for
+    /// standard output.
+    #[command(after_help = "Example: biscale generate scene plane-sphere --out plane_sphere.obj\n         \
+                            biscale generate scene plane --out - | gzip > plane.obj.gz")]
     Generate {
         #[command(subcommand)]
         what: Generate,
@@ -262,9 +266,15 @@ enum Command {
         /// images/reference_mask.png against the reference): the report's own definitions.
         #[arg(long)]
         mask: Option<PathBuf>,
-        /// Also write a false-colour error image (PNG).
+        /// Also write a false-colour error image (PNG): a new file, or one biscale wrote
+        /// (a user's file, a link, a device or FIFO is refused); `-` streams it to standard
+        /// output (the figures then go to standard error).
         #[arg(long)]
         error_image: Option<PathBuf>,
+        /// Replace a regular file at --error-image that biscale did not write (never a link,
+        /// a device, a FIFO, a folder or an image being compared).
+        #[arg(long)]
+        force: bool,
         /// Print the figures as one JSON object (psnr and ldr_psnr are null when the images
         /// are equal).
         #[arg(long)]
@@ -499,18 +509,24 @@ enum Generate {
         /// Which scene.
         #[arg(value_enum)]
         kind: biscale::commands::GeneratedScene,
-        /// The OBJ file to write.
+        /// The OBJ file to write (`-`: standard output).
         #[arg(long)]
         out: PathBuf,
+        /// Replace a regular file at --out that biscale did not write.
+        #[arg(long)]
+        force: bool,
     },
     /// Add cylindrical texture coordinates (world units, about the vertical axis) to a mesh.
     #[command(after_help = "Example: biscale generate uv assets/meshes/bunny.obj --out bunny_uv.obj")]
     Uv {
         /// The mesh (OBJ or PLY).
         mesh: PathBuf,
-        /// The OBJ file to write.
+        /// The OBJ file to write (`-`: standard output).
         #[arg(long)]
         out: PathBuf,
+        /// Replace a regular file at --out that biscale did not write.
+        #[arg(long)]
+        force: bool,
     },
     /// Midpoint-subdivide a mesh `levels` times (about 4x the vertices per level), or make a
     /// polygon soup of it (`--unweld`).
@@ -529,9 +545,12 @@ enum Generate {
         /// soup (duplicated vertices, open edges, flat normals) that a welding loader keeps.
         #[arg(long)]
         unweld: bool,
-        /// The OBJ file to write.
+        /// The OBJ file to write (`-`: standard output).
         #[arg(long)]
         out: PathBuf,
+        /// Replace a regular file at --out that biscale did not write.
+        #[arg(long)]
+        force: bool,
     },
 }
 
@@ -737,18 +756,24 @@ fn run() -> anyhow::Result<()> {
         }
         Command::Generate { what } => {
             let (mesh, out) = match what {
-                Generate::Scene { kind, out } => (biscale::commands::generate_scene(kind, &out)?, out),
-                Generate::Subdivide { mesh, levels, unweld, out } => {
-                    (biscale::commands::subdivide(&mesh, levels, unweld, &out)?, out)
+                Generate::Scene { kind, out, force } => (biscale::commands::generate_scene(kind, &out, force)?, out),
+                Generate::Subdivide { mesh, levels, unweld, out, force } => {
+                    (biscale::commands::subdivide(&mesh, levels, unweld, &out, force)?, out)
                 }
-                Generate::Uv { mesh, out } => (biscale::commands::cylindrical_uv(&mesh, &out)?, out),
+                Generate::Uv { mesh, out, force } => (biscale::commands::cylindrical_uv(&mesh, &out, force)?, out),
             };
-            println!("wrote {} ({} vertices, {} triangles)", out.display(), mesh.positions.len(), mesh.triangles.len());
+            let what = format!("({} vertices, {} triangles)", mesh.positions.len(), mesh.triangles.len());
+            match out.as_os_str() == "-" {
+                true => eprintln!("wrote the mesh to standard output {what}"),
+                false => println!("wrote {} {what}", out.display()),
+            }
         }
         Command::Btf { config, material, out, preview, cache } => btf(config, material, out, preview, cache)?,
         Command::Shard { what } => shard(what)?,
         Command::Cache { what } => cache(what)?,
-        Command::Diff { a, b, mask, error_image, json, exposure } => diff(a, b, mask, error_image, json, exposure)?,
+        Command::Diff { a, b, mask, error_image, force, json, exposure } => {
+            diff(a, b, mask, error_image, force, json, exposure)?
+        }
     }
     Ok(())
 }
@@ -819,10 +844,18 @@ fn diff(
     b: PathBuf,
     mask: Option<PathBuf>,
     error_image: Option<PathBuf>,
+    force: bool,
     json: bool,
     exposure: f32,
 ) -> anyhow::Result<()> {
-    let opts = biscale::commands::DiffOptions { mask: mask.as_deref(), error_image: error_image.as_deref(), exposure };
+    let opts =
+        biscale::commands::DiffOptions { mask: mask.as_deref(), error_image: error_image.as_deref(), force, exposure };
+    // With the error image on standard output, the figures go to standard error.
+    let to_stderr = error_image.as_deref().is_some_and(|p| p.as_os_str() == "-");
+    let say = |text: String| match to_stderr {
+        true => eprintln!("{text}"),
+        false => println!("{text}"),
+    };
     let m = biscale::commands::diff(&a, &b, opts, &mut |w| eprintln!("warning: {w}"))?;
     if json {
         let v = serde_json::json!({
@@ -834,10 +867,10 @@ fn diff(
             "ssim": m.ssim,
             "flip": m.flip,
         });
-        println!("{v}");
+        say(v.to_string());
     } else {
-        println!("rmse {:.6e}\npsnr {:.3} dB\nrel_l2 {:.6e}\npixels {}", m.rmse, m.psnr, m.rel_l2, m.pixels);
-        println!("ldr_psnr {:.3} dB\nssim {:.6}\nflip {:.6}", m.ldr_psnr, m.ssim, m.flip);
+        say(format!("rmse {:.6e}\npsnr {:.3} dB\nrel_l2 {:.6e}\npixels {}", m.rmse, m.psnr, m.rel_l2, m.pixels));
+        say(format!("ldr_psnr {:.3} dB\nssim {:.6}\nflip {:.6}", m.ldr_psnr, m.ssim, m.flip));
     }
     Ok(())
 }

@@ -8,7 +8,6 @@ use crate::store::cache::StageCache;
 use crate::store::shared::SharedFolder;
 use crate::store::RunOptions;
 use biscale_core::sampling::LightVector;
-use biscale_core::scene::image::write_rgb8_png;
 use biscale_core::scene::HdrImage;
 use biscale_core::transfer::TransferMatrix;
 use biscale_shading::image::{compare_exposed, error_image as error_image_of, resample, ImageMetrics, Resampling};
@@ -122,8 +121,12 @@ fn write_scene(exp: &Experiment, geometry: &crate::stages::scene::Geometry, dir:
 pub struct DiffOptions<'a> {
     /// Only the pixels where this PNG is white; it must have the reference's size.
     pub mask: Option<&'a Path>,
-    /// Also write a false-colour error image (PNG) here.
+    /// Also write a false-colour error image (PNG) here: a new file, a PNG biscale wrote, or
+    /// `-` for standard output ([`biscale_core::io::write_single_file`]).
     pub error_image: Option<&'a Path>,
+    /// Replace a user's regular file at `error_image` (never a link, device, FIFO or folder,
+    /// and never one of the images compared).
+    pub force: bool,
     /// Exposure (stops) of the tone map the LDR figures are measured after.
     pub exposure: f32,
 }
@@ -133,6 +136,16 @@ pub struct DiffOptions<'a> {
 /// size is an integer multiple of `b`'s, else bilinear) and `warn` is told what was done; a
 /// mask must still have the reference's size. `warn` also gets the files' read warnings.
 pub fn diff(a: &Path, b: &Path, opts: DiffOptions<'_>, warn: &mut dyn FnMut(String)) -> Result<ImageMetrics> {
+    if let Some(p) = opts.error_image {
+        for input in [Some(a), Some(b), opts.mask].into_iter().flatten() {
+            if same_file(p, input) {
+                return Err(PipelineError::Core(biscale_core::CoreError::Refused {
+                    path: p.into(),
+                    message: format!("is {}, an input of this comparison; name another file", input.display()),
+                }));
+            }
+        }
+    }
     let (ia, wa) = HdrImage::read_exr(a)?;
     let (ib, wb) = HdrImage::read_exr(b)?;
     for w in wa.into_iter().chain(wb) {
@@ -171,10 +184,21 @@ pub fn diff(a: &Path, b: &Path, opts: DiffOptions<'_>, warn: &mut dyn FnMut(Stri
     let m = compare_exposed(&ia, &ib, mask.as_deref(), opts.exposure)?;
     if let Some(p) = opts.error_image {
         let (img, scale) = error_image_of(&ia, &ib, None)?;
-        write_rgb8_png(&img, p)?;
-        log::info!("wrote {} (full scale = luminance error {scale:.4e})", p.display());
+        biscale_core::scene::image::write_rgb8_png_single(&img, p, opts.force)?;
+        let to =
+            if p.as_os_str() == "-" { "the error image to standard output".into() } else { p.display().to_string() };
+        log::info!("wrote {to} (full scale = luminance error {scale:.4e})");
     }
     Ok(m)
+}
+
+/// Whether two paths name one file (both exist and share device and inode).
+fn same_file(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (std::fs::metadata(a), std::fs::metadata(b)) {
+        (Ok(x), Ok(y)) => (x.dev(), x.ino()) == (y.dev(), y.ino()),
+        _ => false,
+    }
 }
 
 /// Scenes `biscale generate` can write.
@@ -193,8 +217,8 @@ pub enum GeneratedScene {
     Chair,
 }
 
-/// Write a generated scene as OBJ (atomically).
-pub fn generate_scene(kind: GeneratedScene, out: &Path) -> Result<biscale_core::geometry::Mesh> {
+/// Write a generated scene as OBJ ([`write_obj`]).
+pub fn generate_scene(kind: GeneratedScene, out: &Path, force: bool) -> Result<biscale_core::geometry::Mesh> {
     use biscale_core::geometry::shapes;
     let mesh = match kind {
         GeneratedScene::PlaneSphere => shapes::merged(&[
@@ -205,7 +229,7 @@ pub fn generate_scene(kind: GeneratedScene, out: &Path) -> Result<biscale_core::
         GeneratedScene::Temple => crate::temple::build(&crate::temple::TempleOptions::default()),
         GeneratedScene::Chair => crate::chair::build(&crate::chair::ChairOptions::default()),
     };
-    write_obj(&mesh, out)?;
+    write_obj(&mesh, out, force)?;
     Ok(mesh)
 }
 
@@ -217,8 +241,14 @@ pub const MAX_GENERATED_TRIANGLES: u64 = 1 << 25;
 /// denser meshes: same shape, about 4x the vertices per level), with `unweld` as a polygon
 /// soup (`shapes::unweld`: three vertices per triangle, no shared edge). Refused up front
 /// beyond [`MAX_GENERATED_TRIANGLES`] or when its memory estimate exceeds the available memory.
-pub fn subdivide(input: &Path, levels: u32, unweld: bool, out: &Path) -> Result<biscale_core::geometry::Mesh> {
-    subdivide_within(input, levels, unweld, out, &crate::estimate::available()?)
+pub fn subdivide(
+    input: &Path,
+    levels: u32,
+    unweld: bool,
+    out: &Path,
+    force: bool,
+) -> Result<biscale_core::geometry::Mesh> {
+    subdivide_within(input, levels, unweld, out, force, &crate::estimate::available()?)
 }
 
 /// [`subdivide`] with `available` bytes of memory: refused when
@@ -228,6 +258,7 @@ pub fn subdivide_within(
     levels: u32,
     unweld: bool,
     out: &Path,
+    force: bool,
     available: &crate::estimate::Available,
 ) -> Result<biscale_core::geometry::Mesh> {
     let mut mesh = biscale_core::geometry::Mesh::load(input)?.mesh;
@@ -261,21 +292,29 @@ pub fn subdivide_within(
     if unweld {
         mesh = biscale_core::geometry::shapes::unweld(&mesh);
     }
-    write_obj(&mesh, out)?;
+    write_obj(&mesh, out, force)?;
     Ok(mesh)
 }
 
 /// Write the OBJ or PLY `input`, as an OBJ, with cylindrical texture coordinates (about the vertical axis, in
 /// world units; see `shapes::cylindrical_uvs`) to `out`, so patterned BTFs can tile on a mesh
 /// that has none.
-pub fn cylindrical_uv(input: &Path, out: &Path) -> Result<biscale_core::geometry::Mesh> {
+pub fn cylindrical_uv(input: &Path, out: &Path, force: bool) -> Result<biscale_core::geometry::Mesh> {
     let mesh = biscale_core::geometry::shapes::cylindrical_uvs(&biscale_core::geometry::Mesh::load(input)?.mesh);
-    write_obj(&mesh, out)?;
+    write_obj(&mesh, out, force)?;
     Ok(mesh)
 }
 
-fn write_obj(mesh: &biscale_core::geometry::Mesh, out: &Path) -> Result<()> {
-    Ok(biscale_core::io::write_atomic_bytes(out, mesh.to_obj().as_bytes())?)
+/// Write `mesh` as an OBJ at a path the user names: a new file, an OBJ biscale wrote (its first
+/// line is [`biscale_core::io::OBJ_MARK`]), a user's regular file only with `force`, or `-` for
+/// standard output ([`biscale_core::io::write_single_file`]).
+fn write_obj(mesh: &biscale_core::geometry::Mesh, out: &Path, force: bool) -> Result<()> {
+    use biscale_core::io::{write_single_file, FileMark, OBJ_MARK};
+    let text =
+        format!("{OBJ_MARK} (biscale generate replaces this file only while this line leads it)\n{}", mesh.to_obj());
+    Ok(write_single_file(out, FileMark::Obj, force, |f| {
+        std::io::Write::write_all(f, text.as_bytes()).map_err(|e| e.to_string())
+    })?)
 }
 
 /// `biscale viz`: the matrix-structure pictures of a config's scene (transfer matrix from the
@@ -635,14 +674,14 @@ mod tests {
         let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/meshes/bunny.obj");
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("dense.obj");
-        let e = super::subdivide(&bunny, 9, false, &out).unwrap_err().to_string();
+        let e = super::subdivide(&bunny, 9, false, &out, false).unwrap_err().to_string();
         // 3,674 triangles x 4^9.
         assert!(e.contains("963117056 triangles") && e.contains("fewer levels"), "{e}");
         assert!(!out.exists());
-        let mesh = super::subdivide(&bunny, 1, false, &out).unwrap();
+        let mesh = super::subdivide(&bunny, 1, false, &out, false).unwrap();
         assert_eq!(mesh.triangle_count(), 4 * 3674);
         // The soup keeps three vertices per triangle through the welding loader.
-        let soup = super::subdivide(&bunny, 0, true, &out).unwrap();
+        let soup = super::subdivide(&bunny, 0, true, &out, false).unwrap();
         assert_eq!((soup.vertex_count(), soup.triangle_count()), (3 * 3674, 3674));
         let loaded = biscale_core::geometry::Mesh::load(&out).unwrap().mesh;
         assert_eq!(loaded.vertex_count(), 3 * 3674);
@@ -658,23 +697,26 @@ mod tests {
         // than their estimate they are refused, naming the estimate and what to change.
         let needed = subdivide_bytes(3674, 1839, false, 3);
         let short = Available { bytes: needed - 1, source: "test" };
-        let e = super::subdivide_within(&bunny, 3, false, &out, &short).unwrap_err().to_string();
+        let e = super::subdivide_within(&bunny, 3, false, &out, false, &short).unwrap_err().to_string();
         assert!(e.contains("3 levels of subdivision needs about") && e.contains("235136 triangles"), "{e}");
         assert!(e.contains("available (test); use fewer levels"), "{e}");
         assert!(!out.exists());
         let enough = Available { bytes: needed, source: "test" };
-        assert_eq!(super::subdivide_within(&bunny, 3, false, &out, &enough).unwrap().triangle_count(), 64 * 3674);
+        assert_eq!(
+            super::subdivide_within(&bunny, 3, false, &out, false, &enough).unwrap().triangle_count(),
+            64 * 3674
+        );
         // The written file is within the estimate's text and mesh allowance.
         assert!(std::fs::metadata(&out).unwrap().len() < needed);
         // Unwelding adds three vertices, uvs and their text per triangle: what was enough for
         // the welded mesh is refused, the estimate with the soup's share is not.
         let soup = dir.path().join("soup.obj");
-        let e = super::subdivide_within(&bunny, 3, true, &soup, &enough).unwrap_err().to_string();
+        let e = super::subdivide_within(&bunny, 3, true, &soup, false, &enough).unwrap_err().to_string();
         assert!(e.contains("3 levels of subdivision needs about"), "{e}");
         assert!(!soup.exists());
         let needed_soup = needed + crate::estimate::unweld_bytes(64 * 3674);
         let soup_enough = Available { bytes: needed_soup, source: "test" };
-        let mesh = super::subdivide_within(&bunny, 3, true, &soup, &soup_enough).unwrap();
+        let mesh = super::subdivide_within(&bunny, 3, true, &soup, false, &soup_enough).unwrap();
         assert_eq!(mesh.vertex_count(), 3 * 64 * 3674);
         assert!(std::fs::metadata(&soup).unwrap().len() < needed_soup);
     }

@@ -168,6 +168,83 @@ fn diff_reports_known_errors_and_names_bad_files() {
     assert!(!ok && err.contains("/nonexistent/x.exr") && !err.contains("panicked"), "{err}");
 }
 
+/// Issue class "a single-file writer renames over whatever the path is": `generate --out` and
+/// `diff --error-image` write a new file or their own, stream to standard output with `-`, and
+/// refuse a user's file (unless --force), an input, a link, a FIFO and a device node (one this
+/// test makes, where it may: never a system one), leaving each as it was.
+#[test]
+fn single_file_writers_never_replace_what_biscale_did_not_write() {
+    use std::os::unix::fs::FileTypeExt;
+    let dir = tempfile::tempdir().unwrap();
+    let p = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    let c = |s: &str| std::ffi::CString::new(s).unwrap();
+    // SAFETY: NUL-terminated paths.
+    assert_eq!(unsafe { libc::mkfifo(c(&p("fifo")).as_ptr(), 0o644) }, 0);
+    let device = unsafe { libc::mknod(c(&p("null")).as_ptr(), libc::S_IFCHR | 0o666, libc::makedev(1, 3)) } == 0;
+    std::fs::write(p("mine.obj"), "my mesh\n").unwrap();
+    std::os::unix::fs::symlink(p("mine.obj"), p("link.obj")).unwrap();
+
+    // Streamed: the OBJ on standard output, the note on standard error.
+    let (ok, out, err) = biscale(&["generate", "scene", "plane", "--out", "-"]);
+    assert!(ok && out.starts_with("# written by biscale") && err.contains("standard output"), "{err}");
+    assert_eq!(out.lines().filter(|l| l.starts_with("v ")).count(), 41 * 41);
+    // A new file, then the same file again (its own); a user's file refused, then forced.
+    for _ in 0..2 {
+        let (ok, _, err) = biscale(&["generate", "scene", "plane", "--out", &p("plane.obj")]);
+        assert!(ok, "{err}");
+    }
+    let (ok, _, err) = biscale(&["generate", "uv", &p("plane.obj"), "--out", &p("mine.obj")]);
+    assert!(!ok && err.contains("mine.obj") && err.contains("--force") && !err.contains("panicked"), "{err}");
+    assert_eq!(std::fs::read_to_string(p("mine.obj")).unwrap(), "my mesh\n");
+    let mut specials = vec![("link.obj", "a symbolic link"), ("fifo", "a FIFO")];
+    if device {
+        specials.push(("null", "a device node"));
+    } else {
+        eprintln!("note: mknod not permitted here; the device-node case runs where it is (CI runs as root)");
+    }
+    for (name, kind) in &specials {
+        for force in [&[][..], &["--force"]] {
+            let at = p(name);
+            let args = [&["generate", "scene", "plane", "--out", &at][..], force].concat();
+            let (ok, _, err) = biscale(&args);
+            assert!(!ok && err.contains(&format!("is {kind}")), "{name}: {err}");
+        }
+    }
+    assert_eq!(std::fs::read_to_string(p("mine.obj")).unwrap(), "my mesh\n");
+    assert!(std::fs::symlink_metadata(p("link.obj")).unwrap().file_type().is_symlink());
+    assert!(std::fs::symlink_metadata(p("fifo")).unwrap().file_type().is_fifo());
+    assert!(!device || std::fs::symlink_metadata(p("null")).unwrap().file_type().is_char_device());
+    let (ok, _, err) = biscale(&["generate", "uv", &p("plane.obj"), "--out", &p("mine.obj"), "--force"]);
+    assert!(ok, "{err}");
+    assert!(std::fs::read_to_string(p("mine.obj")).unwrap().starts_with("# written by biscale"));
+
+    // diff: never over an input, even forced; the PNG streamed; its own PNG replaced.
+    use biscale_core::scene::HdrImage;
+    HdrImage { width: 4, height: 2, pixels: vec![[1.0; 3]; 8] }.write_exr(Path::new(&p("a.exr"))).unwrap();
+    HdrImage { width: 4, height: 2, pixels: vec![[2.0; 3]; 8] }.write_exr(Path::new(&p("b.exr"))).unwrap();
+    let a_bytes = std::fs::read(p("a.exr")).unwrap();
+    let diff = |e: &str, force: bool| {
+        let mut args = vec!["diff".to_string(), p("a.exr"), p("b.exr"), "--error-image".into(), e.into()];
+        args.extend(force.then(|| "--force".to_string()));
+        let out = Command::new(env!("CARGO_BIN_EXE_biscale")).args(&args).output().unwrap();
+        (out.status.success(), out.stdout, String::from_utf8_lossy(&out.stderr).into_owned())
+    };
+    for force in [false, true] {
+        let (ok, _, err) = diff(&p("a.exr"), force);
+        assert!(!ok && err.contains("an input of this comparison"), "{err}");
+    }
+    assert_eq!(std::fs::read(p("a.exr")).unwrap(), a_bytes);
+    let (ok, png, err) = diff("-", false);
+    assert!(ok && png.starts_with(b"\x89PNG") && err.contains("rmse"), "{err}");
+    for _ in 0..2 {
+        let (ok, _, err) = diff(&p("e.png"), false);
+        assert!(ok, "{err}");
+    }
+    assert_eq!(std::fs::read(p("e.png")).unwrap(), png);
+    let (ok, _, err) = diff(&p("plane.obj"), false);
+    assert!(!ok && err.contains("not a PNG image biscale wrote"), "{err}");
+}
+
 #[test]
 fn viz_writes_the_structure_pictures() {
     let dir = tempfile::tempdir().unwrap();

@@ -330,21 +330,41 @@ fn no_command_touches_a_decoy(extra: &[(&str, &str)]) {
         biscale(Writes, &with(&["-q", "cache", "clean"], &[&here[..], clean].concat()));
     }
     biscale(Writes, &with(&["-q", "cache", "list"], &here));
-    // Single files: a path that is the folder is refused, a new name in it written.
+    // Single files: the folder, a link (forced or not) and a user's file are refused; a new
+    // name is written, and written again over biscale's own file; a decoy of its name refuses.
     biscale(Refuses, &["-q", "generate", "scene", "plane-sphere", "--out", wd]);
-    biscale(Writes, &["-q", "generate", "scene", "plane-sphere", "--out", &w("scene.obj")]);
-    biscale(Refuses, &["-q", "generate", "uv", &w("scene.obj"), "--out", wd]);
-    biscale(Writes, &["-q", "generate", "uv", &w("scene.obj"), "--out", &w("scene_uv.obj")]);
+    for force in [&[][..], &["--force"]] {
+        biscale(Refuses, &with(&["-q", "generate", "scene", "plane", "--out", &w("data.lnk")], force));
+    }
+    biscale(Refuses, &["-q", "generate", "scene", "plane", "--out", &w("thesis.tex")]);
+    for _ in 0..2 {
+        biscale(Writes, &["-q", "generate", "scene", "plane-sphere", "--out", &w("gen.obj")]);
+    }
+    biscale(in_place, &["-q", "generate", "scene", "plane", "--out", &w("scene.obj")]);
+    biscale(Refuses, &["-q", "generate", "uv", &w("gen.obj"), "--out", wd]);
+    biscale(Writes, &["-q", "generate", "uv", &w("gen.obj"), "--out", &w("scene_uv.obj")]);
     let (a, b) = (w("out/images/sparse.exr"), w("out/images/haar-t4.exr"));
     biscale(Refuses, &["-q", "diff", &a, &b, "--error-image", wd]);
-    biscale(Writes, &["-q", "diff", &a, &b, "--error-image", &w("diff.png")]);
+    biscale(Refuses, &["-q", "diff", &a, &b, "--error-image", &w("images/figure.png")]);
+    biscale(Refuses, &["-q", "diff", &a, &b, "--error-image", &a, "--force"]);
+    biscale(in_place, &["-q", "diff", &a, &b, "--error-image", &w("diff.png")]);
+    biscale(Writes, &["-q", "diff", &a, &b, "--error-image", &w("diff2.png")]);
 
     // The decoys' folder holds what the commands wrote beside them (so they did run).
-    for f in ["out/metrics.json", "eval/metrics.json", "report/report.md", "merged/metrics.json", "scene_uv.obj"] {
+    for f in [
+        "out/metrics.json",
+        "eval/metrics.json",
+        "report/report.md",
+        "merged/metrics.json",
+        "scene_uv.obj",
+        "diff2.png",
+    ] {
         assert!(work.join(f).is_file(), "{f}");
     }
     // (With decoys of their names, the refusals above are checked by the decoys being intact.)
-    for f in ["T.mtx", "t.npz", "sparsity_panels.png", "lambertian.btf", "diff.png", "shards/0000/done.json"] {
+    for f in
+        ["T.mtx", "t.npz", "sparsity_panels.png", "lambertian.btf", "diff.png", "scene.obj", "shards/0000/done.json"]
+    {
         assert!(named || work.join(f).is_file(), "{f}");
     }
     assert_eq!(work.join("plan/shards/0000/done.json").is_file(), named);
@@ -362,7 +382,8 @@ fn no_command_removes_or_replaces_a_file_it_did_not_write() {
 /// run folder) write there: `export`'s `l.npz`, `export-matrix`'s `T.mtx` and `view.json`,
 /// `btf`'s `lambertian.btf`, `viz`'s `sparsity_panels.png`, `shard plan`'s `manifest.json`:
 /// those commands then refuse (they stage their files and publish them only over files the
-/// folder's marker proves theirs).
+/// folder's marker proves theirs); and as the single files `generate` and `diff` are asked
+/// for (`scene.obj`, `diff.png`): they refuse a file that lacks biscale's mark.
 #[test]
 fn no_command_replaces_a_file_named_like_its_output() {
     no_command_touches_a_decoy(&[
@@ -372,5 +393,7 @@ fn no_command_replaces_a_file_named_like_its_output() {
         ("lambertian.btf", "my BTF\n"),
         ("sparsity_panels.png", "my picture\n"),
         ("manifest.json", "{\"mine\": true}\n"),
+        ("scene.obj", "v 0 0 0\n"),
+        ("diff.png", "my picture\n"),
     ]);
 }

@@ -61,6 +61,7 @@ impl From<NpyError> for PipelineError {
         match e {
             NpyError::Io { path, source } => PipelineError::Io { path, source },
             NpyError::Format { path, what } => PipelineError::Mismatch { path, what },
+            NpyError::Core(e) => PipelineError::Core(e),
         }
     }
 }
@@ -311,7 +312,7 @@ pub fn export(
                         cache.as_ref(),
                     )?;
                     let path = dir.join(format!("form-{}.npz", file_stem(&setting.label)));
-                    write_form(exp, &form, &setting.label, &setting.params, &path)?;
+                    write_form(exp, &form, &setting.label, &setting.params, &path, None)?;
                     written.push(Written {
                         path,
                         about: format!(
@@ -449,8 +450,17 @@ fn write_lstar(exp: &Experiment, lstar: &LocalRadiance, light: LightBasis, momen
     Ok(npy::write_npz(path, &members)?)
 }
 
-/// `form-<label>.npz`: every array of `form` under its own name and type, and [`META`].
-pub fn write_form(exp: &Experiment, form: &CompressedForm, label: &str, params: &Value, path: &Path) -> Result<()> {
+/// `form-<label>.npz`: every array of `form` under its own name and type, and [`META`]; into a
+/// folder biscale owns (`single: None`) or at a path a user names (`Some(force)`:
+/// [`npy::write_npz_single`]).
+pub fn write_form(
+    exp: &Experiment,
+    form: &CompressedForm,
+    label: &str,
+    params: &Value,
+    path: &Path,
+    single: Option<bool>,
+) -> Result<()> {
     if let Some(a) = form.arrays.iter().find(|a| a.name == META) {
         return Err(PipelineError::Mismatch {
             path: path.into(),
@@ -475,7 +485,11 @@ pub fn write_form(exp: &Experiment, form: &CompressedForm, label: &str, params: 
     let mut members: Vec<(&str, ArrayRef<'_>)> =
         form.arrays.iter().map(|a| (a.name.as_str(), ArrayRef::flat(Elements::from(&a.data)))).collect();
     members.push((META, ArrayRef::string(&meta)));
-    Ok(npy::write_npz(path, &members)?)
+    match single {
+        None => npy::write_npz(path, &members)?,
+        Some(force) => npy::write_npz_single(path, &members, force)?,
+    }
+    Ok(())
 }
 
 /// `btf-<material>.npz`: the dense table as `data[ty, tx, view, light, rgb]` with its grids.

@@ -35,6 +35,10 @@ pub enum NpyError {
     /// The file is not what it should be: `what` says what is wrong and where.
     #[error("{}: {what}", path.display())]
     Format { path: PathBuf, what: String },
+    /// Refused before writing (a path that holds what biscale did not write), or an encoder
+    /// failure while writing.
+    #[error(transparent)]
+    Core(#[from] biscale_core::CoreError),
 }
 
 fn format_err(path: &Path, what: impl Into<String>) -> NpyError {
@@ -340,6 +344,24 @@ pub fn write_npz(path: &Path, members: &[(&str, ArrayRef<'_>)]) -> Result<(), Np
 /// [`write_npz`], with ZIP64 records for every member when `force_zip64` (tests reach the
 /// ZIP64 path this way without writing 4 GiB).
 pub fn write_npz_with(path: &Path, members: &[(&str, ArrayRef<'_>)], force_zip64: bool) -> Result<(), NpyError> {
+    write_npz_at(path, members, force_zip64, None)
+}
+
+/// [`write_npz`] at a path a user names (Python's `Form.save`): a new file, or a `.npz`
+/// biscale wrote (its archive comment is biscale's mark), a user's regular file only with
+/// `force`, never a link, device, FIFO or folder ([`biscale_core::io::write_single_file`]).
+pub fn write_npz_single(path: &Path, members: &[(&str, ArrayRef<'_>)], force: bool) -> Result<(), NpyError> {
+    write_npz_at(path, members, false, Some(force))
+}
+
+/// [`write_npz_with`] into a folder biscale owns (`single: None`: replaced atomically) or
+/// at a path a user names (`Some(force)`).
+fn write_npz_at(
+    path: &Path,
+    members: &[(&str, ArrayRef<'_>)],
+    force_zip64: bool,
+    single: Option<bool>,
+) -> Result<(), NpyError> {
     for (i, (name, a)) in members.iter().enumerate() {
         let plain = !name.is_empty() && name.chars().all(|c| c.is_ascii_alphanumeric() || "_.-".contains(c));
         if !plain {
@@ -350,15 +372,21 @@ pub fn write_npz_with(path: &Path, members: &[(&str, ArrayRef<'_>)], force_zip64
         }
         check_fills(a, name, path)?;
     }
-    biscale_core::io::write_atomic(path, |f| write_zip(f, members, force_zip64).map_err(|e| e.to_string()))
-        .map_err(|e| format_err(path, e.to_string()))
+    let write =
+        |f: &mut std::io::BufWriter<std::fs::File>| write_zip(f, members, force_zip64).map_err(|e| e.to_string());
+    Ok(match single {
+        None => biscale_core::io::write_atomic(path, write),
+        Some(force) => biscale_core::io::write_single_file(path, biscale_core::io::FileMark::Zip, force, write),
+    }?)
 }
 
-/// The archive: one stored member per array, in the given order. Every field the `zip` crate
+/// The archive: one stored member per array, in the given order, and biscale's mark
+/// ([`biscale_core::io::MARK_TEXT`]) as the archive comment. Every field the `zip` crate
 /// would otherwise take from the clock or the host (time, system, permissions) is fixed, so
 /// equal arrays give equal files on every machine.
 fn write_zip<W: Write + Seek>(f: W, members: &[(&str, ArrayRef<'_>)], force_zip64: bool) -> zip::result::ZipResult<()> {
     let mut zip = zip::ZipWriter::new(f);
+    zip.set_comment(biscale_core::io::MARK_TEXT)?;
     for (name, a) in members {
         let header = npy_header(a);
         let size = header.len() as u64 + a.elements.data_bytes();

@@ -385,7 +385,9 @@ pub fn experiment(
             let stem = base.mesh_path.file_stem().map_or("mesh".into(), |s| s.to_string_lossy().into_owned());
             let out = meshes.join(format!("reproduce-{stem}-l{levels}.obj"));
             std::fs::create_dir_all(meshes).map_err(io_err(meshes))?;
-            let mesh = crate::commands::subdivide(&base.mesh_path, levels, false, &out)?;
+            // `force`: the cache's own `meshes/` folder, where a regular file of this name is the
+            // cache's (an older biscale's wrote no mark); a link or device there is still refused.
+            let mesh = crate::commands::subdivide(&base.mesh_path, levels, false, &out, true)?;
             let how = format!(
                 "{} midpoint-subdivided {levels} time{} ({} vertices)",
                 base.mesh_path.file_name().map_or(String::new(), |n| n.to_string_lossy().into_owned()),
