@@ -194,7 +194,10 @@ impl Artifact {
 
     /// Read the artifact at `path`.
     pub fn load(path: &Path) -> Result<Self, ArtifactError> {
-        let bytes = std::fs::read(path).map_err(|source| ArtifactError::Io { path: path.to_path_buf(), source })?;
+        // A regular file only (a device or FIFO named as a part or cache entry is refused, not
+        // read without end); its size is then checked against its own header by `decode`.
+        let bytes = crate::io::read_regular(path, u64::MAX, "artifact")
+            .map_err(|source| ArtifactError::Io { path: path.to_path_buf(), source })?;
         Self::decode(&bytes, path)
     }
 
@@ -275,7 +278,7 @@ impl Artifact {
         use std::io::Read;
         let io = |source| ArtifactError::Io { path: path.to_path_buf(), source };
         let mut bytes = vec![];
-        std::fs::File::open(path).map_err(io)?.take(PEEK_BYTES).read_to_end(&mut bytes).map_err(io)?;
+        crate::io::open_regular(path).map_err(io)?.0.take(PEEK_BYTES).read_to_end(&mut bytes).map_err(io)?;
         let p = || path.to_path_buf();
         if bytes.len() < PREAMBLE || bytes[..MAGIC.len()] != MAGIC {
             if let Some((_, what)) = OLD_MAGICS.iter().find(|(m, _)| bytes.starts_with(&m[..])) {

@@ -312,6 +312,98 @@ fn rename2(from: &Path, to: &Path, flags: libc::c_uint) -> std::io::Result<()> {
     }
 }
 
+/// Open `path` for reading only if it is (or a link leads to) a regular file: it is opened
+/// without blocking (a FIFO does not hang the open) and checked with `fstat`, so a device
+/// node, FIFO, socket or folder is refused (`InvalidInput`, saying what it is) before a byte
+/// is read. Returns the file and its length. Errors are plain I/O errors, so every reader
+/// wraps them in its own error type with the path.
+pub fn open_regular(path: &Path) -> std::io::Result<(File, u64)> {
+    use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+    let file = OpenOptions::new().read(true).custom_flags(libc::O_NONBLOCK).open(path)?;
+    let meta = file.metadata()?;
+    let t = meta.file_type();
+    if !t.is_file() {
+        let kind = match () {
+            _ if t.is_dir() => "a folder",
+            _ if t.is_char_device() || t.is_block_device() => "a device node",
+            _ if t.is_fifo() => "a FIFO",
+            _ if t.is_socket() => "a socket",
+            _ => "something else",
+        };
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!("is {kind}, not a regular file (biscale reads only regular files)"),
+        ));
+    }
+    Ok((file, meta.len()))
+}
+
+/// [`open_regular`] for a reader that opens the file itself (a decoder that takes a path):
+/// refuses what is not a regular file before that reader can block on it or read it without
+/// end; returns its length.
+pub fn check_regular(path: &Path) -> std::io::Result<u64> {
+    open_regular(path).map(|(_, len)| len)
+}
+
+/// Read the whole regular file at `path` ([`open_regular`]), refused up front when it holds
+/// more than `max` bytes: what a file of its kind (`what`, for the message) can legitimately
+/// hold. The read itself stops at `max` bytes too, should the file grow meanwhile.
+pub fn read_regular(path: &Path, max: u64, what: &str) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    let (file, len) = open_regular(path)?;
+    if len > max {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("{len} bytes: more than any {what} holds ({max} bytes at most)"),
+        ));
+    }
+    let mut bytes = Vec::with_capacity(len as usize);
+    file.take(max).read_to_end(&mut bytes)?;
+    Ok(bytes)
+}
+
+/// [`read_regular`] as UTF-8 text.
+pub fn read_regular_text(path: &Path, max: u64, what: &str) -> std::io::Result<String> {
+    String::from_utf8(read_regular(path, max, what)?)
+        .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, format!("not UTF-8 text: {e}")))
+}
+
+/// Whether `rel`, a path a record names (a run's `metrics.json`: its images and plots), stays
+/// inside the record's own folder as written: relative, not empty, made of plain names only
+/// (no `..`, no root, no control characters). `Err` says what is wrong. A record names files
+/// inside its own run folder only: [`inside_folder`] also refuses links on the way.
+pub fn plain_relative(rel: &str) -> std::result::Result<(), &'static str> {
+    use std::path::Component;
+    if rel.is_empty() {
+        return Err("is empty");
+    }
+    if rel.chars().any(char::is_control) {
+        return Err("holds a control character");
+    }
+    for c in Path::new(rel).components() {
+        match c {
+            Component::Normal(_) | Component::CurDir => {}
+            Component::ParentDir => return Err("climbs out of the run folder (`..`)"),
+            Component::RootDir | Component::Prefix(_) => return Err("is absolute"),
+        }
+    }
+    Ok(())
+}
+
+/// `dir/rel` for a path a record names, when [`plain_relative`] holds and no folder or file on
+/// the way is a link (so the path cannot lead out of `dir`); `Err` says what is wrong.
+pub fn inside_folder(dir: &Path, rel: &str) -> std::result::Result<PathBuf, String> {
+    plain_relative(rel).map_err(str::to_string)?;
+    let mut at = dir.to_path_buf();
+    for c in Path::new(rel).components() {
+        at.push(c);
+        if std::fs::symlink_metadata(&at).is_ok_and(|m| m.file_type().is_symlink()) {
+            return Err(format!("passes through a link ({})", at.display()));
+        }
+    }
+    Ok(at)
+}
+
 /// The content hash behind every cache key: XXH3-128 (`xxhash-rust`), fast and stable across
 /// versions and platforms, with 128 bits so that two different inputs sharing a key is not a
 /// practical concern (64-bit FNV-1a, used before, was weak on long, similar inputs such as
@@ -467,6 +559,53 @@ mod tests {
         assert!(FileMark::Zip.found(b"", &[b"members".as_slice(), &eocd(MARK_TEXT.as_bytes())].concat()));
         assert!(!FileMark::Zip.found(b"", &eocd(b"written by numpy..")));
         assert!(!FileMark::Zip.found(b"", &eocd(b"")));
+    }
+
+    #[test]
+    fn only_regular_files_are_read_and_only_as_much_as_they_may_hold() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.json");
+        std::fs::write(&p, "{}").unwrap();
+        assert_eq!(read_regular_text(&p, 2, "record").unwrap(), "{}");
+        let e = read_regular(&p, 1, "record").unwrap_err().to_string();
+        assert!(e.contains("2 bytes: more than any record holds (1 bytes at most)"), "{e}");
+        // A link to a regular file is read; a FIFO (which would block) and a link to a device
+        // (which would never end) are refused before any read.
+        let link = dir.path().join("link.json");
+        std::os::unix::fs::symlink(&p, &link).unwrap();
+        assert_eq!(read_regular(&link, 10, "record").unwrap(), b"{}");
+        let fifo = dir.path().join("fifo.json");
+        let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+        // SAFETY: a NUL-terminated path.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o644) }, 0);
+        let zero = dir.path().join("zero.json");
+        std::os::unix::fs::symlink("/dev/zero", &zero).unwrap();
+        for (p, kind) in [(&fifo, "a FIFO"), (&zero, "a device node"), (&dir.path().to_path_buf(), "a folder")] {
+            let e = read_regular(p, u64::MAX, "record").unwrap_err().to_string();
+            assert!(e.contains(&format!("is {kind}, not a regular file")), "{e}");
+        }
+    }
+
+    #[test]
+    fn a_record_names_files_inside_its_folder_only() {
+        for ok in ["images/a.png", "a.png", "./images/b.png"] {
+            assert_eq!(plain_relative(ok), Ok(()), "{ok}");
+        }
+        for (bad, why) in [
+            ("/etc/passwd", "absolute"),
+            ("../secret.png", "climbs out"),
+            ("images/../../x", "climbs out"),
+            ("", "empty"),
+            ("a\nb.png", "control"),
+        ] {
+            assert!(plain_relative(bad).unwrap_err().contains(why), "{bad}");
+        }
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir(dir.path().join("images")).unwrap();
+        std::os::unix::fs::symlink("/proc/self", dir.path().join("images/proc")).unwrap();
+        assert_eq!(inside_folder(dir.path(), "images/a.png").unwrap(), dir.path().join("images/a.png"));
+        let e = inside_folder(dir.path(), "images/proc/environ").unwrap_err();
+        assert!(e.contains("passes through a link"), "{e}");
     }
 
     #[test]

@@ -526,6 +526,30 @@ impl HostedCompressor {
         self.fail(format!("{e}\n{tb}").trim_end().to_string())
     }
 
+    /// Refuse an array whose elements are not all stored (a zero stride: a broadcast view such
+    /// as `np.broadcast_to`, whose storage would be a claim, not bytes) and one whose copy would
+    /// not fit in the memory there is, before a byte is copied.
+    fn check_extent(&self, name: &str, shape: &[usize], strides: &[isize], width: usize) -> Result<(), CompressError> {
+        if shape.iter().zip(strides).any(|(&n, &s)| n > 1 && s == 0) {
+            return Err(self.fail(format!(
+                "array `{name}` is a broadcast view (a zero stride): its {} elements are not stored; store the \
+                 array itself (np.ascontiguousarray)",
+                shape.iter().product::<usize>()
+            )));
+        }
+        let bytes = shape.iter().try_fold(width as u64, |a, &n| a.checked_mul(n as u64)).unwrap_or(u64::MAX);
+        let available = biscale::estimate::available().map_err(|e| self.fail(e.to_string()))?;
+        if bytes > available.bytes {
+            return Err(self.fail(format!(
+                "array `{name}` ({}) would need {bytes} bytes to copy, more than the {} available ({})",
+                shape.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(" x "),
+                available.bytes,
+                available.source
+            )));
+        }
+        Ok(())
+    }
+
     /// The arrays of a Python form (`arrays`, a dict of 1-d-able NumPy arrays).
     fn arrays_of(&self, form: &Bound<'_, PyAny>) -> Result<Vec<(String, ArrayData)>, CompressError> {
         let py = form.py();
@@ -538,6 +562,7 @@ impl HostedCompressor {
             macro_rules! take {
                 ($($t:ty => $variant:ident),*) => {{
                     $(if let Ok(a) = v.cast::<numpy::PyArrayDyn<$t>>() {
+                        self.check_extent(&name, a.shape(), a.strides(), std::mem::size_of::<$t>())?;
                         let a = a.readonly();
                         out.push((name.clone(), ArrayData::$variant(a.as_array().iter().copied().collect())));
                         continue;

@@ -428,6 +428,15 @@ class WrongShape(CsrForm):
         ),
         (
             Garbage(
+                "py-broadcast",
+                lambda T: type(
+                    "F", (), {"arrays": {"x": np.broadcast_to(np.float32(1), (10**12,))}, "flops_per_gather": 1, "gather": lambda s, L: L}
+                )(),
+            ),
+            "array `x` is a broadcast view",
+        ),
+        (
+            Garbage(
                 "py-nbytes",
                 lambda T: type(
                     "F", (), {"arrays": {"x": np.zeros(3, np.float32)}, "nbytes": 1, "flops_per_gather": 1, "gather": lambda s, L: L}
@@ -454,6 +463,12 @@ def test_labels_are_checked(exp, cache, tmp_path):
     c.label = "../escape"
     with pytest.raises(biscale.ConfigError, match="label"):
         exp.run(out=tmp_path / "b", cache_dir=cache, compressors=[c])
+    # The run's own image names are reserved for every kind: a Python compressor called
+    # `reference` would have replaced the ground truth.
+    for reserved in ("uncompressed", "reference", "mask", "reference_mask", "uncompressed_paper"):
+        c.label = reserved
+        with pytest.raises(biscale.ConfigError, match="reserved for every kind"):
+            exp.run(out=tmp_path / "b", cache_dir=cache, compressors=[c])
     with pytest.raises(biscale.BiscaleError, match="compress"):
         exp.run(out=tmp_path / "c", cache_dir=cache, compressors=[object()])
     assert not any(tmp_path.iterdir())

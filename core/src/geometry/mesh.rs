@@ -138,14 +138,7 @@ impl Mesh {
     /// line in `repairs`); normals and materials are ignored. Then validated and repaired as
     /// in [`Mesh::from_parts`].
     pub fn load_obj(path: &Path) -> Result<MeshLoad> {
-        let bytes = std::fs::read(path).map_err(|e| CoreError::Input {
-            path: path.to_path_buf(),
-            message: match e.kind() {
-                std::io::ErrorKind::NotFound => "file not found".to_string(),
-                _ => format!("cannot read: {e}"),
-            },
-        })?;
-        Self::parse_obj(&bytes, path)
+        Self::parse_obj(&read_mesh_file(path)?, path)
     }
 
     /// Load a mesh file by its extension: `.obj` ([`Mesh::load_obj`]) or `.ply`
@@ -408,9 +401,10 @@ impl Mesh {
     }
 }
 
-/// The bytes of a mesh file, or an input error naming it.
+/// The bytes of a mesh file (a regular file only: a device or FIFO is named as such), or an
+/// input error naming it.
 fn read_mesh_file(path: &Path) -> Result<Vec<u8>> {
-    std::fs::read(path).map_err(|e| CoreError::Input {
+    crate::io::read_regular(path, u64::MAX, "mesh").map_err(|e| CoreError::Input {
         path: path.to_path_buf(),
         message: match e.kind() {
             std::io::ErrorKind::NotFound => "file not found".to_string(),

@@ -119,7 +119,10 @@ pub(crate) fn load_faces(pattern: &Path, faces: &[PathBuf; 6]) -> Result<(EnvMap
     let mut size: Option<(usize, &Path)> = None;
     for (k, path) in faces.iter().enumerate() {
         let err = |message: String| CoreError::Input { path: path.clone(), message };
-        if !path.is_file() {
+        if let Err(e) = crate::io::check_regular(path).map_err(|e| (e.kind(), e.to_string())) {
+            if e.0 != std::io::ErrorKind::NotFound {
+                return Err(err(format!("cube face {}: {}", FACE_NAMES[k], e.1)));
+            }
             return Err(err(format!(
                 "cube face {} (`{}` of {}) not found: a six-file cube map needs {}",
                 FACE_NAMES[k],

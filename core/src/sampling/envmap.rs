@@ -95,8 +95,12 @@ impl EnvMap {
     /// The pixels of an `.exr` or `.hdr` image as they are stored (a lat-long layout, unchecked).
     pub(crate) fn read_image(path: &Path) -> Result<Self> {
         let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
-        if !path.exists() {
-            return Err(CoreError::Input { path: path.into(), message: "file not found".into() });
+        match crate::io::check_regular(path) {
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                return Err(CoreError::Input { path: path.into(), message: "file not found".into() })
+            }
+            Err(e) => return Err(CoreError::Input { path: path.into(), message: e.to_string() }),
+            Ok(_) => {}
         }
         Ok(match ext.as_str() {
             "exr" => load_exr(path)?,

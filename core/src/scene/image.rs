@@ -99,6 +99,7 @@ impl HdrImage {
         };
         // The header first: its data window sizes the pixel buffer, and a crafted one (a 2 KB
         // file claiming 10^6 x 10^6 pixels) would otherwise abort the process on allocation.
+        crate::io::check_regular(path).map_err(|source| CoreError::Io { path: path.into(), source })?;
         let meta = exr::meta::MetaData::read_from_file(path, false).map_err(exr_err)?;
         for header in &meta.headers {
             let (w, h) = (header.layer_size.width() as u64, header.layer_size.height() as u64);
@@ -298,6 +299,7 @@ impl Render {
 /// A mask written by [`Render::write_mask_png`] (any PNG: a pixel is in where its luma is at
 /// least 128), with its size.
 pub fn read_mask_png(path: &Path) -> Result<(Vec<bool>, u32, u32)> {
+    crate::io::check_regular(path).map_err(|source| CoreError::Io { path: path.into(), source })?;
     let img = image::open(path)
         .map_err(|e| CoreError::Input { path: path.into(), message: format!("not a readable mask image: {e}") })?;
     let grey = img.to_luma8();

@@ -378,6 +378,7 @@ fn decode(path: &Path, kind: ImageKind) -> Result<(u32, u32, Pixels)> {
             ),
         });
     }
+    biscale_core::io::check_regular(path).map_err(io_err(path))?;
     let reader = image::ImageReader::open(path).map_err(io_err(path))?.with_guessed_format().map_err(io_err(path))?;
     let img = reader
         .decode()

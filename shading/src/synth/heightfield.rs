@@ -251,6 +251,7 @@ fn read_gray(path: &Path) -> Result<(u32, u32, Vec<f32>)> {
         let v = img.pixels.iter().map(|p| (p[0] + p[1] + p[2]) / 3.0).collect();
         return Ok((img.width, img.height, v));
     }
+    biscale_core::io::check_regular(path).map_err(|source| ShadingError::Io { path: path.into(), source })?;
     let img = image::open(path).map_err(|e| match e {
         image::ImageError::IoError(source) => ShadingError::Io { path: path.into(), source },
         e => ShadingError::File { path: path.into(), message: format!("cannot read image: {e}") },
@@ -279,6 +280,7 @@ impl AlbedoMap {
             let (img, _) = biscale_core::scene::HdrImage::read_exr(path)?;
             Self { width: img.width, height: img.height, rgb: img.pixels }
         } else {
+            biscale_core::io::check_regular(path).map_err(|source| ShadingError::Io { path: path.into(), source })?;
             let img = image::open(path)
                 .map_err(|e| match e {
                     image::ImageError::IoError(source) => ShadingError::Io { path: path.into(), source },

@@ -413,8 +413,8 @@ enum Shard {
         /// Memory of the merge job (default: the plan's estimate + 25%).
         #[arg(long)]
         merge_mem: Option<String>,
-        /// CPUs per shard (and of the merge); the shards' threads follow it.
-        #[arg(long, default_value_t = 1)]
+        /// CPUs per shard (and of the merge); the shards' threads follow it (1 to 4096).
+        #[arg(long, default_value_t = 1, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=MAX_JOB_CPUS))]
         cpus: usize,
         /// The merge's output folder.
         #[arg(long)]
@@ -437,8 +437,8 @@ enum Shard {
         /// Container image with `biscale` on its PATH (default: biscale:<this version>).
         #[arg(long)]
         image: Option<String>,
-        /// CPUs of every pod (requests and limits); the shards' threads follow it.
-        #[arg(long, default_value_t = 1)]
+        /// CPUs of every pod (requests and limits); the shards' threads follow it (1 to 4096).
+        #[arg(long, default_value_t = 1, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=MAX_JOB_CPUS))]
         cpus: usize,
         /// Memory of a shard's pod (a Kubernetes quantity, e.g. 4Gi; default: the plan's
         /// estimate + 25%, at least 1024Mi).
@@ -483,14 +483,14 @@ enum Shard {
         /// Also write batch/job-definition.json, registering a definition that runs this image.
         #[arg(long)]
         image: Option<String>,
-        /// vCPUs of every job; the shards' threads follow it.
-        #[arg(long, default_value_t = 1)]
+        /// vCPUs of every job; the shards' threads follow it (1 to 4096).
+        #[arg(long, default_value_t = 1, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=MAX_JOB_CPUS))]
         cpus: usize,
-        /// MiB of a shard's job (default: the plan's estimate + 25%, at least 1024).
-        #[arg(long)]
+        /// MiB of a shard's job (default: the plan's estimate + 25%, at least 1024; at most 2^30).
+        #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<u64>::new().range(1..=1 << 30))]
         mem: Option<u64>,
-        /// MiB of the merge's job (default: the plan's estimate + 25%, at least 1024).
-        #[arg(long)]
+        /// MiB of the merge's job (default: the plan's estimate + 25%, at least 1024; at most 2^30).
+        #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<u64>::new().range(1..=1 << 30))]
         merge_mem: Option<u64>,
         /// The merge's output folder (default: the plan's folder/merged).
         #[arg(long)]
@@ -559,6 +559,12 @@ fn load(config: &Path) -> anyhow::Result<Experiment> {
     Ok(Experiment::load_with(config, OVERRIDES.get().map_or(&[], Vec::as_slice))?)
 }
 
+/// The largest `cache clean --older-than-days` (a million days: older than any file).
+const MAX_AGE_DAYS: f64 = 1e6;
+
+/// The most CPUs a scheduler job may ask for (`--cpus` of `shard sbatch|k8s|batch`).
+const MAX_JOB_CPUS: u64 = 4096;
+
 /// Most worker threads per logical CPU: past a few per core, threads only add contention
 /// (1000 threads made a 0.4 s job take 27.6 s, and 100,000 hung the machine for minutes).
 const THREADS_PER_CORE: usize = 4;
@@ -568,10 +574,26 @@ const THREADS_PER_CORE: usize = 4;
 fn worker_threads(flag: Option<usize>) -> anyhow::Result<Option<usize>> {
     let (asked, from) = match flag {
         Some(n) => (n, "--threads"),
-        None => match std::env::var("RAYON_NUM_THREADS").ok().and_then(|v| v.trim().parse::<usize>().ok()) {
-            // 0 is rayon's own "one per core".
-            Some(n) if n > 0 => (n, "RAYON_NUM_THREADS"),
-            _ => return Ok(None),
+        None => match std::env::var("RAYON_NUM_THREADS") {
+            Err(_) => return Ok(None),
+            Ok(v) => match v.trim().parse::<usize>() {
+                Ok(n) if n > 0 => (n, "RAYON_NUM_THREADS"),
+                // 0 is rayon's own "one per core"; anything else is not a count. Either way the
+                // run uses one thread per logical CPU, and says so.
+                Ok(_) => {
+                    eprintln!("note: RAYON_NUM_THREADS=0: one worker thread per logical CPU");
+                    return Ok(None);
+                }
+                Err(_) => {
+                    eprintln!(
+                        "note: RAYON_NUM_THREADS={v:?} is not a number of threads; ignored (one worker thread per \
+                         logical CPU)"
+                    );
+                    // rayon would read it too (and fall back the same way): take it out of its sight.
+                    std::env::remove_var("RAYON_NUM_THREADS");
+                    return Ok(None);
+                }
+            },
         },
     };
     anyhow::ensure!(asked >= 1, "{from} must be at least 1");
@@ -984,8 +1006,8 @@ fn cache(what: Cache) -> anyhow::Result<()> {
                 anyhow::bail!("--kind {k}: not a kind of cache file (one of {})", cache::KINDS.join(", "));
             }
             anyhow::ensure!(
-                older_than_days.is_none_or(|d| d.is_finite() && d >= 0.0),
-                "--older-than-days must be a number of days, at least 0"
+                older_than_days.is_none_or(|d| d.is_finite() && (0.0..=MAX_AGE_DAYS).contains(&d)),
+                "--older-than-days must be a number of days from 0 to {MAX_AGE_DAYS}"
             );
             let dir = cache_dir.unwrap_or_else(cache::default_dir);
             let filter = cache::CleanFilter {

@@ -24,8 +24,9 @@ pub fn export_matrix(exp: &Experiment, dir: &Path, opts: &RunOptions) -> Result<
     let staged = shared.path();
     let geometry = crate::stages::scene::load_geometry(exp)?;
     let lighting = crate::stages::scene::load_lighting(exp)?;
-    let t = crate::stages::transfer::transfer_matrix(exp, &geometry, StageCache::new(opts, dir).as_ref())?
-        .into_whole("export-matrix")?;
+    let cache = StageCache::new(opts, dir);
+    crate::estimate::check_transfer(exp, &geometry, cache.is_some(), "export-matrix")?;
+    let t = crate::stages::transfer::transfer_matrix(exp, &geometry, cache.as_ref())?.into_whole("export-matrix")?;
     crate::interop::mtx::write_mtx(&t, &lighting.light, staged)?;
     write_scene(exp, &geometry, staged)?;
     write_irradiance(&t, &lighting.light, geometry.transfer.frames(), staged)?;
@@ -336,6 +337,7 @@ pub fn viz(
     let cache = StageCache::new(opts, out);
     let out = shared.path();
     let geometry = crate::stages::scene::load_geometry(exp)?;
+    crate::estimate::check_transfer(exp, &geometry, cache.is_some(), "viz")?;
     let t = crate::stages::transfer::transfer_matrix(exp, &geometry, cache.as_ref())?.into_whole("viz")?;
     let form =
         Bicluster::default().compress(&t, &CompressContext { seed: exp.file.seed, progress: None }).map_err(cerr)?;
@@ -429,6 +431,7 @@ pub fn view(
     let geometry = crate::stages::scene::load_geometry(exp)?;
     let lighting = crate::stages::scene::load_lighting(exp)?;
     let cache = StageCache::new(opts, &out);
+    crate::estimate::check_transfer(exp, &geometry, cache.is_some(), "view")?;
     let t = crate::stages::transfer::transfer_matrix(exp, &geometry, cache.as_ref())?;
     let (scene, _) = crate::stages::scene::shade_scene(exp, &geometry, t.view().local_basis(), cache.as_ref())?;
     let mut forms = vec![];

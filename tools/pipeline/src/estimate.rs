@@ -414,7 +414,7 @@ fn btf_bytes(c: &MaterialConfig, m: u64) -> u64 {
         MaterialConfig::Phong { view_grid, .. } => (*view_grid as u64 * *view_grid as u64 * m, 4),
         MaterialConfig::Synthesized(s) => {
             let views = (s.view_grid as u64 * s.view_grid as u64).max(1);
-            (s.resolution as u64 * s.resolution as u64 * views * m, 5)
+            (synthesized_texels(s) * views * m, 5)
         }
         // The table and the shade scene's copy, plus one view's f64 sums while importing.
         MaterialConfig::Bonn(b) => {
@@ -426,6 +426,17 @@ fn btf_bytes(c: &MaterialConfig, m: u64) -> u64 {
     values * BTF_BYTES_PER_VALUE * (halves + 2 * lpca as u64) / 2
 }
 
+/// Texels of a synthesized entry's table: one for a flat patch without an albedo map (no height
+/// map and zero amplitude: tabulated analytically as one texel, as `stages::materials` builds
+/// it), else `resolution^2`. A flat analytic GGX material was charged 8 GB of tables it never
+/// builds (its table is 3 MB).
+fn synthesized_texels(s: &crate::experiment::config::SynthesizedConfig) -> u64 {
+    match s.height_map.is_none() && s.amplitude == 0.0 && s.albedo_map.is_none() {
+        true => 1,
+        false => s.resolution as u64 * s.resolution as u64,
+    }
+}
+
 /// Texels and views of a material entry's BTF (an upper bound: a flat synthesized patch is
 /// tabulated as one texel).
 fn btf_shape(c: &MaterialConfig) -> (u64, u64) {
@@ -433,7 +444,7 @@ fn btf_shape(c: &MaterialConfig) -> (u64, u64) {
     match c {
         MaterialConfig::Lambertian { .. } => (1, 1),
         MaterialConfig::Phong { view_grid, .. } => (1, grid(*view_grid)),
-        MaterialConfig::Synthesized(s) => (s.resolution as u64 * s.resolution as u64, grid(s.view_grid)),
+        MaterialConfig::Synthesized(s) => (synthesized_texels(s), grid(s.view_grid)),
         MaterialConfig::Bonn(b) => (b.resolution as u64 * b.resolution as u64, grid(b.view_grid)),
     }
 }
@@ -668,6 +679,28 @@ pub fn check_run(
     Ok((memory, available))
 }
 
+/// Refuse tracing `T` for a command that does not estimate a whole run (`export`,
+/// `export-matrix`, `viz`, the Python module's images), as `run` refuses: the process, the
+/// geometry and `T`'s build (and its cache write with `cache`) at the sampled non-zeros'
+/// upper bound, against the available memory. `what` names the command in the refusal.
+pub fn check_transfer(exp: &Experiment, geometry: &Geometry, cache: bool, what: &str) -> Result<(), PipelineError> {
+    let settings = exp.transfer_settings();
+    let nnz = sample_nnz(&geometry.transfer, &geometry.mesh.triangles, &settings, NNZ_SAMPLE_VERTICES, exp.file.seed);
+    let vertices = geometry.mesh.vertex_count();
+    let t = TransferMemory::new(&settings, vertices, nnz.upper, rayon::current_num_threads());
+    let common = PROCESS_BASELINE_BYTES
+        + geometry.mesh.triangle_count() as u64 * GEOMETRY_BYTES_PER_TRIANGLE
+        + vertices as u64 * GEOMETRY_BYTES_PER_VERTEX;
+    let peak = common + t.build_peak().max(if cache { t.save_peak() } else { 0 });
+    refuse(
+        &format!("{}: {what}", exp.config_path.display()),
+        peak,
+        &format!(" (tracing T: {} non-zeros from {} sampled vertices)", nnz.upper, nnz.sampled),
+        &available()?,
+        "use a smaller transfer.cubemap_resolution or mesh, or split the precompute with `biscale shard plan`",
+    )
+}
+
 /// Check this run's own peak so far (VmHWM) against the memory that was available when it
 /// started: `biscale run` calls it after each heavy stage (`after` names the stage), so a run
 /// the estimate let through but that grew past the limit stops there with the peak, the
@@ -764,9 +797,9 @@ pub fn available() -> Result<Available, PipelineError> {
         },
     };
     let Some(value) = std::env::var_os(LIMIT_VAR) else { return Ok(machine) };
-    let limit = value.to_str().and_then(parse_size).ok_or_else(|| {
+    let limit = value.to_str().and_then(parse_size).filter(|&b| b > 0).ok_or_else(|| {
         PipelineError::Core(CoreError::Invalid(format!(
-            "{LIMIT_VAR}={}: not a size (bytes, or a number with K, M, G or T, powers of 1024)",
+            "{LIMIT_VAR}={}: not a size above zero (bytes, or a number with K, M, G or T, powers of 1024)",
             value.to_string_lossy()
         )))
     })?;

@@ -29,6 +29,9 @@ pub struct FinishedRun {
 
 /// The largest `metrics.json` read back (a run's is tens of kilobytes).
 const MAX_METRICS_BYTES: u64 = 256 << 20;
+/// The largest `plan.txt` read back (a run's is a few kilobytes; a sweep's lists a line per
+/// setting).
+const MAX_PLAN_BYTES: u64 = 64 << 20;
 
 impl FinishedRun {
     /// Read a run from its folder or its `metrics.json`.
@@ -39,13 +42,20 @@ impl FinishedRun {
             (path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).to_path_buf(), path.into())
         };
         let invalid = |what: String| PipelineError::Mismatch { path: json.clone(), what };
-        let size = std::fs::metadata(&json).map_err(io_err(&json))?.len();
-        if size > MAX_METRICS_BYTES {
-            return Err(invalid(format!("{size} bytes: larger than any run's metrics.json")));
-        }
-        let text = std::fs::read_to_string(&json).map_err(io_err(&json))?;
+        let text = biscale_core::io::read_regular_text(&json, MAX_METRICS_BYTES, "run's metrics.json")
+            .map_err(io_err(&json))?;
         let metrics: Metrics = serde_json::from_str(&text)
             .map_err(|e| invalid(format!("not a biscale metrics.json this build reads: {e}")))?;
+        // A record names files inside its own run folder only: the report reads and embeds
+        // them, so a tampered path (absolute, climbing out, through a link) is refused here.
+        let value: serde_json::Value = serde_json::from_str(&text).expect("parsed just above");
+        for (field, rel) in crate::metrics::named_files(&value) {
+            if let Err(why) = biscale_core::io::inside_folder(&dir, &rel) {
+                return Err(invalid(format!(
+                    "field `{field}` names {rel:?}, which {why}: a record names files inside its own run folder only"
+                )));
+            }
+        }
         if metrics.schema_version != crate::provenance::SCHEMA_VERSION {
             return Err(invalid(format!(
                 "schema version {}, this build reads version {}",
@@ -54,7 +64,8 @@ impl FinishedRun {
             )));
         }
         let plan_path = dir.join("plan.txt");
-        let plan = std::fs::read_to_string(&plan_path).map_err(io_err(&plan_path))?;
+        let plan = biscale_core::io::read_regular_text(&plan_path, MAX_PLAN_BYTES, "run's plan.txt")
+            .map_err(io_err(&plan_path))?;
         Ok(Self { dir, metrics, plan })
     }
 }
@@ -91,6 +102,19 @@ pub fn rerender(run: &FinishedRun, out: Option<&Path>) -> Result<PathBuf> {
 /// One page setting the compressor and method rows of several runs side by side, written into
 /// `out` (`report.md`, `report.html` and the plots).
 pub fn side_by_side(runs: &[FinishedRun], out: &Path) -> Result<PathBuf> {
+    // The page goes into a folder of its own: never over one of the runs it compares (a run
+    // folder is replaceable by biscale, so `report A B --out A` would have deleted run A).
+    for r in runs {
+        if same_folder(out, &r.dir) {
+            return Err(PipelineError::Mismatch {
+                path: out.into(),
+                what: format!(
+                    "is the run folder {}, one of the runs compared; give --out a new folder for the side-by-side page",
+                    r.dir.display()
+                ),
+            });
+        }
+    }
     let staged = StagedDir::begin(out, &format!("biscale report of {} runs", runs.len()))?;
     let dir = staged.path();
     let plots = comparison_plots(runs, dir);
@@ -102,6 +126,15 @@ pub fn side_by_side(runs: &[FinishedRun], out: &Path) -> Result<PathBuf> {
     )?;
     biscale_core::io::write_atomic_bytes(&dir.join("report.md"), crate::report::markdown_of(blocks).as_bytes())?;
     Ok(staged.commit()?)
+}
+
+/// Whether two paths are one existing folder (links followed; device and inode compared).
+fn same_folder(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (std::fs::metadata(a), std::fs::metadata(b)) {
+        (Ok(x), Ok(y)) => (x.dev(), x.ino()) == (y.dev(), y.ino()),
+        _ => false,
+    }
 }
 
 /// Each run's label: its folder's name (`#2`, `#3`, ... appended where two are named alike).

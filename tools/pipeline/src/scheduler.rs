@@ -158,14 +158,25 @@ pub fn sbatch(path: &Path, o: &SbatchOptions) -> Result<Vec<PathBuf>> {
     let manifest = abs(path);
     let dir = abs(&root).join("slurm");
     let logs = dir.join("logs");
-    std::fs::create_dir_all(&logs).map_err(|source| PipelineError::Io { path: logs.clone(), source })?;
+    // The log paths and the experiment's name go onto `#SBATCH` and comment lines, which no
+    // quoting protects: a newline there would end the comment and run the next line.
+    let logs_text = logs.display().to_string();
+    if let Some(c) = logs_text.chars().find(|c| c.is_control()) {
+        return Err(invalid(
+            path,
+            format!(
+                "the plan folder's path holds the control character {c:?}, which cannot be written into an #SBATCH \
+                 line; plan into a folder whose path has none"
+            ),
+        ));
+    }
     let exe = std::env::current_exe().map_err(|source| PipelineError::Io { path: "biscale".into(), source })?;
     let q = |p: &Path| sh_quote(&p.display().to_string());
     let header = |name: &str, mem: &str| {
         let mut h = format!(
             "#!/bin/bash\n# Written by `biscale shard sbatch` for {}.\n#SBATCH --job-name=biscale-{}-{name}\n#SBATCH --cpus-per-task={}\n#SBATCH --mem={}\n",
-            m.experiment,
-            sh_quote(&m.experiment),
+            m.experiment.replace(|c: char| c.is_control(), "?"),
+            sh_quote(&m.experiment.replace(|c: char| c.is_control(), "?")),
             o.cpus.max(1),
             sh_quote(mem),
         );
@@ -213,7 +224,19 @@ pub fn sbatch(path: &Path, o: &SbatchOptions) -> Result<Vec<PathBuf>> {
         .to_string();
     let about = format!("biscale shard sbatch {}", manifest.display());
     let files = vec![("shards.sbatch", shards, true), ("merge.sbatch", merge, true), ("submit.sh", submit, true)];
-    write_all(&abs(&root), "slurm", &about, files)
+    let written = write_all(&abs(&root), "slurm", &about, files)?;
+    // Slurm writes its logs there: made only now, inside the `slurm/` folder biscale has just
+    // written (never through a link, so a refused plan folder gets no `logs/` anywhere).
+    if !std::fs::symlink_metadata(&dir).is_ok_and(|m| m.is_dir()) {
+        return Err(invalid(path, format!("{} is not the folder biscale wrote (a link?)", dir.display())));
+    }
+    match std::fs::create_dir(&logs) {
+        Err(e) if e.kind() != std::io::ErrorKind::AlreadyExists => {
+            return Err(PipelineError::Io { path: logs.clone(), source: e })
+        }
+        _ => {}
+    }
+    Ok(written)
 }
 
 /// What `shard k8s` and `shard batch` wrote: every file, the script that submits them, and

@@ -38,6 +38,7 @@ use crate::error::{PipelineError, Result};
 use crate::estimate::{human, Available};
 use crate::experiment::config::{CompressorSetting, Experiment};
 use crate::stages::transfer::{build_compressor, Precomputed, TransferRows};
+use crate::store::staging::StagedDir;
 use crate::store::RunOptions;
 use biscale_core::compress::{CompressContext, CompressedForm, Compressor, Separability};
 use biscale_core::io::{write_atomic_bytes, ContentHash};
@@ -203,8 +204,8 @@ pub struct FileSum {
 pub fn config_hash(exp: &Experiment) -> Result<String> {
     let mut h = ContentHash::default();
     h.write_str("biscale shard config v1");
-    let mesh =
-        std::fs::read(&exp.mesh_path).map_err(|source| PipelineError::Io { path: exp.mesh_path.clone(), source })?;
+    let mesh = biscale_core::io::read_regular(&exp.mesh_path, u64::MAX, "mesh")
+        .map_err(|source| PipelineError::Io { path: exp.mesh_path.clone(), source })?;
     for bytes in [exp.source.as_bytes(), &mesh] {
         h.write(&(bytes.len() as u64).to_le_bytes()).write(bytes);
     }
@@ -213,7 +214,8 @@ pub fn config_hash(exp: &Experiment) -> Result<String> {
 
 fn file_sum(dir: &Path, name: &str) -> Result<FileSum> {
     let path = dir.join(name);
-    let bytes = std::fs::read(&path).map_err(|source| PipelineError::Io { path: path.clone(), source })?;
+    let bytes = biscale_core::io::read_regular(&path, u64::MAX, "shard part")
+        .map_err(|source| PipelineError::Io { path: path.clone(), source })?;
     Ok(FileSum {
         name: name.to_string(),
         bytes: bytes.len() as u64,
@@ -232,6 +234,11 @@ fn form_file(label: &str) -> String {
 }
 const TRANSFER_FILE: &str = "transfer.bsf";
 const DONE_FILE: &str = "done.json";
+/// The largest `done.json` read (a shard's record with a checksum per part: a few kilobytes).
+const MAX_DONE_BYTES: u64 = 1 << 20;
+/// The largest manifest read (one entry per shard, [`MAX_SHARDS`] of them: about 200 bytes
+/// each).
+const MAX_MANIFEST_BYTES: u64 = 64 << 20;
 
 /// Least common multiple, `None` past `usize`.
 fn lcm(a: usize, b: usize) -> Option<usize> {
@@ -403,7 +410,8 @@ pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Man
 impl Manifest {
     /// Read and check a manifest; returns it and the folder it lies in.
     pub fn load(path: &Path) -> Result<(Self, PathBuf)> {
-        let text = std::fs::read_to_string(path).map_err(|source| PipelineError::Io { path: path.into(), source })?;
+        let text = biscale_core::io::read_regular_text(path, MAX_MANIFEST_BYTES, "shard manifest")
+            .map_err(|source| PipelineError::Io { path: path.into(), source })?;
         let m: Manifest = serde_json::from_str(&text)
             .map_err(|e| invalid(path, format!("not a shard manifest (`biscale shard plan` writes one): {e}")))?;
         if m.format != MANIFEST_FORMAT || m.version != MANIFEST_VERSION {
@@ -494,14 +502,32 @@ pub fn run(path: &Path, index: usize) -> Result<ShardDone> {
     let spec = m.shard(index, path)?.clone();
     let exp = m.experiment(path)?;
     let dir = root.join(&spec.dir);
-    std::fs::create_dir_all(&dir).map_err(|source| PipelineError::Io { path: dir.clone(), source })?;
-    // From here on the shard is incomplete until its new record is written.
-    match std::fs::remove_file(dir.join(DONE_FILE)) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-            return Err(PipelineError::Io { path: dir.join(DONE_FILE), source: e })
+    // The shard's folder is an output like a run folder: never reached through a link (in the
+    // plan's `shards/` or as the shard itself), written whole into a staging folder and swapped
+    // in only over an empty folder or one whose marker proves biscale wrote all of it (a user's
+    // `done.json` or `transfer.bsf` there is an error naming it, never overwritten).
+    let mut at = root.clone();
+    for part in Path::new(&spec.dir).components() {
+        at.push(part);
+        if std::fs::symlink_metadata(&at).is_ok_and(|m| m.file_type().is_symlink()) {
+            return Err(invalid(
+                path,
+                format!("{} is a link: a shard's folder is written only where the plan made it", at.display()),
+            ));
         }
-        _ => {}
     }
+    let parent = dir.parent().unwrap_or(&root).to_path_buf();
+    std::fs::create_dir_all(&parent).map_err(|source| PipelineError::Io { path: parent.clone(), source })?;
+    // The plan's estimate of a shard's peak, against the memory there is here, before tracing
+    // (a shard node may have less than the planning machine).
+    crate::estimate::refuse(
+        &format!("{}: shard {index}", path.display()),
+        m.estimate.shard_peak_bytes,
+        " (the plan's estimate of a shard's peak)",
+        &crate::estimate::available()?,
+        "plan more shards (`biscale shard plan --shards N`) or run it where more memory is free",
+    )?;
+    let staged = StagedDir::begin(&dir, &format!("biscale shard run {} --index {index}", path.display()))?;
     let range = spec.first_vertex..spec.end_vertex;
     eprintln!(
         "shard {index} of {}: vertices {}..{} of {} ({}), {} threads",
@@ -549,11 +575,12 @@ pub fn run(path: &Path, index: usize) -> Result<ShardDone> {
             ));
         }
     }
-    build.matrix.save(&dir.join(TRANSFER_FILE))?;
+    let out = staged.path().to_path_buf();
+    build.matrix.save(&out.join(TRANSFER_FILE))?;
     for (file, form) in &forms {
-        form.save(&dir.join(file))?;
+        form.save(&out.join(file))?;
     }
-    let files = spec.outputs.iter().map(|f| file_sum(&dir, f)).collect::<Result<Vec<_>>>()?;
+    let files = spec.outputs.iter().map(|f| file_sum(&out, f)).collect::<Result<Vec<_>>>()?;
     let done = ShardDone {
         format: DONE_FORMAT.into(),
         index,
@@ -573,7 +600,8 @@ pub fn run(path: &Path, index: usize) -> Result<ShardDone> {
         host: std::fs::read_to_string("/proc/sys/kernel/hostname").map(|h| h.trim().to_string()).unwrap_or_default(),
     };
     let json = serde_json::to_string_pretty(&done).expect("record serializes");
-    write_atomic_bytes(&dir.join(DONE_FILE), json.as_bytes())?;
+    write_atomic_bytes(&out.join(DONE_FILE), json.as_bytes())?;
+    staged.commit()?;
     eprintln!(
         "shard {index}: complete in {:.1} s, peak memory {}",
         done.seconds,
@@ -595,7 +623,7 @@ pub enum ShardState {
 /// names this plan and range, and every file's checksum matches.
 pub fn state(m: &Manifest, root: &Path, spec: &ShardSpec) -> ShardState {
     let dir = root.join(&spec.dir);
-    let text = match std::fs::read_to_string(dir.join(DONE_FILE)) {
+    let text = match biscale_core::io::read_regular_text(&dir.join(DONE_FILE), MAX_DONE_BYTES, "shard's done.json") {
         Ok(t) => t,
         Err(_) => return ShardState::Missing,
     };

@@ -19,9 +19,18 @@ fn escape(s: &str) -> String {
     s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
 }
 
-/// `<img>` with the PNG at `out_dir/rel` embedded, or a note when it is missing.
+/// The largest image a page embeds (a run's largest PNG is a few megabytes).
+const MAX_EMBEDDED_BYTES: u64 = 256 << 20;
+
+/// `<img>` with the PNG at `out_dir/rel` embedded, or a note when it is missing. Only a
+/// regular file inside `out_dir` is read ([`biscale_core::io::inside_folder`]): a path that
+/// is absolute, climbs out or passes through a link is noted as refused, never read.
 fn img(out_dir: &Path, rel: &str, alt: &str) -> String {
-    match std::fs::read(out_dir.join(rel)) {
+    let path = match biscale_core::io::inside_folder(out_dir, rel) {
+        Ok(p) => p,
+        Err(why) => return format!("<em>{} refused: it {}</em>", escape(rel), escape(&why)),
+    };
+    match biscale_core::io::read_regular(&path, MAX_EMBEDDED_BYTES, "image") {
         Ok(bytes) => format!("<img alt=\"{}\" src=\"data:image/png;base64,{}\">", escape(alt), base64(&bytes)),
         Err(_) => format!("<em>{} missing</em>", escape(rel)),
     }

@@ -652,6 +652,40 @@ pub const CSV_COLUMNS: [&str; 24] = [
     "image_flip_vs_reference",
 ];
 
+/// Keys whose string values name a file of the run folder (an image, a plot): `png`, `exr`,
+/// `apng`, `svg`, `plot`, `thumbnail`, `inset`, and any key ending in `_png`, `_exr`, `_svg`
+/// or `_apng`. [`named_files`] finds them; a record may name files inside its own folder only.
+fn names_a_file(key: &str) -> bool {
+    matches!(key, "png" | "exr" | "apng" | "svg" | "plot" | "thumbnail" | "inset")
+        || ["_png", "_exr", "_svg", "_apng"].iter().any(|s| key.ends_with(s))
+}
+
+/// Every file a record (a parsed `metrics.json`) names, as (field, path): the field in
+/// JSON-path form (`compressors[2].image.png`). The report reads and embeds these, so each
+/// must stay inside the run folder ([`biscale_core::io::inside_folder`]).
+pub fn named_files(record: &serde_json::Value) -> Vec<(String, String)> {
+    fn walk(v: &serde_json::Value, at: &str, key: &str, out: &mut Vec<(String, String)>) {
+        match v {
+            serde_json::Value::String(s) if names_a_file(key) => out.push((at.to_string(), s.clone())),
+            serde_json::Value::Array(items) => {
+                for (i, item) in items.iter().enumerate() {
+                    walk(item, &format!("{at}[{i}]"), key, out);
+                }
+            }
+            serde_json::Value::Object(map) => {
+                for (k, item) in map {
+                    let field = if at.is_empty() { k.clone() } else { format!("{at}.{k}") };
+                    walk(item, &field, k, out);
+                }
+            }
+            _ => {}
+        }
+    }
+    let mut out = vec![];
+    walk(record, "", "", &mut out);
+    out
+}
+
 impl Metrics {
     /// `metrics.csv`: a header of [`CSV_COLUMNS`], then one row per compressor setting
     /// (`method` false) and per method setting (`method` true); absent values are empty.

@@ -75,6 +75,11 @@ pub fn series_by<'a>(
 /// Smallest error drawn on a log axis (lossless compressors sit at f32 rounding, ~1e-7).
 pub const ERROR_FLOOR: f64 = 1e-9;
 
+/// The values a log axis draws: a record's figure outside it (a gather of 5e-324 ms or 1e308
+/// ms in a tampered `metrics.json`) is left off the plot rather than stretching the axis over
+/// hundreds of decades.
+pub const PLOT_RANGE: std::ops::RangeInclusive<f64> = 1e-30..=1e30;
+
 /// A level drawn across a plot (dashed) with, on it, where named series cross it: the
 /// equal-quality storage read off the error-against-storage curves.
 pub struct Guide {
@@ -279,7 +284,7 @@ pub fn log_log_plot_with(
                 .points
                 .iter()
                 .enumerate()
-                .filter(|(_, (x, y))| x.is_finite() && y.is_finite() && *x > 0.0)
+                .filter(|(_, (x, y))| PLOT_RANGE.contains(x) && y.is_finite() && *y <= *PLOT_RANGE.end())
                 .map(|(i, &(x, y))| ((x, y.max(ERROR_FLOOR)), s.labels.get(i).cloned().unwrap_or_default()))
                 .unzip();
             Series { name: s.name.clone(), points, labels }
@@ -756,7 +761,7 @@ fn draw_frames<DB: DrawingBackend>(
     let x = 0f64..(frames.max(2) - 1) as f64;
     let span = |v: Vec<f64>| v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
     let errors: Vec<f64> =
-        curves.iter().flat_map(|c| c.error.iter().copied()).filter(|x| x.is_finite() && *x > 0.0).collect();
+        curves.iter().flat_map(|c| c.error.iter().copied()).filter(|x| PLOT_RANGE.contains(x)).collect();
     let (lo, hi) = if errors.is_empty() { (1e-3, 1.0) } else { span(errors) };
     let (lo, hi) = ((lo / 2.0).max(ERROR_FLOOR), hi * 2.0);
     let ms: Vec<f64> = curves.iter().flat_map(|c| c.ms.iter().copied()).filter(|x| x.is_finite()).collect();

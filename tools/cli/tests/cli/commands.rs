@@ -727,6 +727,100 @@ fn report_rerenders_a_finished_run_byte_for_byte() {
     assert!(ok, "a re-rendered run folder can be run into again: {err}");
 }
 
+/// Issue classes "report embeds any file a record names", "report A B --out A" and "a record
+/// whose figures stretch a plot without end": every field of `metrics.json` that names a file
+/// of the run (found by what the run wrote) is tampered in turn to an absolute path, a path
+/// climbing out and a path through a link; each is refused with the field named, and nothing
+/// outside the run is read into a page. A side-by-side page is never written over one of the
+/// runs it compares; absurd timings still give a report.
+#[test]
+fn report_reads_nothing_a_record_names_outside_its_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let (cache, run) = (dir.path().join("cache"), dir.path().join("run"));
+    let (ok, _, err) = biscale(&["run", "-q", "configs/smoke.toml", "--cache-dir", &s(&cache), "--out", &s(&run)]);
+    assert!(ok, "{err}");
+    let secret = dir.path().join("secret.png");
+    std::fs::write(&secret, b"\x89PNG a secret that must not be embedded").unwrap();
+    std::os::unix::fs::symlink(dir.path(), run.join("up")).unwrap();
+    let text = std::fs::read_to_string(run.join("metrics.json")).unwrap();
+    let original: serde_json::Value = serde_json::from_str(&text).unwrap();
+    // Every string leaf naming a file the run wrote, by its JSON pointer.
+    fn leaves(v: &serde_json::Value, at: String, out: &mut Vec<(String, String)>) {
+        match v {
+            serde_json::Value::String(t) => out.push((at, t.clone())),
+            serde_json::Value::Array(a) => a.iter().enumerate().for_each(|(i, x)| leaves(x, format!("{at}/{i}"), out)),
+            serde_json::Value::Object(o) => o.iter().for_each(|(k, x)| leaves(x, format!("{at}/{k}"), out)),
+            _ => {}
+        }
+    }
+    let mut all = vec![];
+    leaves(&original, String::new(), &mut all);
+    let files: Vec<(String, String)> =
+        all.into_iter().filter(|(_, t)| t.contains('/') && t.ends_with(".png") && run.join(t).is_file()).collect();
+    assert!(files.len() >= 10, "{files:?}");
+    for (pointer, _) in &files {
+        for bad in [s(&secret), "../secret.png".to_string(), "up/secret.png".to_string()] {
+            let mut v = original.clone();
+            *v.pointer_mut(pointer).unwrap() = serde_json::Value::String(bad.clone());
+            std::fs::write(run.join("metrics.json"), serde_json::to_string(&v).unwrap()).unwrap();
+            let (ok, _, err) = biscale(&["report", &s(&run)]);
+            let field = pointer.trim_start_matches('/').split('/').last().unwrap();
+            assert!(!ok && err.contains("a record names files inside its own run folder only"), "{pointer}: {err}");
+            assert!(err.contains(field) && err.contains(&bad), "{pointer} = {bad}: {err}");
+        }
+    }
+    std::fs::remove_file(run.join("up")).unwrap();
+    // Timings a plot cannot draw: the report is still written, in bounded time.
+    let mut v = original.clone();
+    v["compressors"][0]["gather_ms"] = serde_json::json!(5e-324);
+    v["compressors"][1]["gather_ms"] = serde_json::json!(1e308);
+    std::fs::write(run.join("metrics.json"), serde_json::to_string(&v).unwrap()).unwrap();
+    let absurd = dir.path().join("absurd");
+    let (ok, _, err) = biscale(&["report", &s(&run), "--out", &s(&absurd)]);
+    assert!(ok, "{err}");
+    assert!(absurd.join("report.html").is_file());
+    std::fs::write(run.join("metrics.json"), &text).unwrap();
+    // report A B --out A: refused, run A intact.
+    let before = files_of(&run);
+    let other = dir.path().join("other");
+    let (ok, _, err) = biscale(&["report", &s(&run), "--out", &s(&other)]);
+    assert!(ok, "{err}");
+    let (ok, _, err) = biscale(&["report", &s(&run), &s(&other), "--out", &s(&run)]);
+    assert!(!ok && err.contains("one of the runs compared"), "{err}");
+    assert!(files_of(&run) == before, "run A was changed");
+}
+
+/// Issue class "smaller ones": absurd numbers and names are clear errors or notes, never a
+/// panic or a silent default.
+#[test]
+fn absurd_ages_thread_counts_and_names_are_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().to_str().unwrap();
+    let (ok, _, err) = biscale(&["cache", "clean", "--cache-dir", cache, "--older-than-days", "1e308"]);
+    assert!(!ok && err.contains("--older-than-days") && !err.contains("panicked"), "{err}");
+    for (value, note) in
+        [("abc", "is not a number of threads"), ("-3", "is not a number of threads"), ("0", "RAYON_NUM_THREADS=0")]
+    {
+        let out = Command::new(env!("CARGO_BIN_EXE_biscale"))
+            .args(["plan", "configs/smoke.toml"])
+            .current_dir(root())
+            .env("RAYON_NUM_THREADS", value)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success() && err.contains(note), "{value}: {err}");
+    }
+    for name in ["x".repeat(100_000), "run\u{202e}txt.exe".to_string()] {
+        let (ok, _, err) = biscale(&["plan", "configs/smoke.toml", "--set", &format!("name=\"{name}\"")]);
+        assert!(
+            !ok && err.contains("name must be a plain folder name") && err.len() < 5000,
+            "{}",
+            &err[..err.len().min(500)]
+        );
+    }
+}
+
 /// `--set KEY=VALUE` overrides a config's values without editing it: the run uses them and
 /// records them (its command line and the config text as it ran, each set line marked); an
 /// error in a set value is reported as `--set KEY`, and a command without a config refuses it.

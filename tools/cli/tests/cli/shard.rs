@@ -354,6 +354,60 @@ fn hostile_manifests_and_options_never_reach_a_script() {
     }
 }
 
+/// Issue class "paths that reach a script": a newline in the plan folder's own path never
+/// reaches an `#SBATCH` line (refused, no `logs/` made anywhere); `shard run` never writes
+/// through a link in the plan's `shards/` folder nor over a user's files in a shard's folder;
+/// `--cpus` and batch `--mem` are bounded.
+#[test]
+fn plan_paths_and_shard_folders_never_reach_what_biscale_did_not_write() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let cfg = config(d);
+    let plan = d.join("a\ntouch pwned\n#");
+    ok(biscale(&["shard", "plan", s(&cfg), "--shards", "2", "--out", s(&plan)], &[]));
+    let e = failed(biscale(&["shard", "sbatch", s(&plan.join("manifest.json"))], &[]));
+    assert!(e.contains("control character") && e.contains("#SBATCH"), "{e}");
+    assert!(!plan.join("slurm").exists(), "nothing was written, no logs/ made");
+
+    let plan = d.join("plan");
+    ok(biscale(&["shard", "plan", s(&cfg), "--shards", "2", "--out", s(&plan)], &[]));
+    let manifest = plan.join("manifest.json");
+    let refused = |args: &[&str], flag: &str| {
+        let out = biscale(args, &[]);
+        let e = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && e.contains(flag) && !e.contains("panicked"), "{args:?}: {e}");
+    };
+    for value in ["18446744073709551615", "0"] {
+        refused(&["shard", "sbatch", s(&manifest), "--cpus", value], "--cpus");
+    }
+    refused(&["shard", "batch", s(&manifest), "--job-queue", "q", "--mem", "18446744073709551615"], "--mem");
+    // A link where a shard's folder goes: refused, its target untouched.
+    let elsewhere = d.join("elsewhere");
+    std::fs::create_dir(&elsewhere).unwrap();
+    let shards = plan.join("shards");
+    std::fs::create_dir_all(&shards).unwrap();
+    let spec: biscale::shard::Manifest = serde_json::from_str(&std::fs::read_to_string(&manifest).unwrap()).unwrap();
+    let shard0 = plan.join(&spec.shards[0].dir);
+    std::fs::create_dir_all(shard0.parent().unwrap()).unwrap();
+    std::os::unix::fs::symlink(&elsewhere, &shard0).unwrap();
+    let e = failed(biscale(&["shard", "run", s(&manifest), "--index", "0"], &[]));
+    assert!(e.contains("is a link"), "{e}");
+    assert_eq!(std::fs::read_dir(&elsewhere).unwrap().count(), 0);
+    std::fs::remove_file(&shard0).unwrap();
+    // A user's done.json in a shard's folder: refused, kept byte for byte.
+    std::fs::create_dir_all(&shard0).unwrap();
+    std::fs::write(shard0.join("done.json"), "my notes\n").unwrap();
+    let e = failed(biscale(&["shard", "run", s(&manifest), "--index", "0"], &[]));
+    assert!(e.contains("0000") && e.contains("not a biscale output folder"), "{e}");
+    assert_eq!(std::fs::read_to_string(shard0.join("done.json")).unwrap(), "my notes\n");
+    std::fs::remove_file(shard0.join("done.json")).unwrap();
+    // Its own folder is run again and again.
+    for _ in 0..2 {
+        ok(biscale(&["shard", "run", s(&manifest), "--index", "0"], &[]));
+    }
+    assert!(shard0.join("done.json").is_file());
+}
+
 /// A job file (`k8s/*.yaml` is JSON, which is YAML) parsed as JSON; where `python3` has PyYAML,
 /// read as YAML too, to the same value.
 fn job_file(path: &Path) -> serde_json::Value {
@@ -627,8 +681,19 @@ fn every_scheduler_writer_quotes_hostile_manifest_fields() {
     let d = dir.path();
     let cfg = config(d);
     let bin = fake_tools(d);
-    // A plan folder whose path holds all of it (but `/`), long.
-    let name = "p l'a\"n $(touch PWNED) `touch PWNED`; touch PWNED & ü😀\u{85}\u{2028}\n\\x";
+    // A plan folder whose path holds control characters (a newline, NEL): no quoting protects
+    // an `#SBATCH` line, so `shard sbatch` refuses it by the character; the job files of k8s
+    // and AWS Batch (JSON) carry it verbatim.
+    let controls = d.join("p\u{85}x\nshould not run");
+    ok(biscale(&["shard", "plan", s(&cfg), "--shards", "2", "--out", s(&controls)], &[]));
+    let cm = controls.join("manifest.json");
+    let e = failed(biscale(&["shard", "sbatch", s(&cm)], &[]));
+    assert!(e.contains("control character") && e.contains("#SBATCH"), "{e}");
+    ok(biscale(&["shard", "k8s", s(&cm)], &[]));
+    ok(biscale(&["shard", "batch", s(&cm), "--job-queue", "q"], &[]));
+    assert!(!controls.join("slurm").exists() && controls.join("k8s/shards.yaml").is_file());
+    // A plan folder whose path holds all the rest (but `/`), long.
+    let name = "p l'a\"n $(touch PWNED) `touch PWNED`; touch PWNED & ü😀\u{2028}\\x";
     let root = d.join(name).join("L".repeat(200)).join(format!("{name}-2"));
     ok(biscale(&["shard", "plan", s(&cfg), "--shards", "2", "--out", s(&root)], &[]));
     let manifest = root.join("manifest.json");
@@ -758,8 +823,10 @@ fn every_scheduler_writer_quotes_hostile_manifest_fields() {
             assert!(!out.status.success() && e.contains(flag), "{w:?} {flag}={h:?}: {e}");
         }
         if w != writers[0] {
-            let e = failed(call(with(w, &[&format!("{flag}=0")])));
-            assert!(e.contains(flag) && e.contains("at least 1"), "{w:?} {flag}=0: {e}");
+            let out = call(with(w, &[&format!("{flag}=0")]));
+            let e = String::from_utf8_lossy(&out.stderr);
+            let says = e.contains("at least 1") || e.contains("is not in 1..=");
+            assert!(!out.status.success() && e.contains(flag) && says, "{w:?} {flag}=0: {e}");
         }
     }
     let e = failed(call(with(writers[2], &["--image=biscale:1", "--job-definition=def:3"])));

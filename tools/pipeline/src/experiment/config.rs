@@ -738,9 +738,26 @@ fn expand_settings(
             };
             err(span, format!("{} {what}: {message}", kind.name))
         })?;
+        if let Some(why) = reserved_label(&label) {
+            return Err(err(entry.span(), format!("{} setting `{label}`: {why}", kind.name)));
+        }
         settings.push(Setting { label, kind: kind.name.to_string(), params });
     }
     Ok(settings)
+}
+
+/// The run's own image names (`images/<name>.png` and `.exr`): no setting may be labelled so,
+/// of any kind, or its images would replace the run's (the ground truth among them).
+pub const RESERVED_LABELS: [&str; 5] = ["uncompressed", "uncompressed_paper", "reference", "reference_mask", "mask"];
+
+/// Why `label` cannot name a setting, if it cannot ([`RESERVED_LABELS`]).
+pub fn reserved_label(label: &str) -> Option<String> {
+    RESERVED_LABELS.contains(&label).then(|| {
+        format!(
+            "the label `{label}` is one of the run's own image names ({}), reserved for every kind; choose another",
+            RESERVED_LABELS.join(", ")
+        )
+    })
 }
 
 /// The compressor kinds as the expansion sees them.
@@ -1094,6 +1111,31 @@ pub struct Experiment {
     /// The config's text as it runs: the file's, with any `--set` overrides applied.
     pub source: String,
     /// The `--set KEY=VALUE` overrides applied to the file (empty for the file as it is).
+/// What is wrong with an input file the config names, if anything: `not found`, or what it
+/// is when it is not a regular file (a device node, a FIFO, a folder), looked at without
+/// opening it, so a FIFO does not block and a device is never read.
+fn not_a_file(path: &Path) -> Option<String> {
+    use std::os::unix::fs::FileTypeExt;
+    let t = match std::fs::metadata(path) {
+        Ok(m) => m.file_type(),
+        Err(_) => return Some("not found".into()),
+    };
+    let kind = match () {
+        _ if t.is_file() => return None,
+        _ if t.is_dir() => "a folder",
+        _ if t.is_char_device() || t.is_block_device() => "a device node",
+        _ if t.is_fifo() => "a FIFO",
+        _ => "not a regular file",
+    };
+    Some(format!("is {kind}, not a regular file"))
+}
+
+/// The longest experiment name (it names the output folder; file systems take 255 bytes).
+pub const MAX_NAME_CHARS: usize = 120;
+
+/// The largest config file read (the bundled ones are a few kilobytes; a sweep's lists stay
+/// well under a megabyte).
+pub const MAX_CONFIG_BYTES: u64 = 16 << 20;
     pub overrides: Vec<String>,
     pub file: ExperimentFile,
     pub mesh_path: PathBuf,
@@ -1175,7 +1217,7 @@ impl Experiment {
     /// ([`apply_overrides`]); the experiment's `source` is the text with them, so a run's
     /// provenance records the config it really ran.
     pub fn load_with(path: &Path, overrides: &[String]) -> Result<Self, ConfigError> {
-        let source = std::fs::read_to_string(path)
+        let source = biscale_core::io::read_regular_text(path, MAX_CONFIG_BYTES, "config")
             .map_err(|e| ConfigError::whole_file(path, format!("cannot read config: {e}")))?;
         if overrides.is_empty() {
             return Self::parse(path, source);
@@ -1239,6 +1281,9 @@ impl Experiment {
     /// compressor, `biscale_compressors::hosted`), after the file's: its kind must know it
     /// (the registry's check) and its label must be new and a plain file name.
     pub fn add_compressor(&mut self, setting: CompressorSetting) -> Result<(), ConfigError> {
+        if let Some(why) = reserved_label(&setting.label) {
+            return fail(why);
+        }
         let fail = |what: String| {
             Err(ConfigError {
                 file: format!("compressor `{}`", setting.label),
@@ -1284,6 +1329,9 @@ impl Experiment {
 /// How a config's checks locate an error: a span of the file's text and a message.
 type Locate<'a> = dyn Fn(Range<usize>, String) -> ConfigError + 'a;
 
+    // Bidirectional and other invisible format characters (U+202E makes `exe.txt` read as
+    // `txt.exe`) are refused with the control characters.
+    let format_char = |c: char| matches!(c, '\u{200b}'..='\u{200f}' | '\u{202a}'..='\u{202e}' | '\u{2060}'..='\u{2069}' | '\u{061c}' | '\u{feff}');
 /// `v` within `lo..=hi`, else an error located at it.
 fn in_range(v: &Spanned<u32>, lo: u32, hi: u32, what: &str, err: &Locate<'_>) -> Result<(), ConfigError> {
     if *v.get_ref() < lo || *v.get_ref() > hi {
@@ -1301,19 +1349,23 @@ fn scene_files(
 ) -> Result<(PathBuf, Option<PathBuf>), ConfigError> {
     let resolve = |p: &Spanned<PathBuf>, what: &str| -> Result<PathBuf, ConfigError> {
         let full = dir.join(p.get_ref());
-        if !full.is_file() {
-            return Err(err(p.span(), format!("{what} file not found: {}", full.display())));
+        if let Some(problem) = not_a_file(&full) {
+            return Err(err(p.span(), format!("{what} file {problem}: {}", full.display())));
         }
         Ok(full)
     };
     if file.name.get_ref().trim().is_empty()
         || file.name.get_ref().contains(['/', '\\'])
         || file.name.get_ref().starts_with('.')
-        || file.name.get_ref().chars().any(char::is_control)
+        || file.name.get_ref().chars().any(|c| c.is_control() || format_char(c))
+        || file.name.get_ref().chars().count() > MAX_NAME_CHARS
     {
         return Err(err(
             file.name.span(),
-            "name must be a plain folder name (no slashes or control characters, not empty)".into(),
+            format!(
+                "name must be a plain folder name (no slashes, control or invisible format characters, not empty, \
+                 at most {MAX_NAME_CHARS} characters)"
+            ),
         ));
     }
     // File kinds are checked here, before `run` traces anything (`plan` checks them too).
@@ -1335,8 +1387,8 @@ fn scene_files(
             // Six cube faces: each must be there (the pattern itself is no file).
             Some(faces) => {
                 for (face, tag) in faces.iter().zip(biscale_core::sampling::cube_env::FACE_TAGS) {
-                    if !face.is_file() {
-                        return Err(err(p.span(), format!("env map cube face `{tag}` not found: {}", face.display())));
+                    if let Some(problem) = not_a_file(face) {
+                        return Err(err(p.span(), format!("env map cube face `{tag}` {problem}: {}", face.display())));
                     }
                 }
                 Some(dir.join(p.get_ref()))
@@ -1588,8 +1640,8 @@ fn resolve_materials(file: &mut ExperimentFile, dir: &Path, err: &Locate<'_>) ->
             for (file_ref, what) in [(&mut syn.height_map, "height_map"), (&mut syn.albedo_map, "albedo_map")] {
                 if let Some(p) = file_ref {
                     let full = dir.join(&*p);
-                    if !full.is_file() {
-                        return Err(err(span.clone(), format!("{what} file not found: {}", full.display())));
+                    if let Some(problem) = not_a_file(&full) {
+                        return Err(err(span.clone(), format!("{what} file {problem}: {}", full.display())));
                     }
                     *p = full;
                 }

@@ -75,6 +75,7 @@ fn with_view<R>(
 ) -> Result<R> {
     let lighting = load_lighting(exp)?;
     let cache = StageCache::new(opts, Path::new("."));
+    crate::estimate::check_transfer(exp, &geometry, cache.is_some(), "rendering images")?;
     let t = transfer_matrix(exp, &geometry, cache.as_ref())?.into_whole("rendering")?;
     let (scene, materials) = shade_scene(exp, &geometry, t.local_basis(), cache.as_ref())?;
     let view = View {

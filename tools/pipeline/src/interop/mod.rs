@@ -257,7 +257,10 @@ pub fn export(
         None
     };
     let transfer = match &geometry {
-        Some(g) => Some(crate::stages::transfer::transfer_matrix(exp, g, cache.as_ref())?),
+        Some(g) => {
+            crate::estimate::check_transfer(exp, g, cache.is_some(), "export")?;
+            Some(crate::stages::transfer::transfer_matrix(exp, g, cache.as_ref())?)
+        }
         None => None,
     };
     for &item in items {
@@ -607,6 +610,13 @@ fn check_meta_shape(path: &Path, meta: &serde_json::Map<String, Value>, want: Tr
     Ok(())
 }
 
+/// The most bytes an `L*` file of `want`'s shape can legitimately hold: its rows x 3 in f64 (a
+/// writer may use doubles), three times over for light moments, plus 16 MiB for the metadata
+/// and the local directions. A file or archive that claims more is refused before it is read.
+fn lstar_file_bound(want: TransferShape) -> u64 {
+    (want.rows() as u64).saturating_mul(3 * 8 * 3).saturating_add(16 << 20)
+}
+
 /// Read an external `L*` and check it against the config's shape: every mistake is an error
 /// naming the file, the array and what the config needs. Returns the `L*` and what was read
 /// (for the record's `params`).
@@ -614,9 +624,9 @@ pub fn read_lstar(path: &Path, want: TransferShape, light_moments: bool) -> Resu
     let mismatch = |what: String| PipelineError::Mismatch { path: path.into(), what };
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
     let (name, array, meta) = match ext {
-        "npy" => ("array".to_string(), npy::read_npy(path)?, None),
+        "npy" => ("array".to_string(), npy::read_npy_within(path, lstar_file_bound(want))?, None),
         "npz" => {
-            let arrays = npy::read_npz(path)?;
+            let arrays = npy::read_npz_within(path, lstar_file_bound(want))?;
             let meta = meta_of(path, &arrays)?;
             let data: Vec<&(String, NpyArray)> = arrays.iter().filter(|(n, _)| n != META).collect();
             let chosen = match data.iter().find(|(n, _)| n == "lstar") {

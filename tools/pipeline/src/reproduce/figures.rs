@@ -179,7 +179,7 @@ pub fn html(f: &FigureSet, out: &Path) -> Result<String> {
             continue;
         }
         let path = out.join(&p.file);
-        let bytes = std::fs::read(&path).map_err(io_err(&path))?;
+        let bytes = biscale_core::io::read_regular(&path, 256 << 20, "figure panel").map_err(io_err(&path))?;
         let width = if p.wide { 99.0 } else { width };
         let _ = writeln!(
             s,

@@ -114,7 +114,7 @@ pub struct Ledger {
 impl Ledger {
     /// The ledger of an earlier reproduce in `dir`, if it has a readable one.
     fn read(dir: &Path) -> Self {
-        std::fs::read(dir.join("precompute.json"))
+        biscale_core::io::read_regular(&dir.join("precompute.json"), 64 << 20, "precompute ledger")
             .ok()
             .and_then(|b| serde_json::from_slice(&b).ok())
             .unwrap_or_default()
@@ -135,6 +135,48 @@ impl Ledger {
     }
 }
 
+/// Where `p` really is, for comparing folders that may not exist yet: component by component,
+/// each existing prefix with its links resolved (`canonicalize`), `.` dropped and `..` taken
+/// off the resolved path (so `out/x/../ok/cache` is `out/ok/cache`, never compared as text).
+fn real_path(p: &Path) -> PathBuf {
+    use std::path::Component;
+    let abs = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    let mut cur = PathBuf::new();
+    for c in abs.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir => {
+                cur.pop();
+            }
+            Component::Normal(name) => {
+                cur.push(name);
+                if let Ok(real) = cur.canonicalize() {
+                    cur = real;
+                }
+            }
+            root => cur.push(root),
+        }
+    }
+    cur
+}
+
+#[cfg(test)]
+mod path_tests {
+    #[test]
+    fn a_cache_path_that_climbs_back_into_the_output_is_inside_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path().canonicalize().unwrap();
+        std::fs::create_dir_all(d.join("out/x")).unwrap();
+        let real = super::real_path(&d.join("out/x/../ok/cache"));
+        assert_eq!(real, d.join("out/ok/cache"));
+        assert!(real.starts_with(super::real_path(&d.join("out"))));
+        // Through a link: `link/..` is the parent of the link's target, as the kernel has it.
+        std::fs::create_dir_all(d.join("elsewhere/deep")).unwrap();
+        std::os::unix::fs::symlink(d.join("elsewhere/deep"), d.join("out/link")).unwrap();
+        assert_eq!(super::real_path(&d.join("out/link/../c")), d.join("elsewhere/c"));
+    }
+}
+
 /// Run the items `opts` selects and write the output folder.
 pub fn reproduce(opts: &Options) -> Result<Outcome> {
     let clock = StageClock::start(published::TEXT, 0);
@@ -144,8 +186,7 @@ pub fn reproduce(opts: &Options) -> Result<Outcome> {
     let cache_dir = opts.cache_dir.clone().unwrap_or_else(crate::store::cache::default_dir);
     let default_out = if opts.quick { "out/paper-quick" } else { "out/paper" };
     let target = opts.out.clone().unwrap_or_else(|| PathBuf::from(default_out));
-    let absolute = |d: &Path| std::path::absolute(d).unwrap_or_else(|_| d.to_path_buf());
-    if absolute(&cache_dir).starts_with(absolute(&target)) {
+    if real_path(&cache_dir).starts_with(real_path(&target)) {
         return Err(PipelineError::Mismatch {
             path: cache_dir,
             what: format!(

@@ -204,7 +204,8 @@ pub fn synth_key(cfg: &SynthesizedConfig, local_basis: LocalBasis) -> Result<Cac
     let unnamed = SynthesizedConfig { name: None, tiling: 1.0, representation: Default::default(), ..cfg.clone() };
     h.write(format!("{unnamed:?}").as_bytes());
     for p in [&cfg.height_map, &cfg.albedo_map].into_iter().flatten() {
-        let bytes = std::fs::read(p).map_err(|source| PipelineError::Io { path: p.clone(), source })?;
+        let bytes = biscale_core::io::read_regular(p, u64::MAX, "height or albedo map")
+            .map_err(|source| PipelineError::Io { path: p.clone(), source })?;
         h.write(&bytes);
     }
     Ok(CacheKey::new(h.finish128(), format!("synthesized BTF ({}) on {local_basis}", describe(cfg))))

@@ -730,7 +730,8 @@ fn owned(dir: &Path, name: &str) -> (&'static str, Option<String>) {
 fn starts_like_an_artifact(path: &Path) -> bool {
     use std::io::Read;
     let mut head = Vec::with_capacity(MAGIC.len());
-    let read = std::fs::File::open(path).and_then(|f| f.take(MAGIC.len() as u64).read_to_end(&mut head));
+    let read =
+        biscale_core::io::open_regular(path).and_then(|(f, _)| f.take(MAGIC.len() as u64).read_to_end(&mut head));
     read.is_ok() && MAGIC.starts_with(&head)
 }
 
