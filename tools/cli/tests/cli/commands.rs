@@ -765,7 +765,7 @@ fn report_reads_nothing_a_record_names_outside_its_run() {
             *v.pointer_mut(pointer).unwrap() = serde_json::Value::String(bad.clone());
             std::fs::write(run.join("metrics.json"), serde_json::to_string(&v).unwrap()).unwrap();
             let (ok, _, err) = biscale(&["report", &s(&run)]);
-            let field = pointer.trim_start_matches('/').split('/').last().unwrap();
+            let field = pointer.trim_start_matches('/').split('/').next_back().unwrap();
             assert!(!ok && err.contains("a record names files inside its own run folder only"), "{pointer}: {err}");
             assert!(err.contains(field) && err.contains(&bad), "{pointer} = {bad}: {err}");
         }
