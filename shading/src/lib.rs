@@ -42,6 +42,7 @@ pub mod measured;
 pub mod microfacet;
 pub mod precomputed;
 pub mod reference;
+pub mod runtime;
 pub mod synth;
 
 pub use error::{Result, ShadingError};

@@ -56,7 +56,7 @@ pub struct TransferSettings {
 /// its centre hits a triangle); they can differ only on a ray within f32 rounding of a
 /// triangle's edge: none on the bundled bunny and temple, 2 to 5 rays in 14 to 41 million on
 /// the other bundled meshes (docs/DESIGN.md, "Visibility by coverage").
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Deserialize, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Visibility {
     /// Per vertex and cube face, the triangles the face could see rasterised front to back

@@ -303,7 +303,7 @@ fn the_gpu_backend_gathers_light_moments_like_the_cpu() {
 #[test]
 fn the_gpu_backend_records_every_form_against_the_cpu() {
     let Some(m) = gpu_backend_run("") else { return };
-    assert_eq!(m.backend, "gpu");
+    assert_eq!(m.backend, biscale_shading::runtime::Backend::Gpu);
     for c in &m.compressors {
         let g = c.gpu.as_ref().unwrap_or_else(|| panic!("{}: no gpu record", c.name));
         eprintln!("{}: {g:?}", c.name);

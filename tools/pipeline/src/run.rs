@@ -393,7 +393,7 @@ pub(crate) fn metrics_of_run(
         schema_version: crate::provenance::SCHEMA_VERSION,
         experiment: exp.name().to_string(),
         config: exp.config_path.display().to_string(),
-        backend: format!("{:?}", exp.file.runtime.backend).to_lowercase(),
+        backend: exp.file.runtime.backend,
         scene: SceneMetrics {
             mesh: exp.mesh_path.display().to_string(),
             vertices: geometry.mesh.vertex_count(),
@@ -418,7 +418,7 @@ pub(crate) fn metrics_of_run(
             gather_timing: Some(base.gather_timing),
             shade_timing: Some(base.shade_timing),
             light_moments: exp.file.runtime.light_moments,
-            moments_resolve: exp.file.runtime.moments_resolve_name().map(str::to_string),
+            moments_resolve: exp.file.runtime.moments_resolve(),
             // Same camera, same size: compare cannot fail here.
             paper_vs_moments: base.paper.as_ref().and_then(|(_, paper)| {
                 let exposure = tone.exposure;

@@ -10,7 +10,7 @@ pub struct Metrics {
     pub schema_version: u32,
     pub experiment: String,
     pub config: String,
-    pub backend: String,
+    pub backend: biscale_shading::runtime::Backend,
     pub scene: SceneMetrics,
     pub lighting: LightingMetrics,
     pub transfer: TransferMetrics,
@@ -467,7 +467,7 @@ pub struct TransferMetrics {
     /// How the visibility rays were decided (`transfer.visibility`: "coverage" or "rays";
     /// absent in older records, which traced every ray).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub visibility: Option<String>,
+    pub visibility: Option<biscale_core::transfer::Visibility>,
     pub value_histogram: Vec<ValueCount>,
     /// Seconds to build T (0 when it came from the cache; see `cached`).
     pub build_seconds: f64,
@@ -496,7 +496,7 @@ pub struct UncompressedMetrics {
     /// resolved at every pixel's frame, then blended) or `pixel_analytic` (resolved per pixel with a flat
     /// analytic material's own BRDF). Absent without moments, and in older records.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub moments_resolve: Option<String>,
+    pub moments_resolve: Option<biscale_shading::runtime::MomentsResolve>,
     /// With light moments: the paper's (bin-mean-cosine) uncompressed image against the
     /// moments' one, over the covered pixels: how much the moments change the picture.
     #[serde(skip_serializing_if = "Option::is_none")]

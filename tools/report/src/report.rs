@@ -499,10 +499,10 @@ pub fn transfer_summary(t: &TransferMetrics) -> String {
             "built in {:.2} s ({} rays{}, {:.1} M rays/s)",
             t.build_seconds,
             t.rays_traced,
-            match t.visibility.as_deref() {
-                Some("coverage") => " decided by coverage",
-                Some("rays") => " traced",
-                _ => "",
+            match t.visibility {
+                Some(biscale_core::transfer::Visibility::Coverage) => " decided by coverage",
+                Some(biscale_core::transfer::Visibility::Rays) => " traced",
+                None => "",
             },
             t.rays_per_second / 1e6
         ),
@@ -1125,20 +1125,21 @@ pub(crate) fn light_moments_summary(m: &Metrics) -> String {
         "Cosine rule: light moments, every texel weighted by its own cosine (three gathers of the light's \
          direction moments through each form; `[runtime] light_moments = true`).",
     );
-    match m.uncompressed.moments_resolve.as_deref() {
-        Some("pixel") => s.push_str(
+    use biscale_shading::runtime::MomentsResolve;
+    match m.uncompressed.moments_resolve {
+        Some(MomentsResolve::Pixel) => s.push_str(
             " Resolved per pixel (`[runtime] moments_resolve = \"pixel\"`): each vertex's three moment \
              gathers are resolved at every pixel's own frame and the resolved rows blended across the \
              triangle, so no image of this run shades an L* resolved in the vertices' frames.",
         ),
-        Some("pixel_analytic") => s.push_str(
+        Some(MomentsResolve::PixelAnalytic) => s.push_str(
             " Resolved per pixel with the analytic BRDF (`[runtime] moments_resolve = \"pixel_analytic\"`): \
              at every pixel each local bin of the triangle's vertices is shaded by the material's own \
              BRDF at the bin's mean light direction and the pixel's view, not by the BTF's light and \
              view tables, and the three vertices blended (flat analytic materials; any other \
              material is resolved from its tables as with `\"pixel\"`).",
         ),
-        Some(_) => s.push_str(
+        Some(MomentsResolve::Vertex) => s.push_str(
             " Resolved per vertex (`[runtime] moments_resolve = \"vertex\"`): each vertex's L* is interpolated \
              across its triangles.",
         ),

@@ -870,10 +870,10 @@ impl RuntimeConfig {
             && self.moments_resolve.as_ref().is_some_and(|m| *m.get_ref() == MomentsResolve::PixelAnalytic)
     }
 
-    /// `metrics.json`'s `moments_resolve`: the config's value, `None` without light moments.
-    pub fn moments_resolve_name(&self) -> Option<&'static str> {
-        self.light_moments
-            .then(|| self.moments_resolve.as_ref().map_or(MomentsResolve::Vertex, |m| *m.get_ref()).name())
+    /// `metrics.json`'s `moments_resolve`: the config's value (default `vertex`), `None`
+    /// without light moments.
+    pub fn moments_resolve(&self) -> Option<MomentsResolve> {
+        self.light_moments.then(|| self.moments_resolve.as_ref().map_or(MomentsResolve::Vertex, |m| *m.get_ref()))
     }
 
     /// The rays per pixel every render of the run takes: the config's, else 4.
@@ -882,39 +882,12 @@ impl RuntimeConfig {
     }
 }
 
-/// Where light moments are resolved (`runtime.moments_resolve`).
-#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
-#[serde(rename_all = "snake_case")]
-pub enum MomentsResolve {
-    #[default]
-    Vertex,
-    Pixel,
-    PixelAnalytic,
-}
+/// Where light moments are resolved (`runtime.moments_resolve`): the shading crate's type, the
+/// one `metrics.json` and the report carry.
+pub use biscale_shading::runtime::MomentsResolve;
 
-impl MomentsResolve {
-    /// The config's spelling.
-    pub fn name(self) -> &'static str {
-        match self {
-            MomentsResolve::Vertex => "vertex",
-            MomentsResolve::Pixel => "pixel",
-            MomentsResolve::PixelAnalytic => "pixel_analytic",
-        }
-    }
-
-    /// Whether the moments are resolved at every shading point.
-    pub fn per_pixel(self) -> bool {
-        self != MomentsResolve::Vertex
-    }
-}
-
-#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
-#[serde(rename_all = "snake_case")]
-pub enum Backend {
-    #[default]
-    Cpu,
-    Gpu,
-}
+/// `runtime.backend`: the shading crate's type, the one `metrics.json` and the report carry.
+pub use biscale_shading::runtime::Backend;
 
 fn default_width() -> Spanned<u32> {
     Spanned::new(0..0, 640)
@@ -1117,25 +1090,6 @@ pub struct Experiment {
 fn not_a_file(path: &Path) -> Option<String> {
     use std::os::unix::fs::FileTypeExt;
     let t = match std::fs::metadata(path) {
-        Ok(m) => m.file_type(),
-        Err(_) => return Some("not found".into()),
-    };
-    let kind = match () {
-        _ if t.is_file() => return None,
-        _ if t.is_dir() => "a folder",
-        _ if t.is_char_device() || t.is_block_device() => "a device node",
-        _ if t.is_fifo() => "a FIFO",
-        _ => "not a regular file",
-    };
-    Some(format!("is {kind}, not a regular file"))
-}
-
-/// The longest experiment name (it names the output folder; file systems take 255 bytes).
-pub const MAX_NAME_CHARS: usize = 120;
-
-/// The largest config file read (the bundled ones are a few kilobytes; a sweep's lists stay
-/// well under a megabyte).
-pub const MAX_CONFIG_BYTES: u64 = 16 << 20;
     pub overrides: Vec<String>,
     pub file: ExperimentFile,
     pub mesh_path: PathBuf,
@@ -1158,6 +1112,25 @@ pub const MAX_REPEATS: usize = 10_000;
 
 /// Most pixels of one image (`runtime.width x height`): 8192 x 8192, 0.8 GB of f32 RGB.
 pub const MAX_PIXELS: u64 = 8192 * 8192;
+        Ok(m) => m.file_type(),
+        Err(_) => return Some("not found".into()),
+    };
+    let kind = match () {
+        _ if t.is_file() => return None,
+        _ if t.is_dir() => "a folder",
+        _ if t.is_char_device() || t.is_block_device() => "a device node",
+        _ if t.is_fifo() => "a FIFO",
+        _ => "not a regular file",
+    };
+    Some(format!("is {kind}, not a regular file"))
+}
+
+/// The longest experiment name (it names the output folder; file systems take 255 bytes).
+pub const MAX_NAME_CHARS: usize = 120;
+
+/// The largest config file read (the bundled ones are a few kilobytes; a sweep's lists stay
+/// well under a megabyte).
+pub const MAX_CONFIG_BYTES: u64 = 16 << 20;
 
 /// The first non-finite number of a TOML text: its dotted key, its value and the byte range
 /// of its literal (`None` for text that is not TOML: the parse reports that).
@@ -1281,9 +1254,6 @@ impl Experiment {
     /// compressor, `biscale_compressors::hosted`), after the file's: its kind must know it
     /// (the registry's check) and its label must be new and a plain file name.
     pub fn add_compressor(&mut self, setting: CompressorSetting) -> Result<(), ConfigError> {
-        if let Some(why) = reserved_label(&setting.label) {
-            return fail(why);
-        }
         let fail = |what: String| {
             Err(ConfigError {
                 file: format!("compressor `{}`", setting.label),
@@ -1312,6 +1282,9 @@ impl Experiment {
         }
         self.compressors.push(setting);
         Ok(())
+        if let Some(why) = reserved_label(&setting.label) {
+            return fail(why);
+        }
     }
 
     /// Every method setting (`[[methods]]`), in config order with sweeps expanded.
@@ -1329,9 +1302,6 @@ impl Experiment {
 /// How a config's checks locate an error: a span of the file's text and a message.
 type Locate<'a> = dyn Fn(Range<usize>, String) -> ConfigError + 'a;
 
-    // Bidirectional and other invisible format characters (U+202E makes `exe.txt` read as
-    // `txt.exe`) are refused with the control characters.
-    let format_char = |c: char| matches!(c, '\u{200b}'..='\u{200f}' | '\u{202a}'..='\u{202e}' | '\u{2060}'..='\u{2069}' | '\u{061c}' | '\u{feff}');
 /// `v` within `lo..=hi`, else an error located at it.
 fn in_range(v: &Spanned<u32>, lo: u32, hi: u32, what: &str, err: &Locate<'_>) -> Result<(), ConfigError> {
     if *v.get_ref() < lo || *v.get_ref() > hi {
@@ -1360,6 +1330,9 @@ fn scene_files(
         || file.name.get_ref().chars().any(|c| c.is_control() || format_char(c))
         || file.name.get_ref().chars().count() > MAX_NAME_CHARS
     {
+    // Bidirectional and other invisible format characters (U+202E makes `exe.txt` read as
+    // `txt.exe`) are refused with the control characters.
+    let format_char = |c: char| matches!(c, '\u{200b}'..='\u{200f}' | '\u{202a}'..='\u{202e}' | '\u{2060}'..='\u{2069}' | '\u{061c}' | '\u{feff}');
         return Err(err(
             file.name.span(),
             format!(
@@ -1976,11 +1949,11 @@ mod tests {
         let runtime = |extra: &str| parse(&format!("{OK}[runtime]\n{extra}")).map(|e| e.file.runtime);
         let r = runtime("light_moments = true\nmoments_resolve = \"pixel_analytic\"\n").unwrap();
         assert!(r.resolve_per_pixel() && r.resolve_analytic());
-        assert_eq!(r.moments_resolve_name(), Some("pixel_analytic"));
+        assert_eq!(r.moments_resolve(), Some(MomentsResolve::PixelAnalytic));
         let r = runtime("light_moments = true\nmoments_resolve = \"pixel\"\n").unwrap();
-        assert!(!r.resolve_analytic() && r.moments_resolve_name() == Some("pixel"));
-        assert_eq!(runtime("light_moments = true\n").unwrap().moments_resolve_name(), Some("vertex"));
-        assert_eq!(runtime("").unwrap().moments_resolve_name(), None);
+        assert!(!r.resolve_analytic() && r.moments_resolve() == Some(MomentsResolve::Pixel));
+        assert_eq!(runtime("light_moments = true\n").unwrap().moments_resolve(), Some(MomentsResolve::Vertex));
+        assert_eq!(runtime("").unwrap().moments_resolve(), None);
         let e = rt("moments_resolve = \"pixel_analytic\"\n").unwrap_err().to_string();
         assert!(e.contains(":7:19: runtime.moments_resolve = \"pixel_analytic\" resolves light moments"), "{e}");
         let e = rt("light_moments = true\nbackend = \"gpu\"\nmoments_resolve = \"pixel_analytic\"\n").unwrap_err();

@@ -4,7 +4,7 @@
 //! it (same scene, materials, camera, background and reference cache).
 
 use crate::error::{PipelineError, Result};
-use crate::experiment::config::Experiment;
+use crate::experiment::config::{Experiment, MomentsResolve};
 use crate::stages::evaluate::{reference_render, View};
 use crate::stages::scene::{load_geometry, load_lighting, shade_scene, Geometry, Lighting};
 use crate::stages::transfer::transfer_matrix;
@@ -20,15 +20,8 @@ use std::path::Path;
 /// whose images shade the three moment gathers, not an `L*`. `T` comes from the stage cache (or is traced): its
 /// local basis builds the materials' BTFs.
 pub fn shade_image(exp: &Experiment, lstar: &[[f32; 3]], opts: &RunOptions) -> Result<Render> {
-    if exp.file.runtime.resolve_per_pixel() {
-        return Err(PipelineError::Mismatch {
-            path: exp.config_path.clone(),
-            what: format!(
-                "runtime.moments_resolve = \"{}\" shades the three moment gathers, which an L* does not hold: \
-                 shade it with runtime.moments_resolve = \"vertex\"",
-                exp.file.runtime.moments_resolve_name().unwrap_or("pixel")
-            ),
-        });
+    if let Some(what) = exp.file.runtime.moments_resolve().and_then(MomentsResolve::refuses_lstar) {
+        return Err(PipelineError::Mismatch { path: exp.config_path.clone(), what });
     }
     let geometry = load_geometry(exp)?;
     let want = exp.transfer_settings().shape(geometry.mesh.vertex_count());

@@ -29,7 +29,7 @@ pub mod mtx;
 pub mod npy;
 
 use crate::error::{PipelineError, Result};
-use crate::experiment::config::{CompressorSetting, Experiment, MaterialConfig};
+use crate::experiment::config::{CompressorSetting, Experiment, MaterialConfig, MomentsResolve};
 use crate::experiment::plan::Plan;
 use crate::metrics::{CompressorRecord, Metrics};
 use crate::run::{metrics_of_run, RunContext};
@@ -819,15 +819,9 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
         Lstar(LocalRadiance, Value),
         Form(ReadForm),
     }
-    if matches!(input, EvalInput::Lstar(_)) && exp.file.runtime.resolve_per_pixel() {
-        return Err(PipelineError::Mismatch {
-            path: exp.config_path.clone(),
-            what: format!(
-                "runtime.moments_resolve = \"{}\" shades the three moment gathers, which an L* file does not \
-                 hold: score it with --set runtime.moments_resolve=\"vertex\", or score a form (--form)",
-                exp.file.runtime.moments_resolve_name().unwrap_or("pixel")
-            ),
-        });
+    let refusal = exp.file.runtime.moments_resolve().and_then(MomentsResolve::refuses_lstar);
+    if let Some(what) = refusal.filter(|_| matches!(input, EvalInput::Lstar(_))) {
+        return Err(PipelineError::Mismatch { path: exp.config_path.clone(), what: format!("{what} (--form)") });
     }
     let loaded = match input {
         EvalInput::Lstar(p) => {

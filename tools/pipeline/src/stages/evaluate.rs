@@ -2,7 +2,7 @@
 //! uncompressed baseline image, the reference) and the measurement of one form.
 
 use crate::error::{PipelineError, Result};
-use crate::experiment::config::{CompressorSetting, Experiment};
+use crate::experiment::config::{CompressorSetting, Experiment, MomentsResolve};
 use crate::metrics::*;
 use crate::stages::figures::{error_extent, save_images, write_error_figure};
 use crate::stages::scene::{Geometry, Lighting};
@@ -574,9 +574,10 @@ pub(crate) struct Evaluation<'a> {
     /// With light moments: the light's moments and the vertex frames `T` was traced with;
     /// every form is then gathered three times and resolved ([`gather_keeping_moments`]).
     pub moments: Option<(&'a LightMoments, &'a [VertexFrame])>,
-    /// `runtime.moments_resolve = "pixel"`: every form's image resolves its three moment
-    /// gathers at each pixel (its `L*`, for the `L*` error, is still resolved per vertex).
-    pub per_pixel: bool,
+    /// `runtime.moments_resolve`, `Vertex` without light moments; per pixel, every form's image
+    /// resolves its three moment gathers at each pixel (its `L*`, for the `L*` error, is still
+    /// resolved per vertex).
+    pub resolve: MomentsResolve,
     pub exact: &'a [[f64; 3]],
     pub baseline: &'a Render,
     pub view: &'a View<'a>,
@@ -606,7 +607,10 @@ impl<'a> Evaluation<'a> {
             t,
             light: &lighting.light,
             moments: targets.moments.as_ref().map(|m| (m, geometry.transfer.frames())),
-            per_pixel: targets.base.moments.is_some(),
+            resolve: match targets.base.moments.is_some() {
+                true => exp.file.runtime.moments_resolve().unwrap_or(MomentsResolve::Pixel),
+                false => MomentsResolve::Vertex,
+            },
             exact: &targets.base.exact,
             baseline: &targets.base.render,
             view,
@@ -642,7 +646,7 @@ impl Evaluation<'_> {
                 None => compressor.gather(form, self.light).map(|l| (l, None)),
                 // The same gathers and resolve either way; per pixel the image shades the three.
                 Some((moments, frames)) => gather_keeping_moments(compressor, form, moments, frames)
-                    .map(|(l, g)| (l, self.per_pixel.then_some(g))),
+                    .map(|(l, g)| (l, self.resolve.per_pixel().then_some(g))),
             }
             .map_err(cerr)
         })?;
@@ -706,14 +710,8 @@ impl Evaluation<'_> {
         lstar: &LocalRadiance,
         gather_ms: f64,
     ) -> Result<(CompressorRecord, Render)> {
-        if self.per_pixel {
-            return Err(PipelineError::Mismatch {
-                path: self.out_dir.to_path_buf(),
-                what: format!(
-                    "{name}: an L* alone cannot be resolved per pixel (runtime.moments_resolve = \"pixel\" needs the \
-                     three moment gathers): score it with runtime.moments_resolve = \"vertex\", or score a form"
-                ),
-            });
+        if let Some(what) = self.resolve.refuses_lstar() {
+            return Err(PipelineError::Mismatch { path: self.out_dir.to_path_buf(), what: format!("{name}: {what}") });
         }
         let (mut record, render) = self.score_timed(name, lstar, None, None)?;
         record.gather_ms = gather_ms;

@@ -341,7 +341,7 @@ pub(crate) fn evaluate(
         // SH light and local bases have no texels or bins to take moments of: the low-frequency
         // method shades as Sloan et al. do, with or without [runtime] light_moments.
         moments: None,
-        per_pixel: false,
+        resolve: crate::experiment::config::MomentsResolve::Vertex,
         exact: &exact,
         baseline: inp.baseline,
         view: &view,

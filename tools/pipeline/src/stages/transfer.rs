@@ -174,7 +174,7 @@ fn transfer_metrics(
         nnz: t.nnz(),
         local_dirs: t.local_dirs(),
         visibility_resolution: settings.visibility_resolution(),
-        visibility: Some(settings.visibility().name().into()),
+        visibility: Some(settings.visibility()),
         value_histogram,
         build_seconds: seconds,
         rays_traced: rays,
