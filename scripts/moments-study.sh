@@ -21,7 +21,9 @@
 #
 # Usage: scripts/moments-study.sh            (about 10 minutes on 2 cores with the Mitsuba check)
 #   SKIP_BENCH=1 leaves out the gather timing; SKIP_MITSUBA=1 the Mitsuba check;
-#   REUSE=1 keeps runs already in out/moments.
+#   REUSE=1 keeps runs already in out/moments; TEXEL_DIRECTIONS=mean takes every texel's light
+#   from the mean direction of its pixels (`[lighting] texel_directions`), default centre (the
+#   rule BENCHMARKS' light-moments figures were measured with).
 # Writes out/moments/<sky>/ (one run each), out/moments/glossy-ggx/ and glossy-ggx-analytic/,
 # and prints Markdown tables.
 set -euo pipefail
@@ -45,6 +47,7 @@ run_sky() { # NAME ENVMAP [SUN_BOOST]
         echo "albedo = [1.0, 1.0, 1.0]"
         echo "[lighting]"
         echo "env_map = \"$root/assets/envmaps/$env\""
+        echo "texel_directions = \"${TEXEL_DIRECTIONS:-centre}\""
         [ -n "$boost" ] && echo "sun_boost = $boost"
         echo "[transfer]"
         echo "cubemap_resolution = 32"
@@ -84,11 +87,13 @@ run_sky sunset-sun1e3 blender_sunset.exr 1000
 glossy_cfg=$root/configs/glossy_ggx_bunny.toml
 echo "== glossy-ggx" >&2
 if [ -z "${REUSE:-}" ] || [ ! -f "$out/glossy-ggx/metrics.json" ]; then
-    "$B" run "$glossy_cfg" --out "$out/glossy-ggx" 2>"$out/glossy-ggx.log" || { cat "$out/glossy-ggx.log" >&2; exit 1; }
+    "$B" run "$glossy_cfg" --set "lighting.texel_directions=\"${TEXEL_DIRECTIONS:-centre}\"" --out "$out/glossy-ggx" \
+        2>"$out/glossy-ggx.log" || { cat "$out/glossy-ggx.log" >&2; exit 1; }
 fi
 # The same scene resolved per pixel with the GGX BRDF itself (no BTF tables) on 16x16 bins:
 # the setting of BENCHMARKS' "analytic resolve" rows.
-analytic_sets=(--set 'runtime.moments_resolve="pixel_analytic"' --set transfer.local_grid=16 --set scene.material.view_grid=32)
+analytic_sets=(--set 'runtime.moments_resolve="pixel_analytic"' --set transfer.local_grid=16 --set scene.material.view_grid=32
+    --set "lighting.texel_directions=\"${TEXEL_DIRECTIONS:-centre}\"")
 echo "== glossy-ggx-analytic" >&2
 if [ -z "${REUSE:-}" ] || [ ! -f "$out/glossy-ggx-analytic/metrics.json" ]; then
     "$B" run "$glossy_cfg" "${analytic_sets[@]}" --out "$out/glossy-ggx-analytic" 2>"$out/glossy-ggx-analytic.log" ||

@@ -17,8 +17,10 @@
 //! bilinear weights, each divided by its own mean cosine, so that `sum_i b_i L*'_i` is
 //! `sum_j f(D_j / |D_j|) (n . D_j)`, the BRDF interpolated in the BTF's light grid at the mean
 //! direction. For a white Lambertian material this is the exact direct irradiance
-//! `sum_k T[j, k] L_k cos_k / pi` of `T`'s visibility. `d_k` is the texel's centre direction,
-//! the one `T` bins it by; `n` is the vertex normal `T` was traced with.
+//! `sum_k T[j, k] L_k cos_k / pi` of `T`'s visibility. `d_k` is where texel `k`'s light comes
+//! from: the power-weighted mean direction of the source pixels it averages, per channel
+//! (`LightVector::mean_direction`), or its centre for a light not splatted from an image; `T`
+//! still bins the texel by its centre. `n` is the vertex normal `T` was traced with.
 //!
 //! Every gather is linear in the light, so [`gather_with_moments`] works through any
 //! compressor's CPU gather, lossless or not. [`exact_moments_product`] is its f64 reference,
@@ -37,7 +39,8 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 /// The three direction moments of a cubemap light vector: `along[a]` is `L_k d_k[a]` for the
-/// world axes `a = x, y, z` (per RGB channel), `d_k` the centre direction of texel `k`.
+/// world axes `a = x, y, z` (per RGB channel), `d_k` texel `k`'s mean direction in that
+/// channel ([`LightVector::mean_direction`]: its centre for a light without means).
 #[derive(Clone, Debug, PartialEq)]
 pub struct LightMoments {
     pub along: [LightVector; 3],
@@ -60,10 +63,11 @@ impl LightMoments {
     /// The moments of `light`, resolved with the BRDF at each bin's mean direction; an error
     /// unless it is in a cubemap basis (an SH light has no texels to take directions of).
     pub fn new(light: &LightVector) -> Result<Self> {
-        let directions = texel_directions(cubemap_of(light)?);
+        let directions = mean_directions(light)?;
         let along = [0, 1, 2].map(|a| {
-            let power =
-                (light.power.iter().zip(&directions)).map(|(l, d)| l.map(|x| (x as f64 * d[a]) as f32)).collect();
+            let power = (light.power.iter().zip(&directions))
+                .map(|(l, d)| std::array::from_fn(|c| (l[c] as f64 * d[c][a]) as f32))
+                .collect();
             LightVector::new(light.basis(), power).expect("same basis, same length")
         });
         Ok(Self { along, lobe: Lobe::MeanDirection })
@@ -84,6 +88,12 @@ fn cubemap_of(light: &LightVector) -> Result<Cubemap> {
             light.basis()
         ))
     })
+}
+
+/// Every texel's mean direction per channel ([`LightVector::mean_direction`]), in f64.
+fn mean_directions(light: &LightVector) -> Result<Vec<[DVec3; 3]>> {
+    let n = cubemap_of(light)?.texel_count();
+    Ok((0..n).map(|k| std::array::from_fn(|c| light.mean_direction(k, c).expect("a cubemap light"))).collect())
 }
 
 /// Every texel's centre direction, in f64.
@@ -544,7 +554,8 @@ pub fn gather_keeping_moments(
 /// dotted with a Lambertian BTF it equals [`exact_moments_product`] (the weights sum to 1).
 pub fn exact_cosine_product(t: &TransferMatrix, light: &LightVector, frames: &[VertexFrame]) -> Result<Vec<[f64; 3]>> {
     let grid = t_light_and_frames(t, light, frames)?;
-    let cosine = TexelCosine::new(light, &grid)?;
+    let directions = mean_directions(light)?;
+    let inv = inverse_mean_cosines(&grid);
     let m = grid.len();
     let csr = t.csr();
     Ok((0..csr.rows())
@@ -555,10 +566,9 @@ pub fn exact_cosine_product(t: &TransferMatrix, light: &LightVector, frames: &[V
             let row = csr.outer_view(r).expect("row in range");
             let mut acc = [0.0f64; 3];
             for (k, &value) in row.iter() {
-                let w = value as f64 * cosine.weight(n, j, k);
                 let l = light.power[k];
                 for c in 0..3 {
-                    acc[c] += w * l[c] as f64;
+                    acc[c] += value as f64 * n.dot(directions[k][c]) * inv[j] * l[c] as f64;
                 }
             }
             acc
@@ -576,7 +586,7 @@ pub fn exact_moments_product(
     lobe: Lobe,
 ) -> Result<Vec<[f64; 3]>> {
     let grid = t_light_and_frames(t, light, frames)?;
-    let directions = texel_directions(cubemap_of(light)?);
+    let directions = mean_directions(light)?;
     let inv = inverse_mean_cosines(&grid);
     let m = grid.len();
     let csr = t.csr();
@@ -587,7 +597,7 @@ pub fn exact_moments_product(
                 let mut d = [DVec3::ZERO; 3];
                 for (k, &value) in csr.outer_view(v * m + j).expect("row in range").iter() {
                     for c in 0..3 {
-                        d[c] += value as f64 * light.power[k][c] as f64 * directions[k];
+                        d[c] += value as f64 * light.power[k][c] as f64 * directions[k][c];
                     }
                 }
                 d
@@ -750,6 +760,50 @@ mod tests {
         let want = cos_k / grid.bin_mean_cosine(j as u32);
         assert!(want < 0.5, "the sun is low: cos {cos_k} against the bin's mean cosine");
         assert!((exact[j][0] / paper[j][0] - want).abs() < 1e-12, "{} vs {want}", exact[j][0] / paper[j][0]);
+    }
+
+    /// A one-pixel sun 3 degrees above the horizon of an open vertex, splatted from a lat-long
+    /// map: with the texel's mean direction the irradiance ([`exact_cosine_product`] summed
+    /// over bins) is the sun's own, `P (n . s)` with `s` the pixel's direction, to the pixel's
+    /// size; with the texel's centre (`with_centre_directions`) it is off by the centre's
+    /// height above the horizon, tens of percent at this sun. The moments' resolve agrees with
+    /// the f64 product either way.
+    #[test]
+    fn a_low_sun_off_its_texel_centre_gets_its_own_direction() {
+        use crate::sampling::envmap::{latlong_direction, EnvMap};
+        let (cube, grid) = (Cubemap::new(32), HemisphereGrid::new(8));
+        let f = VertexFrame::from_normal(Vec3::Y);
+        let t = open_sky_t(cube, grid, &f);
+        let (w, h) = (2048, 1024);
+        let mut env = EnvMap::constant(w, h, [0.0; 3]);
+        // Row 494 of 1024: 3.5 degrees above the horizon, off its texel's centre.
+        let (x, y) = (700, 494);
+        env.pixels[y * w + x] = [5e4; 3];
+        let light = LightVector::from_env(&env, cube, 0.0);
+        let sun = latlong_direction((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64);
+        let k = cube.texel_of(sun.as_vec3());
+        let power = light.power[k][0] as f64;
+        let irradiance = |l: &LightVector| {
+            let e = exact_cosine_product(&t, l, &[f]).unwrap();
+            (0..grid.len()).map(|j| grid.bin_mean_cosine(j as u32) * e[j][0]).sum::<f64>()
+        };
+        let want = power * sun.y;
+        let (mean, centre) = (irradiance(&light), irradiance(&light.clone().with_centre_directions()));
+        // The pixel spans 0.18 degrees: its sine at 3.5 degrees is known to about 3%.
+        assert!((mean / want - 1.0).abs() < 0.03, "mean direction: {mean} against {want}");
+        assert!((centre / want - 1.0).abs() > 0.1, "the centre must be off for this test: {centre} vs {want}");
+        let moments = LightMoments::new(&light).unwrap();
+        let along = moments.along.each_ref().map(|a| gather_dense(&t, a));
+        let resolved = resolve([&along[0], &along[1], &along[2]], &[f], Lobe::BinCentre).unwrap();
+        let reference = exact_moments_product(&t, &light, &[f], Lobe::BinCentre).unwrap();
+        for (a, b) in resolved.values().iter().zip(&reference) {
+            assert!((a[0] as f64 - b[0]).abs() <= 1e-4 * b[0].abs().max(1.0), "{a:?} vs {b:?}");
+        }
+    }
+
+    /// `T L` in f32, by the plain CSR product (the gather every form reproduces).
+    fn gather_dense(t: &TransferMatrix, light: &LightVector) -> LocalRadiance {
+        LocalRadiance::from_f64(t.local_basis(), t.vertices(), &reference_product(t, light)).unwrap()
     }
 
     /// A single bright texel lights an open vertex: its bin's mean direction is the texel's own,

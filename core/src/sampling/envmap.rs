@@ -14,6 +14,15 @@
 //! into sub-pixels each carrying its exact solid angle, into the texel its centre falls in,
 //! so the total power equals the integral of the piecewise-constant source map exactly and a
 //! sun a few pixels wide keeps its energy.
+//!
+//! Beside `L_k`, the splat keeps each texel's first moment per RGB channel: the power-weighted
+//! mean direction of the sub-pixels it averages (`LightVector::mean_direction`). A sun sits
+//! wherever it is inside its texel, up to about 1.35 degrees from the centre of a 6x32x32
+//! texel; with `[lighting] texel_directions = "mean"` light moments and the analytic resolve
+//! take its light from the mean, not the centre (the transfer `T` still bins texels by their
+//! centres). Per channel, not by luminance: the
+//! moment is linear in each channel's radiance, so per channel it is exact for every colour
+//! mix inside a texel (a blue sky beside a yellow sun), at 9 floats per texel.
 
 use crate::basis::LightBasis;
 use crate::error::{CoreError, Result};
@@ -269,6 +278,34 @@ fn load_hdr(path: &Path) -> Result<EnvMap> {
 pub struct LightVector {
     basis: LightBasis,
     pub power: Vec<Rgb>,
+    /// Per cubemap texel and RGB channel, the power-weighted mean direction of the light the
+    /// texel holds (length at most 1: shorter where the light inside it spreads); `None` where
+    /// the light was not splatted from an image (a constant light, a cube-map input, SH): then
+    /// every texel's light comes from its centre. See [`Self::mean_direction`].
+    means: Option<std::sync::Arc<Vec<[[f32; 3]; 3]>>>,
+}
+
+/// Where light moments take a cubemap texel's light from (`lighting.texel_directions`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TexelDirections {
+    /// The power-weighted mean direction of the source pixels the texel averages, per channel
+    /// (kept by [`LightVector::from_env`]): where a sun really is.
+    Mean,
+    /// The texel's centre, as `T` bins it. The default: against Mitsuba 3 the mean rule helped
+    /// only the low sun of the bundled skies (BENCHMARKS.md, "Texel mean directions").
+    #[default]
+    Centre,
+}
+
+impl TexelDirections {
+    /// The config's spelling.
+    pub fn name(self) -> &'static str {
+        match self {
+            TexelDirections::Mean => "mean",
+            TexelDirections::Centre => "centre",
+        }
+    }
 }
 
 impl LightVector {
@@ -281,7 +318,7 @@ impl LightVector {
                 power.len()
             )));
         }
-        Ok(Self { basis, power })
+        Ok(Self { basis, power, means: None })
     }
 
     /// The basis of the values (the columns of the `T` it may be gathered with).
@@ -299,18 +336,20 @@ impl LightVector {
     pub fn from_env(env: &EnvMap, cubemap: Cubemap, rotation: f64) -> Self {
         let basis = LightBasis::Cubemap(cubemap);
         if env.layout == EnvLayout::Cube {
-            return Self { basis, power: super::cube_env::light_power(env, cubemap, rotation) };
+            return Self { basis, power: super::cube_env::light_power(env, cubemap, rotation), means: None };
         }
         let resolution = cubemap.resolution;
         let n = cubemap.texel_count();
         // Sub-pixels small against a cubemap texel (about a quarter of its angular size).
         let s = 4usize.max((16.0 * resolution as f64 / env.height as f64).ceil() as usize);
         let (w, h) = (env.width, env.height);
-        let acc = (0..h)
+        // Per texel: the power per channel, and per channel the power-weighted direction sum.
+        type Acc = Vec<([f64; 3], [DVec3; 3])>;
+        let acc: Acc = (0..h)
             .into_par_iter()
             .fold(
-                || vec![[0.0f64; 3]; n],
-                |mut acc, y| {
+                || vec![([0.0f64; 3], [DVec3::ZERO; 3]); n],
+                |mut acc: Acc, y| {
                     for sy in 0..s {
                         let v0 = (y as f64 + sy as f64 / s as f64) / h as f64;
                         let v1 = (y as f64 + (sy + 1) as f64 / s as f64) / h as f64;
@@ -326,7 +365,9 @@ impl LightVector {
                                 let d = rotate_y(latlong_direction(u, v), rotation);
                                 let k = cubemap.texel_of(d.as_vec3());
                                 for c in 0..3 {
-                                    acc[k][c] += p[c] as f64 * omega;
+                                    let w = p[c] as f64 * omega;
+                                    acc[k].0[c] += w;
+                                    acc[k].1[c] += w * d;
                                 }
                             }
                         }
@@ -334,9 +375,54 @@ impl LightVector {
                     acc
                 },
             )
-            .reduce(|| vec![[0.0f64; 3]; n], add_power);
-        let power = acc.iter().map(|p| [p[0] as f32, p[1] as f32, p[2] as f32]).collect();
-        Self { basis, power }
+            .reduce(
+                || vec![([0.0f64; 3], [DVec3::ZERO; 3]); n],
+                |mut a, b| {
+                    for (x, y) in a.iter_mut().zip(&b) {
+                        for c in 0..3 {
+                            x.0[c] += y.0[c];
+                            x.1[c] += y.1[c];
+                        }
+                    }
+                    a
+                },
+            );
+        let power = acc.iter().map(|(p, _)| [p[0] as f32, p[1] as f32, p[2] as f32]).collect();
+        let means = acc
+            .iter()
+            .enumerate()
+            .map(|(k, (p, sum))| {
+                std::array::from_fn(|c| {
+                    let m = if p[c] > 0.0 { sum[c] / p[c] } else { cubemap.texel_direction_f64(k) };
+                    m.as_vec3().to_array()
+                })
+            })
+            .collect();
+        Self { basis, power, means: Some(std::sync::Arc::new(means)) }
+    }
+
+    /// The mean direction of texel `k`'s light in channel `c` (0, 1, 2): the power-weighted
+    /// mean of the directions of the source pixels it holds, where the light was splatted from
+    /// an image ([`Self::from_env`]), else (or for a dark channel) the texel's centre. Its
+    /// length is at most 1; times `power[k][c]` it is the texel's exact first moment, whose dot
+    /// with a normal is the texel's irradiance there (for the part above the horizon).
+    /// `None` for a light in SH.
+    pub fn mean_direction(&self, k: usize, c: usize) -> Option<DVec3> {
+        let cube = self.cubemap()?;
+        Some(match &self.means {
+            Some(m) => DVec3::from(m[k][c].map(f64::from)),
+            None => cube.texel_direction_f64(k),
+        })
+    }
+
+    /// Whether texels keep their mean directions ([`Self::mean_direction`]).
+    pub fn has_mean_directions(&self) -> bool {
+        self.means.is_some()
+    }
+
+    /// The same light with every texel's light taken from its centre (`TexelDirections::Centre`).
+    pub fn with_centre_directions(self) -> Self {
+        Self { means: None, ..self }
     }
 
     /// A light vector of constant radiance `rgb` in every direction: `L_k = rgb * omega_k` in a
@@ -351,7 +437,7 @@ impl LightVector {
                 p
             }
         };
-        Self { basis, power }
+        Self { basis, power, means: None }
     }
 
     /// Number of coefficients N (texels of a cubemap).
@@ -447,6 +533,72 @@ mod tests {
         let energy = 1000.0 * pixel_solid_angle(w, h, y);
         assert!((l.power[k][0] as f64 - energy).abs() < 1e-6 * energy);
         assert!((l.total()[0] - energy).abs() < 1e-6 * energy);
+    }
+
+    /// A sun of one pixel off its texel's centre: the texel's mean direction is where the
+    /// pixel is (its exact solid-angle centroid, integrated here independently in f64 over a
+    /// fine grid of the pixel), not the centre, and a second, dimmer pixel of another colour in
+    /// the same texel pulls each channel's mean its own way. Rotation moves the means with the
+    /// light; a constant map's means stay inside their texels, no longer than 1.
+    #[test]
+    fn texels_keep_the_mean_direction_of_their_light_per_channel() {
+        let (w, h) = (512, 256);
+        let mut env = EnvMap::constant(w, h, [0.0; 3]);
+        let (x, y) = (140, 100);
+        env.pixels[y * w + x] = [1000.0, 1000.0, 0.0];
+        let cube = Cubemap::new(16);
+        let centroid = |x: usize, y: usize, rotation: f64| {
+            // The pixel's solid-angle-weighted mean direction, on a 64 x 64 grid of the pixel.
+            let (mut sum, n) = (DVec3::ZERO, 64);
+            for i in 0..n {
+                let v = (y as f64 + (i as f64 + 0.5) / n as f64) / h as f64;
+                for j in 0..n {
+                    let u = (x as f64 + (j as f64 + 0.5) / n as f64) / w as f64;
+                    sum += (PI * v).sin() * rotate_y(latlong_direction(u, v), rotation);
+                }
+            }
+            sum.normalize()
+        };
+        let sun = centroid(x, y, 0.0);
+        let l = LightVector::from_env(&env, cube, 0.0);
+        assert!(l.has_mean_directions());
+        let k = cube.texel_of(sun.as_vec3());
+        let centre = cube.texel_direction_f64(k);
+        let mean = l.mean_direction(k, 0).unwrap();
+        let angle = |a: DVec3, b: DVec3| a.normalize().dot(b.normalize()).clamp(-1.0, 1.0).acos().to_degrees();
+        // The sub-pixel splat's mean is the pixel's centroid to well under its 0.7-degree size;
+        // the centre is degrees away.
+        assert!(angle(mean, sun) < 0.05, "mean {:.4} deg from the sun", angle(mean, sun));
+        assert!(angle(centre, sun) > 0.5, "the test's sun must sit off the centre");
+        assert!((mean.length() - 1.0).abs() < 1e-4, "one pixel: the mean is a unit vector");
+        // Blue is dark in that texel: its channel falls back to the centre.
+        assert!(angle(l.mean_direction(k, 2).unwrap(), centre) < 1e-5);
+        // A dimmer, blue-free second pixel in the same texel pulls green (equal power) halfway.
+        let (x2, y2) = (x + 3, y + 2);
+        let other = centroid(x2, y2, 0.0);
+        assert_eq!(cube.texel_of(other.as_vec3()), k);
+        env.pixels[y2 * w + x2] = [
+            0.0,
+            1000.0 * (PI * (y as f64 + 0.5) / h as f64).sin() as f32 / (PI * (y2 as f64 + 0.5) / h as f64).sin() as f32,
+            0.0,
+        ];
+        let two = LightVector::from_env(&env, cube, 0.0);
+        assert!(angle(two.mean_direction(k, 0).unwrap(), sun) < 0.05, "red has one pixel");
+        let g = two.mean_direction(k, 1).unwrap();
+        assert!(angle(g, sun + other) < 0.05, "green between the two: {:.4} deg", angle(g, sun + other));
+        assert!(g.length() < 1.0);
+        // Turned about +Y, the mean turns with the light.
+        let turned = LightVector::from_env(&EnvMap { pixels: env.pixels.clone(), ..env.clone() }, cube, 0.7);
+        let sun_turned = centroid(x, y, 0.7);
+        let kt = cube.texel_of(sun_turned.as_vec3());
+        assert!(angle(turned.mean_direction(kt, 0).unwrap(), sun_turned) < 0.05);
+        // `centre` drops the means; a constant map's means stay in their texels.
+        assert_eq!(two.clone().with_centre_directions().mean_direction(k, 1).unwrap(), centre);
+        let flat = LightVector::from_env(&EnvMap::constant(256, 128, [1.0; 3]), cube, 0.0);
+        for k in 0..flat.len() {
+            let m = flat.mean_direction(k, 0).unwrap();
+            assert!(m.length() <= 1.0 + 1e-6 && angle(m, cube.texel_direction_f64(k)) < 4.0, "texel {k}");
+        }
     }
 
     #[test]

@@ -7,5 +7,5 @@ pub mod envmap;
 pub mod hemisphere;
 
 pub use cubemap::Cubemap;
-pub use envmap::{EnvLayout, EnvMap, LightVector};
+pub use envmap::{EnvLayout, EnvMap, LightVector, TexelDirections};
 pub use hemisphere::HemisphereGrid;

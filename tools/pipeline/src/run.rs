@@ -410,6 +410,11 @@ pub(crate) fn metrics_of_run(
             rotation_degrees: exp.file.lighting.rotation_degrees,
             total_power: lighting.light.total(),
             warnings: lighting.warnings.clone(),
+            // What the light really carries: a constant or cube-map light has no means.
+            texel_directions: exp.file.runtime.light_moments.then(|| match lighting.light.has_mean_directions() {
+                true => biscale_core::sampling::TexelDirections::Mean,
+                false => biscale_core::sampling::TexelDirections::Centre,
+            }),
         },
         transfer,
         uncompressed: UncompressedMetrics {

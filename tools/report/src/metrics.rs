@@ -449,6 +449,10 @@ pub struct LightingMetrics {
     /// Sum of `L` per channel (power over the sphere).
     pub total_power: [f64; 3],
     pub warnings: Vec<String>,
+    /// With light moments, where each texel's light came from (`lighting.texel_directions`:
+    /// `mean` or `centre`); absent without light moments and in older records.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub texel_directions: Option<biscale_core::sampling::TexelDirections>,
 }
 
 #[derive(Debug, Serialize, Deserialize)]

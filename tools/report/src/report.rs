@@ -1145,6 +1145,18 @@ pub(crate) fn light_moments_summary(m: &Metrics) -> String {
         ),
         None => {}
     }
+    match m.lighting.texel_directions {
+        Some(biscale_core::sampling::TexelDirections::Mean) => s.push_str(
+            " Each cubemap texel's light comes from the power-weighted mean direction of the source pixels it \
+             averages, per channel (`[lighting] texel_directions = \"mean\"`): a sun where it is in its texel, \
+             not at the texel's centre (T still bins texels by their centres).",
+        ),
+        Some(biscale_core::sampling::TexelDirections::Centre) => s.push_str(
+            " Each cubemap texel's light comes from the texel's centre (`[lighting] texel_directions = \"centre\"`, \
+             or a light not splatted from an image).",
+        ),
+        None => {}
+    }
     if let Some(e) = &m.uncompressed.paper_vs_moments {
         let _ = write!(s, " The paper's bin-mean-cosine image differs from it by rel. L2 {:.4}.", e.rel_l2);
     }

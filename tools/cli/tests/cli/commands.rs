@@ -584,17 +584,23 @@ fn light_moments_are_measured_side_by_side_with_the_papers_cosine() {
 /// `runtime.moments_resolve = "pixel"` on the smoke bunny with moments: every form's `L*` (and
 /// so its `L*` error) is the per-vertex one, while the images resolve the three moment gathers
 /// at each pixel, which on this coarse mesh is closer to the reference than the per-vertex
-/// blend; an `L*` file cannot be scored that way and is refused before any work.
+/// blend; an `L*` file cannot be scored that way and is refused before any work. The ground
+/// truth takes each cubemap texel's light from its centre, so the moments here do too
+/// (`lighting.texel_directions = "centre"`, the default): like against like. With `"mean"`
+/// the record says so and the image moves (checked against Mitsuba, whose light is the map
+/// itself, by scripts/texel-directions-study.sh; the rule's own tests are in core).
 #[test]
 fn moments_resolved_per_pixel_are_closer_to_the_reference() {
     let dir = tempfile::tempdir().unwrap();
     let cache = dir.path().join("cache");
-    let run = |out: &Path, resolve: &str| {
+    let run_with = |out: &Path, resolve: &str, directions: &str| {
         let (ok, _, err) = biscale(&[
             "run",
             "configs/smoke.toml",
             "--set",
             "runtime.light_moments=true",
+            "--set",
+            &format!("lighting.texel_directions=\"{directions}\""),
             "--set",
             &format!("runtime.moments_resolve=\"{resolve}\""),
             "--set",
@@ -607,6 +613,7 @@ fn moments_resolved_per_pixel_are_closer_to_the_reference() {
         assert!(ok, "{err}");
         serde_json::from_str::<serde_json::Value>(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap()
     };
+    let run = |out: &Path, resolve: &str| run_with(out, resolve, "centre");
     let (vertex, pixel) = (run(&dir.path().join("v"), "vertex"), run(&dir.path().join("p"), "pixel"));
     let vs_ref = |m: &serde_json::Value| m["reference"]["uncompressed_vs_reference"]["rel_l2"].as_f64().unwrap();
     let (v, p) = (vs_ref(&vertex), vs_ref(&pixel));
@@ -614,6 +621,12 @@ fn moments_resolved_per_pixel_are_closer_to_the_reference() {
     // The record and the report say which resolve made the images.
     assert_eq!(vertex["uncompressed"]["moments_resolve"], "vertex");
     assert_eq!(pixel["uncompressed"]["moments_resolve"], "pixel");
+    assert_eq!(pixel["lighting"]["texel_directions"], "centre");
+    let mean = run_with(&dir.path().join("m"), "pixel", "mean");
+    assert_eq!(mean["lighting"]["texel_directions"], "mean");
+    assert_ne!(vs_ref(&mean), vs_ref(&pixel), "the mean directions move the image");
+    let report = std::fs::read_to_string(dir.path().join("m/report.md")).unwrap();
+    assert!(report.contains("power-weighted mean direction"), "{report}");
     let report = std::fs::read_to_string(dir.path().join("p/report.md")).unwrap();
     assert!(report.contains("Resolved per pixel"), "{report}");
     for (a, b) in vertex["compressors"].as_array().unwrap().iter().zip(pixel["compressors"].as_array().unwrap()) {

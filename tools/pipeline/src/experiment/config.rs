@@ -575,6 +575,12 @@ pub struct LightingConfig {
     pub rotation_degrees: f64,
     /// Multiply the brightest cubemap texel by this factor (the stiff "sun" case).
     pub sun_boost: Option<Spanned<f32>>,
+    /// Where light moments take each cubemap texel's light from: `centre` (default: the
+    /// texel's centre, as `T` bins it) or `mean` (the power-weighted mean direction of the
+    /// source pixels it averages, per channel). Only light moments read it; `T` and the ground
+    /// truth do not.
+    #[serde(default)]
+    pub texel_directions: biscale_core::sampling::TexelDirections,
 }
 
 #[derive(Debug, Deserialize)]
@@ -1084,12 +1090,6 @@ pub struct Experiment {
     /// The config's text as it runs: the file's, with any `--set` overrides applied.
     pub source: String,
     /// The `--set KEY=VALUE` overrides applied to the file (empty for the file as it is).
-/// What is wrong with an input file the config names, if anything: `not found`, or what it
-/// is when it is not a regular file (a device node, a FIFO, a folder), looked at without
-/// opening it, so a FIFO does not block and a device is never read.
-fn not_a_file(path: &Path) -> Option<String> {
-    use std::os::unix::fs::FileTypeExt;
-    let t = match std::fs::metadata(path) {
     pub overrides: Vec<String>,
     pub file: ExperimentFile,
     pub mesh_path: PathBuf,
@@ -1112,6 +1112,12 @@ pub const MAX_REPEATS: usize = 10_000;
 
 /// Most pixels of one image (`runtime.width x height`): 8192 x 8192, 0.8 GB of f32 RGB.
 pub const MAX_PIXELS: u64 = 8192 * 8192;
+/// What is wrong with an input file the config names, if anything: `not found`, or what it
+/// is when it is not a regular file (a device node, a FIFO, a folder), looked at without
+/// opening it, so a FIFO does not block and a device is never read.
+fn not_a_file(path: &Path) -> Option<String> {
+    use std::os::unix::fs::FileTypeExt;
+    let t = match std::fs::metadata(path) {
         Ok(m) => m.file_type(),
         Err(_) => return Some("not found".into()),
     };
@@ -1276,15 +1282,15 @@ impl Experiment {
         if !plain {
             return fail("a label is 1 to 100 letters, digits and `-_.+`, not starting with `.`".into());
         }
+        if let Some(why) = reserved_label(&setting.label) {
+            return fail(why);
+        }
         let taken = self.compressors.iter().chain(&self.methods).any(|s| s.label == setting.label);
         if taken {
             return fail("this label is taken by another setting of the experiment".into());
         }
         self.compressors.push(setting);
         Ok(())
-        if let Some(why) = reserved_label(&setting.label) {
-            return fail(why);
-        }
     }
 
     /// Every method setting (`[[methods]]`), in config order with sweeps expanded.
@@ -1324,15 +1330,15 @@ fn scene_files(
         }
         Ok(full)
     };
+    // Bidirectional and other invisible format characters (U+202E makes `exe.txt` read as
+    // `txt.exe`) are refused with the control characters.
+    let format_char = |c: char| matches!(c, '\u{200b}'..='\u{200f}' | '\u{202a}'..='\u{202e}' | '\u{2060}'..='\u{2069}' | '\u{061c}' | '\u{feff}');
     if file.name.get_ref().trim().is_empty()
         || file.name.get_ref().contains(['/', '\\'])
         || file.name.get_ref().starts_with('.')
         || file.name.get_ref().chars().any(|c| c.is_control() || format_char(c))
         || file.name.get_ref().chars().count() > MAX_NAME_CHARS
     {
-    // Bidirectional and other invisible format characters (U+202E makes `exe.txt` read as
-    // `txt.exe`) are refused with the control characters.
-    let format_char = |c: char| matches!(c, '\u{200b}'..='\u{200f}' | '\u{202a}'..='\u{202e}' | '\u{2060}'..='\u{2069}' | '\u{061c}' | '\u{feff}');
         return Err(err(
             file.name.span(),
             format!(

@@ -92,6 +92,9 @@ pub fn load_lighting(exp: &Experiment) -> Result<Lighting> {
 /// light ([`crate::stages::animation`]), made one way.
 pub fn light_of(exp: &Experiment, env: &EnvMap, rotation: f64) -> (LightVector, Option<usize>) {
     let mut light = LightVector::from_env(env, exp.transfer_settings().cubemap(), rotation);
+    if exp.file.lighting.texel_directions == biscale_core::sampling::TexelDirections::Centre {
+        light = light.with_centre_directions();
+    }
     let boosted = exp.file.lighting.sun_boost.as_ref().and_then(|b| light.boost_brightest(*b.get_ref()));
     (light, boosted)
 }
