@@ -30,7 +30,7 @@ TIMEOUT_S=${FUZZ_TIMEOUT_S:-10}
 if [ $# -gt 0 ]; then
   TARGETS=("$@")
 else
-  TARGETS=(config obj ply envmap transfer btf form form_check npz config_set shard_manifest)
+  TARGETS=(config obj ply envmap transfer btf form form_check npz config_set shard_manifest record_paths)
 fi
 
 if ! cargo fuzz --version >/dev/null 2>&1; then

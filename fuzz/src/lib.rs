@@ -47,6 +47,7 @@ pub const TARGETS: &[(&str, Body)] = &[
     ("npz", npz),
     ("config_set", config_set),
     ("shard_manifest", shard_manifest),
+    ("record_paths", record_paths),
 ];
 
 /// The shape the `npz` target reads `L*` and forms for: 3 vertices, 2x2 local bins, a 6x2x2
@@ -800,4 +801,30 @@ fn split_chunks<'a>(data: &'a [u8], sep: &'a [u8]) -> impl Iterator<Item = &'a [
             }
         }
     })
+}
+
+/// `record_paths`: a run record (`metrics.json`) whose file fields are arbitrary, as a
+/// tampered one's would be. Every path [`biscale::metrics::named_files`] finds is either
+/// refused by [`biscale_core::io::inside_folder`] or resolves to a path inside the run folder
+/// made of plain names (no `..`, no root): what `biscale report` reads and embeds can never be
+/// a file outside its run.
+pub fn record_paths(data: &[u8]) {
+    use std::path::Component;
+    let Ok(value) = serde_json::from_slice::<serde_json::Value>(data) else { return };
+    let dir = tempfile::Builder::new().prefix("fuzz-record").tempdir().expect("a temporary folder");
+    for (field, rel) in biscale::metrics::named_files(&value) {
+        assert!(!field.is_empty(), "a named file without its field");
+        match biscale_core::io::inside_folder(dir.path(), &rel) {
+            Err(why) => assert!(!why.is_empty(), "{field}: a refusal without its reason"),
+            Ok(path) => {
+                let inner = path.strip_prefix(dir.path()).expect("a path inside the run folder");
+                assert!(
+                    inner.components().all(|c| matches!(c, Component::Normal(_) | Component::CurDir)),
+                    "{field} = {rel:?} resolved to {}",
+                    path.display()
+                );
+                assert!(!rel.starts_with('/') && !rel.split('/').any(|p| p == ".."), "{field} = {rel:?} was accepted");
+            }
+        }
+    }
 }
