@@ -59,6 +59,7 @@ pub(super) fn cell(run: Option<&RunOutcome<'_>>, f: Figure, paper: Option<f64>, 
                 Ok(v) => c.ours = Some(v),
                 Err(why) => c.note = Some(why),
             }
+            c.busy = r.facts.busy(f);
             if let Some(n) = r.facts.note(f) {
                 c.note = Some(match c.note.take() {
                     Some(a) => format!("{a}; {n}"),
@@ -169,7 +170,8 @@ const DEFINITIONS: &str = "MFLOPs: 2 nnz(T), one multiply-add per non-zero and o
     biclustered in 1,024-vertex blocks (the paper's is one global greedy). Precomputation: tracing T plus \
     biclustering it, on the CPU cores of this machine. fps: CPU gather and CPU shading on this machine (fixed light: \
     1000 / shade ms; moving light: 1000 / (gather + shade) ms, medians), where the paper's gather and shade run on \
-    the GPU.";
+    the GPU. Every time carries its load (numbers.csv's note, the cell's title in the page); one taken while the \
+    load exceeded the machine's CPUs is marked (busy): it measures the queue as much as the method.";
 
 /// Table I: the paper's four scenes, each by an open stand-in ([`run_of_scene`]).
 pub fn table1(ctx: &Context<'_>, runs: &[RunOutcome<'_>]) -> PaperTable {

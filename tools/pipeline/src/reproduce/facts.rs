@@ -141,11 +141,37 @@ impl RunFacts<'_> {
 
     /// What a reader must know of a figure beside its value (the precomputation of a run
     /// whose `T` or form came from the cache).
-    pub fn note(&self, f: Figure) -> Option<String> {
-        if f != Figure::PrecomputeMin {
-            return None;
+    /// The load a timed figure was taken under: the runtime's steps' (`metrics.json` `load`)
+    /// for the frame rates, the whole run's (`run.load_average_start`/`_end`) for the
+    /// precomputation; `(peak 1-minute load, CPUs)`, `None` for a figure that is not a time or
+    /// a record without the reading.
+    fn load_of(&self, f: Figure) -> Option<(f64, usize)> {
+        let m = self.metrics;
+        match f {
+            Figure::FpsFixedLight | Figure::FpsMovingLight => m.load.and_then(|l| l.peak().map(|p| (p, l.cpus_online))),
+            Figure::PrecomputeMin => m.run.as_ref().and_then(|r| {
+                let peak =
+                    [r.load_average_start, r.load_average_end].into_iter().flatten().map(|l| l[0]).reduce(f64::max)?;
+                Some((peak, r.cores))
+            }),
+            _ => None,
         }
+    }
+
+    /// Whether figure `f` is a time taken while the load exceeded the machine's CPUs: then
+    /// every table marks it and `numbers.csv` says so ([`super::tables::Cell::busy`]).
+    pub fn busy(&self, f: Figure) -> bool {
+        self.load_of(f).is_some_and(|(load, cpus)| load > cpus as f64)
+    }
+
+    pub fn note(&self, f: Figure) -> Option<String> {
         let mut notes = vec![];
+        if let Some((load, cpus)) = self.load_of(f) {
+            notes.push(format!("timed at load {load:.1} on {cpus} CPUs"));
+        }
+        if f != Figure::PrecomputeMin {
+            return (!notes.is_empty()).then(|| notes.join("; "));
+        }
         if let TransferTime::Earlier { measured_at, .. } = &self.transfer {
             notes.push(format!("T from the stage cache; traced by the earlier reproduce of {measured_at}"));
         }

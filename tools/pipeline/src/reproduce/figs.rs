@@ -383,7 +383,8 @@ pub fn fig8(ctx: &Context<'_>, runs: &[RunOutcome<'_>]) -> PaperTable {
         None => "Ours: not measured. ".into(),
     };
     caption += &format!(
-        "Precomputation, gather and fps as in Table I (CPU gather and shading on this machine, {}).",
+        "Precomputation, gather and fps as in Table I (CPU gather and shading on this machine, {}; a time taken \
+         while the load exceeded the CPUs is marked (busy)).",
         ctx.machine
     );
     if ctx.quick {

@@ -29,6 +29,9 @@ pub struct Cell {
     pub note: Option<String>,
     /// The run folder the "ours" figure comes from, relative to the output folder.
     pub source: Option<String>,
+    /// The "ours" figure is a time taken while the machine's load exceeded its CPUs: marked
+    /// `(busy)` in every table and said in `numbers.csv`, never shown as a plain result.
+    pub busy: bool,
 }
 
 impl Cell {
@@ -149,7 +152,8 @@ fn shown(c: &Cell, decimals: usize) -> (String, String) {
                 Bound::AtMost => "<= ",
                 Bound::MoreThan => "> ",
             };
-            format!("{prefix}{}", number(x, decimals))
+            let busy = if c.busy { " (busy)" } else { "" };
+            format!("{prefix}{}{busy}", number(x, decimals))
         }
         (None, None) => "--".into(),
     };
@@ -187,6 +191,10 @@ pub fn csv(tables: &[PaperTable]) -> String {
                 };
                 if !bound.is_empty() && c.ours.is_some() {
                     note = if note.is_empty() { bound.into() } else { format!("{bound}; {note}") };
+                }
+                if c.busy && c.ours.is_some() {
+                    let busy = "BUSY: timed while the load exceeded the CPUs, not a result";
+                    note = if note.is_empty() { busy.into() } else { format!("{busy}; {note}") };
                 }
                 let fields = [
                     csv_field(&t.item),
@@ -406,6 +414,24 @@ mod tests {
                 },
             ],
         }
+    }
+
+    /// A time taken on a busy machine is marked in the HTML and LaTeX tables and said in
+    /// `numbers.csv`, before any other note; an unmarked one is printed plain.
+    #[test]
+    fn a_busy_time_is_marked_everywhere_it_is_printed() {
+        let mut t = table();
+        t.rows[0].cells[0].busy = true;
+        t.rows[0].cells[0].note = Some("timed at load 6.5 on 2 CPUs".into());
+        let (tex, page, numbers) = (latex(&t), html(&t), csv(std::slice::from_ref(&t)));
+        assert!(tex.contains("1,292 (busy)") && page.contains("1,292 (busy)"), "{tex}\n{page}");
+        let line = numbers.lines().find(|l| l.contains("data_size") && l.contains("Bunny")).unwrap();
+        assert!(
+            line.contains("BUSY: timed while the load exceeded the CPUs, not a result; timed at load 6.5"),
+            "{line}"
+        );
+        t.rows[0].cells[0].busy = false;
+        assert!(!latex(&t).contains("(busy)") && !csv(&[t]).contains("BUSY"));
     }
 
     #[test]
