@@ -22,6 +22,20 @@ pub fn write_atomic(
     path: &Path,
     write: impl FnOnce(&mut BufWriter<File>) -> std::result::Result<(), String>,
 ) -> Result<()> {
+    let tmp = write_temporary(path, write)?;
+    let result = std::fs::rename(&tmp, path).map_err(|source| CoreError::Io { path: path.into(), source });
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
+/// Write the bytes of `path` into a new temporary sibling (`.<name>.tmp-<pid>-<n>`, created
+/// exclusively, flushed, synced and closed) and return its path; on failure nothing is left.
+fn write_temporary(
+    path: &Path,
+    write: impl FnOnce(&mut BufWriter<File>) -> std::result::Result<(), String>,
+) -> Result<PathBuf> {
     static COUNTER: AtomicU64 = AtomicU64::new(0);
     let io = |source: std::io::Error| CoreError::Io { path: path.into(), source };
     let name = path.file_name().ok_or_else(|| CoreError::Invalid(format!("{}: not a file path", path.display())))?;
@@ -38,13 +52,15 @@ pub fn write_atomic(
         .map_err(|message| CoreError::Input { path: path.into(), message })
         .and_then(|()| out.flush().map_err(io))
         .and_then(|()| out.get_ref().sync_all().map_err(io));
-    // Close the file before renaming or removing it.
+    // Close the file before it is renamed or removed.
     drop(out);
-    let result = result.and_then(|()| std::fs::rename(&tmp, path).map_err(io));
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
+    match result {
+        Ok(()) => Ok(tmp),
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            Err(e)
+        }
     }
-    result
 }
 
 /// Write `bytes` to `path` atomically ([`write_atomic`]).
@@ -147,24 +163,9 @@ pub fn write_single_file(
     }
     let refused = |message: String| CoreError::Refused { path: path.into(), message };
     let existing = check_single_target(path, mark, force)?;
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
     let io = |source: std::io::Error| CoreError::Io { path: path.into(), source };
-    let name = path.file_name().ok_or_else(|| CoreError::Invalid(format!("{}: not a file path", path.display())))?;
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let tmp: PathBuf = dir.join(format!(
-        ".{}.tmp-{}-{}",
-        name.to_string_lossy(),
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    ));
-    let file = OpenOptions::new().write(true).create_new(true).open(&tmp).map_err(io)?;
-    let mut out = BufWriter::new(file);
-    let result = write(&mut out)
-        .map_err(|message| CoreError::Input { path: path.into(), message })
-        .and_then(|()| out.flush().map_err(io))
-        .and_then(|()| out.get_ref().sync_all().map_err(io));
-    drop(out);
-    let result = result.and_then(|()| match existing {
+    let tmp = write_temporary(path, write)?;
+    let result = match existing {
         None => publish_new(&tmp, path).map_err(|e| match e.kind() {
             std::io::ErrorKind::AlreadyExists => {
                 refused("something was made at this path while biscale wrote; it is left as it is".into())
@@ -172,7 +173,7 @@ pub fn write_single_file(
             _ => io(e),
         }),
         Some(before) => publish_over(&tmp, path, mark, force, before),
-    });
+    };
     // On success the temporary path holds the replaced file (or nothing); either way it goes.
     let _ = std::fs::remove_file(&tmp);
     result
