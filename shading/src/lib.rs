@@ -15,6 +15,8 @@
 //!   of the CPU shader (checked against it).
 //! * [`image`]: error metrics of images against a reference, false-colour error images.
 //! * [`ldr`]: the LDR metrics after the report's tone map (LDR PSNR, SSIM, FLIP).
+//! * [`runtime`]: the runtime's choices as one type each from config key to `metrics.json`
+//!   and report: [`runtime::Backend`], [`runtime::MomentsResolve`].
 //!
 //! Shortest use, from per-vertex `L*` to an image file:
 //!
