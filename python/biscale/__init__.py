@@ -353,8 +353,9 @@ class Experiment:
 
     def light_moments(self) -> np.ndarray:
         """The light's three direction moments (``runtime.light_moments``): 3 x N x 3 float32,
-        ``[a, k]`` is ``L[k] * d_k[a]`` for the world axes ``a`` = x, y, z and ``d_k`` the centre
-        direction of texel ``k``. A run with light moments gathers these three through the
+        ``[a, k]`` is ``L[k] * d_k[a]`` for the world axes ``a`` = x, y, z and ``d_k`` the direction
+        of texel ``k`` (its centre; with ``lighting.texel_directions = "mean"`` the mean direction
+        of its light, per channel). A run with light moments gathers these three through the
         same form instead of ``L`` (:meth:`Form.gather_moments`)."""
         return self._e.light_moments()
 

@@ -191,7 +191,8 @@ impl Experiment {
     }
 
     /// The three direction moments of `L` (`runtime.light_moments`): 3 x N x 3 float32,
-    /// `[a, k]` = `L_k d_k[a]` for the world axes `a` = x, y, z and `d_k` texel `k`'s centre.
+    /// `[a, k]` = `L_k d_k[a]` for the world axes `a` = x, y, z and `d_k` texel `k`'s direction
+    /// (its centre; with `lighting.texel_directions = "mean"` its light's mean direction, per channel).
     fn light_moments<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray3<f32>>> {
         let moments = py
             .detach(|| -> biscale::error::Result<LightMoments> {
