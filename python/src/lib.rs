@@ -593,7 +593,13 @@ impl Compressor for HostedCompressor {
             });
             let class = obj.get_type().name().map(|n| n.to_string()).unwrap_or_default();
             let params = params.and_then(|p| serde_json::from_str(&p).ok()).unwrap_or(serde_json::Value::Null);
-            serde_json::json!({ "python_class": class, "params": params })
+            let mut record = serde_json::json!({ "python_class": class, "params": params });
+            // The series it is drawn and tabulated in (`compare::series_of`): its own label
+            // unless the object declares a `family` shared with others.
+            if let Some(family) = obj.getattr("family").ok().and_then(|f| f.extract::<String>().ok()) {
+                record["family"] = serde_json::Value::String(family);
+            }
+            record
         })
     }
 

@@ -335,6 +335,17 @@ def test_a_python_compressor_is_scored_and_reported_beside_the_builtins(exp, cac
     report = (out / "report.md").read_text()
     assert "py-csr" in report
     assert (out / "images" / "py-csr.exr").is_file()
+    # Two unrelated Python compressors are two series (not one "hosted" sweep); a declared
+    # family joins objects into one.
+    other = DenseCsr()
+    other.label = "py-other"
+    metrics = exp.run(out=tmp_path / "two", cache_dir=cache, compressors=[DenseCsr(), other])
+    quality = (tmp_path / "two" / "report.md").read_text().split("## Equal quality")[1]
+    assert "| py-csr |" in quality and "| py-other |" in quality and "| hosted |" not in quality, quality
+    fam = DenseCsr()
+    fam.family = "mine"
+    metrics = exp.run(out=tmp_path / "fam", cache_dir=cache, compressors=[fam])
+    assert {c["name"]: c for c in metrics["compressors"]}["py-csr"]["params"]["family"] == "mine"
     # Registrations end with the run: the config alone runs without it.
     assert "py-csr" not in exp.compressor_labels
 

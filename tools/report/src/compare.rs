@@ -12,10 +12,10 @@ pub fn equal_storage<'a>(
     records: impl IntoIterator<Item = &'a CompressorRecord>,
     target_bytes: u64,
 ) -> Vec<&'a CompressorRecord> {
-    let mut best: BTreeMap<&str, &CompressorRecord> = BTreeMap::new();
+    let mut best: BTreeMap<String, &CompressorRecord> = BTreeMap::new();
     let dist = |r: &CompressorRecord| ((r.bytes.max(1) as f64) / (target_bytes.max(1) as f64)).ln().abs();
     for r in records {
-        let e = best.entry(r.kind.as_str()).or_insert(r);
+        let e = best.entry(series_of(r)).or_insert(r);
         if dist(r) < dist(e) {
             *e = r;
         }
@@ -86,18 +86,56 @@ pub fn equal_quality_targets(target_error: f64) -> Vec<f64> {
 pub fn by_kind(records: &[CompressorRecord]) -> Vec<(String, Vec<&CompressorRecord>)> {
     let mut out: Vec<(String, Vec<&CompressorRecord>)> = vec![];
     for r in records {
-        match out.iter_mut().find(|(k, _)| *k == r.kind) {
+        let series = series_of(r);
+        match out.iter_mut().find(|(k, _)| *k == series) {
             Some((_, v)) => v.push(r),
-            None => out.push((r.kind.clone(), vec![r])),
+            None => out.push((series, vec![r])),
         }
     }
     out
+}
+
+/// The series a record belongs to in the plots and the equal-storage and equal-quality
+/// tables: its kind (a sweep of one kind is one curve), except for a Python compressor (kind
+/// `hosted`, every Python object's kind): each object is its own series, named by the `family`
+/// it declares (its record's `params.family`, so objects of one family share a curve), else by
+/// its label. Two unrelated Python compressors are never joined into one line.
+pub fn series_of(r: &CompressorRecord) -> String {
+    if r.kind != biscale_compressors::hosted::KIND.name {
+        return r.kind.clone();
+    }
+    match r.params.get("family").and_then(serde_json::Value::as_str) {
+        Some(family) => family.to_string(),
+        None => r.name.clone(),
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::metrics::{ImageErrors, ImageRecord};
+
+    /// Built-in kinds group by kind; Python compressors (all of kind `hosted`) each by their
+    /// label, or by the family they declare.
+    #[test]
+    fn python_compressors_are_series_of_their_own() {
+        let hosted = biscale_compressors::hosted::KIND.name;
+        let records = [
+            rec("haar", "haar-t4", 5, 0.3),
+            rec("haar", "haar-t8", 9, 0.2),
+            rec(hosted, "py-a", 10, 0.1),
+            rec(hosted, "py-b", 20, 0.2),
+        ];
+        let groups: Vec<(String, usize)> = by_kind(&records).into_iter().map(|(k, v)| (k, v.len())).collect();
+        assert_eq!(groups, [("haar".into(), 2), ("py-a".into(), 1), ("py-b".into(), 1)]);
+        assert_eq!(equal_storage(&records, 10).len(), 3, "one pick per series");
+        let mut family = [rec(hosted, "py-a", 10, 0.1), rec(hosted, "py-b", 20, 0.2)];
+        for r in &mut family {
+            r.params = serde_json::json!({"python_class": "Mine", "family": "learned"});
+        }
+        let groups: Vec<(String, usize)> = by_kind(&family).into_iter().map(|(k, v)| (k, v.len())).collect();
+        assert_eq!(groups, [("learned".into(), 2)]);
+    }
 
     fn rec(kind: &str, name: &str, bytes: u64, err: f64) -> CompressorRecord {
         let e = ImageErrors { rmse: 0.0, psnr: 0.0, rel_l2: 0.0, ldr_psnr: 0.0, ssim: 0.0, flip: 0.0 };

@@ -40,7 +40,8 @@ pub fn short_label(name: &str, kind: &str) -> String {
     }
 }
 
-/// Group records by compressor kind into series of `(x(record), y(record))`, each curve
+/// Group records by compressor kind ([`crate::compare::series_of`]: a Python compressor is its
+/// own series) into series of `(x(record), y(record))`, each curve
 /// running through its settings in order of storage (the sweep's order), so an x that need
 /// not grow with storage, like gather time, does not zigzag the curve.
 pub fn series_by_kind(
@@ -48,7 +49,7 @@ pub fn series_by_kind(
     x: impl Fn(&CompressorRecord) -> f64,
     y: impl Fn(&CompressorRecord) -> f64,
 ) -> Vec<Series> {
-    series_by(records.iter().map(|r| (r.kind.clone(), r)), x, y)
+    series_by(records.iter().map(|r| (crate::compare::series_of(r), r)), x, y)
 }
 
 /// Group `(series name, record)` pairs into series of `(x(record), y(record))`, each in order

@@ -1233,7 +1233,7 @@ pub fn write_plots(m: &Metrics, out_dir: &std::path::Path) -> Vec<(String, Strin
             (true, Some(e)) => e.rel_l2,
             _ => r.image.vs_uncompressed.rel_l2,
         };
-        let named = m.compressors.iter().map(|c| (c.kind.clone(), c)).chain(m.methods.iter().map(|r| {
+        let named = m.compressors.iter().map(|c| (crate::compare::series_of(c), c)).chain(m.methods.iter().map(|r| {
             let compressor = r.sh.as_ref().map_or("", |s| s.compressor.as_str());
             let name = if registry::role_of(compressor) == Role::Raw {
                 r.record.kind.clone()

@@ -293,7 +293,7 @@ pub fn equal_quality(ctx: &Context<'_>, run: &RunOutcome<'_>) -> PaperTable {
     let paper_kind = registry::by_role(Role::Paper).map(|k| k.name);
     let budget = crate::report::storage_budget(m);
     let picked = budget.as_ref().map(|(b, _)| equal_storage(&m.compressors, *b)).unwrap_or_default();
-    let at_budget = |kind: &str| picked.iter().find(|r| r.kind == kind).copied();
+    let at_budget = |kind: &str| picked.iter().find(|r| crate::compare::series_of(r) == kind).copied();
     let paper_mb = |kind: &str| fig6.storage_mb.get(kind).copied();
     let paper_budget = paper_kind.and_then(paper_mb);
     let source = Some(run.source());
