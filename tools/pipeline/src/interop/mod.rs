@@ -797,8 +797,6 @@ pub fn read_form(path: &Path, want: TransferShape) -> Result<ReadForm> {
 }
 
 /// Names the run's own images take, which an evaluated setting may not.
-const TAKEN_NAMES: [&str; 5] = ["uncompressed", "uncompressed_paper", "reference", "mask", "reference_mask"];
-
 /// `biscale eval`: render and score `input` for `exp` as a run scores a compressor setting
 /// (the same [`Evaluation`]: `L*` error against the f64 product, image errors against the
 /// uncompressed render and, when the config traces one, the reference), and write the output
@@ -845,7 +843,7 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
             what: format!("--name {name:?}: use letters, digits, '-', '_' and '.' (it names the images)"),
         });
     }
-    if TAKEN_NAMES.contains(&name.as_str()) {
+    if crate::experiment::config::RESERVED_LABELS.contains(&name.as_str()) {
         return Err(PipelineError::Mismatch {
             path: path.into(),
             what: format!("--name {name}: the run's own images are called so; choose another name"),
