@@ -246,15 +246,19 @@ def test_a_saved_form_is_the_clis_eval_form(exp, cache, tmp_path):
     assert link.is_symlink() and stat.S_ISFIFO(os.stat(fifo).st_mode)
 
 
-def test_warnings_and_progress_reach_logging(exp, cache, tmp_path, caplog):
-    """The pipeline's warnings and notes are `logging` records of the logger `biscale`."""
+def test_warnings_and_progress_reach_logging(exp, cache, tmp_path, caplog, capfd):
+    """The pipeline's warnings and notes are `logging` records of the logger `biscale`; the
+    run's plan too, never printed to standard error behind the logger's back."""
     import logging
 
     caplog.set_level(logging.INFO, logger="biscale")
     c = DenseCsr(lossless=True, mangle=lambda out: out * 1.01)
     c.label = "py-logged"
+    capfd.readouterr()
     exp.run(out=tmp_path / "run", cache_dir=cache, compressors=[c])
+    assert "run   transfer" not in capfd.readouterr().err
     records = [(r.name, r.levelno, r.getMessage()) for r in caplog.records if r.name.startswith("biscale")]
+    assert any(lvl == logging.INFO and "run   transfer" in m for _, lvl, m in records), records
     assert any(lvl == logging.WARNING and "claims to be lossless" in m for _, lvl, m in records), records
     assert any(lvl == logging.INFO and m.startswith("memory: estimated peak") for _, lvl, m in records), records
 

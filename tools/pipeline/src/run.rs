@@ -108,7 +108,8 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
             }
         ));
     }
-    eprint!("{plan}");
+    // Standard error from the CLI; a `biscale` logging record from Python, as every note is.
+    crate::util::note(plan.to_string().trim_end());
     if exp.file.runtime.backend == Backend::Gpu && !cfg!(feature = "gpu") {
         return Err(no_gpu_feature());
     }
