@@ -314,23 +314,19 @@ class Experiment:
 
         ``name`` labels the setting (default ``python`` for an array, the kind for a form).
         ``lstar`` may also be a path to a ``.npy``/``.npz`` file (as ``--lstar`` takes it); an
-        array is passed through a temporary ``.npy`` (the record's ``params.file`` names it), a
-        form through a temporary ``form-<name>.npz`` scored as ``eval --form`` scores it (its
-        flops counted again, its gather timed, its build time 0). A Python compressor's form is
-        scored with its storage and timings by :meth:`run` instead."""
-        import tempfile
+        array or a form is handed over in memory (nothing is written but the run's folder), a
+        form scored as ``eval --form`` scores one (its flops counted again, its gather timed,
+        its build time 0). A Python compressor's form is scored with its storage and timings
+        by :meth:`run` instead."""
 
-        def score(path: str, label: Optional[str], form: bool = False) -> Dict[str, Any]:
-            out_dir, text = self._e.evaluate(path, label, _opt_path(out), _opt_path(cache_dir), no_cache, form)
+        def done(result) -> Dict[str, Any]:
+            out_dir, text = result
             self.out_dir = out_dir
             return json.loads(text)
 
         if isinstance(lstar, Form):
             label = name or lstar.kind
-            with tempfile.TemporaryDirectory(prefix="biscale-eval-") as d:
-                path = os.path.join(d, f"form-{label}.npz")
-                lstar.save(path, label=label)
-                return score(path, label, form=True)
+            return done(self._e.evaluate_form(lstar._f, label, _opt_path(out), _opt_path(cache_dir), no_cache))
         if not isinstance(lstar, (str, os.PathLike, np.ndarray, list, tuple)) and callable(getattr(lstar, "gather", None)):
             raise BiscaleError(
                 f"evaluate takes an L*, a path or a biscale.Form, not {type(lstar).__name__}: score a Python "
@@ -338,14 +334,15 @@ class Experiment:
             )
         name = name or "python"
         if isinstance(lstar, (str, os.PathLike)):
-            return score(os.fspath(lstar), name)  # a file, as `biscale eval --lstar FILE` takes it
+            # A file, as `biscale eval --lstar FILE` takes it.
+            return done(self._e.evaluate(os.fspath(lstar), name, _opt_path(out), _opt_path(cache_dir), no_cache, False))
         a = np.asarray(lstar)
         if a.dtype not in (np.float32, np.float64):
             raise BiscaleError(f"L* has dtype {a.dtype}; it is float32 or float64")
-        with tempfile.TemporaryDirectory(prefix="biscale-eval-") as d:
-            path = os.path.join(d, "lstar.npy")
-            np.save(path, np.ascontiguousarray(a))
-            return score(path, name)
+        if a.ndim == 3:  # (V, M, 3), as a file may hold it
+            a = a.reshape(-1, a.shape[-1])
+        values = np.ascontiguousarray(a, dtype=np.float64)
+        return done(self._e.evaluate_values(values, name, _opt_path(out), _opt_path(cache_dir), no_cache))
 
     def light(self) -> np.ndarray:
         """The light vector ``L``: power per cubemap texel, N x 3 float32."""

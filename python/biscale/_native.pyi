@@ -43,6 +43,22 @@ class Experiment:
         no_cache: bool = False,
         form: bool = False,
     ) -> Tuple[str, str]: ...
+    def evaluate_values(
+        self,
+        values: npt.NDArray[np.float64],
+        name: Optional[str] = None,
+        out: Optional[str] = None,
+        cache_dir: Optional[str] = None,
+        no_cache: bool = False,
+    ) -> Tuple[str, str]: ...
+    def evaluate_form(
+        self,
+        form: "Form",
+        name: str,
+        out: Optional[str] = None,
+        cache_dir: Optional[str] = None,
+        no_cache: bool = False,
+    ) -> Tuple[str, str]: ...
     def light(self) -> npt.NDArray[np.float32]: ...
     def light_moments(self) -> npt.NDArray[np.float32]: ...
     def transfer(self, cache_dir: Optional[str] = None, no_cache: bool = False) -> "Transfer": ...

@@ -173,15 +173,56 @@ impl Experiment {
         no_cache: bool,
         form: bool,
     ) -> PyResult<(String, String)> {
-        let opts = options(out, cache_dir, no_cache);
         let input = match form {
             true => biscale::interop::EvalInput::Form(path),
             false => biscale::interop::EvalInput::Lstar(path),
         };
-        let (dir, metrics) =
-            py.detach(|| biscale::interop::eval(&self.exp, &input, name.as_deref(), &opts)).map_err(err)?;
-        let json = serde_json::to_string(&metrics).map_err(err)?;
-        Ok((dir.display().to_string(), json))
+        self.evaluate_input(py, input, name, out, cache_dir, no_cache)
+    }
+
+    /// [`Self::evaluate`] of an `L*` handed over in memory (rows x 3, float64): no file is
+    /// written anywhere but the run's own folder.
+    #[pyo3(signature = (values, name = None, out = None, cache_dir = None, no_cache = false))]
+    fn evaluate_values(
+        &self,
+        py: Python<'_>,
+        values: PyReadonlyArray2<'_, f64>,
+        name: Option<String>,
+        out: Option<PathBuf>,
+        cache_dir: Option<PathBuf>,
+        no_cache: bool,
+    ) -> PyResult<(String, String)> {
+        let a = values.as_array();
+        if a.ncols() != 3 {
+            return Err(BiscaleError::new_err(format!("an L* is rows x 3 (RGB), got {:?}", a.shape())));
+        }
+        let rows = a.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect();
+        self.evaluate_input(py, biscale::interop::EvalInput::Values(rows), name, out, cache_dir, no_cache)
+    }
+
+    /// [`Self::evaluate`] of a built-in kind's form handed over in memory, as `eval --form`
+    /// scores one read from a file (its flops counted from its arrays, its build time 0).
+    #[pyo3(signature = (form, name, out = None, cache_dir = None, no_cache = false))]
+    fn evaluate_form(
+        &self,
+        py: Python<'_>,
+        form: PyRef<'_, Form>,
+        name: String,
+        out: Option<PathBuf>,
+        cache_dir: Option<PathBuf>,
+        no_cache: bool,
+    ) -> PyResult<(String, String)> {
+        let mut f = form.form.clone();
+        f.flops_per_gather = biscale::interop::form_flops(&f).unwrap_or(0);
+        f.build_seconds = 0.0;
+        let read = biscale::interop::ReadForm {
+            form: f,
+            label: Some(name.clone()),
+            params: Some(form.compressor.params()),
+            claimed_flops: None,
+        };
+        let input = biscale::interop::EvalInput::Loaded(Box::new(read));
+        self.evaluate_input(py, input, Some(name), out, cache_dir, no_cache)
     }
 
     /// The light vector `L` of the config's lighting: power per texel, N x 3 float32.
@@ -291,6 +332,25 @@ fn light_of(l: &PyReadonlyArray2<'_, f32>, basis: biscale_core::basis::LightBasi
         )));
     }
     LightVector::new(basis, flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()).map_err(err)
+}
+
+impl Experiment {
+    /// Score `input` as `biscale eval` does; the output folder and `metrics.json`'s text.
+    fn evaluate_input(
+        &self,
+        py: Python<'_>,
+        input: biscale::interop::EvalInput,
+        name: Option<String>,
+        out: Option<PathBuf>,
+        cache_dir: Option<PathBuf>,
+        no_cache: bool,
+    ) -> PyResult<(String, String)> {
+        let opts = options(out, cache_dir, no_cache);
+        let (dir, metrics) =
+            py.detach(|| biscale::interop::eval(&self.exp, &input, name.as_deref(), &opts)).map_err(err)?;
+        let json = serde_json::to_string(&metrics).map_err(err)?;
+        Ok((dir.display().to_string(), json))
+    }
 }
 
 /// `T` with its bases: rows `v*M + j` (vertex `v`, local direction `j`), columns light texels.

@@ -297,6 +297,20 @@ def test_evaluate_is_the_clis_eval(exp, exported, cache, tmp_path):
     assert rec["rel_error_lstar"] == pytest.approx(0.1, rel=1e-5)
     exact = exp.evaluate(T.product(L), out=tmp_path / "exact", cache_dir=cache)["compressors"][0]
     assert exact["rel_error_lstar"] < 1e-7 and exact["image"]["vs_uncompressed"]["rel_l2"] < 1e-6
+    # An array or a form is handed over in memory: no temporary file is made on the way (each
+    # way of making one raises here), and the array's record is the file's.
+    import tempfile
+
+    def no_temporary(*args, **kwargs):
+        raise AssertionError("evaluate made a temporary file")
+
+    with pytest.MonkeyPatch.context() as mp:
+        for f in ("TemporaryDirectory", "NamedTemporaryFile", "mkstemp", "mkdtemp", "TemporaryFile"):
+            mp.setattr(tempfile, f, no_temporary)
+        in_memory = exp.evaluate(lstar, name="darker", out=tmp_path / "array2", cache_dir=cache)
+        form = exp.evaluate(biscale.compress(T, "sparse"), out=tmp_path / "form2", cache_dir=cache)
+    assert in_memory["compressors"][0]["image"] == ours["compressors"][0]["image"]
+    assert form["compressors"][0]["kind"] == "sparse" and form["compressors"][0]["rel_error_lstar"] < 1e-6
     with pytest.raises(biscale.BiscaleError, match="dtype"):
         exp.evaluate(lstar.astype(np.int32), out=tmp_path / "bad")
     with pytest.raises(biscale.BiscaleError):

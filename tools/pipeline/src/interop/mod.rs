@@ -549,12 +549,21 @@ pub enum EvalInput {
     /// A compressed form of a built-in kind (`.npz` as `export` or `biscale_io.save_form`
     /// write it), gathered by that compressor's CPU gather.
     Form(PathBuf),
+    /// An `L*` handed over in memory, rows `v*M + j` of RGB (the Python module's
+    /// `evaluate(array)`): checked as a file's would be, and no file is written or read for it.
+    Values(Vec<[f64; 3]>),
+    /// A form handed over in memory (`evaluate(form)`), its flops counted from its arrays and
+    /// its build time 0, as [`read_form`] gives a file's.
+    Loaded(Box<ReadForm>),
 }
 
 impl EvalInput {
+    /// The file, or for an input handed over in memory the name errors and the record use.
     pub fn path(&self) -> &Path {
         match self {
             EvalInput::Lstar(p) | EvalInput::Form(p) => p,
+            EvalInput::Values(_) => Path::new("python-array"),
+            EvalInput::Loaded(_) => Path::new("python-form"),
         }
     }
 }
@@ -709,6 +718,7 @@ pub fn read_lstar(path: &Path, want: TransferShape, light_moments: bool) -> Resu
 }
 
 /// A compressed form read from `.npz`, with the label and parameters its metadata gives.
+#[derive(Clone, Debug)]
 pub struct ReadForm {
     /// The form; its `flops_per_gather` counted from its own arrays ([`form_flops`], 0 for a
     /// kind it does not know) and its `build_seconds` 0, whatever the file claims.
@@ -818,7 +828,7 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
         Form(ReadForm),
     }
     let refusal = exp.file.runtime.moments_resolve().and_then(MomentsResolve::refuses_lstar);
-    if let Some(what) = refusal.filter(|_| matches!(input, EvalInput::Lstar(_))) {
+    if let Some(what) = refusal.filter(|_| matches!(input, EvalInput::Lstar(_) | EvalInput::Values(_))) {
         return Err(PipelineError::Mismatch { path: exp.config_path.clone(), what: format!("{what} (--form)") });
     }
     let loaded = match input {
@@ -827,6 +837,32 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
             Loaded::Lstar(lstar, about)
         }
         EvalInput::Form(p) => Loaded::Form(read_form(p, want)?),
+        EvalInput::Values(rows) => {
+            let mismatch = |what: String| PipelineError::Mismatch { path: path.into(), what };
+            if rows.len() != want.rows() {
+                return Err(mismatch(format!(
+                    "the L* has {} rows, this config's T has {} ({} vertices x {} local directions)",
+                    rows.len(),
+                    want.rows(),
+                    want.vertices,
+                    want.local.len()
+                )));
+            }
+            if let Some(r) = rows.iter().position(|x| !x.iter().all(|c| c.is_finite())) {
+                return Err(mismatch(format!("row {r} of the L* is not finite: {:?}", rows[r])));
+            }
+            let lstar = LocalRadiance::from_f64(want.local, want.vertices, rows)?;
+            Loaded::Lstar(lstar, json!({"source": "external L*", "array": "handed over by the Python module"}))
+        }
+        EvalInput::Loaded(f) => {
+            if f.form.shape() != want {
+                return Err(PipelineError::Mismatch {
+                    path: path.into(),
+                    what: format!("the form is of a {} T, this config's is {want}", f.form.shape()),
+                });
+            }
+            Loaded::Form((**f).clone())
+        }
     };
     let default_name = match &loaded {
         Loaded::Form(f) => f.label.clone(),
