@@ -105,7 +105,7 @@ impl Plan {
         );
         let materials = exp.materials();
         for m in &materials {
-            material_steps(m, &t, &mut steps);
+            material_steps(m, &t, f.runtime.resolve_analytic(), &mut steps);
         }
         if materials.len() == 1 {
             push(&mut steps, "btf", "material-id buffer".into(), Action::LeftOut("the scene has one material".into()));
@@ -211,8 +211,15 @@ fn push(steps: &mut Vec<Step>, stage: &'static str, what: String, action: Action
     steps.push(Step { stage, what, action });
 }
 
-/// The steps that build material `m`'s BTF (and its local-PCA forms and study).
-fn material_steps(m: &MaterialConfig, t: &biscale_core::transfer::TransferSettings, steps: &mut Vec<Step>) {
+/// The steps that build material `m`'s BTF (and its local-PCA forms and study); `analytic`:
+/// the run resolves light moments with the analytic BRDF (`moments_resolve =
+/// "pixel_analytic"`).
+fn material_steps(
+    m: &MaterialConfig,
+    t: &biscale_core::transfer::TransferSettings,
+    analytic: bool,
+    steps: &mut Vec<Step>,
+) {
     let label = m.label();
     match m {
         MaterialConfig::Lambertian { .. } => push(
@@ -241,12 +248,27 @@ fn material_steps(m: &MaterialConfig, t: &biscale_core::transfer::TransferSettin
                 Action::Run,
             )
         }
-        MaterialConfig::Synthesized(s) if s.amplitude == 0.0 && s.albedo_map.is_none() => push(
-            steps,
-            "btf",
-            format!("{label}: ray tracing of a flat patch"),
-            Action::LeftOut("tabulated analytically from the BRDF".into()),
-        ),
+        MaterialConfig::Synthesized(s) if s.amplitude == 0.0 && s.albedo_map.is_none() => {
+            push(
+                steps,
+                "btf",
+                format!("{label}: ray tracing of a flat patch"),
+                Action::LeftOut("tabulated analytically from the BRDF".into()),
+            );
+            if analytic && s.view_grid > 0 {
+                // What the tables still serve, so a reader does not raise view_grid for it.
+                push(
+                    steps,
+                    "btf",
+                    format!("{label}: the {v}x{v}-view tables in the analytic resolve", v = s.view_grid),
+                    Action::LeftOut(
+                        "it evaluates the BRDF at the pixel's exact view; the tables serve only the paper's \
+                         bin-mean image and the GPU images, so view_grid does not change the moments' images"
+                            .into(),
+                    ),
+                );
+            }
+        }
         MaterialConfig::Synthesized(s) => {
             let views = match s.view_grid {
                 0 => "no view axis (diffuse special case)".to_string(),
