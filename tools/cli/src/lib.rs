@@ -149,7 +149,8 @@ enum Command {
     )]
     Reproduce {
         /// Every item at small sizes (6x8x8 light, 4x4 local directions, 96x72 images, one
-        /// timing repeat): a few minutes on two cores, with figures not at the paper's scale.
+        /// timing repeat): about 25 s on two cores (release build, empty cache), with figures
+        /// not at the paper's scale.
         #[arg(long)]
         quick: bool,
         /// Only these items, comma-separated: table1, table2, equal-quality, low-vs-all, fig8,
