@@ -194,28 +194,14 @@ fn write_stdout(write: impl FnOnce(&mut BufWriter<File>) -> std::result::Result<
 /// What is at a single file's path before it is written: `None` for nothing, else the
 /// identity (device, inode) of the regular file that may be replaced; or the refusal.
 fn check_single_target(path: &Path, mark: FileMark, force: bool) -> Result<Option<(u64, u64)>> {
-    use std::os::unix::fs::{FileTypeExt, MetadataExt};
+    use std::os::unix::fs::MetadataExt;
     let refused = |message: String| CoreError::Refused { path: path.into(), message };
     let meta = match std::fs::symlink_metadata(path) {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
         Err(source) => return Err(CoreError::Io { path: path.into(), source }),
         Ok(m) => m,
     };
-    let t = meta.file_type();
-    let kind = if t.is_symlink() {
-        "a symbolic link"
-    } else if t.is_dir() {
-        "a folder"
-    } else if t.is_char_device() || t.is_block_device() {
-        "a device node"
-    } else if t.is_fifo() {
-        "a FIFO"
-    } else if t.is_socket() {
-        "a socket"
-    } else {
-        ""
-    };
-    if !kind.is_empty() {
+    if let Some(kind) = not_regular(&meta.file_type()) {
         return Err(refused(format!(
             "is {kind}, not a file biscale wrote; biscale writes a single output file only where nothing is or over              a {} it wrote itself (name a new file, or `-` to stream to standard output)",
             mark.what()
@@ -256,9 +242,8 @@ fn carries_mark(path: &Path, mark: FileMark) -> std::io::Result<bool> {
 
 /// Move `tmp` to `path` where nothing is: fails with `AlreadyExists` if something is.
 fn publish_new(tmp: &Path, path: &Path) -> std::io::Result<()> {
-    #[cfg(target_os = "linux")]
-    match rename2(tmp, path, libc::RENAME_NOREPLACE) {
-        Err(e) if matches!(e.raw_os_error(), Some(libc::EINVAL | libc::ENOSYS)) => {}
+    match rename_noreplace(tmp, path) {
+        Err(e) if unsupported(&e) => {}
         other => return other,
     }
     // A hard link is never made over an existing name either.
@@ -272,20 +257,19 @@ fn publish_new(tmp: &Path, path: &Path) -> std::io::Result<()> {
 fn publish_over(tmp: &Path, path: &Path, mark: FileMark, force: bool, before: (u64, u64)) -> Result<()> {
     use std::os::unix::fs::MetadataExt;
     let io = |source: std::io::Error| CoreError::Io { path: path.into(), source };
-    #[cfg(target_os = "linux")]
-    match rename2(tmp, path, libc::RENAME_EXCHANGE) {
+    match exchange(tmp, path) {
         Ok(()) => {
             let same = std::fs::symlink_metadata(tmp).is_ok_and(|m| m.is_file() && (m.dev(), m.ino()) == before);
             if same && (force || carries_mark(tmp, mark).unwrap_or(false)) {
                 return Ok(());
             }
-            rename2(tmp, path, libc::RENAME_EXCHANGE).map_err(io)?;
+            exchange(tmp, path).map_err(io)?;
             return Err(CoreError::Refused {
                 path: path.into(),
                 message: "was replaced by something else while biscale wrote; it is left as it is".into(),
             });
         }
-        Err(e) if matches!(e.raw_os_error(), Some(libc::EINVAL | libc::ENOSYS)) => {}
+        Err(e) if unsupported(&e) => {}
         Err(e) => return Err(io(e)),
     }
     // Without an exchange: check again just before the rename (a window remains).
@@ -297,6 +281,34 @@ fn publish_over(tmp: &Path, path: &Path, mark: FileMark, force: bool, before: (u
         });
     }
     std::fs::rename(tmp, path).map_err(io)
+}
+
+/// Atomically exchange two paths (Linux `renameat2` with `RENAME_EXCHANGE`); `Unsupported`
+/// elsewhere, and `EINVAL` where the file system cannot ([`unsupported`] tells both).
+pub fn exchange(a: &Path, b: &Path) -> std::io::Result<()> {
+    #[cfg(target_os = "linux")]
+    return rename2(a, b, libc::RENAME_EXCHANGE);
+    #[cfg(not(target_os = "linux"))]
+    Err(std::io::Error::from(std::io::ErrorKind::Unsupported))
+}
+
+/// Rename `from` to `to` only where nothing is (Linux `renameat2` with `RENAME_NOREPLACE`):
+/// `AlreadyExists` if something is; `Unsupported` elsewhere ([`unsupported`]).
+pub fn rename_noreplace(from: &Path, to: &Path) -> std::io::Result<()> {
+    #[cfg(target_os = "linux")]
+    return rename2(from, to, libc::RENAME_NOREPLACE);
+    #[cfg(not(target_os = "linux"))]
+    Err(std::io::Error::from(std::io::ErrorKind::Unsupported))
+}
+
+/// Whether `e` says the atomic rename is not available here (another OS, an old kernel, a
+/// file system without it), so a caller falls back to a plainer way.
+pub fn unsupported(e: &std::io::Error) -> bool {
+    #[cfg(target_os = "linux")]
+    if matches!(e.raw_os_error(), Some(libc::EINVAL | libc::ENOSYS)) {
+        return true;
+    }
+    e.kind() == std::io::ErrorKind::Unsupported
 }
 
 #[cfg(target_os = "linux")]
@@ -313,24 +325,42 @@ fn rename2(from: &Path, to: &Path, flags: libc::c_uint) -> std::io::Result<()> {
     }
 }
 
+/// What a file that is not a regular file is, for messages ("a symbolic link", "a folder", "a
+/// device node", "a FIFO", "a socket"); `None` for a regular file. One wording for the
+/// writers that refuse such a path and the readers that refuse to open one.
+pub fn not_regular(t: &std::fs::FileType) -> Option<&'static str> {
+    use std::os::unix::fs::FileTypeExt;
+    Some(match () {
+        _ if t.is_file() => return None,
+        _ if t.is_symlink() => "a symbolic link",
+        _ if t.is_dir() => "a folder",
+        _ if t.is_char_device() || t.is_block_device() => "a device node",
+        _ if t.is_fifo() => "a FIFO",
+        _ if t.is_socket() => "a socket",
+        _ => "neither a file nor a folder",
+    })
+}
+
+/// Whether two paths name one existing file or folder (links followed; device and inode
+/// compared).
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (std::fs::metadata(a), std::fs::metadata(b)) {
+        (Ok(x), Ok(y)) => (x.dev(), x.ino()) == (y.dev(), y.ino()),
+        _ => false,
+    }
+}
+
 /// Open `path` for reading only if it is (or a link leads to) a regular file: it is opened
 /// without blocking (a FIFO does not hang the open) and checked with `fstat`, so a device
 /// node, FIFO, socket or folder is refused (`InvalidInput`, saying what it is) before a byte
 /// is read. Returns the file and its length. Errors are plain I/O errors, so every reader
 /// wraps them in its own error type with the path.
 pub fn open_regular(path: &Path) -> std::io::Result<(File, u64)> {
-    use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+    use std::os::unix::fs::OpenOptionsExt;
     let file = OpenOptions::new().read(true).custom_flags(libc::O_NONBLOCK).open(path)?;
     let meta = file.metadata()?;
-    let t = meta.file_type();
-    if !t.is_file() {
-        let kind = match () {
-            _ if t.is_dir() => "a folder",
-            _ if t.is_char_device() || t.is_block_device() => "a device node",
-            _ if t.is_fifo() => "a FIFO",
-            _ if t.is_socket() => "a socket",
-            _ => "something else",
-        };
+    if let Some(kind) = not_regular(&meta.file_type()) {
         return Err(std::io::Error::new(
             std::io::ErrorKind::InvalidInput,
             format!("is {kind}, not a regular file (biscale reads only regular files)"),

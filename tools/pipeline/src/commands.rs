@@ -139,7 +139,7 @@ pub struct DiffOptions<'a> {
 pub fn diff(a: &Path, b: &Path, opts: DiffOptions<'_>, warn: &mut dyn FnMut(String)) -> Result<ImageMetrics> {
     if let Some(p) = opts.error_image {
         for input in [Some(a), Some(b), opts.mask].into_iter().flatten() {
-            if same_file(p, input) {
+            if biscale_core::io::same_file(p, input) {
                 return Err(PipelineError::Core(biscale_core::CoreError::Refused {
                     path: p.into(),
                     message: format!("is {}, an input of this comparison; name another file", input.display()),
@@ -191,15 +191,6 @@ pub fn diff(a: &Path, b: &Path, opts: DiffOptions<'_>, warn: &mut dyn FnMut(Stri
         log::info!("wrote {to} (full scale = luminance error {scale:.4e})");
     }
     Ok(m)
-}
-
-/// Whether two paths name one file (both exist and share device and inode).
-fn same_file(a: &Path, b: &Path) -> bool {
-    use std::os::unix::fs::MetadataExt;
-    match (std::fs::metadata(a), std::fs::metadata(b)) {
-        (Ok(x), Ok(y)) => (x.dev(), x.ino()) == (y.dev(), y.ino()),
-        _ => false,
-    }
 }
 
 /// Scenes `biscale generate` can write.

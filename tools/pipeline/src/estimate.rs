@@ -679,6 +679,14 @@ pub fn check_run(
     Ok((memory, available))
 }
 
+/// The process's baseline and the mesh with its frames and BVHs: what every command that
+/// traces holds beside `T` (a shard too: its rays may hit any triangle of the whole mesh).
+pub fn process_and_geometry_bytes(mesh: &biscale_core::geometry::Mesh) -> u64 {
+    PROCESS_BASELINE_BYTES
+        + mesh.triangle_count() as u64 * GEOMETRY_BYTES_PER_TRIANGLE
+        + mesh.vertex_count() as u64 * GEOMETRY_BYTES_PER_VERTEX
+}
+
 /// Refuse tracing `T` for a command that does not estimate a whole run (`export`,
 /// `export-matrix`, `viz`, the Python module's images), as `run` refuses: the process, the
 /// geometry and `T`'s build (and its cache write with `cache`) at the sampled non-zeros'
@@ -686,12 +694,8 @@ pub fn check_run(
 pub fn check_transfer(exp: &Experiment, geometry: &Geometry, cache: bool, what: &str) -> Result<(), PipelineError> {
     let settings = exp.transfer_settings();
     let nnz = sample_nnz(&geometry.transfer, &geometry.mesh.triangles, &settings, NNZ_SAMPLE_VERTICES, exp.file.seed);
-    let vertices = geometry.mesh.vertex_count();
-    let t = TransferMemory::new(&settings, vertices, nnz.upper, rayon::current_num_threads());
-    let common = PROCESS_BASELINE_BYTES
-        + geometry.mesh.triangle_count() as u64 * GEOMETRY_BYTES_PER_TRIANGLE
-        + vertices as u64 * GEOMETRY_BYTES_PER_VERTEX;
-    let peak = common + t.build_peak().max(if cache { t.save_peak() } else { 0 });
+    let t = TransferMemory::new(&settings, geometry.mesh.vertex_count(), nnz.upper, rayon::current_num_threads());
+    let peak = process_and_geometry_bytes(&geometry.mesh) + t.build_peak().max(if cache { t.save_peak() } else { 0 });
     refuse(
         &format!("{}: {what}", exp.config_path.display()),
         peak,

@@ -105,7 +105,7 @@ pub fn side_by_side(runs: &[FinishedRun], out: &Path) -> Result<PathBuf> {
     // The page goes into a folder of its own: never over one of the runs it compares (a run
     // folder is replaceable by biscale, so `report A B --out A` would have deleted run A).
     for r in runs {
-        if same_folder(out, &r.dir) {
+        if biscale_core::io::same_file(out, &r.dir) {
             return Err(PipelineError::Mismatch {
                 path: out.into(),
                 what: format!(
@@ -126,15 +126,6 @@ pub fn side_by_side(runs: &[FinishedRun], out: &Path) -> Result<PathBuf> {
     )?;
     biscale_core::io::write_atomic_bytes(&dir.join("report.md"), crate::report::markdown_of(blocks).as_bytes())?;
     Ok(staged.commit()?)
-}
-
-/// Whether two paths are one existing folder (links followed; device and inode compared).
-fn same_folder(a: &Path, b: &Path) -> bool {
-    use std::os::unix::fs::MetadataExt;
-    match (std::fs::metadata(a), std::fs::metadata(b)) {
-        (Ok(x), Ok(y)) => (x.dev(), x.ino()) == (y.dev(), y.ino()),
-        _ => false,
-    }
 }
 
 /// Each run's label: its folder's name (`#2`, `#3`, ... appended where two are named alike).

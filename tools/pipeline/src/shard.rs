@@ -338,9 +338,7 @@ pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Man
     let threads = rayon::current_num_threads();
     // Every shard holds the whole mesh and its BVH (the rays of its vertices may hit any
     // triangle); the rest grows with its non-zeros.
-    let common = crate::estimate::PROCESS_BASELINE_BYTES
-        + geometry.mesh.triangle_count() as u64 * crate::estimate::GEOMETRY_BYTES_PER_TRIANGLE
-        + vertices as u64 * crate::estimate::GEOMETRY_BYTES_PER_VERTEX;
+    let common = crate::estimate::process_and_geometry_bytes(&geometry.mesh);
     let plan_settings: Vec<CompressorSetting> = crate::experiment::plan::Plan::new(exp).compressors;
     let shard_at = |nnz: u64| {
         let t = transfer::TransferMemory::new(&settings, largest, nnz, threads);
@@ -509,21 +507,13 @@ pub fn run(path: &Path, index: usize) -> Result<ShardDone> {
     let (m, root) = Manifest::load(path)?;
     let spec = m.shard(index, path)?.clone();
     let exp = m.experiment(path)?;
-    let dir = root.join(&spec.dir);
     // The shard's folder is an output like a run folder: never reached through a link (in the
     // plan's `shards/` or as the shard itself), written whole into a staging folder and swapped
     // in only over an empty folder or one whose marker proves biscale wrote all of it (a user's
     // `done.json` or `transfer.bsf` there is an error naming it, never overwritten).
-    let mut at = root.clone();
-    for part in Path::new(&spec.dir).components() {
-        at.push(part);
-        if std::fs::symlink_metadata(&at).is_ok_and(|m| m.file_type().is_symlink()) {
-            return Err(invalid(
-                path,
-                format!("{} is a link: a shard's folder is written only where the plan made it", at.display()),
-            ));
-        }
-    }
+    let dir = biscale_core::io::inside_folder(&root, &spec.dir).map_err(|why| {
+        invalid(path, format!("shard {index}'s folder {} {why}: it is written only where the plan made it", spec.dir))
+    })?;
     let parent = dir.parent().unwrap_or(&root).to_path_buf();
     std::fs::create_dir_all(&parent).map_err(|source| PipelineError::Io { path: parent.clone(), source })?;
     // The plan's estimate of a shard's peak, against the memory there is here, before tracing

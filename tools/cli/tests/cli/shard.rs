@@ -391,7 +391,7 @@ fn plan_paths_and_shard_folders_never_reach_what_biscale_did_not_write() {
     std::fs::create_dir_all(shard0.parent().unwrap()).unwrap();
     std::os::unix::fs::symlink(&elsewhere, &shard0).unwrap();
     let e = failed(biscale(&["shard", "run", s(&manifest), "--index", "0"], &[]));
-    assert!(e.contains("is a link"), "{e}");
+    assert!(e.contains("passes through a link"), "{e}");
     assert_eq!(std::fs::read_dir(&elsewhere).unwrap().count(), 0);
     std::fs::remove_file(&shard0).unwrap();
     // A user's done.json in a shard's folder: refused, kept byte for byte.

@@ -1116,19 +1116,10 @@ pub const MAX_PIXELS: u64 = 8192 * 8192;
 /// is when it is not a regular file (a device node, a FIFO, a folder), looked at without
 /// opening it, so a FIFO does not block and a device is never read.
 fn not_a_file(path: &Path) -> Option<String> {
-    use std::os::unix::fs::FileTypeExt;
-    let t = match std::fs::metadata(path) {
-        Ok(m) => m.file_type(),
-        Err(_) => return Some("not found".into()),
-    };
-    let kind = match () {
-        _ if t.is_file() => return None,
-        _ if t.is_dir() => "a folder",
-        _ if t.is_char_device() || t.is_block_device() => "a device node",
-        _ if t.is_fifo() => "a FIFO",
-        _ => "not a regular file",
-    };
-    Some(format!("is {kind}, not a regular file"))
+    match std::fs::metadata(path) {
+        Ok(m) => biscale_core::io::not_regular(&m.file_type()).map(|kind| format!("is {kind}, not a regular file")),
+        Err(_) => Some("not found".into()),
+    }
 }
 
 /// The longest experiment name (it names the output folder; file systems take 255 bytes).

@@ -324,7 +324,7 @@ impl StagedDir {
             return Ok(target);
         }
         check_replaceable(&target)?;
-        if exchange(&self.staging, &target).is_ok() {
+        if biscale_core::io::exchange(&self.staging, &target).is_ok() {
             // The earlier run is now at the staging path, and proved biscale's above.
             let earlier = std::mem::take(&mut self.staging);
             let _ = std::fs::remove_dir_all(&earlier);
@@ -412,26 +412,6 @@ fn remove_leftovers(target: &Path) {
             let _ = std::fs::remove_dir_all(e.path());
         }
     }
-}
-
-/// Atomically exchange two paths (Linux `renameat2` with `RENAME_EXCHANGE`).
-#[cfg(target_os = "linux")]
-fn exchange(a: &Path, b: &Path) -> std::io::Result<()> {
-    use std::ffi::CString;
-    use std::os::unix::ffi::OsStrExt;
-    let ca = CString::new(a.as_os_str().as_bytes()).map_err(std::io::Error::other)?;
-    let cb = CString::new(b.as_os_str().as_bytes()).map_err(std::io::Error::other)?;
-    // SAFETY: both are valid NUL-terminated paths that live across the call.
-    let r = unsafe { libc::renameat2(libc::AT_FDCWD, ca.as_ptr(), libc::AT_FDCWD, cb.as_ptr(), libc::RENAME_EXCHANGE) };
-    match r {
-        0 => Ok(()),
-        _ => Err(std::io::Error::last_os_error()),
-    }
-}
-
-#[cfg(not(target_os = "linux"))]
-fn exchange(_: &Path, _: &Path) -> std::io::Result<()> {
-    Err(std::io::Error::from(std::io::ErrorKind::Unsupported))
 }
 
 /// The environment variable that names a fault point ([`fault_point`]).
