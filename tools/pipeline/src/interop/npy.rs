@@ -554,39 +554,46 @@ fn zip_members<R: Read + Seek>(reader: R, limit: u64) -> Result<Vec<(String, Vec
     Ok(out)
 }
 
+/// Where the header text of the `.npy` file `bytes` starts and how long it is, after its magic
+/// and version (the first 10 bytes suffice for version 1, 12 for versions 2 and 3).
+fn header_span(bytes: &[u8]) -> Result<(usize, usize), String> {
+    let mut c = Cursor::at(bytes, 0);
+    if c.take(6).ok() != Some(b"\x93NUMPY".as_slice()) {
+        return Err("not a .npy file (no \\x93NUMPY magic)".into());
+    }
+    let version = c.take(2)?;
+    let header_len = match version[0] {
+        1 => c.u16()? as usize,
+        2 | 3 => to_usize(c.u32()? as u64, "header length")?,
+        v => return Err(format!(".npy format version {v}.{} is not supported", version[1])),
+    };
+    Ok((c.pos, header_len))
+}
+
 /// The first bytes of a `.npy` member of `declared` bytes, through its header, after checking
 /// that the header's shape and dtype need exactly `declared` bytes (a member that is not a
 /// `.npy` is returned as read so far, for the caller's own error).
 fn npy_head(r: &mut impl Read, declared: u64) -> Result<Vec<u8>, String> {
-    let mut head = vec![0u8; 10.min(declared as usize)];
+    // 12 bytes hold the preamble of every version; a shorter member or one that is not a
+    // `.npy` goes back as read, for `parse_npy`'s own error.
+    let mut head = vec![0u8; 12.min(declared as usize)];
     r.read_exact(&mut head).map_err(|e| e.to_string())?;
-    if head.len() < 10 || &head[..6] != b"\x93NUMPY" {
-        return Ok(head);
-    }
-    let header_len = match head[6] {
-        1 => u16::from_le_bytes([head[8], head[9]]) as u64,
-        2 | 3 => {
-            let mut more = [0u8; 2];
-            r.read_exact(&mut more).map_err(|e| e.to_string())?;
-            head.extend_from_slice(&more);
-            u32::from_le_bytes([head[8], head[9], head[10], head[11]]) as u64
-        }
-        _ => return Ok(head),
-    };
-    if head.len() as u64 + header_len > declared.min(1 << 20) {
+    let Ok((start, header_len)) = header_span(&head) else { return Ok(head) };
+    let end = start as u64 + header_len as u64;
+    if end > declared.min(1 << 20) {
         return Err(format!("its .npy header of {header_len} bytes does not fit the member's {declared} bytes"));
     }
-    let start = head.len();
-    head.resize(start + header_len as usize, 0);
-    r.read_exact(&mut head[start..]).map_err(|e| e.to_string())?;
-    let text = std::str::from_utf8(&head[start..]).map_err(|_| "the header is not text".to_string())?;
+    // (A header shorter than what was read already ends inside it: nothing more to read.)
+    let (read, end) = (head.len(), end as usize);
+    if end > read {
+        head.resize(end, 0);
+        r.read_exact(&mut head[read..]).map_err(|e| e.to_string())?;
+    }
+    let text = std::str::from_utf8(&head[start..end]).map_err(|_| "the header is not text".to_string())?;
     let h = parse_header(text)?;
     let (_, width, _) = parse_descr(&h.descr)?;
-    let needed = h
-        .shape
-        .iter()
-        .try_fold(width as u64, |a, &n| a.checked_mul(n as u64))
-        .and_then(|n| n.checked_add(head.len() as u64));
+    let needed =
+        h.shape.iter().try_fold(width as u64, |a, &n| a.checked_mul(n as u64)).and_then(|n| n.checked_add(end as u64));
     if needed != Some(declared) {
         return Err(format!(
             "its directory entry says {declared} bytes, its .npy header (shape {} of '{}') needs {}: refused before \
@@ -708,16 +715,8 @@ fn parse_header(text: &str) -> Result<Header, String> {
 
 /// Parse a whole `.npy` file held in memory.
 pub fn parse_npy(bytes: &[u8]) -> Result<NpyArray, String> {
-    let mut c = Cursor::at(bytes, 0);
-    if c.take(6).ok() != Some(b"\x93NUMPY".as_slice()) {
-        return Err("not a .npy file (no \\x93NUMPY magic)".into());
-    }
-    let version = c.take(2)?;
-    let header_len = match version[0] {
-        1 => c.u16()? as usize,
-        2 | 3 => to_usize(c.u32()? as u64, "header length")?,
-        v => return Err(format!(".npy format version {v}.{} is not supported", version[1])),
-    };
+    let (start, header_len) = header_span(bytes)?;
+    let mut c = Cursor::at(bytes, start);
     let text = std::str::from_utf8(c.take(header_len)?).map_err(|_| "the header is not text".to_string())?;
     let h = parse_header(text)?;
     let (kind, width, big) = parse_descr(&h.descr)?;
@@ -980,6 +979,42 @@ mod tests {
     /// Issue class "a 1.5 MB .npz makes eval allocate 1.5 GB": two entries of one name, two
     /// entries over one member's bytes, and a member declaring a terabyte are refused from
     /// the central directory, before anything is inflated or allocated.
+    /// A deflated member is bounded twice before it is inflated: by what its own `.npy` header
+    /// says it holds (a member whose directory size disagrees is refused) and by what the caller
+    /// expects the archive to hold (`read_npz_within`: an `L*` of the config's shape). A small
+    /// file that inflates to far more than either is refused; its header is parsed from at most
+    /// the preamble and the header itself, whatever their length (a zero-length header too).
+    #[test]
+    fn deflated_members_are_bounded_by_their_header_and_the_callers_shape() {
+        use std::io::Write as _;
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.npz");
+        let member = |header: &[u8], data_len: usize| {
+            let mut zip = zip::ZipWriter::new(std::fs::File::create(&p).unwrap());
+            let opts = zip::write::SimpleFileOptions::default().compression_method(zip::CompressionMethod::Deflated);
+            zip.start_file("lstar.npy", opts).unwrap();
+            zip.write_all(header).unwrap();
+            zip.write_all(&vec![0u8; data_len]).unwrap();
+            zip.finish().unwrap();
+        };
+        let ten_mb = 10 << 20;
+        let header = npy_header(&ArrayRef::new(&[ten_mb], Elements::U8(&vec![0u8; ten_mb])));
+        // Honest: 10 MB of zeros, a few kilobytes on disk.
+        member(&header, ten_mb);
+        assert!(std::fs::metadata(&p).unwrap().len() < 100_000);
+        assert_eq!(read_npz(&p).unwrap()[0].1.data.len(), ten_mb);
+        let e = read_npz_within(&p, 1 << 20).unwrap_err().to_string();
+        assert!(e.contains("more than the 1048576 bytes") && e.contains("refused before inflating"), "{e}");
+        // Lying: the header says 3 bytes, the directory 10 MB.
+        let small = npy_header(&ArrayRef::new(&[3], Elements::U8(&[0, 0, 0])));
+        member(&small, ten_mb);
+        let e = read_npz(&p).unwrap_err().to_string();
+        assert!(e.contains("its .npy header (shape (3,) of '|u1') needs") && e.contains("refused before"), "{e}");
+        // A version-1 preamble declaring a zero-length header: an error, not a panic.
+        member(b"\x93NUMPY\x01\x00\x00\x00abcd", 0);
+        assert!(read_npz(&p).is_err());
+    }
+
     #[test]
     fn crafted_archives_are_refused_before_inflating() {
         let dir = tempfile::tempdir().unwrap();
