@@ -48,7 +48,7 @@ pub use error::{GpuError, Result};
 pub use gather::{GpuGather, GpuLstar};
 pub use moments::GpuMoments;
 pub use present::{Rgba8Image, ToneMap, ToneMapSettings};
-pub use shade::{GpuMaterialHeader, GpuShader, GpuVertex, ShadeParams};
+pub use shade::{GpuBrdf, GpuMaterialHeader, GpuShader, GpuVertex, ShadeBinding, ShadeParams};
 pub use timing::{PassTiming, Timing, TimingMethod};
 #[cfg(feature = "viewer")]
 pub use viewer::{run_viewer, Screenshot, ViewerForm, ViewerSetup};

@@ -50,6 +50,9 @@ pub enum MomentsResolve {
 }
 
 impl MomentsResolve {
+    /// Every resolve, in declaration order.
+    pub const ALL: [MomentsResolve; 3] = [MomentsResolve::Vertex, MomentsResolve::Pixel, MomentsResolve::PixelAnalytic];
+
     /// The config's spelling.
     pub fn name(self) -> &'static str {
         match self {
@@ -88,7 +91,7 @@ mod tests {
         for b in [Backend::Cpu, Backend::Gpu] {
             assert_eq!(serde_json::to_string(&b).unwrap(), format!("\"{b}\""));
         }
-        for r in [MomentsResolve::Vertex, MomentsResolve::Pixel, MomentsResolve::PixelAnalytic] {
+        for r in MomentsResolve::ALL {
             let json = serde_json::to_string(&r).unwrap();
             assert_eq!(json, format!("\"{}\"", r.name()));
             assert_eq!(serde_json::from_str::<MomentsResolve>(&json).unwrap(), r);

@@ -40,8 +40,14 @@ use biscale_core::gather::LocalRadiance;
 use biscale_core::geometry::VertexFrame;
 use wgpu::util::DeviceExt;
 
-/// The resolve kernel's WGSL.
-pub const RESOLVE_WGSL: &str = include_str!("resolve.wgsl");
+/// The bins of a hemisphere grid located in f32 (`bins.wgsl`: where a bin's light goes), shared
+/// by the resolve kernel and the shader's per-pixel resolves.
+pub const BINS_WGSL: &str = include_str!("bins.wgsl");
+
+/// The resolve kernel's WGSL ([`BINS_WGSL`] prepended).
+pub fn resolve_wgsl() -> String {
+    format!("{BINS_WGSL}\n{}", include_str!("resolve.wgsl"))
+}
 
 /// Invocations per workgroup of the resolve kernel (`@workgroup_size` in `resolve.wgsl`).
 const WORKGROUP: u64 = 64;
@@ -156,7 +162,7 @@ impl GpuMoments {
                 });
                 let module = ctx.device.create_shader_module(wgpu::ShaderModuleDescriptor {
                     label: Some("light-moments resolve"),
-                    source: wgpu::ShaderSource::Wgsl(RESOLVE_WGSL.into()),
+                    source: wgpu::ShaderSource::Wgsl(resolve_wgsl().into()),
                 });
                 let pipeline = ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                     label: Some("light-moments resolve"),
@@ -278,6 +284,21 @@ impl GpuMoments {
     /// The GPU buffer holding `L*'`: `rows * 3` f32, row `v * M + i`, RGB interleaved.
     pub fn lstar_buffer(&self) -> &wgpu::Buffer {
         &self.resolved
+    }
+
+    /// The three gathered moments `L d_x`, `L d_y`, `L d_z` (each `rows * 3` f32, the gather's
+    /// `L*` layout) after [`Self::gather`] or [`Self::resolve`]: what the shader's per-pixel
+    /// resolves read in place.
+    pub fn moment_buffers(&self) -> [&wgpu::Buffer; 3] {
+        [&self.along[0], &self.along[1], self.gather.lstar_buffer()]
+    }
+
+    /// The lobe of the moments last uploaded or resolved.
+    pub fn lobe(&self) -> Lobe {
+        match self.params.lobe {
+            1 => Lobe::BinCentre,
+            _ => Lobe::MeanDirection,
+        }
     }
 
     /// The gather it runs (whose own `L*` holds the last moment, `L d_z`, after a gather).

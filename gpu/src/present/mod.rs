@@ -292,6 +292,7 @@ impl ToneMap {
         })?;
         let view = texture.create_view(&Default::default());
         let mut enc = ctx.device.create_command_encoder(&Default::default());
+        shader.set_resolve(&bind_group)?;
         shader.record(&mut enc, &bind_group, None);
         self.encode(&mut enc, shader, &view, (w, h), settings)?;
         read_texture_rgba8(ctx, enc, &texture)

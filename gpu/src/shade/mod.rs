@@ -35,12 +35,20 @@
 //! the adapter's limits are checked here), `L*` and the [`Camera`]; the output is a
 //! [`Render`].
 
+mod brdf;
+
+pub use brdf::{brdf_constants_wgsl, GpuBrdf, BRDF_NONE};
+
 use crate::context::{bytes_to_f32, GpuContext, RasterPipeline};
 use crate::error::{GpuError, Result};
 use crate::gather::GpuLstar;
+use crate::moments::{GpuMoments, BINS_WGSL};
 use crate::timing::{measure, PassTimer, Timing};
+use biscale_core::gather::moments::Lobe;
 use biscale_core::gather::LocalRadiance;
 use biscale_core::scene::{BtfRepresentation, Camera, HdrImage, Render, ShadeScene};
+use biscale_shading::runtime::MomentsResolve;
+use biscale_shading::synth::Brdf;
 use glam::{DMat4, DVec3, DVec4, Vec3};
 use wgpu::util::DeviceExt;
 
@@ -48,9 +56,41 @@ use wgpu::util::DeviceExt;
 /// pass (`present.wgsl`), which both bind it.
 pub const SHADE_PARAMS_WGSL: &str = include_str!("shade_params.wgsl");
 
-/// The WGSL of both shading passes ([`SHADE_PARAMS_WGSL`] prepended).
+/// `ShadeParams::resolve`: [`MomentsResolve`]'s code in WGSL (`RESOLVE_VERTEX`,
+/// `RESOLVE_PIXEL`, `RESOLVE_PIXEL_ANALYTIC`, generated from the enum by [`shade_wgsl`]).
+pub fn resolve_code(resolve: MomentsResolve) -> u32 {
+    match resolve {
+        MomentsResolve::Vertex => 0,
+        MomentsResolve::Pixel => 1,
+        MomentsResolve::PixelAnalytic => 2,
+    }
+}
+
+/// The WGSL of the shading passes: the `L*` pass (`shade_pixels`) and the per-pixel resolves
+/// of light moments (`shade_moment_pixels`), with [`SHADE_PARAMS_WGSL`], the constants of
+/// [`MomentsResolve`] and of the BRDF kinds, the bins ([`BINS_WGSL`]) and the analytic BRDFs
+/// (`brdf.wgsl`).
 pub fn shade_wgsl() -> String {
-    format!("{SHADE_PARAMS_WGSL}\n{}", include_str!("shade.wgsl"))
+    let mut resolves = String::new();
+    for r in MomentsResolve::ALL {
+        resolves += &format!("const RESOLVE_{}: u32 = {}u;\n", r.name().to_uppercase(), resolve_code(r));
+    }
+    format!(
+        "{SHADE_PARAMS_WGSL}\n{resolves}\n{BINS_WGSL}\n{}\n{}\n{}\n{}",
+        include_str!("shade.wgsl"),
+        brdf_constants_wgsl(),
+        include_str!("brdf.wgsl"),
+        include_str!("moments.wgsl")
+    )
+}
+
+/// What a shading pass reads, bound: an `L*` (a gather's, or the `L*'` of the vertex resolve)
+/// for `shade_pixels`, or the three moment gathers for a per-pixel resolve.
+#[derive(Clone, Debug)]
+pub struct ShadeBinding {
+    bind_group: wgpu::BindGroup,
+    /// `None` for an `L*`; the per-pixel resolve and the moments' lobe otherwise.
+    per_pixel: Option<(MomentsResolve, Lobe)>,
 }
 
 /// Uniform block of both shading passes. Mirrored by `ShadeParams` in `shade/shade.wgsl`
@@ -83,7 +123,12 @@ pub struct ShadeParams {
     /// evaluation of `LpcaBtf::truncated`); `u32::MAX`: all. The viewer lowers it while the
     /// light moves.
     pub max_components: u32,
-    pub _pad: [u32; 3],
+    /// [`resolve_code`] of the per-pixel resolve the moments pass runs (unused by the `L*` pass).
+    pub resolve: u32,
+    /// The local grid's side `m` (`M = m^2` bins), 0 when the scene's local basis has no bins.
+    pub moment_grid: u32,
+    /// The moments' lobe: 0 [`Lobe::MeanDirection`], 1 [`Lobe::BinCentre`].
+    pub lobe: u32,
 }
 const _: () = assert!(std::mem::size_of::<ShadeParams>() == 160);
 
@@ -272,6 +317,15 @@ pub struct GpuShader {
     vis_pipeline: wgpu::RenderPipeline,
     vis_bind_group: wgpu::BindGroup,
     shade_pipeline: wgpu::ComputePipeline,
+    /// The per-pixel resolves' pass, built on first use.
+    moments_pipeline: Option<wgpu::ComputePipeline>,
+    /// The shader module both passes come from.
+    module: wgpu::ShaderModule,
+    /// One [`GpuBrdf`] per material (all `BRDF_NONE` until [`Self::set_brdfs`]), the coating
+    /// tables they index, and `1 / cosbar_i` per bin (a placeholder without bins).
+    brdf_buf: wgpu::Buffer,
+    coating_buf: wgpu::Buffer,
+    inv_cosine_buf: wgpu::Buffer,
     readback: wgpu::Buffer,
     padded_row: u32,
     vertex_count: usize,
@@ -342,7 +396,9 @@ impl GpuShader {
             vertex_count: nv as u32,
             triangle_count: tri_count as u32,
             max_components: u32::MAX,
-            _pad: [0; 3],
+            resolve: resolve_code(MomentsResolve::Vertex),
+            moment_grid: scene.local_basis().grid().map_or(0, |g| g.m),
+            lobe: 0,
         };
         let (near, far) = depth_range(&mesh.positions, camera.position);
         write_camera(camera, &mut params, near, far);
@@ -484,6 +540,7 @@ impl GpuShader {
                 vis_bind_group,
                 shade_pipeline,
                 readback,
+                module,
             )
         })?;
         let (
@@ -496,7 +553,22 @@ impl GpuShader {
             vis_bind_group,
             shade_pipeline,
             readback,
+            module,
         ) = built;
+        let (brdfs, coating) = GpuBrdf::records(&vec![None; materials.len()]);
+        let brdf_buf = ctx.storage_buffer(
+            "analytic BRDFs (80 bytes each)",
+            bytemuck::cast_slice(&brdfs),
+            wgpu::BufferUsages::COPY_DST,
+        )?;
+        let coating_buf =
+            ctx.storage_buffer("coating tables", bytemuck::cast_slice(&coating), wgpu::BufferUsages::empty())?;
+        let inv_cosine: Vec<f32> = match scene.local_basis().grid() {
+            Some(g) => g.mean_cosines().iter().map(|c| (1.0 / c) as f32).collect(),
+            None => vec![0.0],
+        };
+        let inv_cosine_buf =
+            ctx.storage_buffer("inverse mean cosines", bytemuck::cast_slice(&inv_cosine), wgpu::BufferUsages::empty())?;
         Ok(Self {
             ctx: ctx.clone(),
             params,
@@ -514,6 +586,11 @@ impl GpuShader {
             vis_pipeline,
             vis_bind_group,
             shade_pipeline,
+            moments_pipeline: None,
+            module,
+            brdf_buf,
+            coating_buf,
+            inv_cosine_buf,
             readback,
             padded_row,
             vertex_count: nv,
@@ -567,7 +644,8 @@ impl GpuShader {
     /// GPU (no read-back in between).
     pub fn shade(&mut self, gather: &impl GpuLstar) -> Result<Render> {
         self.check_lstar(gather)?;
-        self.run(gather.lstar_buffer())?;
+        let binding = self.shade_bind_group(gather.lstar_buffer())?;
+        self.run(&binding)?;
         self.read_image()
     }
 
@@ -579,16 +657,66 @@ impl GpuShader {
             bytemuck::cast_slice(lstar.values()),
             wgpu::BufferUsages::empty(),
         )?;
-        self.run(&buf)?;
+        let binding = self.shade_bind_group(&buf)?;
+        self.run(&binding)?;
+        self.read_image()
+    }
+
+    /// Give the materials analytic BRDFs for [`MomentsResolve::PixelAnalytic`]: `brdfs[i]` for
+    /// material `i` (`None`: shaded from its BTF's tables, as the CPU's
+    /// `biscale_shading::cpu::shade_moments_analytic` does), one entry per material.
+    pub fn set_brdfs(&mut self, brdfs: &[Option<Brdf>]) -> Result<()> {
+        let count = self.params.material_count as usize;
+        if brdfs.len() != count {
+            return Err(GpuError::Input(format!("{} analytic BRDFs for {count} materials", brdfs.len())));
+        }
+        for b in brdfs.iter().flatten() {
+            b.validate().map_err(|e| GpuError::Input(e.to_string()))?;
+        }
+        let (records, coating) = GpuBrdf::records(brdfs);
+        let coating_buf =
+            self.ctx.storage_buffer("coating tables", bytemuck::cast_slice(&coating), wgpu::BufferUsages::empty())?;
+        self.ctx.scoped("uploading the analytic BRDFs", || {
+            self.ctx.queue.write_buffer(&self.brdf_buf, 0, bytemuck::cast_slice(&records));
+        })?;
+        self.coating_buf = coating_buf;
+        Ok(())
+    }
+
+    /// Shade from the three moment gathers `moments` left on the GPU with `resolve`:
+    /// [`MomentsResolve::Vertex`] reads their vertex-resolved `L*'` ([`Self::shade`]); the
+    /// per-pixel resolves read the three gathers in place and resolve them at every sample,
+    /// `Pixel` with the BTFs' tables (`biscale_shading::cpu::shade_moments`), `PixelAnalytic`
+    /// with each material's BRDF given by [`Self::set_brdfs`], the others with their tables
+    /// (`shade_moments_analytic`).
+    pub fn shade_moments(&mut self, moments: &GpuMoments, resolve: MomentsResolve) -> Result<Render> {
+        let binding = self.moments_bind_group(moments, resolve)?;
+        self.run(&binding)?;
         self.read_image()
     }
 
     /// Median time of the two shading passes (`visibility`, `shade`) over `repetitions` frames.
     pub fn time_shade(&mut self, gather: &impl GpuLstar, repetitions: usize) -> Result<Timing> {
         self.check_lstar(gather)?;
-        let bind_group = self.shade_bind_group(gather.lstar_buffer())?;
+        let binding = self.shade_bind_group(gather.lstar_buffer())?;
+        self.time_binding(&binding, repetitions)
+    }
+
+    /// [`Self::time_shade`] of [`Self::shade_moments`].
+    pub fn time_shade_moments(
+        &mut self,
+        moments: &GpuMoments,
+        resolve: MomentsResolve,
+        repetitions: usize,
+    ) -> Result<Timing> {
+        let binding = self.moments_bind_group(moments, resolve)?;
+        self.time_binding(&binding, repetitions)
+    }
+
+    fn time_binding(&mut self, binding: &ShadeBinding, repetitions: usize) -> Result<Timing> {
+        self.set_resolve(binding)?;
         let names = ["visibility".to_string(), "shade".to_string()];
-        measure(&self.ctx, &names, repetitions, |enc, timer| self.record(enc, &bind_group, timer))
+        measure(&self.ctx, &names, repetitions, |enc, timer| self.record(enc, binding, timer))
     }
 
     /// An error unless `gather`'s `L*` fits the scene.
@@ -601,8 +729,9 @@ impl GpuShader {
         Ok(biscale_core::scene::check_lstar_shape(self.scene_basis, self.vertex_count, basis, vertices)?)
     }
 
-    pub(crate) fn shade_bind_group(&self, lstar: &wgpu::Buffer) -> Result<wgpu::BindGroup> {
-        self.ctx.scoped("binding L* for shading", || {
+    /// `lstar` bound for the `L*` pass.
+    pub(crate) fn shade_bind_group(&self, lstar: &wgpu::Buffer) -> Result<ShadeBinding> {
+        let bind_group = self.ctx.scoped("binding L* for shading", || {
             self.ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("shade"),
                 layout: &self.shade_pipeline.get_bind_group_layout(0),
@@ -619,6 +748,84 @@ impl GpuShader {
                     wgpu::BindGroupEntry { binding: 9, resource: self.btf_id_buf.as_entire_binding() },
                 ],
             })
+        })?;
+        Ok(ShadeBinding { bind_group, per_pixel: None })
+    }
+
+    /// `moments` bound for `resolve`: its vertex-resolved `L*'` for the `L*` pass
+    /// ([`MomentsResolve::Vertex`]), else its three gathers for the per-pixel pass (built on
+    /// first use). An error unless the moments fit the scene and the scene's local basis has
+    /// bins.
+    pub fn moments_bind_group(&mut self, moments: &GpuMoments, resolve: MomentsResolve) -> Result<ShadeBinding> {
+        let shape = moments.shape();
+        self.check_lstar_shape(shape.local, shape.vertices)?;
+        if !resolve.per_pixel() {
+            return self.shade_bind_group(moments.lstar_buffer());
+        }
+        if self.params.moment_grid == 0 {
+            return Err(GpuError::Input(format!(
+                "the per-pixel resolve \"{}\" needs a local basis of bins, the scene's is {}",
+                resolve.name(),
+                self.scene_basis
+            )));
+        }
+        let pipeline = match &self.moments_pipeline {
+            Some(p) => p.clone(),
+            None => {
+                let p = self.ctx.scoped("building the per-pixel resolve pass", || {
+                    self.ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                        label: Some("shade (per-pixel resolve)"),
+                        layout: None,
+                        module: &self.module,
+                        entry_point: Some("shade_moment_pixels"),
+                        compilation_options: Default::default(),
+                        cache: None,
+                    })
+                })?;
+                self.moments_pipeline = Some(p.clone());
+                p
+            }
+        };
+        let [x, y, z] = moments.moment_buffers();
+        let bind_group = self.ctx.scoped("binding the light moments for shading", || {
+            let entries = [
+                (0, self.params_buf.as_entire_binding()),
+                (1, self.vertex_buf.as_entire_binding()),
+                (2, self.index_buf.as_entire_binding()),
+                (4, self.btf_buf.as_entire_binding()),
+                (5, wgpu::BindingResource::TextureView(&self.vis_view)),
+                (6, wgpu::BindingResource::TextureView(&self.image_view)),
+                (7, self.material_buf.as_entire_binding()),
+                (8, self.material_id_buf.as_entire_binding()),
+                (9, self.btf_id_buf.as_entire_binding()),
+                (10, x.as_entire_binding()),
+                (11, y.as_entire_binding()),
+                (12, z.as_entire_binding()),
+                (13, self.brdf_buf.as_entire_binding()),
+                (14, self.coating_buf.as_entire_binding()),
+                (15, self.inv_cosine_buf.as_entire_binding()),
+            ]
+            .map(|(binding, resource)| wgpu::BindGroupEntry { binding, resource });
+            self.ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("shade (per-pixel resolve)"),
+                layout: &pipeline.get_bind_group_layout(0),
+                entries: &entries,
+            })
+        })?;
+        Ok(ShadeBinding { bind_group, per_pixel: Some((resolve, moments.lobe())) })
+    }
+
+    /// Write the resolve and lobe `binding` shades with into the uniform (queued before the
+    /// next submission).
+    pub(crate) fn set_resolve(&mut self, binding: &ShadeBinding) -> Result<()> {
+        let (resolve, lobe) = binding.per_pixel.unwrap_or((MomentsResolve::Vertex, Lobe::MeanDirection));
+        let (resolve, lobe) = (resolve_code(resolve), u32::from(lobe == Lobe::BinCentre));
+        if (resolve, lobe) == (self.params.resolve, self.params.lobe) {
+            return Ok(());
+        }
+        (self.params.resolve, self.params.lobe) = (resolve, lobe);
+        self.ctx.scoped("updating the resolve", || {
+            self.ctx.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
         })
     }
 
@@ -638,13 +845,9 @@ impl GpuShader {
         (self.params.width, self.params.height)
     }
 
-    /// Record both passes (timestamps 0..4 of `timer`: visibility, then shade).
-    pub(crate) fn record(
-        &self,
-        enc: &mut wgpu::CommandEncoder,
-        bind_group: &wgpu::BindGroup,
-        timer: Option<&PassTimer>,
-    ) {
+    /// Record both passes (timestamps 0..4 of `timer`: visibility, then shade), the second the
+    /// pass `binding` was bound for. [`Self::set_resolve`] must have written its resolve.
+    pub(crate) fn record(&self, enc: &mut wgpu::CommandEncoder, binding: &ShadeBinding, timer: Option<&PassTimer>) {
         {
             let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("visibility"),
@@ -676,16 +879,20 @@ impl GpuShader {
             label: Some("shade"),
             timestamp_writes: timer.map(|t| t.compute_writes(1)),
         });
-        cp.set_pipeline(&self.shade_pipeline);
-        cp.set_bind_group(0, bind_group, &[]);
+        let pipeline = match binding.per_pixel {
+            None => &self.shade_pipeline,
+            Some(_) => self.moments_pipeline.as_ref().expect("built with the binding"),
+        };
+        cp.set_pipeline(pipeline);
+        cp.set_bind_group(0, &binding.bind_group, &[]);
         cp.dispatch_workgroups(self.params.width.div_ceil(8), self.params.height.div_ceil(8), 1);
     }
 
-    fn run(&mut self, lstar: &wgpu::Buffer) -> Result<()> {
-        let bind_group = self.shade_bind_group(lstar)?;
+    fn run(&mut self, binding: &ShadeBinding) -> Result<()> {
+        self.set_resolve(binding)?;
         self.ctx.scoped("shading", || {
             let mut enc = self.ctx.device.create_command_encoder(&Default::default());
-            self.record(&mut enc, &bind_group, None);
+            self.record(&mut enc, binding, None);
             enc.copy_texture_to_buffer(
                 wgpu::TexelCopyTextureInfo {
                     texture: &self.image,

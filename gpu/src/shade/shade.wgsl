@@ -230,24 +230,34 @@ fn btf_value(mat: MaterialHeader, s: BtfSample, stride: u32, j: u32) -> vec3<f32
 
 // ---- pass 2: shading ----
 
-@compute @workgroup_size(8, 8)
-fn shade_pixels(@builtin(global_invocation_id) gid: vec3<u32>) {
-    if gid.x >= params.width || gid.y >= params.height {
-        return;
-    }
-    let px = vec2<i32>(gid.xy);
-    let id = textureLoad(visibility, px, 0).x;
-    if id == 0u {
-        textureStore(image, px, vec4<f32>(0.0));
-        return;
-    }
-    let tri = id - 1u;
-    let i0 = indices[3u * tri];
-    let i1 = indices[3u * tri + 1u];
-    let i2 = indices[3u * tri + 2u];
-    let v0 = vertices[i0];
-    let v1 = vertices[i1];
-    let v2 = vertices[i2];
+// A shading sample: the pixel's primary ray against the triangle the visibility pass found
+// there, as shading::cpu::primary_hit gives it.
+struct Hit {
+    tri: u32,
+    // The triangle's vertices and their barycentric weights.
+    corner: vec3<u32>,
+    b: vec3<f32>,
+    // The interpolated frame (tangent, bitangent, normal) and the view direction (towards the
+    // camera) in it.
+    t: vec3<f32>,
+    bt: vec3<f32>,
+    n: vec3<f32>,
+    e_local: vec3<f32>,
+    uv: vec2<f32>,
+}
+
+// The triangle id (+1, 0 = background) the visibility pass stored at `px`.
+fn visible_triangle(px: vec2<i32>) -> u32 {
+    return textureLoad(visibility, px, 0).x;
+}
+
+fn hit_at(gid: vec2<u32>, tri: u32) -> Hit {
+    var hit: Hit;
+    hit.tri = tri;
+    hit.corner = vec3<u32>(indices[3u * tri], indices[3u * tri + 1u], indices[3u * tri + 2u]);
+    let v0 = vertices[hit.corner.x];
+    let v1 = vertices[hit.corner.y];
+    let v2 = vertices[hit.corner.z];
 
     // The pixel centre's primary ray (shading::camera::Camera::ray).
     let sx = 2.0 * (f32(gid.x) + 0.5) / f32(params.width) - 1.0;
@@ -274,6 +284,7 @@ fn shade_pixels(@builtin(global_invocation_id) gid: vec3<u32>) {
             b = w / sum;
         }
     }
+    hit.b = b;
 
     // Interpolated frame as VertexFrame::from_normal_tangent: normalized normal (the face
     // normal where vertex normals cancel), tangent made orthogonal to it, bitangent n x t.
@@ -297,18 +308,38 @@ fn shade_pixels(@builtin(global_invocation_id) gid: vec3<u32>) {
         t = basis[0];
         bt = basis[1];
     }
-    let e_local = vec3<f32>(dot(-dir, t), dot(-dir, bt), dot(-dir, n));
+    hit.t = t;
+    hit.bt = bt;
+    hit.n = n;
+    hit.e_local = vec3<f32>(dot(-dir, t), dot(-dir, bt), dot(-dir, n));
+    hit.uv = b.x * vec2<f32>(v0.u, v0.v) + b.y * vec2<f32>(v1.u, v1.v) + b.z * vec2<f32>(v2.u, v2.v);
+    return hit;
+}
 
-    // The triangle's material (ids are checked on the host; the min only guards the bounds).
-    var material = 0u;
+// The triangle's material (ids are checked on the host; the min only guards the bounds).
+fn material_of(tri: u32) -> u32 {
     if params.has_material_ids != 0u {
-        material = min(material_ids[tri], params.material_count - 1u);
+        return min(material_ids[tri], params.material_count - 1u);
     }
+    return 0u;
+}
+
+// A hit's BTF at its texel and view: up to four view samples (bilinear in the view grid),
+// each resolved once, and the LPCA vector length `stride`.
+struct BtfView {
+    mat: MaterialHeader,
+    sample: array<BtfSample, 4>,
+    samples: u32,
+    stride: u32,
+}
+
+fn btf_view(hit: Hit, material: u32) -> BtfView {
+    var bv: BtfView;
     let mat = materials[material];
+    bv.mat = mat;
 
     // Btf::texel_of(uv * tiling): the material's nearest texel, wrapping.
-    let uv = b.x * vec2<f32>(v0.u, v0.v) + b.y * vec2<f32>(v1.u, v1.v) + b.z * vec2<f32>(v2.u, v2.v);
-    let tuv = uv * mat.tiling;
+    let tuv = hit.uv * mat.tiling;
     let texel = wrap_texel(tuv.y, mat.height) * mat.width + wrap_texel(tuv.x, mat.width);
 
     // View samples: Btf::view_weights, bilinear between the 4 nearest view-grid bin centres.
@@ -320,7 +351,7 @@ fn shade_pixels(@builtin(global_invocation_id) gid: vec3<u32>) {
         let m = mat.view_m;
         views = m * m;
         if m > 1u {
-            let c = continuous_coords(m, e_local);
+            let c = continuous_coords(m, hit.e_local);
             let x0 = min(u32(floor(c.x)), m - 2u);
             let y0 = min(u32(floor(c.y)), m - 2u);
             let fx = clamp(c.x - f32(x0), 0.0, 1.0);
@@ -330,26 +361,46 @@ fn shade_pixels(@builtin(global_invocation_id) gid: vec3<u32>) {
             samples = 4u;
         }
     }
-
-    var sample: array<BtfSample, 4>;
     for (var s = 0u; s < samples; s++) {
-        sample[s] = btf_sample(mat, texel, view_idx[s], views, view_w[s]);
+        bv.sample[s] = btf_sample(mat, texel, view_idx[s], views, view_w[s]);
     }
-    var stride = params.local_dirs * 3u * views;
+    bv.samples = samples;
+    bv.stride = params.local_dirs * 3u * views;
     if mat.per_view != 0u {
-        stride = params.local_dirs * 3u;
+        bv.stride = params.local_dirs * 3u;
     }
+    return bv;
+}
 
+// b(u, e, d_j) of a hit's BTF view: its samples' values blended by their weights.
+fn btf_at(bv: BtfView, j: u32) -> vec3<f32> {
+    var sample = bv.sample;
+    var bj = vec3<f32>(0.0);
+    for (var s = 0u; s < bv.samples; s++) {
+        if sample[s].weight != 0.0 {
+            bj += sample[s].weight * btf_value(bv.mat, sample[s], bv.stride, j);
+        }
+    }
+    return bj;
+}
+
+@compute @workgroup_size(8, 8)
+fn shade_pixels(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if gid.x >= params.width || gid.y >= params.height {
+        return;
+    }
+    let px = vec2<i32>(gid.xy);
+    let id = visible_triangle(px);
+    if id == 0u {
+        textureStore(image, px, vec4<f32>(0.0));
+        return;
+    }
+    let hit = hit_at(gid.xy, id - 1u);
+    let bv = btf_view(hit, material_of(hit.tri));
     var acc = vec3<f32>(0.0);
     for (var j = 0u; j < params.local_dirs; j++) {
-        let l = b.x * lstar_at(i0, j) + b.y * lstar_at(i1, j) + b.z * lstar_at(i2, j);
-        var bj = vec3<f32>(0.0);
-        for (var s = 0u; s < samples; s++) {
-            if sample[s].weight != 0.0 {
-                bj += sample[s].weight * btf_value(mat, sample[s], stride, j);
-            }
-        }
-        acc += bj * l;
+        let l = hit.b.x * lstar_at(hit.corner.x, j) + hit.b.y * lstar_at(hit.corner.y, j) + hit.b.z * lstar_at(hit.corner.z, j);
+        acc += btf_at(bv, j) * l;
     }
     textureStore(image, px, vec4<f32>(acc, 1.0));
 }

@@ -24,7 +24,10 @@ struct ShadeParams {
     triangle_count: u32,
     // LPCA BTFs use at most this many (leading) components per cluster; 0xffffffff: all.
     max_components: u32,
-    pad1: u32,
-    pad2: u32,
-    pad3: u32,
+    // The per-pixel resolve the moments pass runs (RESOLVE_*; the L* pass ignores it).
+    resolve: u32,
+    // The local grid's side m (M = m * m bins), 0 without bins.
+    moment_grid: u32,
+    // The moments' lobe: 0 the mean direction, 1 the bin centre.
+    lobe: u32,
 }

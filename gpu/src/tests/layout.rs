@@ -48,9 +48,9 @@ fn shade_params_layout_matches_wgsl() {
         ("vertex_count", offset_of!(P, vertex_count)),
         ("triangle_count", offset_of!(P, triangle_count)),
         ("max_components", offset_of!(P, max_components)),
-        ("pad1", offset_of!(P, _pad)),
-        ("pad2", offset_of!(P, _pad) + 4),
-        ("pad3", offset_of!(P, _pad) + 8),
+        ("resolve", offset_of!(P, resolve)),
+        ("moment_grid", offset_of!(P, moment_grid)),
+        ("lobe", offset_of!(P, lobe)),
     ];
     // The shading passes and the tone-mapping pass (camera rays for the background) both
     // bind the same uniform buffer.
@@ -101,10 +101,30 @@ fn vertex_layout_matches_wgsl() {
 }
 
 #[test]
+fn brdf_layout_matches_wgsl() {
+    type B = crate::shade::GpuBrdf;
+    check(
+        &shade_wgsl(),
+        "Brdf",
+        size_of::<B>(),
+        &[
+            ("kind", offset_of!(B, kind)),
+            ("coating", offset_of!(B, coating)),
+            ("nonlinear", offset_of!(B, nonlinear)),
+            ("pad", offset_of!(B, _pad)),
+            ("a", offset_of!(B, a)),
+            ("b", offset_of!(B, b)),
+            ("c", offset_of!(B, c)),
+            ("s", offset_of!(B, s)),
+        ],
+    );
+}
+
+#[test]
 fn resolve_params_layout_matches_wgsl() {
     type P = crate::moments::ResolveParams;
     check(
-        crate::moments::RESOLVE_WGSL,
+        &crate::moments::resolve_wgsl(),
         "ResolveParams",
         size_of::<P>(),
         &[

@@ -5,6 +5,7 @@
 mod gather;
 mod layout;
 mod moments;
+mod pixel_resolve;
 mod plugin;
 mod sh;
 mod shading;

@@ -460,7 +460,7 @@ fn atan_unit_matches_f64() {
     let source = format!(
         "{}\n@compute @workgroup_size(64)\nfn probe(@builtin(global_invocation_id) id: vec3<u32>) {{\n    \
          if id.x < arrayLength(&moment_x) {{ resolved[id.x] = atan_unit(moment_x[id.x]); }}\n}}\n",
-        crate::moments::RESOLVE_WGSL
+        crate::moments::resolve_wgsl()
     );
     let input = ctx.storage_buffer("atan input", bytemuck::cast_slice(&t), wgpu::BufferUsages::empty()).unwrap();
     let output = ctx

@@ -354,7 +354,7 @@ struct Gpu {
     shader: GpuShader,
     gathers: Vec<FormGather>,
     /// Per form, the shade bind group of its `L*` for the current shader.
-    bind_groups: Vec<Option<wgpu::BindGroup>>,
+    bind_groups: Vec<Option<crate::shade::ShadeBinding>>,
     tonemap: ToneMap,
     overlay: Overlay,
     /// Timestamps of visibility, shade, tone map, overlay.
@@ -688,6 +688,7 @@ impl App {
         let mut enc = gpu.ctx.device.create_command_encoder(&Default::default());
         let frame_timer = gpu.frame_timer.as_ref();
         let bind_group = gpu.bind_groups[i].as_ref().expect("built above");
+        gpu.shader.set_resolve(bind_group)?;
         gpu.ctx.scoped("recording a frame", || gpu.shader.record(&mut enc, bind_group, frame_timer))?;
         gpu.tonemap.encode_timed(&mut enc, &gpu.shader, &view, (w, h), &settings, frame_timer.map(|t| (t, 2)))?;
         gpu.overlay.encode(&mut enc, &view, (w, h), frame_timer.map(|t| (t, 3)));
