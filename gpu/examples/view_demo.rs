@@ -94,6 +94,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         screenshot,
         continuous: flag("--continuous"),
         light_moments: flag("--light-moments"),
+        moments_resolve: biscale_shading::runtime::MomentsResolve::Vertex,
+        analytic: vec![],
     };
     run_viewer(setup)?;
     Ok(())

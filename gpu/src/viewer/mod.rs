@@ -40,6 +40,8 @@ use biscale_core::sampling::{Cubemap, EnvMap, LightVector};
 use biscale_core::scene::{Camera, ShadeScene};
 use biscale_core::sh::light::LIGHT_SUBTEXELS;
 use biscale_core::sh::{ShProjection, ShRotation};
+use biscale_shading::runtime::MomentsResolve;
+use biscale_shading::synth::Brdf;
 use orbit::Orbit;
 use overlay::Overlay;
 use std::path::PathBuf;
@@ -109,6 +111,13 @@ pub struct ViewerSetup {
     /// local basis of bins (the SH methods have neither: leave it off for them); the moments
     /// are resolved in the scene's frames, which must be those `T` was traced with.
     pub light_moments: bool,
+    /// With light moments, where they are resolved first (the config's
+    /// `runtime.moments_resolve`; key M cycles through the resolves): per vertex into `L*'`, or
+    /// at every pixel ([`GpuShader::shade_moments`]).
+    pub moments_resolve: MomentsResolve,
+    /// Each material's analytic BRDF, or `None` (the config's flat analytic materials): what
+    /// [`MomentsResolve::PixelAnalytic`] shades them with. Empty: no material has one.
+    pub analytic: Vec<Option<Brdf>>,
 }
 
 /// What the worker thread sends back: a light vector for a rotation (and its moments, with
@@ -197,6 +206,16 @@ impl ViewerSetup {
         if self.screenshot.as_ref().is_some_and(|s| s.frames == 0) {
             return bad("a screenshot needs at least one frame".into());
         }
+        if self.moments_resolve.per_pixel() && !self.light_moments {
+            return bad(format!("the resolve \"{}\" needs light moments", self.moments_resolve.name()));
+        }
+        if !self.analytic.is_empty() && self.analytic.len() != self.scene.materials().len() {
+            return bad(format!(
+                "{} analytic BRDFs for {} materials",
+                self.analytic.len(),
+                self.scene.materials().len()
+            ));
+        }
         if self.light_moments {
             if self.light_basis.cubemap_layout().is_none() {
                 return bad(format!(
@@ -220,9 +239,26 @@ impl ViewerSetup {
         self.scene.materials().iter().any(|m| matches!(m.btf, biscale_core::scene::BtfRepresentation::Lpca(_)))
     }
 
-    /// A shader for this scene seen by `camera` (whose size is the image's).
+    /// A shader for this scene seen by `camera` (whose size is the image's), with the
+    /// materials' analytic BRDFs.
     fn shader(&self, ctx: &GpuContext, camera: Camera) -> Result<GpuShader> {
-        GpuShader::new(ctx, &self.scene, &camera)
+        let mut shader = GpuShader::new(ctx, &self.scene, &camera)?;
+        if !self.analytic.is_empty() {
+            shader.set_brdfs(&self.analytic)?;
+        }
+        Ok(shader)
+    }
+
+    /// The resolves key M cycles through: per vertex and with the tables at every pixel with
+    /// light moments, the analytic one too when a material has a BRDF; none without moments.
+    fn resolves(&self) -> Vec<MomentsResolve> {
+        match self.light_moments {
+            false => vec![],
+            true => MomentsResolve::ALL
+                .into_iter()
+                .filter(|r| *r != MomentsResolve::PixelAnalytic || self.analytic.iter().any(Option::is_some))
+                .collect(),
+        }
     }
 }
 
@@ -290,6 +326,8 @@ struct State {
     light: LightVector,
     /// The light's direction moments, with light moments.
     moments: Option<LightMoments>,
+    /// Where the moments are resolved (key M).
+    resolve: MomentsResolve,
     light_ms: f64,
     /// Per form: its `L*` on the GPU is from an older light.
     stale: Vec<bool>,
@@ -326,6 +364,7 @@ impl State {
             light_rotation: setup.env_rotation,
             light,
             moments,
+            resolve: setup.moments_resolve,
             light_ms,
             stale: vec![true; setup.forms.len()],
             continuous: setup.continuous,
@@ -372,11 +411,12 @@ enum FormGather {
 }
 
 impl FormGather {
-    /// The buffer the shader reads: `L*`, or `L*'`.
-    fn lstar_buffer(&self) -> &wgpu::Buffer {
+    /// What the shader reads, bound: `L*`, or with moments `L*'` or the three gathers
+    /// (`resolve`).
+    fn binding(&self, shader: &mut GpuShader, resolve: MomentsResolve) -> Result<crate::ShadeBinding> {
         match self {
-            Self::Plain(g) => g.lstar_buffer(),
-            Self::Moments(m) => m.lstar_buffer(),
+            Self::Plain(g) => shader.shade_bind_group(g.lstar_buffer()),
+            Self::Moments(m) => shader.moments_bind_group(m, resolve),
         }
     }
 
@@ -585,7 +625,7 @@ fn overlay_lines(setup: &ViewerSetup, s: &State, gpu: &Gpu) -> Vec<String> {
         if s.continuous { "  [continuous: gather every frame]" } else { "" }
     ));
     let when = if s.gather_this_frame { "" } else { " (at the last light change)" };
-    let what = if setup.light_moments { "gather (3 light moments + resolve)" } else { "gather" };
+    let what = if setup.light_moments { "gather (3 light moments + vertex resolve)" } else { "gather" };
     lines.push(match (s.last_gather_ms, s.last_gather_wall_ms) {
         (Some(g), Some(w)) => format!("{what} {g:.2} ms GPU, {w:.2} ms wall{when}"),
         (None, Some(w)) => format!("{what} {w:.2} ms wall{when}"),
@@ -598,6 +638,14 @@ fn overlay_lines(setup: &ViewerSetup, s: &State, gpu: &Gpu) -> Vec<String> {
         )),
         None if gpu.frame_timer.is_none() => lines.push("shade: no timestamp queries, no per-pass split".into()),
         None => lines.push("shade -".into()),
+    }
+    if setup.light_moments {
+        let how = match s.resolve {
+            MomentsResolve::Vertex => "per vertex, L*' blended",
+            MomentsResolve::Pixel => "at every pixel, with the BTF tables",
+            MomentsResolve::PixelAnalytic => "at every pixel, analytic BRDFs (tables where none)",
+        };
+        lines.push(format!("[M] resolve: {} ({how})", s.resolve.name()));
     }
     let pending = if (s.requested_rotation - s.light_rotation).abs() > 1e-12 { "  (recomputing...)" } else { "" };
     if setup.has_lpca() {
@@ -618,7 +666,10 @@ fn overlay_lines(setup: &ViewerSetup, s: &State, gpu: &Gpu) -> Vec<String> {
         s.exposure
     ));
     lines.push("drag: orbit  wheel: zoom  right-drag, Left/Right: rotate env  Tab, 1-9: form".into());
-    lines.push("+/-: exposure  Space: continuous  B: background  C: LPCA components  R: reset  Esc, Q: quit".into());
+    lines.push(
+        "+/-: exposure  Space: continuous  B: background  C: LPCA components  M: resolve  R: reset  Esc, Q: quit"
+            .into(),
+    );
     lines
 }
 
@@ -678,7 +729,7 @@ impl App {
         }
         s.gather_this_frame = gather;
         if gpu.bind_groups[i].is_none() {
-            gpu.bind_groups[i] = Some(gpu.shader.shade_bind_group(gpu.gathers[i].lstar_buffer())?);
+            gpu.bind_groups[i] = Some(gpu.gathers[i].binding(&mut gpu.shader, s.resolve)?);
         }
         let lines = overlay_lines(setup, s, gpu);
         gpu.overlay.set_text(&lines);
@@ -791,6 +842,16 @@ impl App {
                 "r" | "R" => {
                     self.state.orbit = self.state.home;
                     self.redraw();
+                }
+                "m" | "M" => {
+                    let all = self.setup.resolves();
+                    if let Some(k) = all.iter().position(|r| *r == self.state.resolve) {
+                        self.state.resolve = all[(k + 1) % all.len()];
+                        if let Some(gpu) = self.gpu.as_mut() {
+                            gpu.bind_groups.iter_mut().for_each(|b| *b = None);
+                        }
+                        self.redraw();
+                    }
                 }
                 d => {
                     if let Some(k) = d.parse::<usize>().ok().filter(|&k| k >= 1) {

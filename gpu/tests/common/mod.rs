@@ -73,6 +73,8 @@ pub fn plane_setup(light_moments: bool) -> (ViewerSetup, CompressedForm) {
         screenshot: None,
         continuous: false,
         light_moments,
+        moments_resolve: biscale_shading::runtime::MomentsResolve::Vertex,
+        analytic: vec![],
     };
     (setup, form)
 }

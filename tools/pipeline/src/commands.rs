@@ -424,7 +424,7 @@ pub fn view(
     let cache = StageCache::new(opts, &out);
     crate::estimate::check_transfer(exp, &geometry, cache.is_some(), "view")?;
     let t = crate::stages::transfer::transfer_matrix(exp, &geometry, cache.as_ref())?;
-    let (scene, _) = crate::stages::scene::shade_scene(exp, &geometry, t.view().local_basis(), cache.as_ref())?;
+    let (scene, materials) = crate::stages::scene::shade_scene(exp, &geometry, t.view().local_basis(), cache.as_ref())?;
     let mut forms = vec![];
     let (scene, light_basis) = match method {
         Some(setting) => {
@@ -471,6 +471,15 @@ pub fn view(
         // As a run: the compressors' forms resolve the light's moments, the SH methods (no
         // texels, no bins) ignore them.
         light_moments: exp.file.runtime.light_moments && method.is_none(),
+        // The config's resolve (key M cycles); the SH methods resolve nothing.
+        moments_resolve: match method {
+            None => exp.file.runtime.moments_resolve().unwrap_or_default(),
+            Some(_) => Default::default(),
+        },
+        analytic: match method {
+            None => materials.analytic,
+            Some(_) => vec![],
+        },
     };
     Ok(biscale_gpu::run_viewer(setup)?)
 }

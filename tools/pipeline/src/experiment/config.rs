@@ -1447,9 +1447,6 @@ fn check_runtime(file: &ExperimentFile, path: &Path, err: &Locate<'_>) -> Result
                 ),
             ));
         }
-        if file.runtime.backend == Backend::Gpu {
-            return Err(err(r.span(), format!("runtime.moments_resolve = \"{name}\" shades on the CPU only: set runtime.backend = \"cpu\" (the wgpu shader resolves per vertex)")));
-        }
     }
     in_range(&file.report.reference_downscale, 1, 64, "report.reference_downscale", err)?;
     let a = &file.runtime.animation;
@@ -1932,15 +1929,15 @@ mod tests {
     }
 
     #[test]
-    fn a_per_pixel_resolve_needs_moments_and_the_cpu() {
+    fn a_per_pixel_resolve_needs_moments_on_either_backend() {
         let rt = |extra: &str| parse(&format!("{OK}[runtime]\n{extra}")).map(|e| e.file.runtime.resolve_per_pixel());
         assert!(rt("light_moments = true\nmoments_resolve = \"pixel\"\n").unwrap());
         assert!(!rt("light_moments = true\nmoments_resolve = \"vertex\"\n").unwrap());
         assert!(!rt("light_moments = true\n").unwrap());
         let e = rt("moments_resolve = \"pixel\"\n").unwrap_err().to_string();
         assert!(e.contains(":7:19: runtime.moments_resolve = \"pixel\" resolves light moments"), "{e}");
-        let e = rt("light_moments = true\nbackend = \"gpu\"\nmoments_resolve = \"pixel\"\n").unwrap_err().to_string();
-        assert!(e.contains("shades on the CPU only"), "{e}");
+        // The GPU backend resolves per pixel as the CPU does.
+        assert!(rt("light_moments = true\nbackend = \"gpu\"\nmoments_resolve = \"pixel\"\n").unwrap());
         assert!(rt("light_moments = true\nmoments_resolve = \"texel\"\n").is_err());
         // The analytic resolve is a per-pixel one, with the same requirements.
         let runtime = |extra: &str| parse(&format!("{OK}[runtime]\n{extra}")).map(|e| e.file.runtime);
@@ -1953,8 +1950,7 @@ mod tests {
         assert_eq!(runtime("").unwrap().moments_resolve(), None);
         let e = rt("moments_resolve = \"pixel_analytic\"\n").unwrap_err().to_string();
         assert!(e.contains(":7:19: runtime.moments_resolve = \"pixel_analytic\" resolves light moments"), "{e}");
-        let e = rt("light_moments = true\nbackend = \"gpu\"\nmoments_resolve = \"pixel_analytic\"\n").unwrap_err();
-        assert!(e.to_string().contains("\"pixel_analytic\" shades on the CPU only"), "{e}");
+        assert!(rt("light_moments = true\nbackend = \"gpu\"\nmoments_resolve = \"pixel_analytic\"\n").unwrap());
     }
 
     #[test]

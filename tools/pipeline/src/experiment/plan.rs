@@ -262,8 +262,8 @@ fn material_steps(
                     "btf",
                     format!("{label}: the {v}x{v}-view tables in the analytic resolve", v = s.view_grid),
                     Action::LeftOut(
-                        "it evaluates the BRDF at the pixel's exact view; the tables serve only the paper's \
-                         bin-mean image and the GPU images, so view_grid does not change the moments' images"
+                        "it evaluates the BRDF at the pixel's exact view, on the CPU and the GPU; the tables \
+                         serve only the paper's bin-mean image, so view_grid does not change the moments' images"
                             .into(),
                     ),
                 );

@@ -655,7 +655,18 @@ impl Evaluation<'_> {
         let gpu = match gpu.filter(|_| compressor.has_kernels()) {
             Some(g) => {
                 let kernels = compressor.kernels(form).map_err(cerr)?;
-                Some(g.run(form, &kernels, self.light, self.moments, self.exact, &render, &view.background, repeats)?)
+                let shading = (self.resolve, view.analytic);
+                Some(g.run(
+                    form,
+                    &kernels,
+                    self.light,
+                    self.moments,
+                    shading,
+                    self.exact,
+                    &render,
+                    &view.background,
+                    repeats,
+                )?)
             }
             None => None,
         };

@@ -14,6 +14,8 @@ use biscale_core::scene::{Background, Camera, Render, ShadeScene};
 use biscale_gpu::{GpuContext, GpuGather, GpuMoments, GpuShader};
 use biscale_kernels::KernelDesc;
 use biscale_shading::image::compare;
+use biscale_shading::runtime::MomentsResolve;
+use biscale_shading::synth::Brdf;
 
 /// A device plus the shader for the run's scene and camera.
 pub struct GpuBackend {
@@ -50,7 +52,9 @@ impl GpuBackend {
     /// in place: no round trip through the host. The gather time is then that of the three
     /// gathers plus the resolve pass, timed together in one submission (with GPU timestamps,
     /// the sum of their passes: the buffer copies between the gathers fall outside them);
-    /// `L*'` is read back only for the error record.
+    /// `L*'` is read back only for the error record. The image is shaded with `resolve`: the
+    /// per-pixel resolves read the three gathers in place (`GpuShader::shade_moments`),
+    /// `PixelAnalytic` with the BRDFs `analytic` gives the scene's materials.
     #[allow(clippy::too_many_arguments)]
     pub fn run(
         &mut self,
@@ -58,6 +62,7 @@ impl GpuBackend {
         kernels: &KernelDesc,
         light: &LightVector,
         moments: Option<(&LightMoments, &[VertexFrame])>,
+        (resolve, analytic): (MomentsResolve, &[Option<Brdf>]),
         exact: &[[f64; 3]],
         cpu: &Render,
         background: &Background<'_>,
@@ -76,8 +81,11 @@ impl GpuBackend {
                 let mut moments = GpuMoments::new(gather, frames)?;
                 let timing = repeated(repeats, || moments.time_gather(m, 1))?;
                 moments.gather(m)?;
-                let render = self.shader.shade(&moments)?;
-                let shade = repeated(repeats, || self.shader.time_shade(&moments, 1))?;
+                if resolve == MomentsResolve::PixelAnalytic {
+                    self.shader.set_brdfs(analytic)?;
+                }
+                let render = self.shader.shade_moments(&moments, resolve)?;
+                let shade = repeated(repeats, || self.shader.time_shade_moments(&moments, resolve, 1))?;
                 (timing, shade, moments.read_lstar()?, render)
             }
         };
