@@ -186,7 +186,8 @@ enum Command {
     },
     /// Open the interactive viewer (needs the `viewer` feature: `cargo run --release
     /// --features viewer -- view CONFIG`): drag to orbit, wheel to zoom, right-drag or
-    /// arrows to rotate the sky, Tab to switch compressors.
+    /// arrows to rotate the sky, Tab to switch compressors, M to switch where light moments
+    /// are resolved (per vertex, or at every pixel as runtime.moments_resolve).
     #[cfg(feature = "viewer")]
     #[command(after_help = "Example: biscale view configs/bunny.toml")]
     View {
