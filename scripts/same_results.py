@@ -6,7 +6,8 @@ provenance, exactly. What a refactor must leave unchanged:
     python3 scripts/same_results.py out/before/bunny out/after/bunny
 
 Exit status 0 when they agree, 1 with one line per difference otherwise, 2 on bad input.
-Left out of the comparison: every key ending in `_ms`, `seconds` or `per_second`; every
+Left out of the comparison: every key ending in `_ms`, `seconds` or `per_second`, and the
+frame-time probe's measured `bandwidth_gb_s` and `peak_gflop_s` (`frame_model.machine`); every
 `*_timing` record (a timed step's repeats: `gather_timing`, `shade_timing`); `cached`;
 `timing`; `adapter`; the `run` (provenance), `memory` (measured peak) and `load` (the load
 average around the timed steps) records; and the `figures` thumbnails' paths are compared like
@@ -22,7 +23,7 @@ SKIP_KEYS = {"run", "memory", "load", "cached", "timing", "adapter"}
 
 
 def skipped(key):
-    return key in SKIP_KEYS or key.endswith(("_ms", "_timing", "seconds", "per_second"))
+    return key in SKIP_KEYS or key.endswith(("_ms", "_timing", "seconds", "per_second", "_gb_s", "_gflop_s"))
 
 
 def diff_json(a, b, path, out):

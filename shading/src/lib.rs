@@ -38,6 +38,7 @@
 
 pub mod cpu;
 pub mod error;
+pub mod frame_model;
 pub mod image;
 pub mod ldr;
 pub mod measured;

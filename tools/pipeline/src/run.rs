@@ -137,6 +137,10 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     let streamed = pre.as_ref().and_then(|p| p.streamed_part_vertices());
     let (memory, available) = crate::estimate::check_run(exp, &geometry, &lighting, ctx.cache.is_some(), streamed)?;
     ctx.clock.mark("memory estimate");
+    // This machine's bandwidth and fp32 peak for the frame-time model's floors, measured
+    // before T is built (its buffers then cost no more than T will) and before any timed step.
+    let here = crate::stages::frame_model::probe();
+    ctx.clock.mark("frame-time probe");
     let (t, pre_forms, sharded) = match pre {
         Some(p) => {
             let t =
@@ -287,6 +291,9 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
         load_after,
         cpus_online: cpus_online(),
     });
+    let rt = &exp.file.runtime;
+    let size = (*rt.width.get_ref(), *rt.height.get_ref(), rt.samples_per_pixel());
+    metrics.frame_model = Some(crate::stages::frame_model::record(&metrics, &materials.analytic, size, here));
     if let Some(w) = crate::report::timing_warning(&metrics) {
         log::warn!("{w}");
     }
@@ -453,6 +460,7 @@ pub(crate) fn metrics_of_run(
         load: None,
         animations: vec![],
         tone_map: Some(tone.clone()),
+        frame_model: None,
     }
 }
 

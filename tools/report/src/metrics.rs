@@ -43,6 +43,54 @@ pub struct Metrics {
     /// The tone map every PNG of the run was written with (absent in older records).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tone_map: Option<ToneMapRecord>,
+    /// Each form's frame-time model: its stages' bytes and flops, their floors on this machine
+    /// beside the measured times, and their projected floors on a named GPU class (absent in
+    /// older records).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame_model: Option<FrameModelRecord>,
+}
+
+/// The frame-time model of a run (`biscale_shading::frame_model`): per form, its light change
+/// (`gather`) and view change (`shade`) counted, floored on this machine (`machine`, measured
+/// by the run's probe) and projected on `projection` (published figures). A projection is a
+/// floor, a lower bound on that processor's time: the frame rate it implies is a ceiling.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FrameModelRecord {
+    /// The run's image and samples per pixel (the shading grid the counts are for).
+    pub width: u32,
+    pub height: u32,
+    pub samples_per_pixel: u32,
+    /// Where the light moments are resolved (`vertex` without them).
+    pub resolve: biscale_shading::runtime::MomentsResolve,
+    pub machine: biscale_shading::frame_model::Processor,
+    pub projection: biscale_shading::frame_model::Processor,
+    pub forms: Vec<FormFrameModel>,
+}
+
+/// One form's stages in the frame-time model.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FormFrameModel {
+    pub name: String,
+    /// A light change's gather (with light moments, the three moment gathers and the vertex
+    /// resolve).
+    pub gather: StageModel,
+    /// A view change: the shading pass.
+    pub shade: StageModel,
+    /// The shade's projected floor at 1920x1080, one sample per pixel.
+    pub shade_1080p_projected_ms: f64,
+}
+
+/// One stage of a frame: what it moves and computes, the times measured (the CPU runtime's,
+/// and the GPU backend's when it ran), its floor on this machine and its projected floor.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct StageModel {
+    pub stage: String,
+    pub bytes: f64,
+    pub flops: f64,
+    pub cpu_ms: Option<f64>,
+    pub gpu_ms: Option<f64>,
+    pub floor_ms: f64,
+    pub projected_ms: f64,
 }
 
 /// The PNGs' tone map (`value x 2^exposure`, clamped to [0, 1], sRGB), one for the whole run.

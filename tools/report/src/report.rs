@@ -223,6 +223,7 @@ pub fn document(m: &Metrics, plan: &str, plots: &[(String, String)]) -> Vec<Bloc
         d.push(Block::Heading(3, g.0));
         d.push(Block::Table(g.1));
     }
+    d.extend(frame_model_blocks(m));
     if let Some(r) = &m.reference {
         para(
             &mut d,
@@ -347,6 +348,87 @@ fn gpu_table(m: &Metrics) -> Option<(String, Table)> {
         }
     }
     Some((format!("wgpu backend ({adapter})"), t))
+}
+
+/// The frame-time model's section (`metrics.json`'s `frame_model`): each form's gather and
+/// shade, counted, measured, floored here and projected; a projected figure is labelled a
+/// floor (its frame rate a ceiling) and kept out of the measured columns.
+fn frame_model_blocks(m: &Metrics) -> Vec<Block> {
+    let Some(f) = &m.frame_model else { return vec![] };
+    let (here, proj) = (&f.machine, &f.projection);
+    let lavapipe = m.compressors.iter().filter_map(|c| c.gpu.as_ref()).any(|g| g.adapter.contains("llvmpipe"));
+    let mut blocks = vec![
+        Block::Heading(3, "Frame-time model".into()),
+        Block::Para(format!(
+            "Per frame at {}x{}, {} sample(s) per pixel, moments resolved {}: the bytes each stage must move and \
+             the flops it must do (`biscale_shading::frame_model`), and its floor `max(bytes / bandwidth, flops / \
+             peak)`. Here: {} at {:.1} GB/s and {:.1} GFLOP/s fp32 ({}). Projected: {} at {:.0} GB/s and {:.0} \
+             GFLOP/s ({}). A projected time is a floor, a lower bound, so the frame rate it implies is a ceiling; \
+             it is never a measurement.{}",
+            f.width,
+            f.height,
+            f.samples_per_pixel,
+            f.resolve.name(),
+            here.name,
+            here.bandwidth_gb_s,
+            here.peak_gflop_s,
+            here.source,
+            proj.name,
+            proj.bandwidth_gb_s,
+            proj.peak_gflop_s,
+            proj.source,
+            match lavapipe {
+                true => " The GPU times are lavapipe's, on this machine's CPU, so they share its floor.",
+                false => "",
+            }
+        )),
+    ];
+    let mut t = Table::new(&[
+        "setting",
+        "stage",
+        "MB",
+        "Gflop",
+        "CPU ms (x floor)",
+        "GPU ms (x floor)",
+        "floor here ms",
+        "projected floor ms",
+    ]);
+    let ratio = |ms: Option<f64>, floor: f64, shown: bool| match ms {
+        Some(ms) if shown && floor > 0.0 => format!("{} ({:.1}x)", short_ms(ms), ms / floor),
+        Some(ms) => short_ms(ms),
+        None => "-".into(),
+    };
+    let mut ceilings = Table::new(&[
+        "setting",
+        "light change, run size (fps ceiling)",
+        "view change, run size (fps ceiling)",
+        "light change, 1920x1080 (fps ceiling)",
+        "view change, 1920x1080 (fps ceiling)",
+    ]);
+    for form in &f.forms {
+        for s in [&form.gather, &form.shade] {
+            t.text_row([
+                form.name.clone(),
+                s.stage.clone(),
+                format!("{:.2}", s.bytes / 1e6),
+                format!("{:.3}", s.flops / 1e9),
+                ratio(s.cpu_ms, s.floor_ms, true),
+                ratio(s.gpu_ms, s.floor_ms, lavapipe),
+                format!("{:.3}", s.floor_ms),
+                format!("{:.4}", s.projected_ms),
+            ]);
+        }
+        let fps = |ms: f64| format!("{:.0}", 1e3 / ms);
+        let (g, v, hd) = (form.gather.projected_ms, form.shade.projected_ms, form.shade_1080p_projected_ms);
+        ceilings.text_row([form.name.clone(), fps(g + v), fps(v), fps(g + hd), fps(hd)]);
+    }
+    blocks.push(Block::Table(t));
+    blocks.push(Block::Para(format!(
+        "Projected on the {} (floors, so these frame rates are ceilings, not measurements):",
+        proj.name
+    )));
+    blocks.push(Block::Table(ceilings));
+    blocks
 }
 
 /// The comparison section: one row per image (the uncompressed render, every compressor and

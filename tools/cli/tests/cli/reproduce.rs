@@ -110,6 +110,21 @@ fn expected(m: &Value, row: &str) -> f64 {
         }
         "fps_fixed_light" => 1000.0 / f(b, "shade_ms"),
         "fps_moving_light" => 1000.0 / (f(b, "gather_ms") + f(b, "shade_ms")),
+        // The frame-time model's floors on the projected GPU, recomputed from the stages'
+        // counts and the GPU's published figures: max(bytes / bandwidth, flops / peak).
+        "projected_fps_fixed_light" | "projected_fps_moving_light" => {
+            let model = &m["frame_model"];
+            let gpu = &model["projection"];
+            let floor_s = |s: &Value| {
+                (f(s, "bytes") / (f(gpu, "bandwidth_gb_s") * 1e9)).max(f(s, "flops") / (f(gpu, "peak_gflop_s") * 1e9))
+            };
+            let form = model["forms"].as_array().unwrap().iter().find(|x| x["name"] == b["name"]).unwrap();
+            let shade = floor_s(&form["shade"]);
+            match row {
+                "projected_fps_fixed_light" => 1.0 / shade,
+                _ => 1.0 / (floor_s(&form["gather"]) + shade),
+            }
+        }
         other => panic!("a row this test has no definition of: {other}"),
     }
 }

@@ -24,6 +24,10 @@ pub enum Figure {
     PrecomputeMin,
     FpsFixedLight,
     FpsMovingLight,
+    /// The frame-time model's projected floors of the paper's form on the named GPU class
+    /// (`metrics.json`'s `frame_model`), as frame rates: ceilings, not measurements.
+    ProjectedFpsFixedLight,
+    ProjectedFpsMovingLight,
 }
 
 impl Figure {
@@ -47,6 +51,12 @@ impl Figure {
             PrecomputeMin => ("precompute", "precomputation", "min", 2),
             FpsFixedLight => ("fps_fixed_light", "fps, fixed light, moving view", "fps", 1),
             FpsMovingLight => ("fps_moving_light", "fps, moving light and view", "fps", 1),
+            ProjectedFpsFixedLight => {
+                ("projected_fps_fixed_light", "fps ceiling, fixed light (projected H100-class floor)", "fps", 0)
+            }
+            ProjectedFpsMovingLight => {
+                ("projected_fps_moving_light", "fps ceiling, moving light (projected H100-class floor)", "fps", 0)
+            }
         }
     }
 }
@@ -135,6 +145,17 @@ impl RunFacts<'_> {
             FpsMovingLight => {
                 let b = form()?;
                 1000.0 / (b.gather_ms + b.shade_ms)
+            }
+            ProjectedFpsFixedLight | ProjectedFpsMovingLight => {
+                let name = form()?.name.clone();
+                let model =
+                    m.frame_model.as_ref().ok_or("the run's record has no frame-time model (made before it)")?;
+                let f_model = model.forms.iter().find(|f| f.name == name).ok_or("no frame-time model of the form")?;
+                let ms = match f {
+                    ProjectedFpsFixedLight => f_model.shade.projected_ms,
+                    _ => f_model.gather.projected_ms + f_model.shade.projected_ms,
+                };
+                1000.0 / ms
             }
         })
     }

@@ -11,12 +11,14 @@
 //! | [`btf_study`] | every BTF representation of the scene measured against the dense tables |
 //! | [`sh`] | the low-frequency (SH) method's run |
 //! | [`animation`] | the light turned and the camera orbited, per frame, into animated PNGs |
+//! | [`frame_model`] | each form's stages counted, floored on this machine (its probe) and projected on a GPU class |
 //! | `gpu_backend` | the wgpu backend (with the `gpu` feature) |
 
 pub mod animation;
 pub mod btf_study;
 pub mod evaluate;
 pub mod figures;
+pub mod frame_model;
 #[cfg(feature = "gpu")]
 pub mod gpu_backend;
 pub mod materials;
