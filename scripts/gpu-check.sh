@@ -11,6 +11,9 @@
 #   * BTF shading and SH RTT shading, at 640x480 and 1920x1080
 #   * frame time for a view change (shade) and a light change (gather + shade) of the lossless
 #     biclustering, at 640x480 and 1920x1080 (Table I's fps definitions, reproduce/facts.rs)
+#   * both per-pixel resolves of light moments: the bunny with runtime.moments_resolve = "pixel"
+#     at the first size, and configs/glossy_ggx_bunny.toml (a flat GGX conductor) with
+#     "pixel_analytic" at both sizes, each row beside the frame-time model's projected floor
 #   * and gpu/examples/gpu_bench.rs --real --all-kinds as a cross-check of the per-form gathers.
 # The pipeline's CPU figures of the same runs stand beside them.
 #
@@ -169,7 +172,7 @@ scene_args() { # SCENE -> its --set pairs, one per line
 # --- run steps within the budget --------------------------------------------------------------
 deadline=$((built + budget))
 step=0
-steps=$((1 + 3 * ${#scenes[@]} + bench)) # the probe; per scene two sizes and the moments; gpu_bench
+steps=$((1 + 3 * ${#scenes[@]} + 3 + bench)) # the probe; per scene two sizes and the moments; the per-pixel resolves; gpu_bench
 run_step() { # NAME COMMAND... : run with what is left of the budget, log to logs/NAME.log
     local name=$1 t0 rc=0 left
     shift
@@ -248,6 +251,16 @@ done
 for s in "${scenes[@]}"; do
     biscale_run "$s-${sizes[1]}" "$s" "$out/configs/$s.toml" "${sizes[1]}"
     rows_args+=(--run "$s" main "${sizes[1]}" "$out/runs/$s-${sizes[1]}")
+done
+# The per-pixel resolves: the bunny's tables ("pixel"), the glossy bunny's GGX ("pixel_analytic").
+biscale_run "bunny-pixel" bunny "$out/configs/bunny-forms.toml" "${sizes[0]}" --set runtime.light_moments=true \
+    --set 'runtime.moments_resolve="pixel"'
+rows_args+=(--run bunny pixel "${sizes[0]}" "$out/runs/bunny-pixel")
+[ $small = 1 ] && quick[glossy]="scene.material.resolution=8 scene.material.view_grid=4"
+for size in "${sizes[@]}"; do
+    biscale_run "glossy-pixel_analytic-$size" glossy configs/glossy_ggx_bunny.toml "$size" \
+        --set 'runtime.moments_resolve="pixel_analytic"'
+    rows_args+=(--run glossy pixel "$size" "$out/runs/glossy-pixel_analytic-$size")
 done
 if [ $bench = 1 ]; then
     if [ $small = 1 ]; then # a random T of the bunny's vertices at 2x2 local directions

@@ -22,6 +22,12 @@ tools/pipeline/src/reproduce/facts.rs, with the GPU's gather and shade in place 
                          (Table I's "fps, fixed light, moving view")
   frame, light change    lossless biclustering, gather + shade: fps = 1000 / (gather + shade)
                          (Table I's "fps, moving light and view")
+  per-pixel frames       a run with runtime.moments_resolve = "pixel" or "pixel_analytic":
+                         the paper's form's three moment gathers + resolve (gpu.gather_ms),
+                         its shade resolving the moments at every pixel (gpu.shade_ms), and
+                         the view and light change frames from them; the frame-time model's
+                         projected floor on an H100-class GPU (frame_model) in the check
+                         column, a floor and never a measurement
   gpu_bench ...          gpu/examples/gpu_bench.rs's medians (its own scene: bunny.obj, a
                          random light, a Phong BTF), as a cross-check of the pipeline's
 """
@@ -276,6 +282,56 @@ def moments_run(rows: Rows, scene: str, run_dir: Path, plain):
     return m
 
 
+def pixel_run(rows: Rows, scene: str, size: str, run_dir: Path):
+    """The per-pixel resolve's frame of the paper's form, `scene` at `size`."""
+    m, why = load_metrics(run_dir)
+    labels = ["gather+resolve", "shade", "frame, view change", "frame, light change"]
+    resolve = m and m["uncompressed"].get("moments_resolve")
+    what = f"{scene} {size} {resolve or 'per-pixel'}"
+    if m is None:
+        for label in labels:
+            rows.miss(f"{what}: {label}", why)
+        return None
+    if resolve not in ("pixel", "pixel_analytic"):
+        for label in labels:
+            rows.miss(f"{what}: {label}", f"{run_dir} did not resolve per pixel ({resolve})")
+        return None
+    c = paper_form(m)
+    g = c and c.get("gpu")
+    model = m.get("frame_model") or {}
+    fm = next((f for f in model.get("forms", []) if c and f["name"] == c["name"]), None)
+    proj = model.get("projection", {}).get("name", "?")
+    floors = fm and {
+        "gather+resolve": fm["gather"]["projected_ms"],
+        "shade": fm["shade"]["projected_ms"],
+        "frame, view change": fm["shade"]["projected_ms"],
+        "frame, light change": fm["gather"]["projected_ms"] + fm["shade"]["projected_ms"],
+    }
+    values = g and {
+        "gather+resolve": (g["gather_ms"], c["gather_ms"]),
+        "shade": (g["shade_ms"], c["shade_ms"]),
+        "frame, view change": (g["shade_ms"], c["shade_ms"]),
+        "frame, light change": (g["gather_ms"] + g["shade_ms"], c["gather_ms"] + c["shade_ms"]),
+    }
+    common = dict(scene=scene, adapter=adapter_of(m), run=run_dir.name, setting=c["name"] if c else "bicluster")
+    for label in labels:
+        v = values and values[label]
+        ms = v and v[0]
+        fps = f"{1000.0 / ms:.1f} fps; " if ms and label.startswith("frame") else ""
+        floor = f"projected floor on {proj} {floors[label]:.4f} ms (a floor, not a measurement)" if floors else ""
+        rows.expect(
+            f"{what}: {label}",
+            ms,
+            figure=f"per-pixel resolve ({resolve}): {label}",
+            size=size,
+            timing=g and g["timing"],
+            cpu_ms=v and v[1],
+            check=fps + floor,
+            **common,
+        )
+    return m
+
+
 BENCH_LINE = re.compile(r"^GPU (gather \((\w+)\)|shade \(visibility \+ shade\)): median ([0-9.eE+-]+) ms over (\d+) reps \((\w+)\)")
 
 
@@ -340,6 +396,8 @@ def rows_cmd(a):
         for role, size, run_dir in runs:
             if role == "moments":
                 moments_run(rows, scene, run_dir, plain or None)
+            if role == "pixel":
+                pixel_run(rows, scene, size, run_dir)
     if a.bench:
         bench(rows, Path(a.bench))
 
@@ -433,7 +491,8 @@ def main():
     r.add_argument("--mode", default="full")
     r.add_argument(
         "--run", nargs=4, action="append", default=[], metavar=("SCENE", "ROLE", "SIZE", "DIR"),
-        help="ROLE: main (forms and SH methods at SIZE) or moments (runtime.light_moments)",
+        help="ROLE: main (forms and SH methods at SIZE), moments (runtime.light_moments) or pixel (a "
+        "per-pixel runtime.moments_resolve)",
     )
     r.add_argument("--sh", default="", help="comma-separated SH method labels expected in the main runs")
     r.add_argument("--bench", help="gpu_bench's log (its figures are then expected)")
