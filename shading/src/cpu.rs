@@ -20,6 +20,7 @@
 //! horizon), the BTF is looked up at the horizon
 //! ([`Btf::view_weights`](biscale_core::scene::Btf::view_weights)) with the front side's `L*`.
 
+use crate::analytic::{Lanes, LitBins, Resolver};
 use crate::error::Result;
 use crate::synth::Brdf;
 use biscale_core::gather::moments::{Lobe, PointLanes, PointResolve, LUMINANCE};
@@ -198,8 +199,9 @@ pub fn shade_moments(scene: &ShadeScene, moments: [&LocalRadiance; 3], lobe: Lob
 /// texel (a sun) and for a constant BRDF (Lambertian: the exact-cosine irradiance times
 /// `albedo / pi`), and the interpolation of the vertices' visibility across the triangle. A
 /// view below the hit's horizon is taken on it at its azimuth, as the analytic reference
-/// takes it ([`crate::reference::render_reference`]). It costs `3 M` BRDF evaluations per
-/// sample.
+/// takes it ([`crate::reference::render_reference`]). It costs up to `3 M` BRDF evaluations
+/// per sample: each vertex's lit bins above the sample's horizon, in f32 lanes
+/// ([`crate::analytic`]: the f64 [`analytic_resolve`] to f32 rounding of the BRDF).
 pub fn shade_moments_analytic(
     scene: &ShadeScene,
     moments: [&LocalRadiance; 3],
@@ -269,6 +271,15 @@ fn shade_moments_with(
     }
     let point = PointResolve::new(scene.local_basis(), lobe)?;
     let m = scene.local_basis().len();
+    // The analytic materials' resolvers and the vertices' lit bins, once per frame.
+    let resolvers: Vec<Option<Resolver>> = brdfs.iter().map(|b| b.map(Resolver::new)).collect();
+    let lit = match resolvers.iter().any(Option::is_some) {
+        true => Some(LitBins::new(moments)),
+        false => None,
+    };
+    thread_local! {
+        static LANES: RefCell<Lanes> = RefCell::new(Lanes::default());
+    }
     /// A worker's bin count, one vertex's resolved rows (`M`) and the resolve's lanes.
     type Work = (usize, Vec<[f64; 3]>, PointLanes);
     thread_local! {
@@ -278,13 +289,18 @@ fn shade_moments_with(
     Ok(render_rows(scene, camera, &|| {}, &|p, acc, scratch| {
         // Vertex `v`'s rows of the three gathers.
         let rows_of = |v: u32| moments.map(|a| a.vertex(v as usize));
-        if let Some(brdf) = brdfs.get(scene.material_index(p.triangle)).and_then(Option::as_ref) {
+        if let (Some(r), Some(lit)) =
+            (resolvers.get(scene.material_index(p.triangle)).and_then(Option::as_ref), lit.as_ref())
+        {
             let view = above_horizon(p.view_local.as_dvec3());
             let mut sum = [0.0f64; 3];
-            for (&v, &w) in p.vertices.iter().zip(&p.weights) {
-                let s = analytic_resolve(brdf, &p.frame, rows_of(v), view);
-                (0..3).for_each(|c| sum[c] += w as f64 * s[c]);
-            }
+            LANES.with(|lanes| {
+                let lanes = &mut lanes.borrow_mut();
+                for (&v, &w) in p.vertices.iter().zip(&p.weights) {
+                    let s = r.resolve(lit, v as usize, &p.frame, view, lanes);
+                    (0..3).for_each(|c| sum[c] += w as f64 * s[c]);
+                }
+            });
             return sum.map(|x| x as f32);
         }
         WORK.with(|work| {

@@ -36,6 +36,7 @@
 //! render.image.write_exr("out.exr".as_ref()).unwrap();
 //! ```
 
+pub mod analytic;
 pub mod cpu;
 pub mod error;
 pub mod frame_model;

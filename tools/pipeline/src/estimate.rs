@@ -39,8 +39,9 @@ pub const PROCESS_BASELINE_BYTES: u64 = 20 << 20;
 
 /// The frame-time model's probe (`stages::frame_model::probe`, run before `T` is built, beside
 /// the geometry and the light): its two copy buffers, 32 MiB each (a copy touches both: twice
-/// the 32 MiB last-level cache of the machines it was written on; a larger one measured 10%
-/// less bandwidth, which makes the floors here slightly low, never high).
+/// the 32 MiB last-level cache of the machine it was written on). Part of them may stay in
+/// that cache: on that machine it measured 35-59 GB/s where a 256 MiB copy measured 28, so the
+/// floors it gives are low (the side on which a ratio to them is never flattering), not high.
 pub const FRAME_PROBE_BYTES: u64 = 2 * (32 << 20);
 
 /// What `runtime.backend = "gpu"` adds besides the buffers: the wgpu instance and, on a CPU
