@@ -67,6 +67,12 @@ pub const KEPT_RENDER_BYTES_PER_PIXEL: u64 = 17;
 
 /// Per row of `T`: `T L` in f64 (24), the baseline's `L*` (12), one gather's `L*` (12).
 pub const VECTOR_BYTES_PER_ROW: u64 = 48;
+/// With light moments, per row besides: the baseline's three exact moment gathers (36) and one
+/// form's three gathers (36), kept for the per-pixel resolves.
+pub const MOMENT_BYTES_PER_ROW: u64 = 72;
+/// With `runtime.moments_resolve = "pixel_analytic"`, per row besides: a render's lit bins
+/// (`biscale_shading::analytic::LitBins`: a unit direction and three direction sums, f32).
+pub const LIT_BIN_BYTES_PER_ROW: u64 = 48;
 /// Per row on the GPU backend: the `L*` buffer and its read-back.
 pub const GPU_BYTES_PER_ROW: u64 = 32;
 
@@ -182,7 +188,10 @@ impl RunMemory {
         let images = pixels * IMAGE_BYTES_PER_PIXEL + reference_pixels * REFERENCE_BYTES_PER_PIXEL + kept;
         let btfs: u64 = exp.materials().iter().map(|c| btf_bytes(c, m)).sum();
         let representations = RepresentationMemory::new(exp, shape, m, pixels);
-        let vectors = rows * VECTOR_BYTES_PER_ROW + n * 16;
+        let per_row = VECTOR_BYTES_PER_ROW
+            + if f.runtime.light_moments { MOMENT_BYTES_PER_ROW } else { 0 }
+            + if f.runtime.resolve_analytic() { LIT_BIN_BYTES_PER_ROW } else { 0 };
+        let vectors = rows * per_row + n * 16;
         let gpu_on = f.runtime.backend == Backend::Gpu;
         let gpu = if gpu_on { GPU_BASELINE_BYTES } else { 0 };
         let threads = shape.threads.max(1) as u64;
