@@ -143,7 +143,9 @@ enum Command {
     /// paper's, their ratio), tables/*.tex (booktabs), figures/ (PNG panels and a LaTeX
     /// figure each) and index.html, ours beside the published figures (paper/published.toml).
     /// Run it in the biscale checkout (it reads configs/paper/ and assets/). --set applies to
-    /// every run's config.
+    /// every run's config. Before each run it waits for the load average to fall to the CPU
+    /// count (at most 15 s with --quick, 120 s without), and it repeats once a run whose timed
+    /// steps another process shared; a figure still taken on a busy machine is marked (busy).
     #[command(
         after_help = "Example: biscale reproduce --quick --out out/paper-quick\n         biscale reproduce --only table1,equal-quality"
     )]
