@@ -11,7 +11,7 @@
 //!     [--column-costs 2,16] [--seed 0] [--threads N] [--json out.json] [--save form.bsf]
 //! ```
 
-use biscale_compressors::bicluster::{decompress_codes, release_shared_greedy, table_stats, Bicluster, BiclusterStats};
+use biscale_compressors::bicluster::{decompress_codes, table_stats, Bicluster, BiclusterStats};
 use biscale_core::compress::{CompressContext, Compressor};
 use biscale_core::geometry::Mesh;
 use biscale_core::transfer::{self, TransferSettings};
@@ -68,8 +68,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let mut times = vec![];
         let mut form = None;
         for run in 0..args.runs {
-            release_shared_greedy();
-            let f = c.compress(&t, &CompressContext { seed: args.seed, progress: None })?;
+            let f = c.compress(&t, &CompressContext { seed: args.seed, progress: None, sweep: None })?;
             times.push(f.build_seconds);
             if run == 0 {
                 // Exactness on the real matrix: the biclusters sum to T in integer codes.

@@ -67,7 +67,7 @@ fn main() -> Result<(), Box<dyn Error>> {
         let reports = std::sync::Mutex::new(Vec::<(f64, f64)>::new());
         let start = Instant::now();
         let progress = |f: f64| reports.lock().unwrap().push((f, start.elapsed().as_secs_f64()));
-        let ctx = CompressContext { seed: 1, progress: Some(&progress) };
+        let ctx = CompressContext { seed: 1, progress: Some(&progress), sweep: None };
         let form = c.compress(&t, &ctx)?;
         if c.kind() == "cpca" {
             let r = reports.lock().unwrap();

@@ -79,7 +79,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ("rand", random_light(settings.cubemap().resolution, 2)),
     ];
     let refs: Vec<_> = lights.iter().map(|(_, l)| reference_product(&t, l)).collect();
-    let ctx = CompressContext { seed: args.seed, progress: None };
+    let ctx = CompressContext { seed: args.seed, progress: None, sweep: None };
     let lossless_c = Bicluster { block_vertices: args.block_vertices, ..Bicluster::default() };
     let lossless = lossless_c.compress(&t, &ctx)?;
     println!(

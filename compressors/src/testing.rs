@@ -114,7 +114,7 @@ pub fn quantized_stored_product(form: &CompressedForm, light: &LightVector) -> V
 /// vertex ranges reproduce `T` when stacked. Returns the merged form.
 pub fn assert_parts_merge_to_whole(compressor: &dyn Compressor, t: &TransferMatrix, cuts: &[usize]) -> CompressedForm {
     use biscale_core::compress::CompressContext;
-    let ctx = CompressContext { seed: 7, progress: None };
+    let ctx = CompressContext { seed: 7, progress: None, sweep: None };
     let whole = compressor.compress(t, &ctx).expect("compress the whole");
     let bounds: Vec<usize> = std::iter::once(0).chain(cuts.iter().copied()).chain([t.vertices()]).collect();
     let ranges: Vec<_> = bounds.windows(2).map(|w| w[0]..w[1]).collect();

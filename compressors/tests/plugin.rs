@@ -454,7 +454,7 @@ mod isolated {
                 [(20, 4, 4, 0.2), (3, 8, 8, 0.05), (4, 2, 2, 0.0)].into_iter().enumerate()
             {
                 let t = random_transfer(vertices, dirs, res, density, seed as u64);
-                let ctx = CompressContext { seed: 5, progress: None };
+                let ctx = CompressContext { seed: 5, progress: None, sweep: None };
                 let (a, b) = (child.compress(&t, &ctx).unwrap(), local.compress(&t, &ctx).unwrap());
                 assert_same_form(&a, &b);
                 for light_seed in [seed as u64 + 10, seed as u64 + 11] {

@@ -253,6 +253,48 @@ pub struct CompressContext<'a> {
     pub seed: u64,
     /// Called with a fraction in [0, 1] as work completes (may be called from many threads).
     pub progress: Option<&'a (dyn Fn(f64) + Sync)>,
+    /// What the settings of one sweep share (`None`: nothing is kept between calls).
+    pub sweep: Option<&'a Sweep>,
+}
+
+/// What the settings of one sweep (a run's settings of one compressor kind on one matrix) may
+/// share: a kind keeps here an intermediate its next setting can reuse, under a key of its own
+/// that says what it was computed from (the bicluster kind keeps its greedy output, which every
+/// error budget of the sweep prunes). One entry: keeping another replaces it. The sweep's
+/// owner holds it for the sweep and drops it after, with whatever it holds; no compressor
+/// keeps state of its own between calls.
+#[derive(Default)]
+pub struct Sweep {
+    slot: std::sync::Mutex<Option<SweepEntry>>,
+}
+
+type SweepEntry = (Box<dyn std::any::Any + Send + Sync>, std::sync::Arc<dyn std::any::Any + Send + Sync>);
+
+impl Sweep {
+    /// The value kept under `key`, when the entry is of that key (and of type `V`).
+    pub fn get<K, V>(&self, key: &K) -> Option<std::sync::Arc<V>>
+    where
+        K: PartialEq + std::any::Any + Send + Sync,
+        V: std::any::Any + Send + Sync,
+    {
+        let slot = self.slot.lock().unwrap_or_else(|e| e.into_inner());
+        let (k, v) = slot.as_ref()?;
+        (k.downcast_ref::<K>()? == key).then(|| v.clone().downcast::<V>().ok()).flatten()
+    }
+
+    /// Keep `value` under `key`, replacing what was kept.
+    pub fn keep<K, V>(&self, key: K, value: std::sync::Arc<V>)
+    where
+        K: PartialEq + std::any::Any + Send + Sync,
+        V: std::any::Any + Send + Sync,
+    {
+        *self.slot.lock().unwrap_or_else(|e| e.into_inner()) = Some((Box::new(key), value));
+    }
+
+    /// Whether anything is kept.
+    pub fn is_empty(&self) -> bool {
+        self.slot.lock().unwrap_or_else(|e| e.into_inner()).is_none()
+    }
 }
 
 impl CompressContext<'_> {

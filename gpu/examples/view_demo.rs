@@ -60,7 +60,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut forms = vec![];
     for (label, c) in &compressors {
         let start = Instant::now();
-        let form = c.compress(&t, &CompressContext { seed: 1, progress: None })?;
+        let form = c.compress(&t, &CompressContext { seed: 1, progress: None, sweep: None })?;
         eprintln!("{label}: {:.2} MB in {:.1} s", form.bytes() as f64 / 1e6, start.elapsed().as_secs_f64());
         forms.push(ViewerForm { label: label.clone(), kernels: c.kernels(&form)?, form });
     }

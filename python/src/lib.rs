@@ -476,7 +476,7 @@ fn compress(py: Python<'_>, t: &Transfer, kind: &str, params: String, seed: u64)
     let compressor = (entry.build)(&params).map_err(|e| BiscaleError::new_err(format!("{kind}: {e}")))?;
     let tt = t.t.clone();
     let form = py
-        .detach(|| compressor.compress(&tt, &CompressContext { seed, progress: None }))
+        .detach(|| compressor.compress(&tt, &CompressContext { seed, progress: None, sweep: None }))
         .map_err(|e| BiscaleError::new_err(format!("{kind}: {e}")))?;
     Ok(Form { form, compressor, light_basis: t.t.light_basis(), frames: t.frames.clone(), exp: t.exp.clone() })
 }

@@ -115,7 +115,7 @@ fn form_flops(form: &CompressedForm) -> Option<u64> {
 /// flight its rows (8 bytes per non-zero) and column views (8, in vectors grown by doubling:
 /// 12 on average); the biclusters found (about 2% of the non-zeros, ~170 bytes each: 4 per
 /// non-zero) twice, the greedy's output kept for the next setting of a sweep
-/// ([`release_shared_greedy`]) and the copy pruned; the form (about 1 byte per non-zero
+/// ([`biscale_core::compress::Sweep`]) and the copy pruned; the form (about 1 byte per non-zero
 /// lossless: 2).
 fn memory(p: &serde_json::Value, t: &registry::MemoryFacts) -> registry::FormMemory {
     let p: Bicluster = registry::parse(p).unwrap_or_default();
@@ -546,7 +546,10 @@ impl Bicluster {
             if self.block_vertices == 0 { rows.max(1) } else { self.block_vertices * t.local_dirs().max(1) };
         let nblocks = if rows == 0 { 0 } else { rows.div_ceil(block_rows) };
         let key = SharedKey::of(&codes, block_rows, ctx.seed, first_block, self.column_cost);
-        let greedy = match shared_greedy(&key) {
+        // Every setting of an error-budget sweep prunes the same greedy output of the same T:
+        // the sweep keeps it (the lossless setting is the sweep's budget 0), so the greedy runs
+        // once; the result is identical to a fresh build (the greedy is deterministic in its key).
+        let greedy = match ctx.sweep.and_then(|sw| sw.get::<SharedKey, Vec<Vec<greedy::Bc>>>(&key)) {
             Some(g) => {
                 ctx.report(1.0);
                 g
@@ -576,7 +579,9 @@ impl Bicluster {
                     )
                     .collect();
                 let g = std::sync::Arc::new(g);
-                keep_shared_greedy(key, g.clone());
+                if let Some(sw) = ctx.sweep {
+                    sw.keep(key, g.clone());
+                }
                 g
             }
         };
@@ -650,32 +655,6 @@ impl SharedKey {
             column_cost,
         }
     }
-}
-
-type SharedBlocks = std::sync::Arc<Vec<Vec<greedy::Bc>>>;
-
-thread_local! {
-    /// The greedy's biclusters of the last matrix this thread biclustered, by block. Every
-    /// setting of an error-budget sweep prunes the same greedy output of the same `T`, so a
-    /// sweep compressed on one thread (as a run compresses its settings, one after another)
-    /// runs the greedy once; the lossless setting is the sweep's budget 0. The result is
-    /// identical to a fresh build (the greedy is deterministic in its key). One entry,
-    /// replaced by the next matrix; [`release_shared_greedy`] frees it.
-    static SHARED: std::cell::RefCell<Option<(SharedKey, SharedBlocks)>> = const { std::cell::RefCell::new(None) };
-}
-
-fn shared_greedy(key: &SharedKey) -> Option<SharedBlocks> {
-    SHARED.with(|s| s.borrow().as_ref().filter(|(k, _)| k == key).map(|(_, b)| b.clone()))
-}
-
-fn keep_shared_greedy(key: SharedKey, blocks: SharedBlocks) {
-    SHARED.with(|s| *s.borrow_mut() = Some((key, blocks)));
-}
-
-/// Free the greedy output this thread keeps for the next setting of a sweep ([`SHARED`]): a
-/// caller that has compressed every setting of a matrix calls this so the memory goes with it.
-pub fn release_shared_greedy() {
-    SHARED.with(|s| *s.borrow_mut() = None);
 }
 
 /// Store `form`'s row lists as global bicluster ids plus `offset` (u32, `row_bc_local` = 0):

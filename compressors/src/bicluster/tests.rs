@@ -124,7 +124,7 @@ fn random_matrices_are_lossless_over_many_seeds() {
             column_cost: [1, 2, 2, 3, 16][rng.gen_range(0..5)],
             ..Bicluster::default()
         };
-        let form = c.compress(&t, &CompressContext { seed, progress: None }).unwrap();
+        let form = c.compress(&t, &CompressContext { seed, progress: None, sweep: None }).unwrap();
         assert_codes_exact(&form, &t);
         assert_flops(&form, &t);
         assert_gather_exact(&form, &t, &random_light(3, seed));
@@ -201,7 +201,7 @@ fn same_seed_same_bytes_for_any_thread_count() {
     let c = Bicluster { block_vertices: 5, value_scale: 0, ..Bicluster::default() };
     let run = |threads: usize, seed: u64| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-        let f = pool.install(|| c.compress(&t, &CompressContext { seed, progress: None }).unwrap());
+        let f = pool.install(|| c.compress(&t, &CompressContext { seed, progress: None, sweep: None }).unwrap());
         f.arrays
     };
     let one = run(1, 11);
@@ -296,7 +296,7 @@ fn real_mesh_transfer_is_lossless() {
     let t = build(&mesh, &settings, None).unwrap().matrix;
     assert!(t.nnz() > 10_000);
     for c in [Bicluster::default(), Bicluster { block_vertices: 64, value_scale: 0, ..Bicluster::default() }] {
-        let form = c.compress(&t, &CompressContext { seed: 3, progress: None }).unwrap();
+        let form = c.compress(&t, &CompressContext { seed: 3, progress: None, sweep: None }).unwrap();
         assert_eq!(form.meta["value_scale"], 4);
         assert_codes_exact(&form, &t);
         assert_flops(&form, &t);
@@ -313,7 +313,7 @@ fn real_mesh_transfer_is_lossless() {
     // A dearer column makes narrower, taller biclusters, and the form stays exact.
     let mean_shape = |column_cost: u32| {
         let c = Bicluster { column_cost, ..Bicluster::default() };
-        let form = c.compress(&t, &CompressContext { seed: 3, progress: None }).unwrap();
+        let form = c.compress(&t, &CompressContext { seed: 3, progress: None, sweep: None }).unwrap();
         assert_codes_exact(&form, &t);
         assert_gather_exact(&form, &t, &random_light(8, 1));
         let s = table_stats(&form, &t).unwrap();
@@ -513,14 +513,14 @@ fn row_cover_reproduces_t_and_refuses_a_foreign_form() {
 /// the form stands for to f32 rounding; bigger budgets never cost more bytes or flops.
 fn check_lossy(t: &TransferMatrix, block_vertices: usize, seed: u64) {
     let lossless = Bicluster { block_vertices, ..Bicluster::default() };
-    let base = lossless.compress(t, &CompressContext { seed, progress: None }).unwrap();
+    let base = lossless.compress(t, &CompressContext { seed, progress: None, sweep: None }).unwrap();
     let zero = Bicluster { error_budget: 0.0, ..lossless.clone() };
-    let same = zero.compress(t, &CompressContext { seed, progress: None }).unwrap();
+    let same = zero.compress(t, &CompressContext { seed, progress: None, sweep: None }).unwrap();
     assert!(same.arrays == base.arrays && same.meta == base.meta && same.lossless, "budget 0 is the lossless form");
     let (mut bytes, mut flops) = (base.bytes(), base.flops_per_gather);
     for budget in [0.01, 0.05, 0.2, 0.5, 1.0] {
         let c = Bicluster { error_budget: budget, ..lossless.clone() };
-        let form = c.compress(t, &CompressContext { seed, progress: None }).unwrap();
+        let form = c.compress(t, &CompressContext { seed, progress: None, sweep: None }).unwrap();
         let got = achieved_error(&form, t).unwrap();
         // The bound is on integers (||E||^2 <= floor(beta^2 ||T||^2)); the f64 square root
         // adds at most a few ulps.
@@ -557,7 +557,7 @@ fn lossy_error_is_the_mean_error_under_a_sun_in_any_texel() {
     // Checked through the gather itself (f32, so to 1e-5 relative).
     let t = random_transfer(12, 2, 3, 0.3, 7);
     let form = Bicluster { block_vertices: 4, error_budget: 0.3, ..Bicluster::default() }
-        .compress(&t, &CompressContext { seed: 7, progress: None })
+        .compress(&t, &CompressContext { seed: 7, progress: None, sweep: None })
         .unwrap();
     let frob = achieved_error(&form, &t).unwrap().frobenius;
     assert!(frob > 0.05, "the test needs a form that dropped something ({frob})");
@@ -586,10 +586,11 @@ fn lossy_budget_holds_on_the_bunny() {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/meshes/bunny.obj");
     let mesh = Mesh::load_obj(&path).unwrap().mesh;
     let t = build(&mesh, &TransferSettings::new(8, 16, 4).unwrap(), None).unwrap().matrix;
-    let lossless = Bicluster::default().compress(&t, &CompressContext { seed: 3, progress: None }).unwrap();
+    let lossless =
+        Bicluster::default().compress(&t, &CompressContext { seed: 3, progress: None, sweep: None }).unwrap();
     for budget in [0.02, 0.1] {
         let form = Bicluster { error_budget: budget, ..Bicluster::default() }
-            .compress(&t, &CompressContext { seed: 3, progress: None })
+            .compress(&t, &CompressContext { seed: 3, progress: None, sweep: None })
             .unwrap();
         let got = achieved_error(&form, &t).unwrap();
         assert!(got.frobenius <= budget * (1.0 + 1e-12) && got.frobenius > 0.5 * budget, "{budget}: {got:?}");
@@ -667,7 +668,7 @@ fn forms_of_block_aligned_ranges_merge_into_the_whole_form() {
     // id global in the merge; the merged form is the whole form with global ids, and its
     // gather is T L.
     let c = Bicluster { block_vertices: 4, ..Bicluster::default() };
-    let ctx = CompressContext { seed: 7, progress: None };
+    let ctx = CompressContext { seed: 7, progress: None, sweep: None };
     let (a, b) = (t.vertex_rows(0..12).unwrap(), t.vertex_rows(12..29).unwrap());
     let pa = c.compress_part(&a, 0, &ctx).unwrap();
     let mut pb = c.compress_part(&b, 12, &ctx).unwrap();
@@ -682,41 +683,39 @@ fn forms_of_block_aligned_ranges_merge_into_the_whole_form() {
 }
 
 /// A sweep shares one greedy run: a lossy setting after the lossless one of the same matrix
-/// and seed prunes the kept greedy output, and its form is that of a fresh build; a
-/// different seed or a released memo builds afresh. (The memo is per thread, and each test has
-/// its own.)
+/// and seed in the same [`Sweep`] prunes the kept greedy output, and its form is that of a
+/// fresh build; a different seed or column cost builds afresh and replaces it; without a sweep
+/// nothing is kept.
 #[test]
 fn a_budget_sweep_runs_the_greedy_once_with_the_fresh_builds_form() {
+    use biscale_core::compress::Sweep;
     let t = random_transfer(48, 2, 3, 0.3, 11);
-    let ctx = |seed| CompressContext { seed, progress: None };
+    let sweep = Sweep::default();
+    let ctx = |seed| CompressContext { seed, progress: None, sweep: Some(&sweep) };
     let lossy = Bicluster { block_vertices: 16, error_budget: 0.2, ..Bicluster::default() };
     let lossless = Bicluster { error_budget: 0.0, ..lossy.clone() };
     let strip = |mut f: CompressedForm| {
         f.build_seconds = 0.0;
         f
     };
-    release_shared_greedy();
-    let fresh = strip(lossy.compress(&t, &ctx(5)).unwrap());
-    release_shared_greedy();
+    let kept = |key: &SharedKey| sweep.get::<SharedKey, Vec<Vec<greedy::Bc>>>(key).is_some();
+    let fresh = strip(lossy.compress(&t, &CompressContext { seed: 5, progress: None, sweep: None }).unwrap());
+    assert!(sweep.is_empty(), "no sweep, nothing kept");
     let key = SharedKey::of(&codes::quantize(&t, 0).unwrap(), 16 * t.local_dirs(), 5, 0, 2);
-    assert!(shared_greedy(&key).is_none());
     assert!(lossless.compress(&t, &ctx(5)).unwrap().lossless);
-    assert!(shared_greedy(&key).is_some(), "the lossless build keeps its greedy output");
+    assert!(kept(&key), "the lossless build keeps its greedy output");
     let shared = strip(lossy.compress(&t, &ctx(5)).unwrap());
     assert_eq!(shared, fresh, "the shared greedy gives the fresh build's form");
     assert!(!fresh.lossless && fresh.meta["dropped_biclusters"] > 0, "the budget drops biclusters");
     let other = SharedKey::of(&codes::quantize(&t, 0).unwrap(), 16 * t.local_dirs(), 6, 0, 2);
     lossy.compress(&t, &ctx(6)).unwrap();
-    assert!(shared_greedy(&other).is_some() && shared_greedy(&key).is_none(), "another seed replaces it");
+    assert!(kept(&other) && !kept(&key), "another seed replaces it");
     // Another column cost is another greedy: it is not served the kept one.
     let dearer = Bicluster { column_cost: 16, ..lossy.clone() };
     let own = SharedKey::of(&codes::quantize(&t, 0).unwrap(), 16 * t.local_dirs(), 6, 0, 16);
-    release_shared_greedy();
     let fresh16 = strip(dearer.compress(&t, &ctx(6)).unwrap());
-    assert!(shared_greedy(&own).is_some() && shared_greedy(&other).is_none());
+    assert!(kept(&own) && !kept(&other));
     lossy.compress(&t, &ctx(6)).unwrap();
-    assert!(shared_greedy(&other).is_some() && shared_greedy(&own).is_none(), "the paper's cost replaces it");
+    assert!(kept(&other) && !kept(&own), "the paper's cost replaces it");
     assert_ne!(strip(lossy.compress(&t, &ctx(6)).unwrap()), fresh16);
-    release_shared_greedy();
-    assert!(shared_greedy(&other).is_none(), "released");
 }

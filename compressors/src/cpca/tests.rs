@@ -216,7 +216,7 @@ fn error_falls_as_clusters_and_components_grow() {
     let reference = reference_product(&t, &light);
     let run = |k: usize, c: usize| {
         let cpca = Cpca::new(k, c);
-        let form = cpca.compress(&t, &CompressContext { seed: 5, progress: None }).unwrap();
+        let form = cpca.compress(&t, &CompressContext { seed: 5, progress: None, sweep: None }).unwrap();
         (frob2(&decode(&form), &dense), relative_l2_error(cpca.gather(&form, &light).unwrap().values(), &reference))
     };
     for k in [1usize, 4] {
@@ -396,7 +396,7 @@ fn frobenius_error_matches_dense_decode() {
 fn same_seed_same_bytes_and_storage_is_counted() {
     let t = clustered_low_rank(50, 4, 3, 0.7, 0.05, 4, 9);
     let cpca = Cpca::new(5, 3);
-    let ctx = CompressContext { seed: 42, progress: None };
+    let ctx = CompressContext { seed: 42, progress: None, sweep: None };
     let a = cpca.compress(&t, &ctx).unwrap();
     let b = cpca.compress(&t, &ctx).unwrap();
     assert_eq!(a.arrays, b.arrays);

@@ -414,7 +414,9 @@ fn same_seed_same_bytes() {
     let t = random_transfer(60, 2, 8, 0.1, 1);
     let compress = |threads: usize, seed: u64| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-        pool.install(|| Haar::with_terms(12).compress(&t, &CompressContext { seed, progress: None }).unwrap())
+        pool.install(|| {
+            Haar::with_terms(12).compress(&t, &CompressContext { seed, progress: None, sweep: None }).unwrap()
+        })
     };
     let one = compress(1, 1);
     assert!(!one.u16s("coeff_idx").unwrap().is_empty(), "the form holds terms");

@@ -685,7 +685,8 @@ mod child {
                 "plugin-compress" => {
                     self.resident = None;
                     let (t, seed) = wire::decode_compress(request).map_err(Failure::Request)?;
-                    let form = self.plugin()?.compress_plugin(&t, &CompressContext { seed, progress: None })?;
+                    let form =
+                        self.plugin()?.compress_plugin(&t, &CompressContext { seed, progress: None, sweep: None })?;
                     drop(t);
                     let answer = form.to_artifact();
                     self.resident = Some(form);

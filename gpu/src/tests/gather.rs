@@ -328,7 +328,7 @@ fn bicluster_matches_f64_reference() {
     for (seed, block_vertices, error_budget) in [(1u64, 4usize, 0.0), (2, 0, 0.0), (3, 4, 0.3)] {
         let t = random_transfer(24, 8, 4, 0.2, seed);
         let bicluster = Bicluster { block_vertices, error_budget, ..Bicluster::default() };
-        let form = bicluster.compress(&t, &CompressContext { seed, progress: None }).unwrap();
+        let form = bicluster.compress(&t, &CompressContext { seed, progress: None, sweep: None }).unwrap();
         assert_eq!(form.lossless, error_budget == 0.0);
         let t = decompress(&form).unwrap();
         let view = BiclusterView::new(&form).unwrap();
@@ -469,7 +469,7 @@ fn cpca_matches_its_cpu_gather() {
     let u = f32::EPSILON as f64 / 2.0;
     let t = random_transfer(20, 8, 4, 0.05, 12);
     for cpca in [Cpca::new(6, 3), Cpca { unit: CpcaUnit::Vertex, ..Cpca::new(4, 3) }] {
-        let form = cpca.compress(&t, &CompressContext { seed: 3, progress: None }).unwrap();
+        let form = cpca.compress(&t, &CompressContext { seed: 3, progress: None, sweep: None }).unwrap();
         let (k, c, n) =
             (form.meta("clusters").unwrap() as usize, form.meta("components").unwrap() as usize, form.cols());
         let units = form.meta("unit_rows").unwrap() as usize;

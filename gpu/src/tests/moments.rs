@@ -336,7 +336,7 @@ fn gather_and_resolve_match_the_cpu_end_to_end() {
         let t = random_transfer(vertices, m, r, 0.2, seed);
         let frames = random_frames(vertices, &mut rng);
         for c in [&Sparse as &dyn Compressor, &bicluster] {
-            let form = c.compress(&t, &CompressContext { seed, progress: None }).unwrap();
+            let form = c.compress(&t, &CompressContext { seed, progress: None, sweep: None }).unwrap();
             assert!(form.lossless, "{} form lossless", form.kind);
             let mut g = moments_on_gpu(ctx, c, &form, &frames);
             for light_seed in [10 + seed, 11 + seed * 2] {

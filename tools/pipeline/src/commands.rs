@@ -330,8 +330,9 @@ pub fn viz(
     let geometry = crate::stages::scene::load_geometry(exp)?;
     crate::estimate::check_transfer(exp, &geometry, cache.is_some(), "viz")?;
     let t = crate::stages::transfer::transfer_matrix(exp, &geometry, cache.as_ref())?.into_whole("viz")?;
-    let form =
-        Bicluster::default().compress(&t, &CompressContext { seed: exp.file.seed, progress: None }).map_err(cerr)?;
+    let form = Bicluster::default()
+        .compress(&t, &CompressContext { seed: exp.file.seed, progress: None, sweep: None })
+        .map_err(cerr)?;
     let count = count.clamp(1, t.vertices().max(1));
     let first = match first {
         Some(f) => f,
@@ -447,7 +448,7 @@ pub fn view(
             c.as_ref(),
             t.whole("the viewer's forms")?,
             &t.key,
-            exp.file.seed,
+            (exp.file.seed, None),
             cache.as_ref(),
         )?;
         let kernels =

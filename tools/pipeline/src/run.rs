@@ -352,10 +352,13 @@ impl Forms<'_> {
     ) -> Result<(Vec<CompressorRecord>, Vec<Render>, Vec<(usize, CompressedForm)>)> {
         let (exp, t, cache) = (self.exp, self.t, self.cache);
         let (mut records, mut renders, mut kept) = (vec![], vec![], vec![]);
-        // The bicluster compressor keeps its greedy output for the next setting of a sweep;
-        // it goes after the last one.
-        let last_bicluster = compressors.iter().rposition(|(s, _)| s.kind == biscale_compressors::bicluster::KIND.name);
+        // One sweep per kind: its settings share what the kind keeps between them (the
+        // bicluster greedy's output, pruned by every error budget); it goes after the kind's last
+        // setting.
+        let mut sweeps: std::collections::HashMap<&str, biscale_core::compress::Sweep> = Default::default();
         for (i, (setting, compressor)) in compressors.iter().enumerate() {
+            let kind = setting.kind.as_str();
+            let last_of_kind = compressors.iter().rposition(|(s, _)| s.kind == kind) == Some(i);
             let (form, cached) = match self.precomputed.remove(&setting.label) {
                 Some(form) => {
                     if let Some((c, key)) = cache.zip(form_key(&t.key, compressor.as_ref(), exp.file.seed)) {
@@ -365,7 +368,8 @@ impl Forms<'_> {
                 }
                 None => {
                     let whole = t.whole(&format!("the compressor {}", setting.label))?;
-                    compressed_form(setting, compressor.as_ref(), whole, &t.key, exp.file.seed, cache)?
+                    let sweep = sweeps.entry(kind).or_default();
+                    compressed_form(setting, compressor.as_ref(), whole, &t.key, (exp.file.seed, Some(sweep)), cache)?
                 }
             };
             let (record, render) = eval.record(setting, compressor.as_ref(), &form, cached, gpu.as_deref_mut())?;
@@ -374,8 +378,8 @@ impl Forms<'_> {
             if keep.contains(&setting.label) {
                 kept.push((i, form));
             }
-            if Some(i) == last_bicluster {
-                biscale_compressors::bicluster::release_shared_greedy();
+            if last_of_kind {
+                sweeps.remove(kind);
             }
             clock.mark(format!("compressor {}", setting.label));
             fault_point("compression");

@@ -557,7 +557,7 @@ pub fn run(path: &Path, index: usize) -> Result<ShardDone> {
     let mut forms: Vec<(String, CompressedForm)> = vec![];
     for s in &m.separable {
         let c = m.compressor(&exp, &s.label, path)?;
-        let ctx = CompressContext { seed: exp.file.seed, progress: None };
+        let ctx = CompressContext { seed: exp.file.seed, progress: None, sweep: None };
         let form = c
             .compress_part(&build.matrix, range.start, &ctx)
             .map_err(|source| PipelineError::Compress { name: s.label.clone(), source })?;

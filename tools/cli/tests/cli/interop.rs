@@ -123,7 +123,7 @@ fn export_writes_every_kind_and_reads_back_exactly() {
             compressor.as_ref(),
             matrix,
             &t.key,
-            exp.file.seed,
+            (exp.file.seed, None),
             None,
         )
         .unwrap();

@@ -311,7 +311,7 @@ pub fn export(
                         compressor.as_ref(),
                         t.whole("export of forms")?,
                         &t.key,
-                        exp.file.seed,
+                        (exp.file.seed, None),
                         cache.as_ref(),
                     )?;
                     let path = dir.join(format!("form-{}.npz", file_stem(&setting.label)));

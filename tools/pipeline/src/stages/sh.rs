@@ -113,7 +113,7 @@ pub(crate) fn prepare(setting: &MethodSetting, src: &MethodScene<'_>, t: Option<
     let compressor_setting = Setting { label: label.clone(), kind: ckind, params: cparams };
     let compressor = build_compressor(&compressor_setting)?;
     let (form, cached) =
-        compressed_form(&compressor_setting, compressor.as_ref(), &matrix, &key, src.exp.file.seed, src.cache)?;
+        compressed_form(&compressor_setting, compressor.as_ref(), &matrix, &key, (src.exp.file.seed, None), src.cache)?;
     let scene = src.scene.with_materials(materials)?;
     Ok(Prepared {
         params,

@@ -106,12 +106,13 @@ pub fn transfer_matrix(exp: &Experiment, geometry: &Geometry, cache: Option<&Sta
 
 /// One setting's compressed form of `t` (whose cache key is `t_key`), built or loaded from the
 /// cache (`true` when loaded). A form from the cache keeps the build time it was measured with.
+/// `sweep`: what the settings of the caller's sweep share (the compress context's).
 pub fn compressed_form(
     setting: &CompressorSetting,
     compressor: &dyn Compressor,
     t: &TransferMatrix,
     t_key: &CacheKey,
-    seed: u64,
+    (seed, sweep): (u64, Option<&biscale_core::compress::Sweep>),
     cache: Option<&StageCache>,
 ) -> Result<(CompressedForm, bool)> {
     let name = &setting.label;
@@ -138,7 +139,7 @@ pub fn compressed_form(
     }
     let pb = progress_bar(1000, name);
     let progress = |f: f64| pb.set_position((f.clamp(0.0, 1.0) * 1000.0) as u64);
-    let ctx = CompressContext { seed, progress: Some(&progress) };
+    let ctx = CompressContext { seed, progress: Some(&progress), sweep };
     let form = compressor.compress(t, &ctx).map_err(|source| PipelineError::Compress { name: name.clone(), source })?;
     pb.finish_and_clear();
     if let Some((c, path, key)) = &cached {
