@@ -273,29 +273,6 @@ mod tests {
     use glam::Vec3;
     use rand::{Rng, SeedableRng};
 
-    fn kinds() -> Vec<Brdf> {
-        vec![
-            Brdf::Lambertian { albedo: [0.7, 0.5, 0.3] },
-            Brdf::Phong { kd: [0.3, 0.25, 0.2], ks: [0.4, 0.5, 0.6], exponent: 24.0 },
-            Brdf::AshikhminShirley { rd: [0.4, 0.3, 0.2], rs: [0.05, 0.1, 0.2], nu: 40.0, nv: 8.0 },
-            Brdf::RoughConductor {
-                alpha: 0.15,
-                eta: [1.657, 0.880, 0.521],
-                k: [9.224, 6.270, 4.837],
-                specular_reflectance: [1.0; 3],
-            },
-            Brdf::RoughConductor { alpha: 0.3, eta: [0.0; 3], k: [1.0; 3], specular_reflectance: [1.0; 3] },
-            Brdf::RoughPlastic {
-                alpha: 0.2,
-                int_ior: 1.49,
-                ext_ior: 1.000277,
-                diffuse_reflectance: [0.6, 0.3, 0.2],
-                specular_reflectance: [1.0; 3],
-                nonlinear: true,
-            },
-        ]
-    }
-
     /// The lanes against the f64 resolve on random moments (directions everywhere, bins left
     /// dark, below the point's horizon and with a cancelling luminance) at random frames and
     /// views: within `2e-4` of the sum of the terms' magnitudes `sum_j |f_j (n . D_j)|`. That
@@ -332,7 +309,7 @@ mod tests {
         let lit = LitBins::new([&along[0], &along[1], &along[2]]);
         assert!(lit.len() < vertices * bins, "the dark bins are dropped");
         let mut lanes = Lanes::default();
-        for brdf in kinds() {
+        for brdf in Brdf::one_of_each() {
             let r = Resolver::new(brdf);
             let mut worst = 0.0f64;
             for v in 0..vertices {

@@ -93,16 +93,11 @@ fn analytic_resolve(hit: Hit, brdf: Brdf, view: vec3<f32>, v: u32) -> vec3<f32> 
 
 @compute @workgroup_size(8, 8)
 fn shade_moment_pixels(@builtin(global_invocation_id) gid: vec3<u32>) {
-    if gid.x >= params.width || gid.y >= params.height {
+    let sample = sample_hit(gid);
+    if !sample.covered {
         return;
     }
-    let px = vec2<i32>(gid.xy);
-    let id = visible_triangle(px);
-    if id == 0u {
-        textureStore(image, px, vec4<f32>(0.0));
-        return;
-    }
-    let hit = hit_at(gid.xy, id - 1u);
+    let hit = sample.hit;
     let material = material_of(hit.tri);
     let brdf = brdfs[material];
     var acc = vec3<f32>(0.0);
@@ -117,5 +112,5 @@ fn shade_moment_pixels(@builtin(global_invocation_id) gid: vec3<u32>) {
             acc += hit.b[k] * table_resolve(hit, bv, hit.corner[k]);
         }
     }
-    textureStore(image, px, vec4<f32>(acc, 1.0));
+    textureStore(image, vec2<i32>(gid.xy), vec4<f32>(acc, 1.0));
 }

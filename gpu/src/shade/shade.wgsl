@@ -246,9 +246,30 @@ struct Hit {
     uv: vec2<f32>,
 }
 
-// The triangle id (+1, 0 = background) the visibility pass stored at `px`.
-fn visible_triangle(px: vec2<i32>) -> u32 {
-    return textureLoad(visibility, px, 0).x;
+// A sample of the grid and its hit: `covered` is false outside the image (nothing is written)
+// and where the visibility pass stored no triangle (the sample is written black, uncovered);
+// both shading passes start here.
+struct SampleHit {
+    covered: bool,
+    hit: Hit,
+}
+
+fn sample_hit(gid: vec3<u32>) -> SampleHit {
+    var s: SampleHit;
+    s.covered = false;
+    if gid.x >= params.width || gid.y >= params.height {
+        return s;
+    }
+    let px = vec2<i32>(gid.xy);
+    // The triangle id (+1, 0 = background) the visibility pass stored there.
+    let id = textureLoad(visibility, px, 0).x;
+    if id == 0u {
+        textureStore(image, px, vec4<f32>(0.0));
+        return s;
+    }
+    s.covered = true;
+    s.hit = hit_at(gid.xy, id - 1u);
+    return s;
 }
 
 fn hit_at(gid: vec2<u32>, tri: u32) -> Hit {
@@ -386,21 +407,16 @@ fn btf_at(bv: BtfView, j: u32) -> vec3<f32> {
 
 @compute @workgroup_size(8, 8)
 fn shade_pixels(@builtin(global_invocation_id) gid: vec3<u32>) {
-    if gid.x >= params.width || gid.y >= params.height {
+    let sample = sample_hit(gid);
+    if !sample.covered {
         return;
     }
-    let px = vec2<i32>(gid.xy);
-    let id = visible_triangle(px);
-    if id == 0u {
-        textureStore(image, px, vec4<f32>(0.0));
-        return;
-    }
-    let hit = hit_at(gid.xy, id - 1u);
+    let hit = sample.hit;
     let bv = btf_view(hit, material_of(hit.tri));
     var acc = vec3<f32>(0.0);
     for (var j = 0u; j < params.local_dirs; j++) {
         let l = hit.b.x * lstar_at(hit.corner.x, j) + hit.b.y * lstar_at(hit.corner.y, j) + hit.b.z * lstar_at(hit.corner.z, j);
         acc += btf_at(bv, j) * l;
     }
-    textureStore(image, px, vec4<f32>(acc, 1.0));
+    textureStore(image, vec2<i32>(gid.xy), vec4<f32>(acc, 1.0));
 }

@@ -71,39 +71,6 @@ use rand_chacha::ChaCha8Rng;
 
 const U: f64 = f32::EPSILON as f64 / 2.0;
 
-/// One BRDF of every kind, with parameters away from the defaults (a coloured gold-like
-/// conductor and Mitsuba's default perfect one, a linear and a nonlinear plastic).
-fn every_kind() -> Vec<Brdf> {
-    vec![
-        Brdf::Lambertian { albedo: [0.7, 0.5, 0.3] },
-        Brdf::Phong { kd: [0.3, 0.25, 0.2], ks: [0.4, 0.5, 0.6], exponent: 24.0 },
-        Brdf::AshikhminShirley { rd: [0.4, 0.3, 0.2], rs: [0.05, 0.1, 0.2], nu: 40.0, nv: 8.0 },
-        Brdf::RoughConductor {
-            alpha: 0.15,
-            eta: [0.143, 0.374, 1.442],
-            k: [3.983, 2.385, 1.603],
-            specular_reflectance: [1.0, 0.9, 0.8],
-        },
-        Brdf::RoughConductor { alpha: 0.3, eta: [0.0; 3], k: [1.0; 3], specular_reflectance: [1.0; 3] },
-        Brdf::RoughPlastic {
-            alpha: 0.2,
-            int_ior: 1.49,
-            ext_ior: 1.000277,
-            diffuse_reflectance: [0.6, 0.3, 0.2],
-            specular_reflectance: [1.0; 3],
-            nonlinear: false,
-        },
-        Brdf::RoughPlastic {
-            alpha: 0.5,
-            int_ior: 1.33,
-            ext_ior: 1.0,
-            diffuse_reflectance: [0.2, 0.5, 0.8],
-            specular_reflectance: [0.9; 3],
-            nonlinear: true,
-        },
-    ]
-}
-
 /// `brdf_eval(brdfs[0], l, v)` on the GPU for each `(l, v)`.
 fn probe(ctx: &GpuContext, brdf: &Brdf, dirs: &[(Vec3, Vec3)]) -> Vec<[f32; 3]> {
     let (records, coating) = crate::GpuBrdf::records(&[Some(*brdf)]);
@@ -221,7 +188,7 @@ fn brdf_matches_the_cpu() {
     let ctx = gpu_or_skip!();
     let mut rng = ChaCha8Rng::seed_from_u64(17);
     let dirs = directions(&mut rng);
-    for brdf in every_kind() {
+    for brdf in Brdf::one_of_each() {
         let got = probe(ctx, &brdf, &dirs);
         let (mut worst, mut worst_rel) = (0.0f64, 0.0f64);
         for ((l, v), g) in dirs.iter().zip(&got) {
@@ -302,6 +269,11 @@ fn case(m: u32, texels: usize, seed: u64) -> Case {
     Case { scene: ShadeScene::new(mesh, frames.clone(), materials, Some(ids)).unwrap(), frames, moments }
 }
 
+/// A camera at `position` looking at the sphere's centre, one sample per pixel.
+fn camera_at(position: Vec3, width: u32, height: u32) -> Camera {
+    Camera { position, target: Vec3::ZERO, up: Vec3::Y, fov_y_degrees: 45.0, width, height, samples_per_pixel: 1 }
+}
+
 /// `case`'s moments resident on the GPU, as the gathers leave them.
 fn moments_on_gpu(ctx: &GpuContext, case: &Case, m: u32) -> GpuMoments {
     let nv = case.frames.len();
@@ -316,15 +288,7 @@ fn moments_on_gpu(ctx: &GpuContext, case: &Case, m: u32) -> GpuMoments {
 #[test]
 fn per_pixel_resolves_match_the_cpu_for_every_material_kind() {
     let ctx = gpu_or_skip!();
-    let camera = Camera {
-        position: Vec3::new(0.6, 0.9, 3.0),
-        target: Vec3::ZERO,
-        up: Vec3::Y,
-        fov_y_degrees: 45.0,
-        width: 48,
-        height: 36,
-        samples_per_pixel: 1,
-    };
+    let camera = camera_at(Vec3::new(0.6, 0.9, 3.0), 48, 36);
     for (m, texels, seed) in [(4u32, 0usize, 1u64), (8, 3, 2), (4, 2, 3)] {
         let case = case(m, texels, seed);
         let g = moments_on_gpu(ctx, &case, m);
@@ -340,7 +304,7 @@ fn per_pixel_resolves_match_the_cpu_for_every_material_kind() {
         let (mismatched, worst) = compare(&gpu, &cpu, 2e-4);
         eprintln!("pixel, {what}: {mismatched} coverage mismatches, worst relative error {worst:.3e}");
         // Each analytic kind on material 0, the tables on material 1.
-        for brdf in every_kind() {
+        for brdf in Brdf::one_of_each() {
             let brdfs = [Some(brdf), None];
             shader.set_brdfs(&brdfs).unwrap();
             let gpu = shader.shade_moments(&g, MomentsResolve::PixelAnalytic).unwrap();
@@ -361,15 +325,7 @@ fn per_pixel_resolves_match_the_cpu_for_every_material_kind() {
 fn per_pixel_resolves_refuse_what_they_cannot_shade() {
     let ctx = gpu_or_skip!();
     let case = case(4, 1, 5);
-    let camera = Camera {
-        position: Vec3::new(0.0, 0.0, 3.0),
-        target: Vec3::ZERO,
-        up: Vec3::Y,
-        fov_y_degrees: 45.0,
-        width: 8,
-        height: 8,
-        samples_per_pixel: 1,
-    };
+    let camera = camera_at(Vec3::new(0.0, 0.0, 3.0), 8, 8);
     let mut shader = GpuShader::new(ctx, &case.scene, &camera).unwrap();
     let e = shader.set_brdfs(&[None]).unwrap_err().to_string();
     assert!(e.contains("1 analytic BRDFs for 2 materials"), "{e}");

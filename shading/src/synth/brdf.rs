@@ -241,6 +241,41 @@ impl Brdf {
         std::array::from_fn(|c| d[c] + s[c])
     }
 
+    /// One BRDF of every kind, with parameters away from the defaults (a coloured conductor
+    /// and Mitsuba's default perfect one, a linear and a nonlinear plastic): the cases each
+    /// implementation of the kinds is held to the others on (this `eval` in f64, the CPU's f32
+    /// lanes in `crate::analytic`, the WGSL of `biscale-gpu`).
+    pub fn one_of_each() -> Vec<Brdf> {
+        vec![
+            Brdf::Lambertian { albedo: [0.7, 0.5, 0.3] },
+            Brdf::Phong { kd: [0.3, 0.25, 0.2], ks: [0.4, 0.5, 0.6], exponent: 24.0 },
+            Brdf::AshikhminShirley { rd: [0.4, 0.3, 0.2], rs: [0.05, 0.1, 0.2], nu: 40.0, nv: 8.0 },
+            Brdf::RoughConductor {
+                alpha: 0.15,
+                eta: [0.143, 0.374, 1.442],
+                k: [3.983, 2.385, 1.603],
+                specular_reflectance: [1.0, 0.9, 0.8],
+            },
+            Brdf::RoughConductor { alpha: 0.3, eta: [0.0; 3], k: [1.0; 3], specular_reflectance: [1.0; 3] },
+            Brdf::RoughPlastic {
+                alpha: 0.2,
+                int_ior: 1.49,
+                ext_ior: 1.000277,
+                diffuse_reflectance: [0.6, 0.3, 0.2],
+                specular_reflectance: [1.0; 3],
+                nonlinear: false,
+            },
+            Brdf::RoughPlastic {
+                alpha: 0.5,
+                int_ior: 1.33,
+                ext_ior: 1.0,
+                diffuse_reflectance: [0.2, 0.5, 0.8],
+                specular_reflectance: [0.9; 3],
+                nonlinear: true,
+            },
+        ]
+    }
+
     /// `f(light, view)` with the diffuse part scaled by `diffuse_scale` (an albedo map texel).
     #[inline]
     pub fn eval_scaled(&self, light: DVec3, view: DVec3, diffuse_scale: Rgb) -> [f64; 3] {
