@@ -173,13 +173,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
             materials.reference_shading()
         ));
     }
-    let view = View {
-        scene: &scene,
-        camera: geometry.camera(exp, 1),
-        background: lighting.background(exp),
-        analytic: &analytic,
-        moments_analytic: exp.file.runtime.resolve_analytic(),
-    };
+    let view = View::of(exp, &geometry, &lighting, &scene, &analytic);
     // The machine's load around the timed steps: from the uncompressed gather to the last method.
     let load_before = load_average_1min();
     let (images, cache) = (ctx.images_dir(), ctx.cache.as_ref());

@@ -71,12 +71,6 @@ fn with_view<R>(
     crate::estimate::check_transfer(exp, &geometry, cache.is_some(), "rendering images")?;
     let t = transfer_matrix(exp, &geometry, cache.as_ref())?.into_whole("rendering")?;
     let (scene, materials) = shade_scene(exp, &geometry, t.local_basis(), cache.as_ref())?;
-    let view = View {
-        scene: &scene,
-        camera: geometry.camera(exp, 1),
-        background: lighting.background(exp),
-        analytic: &materials.analytic,
-        moments_analytic: exp.file.runtime.resolve_analytic(),
-    };
+    let view = View::of(exp, &geometry, &lighting, &scene, &materials.analytic);
     f(&geometry, &view, &t, &lighting)
 }

@@ -902,13 +902,7 @@ pub fn eval(exp: &Experiment, input: &EvalInput, name: Option<&str>, opts: &RunO
     ctx.clock.mark("transfer");
     crate::estimate::check_peak(&memory, &available, "the transfer stage")?;
     let (scene, materials) = shade_scene(exp, &geometry, t.view().local_basis(), ctx.cache.as_ref())?;
-    let view = View {
-        scene: &scene,
-        camera: geometry.camera(exp, 1),
-        background: lighting.background(exp),
-        analytic: &materials.analytic,
-        moments_analytic: exp.file.runtime.resolve_analytic(),
-    };
+    let view = View::of(exp, &geometry, &lighting, &scene, &materials.analytic);
     let reference = Plan::new(exp).reference;
     let (images, cache) = (ctx.images_dir(), ctx.cache.as_ref());
     let targets = targets(exp, &geometry, &lighting, t.view(), &view, &images, reference, cache, &mut ctx.clock)?;

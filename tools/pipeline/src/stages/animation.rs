@@ -236,13 +236,7 @@ fn one(inp: &Inputs<'_>, entries: &[Animated<'_>], path: Turn, frames: u32) -> R
             }
             Turn::Camera => (orbit(&cam, angle), inp.view.background),
         };
-        let view = View {
-            scene: inp.view.scene,
-            camera,
-            background,
-            analytic: inp.view.analytic,
-            moments_analytic: inp.view.moments_analytic,
-        };
+        let view = inp.view.with(inp.view.scene, camera, background);
         // This frame's gathers, the uncompressed one first (the target of every other's
         // error), and each one's time: the fixed light's, gathered once (no time per frame),
         // or the turned light's, gathered now.
@@ -274,13 +268,7 @@ fn one(inp: &Inputs<'_>, entries: &[Animated<'_>], path: Turn, frames: u32) -> R
             let render = match &e.source {
                 Source::Form { .. } => view.render_shaded(g.shaded(), &camera)?,
                 Source::Sh(sh) => {
-                    let sh_view = View {
-                        scene: &sh.scene,
-                        camera,
-                        background,
-                        analytic: inp.view.analytic,
-                        moments_analytic: inp.view.moments_analytic,
-                    };
+                    let sh_view = inp.view.with(&sh.scene, camera, background);
                     sh_view.render_shaded(g.shaded(), &camera)?
                 }
             };

@@ -270,6 +270,36 @@ pub(crate) struct View<'a> {
     pub moments_analytic: bool,
 }
 
+impl<'a> View<'a> {
+    /// The run's view of `scene`: `exp`'s camera of `geometry`, the background of `lighting`,
+    /// the materials' analytic BRDFs `analytic` and the config's resolve. The one setup of
+    /// `run`, `eval` and the Python module's images.
+    pub(crate) fn of(
+        exp: &Experiment,
+        geometry: &Geometry,
+        lighting: &'a Lighting,
+        scene: &'a ShadeScene,
+        analytic: &'a [Option<Brdf>],
+    ) -> Self {
+        View {
+            scene,
+            camera: geometry.camera(exp, 1),
+            background: lighting.background(exp),
+            analytic,
+            moments_analytic: exp.file.runtime.resolve_analytic(),
+        }
+    }
+
+    /// This view of `scene` from `camera` against `background` (another method's scene, a
+    /// frame of an animation), with the same materials' BRDFs and resolve.
+    pub(crate) fn with<'b>(&self, scene: &'b ShadeScene, camera: Camera, background: Background<'b>) -> View<'b>
+    where
+        'a: 'b,
+    {
+        View { scene, camera, background, analytic: self.analytic, moments_analytic: self.moments_analytic }
+    }
+}
+
 impl View<'_> {
     /// The image of `lstar` with the background behind it.
     pub(crate) fn render(&self, lstar: &LocalRadiance, camera: &Camera) -> Result<Render> {

@@ -323,13 +323,7 @@ pub(crate) fn evaluate(
     let projection = ShProjection::new(inp.exp.transfer_settings().cubemap(), order, LIGHT_SUBTEXELS);
     let light = projection.project(&inp.lighting.light)?;
     let light_projection_error = projection.projection_error(&inp.lighting.light)?;
-    let view = View {
-        scene: &sh_scene,
-        camera: inp.view.camera,
-        background: inp.view.background,
-        analytic: inp.view.analytic,
-        moments_analytic: inp.view.moments_analytic,
-    };
+    let view = inp.view.with(&sh_scene, inp.view.camera, inp.view.background);
     let exact = reference_product(&m, &light);
     let mut gpu = match gpu {
         Some(g) => Some(g.for_scene(&sh_scene, &view.camera)?),
