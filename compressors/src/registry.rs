@@ -141,6 +141,52 @@ pub fn no_rows(_: &Value) -> Vec<(String, String)> {
     vec![]
 }
 
+/// How a built-in kind makes the compressor of one setting from its parameters (parsed and
+/// checked; building a built-in costs nothing, so checking a setting is building it): what
+/// [`Kind::built_in`] turns into the entry's `check` and `build`.
+pub trait MakeCompressor {
+    fn make(p: &Value) -> Result<Box<dyn Compressor>, String>;
+}
+
+fn check_by<M: MakeCompressor>(p: &Value) -> Result<(), String> {
+    M::make(p).map(drop)
+}
+
+fn build_by<M: MakeCompressor>(p: &Value) -> Result<Box<dyn Compressor>, BuildError> {
+    Ok(M::make(p)?)
+}
+
+/// [`Kind::flops`] of a kind that cannot count its forms' flops from their arrays.
+pub fn no_flops(_: &biscale_core::compress::CompressedForm) -> Option<u64> {
+    None
+}
+
+impl Kind {
+    /// The entry of a built-in kind `name` whose settings `M` makes: `check` and `build` from
+    /// it, and the defaults an entry overrides where it differs ([`no_limits`],
+    /// [`csr_copy_memory`], [`no_rows`], [`no_flops`], [`Role::Other`]), so each entry lists
+    /// only what is its own: `Kind { memory, flops, ..Kind::built_in::<Cpca>("cpca", ABOUT,
+    /// label) }`.
+    pub const fn built_in<M: MakeCompressor>(
+        name: &'static str,
+        about: &'static str,
+        label: fn(&Value) -> Result<String, String>,
+    ) -> Kind {
+        Kind {
+            name,
+            about,
+            label,
+            check: check_by::<M>,
+            build: build_by::<M>,
+            fits: no_limits,
+            memory: csr_copy_memory,
+            report: no_rows,
+            flops: no_flops,
+            role: Role::Other,
+        }
+    }
+}
+
 /// Every compressor kind biscale knows, in report order.
 pub const KINDS: &[Kind] = &[
     crate::sparse::KIND,

@@ -70,33 +70,34 @@ use biscale_kernels::{Count, Factor, FormCheck, KernelDesc, PassDesc, ScratchDes
 use codes::CodeMatrix;
 use rayon::prelude::*;
 
-fn build(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
-    let c = registry::parse::<Bicluster>(p)?;
-    c.validate()?;
-    Ok(Box::new(c))
+impl registry::MakeCompressor for Bicluster {
+    fn make(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
+        let c = registry::parse::<Bicluster>(p)?;
+        c.validate()?;
+        Ok(Box::new(c))
+    }
 }
 
 /// The registry entry. The label names `block_vertices`, `error_budget` and `column_cost`
 /// only when the config gives them (`bicluster-b1024`, `bicluster-e0.05`, `bicluster-c16`).
 pub const KIND: Kind = Kind {
-    name: "bicluster",
-    about: "greedy constant-column biclustering (Sun et al.), block-parallel; lossless, or lossy within error_budget",
-    label: |p| {
-        registry::parse::<Bicluster>(p).map(|_| {
-            registry::tagged_label(
-                "bicluster",
-                p,
-                &[("block_vertices", "b"), ("error_budget", "e"), ("column_cost", "c")],
-            )
-        })
-    },
-    check: |p| build(p).map(drop),
-    build: |p| Ok(build(p)?),
-    fits: registry::no_limits,
     memory,
     report,
     role: registry::Role::Paper,
     flops: form_flops,
+    ..Kind::built_in::<Bicluster>(
+        "bicluster",
+        "greedy constant-column biclustering (Sun et al.), block-parallel; lossless, or lossy within error_budget",
+        |p| {
+            registry::parse::<Bicluster>(p).map(|_| {
+                registry::tagged_label(
+                    "bicluster",
+                    p,
+                    &[("block_vertices", "b"), ("error_budget", "e"), ("column_cost", "c")],
+                )
+            })
+        },
+    )
 };
 
 /// The flops of one gather of `form`, counted from its own arrays (`eval --form` reports this,

@@ -51,33 +51,33 @@ use std::time::Instant;
 /// request is refused with the estimate.
 pub const MAX_CPCA_BYTES: u64 = biscale_core::linalg::cpca::MAX_BUILD_BYTES;
 
-fn build(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
-    Ok(Box::new(registry::parse::<Cpca>(p)?.validated()?))
+impl registry::MakeCompressor for Cpca {
+    fn make(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
+        Ok(Box::new(registry::parse::<Cpca>(p)?.validated()?))
+    }
 }
 
 /// The registry entry.
 pub const KIND: Kind = Kind {
-    name: "cpca",
-    about: "clustered PCA: `clusters` clusters of `components` principal components (lossy)",
-    label: |p| {
-        let c: Cpca = registry::parse(p)?;
-        let label = registry::tagged_label(
-            "cpca",
-            &serde_json::to_value(c).unwrap(),
-            &[("clusters", "k"), ("components", "c")],
-        );
-        Ok(match c.unit {
-            CpcaUnit::Row => label,
-            CpcaUnit::Vertex => label + "-vertex",
-        })
-    },
-    check: |p| build(p).map(drop),
-    build: |p| Ok(build(p)?),
     fits,
     memory,
-    report: registry::no_rows,
-    role: registry::Role::Other,
     flops: form_flops,
+    ..Kind::built_in::<Cpca>(
+        "cpca",
+        "clustered PCA: `clusters` clusters of `components` principal components (lossy)",
+        |p| {
+            let c: Cpca = registry::parse(p)?;
+            let label = registry::tagged_label(
+                "cpca",
+                &serde_json::to_value(c).unwrap(),
+                &[("clusters", "k"), ("components", "c")],
+            );
+            Ok(match c.unit {
+                CpcaUnit::Row => label,
+                CpcaUnit::Vertex => label + "-vertex",
+            })
+        },
+    )
 };
 
 /// The flops of one gather of `form`, counted from its own arrays (`eval --form` reports this,

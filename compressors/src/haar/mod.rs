@@ -76,30 +76,30 @@ use biscale_kernels::{Count, Factor, FormCheck, KernelDesc, PassDesc, ScratchDes
 use rayon::prelude::*;
 use std::time::Instant;
 
-fn build(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
-    Ok(Box::new(registry::parse::<Haar>(p)?.validated()?))
+impl registry::MakeCompressor for Haar {
+    fn make(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
+        Ok(Box::new(registry::parse::<Haar>(p)?.validated()?))
+    }
 }
 
 /// The registry entry.
 pub const KIND: Kind = Kind {
-    name: "haar",
-    about: "non-linear Haar wavelets: the `terms` largest area-weighted coefficients per row (lossy)",
-    label: |p| {
-        let haar = registry::parse::<Haar>(p)?;
-        let label = registry::tagged_label("haar", &serde_json::to_value(haar).unwrap(), &[("terms", "t")]);
-        // The default ranking is left out of the label, as settings before it was a key.
-        Ok(match haar.weighting {
-            HaarWeighting::Area => label,
-            w => format!("{label}-{}", w.name()),
-        })
-    },
-    check: |p| build(p).map(drop),
-    build: |p| Ok(build(p)?),
     fits,
     memory,
-    report: registry::no_rows,
-    role: registry::Role::Other,
     flops: form_flops,
+    ..Kind::built_in::<Haar>(
+        "haar",
+        "non-linear Haar wavelets: the `terms` largest area-weighted coefficients per row (lossy)",
+        |p| {
+            let haar = registry::parse::<Haar>(p)?;
+            let label = registry::tagged_label("haar", &serde_json::to_value(haar).unwrap(), &[("terms", "t")]);
+            // The default ranking is left out of the label, as settings before it was a key.
+            Ok(match haar.weighting {
+                HaarWeighting::Area => label,
+                w => format!("{label}-{}", w.name()),
+            })
+        },
+    )
 };
 
 /// The flops of one gather of `form`, counted from its own arrays (`eval --form` reports this,

@@ -444,7 +444,7 @@ fn the_weighting_is_a_config_key_and_names_its_setting() {
     assert_eq!(label(serde_json::json!({ "terms": 12, "weighting": "area" })), "haar-t12");
     assert_eq!(label(serde_json::json!({ "terms": 12, "weighting": "side" })), "haar-t12-side");
     assert_eq!(label(serde_json::json!({ "terms": 6, "weighting": "magnitude" })), "haar-t6-magnitude");
-    assert!(build(&serde_json::json!({ "weighting": "volume" })).is_err());
+    assert!((KIND.build)(&serde_json::json!({ "weighting": "volume" })).is_err());
     for a in [0.0, 0.25, 2.0] {
         assert_eq!(HaarWeighting::Area.weight(a), a);
         assert_eq!(HaarWeighting::Side.weight(a), a.sqrt());

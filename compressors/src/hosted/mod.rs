@@ -65,31 +65,30 @@ pub fn register(name: &str, factory: Factory) -> Result<Registration, String> {
     Ok(Registration { name: name.to_string() })
 }
 
-fn build(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
-    let params: HostedParams = registry::parse(p)?;
-    let factory = table().get(&params.name).cloned().ok_or_else(|| {
-        format!(
-            "no hosted compressor `{}` is registered: a hosted compressor is passed by the program that runs \
-             biscale (in Python, `Experiment.run(compressors=[...])`), never named in a config file",
-            params.name
-        )
-    })?;
-    Ok(factory())
+impl registry::MakeCompressor for HostedParams {
+    fn make(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
+        let params: HostedParams = registry::parse(p)?;
+        let factory = table().get(&params.name).cloned().ok_or_else(|| {
+            format!(
+                "no hosted compressor `{}` is registered: a hosted compressor is passed by the program that runs \
+                 biscale (in Python, `Experiment.run(compressors=[...])`), never named in a config file",
+                params.name
+            )
+        })?;
+        Ok(factory())
+    }
 }
 
 /// The registry entry.
+/// What a host's form costs is its own claim: nothing is counted from its arrays
+/// ([`registry::no_flops`]).
 pub const KIND: Kind = Kind {
-    name: "hosted",
-    about: "a compressor the program running biscale supplies (a Python object given to Experiment.run)",
-    label: |p| registry::parse::<HostedParams>(p).map(|p| p.label),
-    check: |p| build(p).map(drop),
-    build: |p| Ok(build(p)?),
-    fits: registry::no_limits,
-    memory: registry::csr_copy_memory,
-    report: registry::no_rows,
-    // What a host's form costs is its own claim; nothing to count from the arrays.
-    flops: |_| None,
     role: registry::Role::External,
+    ..Kind::built_in::<HostedParams>(
+        "hosted",
+        "a compressor the program running biscale supplies (a Python object given to Experiment.run)",
+        |p| registry::parse::<HostedParams>(p).map(|p| p.label),
+    )
 };
 
 #[cfg(test)]

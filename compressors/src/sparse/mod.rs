@@ -24,23 +24,21 @@ use std::time::Instant;
 /// Rows per rayon task of the CPU gather.
 const ROWS_PER_TASK: usize = 256;
 
-fn build(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
-    Ok(Box::new(Sparse::new(registry::parse(p)?)))
+impl registry::MakeCompressor for Sparse {
+    fn make(p: &serde_json::Value) -> Result<Box<dyn Compressor>, String> {
+        Ok(Box::new(Sparse::new(registry::parse(p)?)))
+    }
 }
 
 /// The registry entry.
 pub const KIND: Kind = Kind {
-    name: "sparse",
-    about: "the raw CSR matrix: the uncompressed baseline",
-    label: |p| registry::parse::<SparseParams>(p).map(|_| "sparse".into()),
-    check: |p| build(p).map(drop),
-    build: |p| Ok(build(p)?),
-    fits: registry::no_limits,
     // The form is `T` itself as a u32 CSR, and compressing copies it once.
     memory: |_, t| registry::FormMemory { working: t.u32_csr_bytes(), form: t.u32_csr_bytes() },
-    report: registry::no_rows,
     role: registry::Role::Raw,
     flops: form_flops,
+    ..Kind::built_in::<Sparse>("sparse", "the raw CSR matrix: the uncompressed baseline", |p| {
+        registry::parse::<SparseParams>(p).map(|_| "sparse".into())
+    })
 };
 
 /// The flops of one gather of `form`, counted from its own arrays (`eval --form` reports this,
