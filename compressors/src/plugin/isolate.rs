@@ -51,7 +51,7 @@
 
 use super::{resolve_library, Guard, PluginError, MAX_STR_BYTES};
 use biscale_core::artifact::{Artifact, Field};
-use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor};
+use biscale_core::compress::{ArrayData, CompressContext, CompressedForm, Compressor};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::sampling::LightVector;
 use biscale_core::transfer::{TransferMatrix, TransferView};
@@ -512,24 +512,10 @@ impl IsolatedPlugin {
 }
 
 impl Compressor for IsolatedPlugin {
-    fn kind(&self) -> &str {
-        &self.guard.kind
-    }
+    forward_plugin_calls!();
 
     fn params(&self) -> Value {
         json!({ "path": self.guard.path.display().to_string(), "params": self.params, "isolate": true })
-    }
-
-    fn compress(&self, t: &TransferMatrix, ctx: &CompressContext<'_>) -> Result<CompressedForm, CompressError> {
-        Ok(self.compress_plugin(t, ctx)?)
-    }
-
-    fn gather(&self, form: &CompressedForm, light: &LightVector) -> Result<LocalRadiance, CompressError> {
-        Ok(self.gather_plugin(form, light)?)
-    }
-
-    fn kernels(&self, form: &CompressedForm) -> Result<KernelDesc, CompressError> {
-        Ok(self.guard.kernels_for(form)?)
     }
 
     /// Says that the setting ran isolated and that its CPU times include the pipes.

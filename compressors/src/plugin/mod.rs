@@ -43,6 +43,41 @@
 //! its `build_seconds` and `gather_ms` include that transfer). Isolation does not sandbox the
 //! file system or the network: the child is an ordinary process of the user.
 
+/// The `Compressor` methods both plugin hosts forward the same way: the kind the library
+/// declared, and compress, gather and kernels through the host's own calls
+/// (`compress_plugin`, `gather_plugin`, its guard's `kernels_for`), whose errors become
+/// `CompressError`s. Written once here; each host adds what differs (params, stats, identity).
+macro_rules! forward_plugin_calls {
+    () => {
+        fn kind(&self) -> &str {
+            &self.guard.kind
+        }
+
+        fn compress(
+            &self,
+            t: &biscale_core::transfer::TransferMatrix,
+            ctx: &biscale_core::compress::CompressContext<'_>,
+        ) -> Result<biscale_core::compress::CompressedForm, biscale_core::compress::CompressError> {
+            Ok(self.compress_plugin(t, ctx)?)
+        }
+
+        fn gather(
+            &self,
+            form: &biscale_core::compress::CompressedForm,
+            light: &biscale_core::sampling::LightVector,
+        ) -> Result<biscale_core::gather::LocalRadiance, biscale_core::compress::CompressError> {
+            Ok(self.gather_plugin(form, light)?)
+        }
+
+        fn kernels(
+            &self,
+            form: &biscale_core::compress::CompressedForm,
+        ) -> Result<biscale_kernels::KernelDesc, biscale_core::compress::CompressError> {
+            Ok(self.guard.kernels_for(form)?)
+        }
+    };
+}
+
 #[cfg(unix)]
 mod isolate;
 mod native;

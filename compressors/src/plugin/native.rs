@@ -9,7 +9,7 @@
 //! for. Every error names the library file.
 
 use super::{resolve_library, Guard, PluginError, MAX_ITEMS, MAX_STR_BYTES};
-use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor, NamedArray};
+use biscale_core::compress::{ArrayData, CompressContext, CompressedForm, Compressor, NamedArray};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::sampling::LightVector;
 use biscale_core::transfer::TransferMatrix;
@@ -402,24 +402,10 @@ fn status_error(path: &Path, call: &'static str, status: i32, err: &abi::BpError
 }
 
 impl Compressor for PluginCompressor {
-    fn kind(&self) -> &str {
-        &self.guard.kind
-    }
+    forward_plugin_calls!();
 
     fn params(&self) -> Value {
         serde_json::json!({ "path": self.guard.path.display().to_string(), "params": self.params })
-    }
-
-    fn compress(&self, t: &TransferMatrix, ctx: &CompressContext<'_>) -> Result<CompressedForm, CompressError> {
-        Ok(self.compress_plugin(t, ctx)?)
-    }
-
-    fn gather(&self, form: &CompressedForm, light: &LightVector) -> Result<LocalRadiance, CompressError> {
-        Ok(self.gather_plugin(form, light)?)
-    }
-
-    fn kernels(&self, form: &CompressedForm) -> Result<KernelDesc, CompressError> {
-        Ok(self.guard.kernels_for(form)?)
     }
 
     fn code_identity(&self) -> Option<u64> {
