@@ -1,7 +1,7 @@
 //! End-to-end runs of the pipeline: the bundled smoke config, and analytic scenes whose
 //! radiance is known in closed form.
 
-use biscale::experiment::config::Experiment;
+use biscale::experiment::config::{Experiment, MomentsResolve};
 use biscale::run::run;
 use biscale::store::RunOptions;
 use biscale_core::geometry::shapes;
@@ -297,6 +297,32 @@ fn the_gpu_backend_gathers_light_moments_like_the_cpu() {
         let g = c.gpu.as_ref().unwrap_or_else(|| panic!("{}: no gpu record", c.name));
         assert!(g.rel_error_lstar < 3.0 * 96.0 * f64::from(f32::EPSILON) / 2.0, "{}: {}", c.name, g.rel_error_lstar);
         assert!(g.covered_pixels > 500 && g.image_vs_cpu.rel_l2 < 1e-5, "{g:?}");
+    }
+}
+
+/// Both per-pixel resolves on the GPU backend: every form's three moment gathers resolved at
+/// every pixel by the shader (the Lambertian material's own BRDF with `pixel_analytic`, its
+/// tables with `pixel`), against the CPU's image of the same run within the bound the shader
+/// tests derive for a pixel (`gpu/src/tests/pixel_resolve.rs`: 2e-4 of the pixel, so of the
+/// image's relative L2 too).
+#[test]
+fn the_gpu_backend_resolves_light_moments_per_pixel_like_the_cpu() {
+    for resolve in [MomentsResolve::Pixel, MomentsResolve::PixelAnalytic] {
+        let extra = format!("light_moments = true\nmoments_resolve = \"{}\"\n", resolve.name());
+        let Some(m) = gpu_backend_run(&extra) else { return };
+        assert_eq!(m.uncompressed.moments_resolve, Some(resolve));
+        for c in &m.compressors {
+            let g = c.gpu.as_ref().unwrap_or_else(|| panic!("{}: no gpu record", c.name));
+            eprintln!("{} {}: image vs cpu rel. L2 {:.2e}", resolve.name(), c.name, g.image_vs_cpu.rel_l2);
+            assert!(g.covered_pixels > 500 && g.image_vs_cpu.rel_l2 < 2e-4, "{}: {g:?}", resolve.name());
+            assert!(g.coverage_mismatch * 200 <= g.covered_pixels.max(200), "{g:?}");
+        }
+        let model = m.frame_model.as_ref().expect("the frame-time model");
+        assert_eq!(model.resolve, resolve);
+        assert!(model
+            .forms
+            .iter()
+            .all(|f| f.shade.gpu_ms.is_some() && f.shade.stage == format!("shade ({})", resolve.name())));
     }
 }
 
