@@ -20,13 +20,17 @@
 //!   three moment gathers, read once; every material's BTF bytes once; per sample the
 //!   visibility id written and read and the rgba32f sample written, 24 bytes); flops per
 //!   sample: [`HIT_FLOPS`] (ray, barycentrics, frame, view) plus, per bin `M`,
-//!   [`LSTAR_BIN_FLOPS`] (`"vertex"`), `3 x` [`TABLE_BIN_FLOPS`] (`"pixel"`, three vertices
-//!   resolved at the sample) or `3 x (`[`ANALYTIC_BIN_FLOPS`]` + `[`brdf_flops`]`)`
-//!   (`"pixel_analytic"`, the scene's dearest analytic material).
+//!   [`LSTAR_BIN_FLOPS`] (`"vertex"`), `3 x` [`TABLE_BIN_FLOPS`] `+` [`LSTAR_BIN_FLOPS`]
+//!   (`"pixel"`: three vertices resolved at the sample, their rows blended and dotted with the
+//!   BTF once) or `3 x (`[`ANALYTIC_BIN_FLOPS`]` + `[`brdf_flops`]`)` (`"pixel_analytic"`,
+//!   the scene's dearest analytic material).
 //!
-//! Flops are counted from the WGSL kernels (`gpu/src/shade/*.wgsl`, `gpu/src/moments/*.wgsl`):
-//! a multiply, an add, a compare-and-select, a square root or a division one each; rounded,
-//! good to about 20%. Caches are assumed perfect (each byte once), which is what makes it a
+//! Flops are counted from the kernels (`gpu/src/shade/*.wgsl`, `gpu/src/moments/*.wgsl`, the
+//! CPU's lanes): a multiply, an add, a compare-and-select, a square root or a division one
+//! each; rounded, good to about 20%. Where two algorithms do the same work, the cheaper one
+//! is counted (the table resolve: the WGSL dots each of a bin's four shares with the BTF as it
+//! spreads them, four times the BTF work of accumulating the rows and dotting them once, as the
+//! CPU does), so a floor is one for every implementation. Caches are assumed perfect (each byte once), which is what makes it a
 //! floor.
 
 use crate::runtime::MomentsResolve;
@@ -42,9 +46,10 @@ pub const HIT_FLOPS: f64 = 200.0;
 /// Flops per bin of the `L*` pass: three vertices' `L*` blended (RGB), four view samples of
 /// the BTF weighted, the product accumulated.
 pub const LSTAR_BIN_FLOPS: f64 = 45.0;
-/// Flops per bin and vertex of the table resolve at a sample: `spread` (about 110) and its
-/// four shares dotted with the BTF's four view samples (about 35 each).
-pub const TABLE_BIN_FLOPS: f64 = 250.0;
+/// Flops per bin and vertex of the table resolve at a sample: `spread` (about 110) and its four
+/// shares accumulated into the vertex's resolved row (16); the blend of the three rows and the
+/// BTF dot are [`LSTAR_BIN_FLOPS`] per bin.
+pub const TABLE_BIN_FLOPS: f64 = 126.0;
 /// Flops per bin and vertex of the analytic resolve besides the BRDF: the power, the
 /// luminance direction in the sample's frame, its normalisation, the product accumulated.
 pub const ANALYTIC_BIN_FLOPS: f64 = 66.0;
@@ -155,7 +160,7 @@ impl FrameShape {
         let (rows, bins, samples) = (self.rows(), self.bins as f64, self.samples as f64);
         let per_bin = match self.resolve {
             MomentsResolve::Vertex => LSTAR_BIN_FLOPS,
-            MomentsResolve::Pixel => 3.0 * TABLE_BIN_FLOPS,
+            MomentsResolve::Pixel => 3.0 * TABLE_BIN_FLOPS + LSTAR_BIN_FLOPS,
             MomentsResolve::PixelAnalytic => 3.0 * (ANALYTIC_BIN_FLOPS + self.brdf_flops),
         };
         let read = match self.resolve.per_pixel() {
@@ -211,6 +216,8 @@ mod tests {
         assert_eq!(a.gather().flops, 18e6 + 130.0 * 64_000.0);
         assert_eq!(a.shade().flops, 307_200.0 * (200.0 + 64.0 * 3.0 * (66.0 + 140.0)));
         assert_eq!(a.shade().stage, "shade (pixel_analytic)");
+        let p = shape(MomentsResolve::Pixel);
+        assert_eq!(p.shade().flops, 307_200.0 * (200.0 + 64.0 * (3.0 * 126.0 + 45.0)));
     }
 
     #[test]
