@@ -193,7 +193,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     crate::estimate::check_peak(&memory, &available, "the BTF study")?;
 
     let mut gpu = match exp.file.runtime.backend {
-        Backend::Gpu => Some(GpuBackend::new(&scene, &view.camera)?),
+        Backend::Gpu => Some(GpuBackend::new(&scene, &view.camera, view.analytic)?),
         Backend::Cpu => None,
     };
     if gpu.is_some() {
@@ -285,9 +285,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
         load_after,
         cpus_online: cpus_online(),
     });
-    let rt = &exp.file.runtime;
-    let size = (*rt.width.get_ref(), *rt.height.get_ref(), rt.samples_per_pixel());
-    metrics.frame_model = Some(crate::stages::frame_model::record(&metrics, &materials.analytic, size, here));
+    metrics.frame_model = Some(crate::stages::frame_model::record(&metrics, view.analytic, &view.camera, here));
     if let Some(w) = crate::report::timing_warning(&metrics) {
         log::warn!("{w}");
     }

@@ -567,7 +567,7 @@ pub(crate) enum GpuBackend {}
 
 #[cfg(not(feature = "gpu"))]
 impl GpuBackend {
-    pub(crate) fn new(_: &ShadeScene, _: &Camera) -> Result<Self> {
+    pub(crate) fn new(_: &ShadeScene, _: &Camera, _: &[Option<Brdf>]) -> Result<Self> {
         Err(no_gpu_feature())
     }
 
@@ -582,6 +582,7 @@ impl GpuBackend {
         _: &biscale_kernels::KernelDesc,
         _: &LightVector,
         _: Option<(&LightMoments, &[VertexFrame])>,
+        _: MomentsResolve,
         _: &[[f64; 3]],
         _: &Render,
         _: &Background<'_>,
@@ -685,13 +686,12 @@ impl Evaluation<'_> {
         let gpu = match gpu.filter(|_| compressor.has_kernels()) {
             Some(g) => {
                 let kernels = compressor.kernels(form).map_err(cerr)?;
-                let shading = (self.resolve, view.analytic);
                 Some(g.run(
                     form,
                     &kernels,
                     self.light,
                     self.moments,
-                    shading,
+                    self.resolve,
                     self.exact,
                     &render,
                     &view.background,

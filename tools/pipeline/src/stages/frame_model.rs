@@ -5,6 +5,7 @@
 //! (a projection, labelled as one), at the run's resolution and at 1920x1080.
 
 use crate::metrics::{FormFrameModel, FrameModelRecord, Metrics, StageModel};
+use biscale_core::scene::Camera;
 use biscale_shading::frame_model::{brdf_flops, FrameShape, Processor, StageCost};
 use biscale_shading::runtime::MomentsResolve;
 use biscale_shading::synth::Brdf;
@@ -136,15 +137,11 @@ pub fn probe() -> Processor {
     }
 }
 
-/// The frame-time model of the run `m` (its forms' records and shape) at its image size
-/// `(width, height, samples per pixel)`, the scene's analytic BRDFs `analytic` and this
+/// The frame-time model of the run `m` (its forms' records and shape) seen by its `camera`
+/// (the image size and samples per pixel), the scene's analytic BRDFs `analytic` and this
 /// machine `here` (from [`probe`]).
-pub fn record(
-    m: &Metrics,
-    analytic: &[Option<Brdf>],
-    (width, height, samples_per_pixel): (u32, u32, u32),
-    here: Processor,
-) -> FrameModelRecord {
+pub fn record(m: &Metrics, analytic: &[Option<Brdf>], camera: &Camera, here: Processor) -> FrameModelRecord {
+    let (width, height, samples_per_pixel) = (camera.width, camera.height, camera.samples_per_pixel);
     let resolve = m.uncompressed.moments_resolve.unwrap_or(MomentsResolve::Vertex);
     let t = &m.transfer;
     let brdf = match resolve {

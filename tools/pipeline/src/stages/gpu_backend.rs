@@ -27,11 +27,17 @@ pub struct GpuBackend {
 }
 
 impl GpuBackend {
-    pub fn new(scene: &ShadeScene, camera: &Camera) -> Result<Self> {
+    /// The device and the shader of `scene` seen by `camera`, its materials given the analytic
+    /// BRDFs `analytic` (one per material, `None` for a table; what `"pixel_analytic"` shades
+    /// with, uploaded once here).
+    pub fn new(scene: &ShadeScene, camera: &Camera, analytic: &[Option<Brdf>]) -> Result<Self> {
         let ctx = GpuContext::new()?;
         let a = ctx.adapter();
         let adapter = format!("{} ({:?}, {})", a.name, a.backend, a.driver);
-        let shader = GpuShader::new(&ctx, scene, camera)?;
+        let mut shader = GpuShader::new(&ctx, scene, camera)?;
+        if analytic.iter().any(Option::is_some) {
+            shader.set_brdfs(analytic)?;
+        }
         log::info!("gpu: {adapter}");
         Ok(Self { ctx, shader, camera: *camera, adapter })
     }
@@ -54,7 +60,7 @@ impl GpuBackend {
     /// the sum of their passes: the buffer copies between the gathers fall outside them);
     /// `L*'` is read back only for the error record. The image is shaded with `resolve`: the
     /// per-pixel resolves read the three gathers in place (`GpuShader::shade_moments`),
-    /// `PixelAnalytic` with the BRDFs `analytic` gives the scene's materials.
+    /// `PixelAnalytic` with the BRDFs [`Self::new`] was given.
     #[allow(clippy::too_many_arguments)]
     pub fn run(
         &mut self,
@@ -62,7 +68,7 @@ impl GpuBackend {
         kernels: &KernelDesc,
         light: &LightVector,
         moments: Option<(&LightMoments, &[VertexFrame])>,
-        (resolve, analytic): (MomentsResolve, &[Option<Brdf>]),
+        resolve: MomentsResolve,
         exact: &[[f64; 3]],
         cpu: &Render,
         background: &Background<'_>,
@@ -81,9 +87,6 @@ impl GpuBackend {
                 let mut moments = GpuMoments::new(gather, frames)?;
                 let timing = repeated(repeats, || moments.time_gather(m, 1))?;
                 moments.gather(m)?;
-                if resolve == MomentsResolve::PixelAnalytic {
-                    self.shader.set_brdfs(analytic)?;
-                }
                 let render = self.shader.shade_moments(&moments, resolve)?;
                 let shade = repeated(repeats, || self.shader.time_shade_moments(&moments, resolve, 1))?;
                 (timing, shade, moments.read_lstar()?, render)
