@@ -94,14 +94,9 @@ pub struct Resolver {
 
 impl Resolver {
     pub fn new(brdf: Brdf) -> Self {
-        let coating = match brdf {
-            Brdf::RoughPlastic { alpha, int_ior, ext_ior, .. } => {
-                let eta = int_ior as f64 / ext_ior as f64;
-                let t = crate::microfacet::coating_table(alpha as f64, eta);
-                Some((t.external_transmittance.map(|x| x as f32), t.internal_reflectance as f32, eta as f32))
-            }
-            _ => None,
-        };
+        let coating = brdf
+            .coating()
+            .map(|t| (t.external_transmittance.map(|x| x as f32), t.internal_reflectance as f32, t.eta as f32));
         Resolver { brdf, coating }
     }
 

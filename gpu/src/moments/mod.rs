@@ -76,6 +76,9 @@ pub struct GpuMoments {
     along: [wgpu::Buffer; 2],
     /// `L*'` (`rows x RGB` f32).
     resolved: wgpu::Buffer,
+    /// `1 / cosbar_i` per bin of the local grid (f32), which the resolve and the shader's
+    /// per-pixel resolves read.
+    inverse_mean_cosine: wgpu::Buffer,
     params: ResolveParams,
     params_buf: wgpu::Buffer,
     pipeline: wgpu::ComputePipeline,
@@ -199,6 +202,7 @@ impl GpuMoments {
             lights,
             along,
             resolved,
+            inverse_mean_cosine: cosine_buf,
             params,
             params_buf,
             pipeline,
@@ -291,6 +295,11 @@ impl GpuMoments {
     /// resolves read in place.
     pub fn moment_buffers(&self) -> [&wgpu::Buffer; 3] {
         [&self.along[0], &self.along[1], self.gather.lstar_buffer()]
+    }
+
+    /// `1 / cosbar_i` per bin of the form's local grid (f32).
+    pub fn inverse_mean_cosine_buffer(&self) -> &wgpu::Buffer {
+        &self.inverse_mean_cosine
     }
 
     /// The lobe of the moments last uploaded or resolved.

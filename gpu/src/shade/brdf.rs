@@ -1,11 +1,11 @@
 //! The analytic BRDFs the shader evaluates for `runtime.moments_resolve = "pixel_analytic"`
 //! (`brdf.wgsl`): each material's [`Brdf`] as the plain record the WGSL reads, its parameters
-//! taken from the `Brdf` itself and the rough plastic's coating table from
-//! [`biscale_shading::microfacet::coating_table`], the table the CPU evaluates, so the GPU and
+//! taken from the `Brdf` itself and the rough plastic's coating table from [`Brdf::coating`],
+//! the table the CPU evaluates, so the GPU and
 //! the CPU share every constant and differ only in the formulas' arithmetic (f32 here), which
 //! the test `brdf_matches_the_cpu` bounds.
 
-use biscale_shading::microfacet::{coating_table, TRANSMITTANCE_RES};
+use biscale_shading::microfacet::TRANSMITTANCE_RES;
 use biscale_shading::synth::Brdf;
 
 /// `GpuBrdf::kind` of a material shaded from its BTF's tables (no analytic BRDF).
@@ -78,14 +78,13 @@ impl GpuBrdf {
                 (g.a, g.b, g.c) = (rgb(eta), rgb(k), rgb(specular_reflectance));
                 g.s[0] = alpha;
             }
-            Brdf::RoughPlastic { alpha, int_ior, ext_ior, diffuse_reflectance, specular_reflectance, nonlinear } => {
-                // The relative IOR and the table exactly as the CPU's `RoughPlastic` forms them.
-                let eta = int_ior as f64 / ext_ior as f64;
-                let table = coating_table(alpha as f64, eta);
+            Brdf::RoughPlastic { alpha, diffuse_reflectance, specular_reflectance, nonlinear, .. } => {
+                // The relative IOR and the table exactly as the CPU evaluates them.
+                let table = brdf.coating().expect("a rough plastic has a coating");
                 g.coating = coating.len() as u32;
                 coating.extend(table.external_transmittance.iter().map(|&t| t as f32));
                 (g.a, g.b) = (rgb(diffuse_reflectance), rgb(specular_reflectance));
-                g.s[..3].copy_from_slice(&[alpha, eta as f32, table.internal_reflectance as f32]);
+                g.s[..3].copy_from_slice(&[alpha, table.eta as f32, table.internal_reflectance as f32]);
                 g.nonlinear = u32::from(nonlinear);
             }
         }

@@ -321,11 +321,10 @@ pub struct GpuShader {
     moments_pipeline: Option<wgpu::ComputePipeline>,
     /// The shader module both passes come from.
     module: wgpu::ShaderModule,
-    /// One [`GpuBrdf`] per material (all `BRDF_NONE` until [`Self::set_brdfs`]), the coating
-    /// tables they index, and `1 / cosbar_i` per bin (a placeholder without bins).
+    /// One [`GpuBrdf`] per material (all `BRDF_NONE` until [`Self::set_brdfs`]) and the
+    /// coating tables they index.
     brdf_buf: wgpu::Buffer,
     coating_buf: wgpu::Buffer,
-    inv_cosine_buf: wgpu::Buffer,
     readback: wgpu::Buffer,
     padded_row: u32,
     vertex_count: usize,
@@ -563,12 +562,6 @@ impl GpuShader {
         )?;
         let coating_buf =
             ctx.storage_buffer("coating tables", bytemuck::cast_slice(&coating), wgpu::BufferUsages::empty())?;
-        let inv_cosine: Vec<f32> = match scene.local_basis().grid() {
-            Some(g) => g.mean_cosines().iter().map(|c| (1.0 / c) as f32).collect(),
-            None => vec![0.0],
-        };
-        let inv_cosine_buf =
-            ctx.storage_buffer("inverse mean cosines", bytemuck::cast_slice(&inv_cosine), wgpu::BufferUsages::empty())?;
         Ok(Self {
             ctx: ctx.clone(),
             params,
@@ -590,7 +583,6 @@ impl GpuShader {
             module,
             brdf_buf,
             coating_buf,
-            inv_cosine_buf,
             readback,
             padded_row,
             vertex_count: nv,
@@ -803,7 +795,7 @@ impl GpuShader {
                 (12, z.as_entire_binding()),
                 (13, self.brdf_buf.as_entire_binding()),
                 (14, self.coating_buf.as_entire_binding()),
-                (15, self.inv_cosine_buf.as_entire_binding()),
+                (15, moments.inverse_mean_cosine_buffer().as_entire_binding()),
             ]
             .map(|(binding, resource)| wgpu::BindGroupEntry { binding, resource });
             self.ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {

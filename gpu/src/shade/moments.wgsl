@@ -21,7 +21,7 @@
 @group(0) @binding(10) var<storage, read> moment_x: array<f32>;
 @group(0) @binding(11) var<storage, read> moment_y: array<f32>;
 @group(0) @binding(12) var<storage, read> moment_z: array<f32>;
-// 1 / cosbar_i per bin of the local grid.
+// 1 / cosbar_i per bin of the local grid (the moments' own buffer, which their vertex resolve reads).
 @group(0) @binding(15) var<storage, read> inv_mean_cosine: array<f32>;
 
 // Channel c of row `row`'s three moments: the world vector D_c.

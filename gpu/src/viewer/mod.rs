@@ -392,8 +392,8 @@ struct Gpu {
     ctx: GpuContext,
     shader: GpuShader,
     gathers: Vec<FormGather>,
-    /// Per form, the shade bind group of its `L*` for the current shader.
-    bind_groups: Vec<Option<crate::shade::ShadeBinding>>,
+    /// Per form, what the current shader reads of it for the current resolve.
+    bind_groups: Vec<Option<crate::ShadeBinding>>,
     tonemap: ToneMap,
     overlay: Overlay,
     /// Timestamps of visibility, shade, tone map, overlay.

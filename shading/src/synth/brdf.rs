@@ -241,6 +241,18 @@ impl Brdf {
         std::array::from_fn(|c| d[c] + s[c])
     }
 
+    /// A rough plastic's coating tables (`None` for another kind), for the relative IOR
+    /// `int_ior / ext_ior` its evaluation uses (`CoatingTable::eta`): what the f32 lanes and the
+    /// GPU upload, so that every evaluation reads the same table.
+    pub fn coating(&self) -> Option<std::sync::Arc<microfacet::CoatingTable>> {
+        match *self {
+            Brdf::RoughPlastic { alpha, int_ior, ext_ior, .. } => {
+                Some(microfacet::coating_table(alpha as f64, int_ior as f64 / ext_ior as f64))
+            }
+            _ => None,
+        }
+    }
+
     /// One BRDF of every kind, with parameters away from the defaults (a coloured conductor
     /// and Mitsuba's default perfect one, a linear and a nonlinear plastic): the cases each
     /// implementation of the kinds is held to the others on (this `eval` in f64, the CPU's f32
