@@ -67,8 +67,8 @@ pub const KEPT_RENDER_BYTES_PER_PIXEL: u64 = 17;
 
 /// Per row of `T`: `T L` in f64 (24), the baseline's `L*` (12), one gather's `L*` (12).
 pub const VECTOR_BYTES_PER_ROW: u64 = 48;
-/// With light moments, per row besides: the baseline's three exact moment gathers (36) and one
-/// form's three gathers (36), kept for the per-pixel resolves.
+/// With light moments, per row besides: the baseline's three exact moment gathers (36, which the
+/// per-pixel resolves keep) and one form's three gathers (36, alive while they are resolved).
 pub const MOMENT_BYTES_PER_ROW: u64 = 72;
 /// With `runtime.moments_resolve = "pixel_analytic"`, per row besides: a render's lit bins
 /// (`biscale_shading::analytic::LitBins`: a unit direction and three direction sums, f32).
@@ -1021,8 +1021,7 @@ mod tests {
         assert_eq!(small.peak().name, "frame-time probe");
         assert_eq!(phase(&large, "compress sparse") - phase(&small, "compress sparse"), 36 * 1_000_000);
         assert_eq!(at(5_000_000).peak().name, "compress sparse");
-        let build = |m: &RunMemory| m.phases.iter().find(|p| p.name == "transfer build").unwrap().bytes;
-        assert_eq!(build(&large) - build(&small), 16 * 1_000_000);
+        assert_eq!(phase(&large, "transfer build") - phase(&small, "transfer build"), 16 * 1_000_000);
         let no_cache =
             RunMemory::new(&exp, &RunShape { cache: false, ..shape }, NnzEstimate::exact(1000, 1_000_000, &settings));
         // The cache adds the sparse form's copy and encoding: (8 per non-zero, 4 per row
