@@ -60,6 +60,7 @@ pub(super) fn cell(run: Option<&RunOutcome<'_>>, f: Figure, paper: Option<f64>, 
                 Err(why) => c.note = Some(why),
             }
             c.busy = r.facts.busy(f);
+            c.load = r.facts.load_of(f);
             if let Some(n) = r.facts.note(f) {
                 c.note = Some(match c.note.take() {
                     Some(a) => format!("{a}; {n}"),

@@ -166,7 +166,7 @@ impl RunFacts<'_> {
     /// for the frame rates, the whole run's (`run.load_average_start`/`_end`) for the
     /// precomputation; `(peak 1-minute load, CPUs)`, `None` for a figure that is not a time or
     /// a record without the reading.
-    fn load_of(&self, f: Figure) -> Option<(f64, usize)> {
+    pub fn load_of(&self, f: Figure) -> Option<(f64, usize)> {
         let m = self.metrics;
         match f {
             Figure::FpsFixedLight | Figure::FpsMovingLight => m.load.and_then(|l| l.peak().map(|p| (p, l.cpus_online))),

@@ -32,6 +32,9 @@ pub struct Cell {
     /// The "ours" figure is a time taken while the machine's load exceeded its CPUs: marked
     /// `(busy)` in every table and said in `numbers.csv`, never shown as a plain result.
     pub busy: bool,
+    /// The load the "ours" figure was timed under, `(peak 1-minute load, CPUs)`; `None` for a
+    /// figure that is not a time. Printed in the caption of every table ([`load_sentence`]).
+    pub load: Option<(f64, usize)>,
 }
 
 impl Cell {
@@ -104,6 +107,37 @@ pub struct PaperTable {
     pub caption: String,
     pub columns: Vec<Column>,
     pub rows: Vec<Row>,
+}
+
+/// The caption's sentence that gives the load beside every timed figure: per timed row, each
+/// column's 1-minute load in column order (`--` where the column has no time), so a reader of
+/// the LaTeX or the page sees what `numbers.csv`'s notes say. `None` when nothing is timed.
+pub fn load_sentence(t: &PaperTable) -> Option<String> {
+    let cpus = t.rows.iter().flat_map(|r| &r.cells).find_map(|c| c.load.map(|(_, n)| n))?;
+    let rows: Vec<String> = t
+        .rows
+        .iter()
+        .filter(|r| r.cells.iter().any(|c| c.load.is_some()))
+        .map(|r| {
+            let loads: Vec<String> =
+                r.cells.iter().map(|c| c.load.map_or("--".into(), |(l, _)| format!("{l:.1}"))).collect();
+            format!("{} {}", r.label, loads.join(" / "))
+        })
+        .collect();
+    let names: Vec<&str> = t.columns.iter().map(|c| c.name.as_str()).collect();
+    Some(format!(
+        "Load while timed (peak 1-minute average on {cpus} CPUs; {}): {}.",
+        names.join(" / "),
+        rows.join("; ")
+    ))
+}
+
+/// The caption with its load sentence, as every table prints it.
+fn full_caption(t: &PaperTable) -> String {
+    match load_sentence(t) {
+        Some(l) => format!("{} {l}", t.caption),
+        None => t.caption.clone(),
+    }
 }
 
 /// `numbers.csv`'s header.
@@ -263,7 +297,7 @@ pub fn latex(t: &PaperTable) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "% Written by `biscale reproduce`; needs \\usepackage{{booktabs}}.");
     let _ = writeln!(s, "\\begin{{table*}}[t]\n\\centering\n\\small");
-    let _ = writeln!(s, "\\caption{{{}: {}}}", latex_text(&t.title), latex_text(&t.caption));
+    let _ = writeln!(s, "\\caption{{{}: {}}}", latex_text(&t.title), latex_text(&full_caption(t)));
     let _ = writeln!(s, "\\label{{tab:reproduce-{}}}", t.file.replace('_', "-"));
     let spans: usize = t.columns.iter().map(Column::span).sum();
     let _ = writeln!(s, "\\begin{{tabular}}{{ll{}}}", "r".repeat(spans));
@@ -337,7 +371,7 @@ pub fn html_text(s: &str) -> String {
 pub fn html(t: &PaperTable) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "<h2 id=\"{}\">{}</h2>", html_escape(&t.file), html_escape(&t.title));
-    let _ = writeln!(s, "<table>\n<caption>{}</caption>", html_text(&t.caption));
+    let _ = writeln!(s, "<table>\n<caption>{}</caption>", html_text(&full_caption(t)));
     let heads: String = t
         .columns
         .iter()
@@ -414,6 +448,19 @@ mod tests {
                 },
             ],
         }
+    }
+
+    /// Every timed figure's load is printed in the caption of the LaTeX and HTML tables, in
+    /// column order, with `--` for a column without a time; a table with no time has none.
+    #[test]
+    fn the_load_of_every_timed_figure_is_in_the_caption() {
+        let mut t = table();
+        assert_eq!(load_sentence(&t), None);
+        t.rows[0].cells[1].load = Some((0.84, 2));
+        let sentence = load_sentence(&t).unwrap();
+        assert_eq!(sentence, "Load while timed (peak 1-minute average on 2 CPUs; Bunny / Armor): data size -- / 0.8.");
+        assert!(latex(&t).contains("data size -- / 0.8."), "{}", latex(&t));
+        assert!(html(&t).contains(&html_text(&sentence)), "{}", html(&t));
     }
 
     /// A time taken on a busy machine is marked in the HTML and LaTeX tables and said in
