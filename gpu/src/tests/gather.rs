@@ -12,7 +12,7 @@ use crate::{GpuError, GpuGather, TimingMethod};
 use biscale_compressors::sparse::Sparse;
 use biscale_compressors::testing::{bins, cubemap, f32_sum_bound, random_light, random_transfer};
 use biscale_core::compress::{ArrayData, CompressContext, CompressError, CompressedForm, Compressor};
-use biscale_core::gather::reference_product;
+use biscale_core::gather::{reference_product, LocalRadiance};
 use biscale_core::sampling::LightVector;
 use biscale_core::transfer::TransferMatrix;
 use biscale_kernels::{Count, Factor, KernelDesc, PassDesc, ScratchDesc};
@@ -403,81 +403,129 @@ fn abs_transform(light: &LightVector) -> Vec<[f64; 3]> {
     out
 }
 
-#[test]
-fn haar_matches_its_cpu_gather_with_f32_and_f16_values() {
-    // Against the CPU gather of the same (lossy) form, which transforms and accumulates in
-    // f64. The f32 light transform makes 3 roundings per level on values bounded by the
-    // all-plus transform A = |W| |L| (log2 R levels), storing l^ one more; the row sum of n
-    // terms c_e l^_k adds (n + 1) u of sum |c_e| A_k; the CPU result's own f32 rounding adds
-    // u |cpu|. We allow u ((n + 3 + 3 log2 R) sum_e |c_e| A_k + |cpu|).
-    use biscale_compressors::haar::{Haar, HaarWeighting};
-    let ctx = gpu_or_skip!();
+/// How far a GPU Haar gather of `light` can be from the CPU's gather `cpu` of the same form,
+/// per row and channel. The CPU transforms and accumulates in f64. The f32 light transform
+/// makes 3 roundings per level on values bounded by the all-plus transform `A = |W| |L|`
+/// (`log2 R` levels), storing `l^` one more; the row sum of `n` terms `c_e l^_k` adds
+/// `(n + 1) u` of `sum |c_e| A_k`; the CPU result's own f32 rounding adds `u |cpu|`. The bound
+/// is `u ((n + 3 + 3 log2 R) sum_e |c_e| A_k + |cpu|)`. Signed lights (the moments') are
+/// bounded through `|L|`.
+pub(super) fn haar_bound(form: &CompressedForm, light: &LightVector, cpu: &LocalRadiance) -> Vec<[f64; 3]> {
     let u = f32::EPSILON as f64 / 2.0;
-    let r = 8u32;
-    let levels = r.trailing_zeros() as f64;
-    let t = random_transfer(6, 8, r, 0.2, 5);
-    for haar in [
-        Haar { terms: 12, weighting: HaarWeighting::Area, f16_values: false },
-        Haar { terms: 20, weighting: HaarWeighting::Side, f16_values: true },
-    ] {
-        let form = haar.compress(&t, &CompressContext::default()).unwrap();
-        for seed in [6u64, 7] {
-            let light = random_light(r, seed);
-            let mut g = upload(ctx, &haar, &form);
-            g.fill_lstar(f32::NAN).unwrap();
-            g.gather(&light).unwrap();
-            let got = g.read_lstar().unwrap();
-            let cpu = haar.gather(&form, &light).unwrap();
-            let a = abs_transform(&light);
-            let row_ptr = form.u32s("row_ptr").unwrap();
-            let idx = form.u16s("coeff_idx").unwrap();
-            let coeff: Vec<f32> = if haar.f16_values {
-                form.u16s("coeff_f16").unwrap().iter().map(|&b| f16_to_f32(b)).collect()
-            } else {
-                form.f32s("coeff_val").unwrap().to_vec()
-            };
-            for row in 0..form.rows() {
-                let span = row_ptr[row] as usize..row_ptr[row + 1] as usize;
-                let n = span.len() as f64;
-                for c in 0..3 {
-                    let mag: f64 = span.clone().map(|e| (coeff[e] as f64).abs() * a[idx[e] as usize][c]).sum();
-                    let bound = u * ((n + 3.0 + 3.0 * levels) * mag + (cpu.values()[row][c] as f64).abs());
-                    let v = got.values()[row][c];
-                    assert!(v.is_finite(), "row {row} not written");
-                    let err = (v as f64 - cpu.values()[row][c] as f64).abs();
-                    assert!(
-                        err <= bound,
-                        "{haar:?} row {row} c{c}: GPU {v} vs CPU {} (bound {bound:e})",
-                        cpu.values()[row][c]
-                    );
-                }
-            }
+    let levels = light.cubemap().unwrap().resolution.trailing_zeros() as f64;
+    let a = abs_transform(light);
+    let row_ptr = form.u32s("row_ptr").unwrap();
+    let idx = form.u16s("coeff_idx").unwrap();
+    let coeff: Vec<f32> = match form.u16s("coeff_f16") {
+        Ok(bits) => bits.iter().map(|&b| f16_to_f32(b)).collect(),
+        Err(_) => form.f32s("coeff_val").unwrap().to_vec(),
+    };
+    (0..form.rows())
+        .map(|row| {
+            let span = row_ptr[row] as usize..row_ptr[row + 1] as usize;
+            let n = span.len() as f64;
+            std::array::from_fn(|c| {
+                let mag: f64 = span.clone().map(|e| (coeff[e] as f64).abs() * a[idx[e] as usize][c]).sum();
+                u * ((n + 3.0 + 3.0 * levels) * mag + (cpu.values()[row][c] as f64).abs())
+            })
+        })
+        .collect()
+}
+
+/// Every element of the GPU gather `got` within `bound` of the CPU's `cpu`, and written.
+fn assert_within_bound(what: &str, got: &LocalRadiance, cpu: &LocalRadiance, bound: &[[f64; 3]]) {
+    for (row, b) in bound.iter().enumerate() {
+        for c in 0..3 {
+            let v = got.values()[row][c];
+            assert!(v.is_finite(), "{what}: row {row} not written");
+            let err = (v as f64 - cpu.values()[row][c] as f64).abs();
+            assert!(err <= b[c], "{what} row {row} c{c}: GPU {v} vs CPU {} (bound {:e})", cpu.values()[row][c], b[c]);
         }
     }
 }
 
 #[test]
+fn haar_matches_its_cpu_gather_with_f32_and_f16_values() {
+    // Against the CPU gather of the same (lossy) form, within `haar_bound`.
+    use biscale_compressors::haar::{Haar, HaarWeighting};
+    let ctx = gpu_or_skip!();
+    let t = random_transfer(6, 8, 8, 0.2, 5);
+    for haar in [
+        Haar { terms: 12, weighting: HaarWeighting::Area, f16_values: false },
+        Haar { terms: 20, weighting: HaarWeighting::Side, f16_values: true },
+    ] {
+        let form = haar.compress(&t, &CompressContext::default()).unwrap();
+        assert_eq!(form.u16s("coeff_f16").is_ok(), haar.f16_values);
+        for seed in [6u64, 7] {
+            let light = random_light(8, seed);
+            let mut g = upload(ctx, &haar, &form);
+            g.fill_lstar(f32::NAN).unwrap();
+            g.gather(&light).unwrap();
+            let got = g.read_lstar().unwrap();
+            let cpu = haar.gather(&form, &light).unwrap();
+            assert_within_bound(&format!("{haar:?}"), &got, &cpu, &haar_bound(&form, &light, &cpu));
+        }
+    }
+}
+
+/// How far a GPU CPCA gather of `light` can be from the CPU's gather `cpu` of the same form
+/// (f64 projections and sums), per row and channel. Each GPU projection `P_v = basis_v . L`
+/// is summed by 64 lanes of `ceil(N / 64)` products each, then a 6-level tree: error
+/// `<= (ceil(N / 64) + 7) u A_v` with `A_v = sum_k |basis_vk| |L_k|`. A row adds `C` products
+/// to `P_0`: `(C + 1) u (|P_0| + sum |w_c P_c|)` plus the propagated projection errors; the
+/// CPU's f32 rounding adds `u |cpu|`. An all-zero row (cluster id `K`) must be exactly 0.
+/// Both units: rows, and whole vertices (a vertex's M rows as one vector, segment `j` of each
+/// basis vector for row `j`).
+pub(super) fn cpca_bound(form: &CompressedForm, light: &LightVector, cpu: &LocalRadiance) -> Vec<[f64; 3]> {
+    let u = f32::EPSILON as f64 / 2.0;
+    let (k, c, n) = (form.meta("clusters").unwrap() as usize, form.meta("components").unwrap() as usize, form.cols());
+    let units = form.meta("unit_rows").unwrap() as usize;
+    let cluster = form.u16s("cluster").unwrap();
+    let (basis, coeffs) = (form.f32s("basis").unwrap(), form.f32s("coeffs").unwrap());
+    let lane = n.div_ceil(64) as f64 + 7.0;
+    let proj: Vec<([f64; 3], [f64; 3])> = basis
+        .chunks(n)
+        .map(|b| {
+            let (mut p, mut a) = ([0.0f64; 3], [0.0f64; 3]);
+            for (x, l) in b.iter().zip(&light.power) {
+                for ch in 0..3 {
+                    p[ch] += *x as f64 * l[ch] as f64;
+                    a[ch] += (*x as f64 * l[ch] as f64).abs();
+                }
+            }
+            (p, a)
+        })
+        .collect();
+    (0..form.rows())
+        .map(|r| {
+            let (unit, j) = (r / units, r % units);
+            let id = cluster[unit] as usize;
+            std::array::from_fn(|ch| {
+                if id == k {
+                    return 0.0;
+                }
+                let seg = |v: usize| (id * (c + 1) + v) * units + j;
+                let w = |v: usize| if v == 0 { 1.0 } else { coeffs[unit * c + v - 1] as f64 };
+                let terms: f64 = (0..=c).map(|v| (w(v) * proj[seg(v)].0[ch]).abs()).sum();
+                let prop: f64 = (0..=c).map(|v| w(v).abs() * lane * u * proj[seg(v)].1[ch]).sum();
+                (c as f64 + 1.0) * u * terms + prop + u * (cpu.values()[r][ch] as f64).abs()
+            })
+        })
+        .collect()
+}
+
+#[test]
 fn cpca_matches_its_cpu_gather() {
-    // Against the CPU gather of the same (lossy) form (f64 projections and sums). Each GPU
-    // projection P_v = basis_v . L is summed by 64 lanes of ceil(N / 64) products each, then a
-    // 6-level tree: error <= (ceil(N / 64) + 7) u A_v with A_v = sum_k |basis_vk| L_k. A row
-    // adds C products to P_0: (C + 1) u (|P_0| + sum |w_c P_c|) plus the propagated projection
-    // errors; the CPU's f32 rounding adds u |cpu|. Both units: rows, and whole vertices (a
-    // vertex's M rows as one vector, segment j of each basis vector for row j).
+    // Against the CPU gather of the same (lossy) form, within `cpca_bound`.
     use biscale_compressors::cpca::{Cpca, CpcaUnit};
     let ctx = gpu_or_skip!();
-    let u = f32::EPSILON as f64 / 2.0;
     let t = random_transfer(20, 8, 4, 0.05, 12);
     for cpca in [Cpca::new(6, 3), Cpca { unit: CpcaUnit::Vertex, ..Cpca::new(4, 3) }] {
         let form = cpca.compress(&t, &CompressContext { seed: 3, progress: None, sweep: None }).unwrap();
-        let (k, c, n) =
-            (form.meta("clusters").unwrap() as usize, form.meta("components").unwrap() as usize, form.cols());
-        let units = form.meta("unit_rows").unwrap() as usize;
-        let cluster = form.u16s("cluster").unwrap();
-        if units == 1 {
-            assert!(cluster.iter().any(|&id| id as usize == k), "want at least one all-zero row");
+        if form.meta("unit_rows").unwrap() == 1 {
+            let k = form.meta("clusters").unwrap() as usize;
+            assert!(form.u16s("cluster").unwrap().iter().any(|&id| id as usize == k), "want at least one all-zero row");
         }
-        let (basis, coeffs) = (form.f32s("basis").unwrap(), form.f32s("coeffs").unwrap());
         for seed in [30u64, 31] {
             let light = random_light(4, seed);
             let mut g = upload(ctx, &cpca, &form);
@@ -485,39 +533,7 @@ fn cpca_matches_its_cpu_gather() {
             g.gather(&light).unwrap();
             let got = g.read_lstar().unwrap();
             let cpu = cpca.gather(&form, &light).unwrap();
-            let lane = n.div_ceil(64) as f64 + 7.0;
-            let proj: Vec<([f64; 3], [f64; 3])> = basis
-                .chunks(n)
-                .map(|b| {
-                    let (mut p, mut a) = ([0.0f64; 3], [0.0f64; 3]);
-                    for (x, l) in b.iter().zip(&light.power) {
-                        for ch in 0..3 {
-                            p[ch] += *x as f64 * l[ch] as f64;
-                            a[ch] += (*x as f64).abs() * l[ch] as f64;
-                        }
-                    }
-                    (p, a)
-                })
-                .collect();
-            for r in 0..form.rows() {
-                let (unit, j) = (r / units, r % units);
-                let id = cluster[unit] as usize;
-                for ch in 0..3 {
-                    let v = got.values()[r][ch];
-                    assert!(v.is_finite(), "row {r} not written");
-                    let bound = if id == k {
-                        0.0
-                    } else {
-                        let seg = |v: usize| (id * (c + 1) + v) * units + j;
-                        let w = |v: usize| if v == 0 { 1.0 } else { coeffs[unit * c + v - 1] as f64 };
-                        let terms: f64 = (0..=c).map(|v| (w(v) * proj[seg(v)].0[ch]).abs()).sum();
-                        let prop: f64 = (0..=c).map(|v| w(v).abs() * lane * u * proj[seg(v)].1[ch]).sum();
-                        (c as f64 + 1.0) * u * terms + prop + u * (cpu.values()[r][ch] as f64).abs()
-                    };
-                    let err = (v as f64 - cpu.values()[r][ch] as f64).abs();
-                    assert!(err <= bound, "row {r} c{ch}: GPU {v} vs CPU {} (bound {bound:e})", cpu.values()[r][ch]);
-                }
-            }
+            assert_within_bound(&format!("{cpca:?}"), &got, &cpu, &cpca_bound(&form, &light, &cpu));
         }
     }
 }

@@ -54,6 +54,7 @@ fn compare(gpu: &Render, cpu: &Render, tol: f64) -> (usize, f64) {
 
 use super::gather::upload;
 use super::gpu_or_skip;
+use super::shading::random_btf;
 use crate::{GpuContext, GpuMoments, GpuShader};
 use biscale_compressors::sparse::Sparse;
 use biscale_compressors::testing::{bins, random_transfer};
@@ -61,7 +62,7 @@ use biscale_core::compress::{CompressContext, Compressor};
 use biscale_core::gather::moments::Lobe;
 use biscale_core::gather::LocalRadiance;
 use biscale_core::geometry::{shapes, vertex_frames, VertexFrame};
-use biscale_core::scene::{Btf, Camera, Material, Render, ShadeScene};
+use biscale_core::scene::{Btf, Camera, LpcaBtf, LpcaSettings, Material, Render, ShadeScene};
 use biscale_shading::cpu::{shade_moments, shade_moments_analytic};
 use biscale_shading::runtime::MomentsResolve;
 use biscale_shading::synth::Brdf;
@@ -225,13 +226,25 @@ struct Case {
 }
 
 fn case(m: u32, texels: usize, seed: u64) -> Case {
-    let mesh = shapes::uv_sphere(Vec3::ZERO, 1.0, 10, 20);
+    case_with(m, texels, seed, None)
+}
+
+/// [`case`], with material 1 an LPCA of a random 4x3-texel BTF (`m = 4`) on a sphere with
+/// cylindrical UVs when `lpca` is given.
+fn case_with(m: u32, texels: usize, seed: u64, lpca: Option<LpcaSettings>) -> Case {
+    let sphere = shapes::uv_sphere(Vec3::ZERO, 1.0, 10, 20);
+    let mesh = if lpca.is_some() { shapes::cylindrical_uvs(&sphere) } else { sphere };
     let (frames, _) = vertex_frames(&mesh);
     let basis = bins(m);
-    let materials = vec![
-        Material::new(Btf::phong([0.3, 0.25, 0.2], [0.4, 0.5, 0.6], 16.0, basis, 4).unwrap()),
-        Material::new(Btf::phong([0.5, 0.5, 0.5], [0.2, 0.2, 0.2], 6.0, basis, 4).unwrap()),
-    ];
+    let second = match &lpca {
+        None => Material::new(Btf::phong([0.5, 0.5, 0.5], [0.2, 0.2, 0.2], 6.0, basis, 4).unwrap()),
+        Some(settings) => {
+            assert_eq!(m, 4, "the random BTF has 4x4 light bins");
+            let (l, _) = LpcaBtf::compress(&random_btf(4, 3, 3, seed), settings, 11).unwrap();
+            Material { btf: l.into(), tiling: 2.0 }
+        }
+    };
+    let materials = vec![Material::new(Btf::phong([0.3, 0.25, 0.2], [0.4, 0.5, 0.6], 16.0, basis, 4).unwrap()), second];
     let ids = (0..mesh.triangle_count() as u32).map(|t| t % 2).collect();
     let nv = mesh.positions.len();
     let bins_per_vertex = basis.len();
@@ -318,6 +331,35 @@ fn per_pixel_resolves_match_the_cpu_for_every_material_kind() {
         // The vertex resolve through the same entry point is the L*' pass.
         let vertex = shader.shade_moments(&g, MomentsResolve::Vertex).unwrap();
         assert_eq!(vertex.image.pixels, shader.shade(&g).unwrap().image.pixels);
+    }
+}
+
+/// The table resolve reads an LPCA BTF (beside a dense one) as the CPU does, per texel and per
+/// view, under a sun and under texels spread over the hemisphere. Bound: the images' `2e-4`;
+/// the LPCA's own f32 sums add `(M + 4 (C + 1)) u`, `4e-6` for `M = 16`, `C <= 3`
+/// (`tests/shading.rs`). A wrong cluster, segment or weight is an O(1) error.
+#[test]
+fn the_table_resolve_reads_lpca_btfs_like_the_cpu() {
+    let ctx = gpu_or_skip!();
+    let camera = camera_at(Vec3::new(0.6, 0.9, 3.0), 48, 36);
+    for (settings, texels, seed) in
+        [(LpcaSettings::new(3, 2), 0usize, 4u64), (LpcaSettings::new(4, 3).per_view(), 2, 5)]
+    {
+        let case = case_with(4, texels, seed, Some(settings));
+        let g = moments_on_gpu(ctx, &case, 4);
+        let mut shader = GpuShader::new(ctx, &case.scene, &camera).unwrap();
+        let [x, y, z] = &case.moments;
+        let gpu = shader.shade_moments(&g, MomentsResolve::Pixel).unwrap();
+        let cpu = shade_moments(&case.scene, [x, y, z], Lobe::MeanDirection, &camera).unwrap();
+        let (mismatched, worst) = compare(&gpu, &cpu, 2e-4);
+        eprintln!("pixel, LPCA {settings:?}, {texels} texels: {mismatched} coverage mismatches, worst {worst:.3e}");
+        // Material 1 (the LPCA) is where the analytic resolve falls back to the tables.
+        let brdfs = [Some(Brdf::one_of_each()[0]), None];
+        shader.set_brdfs(&brdfs).unwrap();
+        let gpu = shader.shade_moments(&g, MomentsResolve::PixelAnalytic).unwrap();
+        let cpu = shade_moments_analytic(&case.scene, [x, y, z], &brdfs, &camera).unwrap();
+        let (mismatched, worst) = compare(&gpu, &cpu, 2e-4);
+        eprintln!("pixel_analytic + LPCA tables: {mismatched} coverage mismatches, worst {worst:.3e}");
     }
 }
 

@@ -623,7 +623,7 @@ fn forced_timestamps_time_both_shading_passes() {
 }
 
 /// A `w x h` BTF of random values in [0.2, 1) (16 lights, `view_m^2` views).
-fn random_btf(w: u32, h: u32, view_m: u32, seed: u64) -> Btf {
+pub(super) fn random_btf(w: u32, h: u32, view_m: u32, seed: u64) -> Btf {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let grid = HemisphereGrid::new(view_m);
     let n = (w * h) as usize * grid.len() * 16;
