@@ -23,7 +23,7 @@
 use crate::analytic::{Lanes, LitBins, Resolver};
 use crate::error::Result;
 use crate::synth::Brdf;
-use biscale_core::gather::moments::{Lobe, PointLanes, PointResolve, LUMINANCE};
+use biscale_core::gather::moments::{Lobe, PointLanes, PointMoments, PointResolve, LUMINANCE};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::geometry::VertexFrame;
 use biscale_core::scene::{Camera, HdrImage, Material, Render, ShadeScene};
@@ -113,6 +113,7 @@ pub(crate) fn render_rows(
     // Every pixel is the box filter's mean over its n x n samples (one sample: the pixel
     // centre's ray, unchanged), the missed ones contributing 0 here and the background later.
     let mut coverage = vec![0.0f32; w * h];
+    let rays = camera.rays();
     image.pixels.par_chunks_mut(w).zip(mask.par_chunks_mut(w)).zip(coverage.par_chunks_mut(w)).enumerate().for_each(
         |(y, ((row, row_mask), row_coverage))| {
             let mut lstar = vec![[0.0f64; 3]; m];
@@ -122,7 +123,7 @@ pub(crate) fn render_rows(
                 for j in 0..n {
                     for i in 0..n {
                         let (sx, sy) = camera.sample(x as u32, y as u32, i, j);
-                        let (origin, dir) = camera.ray(sx, sy);
+                        let (origin, dir) = rays.ray(sx, sy);
                         if let Some(p) = primary_hit(scene, origin, dir) {
                             let c = f(&p, &mut lstar, &mut scratch);
                             (0..3).for_each(|k| sum[k] += c[k] as f64);
@@ -277,6 +278,10 @@ fn shade_moments_with(
         true => Some(LitBins::new(moments)),
         false => None,
     };
+    // The moments laid out for the table resolve, once per frame, unless every material is
+    // analytic.
+    let tables = (0..scene.materials().len()).any(|i| resolvers.get(i).is_none_or(Option::is_none));
+    let prepared = tables.then(|| PointMoments::new(moments));
     thread_local! {
         static LANES: RefCell<Lanes> = RefCell::new(Lanes::default());
     }
@@ -287,8 +292,6 @@ fn shade_moments_with(
         static WORK: RefCell<Option<Work>> = const { RefCell::new(None) };
     }
     Ok(render_rows(scene, camera, &|| {}, &|p, acc, scratch| {
-        // Vertex `v`'s rows of the three gathers.
-        let rows_of = |v: u32| moments.map(|a| a.vertex(v as usize));
         if let (Some(r), Some(lit)) =
             (resolvers.get(scene.material_index(p.triangle)).and_then(Option::as_ref), lit.as_ref())
         {
@@ -310,8 +313,9 @@ fn shade_moments_with(
             }
             let (_, resolved, lanes) = work.as_mut().expect("just filled");
             acc.fill([0.0; 3]);
+            let prepared = prepared.as_ref().expect("laid out where a material has tables");
             for (&v, &w) in p.vertices.iter().zip(&p.weights) {
-                point.resolve_lanes(lanes, &p.frame, rows_of(v), resolved);
+                point.resolve_prepared(lanes, &p.frame, prepared, v as usize, resolved);
                 for (a, r) in acc.iter_mut().zip(resolved.iter()) {
                     (0..3).for_each(|c| a[c] += w as f64 * r[c]);
                 }

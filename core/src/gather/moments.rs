@@ -210,7 +210,7 @@ pub fn resolve(along: [&LocalRadiance; 3], frames: &[VertexFrame], lobe: Lobe) -
         |lanes, (v, (out, frame))| {
             let rows = [along[0].vertex(v), along[1].vertex(v), along[2].vertex(v)];
             lanes.redistribute(grid, frame, lobe, rows);
-            for ((o, a), inv) in out.iter_mut().zip(&lanes.acc).zip(&inv) {
+            for ((o, a), inv) in out.iter_mut().zip(lanes.acc()).zip(&inv) {
                 *o = [a[0] * inv, a[1] * inv, a[2] * inv];
             }
         },
@@ -268,7 +268,27 @@ impl PointResolve {
     ) {
         let PointLanes { lanes } = lanes;
         lanes.redistribute(self.grid, frame, self.lobe, along);
-        for ((o, a), inv) in out.iter_mut().zip(&lanes.acc).zip(&self.inverse_mean_cosine) {
+        self.divide(lanes.acc(), out);
+    }
+
+    /// [`Self::resolve_lanes`] of vertex `v` of `moments`, laid out once per light: the same
+    /// bits, without gathering and transposing the vertex's rows at every hit.
+    pub fn resolve_prepared(
+        &self,
+        lanes: &mut PointLanes,
+        frame: &VertexFrame,
+        moments: &PointMoments,
+        v: usize,
+        out: &mut [[f64; 3]],
+    ) {
+        let spread = &mut lanes.lanes.spread;
+        spread.spread(self.grid, frame, self.lobe, moments.vertex(v));
+        self.divide(&spread.acc, out);
+    }
+
+    /// `out[i] = acc[i] / cosbar_i` (in f32, as the vertex resolve).
+    fn divide(&self, acc: &[[f32; 4]], out: &mut [[f64; 3]]) {
+        for ((o, a), inv) in out.iter_mut().zip(acc).zip(&self.inverse_mean_cosine) {
             let inv = *inv as f32;
             *o = [(a[0] * inv) as f64, (a[1] * inv) as f64, (a[2] * inv) as f64];
         }
@@ -283,8 +303,13 @@ pub struct PointLanes {
 /// The working rows of [`resolve`] for one vertex, one f32 lane per bin (structure of arrays,
 /// so that each step is one loop over the bins that the compiler vectorises).
 struct Lanes {
-    /// `D_{j,c}` per channel `c` and world axis `a`: `moment[c][a][j]`.
-    moment: [[Vec<f32>; 3]; 3],
+    /// The vertex's moments as [`Spread::spread`] reads them ([`fill_block`]).
+    block: Vec<f32>,
+    spread: Spread,
+}
+
+/// The lanes one vertex's moments are spread through.
+struct Spread {
     /// `n . D_{j,c}`, the bin's exact-cosine power per channel, and a zero fourth lane (so the
     /// scatter adds four-wide).
     power: Vec<[f32; 4]>,
@@ -296,36 +321,124 @@ struct Lanes {
     acc: Vec<[f32; 4]>,
 }
 
+/// Floats per bin of a vertex's block ([`fill_block`]).
+const BLOCK_LANES: usize = 12;
+
+/// One vertex's gathered rows (`rows[a][j][c]`: axis `a` of `D_{j,c}`) laid out as the spread
+/// reads them, `M` floats a lane: lane `3 c + a` is `D_{j,c}` along axis `a` (nine lanes), lane
+/// `9 + a` the luminance direction `sum_c Y_c D_{j,c}` along `a` (three). Each lane is read
+/// front to back, so a vertex's moments stream through the cache in order.
+fn fill_block(rows: [&[[f32; 3]]; 3], block: &mut [f32]) {
+    let m = block.len() / BLOCK_LANES;
+    let luminance = LUMINANCE.map(|y| y as f32);
+    for (a, row) in rows.iter().enumerate() {
+        for (j, d) in row[..m].iter().enumerate() {
+            (0..3).for_each(|c| block[(3 * c + a) * m + j] = d[c]);
+        }
+    }
+    let (moments, lum) = block.split_at_mut(9 * m);
+    for (a, lum) in lum.chunks_exact_mut(m).enumerate() {
+        let (r, g, b) = (&moments[a * m..][..m], &moments[(3 + a) * m..][..m], &moments[(6 + a) * m..][..m]);
+        for j in 0..m {
+            lum[j] = luminance[0] * r[j] + luminance[1] * g[j] + luminance[2] * b[j];
+        }
+    }
+}
+
+/// Every vertex's three gathered moments laid out once per light as the per-pixel resolve reads
+/// them ([`fill_block`]: `12 M` floats a vertex, 48 bytes per row), so that each of a hit's
+/// three resolves reads one contiguous block instead of gathering its rows from three arrays
+/// and transposing them, and the luminance directions are formed once per vertex instead of
+/// once per sample ([`PointResolve::resolve_prepared`]).
+pub struct PointMoments {
+    m: usize,
+    blocks: Vec<f32>,
+}
+
+impl PointMoments {
+    /// The blocks of `along` (the three gathers, same basis and vertex count: the caller's
+    /// [`LocalRadiance`] checks).
+    pub fn new(along: [&LocalRadiance; 3]) -> Self {
+        let m = along[0].local_dirs();
+        let mut blocks = vec![0.0f32; along[0].vertices() * m * BLOCK_LANES];
+        blocks.par_chunks_mut(m * BLOCK_LANES).enumerate().for_each(|(v, block)| {
+            fill_block([along[0].vertex(v), along[1].vertex(v), along[2].vertex(v)], block);
+        });
+        Self { m, blocks }
+    }
+
+    /// The bytes held per row of `L*` (the memory estimate charges them).
+    pub const BYTES_PER_ROW: u64 = (BLOCK_LANES * std::mem::size_of::<f32>()) as u64;
+
+    fn vertex(&self, v: usize) -> &[f32] {
+        &self.blocks[v * self.m * BLOCK_LANES..][..self.m * BLOCK_LANES]
+    }
+}
+
 impl Lanes {
     fn new(grid: HemisphereGrid) -> Self {
         let m = grid.len();
         let lanes = || [vec![0.0; m], vec![0.0; m], vec![0.0; m]];
         Self {
-            moment: [lanes(), lanes(), lanes()],
-            power: vec![[0.0; 4]; m],
-            local: lanes(),
-            cells: Cells::new(grid),
-            acc: vec![[0.0; 4]; m],
+            block: vec![0.0; m * BLOCK_LANES],
+            spread: Spread {
+                power: vec![[0.0; 4]; m],
+                local: lanes(),
+                cells: Cells::new(grid),
+                acc: vec![[0.0; 4]; m],
+            },
         }
     }
 
-    /// [`redistribute`] in f32 for the gathered rows of one vertex (`rows[a][j][c]`: axis `a`
-    /// of `D_{j,c}`), with the direction lookup done for all bins at once ([`Cells::locate`])
-    /// instead of one [`light_weights`] call per bin. The f32 sums round at the level of the
-    /// gathered moments' own f32 storage (a few ulps of `|D_j|`), tested against the f64 form.
+    /// The sums of [`resolve`]'s redistribution (`acc`, before the division by `cosbar_i`) for
+    /// the gathered rows of one vertex.
     fn redistribute(&mut self, grid: HemisphereGrid, frame: &VertexFrame, lobe: Lobe, rows: [&[[f32; 3]]; 3]) {
-        let luminance = LUMINANCE.map(|y| y as f32);
-        let bins = grid.len();
-        for (a, row) in rows.iter().enumerate() {
-            for (j, d) in row[..bins].iter().enumerate() {
-                (0..3).for_each(|c| self.moment[c][a][j] = d[c]);
-            }
+        fill_block(rows, &mut self.block);
+        self.spread.spread(grid, frame, lobe, &self.block);
+    }
+
+    fn acc(&self) -> &[[f32; 4]] {
+        &self.spread.acc
+    }
+}
+
+impl Spread {
+    /// [`redistribute`] in f32 for one vertex's `block` ([`fill_block`]), with the direction
+    /// lookup done for all bins at once ([`Cells::locate`]) instead of one [`light_weights`]
+    /// call per bin. The f32 sums round at the level of the gathered moments' own f32 storage
+    /// (a few ulps of `|D_j|`), tested against the f64 form.
+    ///
+    /// Where the CPU has AVX2 the same loops run eight lanes wide instead of SSE2's four: no
+    /// fused multiply-add is enabled, so every lane does the very IEEE operations of the
+    /// four-wide build and the result is the same bit for bit (tested below); only the
+    /// instruction width differs.
+    fn spread(&mut self, grid: HemisphereGrid, frame: &VertexFrame, lobe: Lobe, block: &[f32]) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the one feature the function enables was detected just above.
+            return unsafe { self.spread_avx2(grid, frame, lobe, block) };
         }
+        self.spread_lanes(grid, frame, lobe, block)
+    }
+
+    /// [`Self::spread`] compiled for AVX2 (no FMA: the same roundings).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn spread_avx2(&mut self, grid: HemisphereGrid, frame: &VertexFrame, lobe: Lobe, block: &[f32]) {
+        self.spread_lanes(grid, frame, lobe, block)
+    }
+
+    /// The body of [`Self::spread`], inlined into each build of it.
+    #[inline(always)]
+    fn spread_lanes(&mut self, grid: HemisphereGrid, frame: &VertexFrame, lobe: Lobe, block: &[f32]) {
+        let bins = grid.len();
+        let lane = |k: usize| &block[k * bins..(k + 1) * bins];
         // The exact-cosine power in f64: near the horizon `n . D` is much smaller than `|D|`,
         // and an f32 sum would lose `eps |D| / |n . D|` of it.
         let n = frame.normal.as_dvec3();
-        for (j, power) in self.power.iter_mut().enumerate() {
-            for (c, [dx, dy, dz]) in self.moment.iter().enumerate() {
+        for c in 0..3 {
+            let (dx, dy, dz) = (lane(3 * c), lane(3 * c + 1), lane(3 * c + 2));
+            for (j, power) in self.power.iter_mut().enumerate() {
                 power[c] = (n.x * dx[j] as f64 + n.y * dy[j] as f64 + n.z * dz[j] as f64) as f32;
             }
         }
@@ -334,12 +447,11 @@ impl Lanes {
             self.acc.copy_from_slice(&self.power);
             return;
         }
-        let [r, g, b] = &self.moment;
+        let (d0, d1, d2) = (lane(9), lane(10), lane(11));
         let [lx, ly, lz] = &mut self.local;
         let (t, bt, n) = (frame.tangent, frame.bitangent, frame.normal);
         for j in 0..bins {
-            let axis = |a: usize| luminance[0] * r[a][j] + luminance[1] * g[a][j] + luminance[2] * b[a][j];
-            let d = [axis(0), axis(1), axis(2)];
+            let d = [d0[j], d1[j], d2[j]];
             lx[j] = t.x * d[0] + t.y * d[1] + t.z * d[2];
             ly[j] = bt.x * d[0] + bt.y * d[1] + bt.z * d[2];
             lz[j] = n.x * d[0] + n.y * d[1] + n.z * d[2];
@@ -389,6 +501,7 @@ impl Cells {
     /// Against the f64 map the coordinates differ by a few f32 ulps of `m` (the arctangent's
     /// 1.1e-7 and rounding), tested below. A zero direction gets the bin's own coordinates
     /// (all its weight on itself), one that is not finite the zenith's.
+    #[inline(always)]
     fn locate(&mut self, local: &[Vec<f32>; 3]) {
         let [w0, w1, w2, w3] = &mut self.weight;
         locate_lanes(
@@ -404,6 +517,7 @@ impl Cells {
 /// The loop of [`Cells::locate`], on slices passed as arguments: the compiler knows that
 /// distinct `&mut` arguments do not overlap, so it vectorises without run-time overlap checks
 /// (of which there would be too many for it across eleven arrays).
+#[inline(always)]
 fn locate_lanes(m: f32, local: [&[f32]; 3], own: [&[f32]; 2], corner: &mut [f32], weight: [&mut [f32]; 4]) {
     // Only arithmetic, comparisons and selects of values in the loop (no `clamp`, whose
     // assertion, and no float-to-int cast, whose saturation, keep it from vectorising; no
@@ -461,7 +575,7 @@ fn locate_lanes(m: f32, local: [&[f32]; 3], own: [&[f32]; 2], corner: &mut [f32]
 
 /// `atan(t)` for `t` in `[0, 1]`: an odd polynomial of degree 15 fitted near-minimax on the
 /// interval; its error with f32 evaluation is at most 1.2e-7 (tested against f64 `atan`).
-#[inline]
+#[inline(always)]
 fn atan_unit(t: f32) -> f32 {
     const C: [f32; 8] = [
         0.999_999_34,
@@ -970,6 +1084,7 @@ mod tests {
                 LocalRadiance::new(basis, 30, values).unwrap()
             })
             .collect();
+        let prepared = PointMoments::new([&along[0], &along[1], &along[2]]);
         for lobe in [Lobe::MeanDirection, Lobe::BinCentre] {
             let vertex = resolve([&along[0], &along[1], &along[2]], &frames, lobe).unwrap();
             let point = PointResolve::new(basis, lobe).unwrap();
@@ -985,13 +1100,54 @@ mod tests {
                         assert!((o[c] - w[c] as f64).abs() <= 1e-5 * scale, "{lobe:?} vertex {v}: {o:?} vs {w:?}");
                     }
                 }
-                // The lanes are the vertex resolve's own arithmetic: bit for bit.
+                // The lanes are the vertex resolve's own arithmetic: bit for bit, and so are the
+                // moments laid out once per light.
                 point.resolve_lanes(&mut lanes, frame, [0, 1, 2].map(|a| along[a].vertex(v)), &mut out);
                 for (o, w) in out.iter().zip(vertex.vertex(v)) {
                     assert_eq!(o.map(|x| x as f32), *w, "{lobe:?} vertex {v}, lanes");
                 }
+                let mut again = vec![[0.0f64; 3]; m];
+                point.resolve_prepared(&mut lanes, frame, &prepared, v, &mut again);
+                assert_eq!(again, out, "{lobe:?} vertex {v}, prepared");
             }
         }
         assert!(PointResolve::new(LocalBasis::sh(3).unwrap(), Lobe::MeanDirection).is_err());
+    }
+
+    /// The lanes built for AVX2 (eight wide, no FMA) give the very bits of the SSE2 build's
+    /// four, on random moments and on stiff ones (zero, tiny, huge, below the horizon, not
+    /// finite), at grids 2 to 16: only the width differs.
+    #[test]
+    fn the_wide_lanes_give_the_same_bits_as_the_narrow_ones() {
+        let mut rng = ChaCha8Rng::seed_from_u64(12);
+        for m in [2u32, 3, 8, 16] {
+            let grid = HemisphereGrid::new(m);
+            let n = grid.len();
+            let frames = random_frames(8, &mut rng);
+            for (k, frame) in frames.iter().enumerate() {
+                let rows: [Vec<[f32; 3]>; 3] = std::array::from_fn(|_| {
+                    (0..n)
+                        .map(|j| {
+                            [0, 1, 2].map(|_| match (k + j) % 7 {
+                                0 => 0.0,
+                                1 => rng.gen_range(-1e-30f32..1e-30),
+                                2 => rng.gen_range(-1e30f32..1e30),
+                                3 if j % 5 == 0 => f32::NAN,
+                                _ => rng.gen_range(-1.0f32..1.0),
+                            })
+                        })
+                        .collect()
+                });
+                let rows = [&rows[0][..], &rows[1][..], &rows[2][..]];
+                for lobe in [Lobe::MeanDirection, Lobe::BinCentre] {
+                    let (mut wide, mut narrow) = (Lanes::new(grid), Lanes::new(grid));
+                    wide.redistribute(grid, frame, lobe, rows);
+                    fill_block(rows, &mut narrow.block);
+                    narrow.spread.spread_lanes(grid, frame, lobe, &narrow.block);
+                    let bits = |l: &Lanes| l.acc().iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&wide), bits(&narrow), "m = {m}, frame {k}, {lobe:?}");
+                }
+            }
+        }
     }
 }

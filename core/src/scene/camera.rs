@@ -146,12 +146,40 @@ impl Camera {
     /// The primary ray through image point `(px, py)` (pixel centres at `+0.5`, row 0 at the
     /// top): `(origin, unit direction)`.
     pub fn ray(&self, px: f32, py: f32) -> (Vec3, Vec3) {
+        self.rays().ray(px, py)
+    }
+
+    /// What every primary ray of this camera shares (its basis and the image plane's scale),
+    /// worked out once: [`Rays::ray`] is [`Self::ray`] bit for bit, without the basis's
+    /// normalisations per ray (a frame of 320x240 at 4 samples makes 307,200 rays).
+    pub fn rays(&self) -> Rays {
         let (r, u, f) = self.basis();
         let t = (self.fov_y_degrees.to_radians() * 0.5).tan();
         let (w, h) = (self.width.max(1) as f32, self.height.max(1) as f32);
+        Rays { position: self.position, r, u, f, t, w, h }
+    }
+}
+
+/// A camera's primary rays ([`Camera::rays`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Rays {
+    position: Vec3,
+    r: Vec3,
+    u: Vec3,
+    f: Vec3,
+    t: f32,
+    w: f32,
+    h: f32,
+}
+
+impl Rays {
+    /// [`Camera::ray`].
+    #[inline]
+    pub fn ray(&self, px: f32, py: f32) -> (Vec3, Vec3) {
+        let Rays { position, r, u, f, t, w, h } = *self;
         let sx = (2.0 * px / w - 1.0) * t * (w / h);
         let sy = (1.0 - 2.0 * py / h) * t;
-        (self.position, (f + r * sx + u * sy).normalize())
+        (position, (f + r * sx + u * sy).normalize())
     }
 }
 

@@ -18,7 +18,7 @@ pub mod lpca;
 pub mod representation;
 
 pub use btf::Btf;
-pub use camera::Camera;
+pub use camera::{Camera, Rays};
 pub use image::{Background, HdrImage, Render};
 pub use lpca::{LpcaBtf, LpcaQuantize, LpcaReport, LpcaSettings, LpcaUnit, DEFAULT_LPCA_ITERATIONS};
 pub use representation::BtfRepresentation;

@@ -73,6 +73,10 @@ pub const MOMENT_BYTES_PER_ROW: u64 = 72;
 /// With `runtime.moments_resolve = "pixel_analytic"`, per row besides: a render's lit bins
 /// (`biscale_shading::analytic::LitBins`: a unit direction and three direction sums, f32).
 pub const LIT_BIN_BYTES_PER_ROW: u64 = 48;
+/// With a per-pixel resolve (`"pixel"`, or `"pixel_analytic"` beside a material with tables),
+/// per row besides: the moments laid out for the table resolve
+/// (`biscale_core::gather::moments::PointMoments`, twelve f32 lanes).
+pub const POINT_MOMENT_BYTES_PER_ROW: u64 = biscale_core::gather::moments::PointMoments::BYTES_PER_ROW;
 /// Per row on the GPU backend: the `L*` buffer and its read-back.
 pub const GPU_BYTES_PER_ROW: u64 = 32;
 
@@ -190,7 +194,8 @@ impl RunMemory {
         let representations = RepresentationMemory::new(exp, shape, m, pixels);
         let per_row = VECTOR_BYTES_PER_ROW
             + if f.runtime.light_moments { MOMENT_BYTES_PER_ROW } else { 0 }
-            + if f.runtime.resolve_analytic() { LIT_BIN_BYTES_PER_ROW } else { 0 };
+            + if f.runtime.resolve_analytic() { LIT_BIN_BYTES_PER_ROW } else { 0 }
+            + if f.runtime.moments_resolve().is_some_and(|r| r.per_pixel()) { POINT_MOMENT_BYTES_PER_ROW } else { 0 };
         let vectors = rows * per_row + n * 16;
         let gpu_on = f.runtime.backend == Backend::Gpu;
         let gpu = if gpu_on { GPU_BASELINE_BYTES } else { 0 };
