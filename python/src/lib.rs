@@ -109,7 +109,7 @@ impl Experiment {
     #[pyo3(signature = (cache_dir = None, no_cache = false))]
     fn plan(&self, py: Python<'_>, cache_dir: Option<PathBuf>, no_cache: bool) -> PyResult<String> {
         let opts = options(None, cache_dir, no_cache);
-        py.detach(|| biscale::experiment::plan::Plan::new(&self.exp).with_estimates(&self.exp, &opts))
+        py.detach(|| biscale::plan::Plan::new(&self.exp).with_estimates(&self.exp, &opts))
             .map(|p| p.to_string())
             .map_err(err)
     }

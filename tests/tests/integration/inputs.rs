@@ -93,7 +93,7 @@ fn a_ply_mesh_under_six_sky_faces_runs_exactly_as_its_obj_under_the_cross() {
     let b = config(d, "ply_faces", "m.ply", "sky_{face}.exr");
     // plan: the memory estimate loads the mesh and the sky (and keys T by the PLY's content).
     let opts = biscale::store::RunOptions { out_dir: None, cache_dir: Some(d.join("cache")), no_cache: false };
-    let plan = biscale::experiment::plan::Plan::new(&b).with_estimates(&b, &opts).unwrap().to_string();
+    let plan = biscale::plan::Plan::new(&b).with_estimates(&b, &opts).unwrap().to_string();
     assert!(plan.contains("build transfer   T"), "{plan}");
     assert!(plan.contains("sky_{face}.exr"), "{plan}");
     let la = biscale::stages::scene::load_lighting(&a).unwrap();

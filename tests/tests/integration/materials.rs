@@ -133,7 +133,7 @@ fn the_bundled_temple_is_the_generators_and_names_every_configured_material() {
         .unwrap()
         .expect("per-name map");
     assert_eq!(map.len(), 5);
-    let plan = biscale::experiment::plan::Plan::new(&exp).to_string();
+    let plan = biscale::plan::Plan::new(&exp).to_string();
     assert!(plan.contains("marble: ray tracing of a flat patch"), "{plan}");
     assert!(plan.contains("ground: synthesize 16x16 texels x no view axis"), "{plan}");
     assert!(plan.contains("material ids per triangle (5 materials)"), "{plan}");
@@ -322,7 +322,7 @@ fn a_measured_btf_in_the_bonn_layout_renders_as_the_material_it_measured() {
     let measured = config("measured", "kind = \"bonn\"\npath = \"sample\"\nresolution = 2\nview_grid = 2");
     let analytic = config("analytic", &format!("kind = \"lambertian\"\nalbedo = {albedo:?}"));
     let exp = Experiment::load(&measured).unwrap();
-    let plan = biscale::experiment::plan::Plan::new(&exp).to_string();
+    let plan = biscale::plan::Plan::new(&exp).to_string();
     assert!(
         plan.contains("resample the measured BTF in") && plan.contains("2x2 texels x 2x2 views x 4x4 lights"),
         "{plan}"

@@ -708,7 +708,7 @@ fn run() -> anyhow::Result<()> {
         }
         Command::Plan { config, cache } => {
             let exp = load(&config)?;
-            print!("{}", biscale::experiment::plan::Plan::new(&exp).with_estimates(&exp, &cache.options(None))?);
+            print!("{}", biscale::plan::Plan::new(&exp).with_estimates(&exp, &cache.options(None))?);
         }
         Command::ExportMatrix { config, out, cache } => {
             let exp = load(&config)?;

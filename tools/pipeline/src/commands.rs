@@ -404,7 +404,7 @@ pub fn view(
     opts: &RunOptions,
 ) -> Result<()> {
     use biscale_gpu::{Screenshot, ViewerForm, ViewerSetup};
-    let plan = crate::experiment::plan::Plan::new(exp);
+    let plan = crate::plan::Plan::new(exp);
     let method = match method {
         Some(label) => {
             let settings = exp.method_settings();

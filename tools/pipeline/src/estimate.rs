@@ -37,12 +37,9 @@ use biscale_core::CoreError;
 /// cubemap (everything else tiny); 4 MiB of headroom for other builds and machines.
 pub const PROCESS_BASELINE_BYTES: u64 = 20 << 20;
 
-/// The frame-time model's probe (`stages::frame_model::probe`, run before `T` is built, beside
-/// the geometry and the light): its two copy buffers, 32 MiB each (a copy touches both: twice
-/// the 32 MiB last-level cache of the machine it was written on). Part of them may stay in
-/// that cache: on that machine it measured 35-59 GB/s where a 256 MiB copy measured 28, so the
-/// floors it gives are low (the side on which a ratio to them is never flattering), not high.
-pub const FRAME_PROBE_BYTES: u64 = 2 * (32 << 20);
+/// The frame-time model's probe (run before `T` is built, beside the geometry and the light):
+/// its two copy buffers, as the probe defines them.
+pub use crate::stages::frame_model::PROBE_BYTES as FRAME_PROBE_BYTES;
 
 /// What `runtime.backend = "gpu"` adds besides the buffers: the wgpu instance and, on a CPU
 /// adapter (lavapipe), its compiler. Measured: 100 MiB (lavapipe, the bunny at a 6x4x4 cubemap).

@@ -11,7 +11,8 @@
 //! | module | what it holds |
 //! |---|---|
 //! | [`error`] | [`error::PipelineError`], the one error of the crate, naming stage and input |
-//! | [`experiment`] | the experiment file (`config`: located errors, sweeps, `--set`), method kinds, the `plan` |
+//! | [`experiment`] | the experiment file (`config`: located errors, sweeps, `--set`) and the method kinds |
+//! | [`plan`] | what a run will do and leave out, with its memory estimate (`plan.txt`) |
 //! | [`stages`] | scene, transfer, materials, evaluation, figures, the BTF study, the SH method, the GPU backend |
 //! | [`run`] | the script of a run and the [`run::RunContext`] that `run`, `eval` and `shard merge` share |
 //! | [`store`] | the stage cache, and output folders swapped in whole and owned by proof |
@@ -24,8 +25,10 @@
 //! | [`commands`], [`temple`], [`chair`] | the smaller commands (`export-matrix`, `diff`, `btf`, `generate`, `viz`, `view`); the generated scenes |
 //! | [`util`] | verbosity, notes and progress bars |
 //!
-//! Imports run one way: `run`, `shard`, `interop` and `commands` use `stages`, which use
-//! `experiment`, `estimate` and `store`; `error` is the floor every module stands on.
+//! Imports run one way, each module using only those before it: `experiment` and `store` (and
+//! `util`), then `error` (which wraps their errors), `provenance`, `stages`, `estimate` (of the
+//! stages' geometry and light), `plan` (with the estimate), then `run`, and on top `shard`,
+//! `interop`, `commands`, `rerender` and `reproduce`.
 //!
 //! ```no_run
 //! let exp = biscale::experiment::config::Experiment::load("configs/smoke.toml".as_ref()).unwrap();
@@ -38,6 +41,7 @@ pub mod error;
 pub mod estimate;
 pub mod experiment;
 pub mod interop;
+pub mod plan;
 pub mod provenance;
 pub mod reproduce;
 pub mod rerender;

@@ -8,8 +8,8 @@
 
 use crate::error::{io_err, PipelineError, Result};
 use crate::experiment::config::{Backend, CompressorSetting, Experiment};
-use crate::experiment::plan::Plan;
 use crate::metrics::*;
+use crate::plan::Plan;
 use crate::provenance::StageClock;
 use crate::stages::evaluate::{
     cpus_online, errors, load_average_1min, no_gpu_feature, targets, Evaluation, GpuBackend, Targets, View,

@@ -290,7 +290,7 @@ pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Man
     let mut separable = vec![];
     let mut in_merge = vec![];
     let mut multiple = 1usize;
-    for s in &crate::experiment::plan::Plan::new(exp).compressors {
+    for s in &crate::plan::Plan::new(exp).compressors {
         let c = build_compressor(s)?;
         match c.separability(shape) {
             Separability::Rows { vertex_multiple } => {
@@ -339,7 +339,7 @@ pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Man
     // Every shard holds the whole mesh and its BVH (the rays of its vertices may hit any
     // triangle); the rest grows with its non-zeros.
     let common = crate::estimate::process_and_geometry_bytes(&geometry.mesh);
-    let plan_settings: Vec<CompressorSetting> = crate::experiment::plan::Plan::new(exp).compressors;
+    let plan_settings: Vec<CompressorSetting> = crate::plan::Plan::new(exp).compressors;
     let shard_at = |nnz: u64| {
         let t = transfer::TransferMemory::new(&settings, largest, nnz, threads);
         let parts: Vec<_> = plan_settings
@@ -487,7 +487,7 @@ impl Manifest {
 
     /// The compressor of the separable setting `label`, built from the config.
     fn compressor(&self, exp: &Experiment, label: &str, path: &Path) -> Result<Box<dyn Compressor>> {
-        let setting = crate::experiment::plan::Plan::new(exp)
+        let setting = crate::plan::Plan::new(exp)
             .compressors
             .into_iter()
             .find(|c| c.label == label)

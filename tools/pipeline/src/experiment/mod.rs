@@ -1,7 +1,6 @@
-//! The experiment: the TOML file read with located errors and `--set` overrides ([`config`]),
-//! the method kinds beside the all-frequency one and their parameters ([`methods`]), and the
-//! plan of what a run will do and leave out ([`plan`]).
+//! The experiment: the TOML file read with located errors and `--set` overrides ([`config`]) and
+//! the method kinds beside the all-frequency one and their parameters ([`methods`]). What a run
+//! will do with it is planned above it, in [`crate::plan`].
 
 pub mod config;
 pub mod methods;
-pub mod plan;

@@ -30,8 +30,8 @@ pub mod npy;
 
 use crate::error::{PipelineError, Result};
 use crate::experiment::config::{CompressorSetting, Experiment, MaterialConfig, MomentsResolve};
-use crate::experiment::plan::Plan;
 use crate::metrics::{CompressorRecord, Metrics};
+use crate::plan::Plan;
 use crate::run::{metrics_of_run, RunContext};
 use crate::stages::evaluate::{targets, Evaluation, View};
 use crate::stages::scene::{load_geometry, load_lighting, shade_scene};
