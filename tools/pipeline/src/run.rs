@@ -94,29 +94,8 @@ pub fn run(exp: &Experiment, opts: &RunOptions) -> Result<(PathBuf, Metrics)> {
 
 /// [`run`], with `T` and the separable forms taken from a sharded precompute when given.
 pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -> Result<(PathBuf, Metrics)> {
-    // The text as it runs (with any `--set` applied), not the file's.
-    let clock = StageClock::start(&exp.source, exp.file.seed);
-    let mut plan = Plan::new(exp);
-    if let Some(p) = &pre {
-        // A merge traces nothing and caches no T: its plan says where T comes from.
-        plan.transfer_from(format!(
-            "T from {} shards' outputs ({}), traced by the shards, not cached",
-            p.sharded.shards,
-            match &p.rows {
-                TransferRows::Whole(_) => "stacked into one matrix",
-                TransferRows::Parts(_) => "streamed part by part, never whole",
-            }
-        ));
-    }
-    // Standard error from the CLI; a `biscale` logging record from Python, as every note is.
-    crate::util::note(plan.to_string().trim_end());
-    if exp.file.runtime.backend == Backend::Gpu && !cfg!(feature = "gpu") {
-        return Err(no_gpu_feature());
-    }
-    let default_target = Path::new("out").join(exp.name());
-    let mut ctx = RunContext::begin(opts, default_target, "run", &exp.config_path.display().to_string(), clock)?;
+    let (mut ctx, plan) = begin(exp, opts, pre.as_ref())?;
     let out_dir = ctx.out_dir().to_path_buf();
-    write_atomic_bytes(&out_dir.join("plan.txt"), plan.to_string().as_bytes())?;
 
     // Compressors are constructed first so a bad setting fails before any heavy work.
     let compressors: Vec<(CompressorSetting, Box<dyn Compressor>)> =
@@ -124,16 +103,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     let animated_labels = animated_settings(exp, &plan)?;
 
     ctx.clock.mark("setup");
-    let geometry = load_geometry(exp)?;
-    ctx.clock.mark("geometry");
-    for r in &geometry.repairs {
-        crate::util::warn(format_args!("{}: {r}", exp.mesh_path.display()));
-    }
-    let lighting = load_lighting(exp)?;
-    for w in &lighting.warnings {
-        crate::util::warn(w);
-    }
-    ctx.clock.mark("lighting");
+    let (geometry, lighting) = geometry_and_lighting(exp, &mut ctx.clock)?;
     let streamed = pre.as_ref().and_then(|p| p.streamed_part_vertices());
     let (memory, available) = crate::estimate::check_run(exp, &geometry, &lighting, ctx.cache.is_some(), streamed)?;
     ctx.clock.mark("memory estimate");
@@ -141,38 +111,15 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     // before T is built (its buffers then cost no more than T will) and before any timed step.
     let here = crate::stages::frame_model::probe();
     ctx.clock.mark("frame-time probe");
-    let (t, pre_forms, sharded) = match pre {
-        Some(p) => {
-            let t =
-                precomputed_transfer(p.rows, p.rays_traced, p.transfer_seconds, exp, &geometry, ctx.cache.as_ref())?;
-            (t, p.forms, Some((p.sharded, p.started)))
-        }
-        None => (transfer_matrix(exp, &geometry, ctx.cache.as_ref())?, Default::default(), None),
-    };
-    ctx.clock.mark(match (&sharded, &t.rows) {
-        (None, _) => "transfer",
-        (Some(_), TransferRows::Whole(_)) => "transfer (stacked from the shards)",
-        (Some(_), TransferRows::Parts(_)) => "transfer (streamed from the shards)",
-    });
+    let (t, pre_forms, sharded) = transfer_of(exp, &geometry, &mut ctx, pre)?;
     fault_point("transfer");
     crate::estimate::check_peak(&memory, &available, "the transfer stage")?;
     if let Some(w) = sky_warning(&t.metrics, t.view().vertices()) {
         crate::util::warn(w);
     }
-    let (scene, mut materials) = shade_scene(exp, &geometry, t.view().local_basis(), ctx.cache.as_ref())?;
-    for n in &materials.notes {
-        log::info!("materials: {n}");
-    }
-    ctx.clock.mark("materials");
+    let (scene, mut materials) = materials_of(exp, &geometry, &t, &mut ctx)?;
     crate::estimate::check_peak(&memory, &available, "the materials")?;
     let analytic = materials.analytic.clone();
-    if exp.file.runtime.resolve_analytic() && analytic.iter().all(Option::is_none) {
-        crate::util::warn(format!(
-            "runtime.moments_resolve = \"pixel_analytic\": no material is a flat analytic BRDF ({}), so every \
-             pixel is resolved from the BTF's tables, as with \"pixel\"",
-            materials.reference_shading()
-        ));
-    }
     let view = View::of(exp, &geometry, &lighting, &scene, &analytic);
     // The machine's load around the timed steps: from the uncompressed gather to the last method.
     let load_before = load_average_1min();
@@ -251,23 +198,10 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     }
     let load_after = load_average_1min();
     crate::estimate::check_peak(&memory, &available, "the methods")?;
-    let animations = match exp.file.runtime.animation.any() {
-        true => {
-            let inputs = crate::stages::animation::Inputs {
-                exp,
-                lighting: &lighting,
-                t: t.whole("[runtime.animation]")?,
-                frames: geometry.transfer.frames(),
-                view: &view,
-                exposure: targets.tone.exposure,
-                out_dir: &out_dir,
-            };
-            let a = crate::stages::animation::animate(&inputs, &animated)?;
-            ctx.clock.mark("animation");
-            a
-        }
-        false => vec![],
-    };
+    let animations = animations_of(exp, &lighting, &t, &geometry, &view, targets.tone.exposure, &out_dir, &animated)?;
+    if exp.file.runtime.animation.any() {
+        ctx.clock.mark("animation");
+    }
     drop(animated);
 
     let fixed = exp.file.report.reference_error_scale;
@@ -280,11 +214,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     metrics.sharded =
         sharded.map(|(s, started)| ShardedMetrics { merge_seconds: started.elapsed().as_secs_f64(), ..s });
     metrics.run = Some(ctx.clock.finish());
-    metrics.load = (load_before.is_some() || load_after.is_some()).then(|| LoadRecord {
-        load_before,
-        load_after,
-        cpus_online: cpus_online(),
-    });
+    metrics.load = load_record(load_before, load_after);
     metrics.frame_model = Some(crate::stages::frame_model::record(&metrics, view.analytic, &view.camera, here));
     if let Some(w) = crate::report::timing_warning(&metrics) {
         log::warn!("{w}");
@@ -292,6 +222,136 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     write_report(&metrics, &plan, &out_dir)?;
     fault_point("report");
     Ok((ctx.commit()?, metrics))
+}
+
+/// The separable forms a sharded precompute built, by label.
+type SeparableForms = std::collections::BTreeMap<String, CompressedForm>;
+
+/// A run's start: its plan (saying where `T` comes from when a sharded precompute made it)
+/// printed, the GPU backend refused when this build has none, the output folder staged and
+/// `plan.txt` written into it.
+fn begin(exp: &Experiment, opts: &RunOptions, pre: Option<&Precomputed>) -> Result<(RunContext, Plan)> {
+    // The text as it runs (with any `--set` applied), not the file's.
+    let clock = StageClock::start(&exp.source, exp.file.seed);
+    let mut plan = Plan::new(exp);
+    if let Some(p) = pre {
+        // A merge traces nothing and caches no T: its plan says where T comes from.
+        plan.transfer_from(format!(
+            "T from {} shards' outputs ({}), traced by the shards, not cached",
+            p.sharded.shards,
+            match &p.rows {
+                TransferRows::Whole(_) => "stacked into one matrix",
+                TransferRows::Parts(_) => "streamed part by part, never whole",
+            }
+        ));
+    }
+    // Standard error from the CLI; a `biscale` logging record from Python, as every note is.
+    crate::util::note(plan.to_string().trim_end());
+    if exp.file.runtime.backend == Backend::Gpu && !cfg!(feature = "gpu") {
+        return Err(no_gpu_feature());
+    }
+    let default_target = Path::new("out").join(exp.name());
+    let ctx = RunContext::begin(opts, default_target, "run", &exp.config_path.display().to_string(), clock)?;
+    write_atomic_bytes(&ctx.out_dir().join("plan.txt"), plan.to_string().as_bytes())?;
+    Ok((ctx, plan))
+}
+
+/// The mesh and the light, each one's repairs and warnings said.
+fn geometry_and_lighting(exp: &Experiment, clock: &mut StageClock) -> Result<(Geometry, Lighting)> {
+    let geometry = load_geometry(exp)?;
+    clock.mark("geometry");
+    for r in &geometry.repairs {
+        crate::util::warn(format_args!("{}: {r}", exp.mesh_path.display()));
+    }
+    let lighting = load_lighting(exp)?;
+    for w in &lighting.warnings {
+        crate::util::warn(w);
+    }
+    clock.mark("lighting");
+    Ok((geometry, lighting))
+}
+
+/// `T`, traced (or from the cache), or stacked or streamed from a sharded precompute with the
+/// forms the shards built and the record of the shards.
+fn transfer_of(
+    exp: &Experiment,
+    geometry: &Geometry,
+    ctx: &mut RunContext,
+    pre: Option<Precomputed>,
+) -> Result<(Transfer, SeparableForms, Option<(ShardedMetrics, std::time::Instant)>)> {
+    let (t, pre_forms, sharded) = match pre {
+        Some(p) => {
+            let t = precomputed_transfer(p.rows, p.rays_traced, p.transfer_seconds, exp, geometry, ctx.cache.as_ref())?;
+            (t, p.forms, Some((p.sharded, p.started)))
+        }
+        None => (transfer_matrix(exp, geometry, ctx.cache.as_ref())?, Default::default(), None),
+    };
+    ctx.clock.mark(match (&sharded, &t.rows) {
+        (None, _) => "transfer",
+        (Some(_), TransferRows::Whole(_)) => "transfer (stacked from the shards)",
+        (Some(_), TransferRows::Parts(_)) => "transfer (streamed from the shards)",
+    });
+    Ok((t, pre_forms, sharded))
+}
+
+/// The scene to shade and its materials on `T`'s local basis, their notes said, and a warning
+/// when the analytic resolve has no analytic material to shade.
+fn materials_of(
+    exp: &Experiment,
+    geometry: &Geometry,
+    t: &Transfer,
+    ctx: &mut RunContext,
+) -> Result<(biscale_core::scene::ShadeScene, SceneMaterials)> {
+    let (scene, materials) = shade_scene(exp, geometry, t.view().local_basis(), ctx.cache.as_ref())?;
+    for n in &materials.notes {
+        log::info!("materials: {n}");
+    }
+    ctx.clock.mark("materials");
+    if exp.file.runtime.resolve_analytic() && materials.analytic.iter().all(Option::is_none) {
+        crate::util::warn(format!(
+            "runtime.moments_resolve = \"pixel_analytic\": no material is a flat analytic BRDF ({}), so every \
+             pixel is resolved from the BTF's tables, as with \"pixel\"",
+            materials.reference_shading()
+        ));
+    }
+    Ok((scene, materials))
+}
+
+/// The turning-light animation of the kept forms and methods (`[runtime.animation]`), or
+/// nothing when none is asked for.
+#[allow(clippy::too_many_arguments)]
+fn animations_of(
+    exp: &Experiment,
+    lighting: &Lighting,
+    t: &Transfer,
+    geometry: &Geometry,
+    view: &View<'_>,
+    exposure: f32,
+    out_dir: &Path,
+    animated: &[crate::stages::animation::Animated<'_>],
+) -> Result<Vec<AnimationRecord>> {
+    if !exp.file.runtime.animation.any() {
+        return Ok(vec![]);
+    }
+    let inputs = crate::stages::animation::Inputs {
+        exp,
+        lighting,
+        t: t.whole("[runtime.animation]")?,
+        frames: geometry.transfer.frames(),
+        view,
+        exposure,
+        out_dir,
+    };
+    crate::stages::animation::animate(&inputs, animated)
+}
+
+/// `metrics.json`'s `load`: the 1-minute load before and after the timed steps, with the CPUs.
+fn load_record(load_before: Option<f64>, load_after: Option<f64>) -> Option<LoadRecord> {
+    (load_before.is_some() || load_after.is_some()).then(|| LoadRecord {
+        load_before,
+        load_after,
+        cpus_online: cpus_online(),
+    })
 }
 
 /// Each compressor setting's form of `T` (from the shards when a sharded precompute made it,

@@ -59,7 +59,7 @@ pub mod published;
 pub mod tables;
 
 use crate::error::{io_err, PipelineError, Result};
-use crate::metrics::Metrics;
+use crate::metrics::{Metrics, RunRecord};
 use crate::provenance::StageClock;
 use crate::store::staging::StagedDir;
 use crate::store::RunOptions;
@@ -177,6 +177,21 @@ mod path_tests {
     }
 }
 
+/// An error when the cache folder lies inside the output folder (which each reproduce replaces
+/// whole), by their real paths.
+fn cache_outside(cache_dir: &Path, target: &Path) -> Result<()> {
+    if real_path(cache_dir).starts_with(real_path(target)) {
+        return Err(PipelineError::Mismatch {
+            path: cache_dir.to_path_buf(),
+            what: format!(
+                "the cache folder lies inside the output folder {}, which each reproduce replaces whole; put it elsewhere",
+                target.display()
+            ),
+        });
+    }
+    Ok(())
+}
+
 /// Run the items `opts` selects and write the output folder.
 pub fn reproduce(opts: &Options) -> Result<Outcome> {
     let clock = StageClock::start(published::TEXT, 0);
@@ -186,15 +201,7 @@ pub fn reproduce(opts: &Options) -> Result<Outcome> {
     let cache_dir = opts.cache_dir.clone().unwrap_or_else(crate::store::cache::default_dir);
     let default_out = if opts.quick { "out/paper-quick" } else { "out/paper" };
     let target = opts.out.clone().unwrap_or_else(|| PathBuf::from(default_out));
-    if real_path(&cache_dir).starts_with(real_path(&target)) {
-        return Err(PipelineError::Mismatch {
-            path: cache_dir,
-            what: format!(
-                "the cache folder lies inside the output folder {}, which each reproduce replaces whole; put it elsewhere",
-                target.display()
-            ),
-        });
-    }
+    cache_outside(&cache_dir, &target)?;
     let earlier = Ledger::read(&target);
     let mut about = String::from("biscale reproduce");
     if opts.quick {
@@ -212,71 +219,30 @@ pub fn reproduce(opts: &Options) -> Result<Outcome> {
     };
     let meshes = cache_dir.join("meshes");
 
-    let mut done: Vec<(&'static items::RunSpec, Metrics, Option<String>, f64)> = vec![];
+    let env = RunEnv {
+        opts,
+        selected: &selected,
+        configs: &configs,
+        meshes: &meshes,
+        sizes,
+        cache_dir: &cache_dir,
+        out: &out,
+    };
+    let mut done: Vec<Done> = vec![];
     let mut viz_files: Option<Vec<PathBuf>> = None;
     for (i, spec) in specs.iter().enumerate() {
-        let what: Vec<&str> = selected.iter().filter(|it| it.runs.contains(&spec.name)).map(|it| it.name).collect();
         log::info!(
             "reproduce: run {}/{} `{}` ({} for {}){}",
             i + 1,
             specs.len(),
             spec.name,
             spec.config,
-            what.join(", "),
+            selected.iter().filter(|it| it.runs.contains(&spec.name)).map(|it| it.name).collect::<Vec<_>>().join(", "),
             if opts.quick { ", quick" } else { "" }
         );
-        let start = std::time::Instant::now();
-        // A twin run magnifies the same pixels as the run it is set beside, tone maps its
-        // images at the same exposure and draws its errors against the ground truth on the
-        // same colour bar (before the user's --set, which wins).
-        let mut overrides = vec![];
-        let twin = spec.inset_from.and_then(|t| done.iter().find(|d| d.0.name == t)).map(|d| &d.1);
-        if let Some(tone) = twin.and_then(|m| m.tone_map.as_ref()) {
-            overrides.push(format!("report.exposure={:?}", tone.exposure));
-        }
-        if let Some(f) = twin.and_then(|m| m.figures.as_ref()) {
-            let [x, y, w, h] = f.inset;
-            overrides.push(format!("report.inset=[{x}, {y}, {w}, {h}]"));
-            if let Some(scale) = f.reference_error_scale {
-                overrides.push(format!("report.reference_error_scale={scale:?}"));
-            }
-        }
-        overrides.extend(opts.overrides.iter().cloned());
-        let (exp, made) = items::experiment(spec, &configs, opts.quick, &overrides, &meshes, sizes)?;
-        if let Some(m) = &made {
-            log::info!("reproduce: `{}` mesh: {} ({})", spec.name, m.how, m.path.display());
-        }
-        let run_opts = RunOptions {
-            out_dir: Some(out.join("runs").join(spec.name)),
-            cache_dir: Some(cache_dir.clone()),
-            no_cache: false,
-        };
-        // The timed steps want the cores to themselves: wait for a quiet machine first, and
-        // repeat a run once (its T and forms come from the cache) when another process shared
-        // the cores while it timed its steps. A run busy twice keeps its (busy) mark.
-        let patience = std::time::Duration::from_secs(if opts.quick { 15 } else { 120 });
-        wait_for_quiet(spec.name, patience);
-        reset_peak_memory();
-        let (_, mut metrics) = crate::run::run(&exp, &run_opts)?;
-        if let Some(load) = metrics.load.filter(|l| l.overloaded()) {
-            log::warn!(
-                "reproduce: `{}` timed its steps at load {:.1} on {} CPUs (another process shared them): waiting for a \
-                 quiet machine and repeating it once",
-                spec.name,
-                load.peak().unwrap_or(f64::NAN),
-                load.cpus_online
-            );
-            wait_for_quiet(spec.name, patience);
-            reset_peak_memory();
-            metrics = crate::run::run(&exp, &run_opts)?.1;
-        }
-        if spec.name == "bunny" && selected.iter().any(|it| it.name == "fig3b") {
-            log::info!("reproduce: Fig. 3(b): biscale viz of `bunny`'s T");
-            viz_files = Some(crate::commands::viz(&exp, &out.join("viz"), None, 8, &run_opts)?);
-        }
-        let seconds = start.elapsed().as_secs_f64();
-        log::info!("reproduce: `{}` done in {seconds:.1} s", spec.name);
-        done.push((spec, metrics, made.map(|m| m.how), seconds));
+        let (d, viz) = env.run(spec, &done)?;
+        viz_files = viz.or(viz_files);
+        done.push(d);
     }
 
     let machine = {
@@ -286,69 +252,13 @@ pub fn reproduce(opts: &Options) -> Result<Outcome> {
     let ctx = compose::Context { quick: opts.quick, machine, published: &published };
     let outcomes: Vec<compose::RunOutcome<'_>> = done
         .iter()
-        .map(|(spec, m, how, _)| compose::RunOutcome {
-            name: spec.name,
-            facts: RunFacts { metrics: m, transfer: earlier.transfer_time(spec.name, m) },
-            mesh_how: how.clone(),
+        .map(|d| compose::RunOutcome {
+            name: d.spec.name,
+            facts: RunFacts { metrics: &d.metrics, transfer: earlier.transfer_time(d.spec.name, &d.metrics) },
+            mesh_how: d.mesh_how.clone(),
         })
         .collect();
-    let find = |name: &str| outcomes.iter().find(|o| o.name == name);
-    let mut made_tables = vec![];
-    let mut made_figures: Vec<figures::FigureSet> = vec![];
-    // The page's sections (tables and figures) in the order they are made.
-    let mut order: Vec<Section> = vec![];
-    let mut table = |t: tables::PaperTable, order: &mut Vec<Section>| {
-        order.push(Section::Table(made_tables.len()));
-        made_tables.push(t);
-    };
-    let mut figure = |f: figures::FigureSet, order: &mut Vec<Section>| {
-        order.push(Section::Figure(made_figures.len()));
-        made_figures.push(f);
-    };
-    for item in &selected {
-        match item.name {
-            "table1" => table(compose::table1(&ctx, &outcomes), &mut order),
-            "table2" => table(compose::table2(&ctx, &outcomes), &mut order),
-            "equal-quality" => {
-                if let Some(o) = find("equal-quality") {
-                    table(compose::equal_quality(&ctx, o), &mut order);
-                    figure(figs::fig6_figure(&out, o)?, &mut order);
-                }
-            }
-            "low-vs-all" => {
-                let scenes = [
-                    ("fig1", "Fig. 1: low- vs all-frequency, the bumpy bunny", FIG1_SAYS, "fig1-bunny"),
-                    ("fig5", "Fig. 5: low- vs all-frequency, a glossy model", FIG5_SAYS, "fig5-glossy"),
-                ];
-                for (id, title, says, run) in scenes {
-                    let Some(o) = find(run) else { continue };
-                    let moments = find(&format!("{run}-moments"));
-                    table(figs::low_vs_all(&ctx, &format!("{id}_low_vs_all"), title, says, o, moments), &mut order);
-                    figure(figs::low_vs_all_figure(&out, id, title, o, moments)?, &mut order);
-                }
-            }
-            "fig8" => {
-                table(figs::fig8(&ctx, &outcomes), &mut order);
-                figure(figs::fig8_figure(&out, &outcomes)?, &mut order);
-            }
-            "fig3b" => {
-                if let Some(files) = &viz_files {
-                    figure(figs::fig3b_figure(&out, files)?, &mut order);
-                }
-            }
-            "fig7" => {
-                if let Some(o) = find("temple") {
-                    figure(figs::fig7_figure(&out, o)?, &mut order);
-                }
-            }
-            "animation" => {
-                if let Some(f) = find("fig1-bunny").map(|o| figs::animation_figure(&out, o)).transpose()?.flatten() {
-                    figure(f, &mut order);
-                }
-            }
-            other => unreachable!("items::ITEMS has no item `{other}`"),
-        }
-    }
+    let (made_tables, made_figures, order) = compose_items(&ctx, &selected, &outcomes, &out, viz_files.as_deref())?;
 
     let tables_dir = out.join("tables");
     std::fs::create_dir_all(&tables_dir).map_err(io_err(&tables_dir))?;
@@ -359,44 +269,21 @@ pub fn reproduce(opts: &Options) -> Result<Outcome> {
         write_atomic_bytes(&out.join("figures").join(format!("{}.tex", f.id)), figures::latex(f).as_bytes())?;
     }
     write_atomic_bytes(&out.join("numbers.csv"), tables::csv(&made_tables).as_bytes())?;
-    let mut ledger = Ledger::default();
-    for o in &outcomes {
-        let t = &o.facts.metrics.transfer;
-        if let Some(seconds) = o.facts.transfer.seconds() {
-            let measured_at = match &o.facts.transfer {
-                TransferTime::Earlier { measured_at, .. } => measured_at.clone(),
-                _ => o.facts.metrics.run.as_ref().map_or(String::new(), |r| r.started_at.clone()),
-            };
-            let e = TraceTime { transfer_seconds: seconds, measured_at, rows: t.rows, cols: t.cols, nnz: t.nnz };
-            ledger.runs.insert(o.name.to_string(), e);
-        }
-    }
+    let ledger = Ledger::of(&outcomes);
     let json = serde_json::to_string_pretty(&ledger).expect("the ledger serializes");
     write_atomic_bytes(&out.join("precompute.json"), json.as_bytes())?;
     let record = clock.finish();
     let runs: Vec<page::RunLine> = done
         .iter()
-        .map(|(spec, m, how, seconds)| page::RunLine {
-            name: spec.name.to_string(),
-            config: format!("configs/paper/{}", spec.config),
-            vertices: m.scene.vertices,
-            mesh: how.clone().unwrap_or_else(|| m.scene.mesh.clone()),
-            seconds: *seconds,
+        .map(|d| page::RunLine {
+            name: d.spec.name.to_string(),
+            config: format!("configs/paper/{}", d.spec.config),
+            vertices: d.metrics.scene.vertices,
+            mesh: d.mesh_how.clone().unwrap_or_else(|| d.metrics.scene.mesh.clone()),
+            seconds: d.seconds,
         })
         .collect();
-    let provenance = serde_json::json!({
-        "command": about,
-        "quick": opts.quick,
-        "items": selected.iter().map(|i| i.name).collect::<Vec<_>>(),
-        "overrides": opts.overrides,
-        "cache_dir": cache_dir.display().to_string(),
-        "runs": runs.iter().map(|r| serde_json::json!({
-            "name": r.name, "config": r.config, "vertices": r.vertices, "mesh": r.mesh, "wall_seconds": r.seconds,
-        })).collect::<Vec<_>>(),
-        "published": "paper/published.toml",
-        "run": record,
-    });
-    let text = serde_json::to_string_pretty(&provenance).expect("the record serializes");
+    let text = provenance(&about, opts, &selected, &cache_dir, &runs, &record);
     write_atomic_bytes(&out.join("reproduce.json"), text.as_bytes())?;
     let mut sections = vec![];
     for s in &order {
@@ -421,6 +308,203 @@ pub fn reproduce(opts: &Options) -> Result<Outcome> {
         figures: made_figures,
         runs: runs.into_iter().map(|r| (r.name, r.seconds)).collect(),
     })
+}
+
+/// One run of `reproduce`: its spec, its record, how its mesh was made and its wall time.
+struct Done {
+    spec: &'static items::RunSpec,
+    metrics: Metrics,
+    mesh_how: Option<String>,
+    seconds: f64,
+}
+
+/// What every run of a `reproduce` shares: the options, the items, where configs, meshes, the
+/// cache and the output are.
+struct RunEnv<'a> {
+    opts: &'a Options,
+    selected: &'a [&'static items::Item],
+    configs: &'a Path,
+    meshes: &'a Path,
+    sizes: items::PaperSizes,
+    cache_dir: &'a Path,
+    out: &'a Path,
+}
+
+impl RunEnv<'_> {
+    /// Run `spec` (after the runs `done`, whose twin it may be), on a quiet machine, once more
+    /// when another process shared the cores while it timed its steps; with the bunny's `T`
+    /// drawn for Fig. 3(b) when that figure is asked for.
+    fn run(&self, spec: &'static items::RunSpec, done: &[Done]) -> Result<(Done, Option<Vec<PathBuf>>)> {
+        let start = std::time::Instant::now();
+        // A twin run magnifies the same pixels as the run it is set beside, tone maps its
+        // images at the same exposure and draws its errors against the ground truth on the
+        // same colour bar (before the user's --set, which wins).
+        let mut overrides = vec![];
+        let twin = spec.inset_from.and_then(|t| done.iter().find(|d| d.spec.name == t)).map(|d| &d.metrics);
+        if let Some(tone) = twin.and_then(|m| m.tone_map.as_ref()) {
+            overrides.push(format!("report.exposure={:?}", tone.exposure));
+        }
+        if let Some(f) = twin.and_then(|m| m.figures.as_ref()) {
+            let [x, y, w, h] = f.inset;
+            overrides.push(format!("report.inset=[{x}, {y}, {w}, {h}]"));
+            if let Some(scale) = f.reference_error_scale {
+                overrides.push(format!("report.reference_error_scale={scale:?}"));
+            }
+        }
+        overrides.extend(self.opts.overrides.iter().cloned());
+        let (exp, made) = items::experiment(spec, self.configs, self.opts.quick, &overrides, self.meshes, self.sizes)?;
+        if let Some(m) = &made {
+            log::info!("reproduce: `{}` mesh: {} ({})", spec.name, m.how, m.path.display());
+        }
+        let run_opts = RunOptions {
+            out_dir: Some(self.out.join("runs").join(spec.name)),
+            cache_dir: Some(self.cache_dir.to_path_buf()),
+            no_cache: false,
+        };
+        // The timed steps want the cores to themselves: wait for a quiet machine first, and
+        // repeat a run once (its T and forms come from the cache) when another process shared
+        // the cores while it timed its steps. A run busy twice keeps its (busy) mark.
+        let patience = std::time::Duration::from_secs(if self.opts.quick { 15 } else { 120 });
+        wait_for_quiet(spec.name, patience);
+        reset_peak_memory();
+        let (_, mut metrics) = crate::run::run(&exp, &run_opts)?;
+        if let Some(load) = metrics.load.filter(|l| l.overloaded()) {
+            log::warn!(
+                "reproduce: `{}` timed its steps at load {:.1} on {} CPUs (another process shared them): waiting for a \
+                 quiet machine and repeating it once",
+                spec.name,
+                load.peak().unwrap_or(f64::NAN),
+                load.cpus_online
+            );
+            wait_for_quiet(spec.name, patience);
+            reset_peak_memory();
+            metrics = crate::run::run(&exp, &run_opts)?.1;
+        }
+        let mut viz = None;
+        if spec.name == "bunny" && self.selected.iter().any(|it| it.name == "fig3b") {
+            log::info!("reproduce: Fig. 3(b): biscale viz of `bunny`'s T");
+            viz = Some(crate::commands::viz(&exp, &self.out.join("viz"), None, 8, &run_opts)?);
+        }
+        let seconds = start.elapsed().as_secs_f64();
+        log::info!("reproduce: `{}` done in {seconds:.1} s", spec.name);
+        Ok((Done { spec, metrics, mesh_how: made.map(|m| m.how), seconds }, viz))
+    }
+}
+
+/// The tables and figures of the `selected` items from the runs' `outcomes`, and the page's
+/// sections (tables and figures) in the order they were made.
+fn compose_items(
+    ctx: &compose::Context<'_>,
+    selected: &[&'static items::Item],
+    outcomes: &[compose::RunOutcome<'_>],
+    out: &Path,
+    viz_files: Option<&[PathBuf]>,
+) -> Result<(Vec<tables::PaperTable>, Vec<figures::FigureSet>, Vec<Section>)> {
+    let find = |name: &str| outcomes.iter().find(|o| o.name == name);
+    let mut made_tables = vec![];
+    let mut made_figures: Vec<figures::FigureSet> = vec![];
+    // The page's sections (tables and figures) in the order they are made.
+    let mut order: Vec<Section> = vec![];
+    let mut table = |t: tables::PaperTable, order: &mut Vec<Section>| {
+        order.push(Section::Table(made_tables.len()));
+        made_tables.push(t);
+    };
+    let mut figure = |f: figures::FigureSet, order: &mut Vec<Section>| {
+        order.push(Section::Figure(made_figures.len()));
+        made_figures.push(f);
+    };
+    for item in selected {
+        match item.name {
+            "table1" => table(compose::table1(ctx, &outcomes), &mut order),
+            "table2" => table(compose::table2(ctx, &outcomes), &mut order),
+            "equal-quality" => {
+                if let Some(o) = find("equal-quality") {
+                    table(compose::equal_quality(ctx, o), &mut order);
+                    figure(figs::fig6_figure(out, o)?, &mut order);
+                }
+            }
+            "low-vs-all" => {
+                let scenes = [
+                    ("fig1", "Fig. 1: low- vs all-frequency, the bumpy bunny", FIG1_SAYS, "fig1-bunny"),
+                    ("fig5", "Fig. 5: low- vs all-frequency, a glossy model", FIG5_SAYS, "fig5-glossy"),
+                ];
+                for (id, title, says, run) in scenes {
+                    let Some(o) = find(run) else { continue };
+                    let moments = find(&format!("{run}-moments"));
+                    table(figs::low_vs_all(ctx, &format!("{id}_low_vs_all"), title, says, o, moments), &mut order);
+                    figure(figs::low_vs_all_figure(out, id, title, o, moments)?, &mut order);
+                }
+            }
+            "fig8" => {
+                table(figs::fig8(ctx, &outcomes), &mut order);
+                figure(figs::fig8_figure(out, &outcomes)?, &mut order);
+            }
+            "fig3b" => {
+                if let Some(files) = viz_files {
+                    figure(figs::fig3b_figure(out, files)?, &mut order);
+                }
+            }
+            "fig7" => {
+                if let Some(o) = find("temple") {
+                    figure(figs::fig7_figure(out, o)?, &mut order);
+                }
+            }
+            "animation" => {
+                if let Some(f) = find("fig1-bunny").map(|o| figs::animation_figure(out, o)).transpose()?.flatten() {
+                    figure(f, &mut order);
+                }
+            }
+            other => unreachable!("items::ITEMS has no item `{other}`"),
+        }
+    }
+
+    Ok((made_tables, made_figures, order))
+}
+
+impl Ledger {
+    /// Each run's `T` trace time as this reproduce knows it (measured now, or carried from an
+    /// earlier reproduce into the same folder).
+    fn of(outcomes: &[compose::RunOutcome<'_>]) -> Self {
+        let mut ledger = Ledger::default();
+        for o in outcomes {
+            let t = &o.facts.metrics.transfer;
+            if let Some(seconds) = o.facts.transfer.seconds() {
+                let measured_at = match &o.facts.transfer {
+                    TransferTime::Earlier { measured_at, .. } => measured_at.clone(),
+                    _ => o.facts.metrics.run.as_ref().map_or(String::new(), |r| r.started_at.clone()),
+                };
+                let e = TraceTime { transfer_seconds: seconds, measured_at, rows: t.rows, cols: t.cols, nnz: t.nnz };
+                ledger.runs.insert(o.name.to_string(), e);
+            }
+        }
+        ledger
+    }
+}
+
+/// `reproduce.json`: the command, its items, overrides and cache, every run with its wall time,
+/// and the clock's record.
+fn provenance(
+    about: &str,
+    opts: &Options,
+    selected: &[&'static items::Item],
+    cache_dir: &Path,
+    runs: &[page::RunLine],
+    record: &RunRecord,
+) -> String {
+    let provenance = serde_json::json!({
+        "command": about,
+        "quick": opts.quick,
+        "items": selected.iter().map(|i| i.name).collect::<Vec<_>>(),
+        "overrides": opts.overrides,
+        "cache_dir": cache_dir.display().to_string(),
+        "runs": runs.iter().map(|r| serde_json::json!({
+            "name": r.name, "config": r.config, "vertices": r.vertices, "mesh": r.mesh, "wall_seconds": r.seconds,
+        })).collect::<Vec<_>>(),
+        "published": "paper/published.toml",
+        "run": record,
+    });
+    let text = serde_json::to_string_pretty(&provenance).expect("the record serializes");
+    text
 }
 
 /// A section of the page: a table or a figure, by its index among those made.
