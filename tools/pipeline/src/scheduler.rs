@@ -454,11 +454,9 @@ A shard that still fails after its retries fails the shards' Job, and submit.sh 
 complete, `kubectl create -f merge.yaml`.
 ";
 
-/// `shard k8s`: write `k8s/shards.yaml` (an indexed Job over the shards), `k8s/merge.yaml`,
-/// `k8s/README.txt` and `k8s/submit.sh` beside the manifest.
-pub fn k8s(path: &Path, o: &K8sOptions) -> Result<JobFiles> {
-    let sh = shared(path, o.merge_out.as_deref(), o.merge_cache_dir.as_deref())?;
-    let m = &sh.m;
+/// The image `shard k8s` runs, after its options are checked against the plan: names,
+/// quantities, a claim that holds every shared folder, and counts of at least 1.
+fn check_k8s(path: &Path, o: &K8sOptions, sh: &Shared) -> Result<String> {
     let default_image = format!("biscale:{}", env!("CARGO_PKG_VERSION"));
     let image = o.image.clone().unwrap_or(default_image);
     check(path, "--image", &image, is_image(&image), "use letters, digits and `._-/:@` only, a letter or digit first")?;
@@ -483,18 +481,13 @@ pub fn k8s(path: &Path, o: &K8sOptions) -> Result<JobFiles> {
     if o.cpus == 0 {
         return Err(invalid(path, "--cpus must be at least 1"));
     }
-    let parallelism = o.parallelism.unwrap_or(m.shards.len());
-    if parallelism == 0 {
-        return Err(invalid(path, "--parallelism must be at least 1"));
-    }
-    let base = dns_label(&m.experiment, 48)
-        .ok_or_else(|| invalid(path, format!("the experiment's name {:?} leaves no DNS-1123 label", m.experiment)))?;
-    let name = |role: &str| format!("biscale-{base}-{role}");
-    let cpus = o.cpus.to_string();
-    let shard_mem = o.mem.clone().unwrap_or_else(|| format!("{}Mi", mem_mib(m.estimate.shard_peak_bytes)));
-    let merge_mem = o.merge_mem.clone().unwrap_or_else(|| format!("{}Mi", mem_mib(m.estimate.merge_peak_bytes)));
+    Ok(image)
+}
 
-    let (volumes, mounts): (Vec<Value>, Vec<Value>) = match &o.claim {
+/// The pods' volumes and mounts: the claim, mounted at the plan's folder, or a hostPath per
+/// shared folder (the plan's folder must exist, the others are made).
+fn k8s_volumes(o: &K8sOptions, sh: &Shared) -> Result<(Vec<Value>, Vec<Value>)> {
+    Ok(match &o.claim {
         Some(claim) => (
             vec![json!({"name": "shared-0", "persistentVolumeClaim": {"claimName": claim}})],
             vec![json!({"name": "shared-0", "mountPath": sh.root_text})],
@@ -514,7 +507,53 @@ pub fn k8s(path: &Path, o: &K8sOptions) -> Result<JobFiles> {
             .collect::<Result<Vec<_>>>()?
             .into_iter()
             .unzip(),
-    };
+    })
+}
+
+/// `k8s/submit.sh`: create the shards' Job, wait until it has completed, create the merge's.
+fn k8s_submit(namespace: Option<&str>, shards_job: &str) -> String {
+    let ns = namespace.map_or(String::new(), |n| format!(" --namespace={}", sh_quote(n)));
+    format!(
+        "#!/bin/bash\n# Written by `biscale shard k8s`: create the indexed Job over the shards, wait until it has\n\
+         # completed, then create the merge Job. A shard that still fails after {K8S_BACKOFF_PER_INDEX} retries fails the\n\
+         # Job: `biscale shard status MANIFEST` names it and the command that reruns it; then\n\
+         # `kubectl create -f merge.yaml`. BISCALE_K8S_POLL sets the seconds between checks (30).\n\
+         set -euo pipefail\ncd \"$(dirname \"$0\")\"\n\
+         kubectl create{ns} -f shards.yaml\n\
+         while :; do\n    \
+             state=$(kubectl get{ns} job {} -o 'jsonpath={{.status.conditions[?(@.status==\"True\")].type}}')\n    \
+             case \"$state\" in\n    \
+             *Complete*) break ;;\n    \
+             *Failed*)\n        \
+                 echo \"submit.sh: the shards' Job failed ($state)\" >&2\n        \
+                 exit 1\n        \
+                 ;;\n    \
+             esac\n    \
+             sleep \"${{BISCALE_K8S_POLL:-30}}\"\n\
+         done\n\
+         kubectl create{ns} -f merge.yaml\n",
+        sh_quote(shards_job),
+    )
+}
+
+/// `shard k8s`: write `k8s/shards.yaml` (an indexed Job over the shards), `k8s/merge.yaml`,
+/// `k8s/README.txt` and `k8s/submit.sh` beside the manifest.
+pub fn k8s(path: &Path, o: &K8sOptions) -> Result<JobFiles> {
+    let sh = shared(path, o.merge_out.as_deref(), o.merge_cache_dir.as_deref())?;
+    let m = &sh.m;
+    let image = check_k8s(path, o, &sh)?;
+    let parallelism = o.parallelism.unwrap_or(m.shards.len());
+    if parallelism == 0 {
+        return Err(invalid(path, "--parallelism must be at least 1"));
+    }
+    let base = dns_label(&m.experiment, 48)
+        .ok_or_else(|| invalid(path, format!("the experiment's name {:?} leaves no DNS-1123 label", m.experiment)))?;
+    let name = |role: &str| format!("biscale-{base}-{role}");
+    let cpus = o.cpus.to_string();
+    let shard_mem = o.mem.clone().unwrap_or_else(|| format!("{}Mi", mem_mib(m.estimate.shard_peak_bytes)));
+    let merge_mem = o.merge_mem.clone().unwrap_or_else(|| format!("{}Mi", mem_mib(m.estimate.merge_peak_bytes)));
+
+    let (volumes, mounts) = k8s_volumes(o, &sh)?;
     let labels = json!({"app.kubernetes.io/name": "biscale", "app.kubernetes.io/instance": base});
     let metadata = |role: &str| {
         let mut meta = json!({
@@ -568,28 +607,7 @@ pub fn k8s(path: &Path, o: &K8sOptions) -> Result<JobFiles> {
         "metadata": metadata("merge"),
         "spec": {"backoffLimit": 0, "template": pod("merge", merge_args, &merge_mem)},
     });
-    let ns = o.namespace.as_ref().map_or(String::new(), |n| format!(" --namespace={}", sh_quote(n)));
-    let submit = format!(
-        "#!/bin/bash\n# Written by `biscale shard k8s`: create the indexed Job over the shards, wait until it has\n\
-         # completed, then create the merge Job. A shard that still fails after {K8S_BACKOFF_PER_INDEX} retries fails the\n\
-         # Job: `biscale shard status MANIFEST` names it and the command that reruns it; then\n\
-         # `kubectl create -f merge.yaml`. BISCALE_K8S_POLL sets the seconds between checks (30).\n\
-         set -euo pipefail\ncd \"$(dirname \"$0\")\"\n\
-         kubectl create{ns} -f shards.yaml\n\
-         while :; do\n    \
-             state=$(kubectl get{ns} job {} -o 'jsonpath={{.status.conditions[?(@.status==\"True\")].type}}')\n    \
-             case \"$state\" in\n    \
-             *Complete*) break ;;\n    \
-             *Failed*)\n        \
-                 echo \"submit.sh: the shards' Job failed ($state)\" >&2\n        \
-                 exit 1\n        \
-                 ;;\n    \
-             esac\n    \
-             sleep \"${{BISCALE_K8S_POLL:-30}}\"\n\
-         done\n\
-         kubectl create{ns} -f merge.yaml\n",
-        sh_quote(&name("shards")),
-    );
+    let submit = k8s_submit(o.namespace.as_deref(), &name("shards"));
     let files = write_all(
         &sh.root,
         "k8s",
@@ -635,25 +653,12 @@ pub const BATCH_ARRAY_MAX: usize = 10_000;
 /// The placeholder of `batch/merge.json`'s `dependsOn`, replaced by `--depends-on`.
 pub const BATCH_DEPENDS_PLACEHOLDER: &str = "SHARDS_JOB_ID";
 
-/// `shard batch`: write `batch/shards.json` (an AWS Batch `SubmitJob` request of an array job
-/// over the shards), `batch/merge.json`, `batch/README.txt`, `batch/submit.sh` and, with an
-/// image, `batch/job-definition.json` beside the manifest.
-pub fn batch(path: &Path, o: &BatchOptions) -> Result<JobFiles> {
-    let sh = shared(path, o.merge_out.as_deref(), o.merge_cache_dir.as_deref())?;
-    let m = &sh.m;
-    let n = m.shards.len();
-    if n > BATCH_ARRAY_MAX {
-        return Err(invalid(
-            path,
-            format!(
-                "{n} shards: an AWS Batch array job holds 2 to {BATCH_ARRAY_MAX} children; plan again with \
-                 --shards {BATCH_ARRAY_MAX} or fewer"
-            ),
-        ));
-    }
+/// `shard batch`'s queue, job definition and job names' stem, after its options are checked:
+/// names AWS accepts, an image with a definition it can register, counts of at least 1.
+fn check_batch(path: &Path, o: &BatchOptions, experiment: &str) -> Result<(String, String, String)> {
     let queue = o.job_queue.clone().unwrap_or_else(|| "biscale".into());
     check(path, "--job-queue", &queue, is_aws_name(&queue), "a queue's name or ARN: letters, digits and `-_:/.`")?;
-    let jobs_base = format!("biscale-{}", m.experiment.replace('.', "_"));
+    let jobs_base = format!("biscale-{}", experiment.replace('.', "_"));
     let definition = o.job_definition.clone().unwrap_or_else(|| jobs_base.clone());
     check(
         path,
@@ -686,6 +691,73 @@ pub fn batch(path: &Path, o: &BatchOptions) -> Result<JobFiles> {
             return Err(invalid(path, format!("{flag} must be at least 1 (MiB)")));
         }
     }
+    Ok((queue, definition, jobs_base))
+}
+
+/// `batch/README.txt` for a plan of `n` shards.
+fn batch_readme(n: usize) -> String {
+    format!(
+        "Written by `biscale shard batch`: AWS Batch requests for the {n} shard(s) of the plan and its merge.\n\
+         \n\
+         Every job reads and writes the plan's folder at the absolute path it was planned at, so the job\n\
+         definition must mount the shared file system (EFS, FSx, NFS on the hosts) there, and the\n\
+         config, its mesh and env map must be readable at their planned paths too. With --image,\n\
+         job-definition.json registers such a definition (host volumes of the shared folders):\n\
+         \n    aws batch register-job-definition --cli-input-json file://job-definition.json\n\
+         \n\
+         Submit the shards, then the merge once every shard succeeded (submit.sh does both):\n\
+         \n    aws batch submit-job --cli-input-json file://shards.json\n    \
+         aws batch submit-job --cli-input-json file://merge.json --depends-on jobId=<the shards' jobId>\n\
+         \n\
+         merge.json's dependsOn holds the placeholder {BATCH_DEPENDS_PLACEHOLDER}, which --depends-on replaces.\n\
+         A shard that fails leaves the merge never runnable: `biscale shard status MANIFEST` names the\n\
+         shard and the command that reruns it; then submit merge.json again.\n{}",
+        if n == 1 {
+            "\nThe plan has 1 shard: shards.json is a single job, not an array (arrays hold 2 to 10000).\n"
+        } else {
+            ""
+        }
+    )
+}
+
+/// `batch/submit.sh`: register `job-definition.json` when this call wrote one, submit the
+/// shards, then the merge depending on them.
+fn batch_submit(with_image: bool) -> String {
+    // Registers job-definition.json only when this call wrote one (with --image): a copy of an
+    // earlier call's is left as it is, and not used.
+    let register = if with_image {
+        "aws batch register-job-definition --cli-input-json file://job-definition.json >/dev/null\n"
+    } else {
+        ""
+    };
+    format!(
+        "#!/bin/bash\n# Written by `biscale shard batch`: register job-definition.json if it wrote one, submit\n\
+         # shards.json, then merge.json depending on it. Prints `shards <job id>` and `merge <job id>`.\n\
+         set -euo pipefail\ncd \"$(dirname \"$0\")\"\n\
+         {register}\
+         shards=$(aws batch submit-job --cli-input-json file://shards.json --query jobId --output text)\n\
+         merge=$(aws batch submit-job --cli-input-json file://merge.json --depends-on \"jobId=$shards\" --query jobId --output text)\n\
+         echo \"shards $shards\"\necho \"merge $merge\"\n"
+    )
+}
+
+/// `shard batch`: write `batch/shards.json` (an AWS Batch `SubmitJob` request of an array job
+/// over the shards), `batch/merge.json`, `batch/README.txt`, `batch/submit.sh` and, with an
+/// image, `batch/job-definition.json` beside the manifest.
+pub fn batch(path: &Path, o: &BatchOptions) -> Result<JobFiles> {
+    let sh = shared(path, o.merge_out.as_deref(), o.merge_cache_dir.as_deref())?;
+    let m = &sh.m;
+    let n = m.shards.len();
+    if n > BATCH_ARRAY_MAX {
+        return Err(invalid(
+            path,
+            format!(
+                "{n} shards: an AWS Batch array job holds 2 to {BATCH_ARRAY_MAX} children; plan again with \
+                 --shards {BATCH_ARRAY_MAX} or fewer"
+            ),
+        ));
+    }
+    let (queue, definition, jobs_base) = check_batch(path, o, &m.experiment)?;
     let cpus = o.cpus.to_string();
     let shard_mem = o.mem_mib.unwrap_or_else(|| mem_mib(m.estimate.shard_peak_bytes)).to_string();
     let merge_mem = o.merge_mem_mib.unwrap_or_else(|| mem_mib(m.estimate.merge_peak_bytes)).to_string();
@@ -738,45 +810,9 @@ pub fn batch(path: &Path, o: &BatchOptions) -> Result<JobFiles> {
         });
         files.push(("job-definition.json", portable_json(&definition), false));
     }
-    let readme = format!(
-        "Written by `biscale shard batch`: AWS Batch requests for the {n} shard(s) of the plan and its merge.\n\
-         \n\
-         Every job reads and writes the plan's folder at the absolute path it was planned at, so the job\n\
-         definition must mount the shared file system (EFS, FSx, NFS on the hosts) there, and the\n\
-         config, its mesh and env map must be readable at their planned paths too. With --image,\n\
-         job-definition.json registers such a definition (host volumes of the shared folders):\n\
-         \n    aws batch register-job-definition --cli-input-json file://job-definition.json\n\
-         \n\
-         Submit the shards, then the merge once every shard succeeded (submit.sh does both):\n\
-         \n    aws batch submit-job --cli-input-json file://shards.json\n    \
-         aws batch submit-job --cli-input-json file://merge.json --depends-on jobId=<the shards' jobId>\n\
-         \n\
-         merge.json's dependsOn holds the placeholder {BATCH_DEPENDS_PLACEHOLDER}, which --depends-on replaces.\n\
-         A shard that fails leaves the merge never runnable: `biscale shard status MANIFEST` names the\n\
-         shard and the command that reruns it; then submit merge.json again.\n{}",
-        if n == 1 {
-            "\nThe plan has 1 shard: shards.json is a single job, not an array (arrays hold 2 to 10000).\n"
-        } else {
-            ""
-        }
-    );
+    let readme = batch_readme(n);
     files.push(("README.txt", readme, false));
-    // Registers job-definition.json only when this call wrote one (with --image): a copy of an
-    // earlier call's is left as it is, and not used.
-    let register = if o.image.is_some() {
-        "aws batch register-job-definition --cli-input-json file://job-definition.json >/dev/null\n"
-    } else {
-        ""
-    };
-    let submit = format!(
-        "#!/bin/bash\n# Written by `biscale shard batch`: register job-definition.json if it wrote one, submit\n\
-         # shards.json, then merge.json depending on it. Prints `shards <job id>` and `merge <job id>`.\n\
-         set -euo pipefail\ncd \"$(dirname \"$0\")\"\n\
-         {register}\
-         shards=$(aws batch submit-job --cli-input-json file://shards.json --query jobId --output text)\n\
-         merge=$(aws batch submit-job --cli-input-json file://merge.json --depends-on \"jobId=$shards\" --query jobId --output text)\n\
-         echo \"shards $shards\"\necho \"merge $merge\"\n"
-    );
+    let submit = batch_submit(o.image.is_some());
     files.push(("submit.sh", submit, true));
     let files = write_all(&sh.root, "batch", &format!("biscale shard batch {}", path.display()), files)?;
     let submit = files.last().expect("submit.sh").clone();
