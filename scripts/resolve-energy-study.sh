@@ -17,14 +17,8 @@
 #   on 2 cores with T cached. Writes out/resolve-energy/.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-root=$PWD
-out=$root/out/resolve-energy
-mkdir -p "$out"
-cargo build --release --locked -p biscale-cli --bin biscale
-B=$root/target/release/biscale
-PY=$root/.venv/bin/python
-skies=("$@")
-[ ${#skies[@]} -gt 0 ] || skies=(blender_forest blender_sunset blender_courtyard pmndrs_apartment)
+source scripts/lib/sky-study.sh
+study_setup resolve-energy "$@"
 cfg=configs/glossy_ggx_bunny.toml
 echo "| sky | image | light / Mitsuba's, interior | in the highlight (brightest 5%) | elsewhere | rel. L2, interior |"
 echo "|---|---|---|---|---|---|"

@@ -16,14 +16,8 @@
 #   Writes out/sun-irradiance/.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-root=$PWD
-out=$root/out/sun-irradiance
-mkdir -p "$out"
-cargo build --release --locked -p biscale-cli --bin biscale
-B=$root/target/release/biscale
-PY=$root/.venv/bin/python
-skies=("$@")
-[ ${#skies[@]} -gt 0 ] || skies=(blender_forest blender_sunset blender_courtyard pmndrs_apartment)
+source scripts/lib/sky-study.sh
+study_setup sun-irradiance "$@"
 echo "| sky | sun | turn (deg) | per-vertex irradiance vs Mitsuba: exact cosine | paper's bin-mean cosine | Mitsuba's noise |"
 echo "|---|---|---|---|---|---|"
 for sky in "${skies[@]}"; do

@@ -14,14 +14,8 @@
 #   --mitsuba). About 20 s per sky and turn on 2 cores. Writes out/texel-directions/.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-root=$PWD
-out=$root/out/texel-directions
-mkdir -p "$out"
-cargo build --release --locked -p biscale-cli --bin biscale
-B=$root/target/release/biscale
-PY=$root/.venv/bin/python
-skies=("$@")
-[ ${#skies[@]} -gt 0 ] || skies=(blender_forest blender_sunset blender_courtyard pmndrs_apartment)
+source scripts/lib/sky-study.sh
+study_setup texel-directions "$@"
 cfg=configs/glossy_ggx_bunny.toml
 echo "| sky | sun | turn (deg) | centre: full frame / interior | mean: full frame / interior | Mitsuba noise | irradiance, centre vs mean |"
 echo "|---|---|---|---|---|---|---|"

@@ -735,34 +735,9 @@ fn run() -> anyhow::Result<()> {
                 println!("wrote {} ({})", w.path.display(), w.about);
             }
         }
-        Command::Report { runs, out } => {
-            let loaded = runs
-                .iter()
-                .map(|r| {
-                    biscale::rerender::FinishedRun::load(r).with_context(|| format!("reading the run {}", r.display()))
-                })
-                .collect::<anyhow::Result<Vec<_>>>()?;
-            let dir = match (&loaded[..], &out) {
-                ([one], _) => biscale::rerender::rerender(one, out.as_deref())?,
-                (_, Some(out)) => biscale::rerender::side_by_side(&loaded, out)?,
-                (_, None) => anyhow::bail!("several runs go side by side into one new folder: give --out DIR"),
-            };
-            println!("wrote {}", dir.join("report.html").display());
-        }
+        Command::Report { runs, out } => report(runs, out)?,
         Command::Eval { config, lstar, form, name, out, cache } => eval(config, lstar, form, name, out, cache)?,
-        Command::Reproduce { quick, only, out, cache_dir } => {
-            let overrides = OVERRIDES.get().cloned().unwrap_or_default();
-            let opts = biscale::reproduce::Options { quick, only, out, cache_dir, overrides };
-            let done = biscale::reproduce::reproduce(&opts).context("reproducing the paper")?;
-            for t in &done.tables {
-                println!("wrote {}", done.out_dir.join("tables").join(format!("{}.tex", t.file)).display());
-            }
-            for f in &done.figures {
-                println!("wrote {} ({} panels)", done.out_dir.join("figures").join(format!("{}.tex", f.id)).display(), f.pictures().count());
-            }
-            println!("wrote {}", done.out_dir.join("numbers.csv").display());
-            println!("wrote {}", done.out_dir.join("index.html").display());
-        }
+        Command::Reproduce { quick, only, out, cache_dir } => reproduce(quick, only, out, cache_dir)?,
         Command::Viz { config, out, first, count, cache } => {
             let exp = load(&config)?;
             let opts = cache.options(Some(out.clone()));
@@ -801,6 +776,42 @@ fn run() -> anyhow::Result<()> {
             diff(a, b, mask, error_image, force, json, exposure)?
         }
     }
+    Ok(())
+}
+
+/// `biscale report`: one finished run's report made again (in place or into `--out`), or
+/// several runs side by side into `--out`.
+fn report(runs: Vec<PathBuf>, out: Option<PathBuf>) -> anyhow::Result<()> {
+    let loaded = runs
+        .iter()
+        .map(|r| biscale::rerender::FinishedRun::load(r).with_context(|| format!("reading the run {}", r.display())))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let dir = match (&loaded[..], &out) {
+        ([one], _) => biscale::rerender::rerender(one, out.as_deref())?,
+        (_, Some(out)) => biscale::rerender::side_by_side(&loaded, out)?,
+        (_, None) => anyhow::bail!("several runs go side by side into one new folder: give --out DIR"),
+    };
+    println!("wrote {}", dir.join("report.html").display());
+    Ok(())
+}
+
+/// `biscale reproduce`: the paper's tables and figures, each file it wrote named.
+fn reproduce(quick: bool, only: Vec<String>, out: Option<PathBuf>, cache_dir: Option<PathBuf>) -> anyhow::Result<()> {
+    let overrides = OVERRIDES.get().cloned().unwrap_or_default();
+    let opts = biscale::reproduce::Options { quick, only, out, cache_dir, overrides };
+    let done = biscale::reproduce::reproduce(&opts).context("reproducing the paper")?;
+    for t in &done.tables {
+        println!("wrote {}", done.out_dir.join("tables").join(format!("{}.tex", t.file)).display());
+    }
+    for f in &done.figures {
+        println!(
+            "wrote {} ({} panels)",
+            done.out_dir.join("figures").join(format!("{}.tex", f.id)).display(),
+            f.pictures().count()
+        );
+    }
+    println!("wrote {}", done.out_dir.join("numbers.csv").display());
+    println!("wrote {}", done.out_dir.join("index.html").display());
     Ok(())
 }
 

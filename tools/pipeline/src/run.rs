@@ -175,24 +175,7 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
             source: crate::stages::animation::Source::Form { compressor: compressors[i].1.as_ref(), form },
         })
         .collect();
-    let (mut methods, mut method_renders) = (vec![], vec![]);
-    for m in exp.method_settings() {
-        let keep = animated_labels.contains(&m.label);
-        let (record, render, a) = crate::stages::evaluate_method(m, &inputs, gpu.as_ref(), keep)?;
-        methods.push(record);
-        method_renders.push(render);
-        animated.extend(a);
-    }
-    // The methods (SH orders) share a colour scale of their own: their errors against the
-    // uncompressed render are of another size than the compressors'.
-    share_error_scale(
-        methods.iter_mut().map(|m| &mut m.record).collect(),
-        &method_renders,
-        &base.render,
-        None,
-        &out_dir,
-    )?;
-    drop(method_renders);
+    let methods = evaluate_methods(exp, &inputs, gpu.as_ref(), &animated_labels, &mut animated)?;
     if !methods.is_empty() {
         ctx.clock.mark("methods");
     }
@@ -222,6 +205,35 @@ pub fn run_with(exp: &Experiment, opts: &RunOptions, pre: Option<Precomputed>) -
     write_report(&metrics, &plan, &out_dir)?;
     fault_point("report");
     Ok((ctx.commit()?, metrics))
+}
+
+/// Every method beside the all-frequency one (`[[methods]]`: SH orders) measured on the run's
+/// inputs, each kept for the animation when it asks for one (into `animated`); their error
+/// images share a colour scale of their own, as their errors against the uncompressed render
+/// are of another size than the compressors'.
+fn evaluate_methods(
+    exp: &Experiment,
+    inputs: &crate::stages::sh::MethodInputs<'_>,
+    gpu: Option<&GpuBackend>,
+    animated_labels: &[String],
+    animated: &mut Vec<crate::stages::animation::Animated<'_>>,
+) -> Result<Vec<MethodRecord>> {
+    let (mut methods, mut renders) = (vec![], vec![]);
+    for m in exp.method_settings() {
+        let keep = animated_labels.contains(&m.label);
+        let (record, render, a) = crate::stages::evaluate_method(m, inputs, gpu, keep)?;
+        methods.push(record);
+        renders.push(render);
+        animated.extend(a);
+    }
+    share_error_scale(
+        methods.iter_mut().map(|m| &mut m.record).collect(),
+        &renders,
+        inputs.baseline,
+        None,
+        inputs.out_dir,
+    )?;
+    Ok(methods)
 }
 
 /// The separable forms a sharded precompute built, by label.

@@ -268,25 +268,13 @@ pub fn stacked_because(exp: &Experiment, in_merge: &[MergeSetting]) -> Option<St
     None
 }
 
-/// `shard plan`: the manifest of `exp` in `shards` shards (written to `out/manifest.json`).
-pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Manifest)> {
-    if shards == 0 || shards > MAX_SHARDS {
-        return Err(invalid(out, format!("--shards must be 1 to {MAX_SHARDS}, not {shards}")));
-    }
-    if !is_plain_name(exp.name()) {
-        return Err(invalid(
-            &exp.config_path,
-            format!(
-                "the experiment's name {:?} becomes a job name and a folder: use 1 to 100 letters, digits, `.`, `_` \
-                 or `-` (not first: `.` or `-`) to shard it",
-                exp.name()
-            ),
-        ));
-    }
-    let geometry = crate::stages::scene::load_geometry(exp)?;
-    let vertices = geometry.mesh.vertex_count();
-    let settings = exp.transfer_settings();
-    let shape = settings.shape(vertices);
+/// The plan's compressor settings split into those a shard builds on its rows (with the least
+/// common multiple of their vertex blocks, at most the vertex count) and those the merge builds.
+fn split_settings(
+    exp: &Experiment,
+    shape: biscale_core::basis::TransferShape,
+    vertices: usize,
+) -> Result<(Vec<ShardedSetting>, Vec<MergeSetting>, usize)> {
     let mut separable = vec![];
     let mut in_merge = vec![];
     let mut multiple = 1usize;
@@ -303,35 +291,23 @@ pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Man
             }
         }
     }
-    let units = vertices.div_ceil(multiple).max(1);
-    if shards > units {
-        return Err(invalid(
-            &exp.config_path,
-            format!(
-                "{shards} shards asked for, but {vertices} vertices make only {units} ranges of whole {multiple}-vertex \
-                 blocks (the lcm of the separable compressors' blocks: {}); use --shards {units} or fewer",
-                separable.iter().map(|s| format!("{} {}", s.label, s.vertex_multiple)).collect::<Vec<_>>().join(", ")
-            ),
-        ));
-    }
-    let outputs: Vec<String> =
-        std::iter::once(TRANSFER_FILE.to_string()).chain(separable.iter().map(|s| form_file(&s.label))).collect();
-    let specs: Vec<ShardSpec> = (0..shards)
-        .map(|i| {
-            let (a, b) = (i * units / shards, (i + 1) * units / shards);
-            ShardSpec {
-                index: i,
-                first_vertex: (a * multiple).min(vertices),
-                end_vertex: (b * multiple).min(vertices),
-                dir: format!("shards/{i:04}"),
-                outputs: outputs.clone(),
-            }
-        })
-        .collect();
+    Ok((separable, in_merge, multiple))
+}
 
+/// The shards' and the merge's memory, output and time, by the run's model (`crate::estimate`)
+/// at the largest shard's vertex count, and why the merge stacks `T` whole (if it does).
+fn shard_estimate(
+    exp: &Experiment,
+    geometry: &crate::stages::scene::Geometry,
+    separable: &[ShardedSetting],
+    in_merge: &[MergeSetting],
+    specs: &[ShardSpec],
+) -> Result<(ShardEstimate, Option<String>)> {
     // Estimates: the run's model (crate::estimate) at the largest shard's vertex count.
+    let settings = exp.transfer_settings();
+    let vertices = geometry.mesh.vertex_count();
     let lighting = crate::stages::scene::load_lighting(exp)?;
-    let run = crate::estimate::estimate(exp, &geometry, &lighting, true);
+    let run = crate::estimate::estimate(exp, geometry, &lighting, true);
     let per_vertex = run.nnz.upper as f64 / vertices.max(1) as f64;
     let largest = specs.iter().map(|s| s.end_vertex - s.first_vertex).max().unwrap_or(0);
     let shard_nnz = (per_vertex * largest as f64).ceil() as u64;
@@ -361,13 +337,13 @@ pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Man
     };
     let (shard_peak, shard_output) = shard_at(shard_nnz);
     let (shard_base, _) = shard_at(0);
-    let stacked = stacked_because(exp, &in_merge);
+    let stacked = stacked_because(exp, in_merge);
     let merge = match stacked {
         Some(_) => run.peak().bytes,
         None => {
             let shape = crate::estimate::RunShape {
                 streamed_part: Some(largest),
-                ..crate::estimate::run_shape(&geometry, &lighting, true)
+                ..crate::estimate::run_shape(geometry, &lighting, true)
             };
             crate::estimate::RunMemory::new(exp, &shape, run.nnz).peak().bytes
         }
@@ -381,6 +357,56 @@ pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Man
         merge_peak_bytes: merge,
         transfer_cpu_seconds: run.nnz.seconds * threads as f64 * vertices as f64 / run.nnz.sampled.max(1) as f64,
     };
+    Ok((estimate, stacked))
+}
+
+/// `shard plan`: the manifest of `exp` in `shards` shards (written to `out/manifest.json`).
+pub fn plan(exp: &Experiment, shards: usize, out: &Path) -> Result<(PathBuf, Manifest)> {
+    if shards == 0 || shards > MAX_SHARDS {
+        return Err(invalid(out, format!("--shards must be 1 to {MAX_SHARDS}, not {shards}")));
+    }
+    if !is_plain_name(exp.name()) {
+        return Err(invalid(
+            &exp.config_path,
+            format!(
+                "the experiment's name {:?} becomes a job name and a folder: use 1 to 100 letters, digits, `.`, `_` \
+                 or `-` (not first: `.` or `-`) to shard it",
+                exp.name()
+            ),
+        ));
+    }
+    let geometry = crate::stages::scene::load_geometry(exp)?;
+    let vertices = geometry.mesh.vertex_count();
+    let settings = exp.transfer_settings();
+    let shape = settings.shape(vertices);
+    let (separable, in_merge, multiple) = split_settings(exp, shape, vertices)?;
+    let units = vertices.div_ceil(multiple).max(1);
+    if shards > units {
+        return Err(invalid(
+            &exp.config_path,
+            format!(
+                "{shards} shards asked for, but {vertices} vertices make only {units} ranges of whole {multiple}-vertex \
+                 blocks (the lcm of the separable compressors' blocks: {}); use --shards {units} or fewer",
+                separable.iter().map(|s| format!("{} {}", s.label, s.vertex_multiple)).collect::<Vec<_>>().join(", ")
+            ),
+        ));
+    }
+    let outputs: Vec<String> =
+        std::iter::once(TRANSFER_FILE.to_string()).chain(separable.iter().map(|s| form_file(&s.label))).collect();
+    let specs: Vec<ShardSpec> = (0..shards)
+        .map(|i| {
+            let (a, b) = (i * units / shards, (i + 1) * units / shards);
+            ShardSpec {
+                index: i,
+                first_vertex: (a * multiple).min(vertices),
+                end_vertex: (b * multiple).min(vertices),
+                dir: format!("shards/{i:04}"),
+                outputs: outputs.clone(),
+            }
+        })
+        .collect();
+
+    let (estimate, stacked) = shard_estimate(exp, &geometry, &separable, &in_merge, &specs)?;
 
     let manifest = Manifest {
         format: MANIFEST_FORMAT.into(),

@@ -431,14 +431,10 @@ fn frame_model_blocks(m: &Metrics) -> Vec<Block> {
     blocks
 }
 
-/// The comparison section: one row per image (the uncompressed render, every compressor and
-/// method setting, the ground truth): the render with the inset region marked, its error
-/// against the uncompressed render, against the ground truth (when traced), and the inset.
-fn comparison_rows(m: &Metrics) -> Vec<Block> {
+/// What the comparison's figures show: their colour scales, the inset and the exposure.
+fn comparison_text(m: &Metrics) -> String {
     use crate::plots::tick_label;
-    let mut d = vec![Block::Heading(2, "Comparison".into())];
     let figures = m.figures.as_ref();
-    let reference = m.reference.is_some();
     let mut text = String::new();
     if let Some(scale) = m.compressors.iter().find_map(|c| c.image.error_scale) {
         let _ = write!(
@@ -489,6 +485,18 @@ fn comparison_rows(m: &Metrics) -> Vec<Block> {
             }
         );
     }
+    text
+}
+
+/// The comparison section: one row per image (the uncompressed render, every compressor and
+/// method setting, the ground truth): the render with the inset region marked, its error
+/// against the uncompressed render, against the ground truth (when traced), and the inset.
+fn comparison_rows(m: &Metrics) -> Vec<Block> {
+    use crate::plots::tick_label;
+    let mut d = vec![Block::Heading(2, "Comparison".into())];
+    let figures = m.figures.as_ref();
+    let reference = m.reference.is_some();
+    let text = comparison_text(m);
     if !text.is_empty() {
         d.push(Block::Para(text.trim_start().to_string()));
     }
@@ -694,6 +702,32 @@ pub fn btf_table(m: &Metrics) -> Option<BtfTable> {
     Some(BtfTable { table, total, figures })
 }
 
+/// Bytes as megabytes at two decimals (the low- vs all-frequency table).
+fn megabytes(b: u64) -> String {
+    format!("{:.2}", b as f64 / 1e6)
+}
+
+/// A record's relative L2 error against the ground truth, `-` without one.
+fn vs_reference_cell(c: &CompressorRecord) -> String {
+    c.image.vs_reference.map_or("-".into(), |e| format!("{:.4}", e.rel_l2))
+}
+
+/// A record's LDR PSNR / SSIM / FLIP against the ground truth, `-` without one.
+fn vs_reference_ldr_cell(c: &CompressorRecord) -> String {
+    c.image.vs_reference.map_or("-".into(), |e| ldr_cell(&e))
+}
+
+/// Precompute: the transfer's build plus its form's; `cached` when the transfer came from the
+/// cache (nothing was built), and the sum marked when only the form did (its build time is the
+/// earlier run's that built it).
+fn precompute_cell(s: f64, cached: bool, form_cached: bool) -> String {
+    match (cached, form_cached) {
+        (true, _) => "cached".to_string(),
+        (false, true) => format!("{s:.2} (form cached)"),
+        (false, false) => format!("{s:.2}"),
+    }
+}
+
 pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
     if m.methods.is_empty() {
         return None;
@@ -713,21 +747,10 @@ pub fn low_vs_all(m: &Metrics) -> Option<LowVsAll> {
         "rel. L2 vs all-frequency",
         "negative pixels",
     ];
-    let mb = |b: u64| format!("{:.2}", b as f64 / 1e6);
-    let err =
-        |c: &crate::metrics::CompressorRecord| c.image.vs_reference.map_or("-".into(), |e| format!("{:.4}", e.rel_l2));
-    let ldr = |c: &crate::metrics::CompressorRecord| c.image.vs_reference.map_or("-".into(), |e| ldr_cell(&e));
+    let (mb, err, ldr, seconds) = (megabytes, vs_reference_cell, vs_reference_ldr_cell, precompute_cell);
     let mut rows = vec![];
     let mut figures = vec![];
     let t = &m.transfer;
-    // Precompute: the transfer's build plus its form's; `cached` when the transfer came from the
-    // cache (nothing was built), and the sum marked when only the form did (its build time is
-    // the earlier run's that built it).
-    let seconds = |s: f64, cached: bool, form_cached: bool| match (cached, form_cached) {
-        (true, _) => "cached".to_string(),
-        (false, true) => format!("{s:.2} (form cached)"),
-        (false, false) => format!("{s:.2}"),
-    };
     let gather = |c: &CompressorRecord| timing_cell(c.gather_ms, c.gather_timing.as_ref(), 2);
     let shade = |c: &CompressorRecord| timing_cell(c.shade_ms, c.shade_timing.as_ref(), 1);
     // The all-frequency side: the raw matrix (or the f64 product when sparse did not run), and

@@ -222,6 +222,65 @@ fn local_directions(basis: LocalBasis) -> (Vec<f32>, Vec<f64>) {
     }
 }
 
+/// `form-<label>.npz` of every compressor setting's form of `t` (from the cache or built).
+fn export_forms(
+    exp: &Experiment,
+    t: &crate::stages::transfer::Transfer,
+    cache: Option<&StageCache>,
+    dir: &Path,
+) -> Result<Vec<Written>> {
+    let mut written = vec![];
+    for setting in exp.compressor_settings() {
+        let compressor = crate::stages::transfer::build_compressor(setting)?;
+        let (form, _) = crate::stages::transfer::compressed_form(
+            setting,
+            compressor.as_ref(),
+            t.whole("export of forms")?,
+            &t.key,
+            (exp.file.seed, None),
+            cache,
+        )?;
+        let path = dir.join(format!("form-{}.npz", file_stem(&setting.label)));
+        write_form(exp, &form, &setting.label, &setting.params, &path, None)?;
+        written.push(Written {
+            path,
+            about: format!(
+                "{} form ({}), {:.2} MB in {} arrays",
+                form.kind,
+                setting.label,
+                form.bytes() as f64 / 1e6,
+                form.arrays.len()
+            ),
+        });
+    }
+    Ok(written)
+}
+
+/// `btf-<material>.npz` of every material's BTF (from the cache or synthesized).
+fn export_btfs(exp: &Experiment, cache: Option<&StageCache>, dir: &Path) -> Result<Vec<Written>> {
+    let mut written = vec![];
+    let local_basis = exp.transfer_settings().local_basis();
+    let mut taken = Default::default();
+    for cfg in exp.materials() {
+        let label = cfg.label();
+        let stem = material_stem(&label);
+        let path = dir.join(format!("btf-{stem}.npz"));
+        claim_stem(&mut taken, &stem, &label, &path)?;
+        let (btf, _) = crate::stages::materials::material_btf(&cfg, local_basis, cache, &label)?;
+        write_btf(exp, &cfg, &label, &btf, &path)?;
+        let [w, h] = btf.spatial();
+        written.push(Written {
+            path,
+            about: format!(
+                "BTF of {label}: {w}x{h} texels x {} views x {} lights",
+                btf.view_count(),
+                btf.light_count()
+            ),
+        });
+    }
+    Ok(written)
+}
+
 /// `biscale export`: write `items` of `exp` into `dir` (created if needed; other files there
 /// are left alone, and a file of the same name replaced only when biscale wrote it there, see
 /// [`SharedFolder`]; all files land once all are written). `T` comes from the stage cache or is
@@ -303,52 +362,9 @@ pub fn export(
                 });
             }
             (Item::Forms, _) => {
-                let t = transfer.as_ref().expect("loaded for forms");
-                for setting in exp.compressor_settings() {
-                    let compressor = crate::stages::transfer::build_compressor(setting)?;
-                    let (form, _) = crate::stages::transfer::compressed_form(
-                        setting,
-                        compressor.as_ref(),
-                        t.whole("export of forms")?,
-                        &t.key,
-                        (exp.file.seed, None),
-                        cache.as_ref(),
-                    )?;
-                    let path = dir.join(format!("form-{}.npz", file_stem(&setting.label)));
-                    write_form(exp, &form, &setting.label, &setting.params, &path, None)?;
-                    written.push(Written {
-                        path,
-                        about: format!(
-                            "{} form ({}), {:.2} MB in {} arrays",
-                            form.kind,
-                            setting.label,
-                            form.bytes() as f64 / 1e6,
-                            form.arrays.len()
-                        ),
-                    });
-                }
+                written.extend(export_forms(exp, transfer.as_ref().expect("loaded for forms"), cache.as_ref(), dir)?)
             }
-            (Item::Btf, _) => {
-                let local_basis = exp.transfer_settings().local_basis();
-                let mut taken = Default::default();
-                for cfg in exp.materials() {
-                    let label = cfg.label();
-                    let stem = material_stem(&label);
-                    let path = dir.join(format!("btf-{stem}.npz"));
-                    claim_stem(&mut taken, &stem, &label, &path)?;
-                    let (btf, _) = crate::stages::materials::material_btf(&cfg, local_basis, cache.as_ref(), &label)?;
-                    write_btf(exp, &cfg, &label, &btf, &path)?;
-                    let [w, h] = btf.spatial();
-                    written.push(Written {
-                        path,
-                        about: format!(
-                            "BTF of {label}: {w}x{h} texels x {} views x {} lights",
-                            btf.view_count(),
-                            btf.light_count()
-                        ),
-                    });
-                }
-            }
+            (Item::Btf, _) => written.extend(export_btfs(exp, cache.as_ref(), dir)?),
         }
     }
     let published = shared.publish()?;

@@ -390,33 +390,7 @@ pub fn equal_quality(ctx: &Context<'_>, run: &RunOutcome<'_>) -> PaperTable {
     for target in equal_quality_targets(m.target_error) {
         let cells = kinds
             .iter()
-            .map(|(_, recs)| {
-                let mut c = Cell {
-                    source: source.clone(),
-                    paper_text: Some("not made".into()),
-                    note: Some(fig6.equal_quality_note.clone()),
-                    ..Cell::default()
-                };
-                let read = storage_for_error(recs, target);
-                let (ours, bound, how) = match &read {
-                    Some(StorageForError::AtMost { bytes, setting }) => {
-                        (Some(*bytes as f64), Bound::AtMost, format!("{setting} already meets it"))
-                    }
-                    Some(StorageForError::Between { bytes, below, above }) => {
-                        (Some(*bytes), Bound::Exact, format!("interpolated between {below} and {above}"))
-                    }
-                    Some(StorageForError::NotReached { best_error, setting }) => (
-                        recs.iter().map(|r| r.bytes).max().map(|b| b as f64),
-                        Bound::MoreThan,
-                        format!("not reached by the sweep (best {best_error:.2e} at {setting})"),
-                    ),
-                    None => (None, Bound::Exact, "no setting".into()),
-                };
-                c.ours = ours.map(|b| b / 1e6);
-                c.bound = bound;
-                c.note = Some(format!("{how}; {}", c.note.take().unwrap_or_default()));
-                c
-            })
+            .map(|(_, recs)| equal_quality_cell(recs, target, source.clone(), &fig6.equal_quality_note))
             .collect();
         rows.push(numeric(
             &format!("equal_quality_mb_{target:.0e}"),
@@ -427,6 +401,50 @@ pub fn equal_quality(ctx: &Context<'_>, run: &RunOutcome<'_>) -> PaperTable {
         ));
     }
     let budget_text = budget.as_ref().map_or("--".into(), |(b, why)| format!("{why}, {:.2} MB", *b as f64 / 1e6));
+    let caption = equal_quality_caption(ctx, m, &budget_text);
+    PaperTable {
+        item: "equal-quality".into(),
+        file: "equal_quality".into(),
+        title: "Fig. 6 and the equal-quality comparison".into(),
+        caption,
+        columns,
+        rows,
+    }
+}
+
+/// One kind's storage for relative `L*` error `target`, read off its sweep `recs`
+/// ([`storage_for_error`]) with how it was read, beside the paper's "not made" (`note`).
+fn equal_quality_cell(
+    recs: &[&crate::metrics::CompressorRecord],
+    target: f64,
+    source: Option<String>,
+    note: &str,
+) -> Cell {
+    let mut c = Cell { source, paper_text: Some("not made".into()), note: Some(note.to_string()), ..Cell::default() };
+    let read = storage_for_error(recs, target);
+    let (ours, bound, how) = match &read {
+        Some(StorageForError::AtMost { bytes, setting }) => {
+            (Some(*bytes as f64), Bound::AtMost, format!("{setting} already meets it"))
+        }
+        Some(StorageForError::Between { bytes, below, above }) => {
+            (Some(*bytes), Bound::Exact, format!("interpolated between {below} and {above}"))
+        }
+        Some(StorageForError::NotReached { best_error, setting }) => (
+            recs.iter().map(|r| r.bytes).max().map(|b| b as f64),
+            Bound::MoreThan,
+            format!("not reached by the sweep (best {best_error:.2e} at {setting})"),
+        ),
+        None => (None, Bound::Exact, "no setting".into()),
+    };
+    c.ours = ours.map(|b| b / 1e6);
+    c.bound = bound;
+    c.note = Some(format!("{how}; {}", c.note.take().unwrap_or_default()));
+    c
+}
+
+/// The equal-quality table's caption: what ran, in which mode, and how each figure is read.
+fn equal_quality_caption(ctx: &Context<'_>, m: &Metrics, budget_text: &str) -> String {
+    let fig6 = &ctx.published.fig6;
     let mut caption = format!(
         "Ours: `{}`, a copy of `configs/compare_bunny.toml`: the {}-vertex bunny, raw sparse, lossless and lossy \
          biclustering, CPCA and Haar with sweeps, run on this machine ({}). ",
@@ -446,14 +464,7 @@ pub fn equal_quality(ctx: &Context<'_>, run: &RunOutcome<'_>) -> PaperTable {
         fig6.scene.to_lowercase(),
         fig6.equal_quality_note.trim_start_matches("not made in the paper: ")
     );
-    PaperTable {
-        item: "equal-quality".into(),
-        file: "equal_quality".into(),
-        title: "Fig. 6 and the equal-quality comparison".into(),
-        caption,
-        columns,
-        rows,
-    }
+    caption
 }
 
 /// A relative error as a percentage for a label: `0.1%`, `5%`.
