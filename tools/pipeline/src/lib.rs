@@ -13,7 +13,7 @@
 //! | [`error`] | [`error::PipelineError`], the one error of the crate, naming stage and input |
 //! | [`experiment`] | the experiment file (`config`: located errors, sweeps, `--set`) and the method kinds |
 //! | [`plan`] | what a run will do and leave out, with its memory estimate (`plan.txt`) |
-//! | [`stages`] | scene, transfer, materials, evaluation, figures, the BTF study, the SH method, the GPU backend |
+//! | [`stages`] | scene, transfer, materials, the view, evaluation, figures, the BTF study, the SH method, the GPU backend |
 //! | [`run`] | the script of a run and the [`run::RunContext`] that `run`, `eval` and `shard merge` share |
 //! | [`store`] | the stage cache, and output folders swapped in whole and owned by proof |
 //! | [`estimate`], [`provenance`] | the memory estimate and guard; how a run was made, stage by stage |

@@ -12,7 +12,7 @@ use crate::metrics::*;
 use crate::plan::Plan;
 use crate::provenance::StageClock;
 use crate::stages::evaluate::{
-    cpus_online, errors, load_average_1min, no_gpu_feature, targets, Evaluation, GpuBackend, Targets, View,
+    cpus_online, errors, load_average_1min, no_gpu_feature, targets, Evaluation, GpuBackend, Targets,
 };
 use crate::stages::figures::{comparison_figures, inset_region, share_error_scale};
 use crate::stages::materials::SceneMaterials;
@@ -21,6 +21,7 @@ use crate::stages::transfer::{
     build_compressor, compressed_form, precomputed_transfer, sky_warning, transfer_matrix, Precomputed, Transfer,
     TransferRows,
 };
+use crate::stages::view::View;
 use crate::store::cache::{form_key, StageCache};
 use crate::store::staging::{fault_point, StagedDir};
 use crate::store::RunOptions;

@@ -5,9 +5,10 @@
 
 use crate::error::{PipelineError, Result};
 use crate::experiment::config::{Experiment, MomentsResolve};
-use crate::stages::evaluate::{reference_render, View};
+use crate::stages::evaluate::reference_render;
 use crate::stages::scene::{load_geometry, load_lighting, shade_scene, Geometry, Lighting};
 use crate::stages::transfer::transfer_matrix;
+use crate::stages::view::View;
 use crate::store::cache::StageCache;
 use crate::store::RunOptions;
 use biscale_core::gather::LocalRadiance;

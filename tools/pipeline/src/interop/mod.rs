@@ -33,9 +33,10 @@ use crate::experiment::config::{CompressorSetting, Experiment, MaterialConfig, M
 use crate::metrics::{CompressorRecord, Metrics};
 use crate::plan::Plan;
 use crate::run::{metrics_of_run, RunContext};
-use crate::stages::evaluate::{targets, Evaluation, View};
+use crate::stages::evaluate::{targets, Evaluation};
 use crate::stages::scene::{load_geometry, load_lighting, shade_scene};
 use crate::stages::transfer::transfer_matrix;
+use crate::stages::view::View;
 use crate::store::cache::StageCache;
 use crate::store::shared::SharedFolder;
 use crate::store::RunOptions;

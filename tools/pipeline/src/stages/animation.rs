@@ -13,8 +13,9 @@
 use crate::error::{io_err, PipelineError, Result};
 use crate::experiment::config::Experiment;
 use crate::metrics::{AnimationRecord, AnimationSeries};
-use crate::stages::evaluate::{uncompressed_product, Shaded, View};
+use crate::stages::evaluate::uncompressed_product;
 use crate::stages::scene::Lighting;
+use crate::stages::view::{Shaded, View};
 use biscale_core::compress::{CompressedForm, Compressor};
 use biscale_core::gather::moments::{gather_keeping_moments, LightMoments};
 use biscale_core::gather::LocalRadiance;

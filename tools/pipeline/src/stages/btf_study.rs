@@ -8,8 +8,9 @@
 
 use crate::error::Result;
 use crate::metrics::{BtfRecord, BtfStudyRecord, PrecomputedRecord};
-use crate::stages::evaluate::{errors, timed, Reference, View};
+use crate::stages::evaluate::errors;
 use crate::stages::materials::SceneMaterials;
+use crate::stages::view::{timed, Reference, View};
 use biscale_core::gather::LocalRadiance;
 use biscale_core::scene::{BtfRepresentation, Render, ShadeScene};
 use biscale_shading::image::{compare, compare_exposed};

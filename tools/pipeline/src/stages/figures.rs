@@ -3,7 +3,7 @@
 use crate::error::{PipelineError, Result};
 use crate::experiment::config::Experiment;
 use crate::metrics::*;
-use crate::stages::evaluate::{Baseline, Reference, View};
+use crate::stages::view::{Baseline, Reference, View};
 use biscale_core::scene::{HdrImage, Render};
 use std::path::Path;
 

@@ -6,7 +6,8 @@
 //! | [`scene`] | the mesh and its visibility geometry, the light, the camera, the shade scene |
 //! | [`transfer`] | `T` (traced, cached or stacked from shards) and each compressor's form |
 //! | [`materials`] | the scene's BTFs: analytic, synthesized, measured, local PCA |
-//! | [`evaluate`] | the baseline, the reference, and the measurement of one form |
+//! | [`view`] | what every render is made with and measured against: the view, the baseline, the reference |
+//! | [`evaluate`] | the baseline and the reference computed, and the measurement of one form |
 //! | [`figures`] | error images on a shared scale, insets, the side-by-side comparison |
 //! | [`btf_study`] | every BTF representation of the scene measured against the dense tables |
 //! | [`sh`] | the low-frequency (SH) method's run |
@@ -25,6 +26,7 @@ pub mod materials;
 pub mod scene;
 pub mod sh;
 pub mod transfer;
+pub mod view;
 
 use crate::error::{PipelineError, Result};
 use crate::experiment::config::MethodSetting;
