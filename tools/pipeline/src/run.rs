@@ -240,6 +240,9 @@ fn evaluate_methods(
 /// The separable forms a sharded precompute built, by label.
 type SeparableForms = std::collections::BTreeMap<String, CompressedForm>;
 
+/// The shards' record and when their merge began.
+type ShardRecord = (ShardedMetrics, std::time::Instant);
+
 /// A run's start: its plan (saying where `T` comes from when a sharded precompute made it)
 /// printed, the GPU backend refused when this build has none, the output folder staged and
 /// `plan.txt` written into it.
@@ -291,7 +294,7 @@ fn transfer_of(
     geometry: &Geometry,
     ctx: &mut RunContext,
     pre: Option<Precomputed>,
-) -> Result<(Transfer, SeparableForms, Option<(ShardedMetrics, std::time::Instant)>)> {
+) -> Result<(Transfer, SeparableForms, Option<ShardRecord>)> {
     let (t, pre_forms, sharded) = match pre {
         Some(p) => {
             let t = precomputed_transfer(p.rows, p.rays_traced, p.transfer_seconds, exp, geometry, ctx.cache.as_ref())?;

@@ -415,8 +415,8 @@ fn compose_items(
     };
     for item in selected {
         match item.name {
-            "table1" => table(compose::table1(ctx, &outcomes), &mut order),
-            "table2" => table(compose::table2(ctx, &outcomes), &mut order),
+            "table1" => table(compose::table1(ctx, outcomes), &mut order),
+            "table2" => table(compose::table2(ctx, outcomes), &mut order),
             "equal-quality" => {
                 if let Some(o) = find("equal-quality") {
                     table(compose::equal_quality(ctx, o), &mut order);
@@ -436,8 +436,8 @@ fn compose_items(
                 }
             }
             "fig8" => {
-                table(figs::fig8(ctx, &outcomes), &mut order);
-                figure(figs::fig8_figure(out, &outcomes)?, &mut order);
+                table(figs::fig8(ctx, outcomes), &mut order);
+                figure(figs::fig8_figure(out, outcomes)?, &mut order);
             }
             "fig3b" => {
                 if let Some(files) = viz_files {
@@ -503,8 +503,7 @@ fn provenance(
         "published": "paper/published.toml",
         "run": record,
     });
-    let text = serde_json::to_string_pretty(&provenance).expect("the record serializes");
-    text
+    serde_json::to_string_pretty(&provenance).expect("the record serializes")
 }
 
 /// A section of the page: a table or a figure, by its index among those made.

@@ -438,7 +438,7 @@ impl GpuBackend {
         _: MomentsResolve,
         _: &[[f64; 3]],
         _: &Render,
-        _: &Background<'_>,
+        _: &biscale_core::scene::Background<'_>,
         _: usize,
     ) -> Result<GpuRecord> {
         match *self {}
