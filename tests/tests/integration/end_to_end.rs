@@ -1,6 +1,7 @@
 //! End-to-end runs of the pipeline: the bundled smoke config, and analytic scenes whose
 //! radiance is known in closed form.
 
+use super::run_in;
 use biscale::experiment::config::{Experiment, MomentsResolve};
 use biscale::run::run;
 use biscale::store::RunOptions;
@@ -8,16 +9,6 @@ use biscale_core::geometry::shapes;
 use biscale_core::scene::HdrImage;
 use biscale_tests::{workspace_root, write_config, write_obj};
 use glam::Vec3;
-
-fn run_in(config: &std::path::Path, out: &std::path::Path) -> biscale::metrics::Metrics {
-    let exp = Experiment::load(config).unwrap();
-    let opts = RunOptions {
-        out_dir: Some(out.to_path_buf()),
-        cache_dir: Some(biscale_tests::cache_beside(out)),
-        no_cache: false,
-    };
-    run(&exp, &opts).unwrap().1
-}
 
 #[test]
 fn smoke_config_runs_end_to_end_and_caches_the_transfer() {

@@ -2,24 +2,13 @@
 //! derived tolerance, the records beside the compressors, and the wgpu backend against the
 //! CPU.
 
+use super::run_in;
 use biscale::experiment::config::Experiment;
-use biscale::run::run;
-use biscale::store::RunOptions;
 use biscale_core::geometry::shapes;
 use biscale_core::sampling::hemisphere::square_to_hemisphere;
 use biscale_core::scene::HdrImage;
 use biscale_tests::{write_config, write_obj};
 use glam::Vec3;
-
-fn run_in(config: &std::path::Path, out: &std::path::Path) -> biscale::metrics::Metrics {
-    let exp = Experiment::load(config).unwrap();
-    let opts = RunOptions {
-        out_dir: Some(out.to_path_buf()),
-        cache_dir: Some(biscale_tests::cache_beside(out)),
-        no_cache: false,
-    };
-    run(&exp, &opts).unwrap().1
-}
 
 /// A white Lambertian convex sphere under a constant sky of radiance 1, by shadowed diffuse
 /// PRT (every material is Lambertian, so the method keeps one transfer vector per vertex).

@@ -26,3 +26,14 @@ mod hostile;
 mod inputs;
 mod low_frequency;
 mod materials;
+
+/// `config` run into `out` (its stage cache beside it): the record it wrote.
+fn run_in(config: &std::path::Path, out: &std::path::Path) -> biscale::metrics::Metrics {
+    let exp = biscale::experiment::config::Experiment::load(config).unwrap();
+    let opts = biscale::store::RunOptions {
+        out_dir: Some(out.to_path_buf()),
+        cache_dir: Some(biscale_tests::cache_beside(out)),
+        no_cache: false,
+    };
+    biscale::run::run(&exp, &opts).unwrap().1
+}

@@ -1,22 +1,13 @@
 //! Several materials per scene, synthesized BTFs through a config, and the temple example:
 //! end to end through `biscale run`, checked against closed-form radiance where there is one.
 
+use super::run_in;
 use biscale::experiment::config::Experiment;
 use biscale::run::run;
 use biscale::store::RunOptions;
 use biscale_core::geometry::{shapes, MaterialIds, Mesh};
 use biscale_core::scene::HdrImage;
 use biscale_tests::{workspace_root, write_config, write_obj};
-
-fn run_in(config: &std::path::Path, out: &std::path::Path) -> biscale::metrics::Metrics {
-    let exp = Experiment::load(config).unwrap();
-    let opts = RunOptions {
-        out_dir: Some(out.to_path_buf()),
-        cache_dir: Some(biscale_tests::cache_beside(out)),
-        no_cache: false,
-    };
-    run(&exp, &opts).unwrap().1
-}
 
 /// An 8 x 8 cell plane of side 2 whose triangles left of x = 0 use `left`, the others `right`.
 fn split_plane(left: &str, right: &str) -> Mesh {

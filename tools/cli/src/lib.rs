@@ -141,7 +141,7 @@ enum Command {
     /// animated comparison) and its equal-storage comparison (with the equal-quality one it could not make): runs the
     /// configs of configs/paper/ into DIR/runs/ and writes numbers.csv (every figure: ours, the
     /// paper's, their ratio), tables/*.tex (booktabs), figures/ (PNG panels and a LaTeX
-    /// figure each) and index.html, ours beside the published figures (paper/published.toml).
+    /// figure each), paper.tex (all of them in one article: pdflatex paper.tex) and index.html, ours beside the published figures (paper/published.toml).
     /// Run it in the biscale checkout (it reads configs/paper/ and assets/). --set applies to
     /// every run's config. Before each run it waits for the load average to fall to the CPU
     /// count (at most 15 s with --quick, 120 s without), and it repeats once a run whose timed

@@ -222,8 +222,11 @@ fn reproduce_quick_sets_each_runs_figures_beside_the_papers_and_a_rerun_reuses_t
     assert!(err.contains("reproduce: run 1/14 `bunny`"), "a progress line per run: {err}");
     assert!(stdout.contains("numbers.csv") && stdout.contains("index.html"), "{stdout}");
 
-    // Every file, and each table in LaTeX with booktabs and a caption.
+    // Every file, and each table in LaTeX with booktabs and a caption, all of them in paper.tex.
+    let paper = std::fs::read_to_string(out.join("paper.tex")).unwrap();
+    assert!(paper.contains("\\documentclass{article}") && paper.trim_end().ends_with("\\end{document}"));
     for t in ["table1", "table2", "equal_quality", "fig1_low_vs_all", "fig5_low_vs_all", "fig8"] {
+        assert!(paper.contains(&format!("\\input{{tables/{t}}}")), "paper.tex inputs {t}");
         let tex = std::fs::read_to_string(out.join("tables").join(format!("{t}.tex"))).unwrap();
         for must in ["\\begin{tabular}", "\\toprule", "\\midrule", "\\bottomrule", "\\caption{", "\\end{table*}"] {
             assert!(tex.contains(must), "{t}.tex lacks {must}");

@@ -81,25 +81,13 @@ pub(super) fn row(f: Figure, cells: Vec<Cell>) -> Row {
 /// A Table I figure as the paper printed it (`None` for the rows the paper does not have).
 fn scene_figure(c: &SceneColumn, f: Figure) -> Option<f64> {
     use Figure::*;
-    Some(match f {
-        Width => c.width as f64,
-        Height => c.height as f64,
-        Vertices => c.vertices as f64,
-        Btfs => c.btfs as f64,
-        BtfMb => c.btf_mb,
-        NnzM => c.nnz_m,
-        NnzPerVertex => c.nnz_m * 1e6 / c.vertices as f64,
-        Mflops => c.mflops,
-        ReducedMflops => c.reduced_mflops,
-        ComputationPct => c.computation_pct,
-        DataMb => c.data_mb,
-        ReducedMb => c.reduced_mb,
-        DataPct => c.data_pct,
-        PrecomputeMin => c.precompute_min,
-        FpsFixedLight => c.fps_fixed_light,
-        FpsMovingLight => c.fps_moving_light,
-        ProjectedFpsFixedLight | ProjectedFpsMovingLight => return None,
-    })
+    match f {
+        Width => Some(c.width as f64),
+        Height => Some(c.height as f64),
+        Btfs => Some(c.btfs as f64),
+        BtfMb => Some(c.btf_mb),
+        _ => scaling_figure(&c.figures, f),
+    }
 }
 
 /// A Table II figure as the paper printed it (`None` for the rows Table II does not have).

@@ -3,7 +3,7 @@
 //! as a LaTeX `figure*` (`figures/<id>.tex`, needs `graphicx`) and embedded in `index.html` as
 //! data URIs, so the page stays one file.
 
-use super::tables::{html_escape, html_text, latex_escape};
+use super::tables::{html_escape, html_text, latex_caption, latex_escape};
 use crate::error::{io_err, PipelineError, Result};
 use std::fmt::Write;
 use std::path::Path;
@@ -163,7 +163,7 @@ pub fn latex(f: &FigureSet) -> String {
             ),
         };
     }
-    let _ = writeln!(s, "\\caption{{{}: {}}}", latex_escape(&f.title), latex_escape(&f.caption.replace('`', "")));
+    let _ = writeln!(s, "\\caption{{{}}}", latex_caption(&f.title, &latex_escape(&f.caption.replace('`', ""))));
     let _ = writeln!(s, "\\label{{fig:reproduce-{}}}\n\\end{{figure*}}", f.id);
     s
 }

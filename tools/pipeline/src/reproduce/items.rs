@@ -496,14 +496,14 @@ mod tests {
 
     #[test]
     fn the_generated_scenes_are_made_near_the_papers_vertex_counts() {
-        let target = super::super::published::Published::get().scene("Temple").unwrap().vertices as usize;
+        let target = super::super::published::Published::get().scene("Temple").unwrap().figures.vertices as usize;
         let (cell, mesh) = temple_near(target);
         let n = mesh.vertex_count();
         assert!(n.abs_diff(target) * 20 < target, "{n} vertices at cell {cell} for {target}");
         // The default cell is the bundled temple.
         assert_eq!(temple_near(5336).1.vertex_count(), 5336);
         // The chair likewise, and the bundled one is its default.
-        let target = super::super::published::Published::get().scene("Chair").unwrap().vertices as usize;
+        let target = super::super::published::Published::get().scene("Chair").unwrap().figures.vertices as usize;
         let (cell, mesh) = chair_near(target);
         let n = mesh.vertex_count();
         assert!(n.abs_diff(target) * 20 < target, "{n} vertices at cell {cell} for {target}");

@@ -23,7 +23,8 @@
 //! folder, note), `tables/<table>.tex` (booktabs tables, "ours" beside "paper" per scene, or
 //! ours alone where the paper printed images, the caption saying what ran and how it differs
 //! from the paper's setting), `figures/<figure>/*.png` and `figures/<figure>.tex` (the panels,
-//! copied from the runs' images, and a LaTeX figure of them), `index.html` (the tables, the
+//! copied from the runs' images, and a LaTeX figure of them), `paper.tex` (all of them in one
+//! portrait article at a 17 cm text width, [`paper_tex`]), `index.html` (the tables, the
 //! figures embedded and the provenance on one page), `reproduce.json` (the provenance record
 //! of the command), `precompute.json` (each run's `T` trace time), `viz/` and `runs/`.
 //!
@@ -214,8 +215,8 @@ pub fn reproduce(opts: &Options) -> Result<Outcome> {
     let out = staged.path().to_path_buf();
     let published = published::Published::get();
     let sizes = items::PaperSizes {
-        temple: published.scene("Temple").map_or(32409, |c| c.vertices as usize),
-        chair: published.scene("Chair").map_or(16101, |c| c.vertices as usize),
+        temple: published.scene("Temple").map_or(32409, |c| c.figures.vertices as usize),
+        chair: published.scene("Chair").map_or(16101, |c| c.figures.vertices as usize),
     };
     let meshes = cache_dir.join("meshes");
 
@@ -269,6 +270,7 @@ pub fn reproduce(opts: &Options) -> Result<Outcome> {
         write_atomic_bytes(&out.join("figures").join(format!("{}.tex", f.id)), figures::latex(f).as_bytes())?;
     }
     write_atomic_bytes(&out.join("numbers.csv"), tables::csv(&made_tables).as_bytes())?;
+    write_atomic_bytes(&out.join("paper.tex"), paper_tex(&order, &made_tables, &made_figures).as_bytes())?;
     let ledger = Ledger::of(&outcomes);
     let json = serde_json::to_string_pretty(&ledger).expect("the ledger serializes");
     write_atomic_bytes(&out.join("precompute.json"), json.as_bytes())?;
@@ -504,6 +506,30 @@ fn provenance(
         "run": record,
     });
     serde_json::to_string_pretty(&provenance).expect("the record serializes")
+}
+
+/// The text width `paper.tex` sets: a two-column journal's full width (a TVCG `table*`).
+pub const PAPER_TEXT_WIDTH_CM: f64 = 17.0;
+
+/// `paper.tex`: every table and figure `\input` in the page's order into a portrait article at
+/// the text width of a two-column journal's full-width floats ([`PAPER_TEXT_WIDTH_CM`]), one
+/// page apart (so no float waits for another); `pdflatex paper.tex` in the output folder
+/// typesets them all (`scripts/paper-tex-check.sh` does, and fails on any overfull line).
+fn paper_tex(order: &[Section], tables: &[tables::PaperTable], figures: &[figures::FigureSet]) -> String {
+    let mut s = format!(
+        "% Written by `biscale reproduce`: every table and figure of this folder, typeset by\n\
+         % `pdflatex paper.tex` here (booktabs and graphicx, as texlive-latex-recommended has them).\n\
+         \\documentclass{{article}}\n\\usepackage[a4paper,textwidth={PAPER_TEXT_WIDTH_CM}cm]{{geometry}}\n\
+         \\usepackage{{booktabs}}\n\\usepackage{{graphicx}}\n\\begin{{document}}\n"
+    );
+    for section in order {
+        let input = match *section {
+            Section::Table(i) => format!("tables/{}", tables[i].file),
+            Section::Figure(i) => format!("figures/{}", figures[i].id),
+        };
+        s += &format!("\\input{{{input}}}\n\\clearpage\n");
+    }
+    s + "\\end{document}\n"
 }
 
 /// A section of the page: a table or a figure, by its index among those made.

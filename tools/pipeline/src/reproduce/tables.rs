@@ -259,6 +259,7 @@ pub fn latex_escape(s: &str) -> String {
                 out.push(ch);
             }
             '~' => out.push_str("\\textasciitilde{}"),
+            '|' => out.push_str("\\textbar{}"),
             '^' => out.push_str("\\textasciicircum{}"),
             '<' => out.push_str("$<$"),
             '>' => out.push_str("$>$"),
@@ -279,6 +280,24 @@ fn latex_text(s: &str) -> String {
         .collect()
 }
 
+/// A float's caption: what of the paper it reproduces, then what it shows (`body`, LaTeX
+/// already). LaTeX numbers the float itself, so the paper's own title is said as the paper's,
+/// not printed as a second title (`Table 1: Table I: ...`).
+pub fn latex_caption(title: &str, body: &str) -> String {
+    format!("Reproducing the paper's {}. {body}", latex_escape(title.trim_end_matches('.')))
+}
+
+/// A one-column heading set on two or more lines where it has parts (`all-frequency, raw T`,
+/// `SH order 2 (equal storage)`): a column is then as wide as its longest part, not its whole
+/// name (a nested tabular: no package needed).
+fn latex_stacked(name: &str) -> String {
+    let lines: Vec<String> = name.replace(" (", "\n(").replace(", ", ",\n").split('\n').map(latex_escape).collect();
+    match lines.len() {
+        1 => lines[0].clone(),
+        _ => format!("\\begin{{tabular}}[b]{{@{{}}c@{{}}}}{}\\end{{tabular}}", lines.join("\\\\")),
+    }
+}
+
 /// A cell's figure as LaTeX (`<=` and `>` as math, `--` as an en dash).
 fn latex_figure(s: &str) -> String {
     match s {
@@ -291,29 +310,68 @@ fn latex_figure(s: &str) -> String {
     }
 }
 
+/// The most data columns one LaTeX tabular holds: wider tables are split into stacked
+/// tabulars of whole columns (Table I's four scenes into two of two), so that each fits a
+/// 17 cm text width at `\small` without being scaled below print size.
+const LATEX_MAX_SPANS: usize = 6;
+
 /// The table as a LaTeX `table` float (booktabs: `\toprule`, `\midrule`, `\bottomrule`), a
-/// pair of columns per scene, "ours" left of "paper".
+/// pair of columns per scene, "ours" left of "paper"; more than [`LATEX_MAX_SPANS`] data
+/// columns are split into as few stacked tabulars as that allows, as even as whole columns go,
+/// each repeating the row labels. A tabular still wider than the line (a long row label) is
+/// scaled down to it; a narrower one is left at its size.
 pub fn latex(t: &PaperTable) -> String {
     let mut s = String::new();
-    let _ = writeln!(s, "% Written by `biscale reproduce`; needs \\usepackage{{booktabs}}.");
+    let _ =
+        writeln!(s, "% Written by `biscale reproduce`; needs \\usepackage{{booktabs}} and \\usepackage{{graphicx}}.");
     let _ = writeln!(s, "\\begin{{table*}}[t]\n\\centering\n\\small");
-    let _ = writeln!(s, "\\caption{{{}: {}}}", latex_text(&t.title), latex_text(&full_caption(t)));
+    let _ = writeln!(s, "\\caption{{{}}}", latex_caption(&t.title, &latex_text(&full_caption(t))));
     let _ = writeln!(s, "\\label{{tab:reproduce-{}}}", t.file.replace('_', "-"));
     let spans: usize = t.columns.iter().map(Column::span).sum();
+    let groups = spans.div_ceil(LATEX_MAX_SPANS).max(1);
+    let (mut start, mut used) = (0, 0);
+    for g in 0..groups {
+        // Whole columns up to this group's share of the spans.
+        let share = (spans * (g + 1)).div_ceil(groups);
+        let mut end = start;
+        while end < t.columns.len() && (used + t.columns[end].span() <= share || end == start) {
+            used += t.columns[end].span();
+            end += 1;
+        }
+        if g + 1 == groups {
+            end = t.columns.len();
+        }
+        if end > start {
+            if start > 0 {
+                let _ = writeln!(s, "\\par\\medskip");
+            }
+            s += &latex_tabular(t, start..end);
+        }
+        start = end;
+    }
+    let _ = writeln!(s, "\\end{{table*}}");
+    s
+}
+
+/// One tabular of `t`: its row labels and units, and the columns `range`.
+fn latex_tabular(t: &PaperTable, range: std::ops::Range<usize>) -> String {
+    let mut s = String::new();
+    let cols = &t.columns[range.clone()];
+    let spans: usize = cols.iter().map(Column::span).sum();
+    let _ = writeln!(s, "\\resizebox{{\\ifdim\\width>\\linewidth\\linewidth\\else\\width\\fi}}{{!}}{{%");
     let _ = writeln!(s, "\\begin{{tabular}}{{ll{}}}", "r".repeat(spans));
     let _ = writeln!(s, "\\toprule");
-    let heads: Vec<String> = t
-        .columns
+    let heads: Vec<String> = cols
         .iter()
         .map(|c| match c.span() {
-            1 => latex_escape(&c.name),
+            1 => latex_stacked(&c.name),
             n => format!("\\multicolumn{{{n}}}{{c}}{{{}}}", latex_escape(&c.name)),
         })
         .collect();
     let _ = writeln!(s, " & & {} \\\\", heads.join(" & "));
     let mut rules = vec![];
     let mut at = 3;
-    for c in &t.columns {
+    for c in cols {
         if c.span() == 2 {
             rules.push(format!("\\cmidrule(lr){{{}-{}}}", at, at + 1));
         }
@@ -322,8 +380,7 @@ pub fn latex(t: &PaperTable) -> String {
     if !rules.is_empty() {
         let _ = writeln!(s, "{}", rules.join(" "));
     }
-    let sub: Vec<String> = t
-        .columns
+    let sub: Vec<String> = cols
         .iter()
         .map(|c| match &c.paper_head {
             Some(p) => format!("{} & {}", latex_escape(&c.ours_head), latex_escape(p)),
@@ -333,10 +390,9 @@ pub fn latex(t: &PaperTable) -> String {
     let _ = writeln!(s, " & unit & {} \\\\", sub.join(" & "));
     let _ = writeln!(s, "\\midrule");
     for r in &t.rows {
-        let cells: Vec<String> = t
-            .columns
+        let cells: Vec<String> = cols
             .iter()
-            .zip(&r.cells)
+            .zip(&r.cells[range.clone()])
             .map(|(col, c)| {
                 let (o, p) = shown(c, r.decimals);
                 match col.paper_head {
@@ -347,7 +403,7 @@ pub fn latex(t: &PaperTable) -> String {
             .collect();
         let _ = writeln!(s, "{} & {} & {} \\\\", latex_escape(&r.label), latex_escape(&r.unit), cells.join(" & "));
     }
-    let _ = writeln!(s, "\\bottomrule\n\\end{{tabular}}\n\\end{{table*}}");
+    let _ = writeln!(s, "\\bottomrule\n\\end{{tabular}}}}");
     s
 }
 
@@ -448,6 +504,34 @@ mod tests {
                 },
             ],
         }
+    }
+
+    /// A heading with parts is stacked (one line a part), a plain one left alone; bars are
+    /// escaped for text mode; the caption says which of the paper's floats it reproduces
+    /// without repeating a title; more than six data columns split into stacked tabulars.
+    #[test]
+    fn latex_fits_a_page_and_escapes_text_mode_symbols() {
+        assert_eq!(latex_stacked("Bunny"), "Bunny");
+        assert_eq!(
+            latex_stacked("SH order 2 (equal storage)"),
+            "\\begin{tabular}[b]{@{}c@{}}SH order 2\\\\(equal storage)\\end{tabular}"
+        );
+        assert_eq!(latex_escape("|error|"), "\\textbar{}error\\textbar{}");
+        let mut t = table();
+        let tex = latex(&t);
+        assert!(tex.contains("\\caption{Reproducing the paper's Table I. Ours from"), "{tex}");
+        assert_eq!(tex.matches("\\begin{tabular}{ll").count(), 1);
+        let wide: Vec<Column> = (0..4).map(|i| Column::pair(&format!("S{i}"), "ours", "paper")).collect();
+        t.columns = wide;
+        for r in &mut t.rows {
+            r.cells = (0..4).map(|_| r.cells[0].clone()).collect();
+        }
+        let tex = latex(&t);
+        assert_eq!(tex.matches("\\begin{tabular}{llrrrr}").count(), 2, "{tex}");
+        assert!(
+            tex.find("S1").unwrap() < tex.find("\\medskip").unwrap()
+                && tex.find("S2").unwrap() > tex.find("\\medskip").unwrap()
+        );
     }
 
     /// Every timed figure's load is printed in the caption of the LaTeX and HTML tables, in
