@@ -359,7 +359,8 @@ fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, f: &Figure<'_>) -> Re
         .y_label_formatter(&|v| tick_label(*v))
         .draw()
         .map_err(e)?;
-    let colour = |i: usize| Palette99::pick(i).to_rgba();
+    let colours = series_colours(&f.series.iter().map(|s| s.name.as_str()).collect::<Vec<_>>());
+    let colour = |i: usize| colours[i];
     for (i, s) in f.series.iter().enumerate() {
         let c = colour(i);
         chart
@@ -703,6 +704,53 @@ pub fn labelled_sheet(
     Ok(out)
 }
 
+/// Each series' colour, the same for a method in every plot of a run and of `reproduce`: by
+/// the kind its name starts with (a kind in an error-vs-storage plot, a setting's label such as
+/// `bicluster-e0.03` in an animation's), from a fixed palette for the built-in kinds (Okabe and
+/// Ito's, which colour-blind readers tell apart: the paper's biclustering vermillion, CPCA
+/// blue, Haar green, the SH method purple, the uncompressed render black, raw sparse grey) and
+/// from a hash of the kind for any other (a plugin, a Python compressor), so it too keeps its
+/// colour from plot to plot. A second series of one kind in the same plot is set lighter, a
+/// third darker, and so on.
+pub fn series_colours(names: &[&str]) -> Vec<RGBAColor> {
+    let base = |name: &str| -> RGBColor {
+        let kind = name.split(['-', ' ', '(']).next().unwrap_or(name);
+        match kind {
+            "uncompressed" => RGBColor(0, 0, 0),
+            "sparse" => RGBColor(120, 120, 120),
+            "bicluster" => RGBColor(213, 94, 0),
+            "cpca" => RGBColor(0, 114, 178),
+            "haar" => RGBColor(0, 158, 115),
+            "sh" => RGBColor(204, 121, 167),
+            other => {
+                // FNV-1a: stable across runs and platforms.
+                let h =
+                    other.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x100_0000_01b3));
+                let c = Palette99::pick(h as usize % 99).to_rgba();
+                RGBColor(c.0, c.1, c.2)
+            }
+        }
+    };
+    let mut seen: BTreeMap<(u8, u8, u8), usize> = BTreeMap::new();
+    names
+        .iter()
+        .map(|name| {
+            let c = base(name);
+            let n = seen.entry((c.0, c.1, c.2)).or_default();
+            let shade = |c: u8, to: f64, t: f64| (c as f64 + (to - c as f64) * t).round() as u8;
+            // 0: as is; then lighter and darker by turns, each step further.
+            let (to, t) = match *n {
+                0 => (0.0, 0.0),
+                k if k % 2 == 1 => (255.0, 0.35 * k.div_ceil(2) as f64),
+                k => (0.0, 0.3 * (k / 2) as f64),
+            };
+            *n += 1;
+            let t = t.min(0.8);
+            RGBColor(shade(c.0, to, t), shade(c.1, to, t), shade(c.2, to, t)).to_rgba()
+        })
+        .collect()
+}
+
 /// One setting's per-frame figures on a [`frame_plot`].
 pub struct FrameCurve {
     pub name: String,
@@ -767,7 +815,8 @@ fn draw_frames<DB: DrawingBackend>(
     let (lo, hi) = ((lo / 2.0).max(ERROR_FLOOR), hi * 2.0);
     let ms: Vec<f64> = curves.iter().flat_map(|c| c.ms.iter().copied()).filter(|x| x.is_finite()).collect();
     let (_, ms_hi) = if ms.is_empty() { (0.0, 1.0) } else { span(ms) };
-    let colour = |i: usize| Palette99::pick(i).to_rgba();
+    let colours = series_colours(&curves.iter().map(|c| c.name.as_str()).collect::<Vec<_>>());
+    let colour = |i: usize| colours[i];
     let mut chart = ChartBuilder::on(&top)
         .margin(10)
         .x_label_area_size(30)
@@ -942,6 +991,21 @@ mod tests {
     #[test]
     fn log_ticks_are_one_two_five_times_a_power_of_ten_and_their_labels_never_overlap() {
         use super::{log_ticks, tick_label, TICK_LABEL_GAP};
+
+        /// A kind keeps its colour across plots (a kind's name in one, a setting's label in the
+        /// other); two series of one kind in a plot differ; an unknown kind's colour is stable.
+        #[test]
+        fn each_method_keeps_its_colour_from_plot_to_plot() {
+            let storage = super::series_colours(&["sparse", "bicluster", "cpca", "haar", "my-plugin"]);
+            let frames =
+                super::series_colours(&["uncompressed", "bicluster-b1024", "bicluster-e0.1", "haar-t6", "my-plugin"]);
+            assert_eq!(storage[1], frames[1], "bicluster");
+            assert_eq!(storage[3], frames[3], "haar");
+            assert_eq!(storage[4], frames[4], "a plugin's colour comes from its name");
+            assert_ne!(frames[1], frames[2], "a second bicluster setting is set apart");
+            let all: std::collections::HashSet<_> = storage.iter().map(|c| (c.0, c.1, c.2)).collect();
+            assert_eq!(all.len(), storage.len(), "every kind its own colour");
+        }
         // A label 8 pixels a character wide (wider than the plots' 14-pixel font draws).
         let extent = |l: &str| 8.0 * l.chars().count() as f64;
         let labels = |t: &[f64]| t.iter().map(|&v| tick_label(v)).collect::<Vec<_>>();
