@@ -988,24 +988,25 @@ mod tests {
         assert!(colour_bar(120, 20, 0.5, "x").is_err(), "too narrow for its text");
     }
 
+    /// A kind keeps its colour across plots (a kind's name in one, a setting's label in the
+    /// other); two series of one kind in a plot differ; an unknown kind's colour is stable.
+    #[test]
+    fn each_method_keeps_its_colour_from_plot_to_plot() {
+        let storage = super::series_colours(&["sparse", "bicluster", "cpca", "haar", "my-plugin"]);
+        let frames =
+            super::series_colours(&["uncompressed", "bicluster-b1024", "bicluster-e0.1", "haar-t6", "my-plugin"]);
+        assert_eq!(storage[1], frames[1], "bicluster");
+        assert_eq!(storage[3], frames[3], "haar");
+        assert_eq!(storage[4], frames[4], "a plugin's colour comes from its name");
+        assert_ne!(frames[1], frames[2], "a second bicluster setting is set apart");
+        let all: std::collections::HashSet<_> = storage.iter().map(|c| (c.0, c.1, c.2)).collect();
+        assert_eq!(all.len(), storage.len(), "every kind its own colour");
+    }
+
     #[test]
     fn log_ticks_are_one_two_five_times_a_power_of_ten_and_their_labels_never_overlap() {
         use super::{log_ticks, tick_label, TICK_LABEL_GAP};
 
-        /// A kind keeps its colour across plots (a kind's name in one, a setting's label in the
-        /// other); two series of one kind in a plot differ; an unknown kind's colour is stable.
-        #[test]
-        fn each_method_keeps_its_colour_from_plot_to_plot() {
-            let storage = super::series_colours(&["sparse", "bicluster", "cpca", "haar", "my-plugin"]);
-            let frames =
-                super::series_colours(&["uncompressed", "bicluster-b1024", "bicluster-e0.1", "haar-t6", "my-plugin"]);
-            assert_eq!(storage[1], frames[1], "bicluster");
-            assert_eq!(storage[3], frames[3], "haar");
-            assert_eq!(storage[4], frames[4], "a plugin's colour comes from its name");
-            assert_ne!(frames[1], frames[2], "a second bicluster setting is set apart");
-            let all: std::collections::HashSet<_> = storage.iter().map(|c| (c.0, c.1, c.2)).collect();
-            assert_eq!(all.len(), storage.len(), "every kind its own colour");
-        }
         // A label 8 pixels a character wide (wider than the plots' 14-pixel font draws).
         let extent = |l: &str| 8.0 * l.chars().count() as f64;
         let labels = |t: &[f64]| t.iter().map(|&v| tick_label(v)).collect::<Vec<_>>();
