@@ -521,7 +521,7 @@ mod tests {
         let tex = latex(&t);
         assert!(tex.contains("\\caption{Reproducing the paper's Table I. Ours from"), "{tex}");
         assert_eq!(tex.matches("\\begin{tabular}{ll").count(), 1);
-        let wide: Vec<Column> = (0..4).map(|i| Column::pair(&format!("S{i}"), "ours", "paper")).collect();
+        let wide: Vec<Column> = (0..4).map(|i| Column::pair(format!("S{i}"), "ours", "paper")).collect();
         t.columns = wide;
         for r in &mut t.rows {
             r.cells = (0..4).map(|_| r.cells[0].clone()).collect();
